@@ -1,0 +1,11 @@
+"""hybridtwin: hybrid twins of rotating machines (VARM reference model, HMH solver, ...)."""
+
+from .effects import Context, Effect, Parameter, Params, PolynomialBearing, Term
+from .model import LocalForce, Model, System, rpm_to_rad_s
+from .shaft import Shaft
+from .solver import SteadyState, Sweep, solve, solve_sweep
+
+__all__ = [
+    "Context", "Effect", "LocalForce", "Model", "Parameter", "Params", "PolynomialBearing", "Shaft",
+    "SteadyState", "Sweep", "System", "Term", "rpm_to_rad_s", "solve", "solve_sweep",
+]

@@ -1,0 +1,190 @@
+"""A model = the FE shaft + a composition of physical effects (shared/varm-model.md).
+
+``Model.system(params, rpm)`` assembles, for S scenarios at once, the second-order
+system that the steady-state solver works on (eq. 29)::
+
+    M q'' + C q' + K q = Re(sum_h F_h exp(i h Omega t)) + F_nl(q)
+
+in the effects' stage order: mass, stiffness at rest, first mode (omega_1,
+Phi_1 of the x plane at Omega = 0), then speed terms, damping and forcing.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .effects import Array, Context, Effect, Parameter, Params
+from .shaft import Shaft
+
+
+def rpm_to_rad_s(rpm: Array | float) -> Array:
+    """Omega = 2 pi RPM / 60."""
+    return np.asarray(rpm, dtype=float) * (2.0 * np.pi / 60.0)
+
+
+@dataclass
+class LocalForce:
+    """A nonlinear force acting at a few DOFs of the system.
+
+    ``evaluate(q, rows)`` returns the force on the structure F (S', d, N) and its
+    derivative dF/dq (S', d, d, N) at displacements q (S', d, N) of the DOFs
+    ``dofs``, for the scenarios ``rows`` of the parameter set it was built with.
+    """
+
+    name: str
+    dofs: np.ndarray
+    evaluate: Callable[[Array, np.ndarray], tuple[Array, Array]]
+    degree: int | None
+
+
+@dataclass
+class System:
+    """Second-order system of S scenarios, each with its own fundamental Omega.
+
+    M, C, K: (S, n, n), K including the speed terms; forcing: {h: (S, n) complex};
+    ``rows``: each scenario's row in the parameter set the forces were built with.
+    """
+
+    M: Array
+    C: Array
+    K: Array
+    Omega: Array
+    forcing: dict[int, Array]
+    forces: list[LocalForce] = field(default_factory=list)
+    rows: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.rows is None:
+            self.rows = np.arange(self.n_scenarios)
+
+    @property
+    def n_scenarios(self) -> int:
+        return self.Omega.shape[0]
+
+    @property
+    def n_dof(self) -> int:
+        return self.M.shape[-1]
+
+    def subset(self, sel: np.ndarray) -> "System":
+        """The same system restricted to scenarios ``sel`` (indices or mask)."""
+        return System(self.M[sel], self.C[sel], self.K[sel], self.Omega[sel],
+                      {h: f[sel] for h, f in self.forcing.items()}, self.forces, self.rows[sel])
+
+
+def _first_mode(K: Array, M: Array) -> tuple[Array, Array]:
+    """Lowest undamped natural frequency and mode shape of the pencils (K, M), batched.
+
+    Symmetric K: Cholesky reduction and eigh; otherwise the general eigenproblem
+    of M^-1 K, taking the eigenvalue of least real part.
+    """
+    if np.allclose(K, np.swapaxes(K, -1, -2), rtol=1e-12, atol=0.0):
+        L = np.linalg.cholesky(M)
+        Linv = np.linalg.inv(L)
+        A = Linv @ K @ np.swapaxes(Linv, -1, -2)
+        lam, vec = np.linalg.eigh(0.5 * (A + np.swapaxes(A, -1, -2)))
+        lam1 = lam[:, 0]
+        phi = np.swapaxes(Linv, -1, -2) @ vec[:, :, :1]
+        phi = phi[:, :, 0]
+    else:
+        lam, vec = np.linalg.eig(np.linalg.solve(M, K))
+        first = np.argmin(lam.real, axis=1)
+        rows = np.arange(K.shape[0])
+        lam1 = lam[rows, first].real
+        phi = vec[rows, :, first].real
+    if np.any(lam1 <= 0):
+        bad = np.flatnonzero(lam1 <= 0)
+        raise ValueError(
+            f"the structure at rest is not stable for scenario(s) {bad[:10].tolist()}: "
+            f"lowest eigenvalue {lam1[bad[0]]:.3g} <= 0 (check the bearing stiffnesses)"
+        )
+    return np.sqrt(lam1), phi
+
+
+class Model:
+    """The FE shaft plus a list of effects, e.g. the Geometric VARM model."""
+
+    def __init__(self, effects: Sequence[Effect], shaft: Shaft | None = None):
+        self.shaft = shaft or Shaft()
+        self.effects = list(effects)
+        names = [e.name for e in self.effects]
+        duplicates = sorted({n for n in names if names.count(n) > 1})
+        if duplicates:
+            raise ValueError(f"model: effect(s) {duplicates} listed twice")
+        self.parameters = _collect_parameters(self.effects)
+        for effect in self.effects:
+            for dof in effect.dofs:
+                self.shaft.dof(dof)  # raises on a DOF the shaft does not have
+
+    def __repr__(self) -> str:
+        return f"Model({[e.name for e in self.effects]})"
+
+    def context(self, values: Mapping[str, Array], rpm: Array | float) -> Context:
+        """Assemble the linear part stage by stage; ``values`` complete, each (S,) or scalar."""
+        missing = sorted(set(self.parameters) - set(values))
+        if missing:
+            raise ValueError(f"model: no value for parameter(s) {missing}")
+        Omega = np.atleast_1d(rpm_to_rad_s(rpm))
+        S = max([Omega.shape[0]] + [np.size(v) for v in values.values()])
+        Omega = np.broadcast_to(Omega, (S,)).astype(float)
+        p = Params({k: np.broadcast_to(np.asarray(v, dtype=float), (S,)) for k, v in values.items()})
+        ctx = Context(shaft=self.shaft, p=p, Omega=Omega)
+        K0, M0 = self.shaft.matrices()
+        ctx.M = M0 + self._sum("mass", ctx)
+        ctx.K_support = self._sum("stiffness", ctx)
+        ctx.K = K0 + ctx.K_support
+        plane = slice(0, self.shaft.n_plane)
+        ctx.omega_1, phi = _first_mode(ctx.K[:, plane, plane], ctx.M[:, plane, plane])
+        phi = phi[:, 0::2]  # translational entries, node 0..n
+        peak = phi[np.arange(S), np.argmax(np.abs(phi), axis=1)]
+        ctx.Phi_1 = phi / peak[:, None]
+        return ctx
+
+    def system(self, values: Mapping[str, Array], rpm: Array | float) -> System:
+        """The system for S scenarios at speed(s) ``rpm`` (eq. 29), ready for the solver."""
+        ctx = self.context(values, rpm)
+        K = ctx.K + self._sum("speed_stiffness", ctx)
+        C = self._sum("damping", ctx)
+        forcing: dict[int, Array] = {}
+        for effect in self.effects:
+            for h, f in effect.forcing(ctx).items():
+                forcing[h] = forcing.get(h, 0) + np.broadcast_to(f, (ctx.n_scenarios, self.shaft.n_dof))
+
+        def bind(effect: Effect) -> Callable[[Array, np.ndarray], tuple[Array, Array]]:
+            return lambda q, rows: effect.force(q, Params({k: v[rows] for k, v in ctx.p.items()}))
+
+        forces = [
+            LocalForce(e.name, np.array([self.shaft.dof(d) for d in e.dofs]), bind(e), e.degree)
+            for e in self.effects if e.is_nonlinear
+        ]
+        M = np.broadcast_to(ctx.M, K.shape).copy()
+        C = np.broadcast_to(C, K.shape).copy()
+        return System(M, C, K, ctx.Omega, forcing, forces)
+
+    def _sum(self, hook: str, ctx: Context) -> Array:
+        n = self.shaft.n_dof
+        total = np.zeros((ctx.n_scenarios, n, n))
+        for effect in self.effects:
+            term = getattr(effect, hook)(ctx)
+            if term is not None:
+                total = total + term
+        return total
+
+
+def _collect_parameters(effects: Sequence[Effect]) -> dict[str, Parameter]:
+    """All parameters by name; effects may share one (e.g. k_b) if they agree on it."""
+    out: dict[str, Parameter] = {}
+    owner: dict[str, str] = {}
+    for effect in effects:
+        for par in effect.parameters:
+            if par.name in out and (out[par.name].unit, out[par.name].nominal) != (par.unit, par.nominal):
+                raise ValueError(
+                    f"parameter {par.name!r} is declared differently by effects {owner[par.name]!r} "
+                    f"({out[par.name].unit}, nominal {out[par.name].nominal}) and {effect.name!r} "
+                    f"({par.unit}, nominal {par.nominal})"
+                )
+            out.setdefault(par.name, par)
+            owner.setdefault(par.name, effect.name)
+    return out

@@ -1,0 +1,130 @@
+"""Euler-Bernoulli finite-element shaft of the VARM (shared/varm-model.md, "Geometry").
+
+Degrees of freedom (44 for n = 10 elements). Per node i, per bending plane, a
+deflection and a slope (theta = dw/dz). Global ordering::
+
+    x plane: u_i  -> 2 i,          du_i (= du/dz) -> 2 i + 1
+    y plane: v_i  -> 2 (n+1) + 2 i, dv_i (= dv/dz) -> 2 (n+1) + 2 i + 1
+
+so the x plane is the first block of 2 (n+1) DOFs and the y plane the second.
+DOF names used across the package: ``u3``, ``v3``, ``du3``, ``dv3`` (node 3).
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+_DOF_NAME = re.compile(r"^(u|v|du|dv)(\d+)$")
+
+
+@dataclass(frozen=True)
+class Shaft:
+    """Uniform Euler-Bernoulli shaft, z pointing down from the upper bearing (z = 0).
+
+    Defaults are the paper's Table 1 (SI units). ``I`` uses Table 1's value,
+    ten times pi r^4 / 4 (see varm-model.md, note 1).
+    """
+
+    L: float = 0.850  # shaft length [m]
+    n: int = 10  # number of beam elements
+    E: float = 110.3e9  # Young's modulus [Pa]
+    I: float = 79.81e-11  # area moment of inertia [m^4]
+    m: float = 0.35  # mass per unit length [kg/m]
+
+    def __post_init__(self) -> None:
+        for name in ("L", "E", "I", "m"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"shaft: {name} must be positive, got {getattr(self, name)!r}")
+        if int(self.n) != self.n or self.n < 1:
+            raise ValueError(f"shaft: n must be a positive integer, got {self.n!r}")
+
+    @property
+    def h(self) -> float:
+        """Element length L / n [m]."""
+        return self.L / self.n
+
+    @property
+    def n_nodes(self) -> int:
+        return self.n + 1
+
+    @property
+    def n_plane(self) -> int:
+        """DOFs per bending plane, 2 (n + 1)."""
+        return 2 * self.n_nodes
+
+    @property
+    def n_dof(self) -> int:
+        """All DOFs, 4 (n + 1) (44 for n = 10)."""
+        return 2 * self.n_plane
+
+    @property
+    def z(self) -> np.ndarray:
+        """Node positions z_i = i h [m]."""
+        return np.arange(self.n_nodes) * self.h
+
+    def node_at(self, z: float) -> int:
+        """Index of the node nearest to axial position ``z`` [m]."""
+        if not 0.0 <= z <= self.L:
+            raise ValueError(f"shaft: position z = {z} m lies outside the shaft [0, {self.L}] m")
+        return int(np.rint(z / self.h))
+
+    def dof(self, name: str) -> int:
+        """Global index of a named DOF, e.g. ``dof("u0")`` or ``dof("dv10")``."""
+        match = _DOF_NAME.match(name)
+        if match is None:
+            raise ValueError(f"unknown DOF name {name!r}: expected u<i>, v<i>, du<i> or dv<i>")
+        kind, node = match.group(1), int(match.group(2))
+        if node >= self.n_nodes:
+            raise ValueError(f"DOF {name!r}: node {node} does not exist (nodes 0..{self.n})")
+        plane = 0 if kind in ("u", "du") else self.n_plane
+        return plane + 2 * node + (1 if kind.startswith("d") else 0)
+
+    def translational(self, plane: str = "x") -> np.ndarray:
+        """Global indices of the deflection DOFs of one plane, node 0..n."""
+        offset = 0 if plane == "x" else self.n_plane
+        return offset + 2 * np.arange(self.n_nodes)
+
+    def element_matrices(self) -> tuple[np.ndarray, np.ndarray]:
+        """Element stiffness and consistent mass matrices, DOFs [w1, theta1, w2, theta2].
+
+        K_e = EI/h^3 [...] and M_e = m h / 420 [...] (cubic Hermite shape functions,
+        varm-model.md "Element matrices").
+        """
+        h, EI, m = self.h, self.E * self.I, self.m
+        K_e = EI / h**3 * np.array(
+            [
+                [12, 6 * h, -12, 6 * h],
+                [6 * h, 4 * h * h, -6 * h, 2 * h * h],
+                [-12, -6 * h, 12, -6 * h],
+                [6 * h, 2 * h * h, -6 * h, 4 * h * h],
+            ]
+        )
+        M_e = m * h / 420 * np.array(
+            [
+                [156, 22 * h, 54, -13 * h],
+                [22 * h, 4 * h * h, 13 * h, -3 * h * h],
+                [54, 13 * h, 156, -22 * h],
+                [-13 * h, -3 * h * h, -22 * h, 4 * h * h],
+            ]
+        )
+        return K_e, M_e
+
+    def plane_matrices(self) -> tuple[np.ndarray, np.ndarray]:
+        """Assembled stiffness and mass of one bending plane (2(n+1) square), free ends."""
+        K_e, M_e = self.element_matrices()
+        K = np.zeros((self.n_plane, self.n_plane))
+        M = np.zeros_like(K)
+        for e in range(self.n):
+            s = slice(2 * e, 2 * e + 4)
+            K[s, s] += K_e
+            M[s, s] += M_e
+        return K, M
+
+    def matrices(self) -> tuple[np.ndarray, np.ndarray]:
+        """Stiffness and mass of both planes (uncoupled blocks), n_dof square."""
+        K_p, M_p = self.plane_matrices()
+        zero = np.zeros_like(K_p)
+        return np.block([[K_p, zero], [zero, K_p]]), np.block([[M_p, zero], [zero, M_p]])

@@ -1,0 +1,430 @@
+"""Periodic steady state by harmonic balance with alternating frequency-time (HMH).
+
+For a ``System`` M q'' + C q' + K q = Re(sum_h F_h e^{i h Omega t}) + F_nl(q)
+the response is sought as q(t) = Re(sum_{h=0..H} Q_h e^{i h Omega t}).
+
+1. Exact condensation. Per harmonic the dynamic stiffness
+   D_h = K + i h Omega C - (h Omega)^2 M is solved once for the forcing and
+   for unit loads on the c DOFs that the nonlinear forces touch:
+   Q_h = D_h^-1 F_h + D_h^-1 B G_h = A_h + R_h G_h. On those DOFs this leaves
+   x_h = a_h + H_h G_h(x), with H_h = B^T R_h the receptance (c x c).
+2. AFT. G_h(x) is the Fourier series of F_nl(x(t)) at N >= (d+1) H + 1 time
+   samples (d the polynomial degree: 4H + 1 for cubic terms, alias-free),
+   and its exact derivative dG/dx = E^+ diag(dF/dx) E.
+3. Newton on r(x) = x - a - H G(x) = 0 with backtracking, batched over
+   scenarios with a per-scenario convergence mask; or the paper's fixed-point
+   iteration x <- (1 - beta) x + beta (a + H G(x)), falling back to Newton.
+
+Amplitudes are 0-peak; t = 0 when the unbalance points to +x.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from .effects import Array
+from .model import System
+
+CONVERGED, MAX_ITER, SINGULAR, DIVERGED, LINEAR_SINGULAR = 0, 1, 2, 3, 4
+
+# amplitude growth (vs the linear response) taken as "no bounded periodic solution found"
+_DIVERGENCE_FACTOR = 1e3
+
+
+@dataclass
+class SteadyState:
+    """Periodic steady states of S scenarios (result object, like scipy's OptimizeResult).
+
+    harmonics: (S, H+1, n) complex Q_h with q(t) = Re(sum_h Q_h exp(i h Omega t));
+    NaN for scenarios that failed. ``message`` says why, ``branch`` how the
+    solution was reached ("direct": from the linear response; "run-up" /
+    "run-down": continued from the previous speed of a sweep).
+    """
+
+    harmonics: Array
+    Omega: Array
+    success: Array
+    status: Array
+    message: Array
+    iterations: Array
+    residual: Array
+    branch: Array
+    state: Array  # (S, c, 2H+1) condensed real Fourier coefficients, for continuation
+    n_time: int
+
+    @property
+    def n_scenarios(self) -> int:
+        return self.Omega.shape[0]
+
+    @property
+    def H(self) -> int:
+        return self.harmonics.shape[1] - 1
+
+    def time_series(self, t: Array, dofs: Sequence[int] | None = None) -> Array:
+        """q(t) at times ``t`` [s] (S, len(t), d) by evaluating the Fourier series."""
+        X = self.harmonics if dofs is None else self.harmonics[:, :, list(dofs)]
+        h = np.arange(self.H + 1)
+        phase = np.exp(1j * h[None, None, :] * self.Omega[:, None, None] * np.asarray(t)[None, :, None])
+        return np.einsum("sth,shd->std", phase, X, optimize=True).real
+
+    def failures(self) -> dict[int, str]:
+        """Failed scenarios and why."""
+        return {int(i): str(self.message[i]) for i in np.flatnonzero(~self.success)}
+
+    @staticmethod
+    def concatenate(parts: Sequence["SteadyState"], order: Array | None = None) -> "SteadyState":
+        """Stack results of disjoint scenario sets; ``order`` permutes the result."""
+        fields = ("harmonics", "Omega", "success", "status", "message", "iterations", "residual", "branch", "state")
+        stacked = {f: np.concatenate([getattr(p, f) for p in parts]) for f in fields}
+        if order is not None:
+            stacked = {f: v[order] for f, v in stacked.items()}
+        return SteadyState(**stacked, n_time=parts[0].n_time)
+
+
+def fourier_matrices(H: int, N: int) -> tuple[Array, Array]:
+    """Inverse E (N, 2H+1) and forward E+ (2H+1, N) real DFT, E+ E = I for N >= 2H+1.
+
+    Coefficients [c_0, c_1, s_1, ..., c_H, s_H] stand for Q_h = c_h + i s_h, so
+    x(tau_n) = c_0 + sum_h (c_h cos h tau_n - s_h sin h tau_n), tau_n = 2 pi n / N.
+    """
+    if N < 2 * H + 1:
+        raise ValueError(f"n_time = {N} is too few samples for H = {H} (need >= {2 * H + 1})")
+    tau = 2.0 * np.pi * np.arange(N) / N
+    E = np.ones((N, 2 * H + 1))
+    E_plus = np.full((2 * H + 1, N), 1.0 / N)
+    for h in range(1, H + 1):
+        E[:, 2 * h - 1], E[:, 2 * h] = np.cos(h * tau), -np.sin(h * tau)
+        E_plus[2 * h - 1], E_plus[2 * h] = 2.0 / N * np.cos(h * tau), -2.0 / N * np.sin(h * tau)
+    return E, E_plus
+
+
+def default_n_time(H: int, forces: Sequence) -> int:
+    """Alias-free AFT sample count (d+1) H + 1 for degree-d polynomial forces; 64 if not polynomial."""
+    degrees = [f.degree for f in forces]
+    if any(d is None for d in degrees):
+        return max(64, 4 * H + 1)
+    return (max(degrees, default=1) + 1) * H + 1
+
+
+class _Condensed:
+    """The harmonic-balance problem on the c nonlinear DOFs: x = a + H G(x) in real form."""
+
+    def __init__(self, system: System, H: int, n_time: int | None):
+        self.system, self.H = system, H
+        self.dofs = np.unique(np.concatenate([f.dofs for f in system.forces])) if system.forces else np.array([], int)
+        self.local = [np.searchsorted(self.dofs, f.dofs) for f in system.forces]
+        self.N = n_time or default_n_time(H, system.forces)
+        self.E, self.E_plus = fourier_matrices(H, self.N)
+        self.linear_ok = np.ones(system.n_scenarios, bool)
+        self.X_lin, self.R = self._linear_solves()
+        c, K2 = len(self.dofs), 2 * H + 1
+        self.a = _to_real(self.X_lin[:, :, self.dofs])  # (S, c, 2H+1)
+        self.Hreal = _receptance_real(self.R[:, :, self.dofs, :]).reshape(-1, c * K2, c * K2)
+
+    def _linear_solves(self) -> tuple[Array, Array]:
+        """Q_lin,h = D_h^-1 F_h and R_h = D_h^-1 B for h = 0..H."""
+        s = self.system
+        S, n, c = s.n_scenarios, s.n_dof, len(self.dofs)
+        unknown = sorted(h for h in s.forcing if h > self.H or h < 0)
+        if unknown:
+            raise ValueError(f"the forcing has harmonic(s) {unknown} outside 0..H = {self.H}: raise H")
+        B = np.zeros((n, c))
+        B[self.dofs, np.arange(c)] = 1.0
+        X_lin = np.zeros((S, self.H + 1, n), complex)
+        R = np.zeros((S, self.H + 1, n, c), complex)
+        for h in range(self.H + 1):
+            w = h * s.Omega[:, None, None]
+            D = s.K + 1j * w * s.C - w * w * s.M
+            rhs = np.concatenate(
+                [s.forcing.get(h, np.zeros((S, n)))[:, :, None].astype(complex), np.broadcast_to(B, (S, n, c))], axis=2
+            )
+            sol = _batched_solve(D, rhs, self.linear_ok)
+            X_lin[:, h], R[:, h] = sol[:, :, 0], sol[:, :, 1:]
+        return X_lin, R
+
+    def _force_series(self, x: Array, idx: Array, jacobian: bool) -> tuple[Array, Array | None]:
+        """Nonlinear forces (S', c, N) and their derivatives (S', c, c, N) at x's time samples."""
+        c, N = len(self.dofs), self.N
+        xt = np.einsum("sik,nk->sin", x, self.E, optimize=True)
+        F = np.zeros((len(idx), c, N))
+        J = np.zeros((len(idx), c, c, N)) if jacobian else None
+        rows = self.system.rows[idx]
+        for force, loc in zip(self.system.forces, self.local):
+            f, j = force.evaluate(xt[:, loc], rows)
+            F[:, loc] += f
+            if jacobian:
+                J[:, loc[:, None], loc[None, :]] += j
+        return F, J
+
+    def evaluate(self, x: Array, idx: Array, jacobian: bool = True) -> tuple[Array, Array | None]:
+        """Residual r = x - a - H G(x) (S', c, 2H+1) and, optionally, dr/dx (S', m, m)."""
+        F, J = self._force_series(x, idx, jacobian)
+        g = np.einsum("sin,kn->sik", F, self.E_plus, optimize=True).reshape(len(idx), -1)
+        Hr = self.Hreal[idx]
+        r = x - self.a[idx] - (Hr @ g[:, :, None]).reshape(x.shape)
+        if not jacobian:
+            return r, None
+        m = g.shape[1]
+        dG = np.einsum("kn,sijn,nl->sikjl", self.E_plus, J, self.E, optimize=True).reshape(len(idx), m, m)
+        return r, np.eye(m) - Hr @ dG
+
+    def full_harmonics(self, x: Array, idx: Array) -> Array:
+        """Q_h on all DOFs (S', H+1, n): Q_h = Q_lin,h + R_h G_h(x)."""
+        if len(self.dofs) == 0:
+            return self.X_lin[idx]
+        F, _ = self._force_series(x, idx, jacobian=False)
+        G = _to_complex(np.einsum("sin,kn->sik", F, self.E_plus, optimize=True))  # (S', c, H+1)
+        return self.X_lin[idx] + np.einsum("shnc,sch->shn", self.R[idx], G, optimize=True)
+
+
+def _to_real(X: Array) -> Array:
+    """(S, H+1, c) complex -> (S, c, 2H+1) real [Re Q_0, Re Q_1, Im Q_1, ...]."""
+    S, H1, c = X.shape
+    out = np.empty((S, c, 2 * H1 - 1))
+    out[:, :, 0] = X[:, 0].real
+    out[:, :, 1::2] = np.moveaxis(X[:, 1:].real, 1, 2)
+    out[:, :, 2::2] = np.moveaxis(X[:, 1:].imag, 1, 2)
+    return out
+
+
+def _to_complex(x: Array) -> Array:
+    """(S, c, 2H+1) real -> (S, c, H+1) complex."""
+    out = np.empty(x.shape[:2] + ((x.shape[2] + 1) // 2,), complex)
+    out[:, :, 0] = x[:, :, 0]
+    out[:, :, 1:] = x[:, :, 1::2] + 1j * x[:, :, 2::2]
+    return out
+
+
+def _receptance_real(Hc: Array) -> Array:
+    """Block form of x_h = H_h G_h in real coefficients, (S, c, 2H+1, c, 2H+1)."""
+    S, H1, c, _ = Hc.shape
+    K2 = 2 * H1 - 1
+    out = np.zeros((S, c, K2, c, K2))
+    out[:, :, 0, :, 0] = Hc[:, 0].real
+    for h in range(1, H1):
+        A, B = Hc[:, h].real, Hc[:, h].imag
+        cos, sin = 2 * h - 1, 2 * h
+        out[:, :, cos, :, cos], out[:, :, cos, :, sin] = A, -B
+        out[:, :, sin, :, cos], out[:, :, sin, :, sin] = B, A
+    return out
+
+
+def _batched_solve(A: Array, b: Array, ok: Array) -> Array:
+    """np.linalg.solve over a batch; singular members get NaN and ok[i] = False."""
+    try:
+        return np.linalg.solve(A, b)
+    except np.linalg.LinAlgError:
+        out = np.full(b.shape, np.nan, dtype=np.result_type(A, b))
+        for i in range(A.shape[0]):
+            try:
+                out[i] = np.linalg.solve(A[i], b[i])
+            except np.linalg.LinAlgError:
+                ok[i] = False
+        return out
+
+
+def _norm(x: Array) -> Array:
+    flat = x.reshape(x.shape[0], -1)
+    return np.sqrt(np.einsum("si,si->s", flat, flat))
+
+
+def solve(
+    system: System,
+    harmonics: int = 5,
+    *,
+    method: str = "newton",
+    initial: Array | None = None,
+    n_time: int | None = None,
+    tol: float = 1e-10,
+    max_iter: int = 50,
+    relaxation: float = 0.5,
+    fixed_point_iter: int = 300,
+    branch: str = "direct",
+) -> SteadyState:
+    """Periodic steady state of every scenario of ``system`` (harmonics 0..H).
+
+    method: "newton" (default) or "fixed-point" (the paper's HMH iteration with
+    relaxation ``relaxation``; scenarios it does not converge fall back to Newton).
+    initial: condensed start (S, c, 2H+1), e.g. a previous speed's ``state``;
+    default the linear response. tol: ||r|| <= tol ||x|| per scenario.
+    """
+    if method not in ("newton", "fixed-point"):
+        raise ValueError(f"method must be 'newton' or 'fixed-point', got {method!r}")
+    if harmonics < 1:
+        raise ValueError(f"harmonics must be >= 1, got {harmonics}")
+    prob = _Condensed(system, harmonics, n_time)
+    S = system.n_scenarios
+    x = prob.a.copy() if initial is None else np.array(initial, dtype=float)
+    if x.shape != prob.a.shape:
+        raise ValueError(f"initial state has shape {x.shape}, expected {prob.a.shape}")
+    status = np.full(S, MAX_ITER)
+    status[~prob.linear_ok] = LINEAR_SINGULAR
+    iterations = np.zeros(S, int)
+    residual = np.full(S, np.nan)
+    notes = np.full(S, "", dtype=object)
+    if len(prob.dofs) == 0:
+        status[prob.linear_ok] = CONVERGED
+        residual[prob.linear_ok] = 0.0
+    else:
+        open_ = np.flatnonzero(status == MAX_ITER)
+        if method == "fixed-point":
+            _fixed_point(prob, x, open_, status, iterations, residual, relaxation, fixed_point_iter, tol)
+            fallback = np.flatnonzero(status == MAX_ITER)
+            notes[fallback] = " after fixed-point fallback to Newton"
+            x[fallback] = np.where(np.isfinite(x[fallback]), x[fallback], prob.a[fallback])
+        _newton(prob, x, np.flatnonzero(status == MAX_ITER), status, iterations, residual, tol, max_iter)
+    success = status == CONVERGED
+    Q = np.full((S, harmonics + 1, system.n_dof), np.nan + 0j)
+    if success.any():
+        Q[success] = prob.full_harmonics(x[success], np.flatnonzero(success))
+    x[~success] = np.nan
+    messages = np.array([_message(s, it, r) + n for s, it, r, n in zip(status, iterations, residual, notes)],
+                        dtype=object)
+    return SteadyState(
+        harmonics=Q, Omega=system.Omega.copy(), success=success, status=status, message=messages,
+        iterations=iterations, residual=residual, branch=np.full(S, branch, dtype=object), state=x, n_time=prob.N,
+    )
+
+
+def _message(status: int, iterations: int, residual: float) -> str:
+    if status == CONVERGED:
+        return f"converged in {iterations} iterations (residual {residual:.1e})"
+    if status == MAX_ITER:
+        return f"no convergence in {iterations} iterations (residual {residual:.1e}): no periodic solution found"
+    if status == SINGULAR:
+        return f"singular Jacobian after {iterations} iterations (turning point or bifurcation)"
+    if status == DIVERGED:
+        return (f"diverged after {iterations} iterations (amplitude > {_DIVERGENCE_FACTOR:g} x the linear "
+                "response or not finite): no bounded periodic solution found")
+    return "singular dynamic stiffness (undamped resonance of the linear part)"
+
+
+def _fixed_point(prob, x, idx, status, iterations, residual, beta, max_iter, tol) -> None:
+    """The paper's HMH fixed-point iteration x <- (1-beta) x + beta (a + H G(x))."""
+    for _ in range(max_iter):
+        if idx.size == 0:
+            return
+        r, _ = prob.evaluate(x[idx], idx, jacobian=False)
+        nr, nx = _norm(r), _norm(x[idx])
+        residual[idx] = nr / np.maximum(nx, 1e-300)
+        done = nr <= tol * nx
+        status[idx[done]] = CONVERGED
+        bad = ~np.isfinite(nr) | (nx > _DIVERGENCE_FACTOR * np.maximum(_norm(prob.a[idx]), 1e-300))
+        idx_left = idx[~done & ~bad]
+        x[idx_left] -= beta * r[~done & ~bad]
+        iterations[idx_left] += 1
+        # diverging scenarios are handed to Newton from the linear start
+        x[idx[bad & ~done]] = prob.a[idx[bad & ~done]]
+        idx = idx_left
+
+
+def _newton(prob, x, idx, status, iterations, residual, tol, max_iter) -> None:
+    """Damped Newton on r(x) = 0, batched; updates x, status, iterations, residual in place."""
+    if idx.size == 0:
+        return
+    r, Jr = prob.evaluate(x[idx], idx)
+    a_norm = np.maximum(_norm(prob.a), 1e-300)
+    for _ in range(max_iter + 1):
+        nr, nx = _norm(r), _norm(x[idx])
+        residual[idx] = nr / np.maximum(nx, 1e-300)
+        done = nr <= tol * nx
+        done |= (nr == 0.0)
+        bad = ~np.isfinite(nr) | (nx > _DIVERGENCE_FACTOR * a_norm[idx])
+        status[idx[done]] = CONVERGED
+        status[idx[bad & ~done]] = DIVERGED
+        keep = ~done & ~bad & (iterations[idx] < max_iter)
+        idx, r, Jr, nr = idx[keep], r[keep], Jr[keep], nr[keep]
+        if idx.size == 0:
+            return
+        ok = np.ones(idx.size, bool)
+        step = _batched_solve(Jr, -r.reshape(idx.size, -1, 1), ok).reshape(r.shape)
+        status[idx[~ok]] = SINGULAR
+        idx, r, nr, step = idx[ok], r[ok], nr[ok], step[ok]
+        iterations[idx] += 1
+        # backtracking: halve the step of the scenarios whose residual did not decrease
+        alpha = np.ones(idx.size)
+        trial_r, trial_J = prob.evaluate(x[idx] + step, idx)
+        for _ in range(12):
+            worse = ~(_norm(trial_r) < nr)
+            if not worse.any():
+                break
+            alpha[worse] *= 0.5
+            sub = np.flatnonzero(worse)
+            tr, tJ = prob.evaluate(x[idx[sub]] + alpha[sub, None, None] * step[sub], idx[sub])
+            trial_r[sub], trial_J[sub] = tr, tJ
+        x[idx] += alpha[:, None, None] * step
+        r, Jr = trial_r, trial_J
+
+
+@dataclass
+class Sweep:
+    """Steady states along a speed sweep, in sweep order."""
+
+    rpm: Array
+    results: list[SteadyState]
+    direction: str
+
+
+def solve_sweep(
+    build: Callable[[float, Array], System],
+    rpm: Sequence[float],
+    n_scenarios: int,
+    *,
+    direction: str = "up",
+    max_refine: int = 4,
+    **options,
+) -> Sweep:
+    """Solve a speed sweep by continuation (run-up or run-down) for S scenarios.
+
+    build(rpm, rows) -> System of scenarios ``rows`` at speed ``rpm``. Each speed
+    starts from the previous speed's solution of the same scenario; a scenario
+    that fails to continue is retried with the speed step halved up to
+    ``max_refine`` times (the branch may end at a fold: it is then reported
+    failed with the reason, never jumped silently).
+    """
+    if direction not in ("up", "down"):
+        raise ValueError(f"direction must be 'up' or 'down', got {direction!r}")
+    speeds = np.sort(np.asarray(rpm, dtype=float))
+    if direction == "down":
+        speeds = speeds[::-1]
+    label = "run-up" if direction == "up" else "run-down"
+    all_rows = np.arange(n_scenarios)
+    results: list[SteadyState] = []
+    previous: SteadyState | None = None
+    previous_rpm = np.nan
+    for speed in speeds:
+        if previous is None:
+            res = solve(build(speed, all_rows), **options)
+        else:
+            cont = previous.success
+            parts, order = [], []
+            if cont.any():
+                parts.append(_continue(build, previous_rpm, speed, previous.state[cont], all_rows[cont],
+                                       max_refine, label, options))
+                order.append(all_rows[cont])
+            if (~cont).any():
+                parts.append(solve(build(speed, all_rows[~cont]), **options))
+                order.append(all_rows[~cont])
+            res = SteadyState.concatenate(parts, np.argsort(np.concatenate(order)))
+        results.append(res)
+        previous, previous_rpm = res, speed
+    return Sweep(speeds, results, direction)
+
+
+def _continue(build, rpm_from, rpm_to, x0, rows, depth, label, options) -> SteadyState:
+    res = solve(build(rpm_to, rows), initial=x0, branch=label, **options)
+    failed = ~res.success
+    if depth == 0 or not failed.any():
+        return res
+    mid = 0.5 * (rpm_from + rpm_to)
+    half = _continue(build, rpm_from, mid, x0[failed], rows[failed], depth - 1, label, options)
+    ok = half.success
+    if ok.any():
+        again = _continue(build, mid, rpm_to, half.state[ok], rows[failed][ok], depth - 1, label, options)
+        sub = np.flatnonzero(failed)[ok]
+        for f in ("harmonics", "success", "status", "message", "iterations", "residual", "state"):
+            getattr(res, f)[sub] = getattr(again, f)
+    return res

@@ -1,0 +1,169 @@
+"""Model variants: the shaft + a list of effects + which parameters are unknown.
+
+A variant is declared as plain data (the workflow's config/config.yaml uses the
+same form)::
+
+    geometric:
+      description: Geometric upper bearing model (paper section 4.1)
+      effects: [centrifugal_softening, structural_damping, upper_housing,
+                lower_bearing, unbalance, shaft_bow, geometric_spring]
+      unknown: {k_b: [2000, 3500], zeta_s: [0.01, 0.05], ...}   # ranges, SI units
+      fixed: {l_i: 0.0508}                                      # overrides of nominal values
+
+Effect names refer to the package's built-in effects or to effects defined in
+a user's Python file (``load_effects_file``): any module-level ``Effect``
+instance there is usable by its ``name``.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .effects import Array, Effect, builtin_effects
+from .model import Model, System
+from .shaft import Shaft
+from .solver import SteadyState, solve
+
+BASE = ["centrifugal_softening", "structural_damping", "upper_housing", "lower_bearing", "unbalance", "shaft_bow"]
+BOW = {"q_x": (0.001, 0.01), "q_y": (0.001, 0.01)}
+
+BUILTIN_VARIANTS: dict[str, dict] = {
+    "geometric": {
+        "description": "Geometric upper bearing model, four springs (eq. 22; paper section 4.1)",
+        "effects": BASE + ["geometric_spring"],
+        "unknown": {"k_b": (2000.0, 3500.0), "zeta_s": (0.01, 0.05), "zeta_bup": (0.0, 0.05), **BOW},
+        "fixed": {},
+    },
+    "expansion": {
+        "description": "Expansion model of the upper bearing force, seven terms (eq. 23-24; paper section 4.2)",
+        "effects": BASE + [f"expansion_k{i}" for i in range(1, 8)],
+        "unknown": {
+            "k1": (0.0, 3500.0), "k2": (-1000.0, 1000.0), "k3": (0.0, 7000.0), "k4": (-1000.0, 1000.0),
+            "k5": (-1000.0, 1000.0), "k6": (-1000.0, 1000.0), "k7": (-14000.0, 14000.0), **BOW,
+        },
+        "fixed": {"zeta_s": 0.0271, "zeta_bup": 0.0215},
+    },
+    "final": {
+        "description": "Final model: cubic spring plus slope force at the upper bearing (eq. 38-39; section 4.3)",
+        "effects": BASE + ["radial_spring", "slope_spring"],
+        "unknown": {
+            "k_b": (2000.0, 3500.0), "k_w": (0.0, 1000.0), "k_z": (0.0, 1000.0),
+            "zeta_s": (0.01, 0.05), "zeta_bup": (0.0, 0.05), **BOW,
+        },
+        "fixed": {},
+    },
+}
+
+
+@dataclass
+class Variant:
+    """A named model with its unknown parameters (ranges) and fixed values."""
+
+    name: str
+    model: Model
+    unknown: dict[str, tuple[float, float]] = field(default_factory=dict)
+    fixed: dict[str, float] = field(default_factory=dict)
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        known = self.model.parameters
+        for kind, names in (("unknown", self.unknown), ("fixed", self.fixed)):
+            stray = sorted(set(names) - set(known))
+            if stray:
+                raise ValueError(
+                    f"variant {self.name!r}: {kind} parameter(s) {stray} belong to none of its effects "
+                    f"(parameters: {sorted(known)})"
+                )
+        both = sorted(set(self.unknown) & set(self.fixed))
+        if both:
+            raise ValueError(f"variant {self.name!r}: parameter(s) {both} are both unknown and fixed")
+        for name, (lo, hi) in self.unknown.items():
+            if not lo < hi:
+                raise ValueError(f"variant {self.name!r}: range of {name} [{lo}, {hi}] is empty")
+
+    @classmethod
+    def from_spec(cls, name: str, spec: Mapping, effects: Mapping[str, Effect] | None = None,
+                  shaft: Shaft | None = None) -> "Variant":
+        """Build from the config form (see module docstring); ``effects`` adds user effects."""
+        registry = builtin_effects() | dict(effects or {})
+        unknown_keys = sorted(set(spec) - {"description", "effects", "unknown", "fixed"})
+        if unknown_keys:
+            raise ValueError(f"variant {name!r}: unknown key(s) {unknown_keys} "
+                             "(expected description, effects, unknown, fixed)")
+        chosen = []
+        for effect_name in spec.get("effects", []):
+            if effect_name not in registry:
+                raise ValueError(f"variant {name!r}: no effect named {effect_name!r} "
+                                 f"(available: {sorted(registry)})")
+            chosen.append(registry[effect_name])
+        unknown = {}
+        for par, bounds in dict(spec.get("unknown", {})).items():
+            if len(bounds) != 2:
+                raise ValueError(f"variant {name!r}: range of {par} must be [low, high], got {bounds!r}")
+            unknown[par] = (float(bounds[0]), float(bounds[1]))
+        fixed = {k: float(v) for k, v in dict(spec.get("fixed", {})).items()}
+        return cls(name, Model(chosen, shaft), unknown, fixed, spec.get("description", ""))
+
+    @property
+    def unknown_names(self) -> list[str]:
+        return list(self.unknown)
+
+    def values(self, overrides: Mapping[str, float | Array] | None = None) -> dict[str, Array]:
+        """All parameter values: nominal, then the variant's fixed values, then ``overrides``."""
+        overrides = dict(overrides or {})
+        stray = sorted(set(overrides) - set(self.model.parameters))
+        if stray:
+            raise ValueError(f"variant {self.name!r} has no parameter(s) {stray} "
+                             f"(parameters: {sorted(self.model.parameters)})")
+        out = {k: np.asarray(p.nominal, dtype=float) for k, p in self.model.parameters.items()}
+        out.update({k: np.asarray(v, dtype=float) for k, v in self.fixed.items()})
+        out.update({k: np.asarray(v, dtype=float) for k, v in overrides.items()})
+        return out
+
+    def system(self, rpm: Array | float, overrides: Mapping[str, float | Array] | None = None) -> System:
+        return self.model.system(self.values(overrides), rpm)
+
+    def solve(self, rpm: Array | float, overrides: Mapping[str, float | Array] | None = None,
+              harmonics: int = 5, **options) -> SteadyState:
+        """Steady state at ``rpm`` for the given parameter values (scalars or (S,) arrays)."""
+        return solve(self.system(rpm, overrides), harmonics, **options)
+
+    def describe(self) -> str:
+        lines = [f"variant {self.name}: {self.description}", "effects:"]
+        lines += ["  " + e.describe().replace("\n", "\n  ") for e in self.model.effects]
+        lines.append("unknown: " + ", ".join(f"{k} in [{lo:g}, {hi:g}]" for k, (lo, hi) in self.unknown.items()))
+        if self.fixed:
+            lines.append("fixed: " + ", ".join(f"{k} = {v:g}" for k, v in self.fixed.items()))
+        return "\n".join(lines)
+
+
+def builtin_variant(name: str, shaft: Shaft | None = None) -> Variant:
+    """One of the paper's variants: "geometric", "expansion" or "final"."""
+    if name not in BUILTIN_VARIANTS:
+        raise ValueError(f"no built-in variant {name!r} (available: {sorted(BUILTIN_VARIANTS)})")
+    return Variant.from_spec(name, BUILTIN_VARIANTS[name], shaft=shaft)
+
+
+def load_effects_file(path: str | Path) -> dict[str, Effect]:
+    """Effects defined in a user's Python file: every module-level Effect instance, by name."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"effects file {path} does not exist")
+    spec = importlib.util.spec_from_file_location(f"hybridtwin_user_effects_{path.stem}", path)
+    module = importlib.util.module_from_spec(spec)
+    try:
+        spec.loader.exec_module(module)
+    except Exception as err:  # the user's code: say which file failed
+        raise RuntimeError(f"effects file {path}: {type(err).__name__}: {err}") from err
+    found = {obj.name: obj for obj in vars(module).values() if isinstance(obj, Effect)}
+    nameless = [k for k, obj in vars(module).items() if isinstance(obj, Effect) and not obj.name]
+    if nameless:
+        raise ValueError(f"effects file {path}: effect(s) {nameless} have no name")
+    if not found:
+        raise ValueError(f"effects file {path} defines no Effect instance")
+    return found
