@@ -1,0 +1,21 @@
+# hybridtwin workflow: model -> solver -> scenarios -> snapshots -> POD -> sPGD library
+#                      -> identification -> diagnosis -> report
+# Run: snakemake --cores 2   (the default profile in profiles/default sets the options)
+
+from snakemake.utils import min_version
+
+min_version("9.0")
+
+
+configfile: "config/config.yaml"
+
+
+include: "workflow/rules/common.smk"
+include: "workflow/rules/whitebox.smk"
+
+
+rule all:
+    input:
+        expand("results/{variant}/whitebox/sweep.tsv", variant=VARIANTS),
+        expand("results/{variant}/whitebox/sweep.png", variant=VARIANTS),
+    default_target: True

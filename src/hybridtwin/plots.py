@@ -1,0 +1,39 @@
+"""Figures people would rather look at than read (matplotlib, no screen needed)."""
+
+from __future__ import annotations
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+
+
+def plot_sweep(table: pd.DataFrame, title: str) -> plt.Figure:
+    """1X and 3X sensor amplitudes (0-peak, mm) vs speed, one line per eccentric mass."""
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4), sharex=True)
+    for h, ax in zip((1, 3), axes):
+        if f"U{h}_re_m" not in table:
+            ax.set_visible(False)
+            continue
+        for colour, (mass, group) in enumerate(table.groupby("eccentric_mass_g")):
+            group = group.sort_values("rpm")
+            ok = group["success"].to_numpy(bool)
+            for axis, style in (("U", "-o"), ("V", "--s")):
+                amplitude = np.hypot(group[f"{axis}{h}_re_m"], group[f"{axis}{h}_im_m"]) * 1e3
+                ax.plot(group["rpm"][ok], amplitude[ok], style, ms=4, color=f"C{colour}", mfc="none",
+                        label=f"{'x' if axis == 'U' else 'y'}, {mass:g} g")
+            if (~ok).any():
+                ax.plot(group["rpm"][~ok], np.full((~ok).sum(), np.nan), "x", color=f"C{colour}")
+                for rpm in group["rpm"][~ok]:
+                    ax.axvline(rpm, color=f"C{colour}", ls=":", lw=1)
+        ax.set_title(f"{h}X at the sensor")
+        ax.set_xlabel("speed [RPM]")
+        ax.set_ylabel("amplitude, 0-peak [mm]")
+        ax.set_yscale("log")
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0].legend(fontsize=7, ncol=2)
+    fig.suptitle(f"variant {title}: white-box response over the run plan")
+    fig.tight_layout()
+    return fig

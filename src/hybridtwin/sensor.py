@@ -1,0 +1,44 @@
+"""The laser sensors: displacements x = u_n(t), y = v_n(t) at one node (node 1 on the VARM).
+
+Conventions: amplitudes 0-peak, u(t) = Re(sum_h U_h exp(i h Omega t)), t = 0 when
+the unbalance points to +x, the shaft turning from +x towards +y.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from .effects import Array
+from .shaft import Shaft
+from .solver import SteadyState
+
+SENSOR_NODE = 1  # z = 0.085 m on the VARM
+
+
+def sensor_dofs(shaft: Shaft, node: int = SENSOR_NODE) -> list[int]:
+    """Global DOF indices [u_node, v_node] read by the sensors."""
+    return [shaft.dof(f"u{node}"), shaft.dof(f"v{node}")]
+
+
+def sensor_harmonics(result: SteadyState, shaft: Shaft, node: int = SENSOR_NODE) -> tuple[Array, Array]:
+    """U_h, V_h at the sensor node, each (S, H+1) complex [m]."""
+    u, v = sensor_dofs(shaft, node)
+    return result.harmonics[:, :, u], result.harmonics[:, :, v]
+
+
+def harmonics_frame(result: SteadyState, shaft: Shaft, scenario: int = 0, node: int = SENSOR_NODE) -> pd.DataFrame:
+    """One scenario's sensor harmonics as columns harmonic,u_re_m,u_im_m,v_re_m,v_im_m."""
+    U, V = sensor_harmonics(result, shaft, node)
+    return pd.DataFrame({
+        "harmonic": np.arange(result.H + 1),
+        "u_re_m": U[scenario].real, "u_im_m": U[scenario].imag,
+        "v_re_m": V[scenario].real, "v_im_m": V[scenario].imag,
+    })
+
+
+def time_series_frame(result: SteadyState, shaft: Shaft, t: Array, scenario: int = 0,
+                      node: int = SENSOR_NODE) -> pd.DataFrame:
+    """x_m, y_m at times ``t`` [s], evaluated from the Fourier series (not resampled)."""
+    xy = result.time_series(t, sensor_dofs(shaft, node))[scenario]
+    return pd.DataFrame({"time_s": t, "x_m": xy[:, 0], "y_m": xy[:, 1]})

@@ -1,0 +1,27 @@
+# White box: the model solved at the run plan's operating points with its nominal values.
+
+
+rule whitebox_sweep:
+    """Sensor harmonics of one variant over the run plan, by run-up per eccentric mass."""
+    input:
+        points=config["operating_points"],
+    output:
+        table="results/{variant}/whitebox/sweep.tsv",
+        plot=report(
+            "results/{variant}/whitebox/sweep.png",
+            caption="../report/whitebox_sweep.rst",
+            category="White box",
+            subcategory="{variant}",
+        ),
+    params:
+        spec=lambda wildcards: config["variants"][wildcards.variant],
+        effects_files=config.get("effects_files", []),
+        harmonics=config["harmonics"],
+    log:
+        "logs/{variant}/whitebox_sweep.log",
+    benchmark:
+        "results/benchmarks/{variant}/whitebox_sweep.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
+    script:
+        "../../scripts/whitebox_sweep.py"
