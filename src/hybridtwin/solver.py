@@ -125,24 +125,29 @@ class _Condensed:
         self.Hreal = _receptance_real(self.R[:, :, self.dofs, :]).reshape(-1, c * K2, c * K2)
 
     def _linear_solves(self) -> tuple[Array, Array]:
-        """Q_lin,h = D_h^-1 F_h and R_h = D_h^-1 B for h = 0..H."""
+        """Q_lin,h = D_h^-1 F_h and R_h = D_h^-1 B for h = 0..H, block by uncoupled block."""
         s = self.system
         S, n, c = s.n_scenarios, s.n_dof, len(self.dofs)
         unknown = sorted(h for h in s.forcing if h > self.H or h < 0)
         if unknown:
             raise ValueError(f"the forcing has harmonic(s) {unknown} outside 0..H = {self.H}: raise H")
-        B = np.zeros((n, c))
-        B[self.dofs, np.arange(c)] = 1.0
         X_lin = np.zeros((S, self.H + 1, n), complex)
         R = np.zeros((S, self.H + 1, n, c), complex)
-        for h in range(self.H + 1):
-            w = h * s.Omega[:, None, None]
-            D = s.K + 1j * w * s.C - w * w * s.M
-            rhs = np.concatenate(
-                [s.forcing.get(h, np.zeros((S, n)))[:, :, None].astype(complex), np.broadcast_to(B, (S, n, c))], axis=2
-            )
-            sol = _batched_solve(D, rhs, self.linear_ok)
-            X_lin[:, h], R[:, h] = sol[:, :, 0], sol[:, :, 1:]
+        for block in uncoupled_blocks(s.K, s.C, s.M):
+            cols = np.flatnonzero(np.isin(self.dofs, block))  # nonlinear DOFs inside this block
+            B = (block[:, None] == self.dofs[cols][None, :]).astype(float)
+            Kb, Cb, Mb = (A[:, block[:, None], block[None, :]] for A in (s.K, s.C, s.M))
+            for h in range(self.H + 1):
+                F = s.forcing.get(h)
+                if F is None and cols.size == 0:
+                    continue
+                F = np.zeros((S, block.size)) if F is None else F[:, block]
+                w = h * s.Omega[:, None, None]
+                D = Kb + 1j * w * Cb - w * w * Mb
+                rhs = np.concatenate([F[:, :, None].astype(complex), np.broadcast_to(B, (S,) + B.shape)], axis=2)
+                sol = _batched_solve(D, rhs, self.linear_ok)
+                X_lin[:, h, block] = sol[:, :, 0]
+                R[:, h, block[:, None], cols[None, :]] = sol[:, :, 1:]
         return X_lin, R
 
     def _force_series(self, x: Array, idx: Array, jacobian: bool) -> tuple[Array, Array | None]:
@@ -178,6 +183,17 @@ class _Condensed:
         F, _ = self._force_series(x, idx, jacobian=False)
         G = _to_complex(np.einsum("sin,kn->sik", F, self.E_plus, optimize=True))  # (S', c, H+1)
         return self.X_lin[idx] + np.einsum("shnc,sch->shn", self.R[idx], G, optimize=True)
+
+
+def uncoupled_blocks(*matrices: Array) -> list[Array]:
+    """DOF groups that no matrix couples in any scenario (connected components of the sparsity)."""
+    from scipy.sparse.csgraph import connected_components
+
+    pattern = np.zeros(matrices[0].shape[-2:], bool)
+    for A in matrices:
+        pattern |= np.any(A != 0, axis=0)
+    n_blocks, labels = connected_components(pattern | pattern.T, directed=False)
+    return [np.flatnonzero(labels == b) for b in range(n_blocks)]
 
 
 def _to_real(X: Array) -> Array:
@@ -293,7 +309,7 @@ def _message(status: int, iterations: int, residual: float) -> str:
     if status == CONVERGED:
         return f"converged in {iterations} iterations (residual {residual:.1e})"
     if status == MAX_ITER:
-        return f"no convergence in {iterations} iterations (residual {residual:.1e}): no periodic solution found"
+        return f"Newton did not converge in {iterations} iterations (residual {residual:.1e})"
     if status == SINGULAR:
         return f"singular Jacobian after {iterations} iterations (turning point or bifurcation)"
     if status == DIVERGED:
@@ -382,8 +398,12 @@ def solve_sweep(
     build(rpm, rows) -> System of scenarios ``rows`` at speed ``rpm``. Each speed
     starts from the previous speed's solution of the same scenario; a scenario
     that fails to continue is retried with the speed step halved up to
-    ``max_refine`` times (the branch may end at a fold: it is then reported
-    failed with the reason, never jumped silently).
+    ``max_refine`` times. If it still fails, its branch has ended at a fold and
+    the machine would jump: the other branch is sought from several starting
+    points (the linear response, the last state scaled by 0.5 .. 3), and the
+    result's ``branch`` says "run-up, jump between A and B RPM". Nothing is
+    jumped silently, and a scenario for which no start converges is reported
+    failed with the reason.
     """
     if direction not in ("up", "down"):
         raise ValueError(f"direction must be 'up' or 'down', got {direction!r}")
@@ -396,35 +416,69 @@ def solve_sweep(
     previous: SteadyState | None = None
     previous_rpm = np.nan
     for speed in speeds:
-        if previous is None:
-            res = solve(build(speed, all_rows), **options)
-        else:
-            cont = previous.success
-            parts, order = [], []
-            if cont.any():
-                parts.append(_continue(build, previous_rpm, speed, previous.state[cont], all_rows[cont],
-                                       max_refine, label, options))
-                order.append(all_rows[cont])
-            if (~cont).any():
-                parts.append(solve(build(speed, all_rows[~cont]), **options))
-                order.append(all_rows[~cont])
-            res = SteadyState.concatenate(parts, np.argsort(np.concatenate(order)))
+        cont = np.flatnonzero(previous.success) if previous is not None else all_rows[:0]
+        fresh = np.setdiff1d(all_rows, cont)
+        parts = []
+        if cont.size:
+            res_c = _continue(build, previous_rpm, speed, previous.state[cont], cont, max_refine, label, options)
+            lost = np.flatnonzero(~res_c.success)
+            if lost.size:
+                _replace(res_c, lost, _jump(build, previous_rpm, speed, previous.state[cont[lost]], cont[lost],
+                                            label, options))
+            parts.append(res_c)
+        if fresh.size:
+            parts.append(solve(build(speed, fresh), **options))
+        res = SteadyState.concatenate(parts, np.argsort(np.concatenate([cont, fresh])))
         results.append(res)
         previous, previous_rpm = res, speed
     return Sweep(speeds, results, direction)
 
 
+_JUMP_STARTS = (None, 1.5, 2.0, 3.0, 0.5)  # None: the linear response; a number: scaled last state
+
+
+def _jump(build, rpm_from, rpm_to, x_last, rows, label, options) -> SteadyState:
+    """Past a fold: look for the remaining branch at ``rpm_to`` from several starts."""
+    system = build(rpm_to, rows)
+    branch = f"{label}, jump between {rpm_from:g} and {rpm_to:g} RPM"
+    best = None
+    for scale in _JUMP_STARTS:
+        open_ = np.arange(len(rows)) if best is None else np.flatnonzero(~best.success)
+        if open_.size == 0:
+            break
+        start = None if scale is None else scale * x_last[open_]
+        if start is not None and start.size and np.isnan(start).any():
+            continue
+        trial = solve(system.subset(open_), initial=start, branch=branch, **options)
+        if best is None:
+            best = trial
+        else:
+            _replace(best, open_, trial)
+    failed = ~best.success
+    best.message[failed] = (
+        f"no periodic solution found at {rpm_to:g} RPM: the {label} branch ends at a fold after {rpm_from:g} RPM "
+        f"and none of {len(_JUMP_STARTS)} starting points converged"
+    )
+    best.branch[failed] = label
+    return best
+
+
+def _replace(target: SteadyState, where: Array, source: SteadyState) -> None:
+    """target[where] = source, field by field."""
+    for f in ("harmonics", "success", "status", "message", "iterations", "residual", "branch", "state"):
+        getattr(target, f)[where] = getattr(source, f)
+
+
 def _continue(build, rpm_from, rpm_to, x0, rows, depth, label, options) -> SteadyState:
+    """Continue from ``x0`` at ``rpm_from`` to ``rpm_to``, halving the step where Newton fails."""
     res = solve(build(rpm_to, rows), initial=x0, branch=label, **options)
-    failed = ~res.success
-    if depth == 0 or not failed.any():
+    failed = np.flatnonzero(~res.success)
+    if depth == 0 or failed.size == 0:
         return res
     mid = 0.5 * (rpm_from + rpm_to)
     half = _continue(build, rpm_from, mid, x0[failed], rows[failed], depth - 1, label, options)
-    ok = half.success
-    if ok.any():
-        again = _continue(build, mid, rpm_to, half.state[ok], rows[failed][ok], depth - 1, label, options)
-        sub = np.flatnonzero(failed)[ok]
-        for f in ("harmonics", "success", "status", "message", "iterations", "residual", "state"):
-            getattr(res, f)[sub] = getattr(again, f)
+    ok = np.flatnonzero(half.success)
+    if ok.size:
+        again = _continue(build, mid, rpm_to, half.state[ok], rows[failed[ok]], depth - 1, label, options)
+        _replace(res, failed[ok], again)
     return res

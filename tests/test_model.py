@@ -1,0 +1,240 @@
+"""The assembled VARM model against the definitions of shared/varm-model.md.
+
+References are computed here independently of the package (scipy's generalized
+eigensolver, the exact four-spring geometry, the formulas written out again).
+"""
+
+import numpy as np
+import pytest
+import scipy.linalg
+
+from hybridtwin import Effect, Parameter, PolynomialBearing, Term
+from hybridtwin.effects import geometric_spring
+from hybridtwin.model import rpm_to_rad_s
+from hybridtwin.variants import Variant, builtin_variant, load_effects_file
+
+PAPER = dict(k_b=2411.3, zeta_s=0.024, zeta_bup=0.016, q_x=0.004, q_y=0.006, m_e=0.0148)
+
+
+@pytest.fixture(scope="module")
+def geometric():
+    return builtin_variant("geometric")
+
+
+def _x_plane(variant, values):
+    ctx = variant.model.context(variant.values(values), 0.0)
+    n = variant.model.shaft.n_plane
+    return ctx, ctx.K[0, :n, :n], ctx.M[0, :n, :n]
+
+
+def test_first_natural_frequency_matches_scipy_and_spec(geometric):
+    # varm-model.md: f_1 about 21.6 Hz at k_b = 2331.5 N/m (with the 14.8 g run's m_e);
+    # 21.3-23.9 Hz over the k_b range (bare rotor, m_e = 0).
+    for k_b, m_e, expected_hz in ((2331.5, 0.0148, 21.6), (2000.0, 0.0, 21.3), (3500.0, 0.0, 23.9)):
+        ctx, K, M = _x_plane(geometric, {"k_b": k_b, "m_e": m_e})
+        reference = np.sqrt(scipy.linalg.eigh(K, M, eigvals_only=True)[0])
+        # same pencil, different algorithm: agreement to round-off (1e-10 relative)
+        assert ctx.omega_1[0] == pytest.approx(reference, rel=1e-10)
+        # the spec quotes one decimal in Hz: +-0.05 Hz
+        assert ctx.omega_1[0] / (2 * np.pi) == pytest.approx(expected_hz, abs=0.05)
+
+
+def test_first_mode_shape_is_translational_and_scaled_to_plus_one(geometric):
+    ctx, K, M = _x_plane(geometric, PAPER)
+    _, vectors = scipy.linalg.eigh(K, M)
+    phi = vectors[0::2, 0]  # translational entries
+    phi = phi / phi[np.argmax(np.abs(phi))]
+    np.testing.assert_allclose(ctx.Phi_1[0], phi, atol=1e-10)
+    assert ctx.Phi_1[0].max() == 1.0
+
+
+def test_damping_matrix_follows_its_definitions(geometric):
+    """C = 2 zeta_s omega_1 M + c_bup (node 0) + c_blo (node 10), eq. 31-32."""
+    values = geometric.values(PAPER)
+    system = geometric.model.system(values, 700)
+    ctx, K, M = _x_plane(geometric, PAPER)
+    omega_1 = np.sqrt(scipy.linalg.eigh(K, M, eigvals_only=True)[0])
+    expected = 2 * PAPER["zeta_s"] * omega_1 * ctx.M[0]
+    shaft = geometric.model.shaft
+    c_bup = 2 * PAPER["zeta_bup"] * np.sqrt(2 * PAPER["k_b"] * 0.056)
+    c_blo = 2 * 0.05 * np.sqrt(1e4 * 0.176)
+    for dof, c in (("u0", c_bup), ("v0", c_bup), ("u10", c_blo), ("v10", c_blo)):
+        expected[shaft.dof(dof), shaft.dof(dof)] += c
+    np.testing.assert_allclose(system.C[0], expected, rtol=1e-10, atol=1e-12)
+
+
+def test_expansion_bearing_damping_uses_k3():
+    expansion = builtin_variant("expansion")
+    values = {"k3": 5428.5, "zeta_bup": 0.02}
+    system = expansion.system(500, values)
+    bare = expansion.system(500, {**values, "zeta_bup": 0.0})
+    u0 = expansion.model.shaft.dof("u0")
+    c_bup = system.C[0, u0, u0] - bare.C[0, u0, u0]
+    assert c_bup == pytest.approx(2 * 0.02 * np.sqrt(5428.5 * 0.056), rel=1e-12)
+
+
+def test_stiffness_has_centrifugal_term_and_linear_bearings(geometric):
+    rpm = 650.0
+    system = geometric.system(rpm, PAPER)
+    ctx, _, _ = _x_plane(geometric, PAPER)
+    Omega = rpm_to_rad_s(rpm)
+    K_shaft, _ = geometric.model.shaft.matrices()
+    expected = K_shaft - Omega**2 * ctx.M[0]
+    shaft = geometric.model.shaft
+    for dof, k in (("u0", 2 * PAPER["k_b"]), ("v0", 2 * PAPER["k_b"]), ("u10", 1e4), ("v10", 1e4)):
+        expected[shaft.dof(dof), shaft.dof(dof)] += k
+    np.testing.assert_allclose(system.K[0], expected, rtol=1e-12, atol=1e-9)
+
+
+def test_forcing_is_unbalance_plus_bow_with_the_stated_phase(geometric):
+    """f_x = Omega^2 (m_e r_me e_me + m_el q_x Phi_1) cos(Omega t), f_y the same with sin (eq. 30)."""
+    rpm = 800.0
+    system = geometric.system(rpm, PAPER)
+    ctx, _, _ = _x_plane(geometric, PAPER)
+    shaft, Omega = geometric.model.shaft, rpm_to_rad_s(rpm)
+    fx = Omega**2 * 0.0281 * PAPER["q_x"] * ctx.Phi_1[0]
+    fy = Omega**2 * 0.0281 * PAPER["q_y"] * ctx.Phi_1[0]
+    fx[5] += Omega**2 * PAPER["m_e"] * 0.040
+    fy[5] += Omega**2 * PAPER["m_e"] * 0.040
+    assert set(system.forcing) == {1}
+    F = system.forcing[1][0]
+    # cos(Omega t) = Re(e^{i Omega t}) and sin(Omega t) = Re(-i e^{i Omega t})
+    np.testing.assert_allclose(F[shaft.translational("x")], fx, rtol=1e-12)
+    np.testing.assert_allclose(F[shaft.translational("y")], -1j * fy, rtol=1e-12)
+    slopes = np.setdiff1d(np.arange(shaft.n_dof), np.r_[shaft.translational("x"), shaft.translational("y")])
+    assert np.all(F[slopes] == 0)
+
+
+def _four_springs(u, v, k_b, l_i):
+    """Exact force of four Hooke springs (unstretched length l_i) anchored at 0, 90, 180, 270 degrees."""
+    F = np.zeros(2)
+    for theta in np.deg2rad([0, 90, 180, 270]):
+        d = np.array([u, v]) - l_i * np.array([np.cos(theta), np.sin(theta)])
+        length = np.linalg.norm(d)
+        F += -k_b * (length - l_i) * d / length
+    return F
+
+
+def test_geometric_spring_is_the_third_order_expansion_of_four_springs(geometric):
+    """Eq. 22 (linear part in K, cubic part as the local force) vs the exact spring geometry."""
+    effect = geometric_spring()
+    k_b, l_i = 2331.5, 0.0508
+    values = geometric.values({"k_b": k_b})
+    p = {k: np.atleast_1d(v) for k, v in values.items()}
+    from hybridtwin import Params
+
+    errors = []
+    for s in (8e-3, 4e-3, 2e-3):
+        u, v = 0.7 * s, -0.45 * s
+        F_nl, _ = effect.force(np.array([[[u], [v]]]), Params(p))
+        F = F_nl[0, :, 0] - 2 * k_b * np.array([u, v])
+        exact = _four_springs(u, v, k_b, l_i)
+        errors.append(np.abs(F - exact).max())
+        # the cubic terms matter: without them the error would be ~ k_b s^3 / l_i^2
+        assert errors[-1] < 0.05 * k_b * s**3 / l_i**2
+    # the remainder of a third-order expansion is O(s^5): halving s divides it by ~32 (allow 25..40)
+    for coarse, fine in zip(errors[:-1], errors[1:]):
+        assert 25 < coarse / fine < 40
+
+
+def test_polynomial_jacobian_matches_finite_differences():
+    """Every expansion term (quadratic, cross, slope, cubic) has an exact derivative."""
+    expansion = builtin_variant("expansion")
+    values = {k: np.atleast_1d(v) for k, v in expansion.values({"k2": -300.0, "k5": 200.0, "k4": 100.0}).items()}
+    from hybridtwin import Params
+
+    rng = np.random.default_rng(1)
+    q = rng.normal(scale=3e-3, size=(1, 4, 5))
+    for effect in expansion.model.effects:
+        if not effect.is_nonlinear:
+            continue
+        n = len(effect.dofs)
+        local = q[:, :n]
+        _, J = effect.force(local, Params(values))
+        step = 1e-7  # central differences on O(1e-3) inputs: truncation ~1e-14, round-off ~1e-9 relative
+        for j in range(n):
+            dq = np.zeros_like(local)
+            dq[:, j] = step
+            fd = (effect.force(local + dq, Params(values))[0] - effect.force(local - dq, Params(values))[0]) / (2 * step)
+            np.testing.assert_allclose(J[:, :, j], fd, rtol=1e-6, atol=1e-9 * np.abs(fd).max() + 1e-12)
+
+
+def test_variant_errors_name_the_problem():
+    spec = {"effects": ["structural_damping", "no_such_effect"], "unknown": {"zeta_s": [0.01, 0.05]}}
+    with pytest.raises(ValueError, match="no effect named 'no_such_effect'"):
+        Variant.from_spec("bad", spec)
+    with pytest.raises(ValueError, match=r"unknown parameter\(s\) \['k_b'\]"):
+        Variant.from_spec("bad", {"effects": ["structural_damping"], "unknown": {"k_b": [1, 2]}})
+    with pytest.raises(ValueError, match="range of zeta_s"):
+        Variant.from_spec("bad", {"effects": ["structural_damping"], "unknown": {"zeta_s": [0.05, 0.01]}})
+    with pytest.raises(ValueError, match="has no parameter"):
+        builtin_variant("geometric").values({"kb": 1.0})
+
+
+class _Conflicting(Effect):
+    name = "conflicting"
+    meaning = "declares k_b with another unit"
+    parameters = (Parameter("k_b", "N", (0, 1), 0.5, "clash"),)
+
+
+def test_parameters_shared_by_effects_must_agree():
+    from hybridtwin import Model
+
+    with pytest.raises(ValueError, match="declared differently"):
+        Model([geometric_spring(), _Conflicting()])
+
+
+USER_EFFECT = '''
+from hybridtwin import Parameter, PolynomialBearing, Term
+
+tilt_spring = PolynomialBearing(
+    name="tilt_spring",
+    meaning="moment stiffness against shaft tilt at the upper bearing",
+    parameters=(Parameter("k_t", "N", (0.0, 500.0), 0.0, "linear slope stiffness"),),
+    terms=(Term(lambda p: p.k_t, (0, 0, 1, 0), "k_t u'"),),
+)
+'''
+
+
+def test_user_effect_from_own_file_changes_the_response(tmp_path):
+    path = tmp_path / "my_effects.py"
+    path.write_text(USER_EFFECT)
+    user = load_effects_file(path)
+    assert list(user) == ["tilt_spring"]
+    spec = {"effects": builtin_variant("geometric").model.effects, "unknown": {}}
+    names = [e.name for e in spec["effects"]] + ["tilt_spring"]
+    variant = Variant.from_spec("geometric_tilt", {"effects": names}, user)
+    base = builtin_variant("geometric").solve(600, PAPER)
+    zero = variant.solve(600, {**PAPER, "k_t": 0.0})
+    tilted = variant.solve(600, {**PAPER, "k_t": 300.0})
+    np.testing.assert_allclose(zero.harmonics, base.harmonics, rtol=1e-12, atol=1e-18)
+    assert np.abs(tilted.harmonics[0, 1] - base.harmonics[0, 1]).max() > 1e-3 * np.abs(base.harmonics[0, 1]).max()
+    # the linear slope term is a non-symmetric stiffness K[u0, du0] = k_t
+    shaft = variant.model.shaft
+    K = variant.system(600, {**PAPER, "k_t": 300.0}).K[0] - variant.system(600, {**PAPER, "k_t": 0.0}).K[0]
+    assert K[shaft.dof("u0"), shaft.dof("du0")] == pytest.approx(300.0)
+    assert K[shaft.dof("du0"), shaft.dof("u0")] == 0.0
+
+
+def test_effects_file_errors_name_the_file(tmp_path):
+    bad = tmp_path / "broken.py"
+    bad.write_text("raise RuntimeError('oops')\n")
+    with pytest.raises(RuntimeError, match="broken.py"):
+        load_effects_file(bad)
+    empty = tmp_path / "empty.py"
+    empty.write_text("x = 1\n")
+    with pytest.raises(ValueError, match="defines no Effect"):
+        load_effects_file(empty)
+    with pytest.raises(FileNotFoundError, match="missing.py"):
+        load_effects_file(tmp_path / "missing.py")
+
+
+def test_builtin_effects_describe_themselves():
+    for name in ("geometric", "expansion", "final"):
+        variant = builtin_variant(name)
+        for effect in variant.model.effects:
+            assert effect.name and effect.meaning
+            for par in effect.parameters:
+                assert par.unit and par.meaning and par.bounds[0] <= par.nominal <= par.bounds[1]
+        text = variant.describe()
+        assert all(k in text for k in variant.unknown)
