@@ -169,7 +169,7 @@ class Model:
         for effect in self.effects:
             term = getattr(effect, hook)(ctx)
             if term is not None:
-                total = total + term
+                total += term
         return total
 
 

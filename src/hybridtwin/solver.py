@@ -122,7 +122,7 @@ class _Condensed:
         self.X_lin, self.R = self._linear_solves()
         c, K2 = len(self.dofs), 2 * H + 1
         self.a = _to_real(self.X_lin[:, :, self.dofs])  # (S, c, 2H+1)
-        self.Hreal = _receptance_real(self.R[:, :, self.dofs, :]).reshape(-1, c * K2, c * K2)
+        self.Hreal = _receptance_real(self.R[:, :, self.dofs, :]).reshape(system.n_scenarios, c * K2, c * K2)
 
     def _linear_solves(self) -> tuple[Array, Array]:
         """Q_lin,h = D_h^-1 F_h and R_h = D_h^-1 B for h = 0..H, block by uncoupled block."""
