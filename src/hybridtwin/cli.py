@@ -128,6 +128,11 @@ def build_parser() -> argparse.ArgumentParser:
     _common(eff, variant=False)
     var = sub.add_parser("variants", help="describe the model variants")
     _common(var)
+    from .preprocessing import add_check_data_command  # measured data (issue 4)
+    from .rig import add_rig_command
+
+    add_check_data_command(sub)
+    add_rig_command(sub)
     return parser
 
 
@@ -210,7 +215,8 @@ def describe_variants(args: argparse.Namespace) -> int:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    command = {"simulate": simulate, "effects": list_effects, "variants": describe_variants}[args.command]
+    command = {"simulate": simulate, "effects": list_effects, "variants": describe_variants}.get(args.command)
+    command = command or args.handler  # check-data, rig: registered with set_defaults(handler=...)
     try:
         return command(args)
     except UsageError as err:

@@ -1,0 +1,562 @@
+"""Preprocessing of measured runs: true speed, synchronous (order) analysis, nuisances.
+
+What a rotordynamics engineer does with a displacement record before comparing
+it with a steady-state model (u(t) = Re(sum_h U_h exp(i h Omega t)), 0-peak):
+
+1. Speed. The nominal RPM is only a set point. ``refine_speed`` finds the
+   rotation frequency as the maximum-likelihood frequency of a harmonic
+   series in white Gaussian noise: a coarse search of the summed power of
+   1X..HX of both channels within +-2 % of nominal (grid finer than a quarter
+   of the HX line width), then variable projection (the linear harmonic
+   amplitudes solved exactly for each trial Omega, Omega minimising
+   sum_ch log RSS_ch, the profile likelihood with an unknown noise level per
+   channel). Its uncertainty is the Cramer-Rao / Gauss-Newton one,
+   1 / sigma_Omega^2 = sum_ch |(I - P_A) dm_ch/dOmega|^2 / sigma_ch^2.
+2. Phase origin. Without a keyphasor the rotor angle at any instant is
+   unknown: harmonics are referred to a revolution boundary near the middle
+   of the analysed span (``phase_reference`` = "arbitrary"), where the phase
+   is least affected by the speed's uncertainty. With a keyphasor the origin
+   is the mark (the unbalance on +x, measurement-format.md): the marks' times
+   are fitted as t_k = t_c + k T_kp, and the origin is the fitted mark nearest
+   the middle ("keyphasor"). The virtual rig writes a mark on the sample
+   nearest to the event, so a mark's time error is uniform in +-dt/2; its
+   uncertainty is the regression's plus, for the part of that quantisation
+   the marks did not sample (resultant length R of their sub-sample
+   positions), a common error R dt / sqrt(12).
+3. Order analysis over whole revolutions. The record is cut into the K whole
+   revolutions [t_ref + k T, t_ref + (k+1) T) it contains; in each the DC and
+   1X..HX of x and y are fitted by least squares (exact, no resampling);
+   the estimate is their mean (synchronous averaging) and its standard
+   uncertainty the revolution-to-revolution standard deviation / sqrt(K)
+   (per real and imaginary part, reported as their RMS), plus with a
+   keyphasor the origin's share h Omega sigma_t |X_h| / sqrt(2). The noise
+   level is the residual standard deviation about the averaged waveform.
+4. DC. The 0X term is the sensor's offset plus the response's own mean; one
+   channel cannot tell them apart, so it is reported (offset_x_m, ...) and is
+   a nuisance.
+
+Nuisances, and how a comparison stays invariant to them. A per-run phase
+phi (no keyphasor) turns every measured harmonic into X_h exp(i h phi) and
+the DC offsets shift only h = 0. A comparison with a model (``fit_phase``,
+``phase_aligned_residuals``) therefore (a) never uses h = 0 and (b) compares
+X_h with M_h exp(i h phi*) where phi* minimises the weighted misfit for that
+run: the result is the same whatever the record's time origin and offsets.
+Neither phi* nor the offsets are model parameters. With a keyphasor the
+absolute phases are physical and can be compared directly.
+"""
+
+from __future__ import annotations
+
+import sys
+import warnings
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from scipy.optimize import minimize_scalar
+
+from .measurements import (
+    MIN_REVOLUTIONS, DataError, DataWarning, Record, Saturation, check_coverage, check_length, check_sampling,
+    detect_saturation, read_record, read_runs,
+)
+
+Array = np.ndarray
+CHANNELS = ("x", "y")
+#: the true speed is sought within this fraction of the nominal speed
+SPEED_SEARCH = 0.02
+
+
+@dataclass(frozen=True)
+class SpeedEstimate:
+    """Refined rotation speed [RPM] and its standard uncertainty."""
+
+    rpm: float
+    sigma_rpm: float
+
+    @property
+    def omega(self) -> float:
+        """Omega [rad/s]."""
+        return self.rpm * 2.0 * np.pi / 60.0
+
+    @property
+    def period_s(self) -> float:
+        return 60.0 / self.rpm
+
+
+@dataclass(frozen=True)
+class PhaseOrigin:
+    """The instant (record time) the harmonics' phases refer to.
+
+    source: "keyphasor" (the unbalance points to +x there: phases are absolute)
+    or "arbitrary" (a revolution boundary near the record's middle).
+    """
+
+    time_s: float
+    sigma_s: float
+    source: str
+    rpm_keyphasor: float = float("nan")
+    n_marks: int = 0
+
+
+@dataclass
+class OrderAnalysis:
+    """Synchronous averages of one record.
+
+    harmonics: (2, H+1) complex [m] for channels x, y, h = 0..H, with
+    x(t) ~ Re(sum_h X_h exp(i h Omega (t - origin))); sigma: (2, H+1) standard
+    uncertainty of each of the real and imaginary parts [m]; per_revolution:
+    (K, 2, H+1) the individual revolutions' estimates; noise_m: (2,) residual
+    standard deviation about the averaged waveform.
+    """
+
+    harmonics: Array
+    sigma: Array
+    per_revolution: Array
+    noise_m: Array
+    start_s: float  # first analysed revolution's start (record time)
+    n_samples_used: int
+
+    @property
+    def n_revolutions(self) -> int:
+        return self.per_revolution.shape[0]
+
+    @property
+    def H(self) -> int:
+        return self.harmonics.shape[1] - 1
+
+
+@dataclass
+class RunAnalysis:
+    """Everything the preprocessing learns about one run."""
+
+    record: Record
+    rpm_nominal: float
+    findings: list[Saturation] = field(default_factory=list)
+    speed: SpeedEstimate | None = None
+    origin: PhaseOrigin | None = None
+    orders: OrderAnalysis | None = None
+
+    @property
+    def flat(self) -> bool:
+        return any(f.kind == "flat" for f in self.findings)
+
+    @property
+    def saturated(self) -> bool:
+        return any(f.kind == "clipped" for f in self.findings)
+
+    @property
+    def usable(self) -> bool:
+        """Fit for comparison with a model: analysed, and no channel flat or clipped."""
+        return self.orders is not None and not self.flat and not self.saturated
+
+    @property
+    def note(self) -> str:
+        if self.flat:
+            return "excluded: " + "; ".join(f"{f.channel} flat" for f in self.findings if f.kind == "flat")
+        if self.saturated:
+            return "excluded (saturated, harmonics biased): " + "; ".join(
+                f"{f.channel} clipped at {f.level_m * 1e3:+.3f} mm ({f.n_samples} samples)"
+                for f in self.findings if f.kind == "clipped")
+        return "ok"
+
+
+# --- step 1: speed ----------------------------------------------------------------------
+
+
+def design_matrix(t: Array, omega: float, harmonics: int) -> Array:
+    """[1, cos(h Omega t), sin(h Omega t) for h = 1..H] (N, 2H+1)."""
+    phase = np.outer(t, omega * np.arange(1, harmonics + 1))
+    out = np.empty((t.size, 2 * harmonics + 1))
+    out[:, 0] = 1.0
+    out[:, 1::2], out[:, 2::2] = np.cos(phase), np.sin(phase)
+    return out
+
+
+def refine_speed(record: Record, rpm_nominal: float, harmonics: int = 5,
+                 channels: tuple[str, ...] = CHANNELS, search: float = SPEED_SEARCH) -> SpeedEstimate:
+    """Maximum-likelihood rotation speed from the record (module docstring, step 1).
+
+    Raises ``DataError`` when the best frequency lies at the edge of the
+    +-``search`` band around the nominal speed (the true speed is elsewhere
+    or the record holds no periodic signal).
+    """
+    t = record.time_s - record.time_s.mean()
+    data = np.column_stack([record.channel(c) for c in channels])
+    data = data - data.mean(0)
+    f0 = rpm_nominal / 60.0
+    step = 0.25 / (harmonics * record.duration_s)
+    grid = f0 + np.arange(-np.ceil(search * f0 / step), np.ceil(search * f0 / step) + 1) * step
+    power = np.zeros(grid.size)
+    first = np.exp(-2j * np.pi * np.outer(grid, t))  # (G, N), exp(-i 2 pi f t)
+    kernel = first.copy()
+    for _ in range(harmonics):  # kernel = first^h: exp(-i 2 pi h f t)
+        power += (np.abs(kernel @ data) ** 2).sum(1)
+        kernel *= first
+    best = int(np.argmax(power))
+    if best in (0, grid.size - 1):
+        raise DataError(f"{record.path}: no rotation frequency found within +-{100 * search:g} % of the nominal "
+                        f"{rpm_nominal:g} RPM (the strongest synchronous response lies at the edge of the search, "
+                        f"{grid[best] * 60:.1f} RPM): wrong nominal speed or no periodic signal")
+
+    energy = (data**2).sum(0)
+
+    def objective(f: float) -> float:
+        A = design_matrix(t, 2 * np.pi * f, harmonics)
+        projected = A.T @ data
+        rss = energy - (projected * np.linalg.solve(A.T @ A, projected)).sum(0)
+        return float(np.log(rss).sum())
+
+    found = minimize_scalar(objective, bounds=(grid[best] - step, grid[best] + step), method="bounded",
+                            options={"xatol": 1e-9 * f0})
+    omega = 2 * np.pi * found.x
+    sigma_omega = _speed_sigma(t, data, omega, harmonics)
+    return SpeedEstimate(omega * 60 / (2 * np.pi), sigma_omega * 60 / (2 * np.pi))
+
+
+def _speed_sigma(t: Array, data: Array, omega: float, harmonics: int) -> float:
+    """Gauss-Newton standard uncertainty of Omega with the harmonic amplitudes profiled out."""
+    A = design_matrix(t, omega, harmonics)
+    gram = A.T @ A
+    coef = np.linalg.solve(gram, A.T @ data)  # (2H+1, C)
+    residual = data - A @ coef
+    dof = t.size - A.shape[1] - 1
+    sigma2 = (residual**2).sum(0) / dof
+    h = np.arange(1, harmonics + 1)
+    phase = np.outer(t, omega * h)
+    # d/dOmega of sum_h a_h cos(h Omega t) + b_h sin(h Omega t)
+    d = (t[:, None] * ((-np.sin(phase) * h) @ coef[1::2] + (np.cos(phase) * h) @ coef[2::2]))  # (N, C)
+    d_perp = d - A @ np.linalg.solve(gram, A.T @ d)
+    information = ((d_perp**2).sum(0) / sigma2).sum()
+    return float(1.0 / np.sqrt(information))
+
+
+# --- step 2: phase origin ---------------------------------------------------------------
+
+
+def phase_origin(record: Record, speed: SpeedEstimate) -> PhaseOrigin:
+    """The phase reference: the keyphasor mark nearest the middle, else a revolution boundary there."""
+    t, period = record.time_s, speed.period_s
+    if record.keyphasor is None:
+        whole = int(np.floor((t[-1] + record.dt_s - t[0]) / period))
+        return PhaseOrigin(float(t[0] + (whole // 2) * period), 0.0, "arbitrary")
+    marks = t[record.keyphasor]
+    index = np.flatnonzero(record.keyphasor)
+    k = np.round((marks - marks[0]) / period).astype(int)
+    repeated = np.flatnonzero(np.diff(k) == 0)
+    if repeated.size:
+        raise DataError(f"{record.path}: column keyphasor: two marks within one revolution at lines "
+                        f"{index[repeated[0]] + 2} and {index[repeated[0] + 1] + 2} (period {period:.5f} s)")
+    if k.size < 2:
+        raise DataError(f"{record.path}: column keyphasor: only one mark; a phase reference needs a mark per "
+                        "revolution")
+    slope, intercept = np.polyfit(k, marks, 1)
+    residual = marks - (intercept + slope * k)
+    off = np.flatnonzero(np.abs(residual) > 0.25 * period)
+    if off.size:
+        raise DataError(f"{record.path}: column keyphasor: mark at line {index[off[0]] + 2} is "
+                        f"{residual[off[0]]:+.4f} s off the once-per-turn sequence (period {slope:.5f} s)")
+    k_c = int(np.round((0.5 * (t[0] + t[-1]) - intercept) / slope))
+    t_c = intercept + slope * k_c
+    s2 = (residual**2).sum() / max(k.size - 2, 1)
+    lever = 1.0 / k.size + (k_c - k.mean()) ** 2 / ((k - k.mean()) ** 2).sum()
+    sub_sample = np.abs(np.exp(2j * np.pi * (intercept + slope * k) / record.dt_s).mean())
+    sigma = np.sqrt(s2 * lever + (sub_sample * record.dt_s) ** 2 / 12.0)
+    return PhaseOrigin(float(t_c), float(sigma), "keyphasor", 60.0 / slope, int(k.size))
+
+
+# --- step 3: order analysis -------------------------------------------------------------
+
+
+def order_analysis(record: Record, speed: SpeedEstimate, origin: PhaseOrigin, harmonics: int = 5) -> OrderAnalysis:
+    """Synchronous averages of DC and 1X..HX of x and y over whole revolutions (module docstring, step 3)."""
+    t, period, omega = record.time_s, speed.period_s, speed.omega
+    first = int(np.ceil((t[0] - origin.time_s) / period - 1e-9))
+    start = origin.time_s + first * period
+    K = int(np.floor((t[-1] + record.dt_s - start) / period + 1e-9))
+    if K < 2:
+        raise DataError(f"{record.path}: only {K} whole revolution(s) at {speed.rpm:.2f} RPM; the synchronous "
+                        "analysis needs at least 2")
+    revolution = np.floor((t - start) / period).astype(int)
+    used = (revolution >= 0) & (revolution < K)
+    data = np.column_stack([record.x_m, record.y_m])[used]
+    A = design_matrix(t[used] - origin.time_s, omega, harmonics)
+    bounds = np.searchsorted(revolution[used], np.arange(K))  # first sample of each revolution
+    normal = np.add.reduceat(np.einsum("np,nq->npq", A, A), bounds, axis=0)  # (K, p, p)
+    rhs = np.add.reduceat(np.einsum("np,nc->npc", A, data), bounds, axis=0)  # (K, p, 2)
+    coef = np.linalg.solve(normal, rhs)  # (K, p, 2)
+    per_rev = _to_complex(np.moveaxis(coef, 2, 1))  # (K, 2, H+1)
+    mean = per_rev.mean(0)
+    scatter = np.sqrt(0.5 * (per_rev.real.var(0, ddof=1) + per_rev.imag.var(0, ddof=1)) / K)
+    h = np.arange(harmonics + 1)
+    origin_share = h * omega * origin.sigma_s * np.abs(mean) / np.sqrt(2.0)
+    sigma = np.sqrt(scatter**2 + origin_share**2)
+    residual = data - A @ _to_real(mean).T
+    noise = np.sqrt((residual**2).sum(0) / (used.sum() - A.shape[1]))
+    return OrderAnalysis(mean, sigma, per_rev, noise, float(start), int(used.sum()))
+
+
+def _to_complex(coef: Array) -> Array:
+    """[c0, a1, b1, ..., aH, bH] (cos, sin coefficients) -> X_h = a_h - i b_h, X_0 = c0 (last axis)."""
+    out = np.empty(coef.shape[:-1] + ((coef.shape[-1] + 1) // 2,), complex)
+    out[..., 0] = coef[..., 0]
+    out[..., 1:] = coef[..., 1::2] - 1j * coef[..., 2::2]
+    return out
+
+
+def _to_real(X: Array) -> Array:
+    """Inverse of ``_to_complex``."""
+    out = np.empty(X.shape[:-1] + (2 * X.shape[-1] - 1,))
+    out[..., 0] = X[..., 0].real
+    out[..., 1::2], out[..., 2::2] = X[..., 1:].real, -X[..., 1:].imag
+    return out
+
+
+# --- a whole run ------------------------------------------------------------------------
+
+
+def analyse_record(record: Record, rpm_nominal: float, harmonics: int = 5, sensor_range_m: float | None = None,
+                   min_revolutions: float = MIN_REVOLUTIONS) -> RunAnalysis:
+    """Checks (length, sampling, flat/clipped) and steps 1-3 for one record.
+
+    A record with a flat channel is returned unanalysed (``usable`` False); a
+    clipped one is analysed but not ``usable``; both are warned about
+    (``DataWarning``). Format problems raise ``DataError``.
+    """
+    check_length(record, rpm_nominal, min_revolutions)
+    check_sampling(record, rpm_nominal * (1 + SPEED_SEARCH), harmonics)
+    analysis = RunAnalysis(record, rpm_nominal, detect_saturation(record, sensor_range_m))
+    if analysis.flat:
+        return analysis
+    analysis.speed = refine_speed(record, rpm_nominal, harmonics)
+    analysis.origin = phase_origin(record, analysis.speed)
+    analysis.orders = order_analysis(record, analysis.speed, analysis.origin, harmonics)
+    return analysis
+
+
+def run_row(analysis: RunAnalysis, harmonics: int, complex_parts: bool = True) -> dict:
+    """The tidy per-run result (one row, SI, units in the column names); NaN where not analysed."""
+    record = analysis.record
+    nan = float("nan")
+    row = {"n_samples": record.n_samples, "duration_s": record.duration_s, "sample_rate_hz": record.sample_rate_hz,
+           "unit": record.unit, "keyphasor": record.keyphasor is not None}
+    speed, origin, orders = analysis.speed, analysis.origin, analysis.orders
+    row["rpm_true"] = speed.rpm if speed else nan
+    row["rpm_true_sigma"] = speed.sigma_rpm if speed else nan
+    row["speed_deviation_rel"] = speed.rpm / analysis.rpm_nominal - 1 if speed else nan
+    row["rpm_keyphasor"] = origin.rpm_keyphasor if origin else nan
+    row["phase_reference"] = origin.source if origin else ""
+    row["phase_origin_s"] = origin.time_s if origin else nan
+    row["phase_origin_sigma_s"] = origin.sigma_s if origin else nan
+    row["n_revolutions"] = orders.n_revolutions if orders else 0
+    for i, name in enumerate(CHANNELS):
+        row[f"noise_{name}_m"] = orders.noise_m[i] if orders else nan
+    for i, name in enumerate(CHANNELS):
+        row[f"offset_{name}_m"] = orders.harmonics[i, 0].real if orders else nan
+        row[f"offset_{name}_sigma_m"] = orders.sigma[i, 0] if orders else nan
+    for i, name in enumerate(CHANNELS):
+        for h in range(1, harmonics + 1):
+            X = orders.harmonics[i, h] if orders else complex(nan, nan)
+            if complex_parts:
+                row[f"{name}{h}_re_m"], row[f"{name}{h}_im_m"] = X.real, X.imag
+            row[f"{name}{h}_amp_m"] = abs(X)
+            row[f"{name}{h}_sigma_m"] = orders.sigma[i, h] if orders else nan
+    row["flat"], row["saturated"], row["usable"], row["note"] = (
+        analysis.flat, analysis.saturated, analysis.usable, analysis.note)
+    return row
+
+
+def waveforms(analysis: RunAnalysis, cycles: int = 2) -> pd.DataFrame:
+    """Two (``cycles``) revolutions from the phase origin, for plotting.
+
+    time_s: time since the phase origin (the record's own samples, dt = 1/fs);
+    angle_rad: Omega time_s; x_m, y_m: the synchronous average 1X..HX (DC and
+    noise removed); x_raw_m, y_raw_m: the recorded samples minus the DC offset.
+    """
+    columns = ["time_s", "angle_rad", "x_m", "y_m", "x_raw_m", "y_raw_m"]
+    if analysis.orders is None:
+        return pd.DataFrame(columns=columns)
+    record, orders, speed = analysis.record, analysis.orders, analysis.speed
+    period, start = speed.period_s, analysis.origin.time_s
+    while start + cycles * period > record.time_s[-1] + record.dt_s and start - period >= record.time_s[0]:
+        start -= period
+    take = (record.time_s >= start) & (record.time_s < start + cycles * period)
+    tau = record.time_s[take] - analysis.origin.time_s
+    A = design_matrix(tau, speed.omega, orders.H)
+    clean = A[:, 1:] @ _to_real(orders.harmonics)[:, 1:].T
+    raw = np.column_stack([record.x_m[take], record.y_m[take]]) - orders.harmonics[:, 0].real
+    return pd.DataFrame({"time_s": tau, "angle_rad": speed.omega * tau, "x_m": clean[:, 0], "y_m": clean[:, 1],
+                         "x_raw_m": raw[:, 0], "y_raw_m": raw[:, 1]})
+
+
+def preprocess_run(sheet_row: Mapping, harmonics: int = 5,
+                   sensor_range_m: float | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """One runs-sheet row (with its resolved ``record`` path) -> (one-row tidy table, waveforms)."""
+    record = read_record(sheet_row["record"])
+    analysis = analyse_record(record, float(sheet_row["rpm"]), harmonics, sensor_range_m)
+    row = {k: v for k, v in sheet_row.items() if k != "record"} | run_row(analysis, harmonics)
+    return pd.DataFrame([row]), waveforms(analysis)
+
+
+def summarise_runs(runs: pd.DataFrame, harmonics: int = 5, sensor_range_m: float | None = None,
+                   min_revolutions: float = MIN_REVOLUTIONS) -> tuple[pd.DataFrame, dict[str, str]]:
+    """check-data: every run of a validated sheet analysed; (summary table, {run: error message}).
+
+    The summary has the sheet's columns, then the per-run figures of
+    ``run_row`` without the complex parts (amplitudes and uncertainties only)
+    and ``status`` ("ok", "excluded: ...", or "invalid: <error>"). Runs whose
+    record is invalid keep their row (status invalid) and their error is
+    returned, so nothing is dropped silently.
+    """
+    rows, errors = [], {}
+    for _, sheet_row in runs.iterrows():
+        base = {k: v for k, v in sheet_row.items() if k != "record"}
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("always", DataWarning)  # every flagged run is reported, not just the first
+                record = read_record(sheet_row["record"])
+                analysis = analyse_record(record, float(sheet_row["rpm"]), harmonics, sensor_range_m,
+                                          min_revolutions)
+            rows.append(base | run_row(analysis, harmonics, complex_parts=False) | {"status": analysis.note})
+        except DataError as err:
+            errors[str(sheet_row["run"])] = str(err)
+            rows.append(base | {"status": f"invalid: {str(err).splitlines()[0]}", "usable": False})
+    return pd.DataFrame(rows), errors
+
+
+# --- nuisance-free comparison -----------------------------------------------------------
+
+
+def fit_phase(measured: Array, model: Array, sigma: Array | None = None) -> float:
+    """The per-run phase phi* minimising sum_{ch, h>=1} |X_h - M_h exp(i h phi)|^2 / sigma_h^2.
+
+    measured, model: (..., H+1) complex (h = 0 ignored); sigma: same shape or
+    None (unit weights). The misfit is const - 2 sum_h Re(c_h exp(i h phi)),
+    c_h = sum_ch conj(X_h) M_h / sigma_h^2: maximised on a grid of 64 H phases,
+    then refined by Brent's method.
+    """
+    measured, model = np.atleast_2d(measured), np.atleast_2d(model)
+    weight = 1.0 if sigma is None else 1.0 / np.atleast_2d(sigma) ** 2
+    c = (np.conj(measured) * model * weight)[..., 1:].reshape(-1, measured.shape[-1] - 1).sum(0)
+    h = np.arange(1, c.size + 1)
+
+    def gain(phi: float | Array) -> Array:
+        return (c[None, :] * np.exp(1j * np.outer(np.atleast_1d(phi), h))).real.sum(1)
+
+    grid = np.linspace(0.0, 2 * np.pi, 64 * h.size, endpoint=False)
+    best = grid[np.argmax(gain(grid))]
+    step = grid[1] - grid[0]
+    found = minimize_scalar(lambda p: -gain(p)[0], bounds=(best - step, best + step), method="bounded",
+                            options={"xatol": 1e-12})
+    return float(np.mod(found.x, 2 * np.pi))
+
+
+def phase_aligned_residuals(measured: Array, sigma: Array, model: Array) -> tuple[Array, float]:
+    """Normalised residuals (X_h - M_h exp(i h phi*)) / sigma_h for h >= 1, real and imaginary parts.
+
+    Invariant to the record's phase origin and DC offsets (module docstring):
+    returns (residuals (..., 2H) flattened per channel, phi*).
+    """
+    phi = fit_phase(measured, model, sigma)
+    h = np.arange(measured.shape[-1])
+    aligned = model * np.exp(1j * h * phi)
+    r = ((measured - aligned) / sigma)[..., 1:]
+    return np.concatenate([r.real, r.imag], axis=-1), phi
+
+
+def write_tsv(table: pd.DataFrame, path: str | Path) -> None:
+    """TSV with enough digits for metres (the format of every preprocessing output)."""
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    table.to_csv(path, sep="\t", index=False, float_format="%.9e")
+
+
+# --- check-data: the whole data set -----------------------------------------------------
+
+
+def check_data(sheet: str | Path, harmonics: int = 5, rpm_range: tuple[float, float] | None = None,
+               mass_range_g: tuple[float, float] | None = None, sensor_range_m: float | None = None,
+               min_revolutions: float = MIN_REVOLUTIONS) -> tuple[pd.DataFrame, dict[str, str]]:
+    """Validate a runs sheet and every record; (summary table, {run: error}).
+
+    The sheet itself must be valid (``read_runs`` and ``check_coverage`` raise
+    ``DataError``); record problems are collected per run (see ``summarise_runs``).
+    """
+    runs = read_runs(sheet)
+    check_coverage(runs, rpm_range, mass_range_g, sheet)
+    return summarise_runs(runs, harmonics, sensor_range_m, min_revolutions)
+
+
+def format_summary(summary: pd.DataFrame, harmonics: int) -> str:
+    """The check-data printout: one line per run (figures in mm), then the harmonic amplitudes."""
+    if "rpm_true" not in summary:
+        return summary[["run", "rpm", "status"]].to_string(index=False)
+    mm = 1e3
+    view = pd.DataFrame({
+        "run": summary["run"], "rpm": summary["rpm"], "rpm_true": summary["rpm_true"].round(2),
+        "dev_%": (100 * summary["speed_deviation_rel"]).round(3), "samples": summary["n_samples"],
+        "duration_s": summary["duration_s"].round(3), "fs_hz": summary["sample_rate_hz"].round(1),
+        "revs": summary["n_revolutions"],
+        "noise_x_mm": (mm * summary["noise_x_m"]).round(4), "noise_y_mm": (mm * summary["noise_y_m"]).round(4),
+        "offset_x_mm": (mm * summary["offset_x_m"]).round(4), "offset_y_mm": (mm * summary["offset_y_m"]).round(4),
+        "phase": summary["phase_reference"], "status": summary["status"],
+    })
+    amplitudes = pd.DataFrame({"run": summary["run"]})
+    for name in CHANNELS:
+        for h in range(1, harmonics + 1):
+            amplitudes[f"{name}{h}X_mm"] = (mm * summary[f"{name}{h}_amp_m"]).map(lambda v: f"{v:.4f}")
+    sigma = mm * summary[[f"{c}1_sigma_m" for c in CHANNELS]].max(1)
+    amplitudes["sigma_1X_mm"] = sigma.map(lambda v: f"{v:.1e}")
+    return (view.to_string(index=False, na_rep="-") + "\n\nharmonic amplitudes, 0-peak [mm] (sigma_1X_mm: standard "
+            "uncertainty of the 1X real/imaginary parts):\n" + amplitudes.to_string(index=False, na_rep="-"))
+
+
+def add_check_data_command(sub) -> None:
+    """Register ``hybridtwin check-data`` on the CLI's subparsers."""
+    parser = sub.add_parser(
+        "check-data", help="validate a runs sheet and its records; per-run summary (speed, noise, offsets, harmonics)",
+        description="Validate a runs sheet (TSV: run, rpm, eccentric_mass_g, path, role) and every record it "
+                    "lists (CSV: time_s, x_mm, y_mm or x_m, y_m, optional keyphasor), then print per run: samples, "
+                    "duration, sample rate, the true speed refined from the record vs the nominal one, noise level, "
+                    "DC offsets, amplitude per harmonic and saturation. Exit status 1 on invalid input.")
+    parser.add_argument("runs", type=Path, help="the runs sheet (TSV); record paths are relative to its folder")
+    parser.add_argument("--harmonics", type=int, default=5, help="highest harmonic H analysed (default 5)")
+    parser.add_argument("--min-revolutions", type=float, default=MIN_REVOLUTIONS,
+                        help=f"fewest revolutions a record must hold (default {MIN_REVOLUTIONS})")
+    parser.add_argument("--rpm-range", type=float, nargs=2, metavar=("LOW", "HIGH"), default=None,
+                        help="speeds the model libraries cover [RPM]; runs outside are an error")
+    parser.add_argument("--mass-range-g", type=float, nargs=2, metavar=("LOW", "HIGH"), default=None,
+                        help="eccentric masses the model libraries cover [g]; runs outside are an error")
+    parser.add_argument("--sensor-range-mm", type=float, default=None,
+                        help="sensor range [mm]: samples at or beyond +-range count as clipped (default: detect "
+                             "flat tops only)")
+    parser.add_argument("--output", type=Path, default=None, help="also write the full summary (SI units) as TSV")
+    parser.add_argument("--strict", action="store_true", help="exit 1 also when a run is flagged (flat or clipped)")
+    parser.set_defaults(handler=check_data_command)
+
+
+def check_data_command(args) -> int:
+    """``hybridtwin check-data``: print the summary, warnings and errors; 0 valid, 1 invalid (or flagged, --strict)."""
+    if args.harmonics < 1:
+        print(f"hybridtwin check-data: error: --harmonics must be >= 1, got {args.harmonics}", file=sys.stderr)
+        return 2
+    sensor_range = None if args.sensor_range_mm is None else args.sensor_range_mm * 1e-3
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", DataWarning)
+        try:
+            summary, errors = check_data(args.runs, args.harmonics, args.rpm_range, args.mass_range_g, sensor_range,
+                                         args.min_revolutions)
+        except DataError as err:
+            print(f"hybridtwin check-data: error: {err}", file=sys.stderr)
+            return 1
+    print(format_summary(summary, args.harmonics))
+    if args.output:
+        write_tsv(summary, args.output)
+    for warning in caught:
+        print(f"hybridtwin check-data: warning: {warning.message}", file=sys.stderr)
+    for run, message in errors.items():
+        print(f"hybridtwin check-data: error: run {run}: {message}", file=sys.stderr)
+    flagged = (~summary["usable"].astype(bool)).sum() - len(errors)
+    print(f"# {len(summary)} run(s): {len(summary) - len(errors) - flagged} ok, {flagged} flagged (not usable), "
+          f"{len(errors)} invalid", file=sys.stderr)
+    return 1 if errors or (args.strict and flagged) else 0

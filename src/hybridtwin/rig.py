@@ -1,0 +1,544 @@
+"""Virtual rig: measured-format records from a "truth" model with hidden effects.
+
+The rig plays the part of the paper's test bench (shared/varm-model.md,
+"Steady state and sensor"; shared/measurement-format.md). A truth is a model
+variant (any list of effects, e.g. the Geometric model plus the slope force
+the Geometric model lacks) with parameter values. For every run of a plan
+(run, rpm, eccentric_mass_g, role) the rig
+
+1. draws the run's conditions from a seeded generator: the true speed
+   rpm (1 + speed_error * N(0, 1)), the rotor angle at the first sample
+   (uniform in [0, 2 pi) when the phase origin is random), a DC offset per
+   channel (uniform in +-offset_mm) and a noise level per channel (uniform in
+   the noise_mm range);
+2. solves the truth's periodic steady state at the true speed by run-up
+   (``solve_sweep`` per eccentric mass, from start_rpm, steps <= step_rpm) and
+   again by run-down from rundown_margin_rpm above the mass's highest speed:
+   the two must agree, else the steady state is not unique and the run's
+   response depends on the rig's history (reported, column ``unique``);
+3. evaluates the sensor response x(t) = Re(sum_h X_h exp(i h Omega (t + t0)))
+   at the sampling instants, t0 = angle / Omega, adds the offsets and white
+   Gaussian noise, clips at +-sensor_range_mm if asked (a saturated laser
+   micrometer) and marks the keyphasor on the sample nearest to each instant
+   the unbalance points to +x (if asked);
+4. writes runs.tsv, records/{run}.csv, and the answer key truth.tsv (per run:
+   true speed, phase origin, offsets, noise levels, truth harmonics in the
+   model's frame, run-up/run-down agreement, peak vs sensor range) and
+   truth.yaml (truth, imperfections, seed), which an identification must not read.
+
+Each run's random stream is seeded from (seed, run id), so a run's record does
+not change when other runs are added to the plan.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import warnings
+import zlib
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import yaml
+
+from .effects import Effect
+from .measurements import DataError, read_runs
+from .model import rpm_to_rad_s
+from .sensor import sensor_dofs
+from .solver import solve_sweep
+from .variants import Variant, load_effects_file
+
+Array = np.ndarray
+
+#: the paper's final finding (Table 5): the Geometric model's effects plus the bearing force on the shaft
+#: slope, k_w u' + k_z u'^3, that the Geometric model lacks; bow chosen for the bundled data (data/default)
+DEFAULT_TRUTH: dict = {
+    "description": "Geometric model + slope spring k_w u' + k_z u'^3 (paper Table 5)",
+    "effects": ["centrifugal_softening", "structural_damping", "upper_housing", "lower_bearing", "unbalance",
+                "shaft_bow", "geometric_spring", "slope_spring"],
+    "values": {"k_b": 2411.3, "zeta_s": 0.024, "zeta_bup": 0.016, "k_w": 324.2, "k_z": 301.1,
+               "q_x": 0.002, "q_y": 0.0015},
+}
+#: run-up and run-down harmonics agreeing to this relative difference are the same steady state
+UNIQUE_TOLERANCE = 1e-6
+#: a record is "inside the range" when |response + offset| + this many noise sigmas stays below the range
+RANGE_SIGMAS = 4.0
+
+
+class RigError(ValueError):
+    """A rig specification or plan that cannot be run, with the reason."""
+
+
+class RigWarning(UserWarning):
+    """A generated run whose steady state is not unique or which leaves the sensor range."""
+
+
+@dataclass(frozen=True)
+class Imperfections:
+    """How the virtual measurement departs from the model's clean steady state (SI at the boundary noted)."""
+
+    duration_s: float = 4.0  # record length
+    sample_rate_hz: float = 2000.0  # the paper's rig samples at 2 kHz
+    speed_error: float = 1e-3  # standard deviation of the relative speed error (true vs nominal)
+    noise_mm: tuple[float, float] = (0.05, 0.05)  # Gaussian noise std range [mm], drawn per run and channel
+    offset_mm: float = 0.5  # DC offsets uniform in +-offset_mm per run and channel
+    random_phase: bool = True  # rotor angle at the first sample uniform in [0, 2 pi); else 0 (start at a mark)
+    keyphasor: bool = False  # write a keyphasor column
+    clip: bool = True  # clip at +-sensor_range_mm like a saturated laser micrometer
+    sensor_range_mm: float = 14.0  # the laser micrometers' range
+    unit: str = "mm"  # displacement columns x_mm, y_mm ("mm") or x_m, y_m ("m")
+
+    def __post_init__(self) -> None:
+        lo, hi = self.noise_mm
+        checks = [
+            (self.duration_s > 0, f"duration_s must be positive, got {self.duration_s}"),
+            (self.sample_rate_hz > 0, f"sample_rate_hz must be positive, got {self.sample_rate_hz}"),
+            (self.speed_error >= 0, f"speed_error must be >= 0, got {self.speed_error}"),
+            (0 <= lo <= hi, f"noise_mm must be [low, high] with 0 <= low <= high, got {self.noise_mm}"),
+            (self.offset_mm >= 0, f"offset_mm must be >= 0, got {self.offset_mm}"),
+            (self.sensor_range_mm > 0, f"sensor_range_mm must be positive, got {self.sensor_range_mm}"),
+            (self.unit in ("mm", "m"), f"unit must be 'mm' or 'm', got {self.unit!r}"),
+        ]
+        for ok, message in checks:
+            if not ok:
+                raise RigError(f"imperfections: {message}")
+
+    @classmethod
+    def from_mapping(cls, values: Mapping | None) -> "Imperfections":
+        """From a config mapping; ``noise_mm`` may be one value or [low, high]."""
+        values = dict(values or {})
+        known = {f.name for f in fields(cls)}
+        stray = sorted(set(values) - known)
+        if stray:
+            raise RigError(f"imperfections: unknown key(s) {stray} (known: {sorted(known)})")
+        if "noise_mm" in values:
+            noise = values["noise_mm"]
+            noise = [noise, noise] if np.isscalar(noise) else list(noise)
+            if len(noise) != 2:
+                raise RigError(f"imperfections: noise_mm must be one value or [low, high], got {values['noise_mm']}")
+            values["noise_mm"] = (float(noise[0]), float(noise[1]))
+        return cls(**values)
+
+    def to_mapping(self) -> dict:
+        out = asdict(self)
+        out["noise_mm"] = list(self.noise_mm)
+        return out
+
+
+@dataclass
+class Truth:
+    """The model behind the rig: a variant (its effects are the truth's physics) and parameter values [SI]."""
+
+    variant: Variant
+    values: dict[str, float] = field(default_factory=dict)
+
+    @classmethod
+    def from_spec(cls, spec: Mapping | None = None, effects: Mapping[str, Effect] | None = None) -> "Truth":
+        """From {description, effects: [...], values: {name: value}}; missing keys take DEFAULT_TRUTH's."""
+        spec = dict(spec or {})
+        stray = sorted(set(spec) - {"description", "effects", "values"})
+        if stray:
+            raise RigError(f"truth: unknown key(s) {stray} (expected description, effects, values)")
+        effect_names = spec.get("effects", DEFAULT_TRUTH["effects"])
+        values = {k: float(v) for k, v in dict(spec.get("values", DEFAULT_TRUTH["values"])).items()}
+        description = spec.get("description", DEFAULT_TRUTH["description"] if "effects" not in spec else "")
+        try:
+            variant = Variant.from_spec("truth", {"effects": list(effect_names), "description": description},
+                                        effects)
+            variant.values(values)
+        except ValueError as err:
+            raise RigError(f"truth: {err}") from None
+        if "m_e" in values:
+            raise RigError("truth: m_e comes from each run's eccentric_mass_g, do not set it in the values")
+        return cls(variant, values)
+
+    def to_mapping(self) -> dict:
+        """Effects and every parameter value in effect (given or nominal), for the answer key."""
+        everything = {k: float(v) for k, v in self.variant.values(self.values).items() if k != "m_e"}
+        return {"description": self.variant.description,
+                "effects": [e.name for e in self.variant.model.effects],
+                "values": {k: self.values[k] for k in self.values},
+                "nominal_values_used": {k: v for k, v in everything.items() if k not in self.values}}
+
+
+@dataclass
+class RigSpec:
+    """Everything that defines a generated data set besides the plan."""
+
+    truth: Truth = field(default_factory=Truth.from_spec)
+    imperfections: Imperfections = field(default_factory=Imperfections)
+    seed: int = 0
+    harmonics: int = 7  # harmonics 0..H of the truth's steady state
+    start_rpm: float = 300.0  # run-up start
+    step_rpm: float = 25.0  # largest continuation step
+    rundown_margin_rpm: float = 200.0  # run-down starts this far above a mass's highest speed
+
+    @classmethod
+    def from_mapping(cls, spec: Mapping | None, effects: Mapping[str, Effect] | None = None) -> "RigSpec":
+        """From the config form: {truth: {...}, imperfections: {...}, seed, harmonics, ...} (plan ignored)."""
+        spec = dict(spec or {})
+        known = {"truth", "imperfections", "seed", "harmonics", "start_rpm", "step_rpm", "rundown_margin_rpm",
+                 "plan", "effects_files"}
+        stray = sorted(set(spec) - known)
+        if stray:
+            raise RigError(f"rig: unknown key(s) {stray} (known: {sorted(known)})")
+        options = {k: spec[k] for k in ("seed", "harmonics", "start_rpm", "step_rpm", "rundown_margin_rpm")
+                   if k in spec}
+        if int(options.get("harmonics", 1)) < 1:
+            raise RigError(f"rig: harmonics must be >= 1, got {options['harmonics']}")
+        return cls(Truth.from_spec(spec.get("truth"), effects), Imperfections.from_mapping(spec.get("imperfections")),
+                   **{k: (int(v) if k in ("seed", "harmonics") else float(v)) for k, v in options.items()})
+
+    def to_mapping(self) -> dict:
+        return {"seed": self.seed, "harmonics": self.harmonics, "start_rpm": self.start_rpm,
+                "step_rpm": self.step_rpm, "rundown_margin_rpm": self.rundown_margin_rpm,
+                "truth": self.truth.to_mapping(), "imperfections": self.imperfections.to_mapping()}
+
+
+# --- the steps --------------------------------------------------------------------------
+
+
+def read_plan(path: str | Path) -> pd.DataFrame:
+    """A run plan (run, rpm, eccentric_mass_g[, role, ...]); a runs sheet's path column is ignored."""
+    plan = read_runs(path, check_files=False, require_path=False)
+    unknown = plan["eccentric_mass_g"].isna()
+    if unknown.any():
+        raise RigError(f"{path}: the rig needs every run's eccentric mass; empty for "
+                       f"{plan['run'][unknown].tolist()}")
+    return plan.drop(columns=["path", "record"])
+
+
+def draw_conditions(plan: pd.DataFrame, imperfections: Imperfections, seed: int) -> pd.DataFrame:
+    """Per run: rpm_true, phase_origin_rad, offset_{x,y}_m, noise_{x,y}_m, drawn from (seed, run id)."""
+    rows = []
+    for run_id, rpm in zip(plan["run"], plan["rpm"].to_numpy(float)):
+        rng = _rng(seed, run_id, 0)
+        speed = rpm * (1.0 + imperfections.speed_error * rng.standard_normal())
+        phase = rng.uniform(0.0, 2.0 * np.pi) if imperfections.random_phase else 0.0
+        offsets = rng.uniform(-imperfections.offset_mm, imperfections.offset_mm, 2) * 1e-3
+        noise = rng.uniform(*imperfections.noise_mm, 2) * 1e-3
+        rows.append({"run": run_id, "rpm_true": speed, "phase_origin_rad": phase, "offset_x_m": offsets[0],
+                     "offset_y_m": offsets[1], "noise_x_m": noise[0], "noise_y_m": noise[1]})
+    return pd.DataFrame(rows)
+
+
+@dataclass
+class TruthResponse:
+    """Sensor harmonics of the truth at each run's true speed: X, Y (R, H+1) complex [m], by run-up,
+    and the run-down's X_down, Y_down for the uniqueness check; success/branch/message per run."""
+
+    X: Array
+    Y: Array
+    X_down: Array
+    Y_down: Array
+    success: Array
+    branch: Array
+    message: Array
+
+    @property
+    def difference_rel(self) -> Array:
+        """max_h |run-up - run-down| / max_h |run-up| over both channels, per run."""
+        diff = np.maximum(np.abs(self.X - self.X_down).max(1), np.abs(self.Y - self.Y_down).max(1))
+        scale = np.maximum(np.abs(self.X).max(1), np.abs(self.Y).max(1))
+        return diff / np.maximum(scale, 1e-300)
+
+    @property
+    def unique(self) -> Array:
+        return self.difference_rel < UNIQUE_TOLERANCE
+
+
+def solve_truth(truth: Truth, runs: pd.DataFrame, harmonics: int = 7, start_rpm: float = 300.0,
+                step_rpm: float = 25.0, rundown_margin_rpm: float = 200.0) -> TruthResponse:
+    """Truth's sensor harmonics at each row's (rpm_true, eccentric_mass_g), run-up and run-down per mass."""
+    R = len(runs)
+    out = TruthResponse(*(np.full((R, harmonics + 1), np.nan + 0j) for _ in range(4)), np.zeros(R, bool),
+                        np.empty(R, object), np.empty(R, object))
+    dofs = sensor_dofs(truth.variant.model.shaft)
+    for mass_g, group in runs.groupby("eccentric_mass_g", sort=True):
+        values = truth.variant.values({**truth.values, "m_e": float(mass_g) * 1e-3})
+        speeds = group["rpm_true"].to_numpy(float)
+        positions = np.flatnonzero(runs.index.isin(group.index))
+        up = _sweep(truth.variant, values, _grid(min(start_rpm, speeds.min()), speeds, step_rpm), harmonics, "up")
+        down = _sweep(truth.variant, values, _grid(speeds.max() + rundown_margin_rpm, speeds, step_rpm),
+                      harmonics, "down")
+        for pos, speed in zip(positions, speeds):
+            res_up, res_down = up[speed], down[speed]
+            out.X[pos], out.Y[pos] = res_up.harmonics[0, :, dofs[0]], res_up.harmonics[0, :, dofs[1]]
+            out.X_down[pos], out.Y_down[pos] = res_down.harmonics[0, :, dofs[0]], res_down.harmonics[0, :, dofs[1]]
+            out.success[pos] = bool(res_up.success[0])
+            out.branch[pos] = str(res_up.branch[0])
+            out.message[pos] = str(res_up.message[0]) if res_down.success[0] else (
+                f"{res_up.message[0]}; run-down: {res_down.message[0]}")
+    return out
+
+
+def synthesise(X: Array, Y: Array, rpm_true: float, conditions: Mapping[str, float], imperfections: Imperfections,
+               rng: np.random.Generator) -> dict[str, Array]:
+    """One record's columns [SI]: time_s, x_m, y_m, keyphasor (or None), and the clipping mask.
+
+    x(t) = Re(sum_h X_h exp(i h Omega (t + t0))) + offset + noise, t0 = phase / Omega
+    (the rotor angle at t = 0 is ``phase``), then clipped at +-sensor range if
+    ``imperfections.clip``. The keyphasor marks the sample nearest to each time
+    the unbalance points to +x, Omega (t + t0) = 2 pi k.
+    """
+    n = int(round(imperfections.duration_s * imperfections.sample_rate_hz))
+    t = np.arange(n) / imperfections.sample_rate_hz
+    omega = float(rpm_to_rad_s(rpm_true))
+    angle = omega * t + conditions["phase_origin_rad"]
+    rotation = np.exp(1j * np.outer(angle, np.arange(X.size)))  # (N, H+1)
+    x = (rotation @ X).real + conditions["offset_x_m"] + conditions["noise_x_m"] * rng.standard_normal(n)
+    y = (rotation @ Y).real + conditions["offset_y_m"] + conditions["noise_y_m"] * rng.standard_normal(n)
+    limit = imperfections.sensor_range_mm * 1e-3
+    clipped = (np.abs(x) > limit) | (np.abs(y) > limit)
+    if imperfections.clip:
+        x, y = np.clip(x, -limit, limit), np.clip(y, -limit, limit)
+    keyphasor = None
+    if imperfections.keyphasor:
+        period = 2.0 * np.pi / omega
+        first = -conditions["phase_origin_rad"] / omega
+        marks = first + period * np.arange(np.ceil((t[-1] - first) / period) + 1)
+        index = np.round(marks * imperfections.sample_rate_hz).astype(int)
+        keyphasor = np.zeros(n, np.int8)
+        keyphasor[index[(index >= 0) & (index < n)]] = 1
+    return {"time_s": t, "x_m": x, "y_m": y, "keyphasor": keyphasor, "clipped": clipped}
+
+
+def write_record(path: Path, record: Mapping[str, Array | None], unit: str = "mm") -> None:
+    """Write time_s, x_{unit}, y_{unit}[, keyphasor] as CSV (0.1 um resolution in mm, 10 nm in m)."""
+    scale, fmt = (1e3, "%.4f") if unit == "mm" else (1.0, "%.8f")
+    columns = [record["time_s"], record["x_m"] * scale, record["y_m"] * scale]
+    header = ["time_s", f"x_{unit}", f"y_{unit}"]
+    formats = ["%.6f", fmt, fmt]
+    if record.get("keyphasor") is not None:
+        columns.append(record["keyphasor"])
+        header.append("keyphasor")
+        formats.append("%d")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savetxt(path, np.column_stack(columns), fmt=formats, delimiter=",", header=",".join(header), comments="")
+
+
+def generate(plan: pd.DataFrame, spec: RigSpec, out_dir: str | Path) -> pd.DataFrame:
+    """Generate a data set (runs.tsv, records/, truth.tsv, truth.yaml) in ``out_dir``; returns the truth table.
+
+    Raises ``RigError`` when the truth has no periodic steady state at some run
+    (no record could honestly be written for it). Runs whose steady state is not
+    unique (run-up and run-down differ) or whose record leaves the sensor range
+    are kept and reported with a ``RigWarning`` and in truth.tsv.
+    """
+    out_dir = Path(out_dir)
+    conditions = draw_conditions(plan, spec.imperfections, spec.seed)
+    runs = plan.reset_index(drop=True).join(conditions.drop(columns="run"))
+    response = solve_truth(spec.truth, runs, spec.harmonics, spec.start_rpm, spec.step_rpm, spec.rundown_margin_rpm)
+    failed = ~response.success
+    if failed.any():
+        detail = "; ".join(f"{r} ({m})" for r, m in zip(runs["run"][failed], response.message[failed]))
+        raise RigError(f"the truth has no periodic steady state at: {detail}")
+    truth = _truth_table(runs, response, spec)
+    for i, row in runs.iterrows():
+        record = synthesise(response.X[i], response.Y[i], row["rpm_true"], row, spec.imperfections,
+                            _rng(spec.seed, row["run"], 1))
+        write_record(out_dir / "records" / f"{row['run']}.csv", record, spec.imperfections.unit)
+        truth.loc[i, "clipped_samples"] = int(record["clipped"].sum())
+    _warn(truth, spec.imperfections)
+    sheet = plan.copy()
+    sheet["path"] = [f"records/{r}.csv" for r in plan["run"]]
+    columns = ["run", "rpm", "eccentric_mass_g", "path", "role"]
+    sheet = sheet[columns + [c for c in sheet.columns if c not in columns]]
+    sheet.to_csv(out_dir / "runs.tsv", sep="\t", index=False, float_format="%.10g")
+    truth.to_csv(out_dir / "truth.tsv", sep="\t", index=False, float_format="%.9e")
+    with open(out_dir / "truth.yaml", "w") as stream:
+        yaml.safe_dump(spec.to_mapping(), stream, sort_keys=False)
+    return truth
+
+
+# --- helpers ----------------------------------------------------------------------------
+
+
+def _rng(seed: int, run_id: str, stream: int) -> np.random.Generator:
+    """The generator of one run's draws (stream 0: conditions, 1: noise), independent of the plan's order."""
+    return np.random.default_rng([int(seed), zlib.crc32(str(run_id).encode()), stream])
+
+
+def _grid(start: float, speeds: Array, step: float) -> Array:
+    """start, the speeds and intermediate speeds so that no step exceeds ``step`` (sorted)."""
+    points = np.unique(np.append(speeds, start))
+    if points.size < 2:
+        return points
+    parts = [np.linspace(a, b, int(np.ceil((b - a) / step)) + 1)[:-1] for a, b in zip(points[:-1], points[1:])]
+    return np.concatenate(parts + [points[-1:]])
+
+
+def _sweep(variant: Variant, values: Mapping[str, Array], speeds: Array, harmonics: int, direction: str) -> dict:
+    """{rpm: SteadyState} along a run-up ("up") or run-down ("down") through ``speeds``."""
+    sweep = solve_sweep(lambda rpm, rows: variant.model.system(values, rpm), speeds, 1, harmonics=harmonics,
+                        direction=direction)
+    return dict(zip(sweep.rpm, sweep.results))
+
+
+def _truth_table(runs: pd.DataFrame, response: TruthResponse, spec: RigSpec) -> pd.DataFrame:
+    """The answer key: conditions, truth harmonics (model frame), uniqueness, peak vs sensor range."""
+    table = runs.copy()
+    for h in range(spec.harmonics + 1):
+        for name, Z in (("x", response.X), ("y", response.Y)):
+            table[f"{name}{h}_re_m"] = Z[:, h].real
+            table[f"{name}{h}_im_m"] = Z[:, h].imag
+    table["updown_difference_rel"] = response.difference_rel
+    table["unique"] = response.unique
+    table["branch"], table["message"] = response.branch, response.message
+    angle = np.linspace(0.0, 2.0 * np.pi, 721)
+    rotation = np.exp(1j * np.outer(angle, np.arange(spec.harmonics + 1)))
+    limit = spec.imperfections.sensor_range_mm * 1e-3
+    inside = np.ones(len(table), bool)
+    for name, Z in (("x", response.X), ("y", response.Y)):
+        wave = (rotation @ Z.T).real + table[f"offset_{name}_m"].to_numpy()
+        peak = np.abs(wave).max(0)
+        table[f"peak_{name}_m"] = peak
+        inside &= peak + RANGE_SIGMAS * table[f"noise_{name}_m"].to_numpy() < limit
+    table["inside_range"] = inside
+    table["clipped_samples"] = 0
+    return table
+
+
+def _warn(truth: pd.DataFrame, imperfections: Imperfections) -> None:
+    for row in truth.itertuples():
+        if not row.unique:
+            warnings.warn(f"run {row.run}: the steady state at {row.rpm_true:.2f} RPM is not unique (run-up and "
+                          f"run-down differ by {row.updown_difference_rel:.1e} relative); the record follows the "
+                          "run-up branch", RigWarning, stacklevel=3)
+        if not row.inside_range:
+            peak = max(row.peak_x_m, row.peak_y_m) * 1e3
+            action = (f"{row.clipped_samples} sample(s) clipped" if imperfections.clip else "not clipped (clip off)")
+            warnings.warn(f"run {row.run}: the response reaches {peak:.2f} mm (+ noise) against the sensor range "
+                          f"+-{imperfections.sensor_range_mm:g} mm: {action}", RigWarning, stacklevel=3)
+
+
+
+# --- command line -----------------------------------------------------------------------
+
+
+def load_spec(path: Path | None, effects_files: list[Path] | None = None) -> tuple[RigSpec, Path | None]:
+    """A rig spec from YAML (the config's rig entry form; effects_files and plan relative to the file)."""
+    mapping, base = {}, None
+    if path is not None:
+        if not path.is_file():
+            raise RigError(f"rig spec {path} does not exist")
+        try:
+            mapping = yaml.safe_load(path.read_text()) or {}
+        except yaml.YAMLError as err:
+            raise RigError(f"rig spec {path} is not valid YAML: {err}") from None
+        if not isinstance(mapping, dict):
+            raise RigError(f"rig spec {path}: expected a mapping (truth, imperfections, seed, ...)")
+        base = path.parent
+    files = [base / f for f in mapping.pop("effects_files", []) or []] + list(effects_files or [])
+    effects = {}
+    for f in files:
+        try:
+            effects |= load_effects_file(f)
+        except (OSError, ValueError, RuntimeError) as err:
+            raise RigError(str(err)) from None
+    plan = mapping.get("plan")
+    return RigSpec.from_mapping(mapping, effects), (base / plan if plan and base else None)
+
+
+def add_rig_command(sub) -> None:
+    """Register ``hybridtwin rig`` on the CLI's subparsers."""
+    parser = sub.add_parser(
+        "rig", help="virtual rig: write measured-format records from a truth model with hidden effects",
+        description="Generate a data set (runs.tsv, records/*.csv, and the answer key truth.tsv, truth.yaml) "
+                    "for a run plan from a truth model: steady state by run-up at each run's true speed (checked "
+                    "against a run-down), then sampling, random phase origin, DC offsets, Gaussian noise, "
+                    "optional keyphasor and clipping. Seeded and reproducible. Defaults: the paper's final model "
+                    "(Geometric + slope spring, Table 5) with the bundled data's bow, 4 s at 2 kHz, 0.1 % speed "
+                    "error, 0.05 mm noise, +-0.5 mm offsets, no keyphasor, clipping at +-14 mm.")
+    parser.add_argument("--plan", type=Path, default=None,
+                        help="run plan TSV (run, rpm, eccentric_mass_g[, role]); a runs sheet works too "
+                             "(default: the spec's plan)")
+    parser.add_argument("--out", type=Path, required=True, help="output folder")
+    parser.add_argument("--spec", type=Path, default=None,
+                        help="YAML with truth: {effects, values}, imperfections: {...}, seed, harmonics "
+                             "(the form of the workflow config's rig entries)")
+    parser.add_argument("--seed", type=int, default=None, help="random seed (default: the spec's, else 0)")
+    parser.add_argument("--set", dest="values", action="append", default=[], metavar="NAME=VALUE",
+                        help="truth parameter value in SI units (repeatable), e.g. --set q_x=0.003")
+    parser.add_argument("--effects-file", type=Path, action="append", default=[],
+                        help="Python file defining extra Effect instances for the truth (repeatable)")
+    parser.add_argument("--harmonics", type=int, default=None, help="harmonics 0..H of the truth (default 7)")
+    group = parser.add_argument_group("imperfections (override the spec)")
+    group.add_argument("--duration-s", type=float, default=None, help="record length [s] (default 4)")
+    group.add_argument("--sample-rate-hz", type=float, default=None, help="sampling rate [Hz] (default 2000)")
+    group.add_argument("--speed-error", type=float, default=None,
+                       help="std of the relative speed error (default 0.001)")
+    group.add_argument("--noise-mm", type=float, nargs="+", default=None, metavar="MM",
+                       help="Gaussian noise std [mm], or LOW HIGH drawn per run and channel (default 0.05)")
+    group.add_argument("--offset-mm", type=float, default=None, help="DC offsets uniform in +-MM (default 0.5)")
+    group.add_argument("--keyphasor", action=argparse.BooleanOptionalAction, default=None,
+                       help="write a keyphasor column (default no)")
+    group.add_argument("--random-phase", action=argparse.BooleanOptionalAction, default=None,
+                       help="random rotor angle at the first sample (default yes)")
+    group.add_argument("--clip", action=argparse.BooleanOptionalAction, default=None,
+                       help="clip at +-sensor range like a saturated sensor (default yes)")
+    group.add_argument("--sensor-range-mm", type=float, default=None, help="sensor range [mm] (default 14)")
+    group.add_argument("--unit", choices=("mm", "m"), default=None, help="displacement unit of the records")
+    parser.set_defaults(handler=rig_command)
+
+
+def rig_command(args) -> int:
+    """``hybridtwin rig``: generate, print a per-run report; 0 ok, 1 on an unusable spec or plan."""
+    try:
+        spec, spec_plan = load_spec(args.spec, args.effects_file)
+        spec = _override(spec, args)
+        plan_path = args.plan or spec_plan
+        if plan_path is None:
+            raise RigError("no run plan: give --plan (or 'plan:' in the --spec file)")
+        plan = read_plan(plan_path)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", RigWarning)
+            truth = generate(plan, spec, args.out)
+    except (RigError, DataError) as err:
+        print(f"hybridtwin rig: error: {err}", file=sys.stderr)
+        return 1
+    report = pd.DataFrame({
+        "run": truth["run"], "rpm": truth["rpm"], "eccentric_mass_g": truth["eccentric_mass_g"],
+        "rpm_true": truth["rpm_true"].round(3), "unique": truth["unique"],
+        "updown_diff_rel": truth["updown_difference_rel"].map(lambda v: f"{v:.1e}"),
+        "peak_x_mm": (1e3 * truth["peak_x_m"]).round(3), "peak_y_mm": (1e3 * truth["peak_y_m"]).round(3),
+        "inside_range": truth["inside_range"], "clipped_samples": truth["clipped_samples"],
+    })
+    print(report.to_string(index=False))
+    for warning in caught:
+        print(f"hybridtwin rig: warning: {warning.message}", file=sys.stderr)
+    print(f"# wrote {len(truth)} record(s), runs.tsv, truth.tsv and truth.yaml to {args.out} (seed {spec.seed})",
+          file=sys.stderr)
+    return 0
+
+
+def _override(spec: RigSpec, args) -> RigSpec:
+    """The spec with the command line's explicit options applied."""
+    values = dict(spec.truth.values)
+    for text in args.values:
+        name, sep, value = text.partition("=")
+        try:
+            values[name.strip()] = float(value)
+        except ValueError:
+            raise RigError(f"--set expects NAME=VALUE with a number, got {text!r}") from None
+        if not sep:
+            raise RigError(f"--set expects NAME=VALUE, got {text!r}")
+    truth = Truth.from_spec({"effects": [e.name for e in spec.truth.variant.model.effects], "values": values,
+                             "description": spec.truth.variant.description},
+                            {e.name: e for e in spec.truth.variant.model.effects})
+    names = {"duration_s": "duration_s", "sample_rate_hz": "sample_rate_hz", "speed_error": "speed_error",
+             "offset_mm": "offset_mm", "keyphasor": "keyphasor", "random_phase": "random_phase", "clip": "clip",
+             "sensor_range_mm": "sensor_range_mm", "unit": "unit"}
+    imperfections = spec.imperfections.to_mapping()
+    imperfections.update({key: getattr(args, arg) for arg, key in names.items() if getattr(args, arg) is not None})
+    if args.noise_mm is not None:
+        if len(args.noise_mm) > 2:
+            raise RigError(f"--noise-mm takes one value or LOW HIGH, got {args.noise_mm}")
+        imperfections["noise_mm"] = args.noise_mm
+    return RigSpec(truth, Imperfections.from_mapping(imperfections),
+                   spec.seed if args.seed is None else args.seed,
+                   spec.harmonics if args.harmonics is None else args.harmonics,
+                   spec.start_rpm, spec.step_rpm, spec.rundown_margin_rpm)
