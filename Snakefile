@@ -12,6 +12,7 @@ configfile: "config/config.yaml"
 
 include: "workflow/rules/common.smk"
 include: "workflow/rules/whitebox.smk"
+include: "workflow/rules/measurements.smk"
 
 
 rule all:

@@ -183,6 +183,15 @@ def read_runs(path: str | Path, check_files: bool = True, require_path: bool = T
     return out
 
 
+def sheet_entry(sheet: str | Path, run: str) -> dict:
+    """One run's row of a runs sheet as a plain dict (``record`` resolved, NaN -> None), or ``DataError``."""
+    runs = read_runs(sheet)
+    rows = runs[runs["run"] == run]
+    if rows.empty:
+        raise DataError(f"{sheet}: no run {run!r} (runs: {', '.join(runs['run'])})")
+    return {k: (None if pd.isna(v) else (v.item() if hasattr(v, "item") else v)) for k, v in rows.iloc[0].items()}
+
+
 def check_coverage(runs: pd.DataFrame, rpm_range: Sequence[float] | None = None,
                    mass_range_g: Sequence[float] | None = None, source: str | Path = "runs sheet") -> None:
     """Raise ``DataError`` for runs whose speed or eccentric mass lies outside the covered ranges.

@@ -1,0 +1,91 @@
+# Measured runs (issue 4): check the runs sheet and every record, preprocess each run (true speed,
+# synchronous analysis), and the virtual rig that writes such data sets from a truth model.
+# The sheet (config key `runs`, paths in it relative to its folder) is read in input functions (lazily),
+# so targets that need no measured data never open it.
+from hybridtwin.measurements import read_runs, sheet_entry
+
+RUNS_SHEET = config.get("runs", "data/default/runs.tsv")
+
+
+rule check_data:
+    """First step on measured data: validate the sheet and every record; per-run summary."""
+    input:
+        sheet=RUNS_SHEET,
+        records=lambda wildcards: list(read_runs(RUNS_SHEET)["record"]),
+        schema=workflow.source_path("../schemas/runs.schema.yaml"),
+    output:
+        summary="results/data/check.tsv",
+    params:
+        harmonics=config["harmonics"],
+        coverage=config.get("coverage", {}),
+    log:
+        "logs/data/check_data.log",
+    benchmark:
+        "results/benchmarks/data/check_data.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
+    script:
+        "../../scripts/check_data.py"
+
+
+rule preprocess:
+    """One run: refined speed, harmonics 1X..HX with uncertainties, offsets, noise; two-cycle waveforms."""
+    input:
+        check="results/data/check.tsv",
+        record=lambda wildcards: sheet_entry(RUNS_SHEET, wildcards.run)["record"],
+    wildcard_constraints:
+        run="[A-Za-z0-9_-]+",
+    output:
+        harmonics="results/data/runs/{run}/harmonics.tsv",
+        waveforms="results/data/runs/{run}/waveforms.tsv",
+    params:
+        row=lambda wildcards: sheet_entry(RUNS_SHEET, wildcards.run),
+        harmonics=config["harmonics"],
+    log:
+        "logs/data/preprocess/{run}.log",
+    benchmark:
+        "results/benchmarks/data/preprocess/{run}.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
+    script:
+        "../../scripts/preprocess.py"
+
+
+rule measured_harmonics:
+    """All runs' preprocessing results in one table, in the sheet's order."""
+    input:
+        runs=lambda wildcards: expand("results/data/runs/{run}/harmonics.tsv", run=read_runs(RUNS_SHEET)["run"]),
+    output:
+        table="results/data/harmonics.tsv",
+    log:
+        "logs/data/measured_harmonics.log",
+    benchmark:
+        "results/benchmarks/data/measured_harmonics.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
+    script:
+        "../../scripts/measured_harmonics.py"
+
+
+rule rig:
+    """Virtual rig: a data set (runs.tsv, records/, answer key truth.tsv/.yaml) from config rig: {name}."""
+    input:
+        plan=lambda wildcards: config["rig"][wildcards.name].get("plan", "data/default/runs.tsv"),
+    wildcard_constraints:
+        name="[A-Za-z0-9_-]+",
+    output:
+        sheet="results/rig/{name}/runs.tsv",
+        records=directory("results/rig/{name}/records"),
+        truth="results/rig/{name}/truth.tsv",
+        key="results/rig/{name}/truth.yaml",
+    params:
+        spec=lambda wildcards: config["rig"][wildcards.name],
+        effects_files=[str(Path("config") / f) for f in config.get("effects_files", [])],
+    log:
+        "logs/rig/{name}.log",
+    benchmark:
+        "results/benchmarks/rig/{name}.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
+    script:
+        "../../scripts/rig.py"
