@@ -12,6 +12,10 @@ configfile: "config/config.yaml"
 
 include: "workflow/rules/common.smk"
 include: "workflow/rules/whitebox.smk"
+include: "workflow/rules/scenarios.smk"
+include: "workflow/rules/snapshots.smk"
+include: "workflow/rules/pod.smk"
+include: "workflow/rules/library.smk"
 include: "workflow/rules/measurements.smk"
 
 
@@ -19,4 +23,7 @@ rule all:
     input:
         expand("results/{variant}/whitebox/sweep.tsv", variant=VARIANTS),
         expand("results/{variant}/whitebox/sweep.png", variant=VARIANTS),
+        expand("results/{variant}/library_validation.tsv", variant=VARIANTS),
+        expand("results/{variant}/library_parity.png", variant=VARIANTS),
+        expand("results/{variant}/pod.tsv", variant=VARIANTS),
     default_target: True

@@ -37,3 +37,21 @@ def plot_sweep(table: pd.DataFrame, title: str) -> plt.Figure:
     fig.suptitle(f"variant {title}: white-box response over the run plan")
     fig.tight_layout()
     return fig
+
+
+def plot_parity(parity: pd.DataFrame, title: str) -> plt.Figure:
+    """Library vs full solver, 1X sensor amplitude (mm), x and y, one colour per eccentric mass."""
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4.5))
+    for ax, axis in zip(axes, ("x", "y")):
+        for colour, (mass, group) in enumerate(parity.groupby("eccentric_mass_g")):
+            ax.plot(group[f"solver_{axis}_m"] * 1e3, group[f"library_{axis}_m"] * 1e3, ".", ms=3,
+                    color=f"C{colour}", label=f"{mass:g} g")
+        top = 1e3 * parity[[f"solver_{axis}_m", f"library_{axis}_m"]].to_numpy().max()
+        ax.plot([0, top], [0, top], "k-", lw=0.8)
+        ax.set_xlabel(f"full solver: 1X amplitude in {axis} [mm]")
+        ax.set_ylabel(f"library: 1X amplitude in {axis} [mm]")
+        ax.grid(True, alpha=0.3)
+    axes[0].legend(title="eccentric mass", fontsize=8)
+    fig.suptitle(f"variant {title}: library vs full solver on held-out scenarios")
+    fig.tight_layout()
+    return fig

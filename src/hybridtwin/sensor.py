@@ -21,15 +21,15 @@ def sensor_dofs(shaft: Shaft, node: int = SENSOR_NODE) -> list[int]:
     return [shaft.dof(f"u{node}"), shaft.dof(f"v{node}")]
 
 
-def sensor_harmonics(result: SteadyState, shaft: Shaft, node: int = SENSOR_NODE) -> tuple[Array, Array]:
-    """U_h, V_h at the sensor node, each (S, H+1) complex [m]."""
+def sensor_harmonics(harmonics: Array, shaft: Shaft, node: int = SENSOR_NODE) -> tuple[Array, Array]:
+    """U_h, V_h at the sensor node from harmonics (..., H+1, n): each (..., H+1) complex [m]."""
     u, v = sensor_dofs(shaft, node)
-    return result.harmonics[:, :, u], result.harmonics[:, :, v]
+    return harmonics[..., u], harmonics[..., v]
 
 
 def harmonics_frame(result: SteadyState, shaft: Shaft, scenario: int = 0, node: int = SENSOR_NODE) -> pd.DataFrame:
     """One scenario's sensor harmonics as columns harmonic,u_re_m,u_im_m,v_re_m,v_im_m."""
-    U, V = sensor_harmonics(result, shaft, node)
+    U, V = sensor_harmonics(result.harmonics, shaft, node)
     return pd.DataFrame({
         "harmonic": np.arange(result.H + 1),
         "u_re_m": U[scenario].real, "u_im_m": U[scenario].imag,
@@ -42,3 +42,19 @@ def time_series_frame(result: SteadyState, shaft: Shaft, t: Array, scenario: int
     """x_m, y_m at times ``t`` [s], evaluated from the Fourier series (not resampled)."""
     xy = result.time_series(t, sensor_dofs(shaft, node))[scenario]
     return pd.DataFrame({"time_s": t, "x_m": xy[:, 0], "y_m": xy[:, 1]})
+
+
+def peak_displacement(harmonics: Array, shaft: Shaft, node: int = SENSOR_NODE, n_time: int = 64) -> Array:
+    """Largest |x(t)| or |y(t)| over a period at the sensor, (...,) [m]; NaN stays NaN."""
+    U, V = sensor_harmonics(harmonics, shaft, node)
+    h = np.arange(U.shape[-1])
+    phase = np.exp(2j * np.pi * np.outer(np.arange(n_time) / n_time, h))  # (N, H+1)
+    x = np.abs((U[..., None, :] * phase).sum(-1).real).max(-1)
+    y = np.abs((V[..., None, :] * phase).sum(-1).real).max(-1)
+    return np.maximum(x, y)
+
+
+def observable(harmonics: Array, shaft: Shaft, sensor_range_m: float, node: int = SENSOR_NODE) -> Array:
+    """True where the steady state exists and stays inside the sensors' range (what a rig can measure)."""
+    peak = peak_displacement(harmonics, shaft, node)
+    return np.isfinite(peak) & (peak <= sensor_range_m)

@@ -1,15 +1,19 @@
-# Shared helpers: config validation, the operating points, the variants.
+# Shared helpers: config validation, the runs sheet, the variants, the offline options.
 import pandas as pd
 from snakemake.utils import validate
+
+from hybridtwin.config import offline, run_plan
 
 
 validate(config, "../schemas/config.schema.yaml")
 
 VARIANTS = list(config["variants"])
-
-operating_points = pd.read_csv(config["operating_points"], sep="\t", dtype={"run": str})
-validate(operating_points, "../schemas/operating_points.schema.yaml")
+OFFLINE = offline(config)
+CHUNKS = [f"{i:03d}" for i in range(OFFLINE["chunks"])]
+RUNS = list(run_plan(config)["run"])
 
 
 wildcard_constraints:
     variant="|".join(VARIANTS),
+    chunk=r"\d{3}",
+    run="|".join(RUNS),

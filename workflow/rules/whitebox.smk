@@ -4,7 +4,7 @@
 rule whitebox_sweep:
     """Sensor harmonics of one variant over the run plan, by run-up per eccentric mass."""
     input:
-        points=config["operating_points"],
+        points=config["runs"],
     output:
         table="results/{variant}/whitebox/sweep.tsv",
         plot=report(
@@ -15,7 +15,6 @@ rule whitebox_sweep:
         ),
     params:
         spec=lambda wildcards: config["variants"][wildcards.variant],
-        effects_files=config.get("effects_files", []),
         harmonics=config["harmonics"],
     log:
         "logs/{variant}/whitebox_sweep.log",

@@ -1,0 +1,27 @@
+"""Rule solve_chunk: one slice of the scenarios solved at every run by run-up (thin wrapper)."""
+
+import time
+
+import numpy as np
+import pandas as pd
+
+from hybridtwin import config as cfg
+from hybridtwin.scenarios import solve_runs
+from hybridtwin.snapshots import write_chunk
+
+smk = snakemake  # noqa: F821 (injected by Snakemake)
+log = cfg.rule_logger(smk.log[0], "solve_chunk")
+variant = cfg.variant(smk.config, smk.wildcards.variant)
+scenarios = pd.read_csv(smk.input.scenarios, sep="\t")
+chunk = int(smk.wildcards.chunk)
+mine = scenarios.iloc[np.array_split(np.arange(len(scenarios)), smk.params.n_chunks)[chunk]]
+runs = cfg.run_plan(smk.config)
+log.info("chunk %d: scenarios %d..%d (%d) at %d runs, H = %d", chunk, mine["scenario"].min(),
+         mine["scenario"].max(), len(mine), len(runs), smk.params.harmonics)
+start = time.perf_counter()
+solutions = solve_runs(variant, runs, {k: mine[k].to_numpy() for k in variant.unknown_names}, smk.params.harmonics)
+elapsed = time.perf_counter() - start
+for run, ok in zip(solutions.runs, solutions.success):
+    log.info("run %s: %d of %d converged", run, ok.sum(), ok.size)
+log.info("solved in %.1f s (%.2f ms per scenario and run)", elapsed, 1e3 * elapsed / solutions.success.size)
+write_chunk(smk.output[0], variant.name, mine, variant.unknown_names, solutions)

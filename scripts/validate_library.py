@@ -1,0 +1,17 @@
+"""Rule validate_library: libraries vs the full solver on the test scenarios (thin wrapper)."""
+
+from hybridtwin import config as cfg
+from hybridtwin.library import Library, validate_libraries
+from hybridtwin.plots import plot_parity
+
+smk = snakemake  # noqa: F821 (injected by Snakemake)
+log = cfg.rule_logger(smk.log[0], "validate_library")
+variant = cfg.variant(smk.config, smk.wildcards.variant)
+libraries = [Library.load(path) for path in smk.input.libraries]
+table, parity = validate_libraries(libraries, smk.input.snapshots, cfg.run_plan(smk.config),
+                                   variant.model.shaft, smk.params.offline["sensor_range_mm"] * 1e-3)
+table.to_csv(smk.output.table, sep="\t", index=False, float_format="%.6g")
+plot_parity(parity, variant.name).savefig(smk.output.plot, dpi=120)
+for row in table.itertuples():
+    log.info("%s: median %.3g %%, p95 %.3g %%, max %.3g %% over %d test scenarios", row.run,
+             row.median_error_pct, row.p95_error_pct, row.max_error_pct, row.n_test)

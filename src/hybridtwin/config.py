@@ -1,0 +1,60 @@
+"""Reading the workflow configuration (config/config.yaml) into package objects."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping
+from pathlib import Path
+
+import pandas as pd
+from threadpoolctl import threadpool_limits
+
+from .effects import Effect
+from .scenarios import default_n_scenarios
+from .variants import Variant, load_effects_file
+
+CONFIG_DIR = Path("config")
+
+
+def user_effects(config: Mapping, config_dir: Path = CONFIG_DIR) -> dict[str, Effect]:
+    """Effects from the config's ``effects_files`` (paths relative to the config folder)."""
+    effects: dict[str, Effect] = {}
+    for path in config.get("effects_files") or []:
+        effects |= load_effects_file(config_dir / path)
+    return effects
+
+
+def variant(config: Mapping, name: str, config_dir: Path = CONFIG_DIR) -> Variant:
+    """The variant ``name`` declared under ``variants:``."""
+    if name not in config["variants"]:
+        raise KeyError(f"variant {name!r} is not declared in the config (declared: {sorted(config['variants'])})")
+    return Variant.from_spec(name, config["variants"][name], user_effects(config, config_dir))
+
+
+def offline(config: Mapping) -> dict:
+    """The ``offline:`` options with their defaults filled in."""
+    defaults = {"seed": 1, "n_scenarios": {}, "n_test": 200, "validation_fraction": 0.2, "chunks": 4,
+                "sensor_range_mm": 14.0, "pod_energy_tolerance": 1e-10,
+                "spgd": {"degree": 6, "max_terms": 60, "ridge": 1e-8, "patience": 8, "backfit_iterations": 3}}
+    options = {**defaults, **(config.get("offline") or {})}
+    options["spgd"] = {**defaults["spgd"], **(options.get("spgd") or {})}
+    return options
+
+
+def n_scenarios(config: Mapping, variant_: Variant) -> int:
+    """n_s of a variant: the config's per-variant value or the paper's default for its unknown count."""
+    return int(offline(config)["n_scenarios"].get(variant_.name, default_n_scenarios(len(variant_.unknown))))
+
+
+def run_plan(config: Mapping) -> pd.DataFrame:
+    """The runs the libraries are built for: run, rpm, eccentric_mass_g, role (from the runs sheet)."""
+    sheet = pd.read_csv(config["runs"], sep="\t", dtype={"run": str})
+    return sheet[["run", "rpm", "eccentric_mass_g"] + (["role"] if "role" in sheet else [])]
+
+
+def rule_logger(log_path: str, name: str) -> logging.Logger:
+    """A logger writing to the rule's log file; BLAS pinned to one thread (jobs run in parallel)."""
+    threadpool_limits(1)
+    logging.basicConfig(filename=log_path, level=logging.INFO, force=True,
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    return logging.getLogger(name)

@@ -1,0 +1,195 @@
+"""The sPGD library of one run: response and exact Jacobian for any parameter set (paper sec. 2.1).
+
+A library joins the POD basis of a run's snapshots (eq. 4-5) with an sPGD
+model of the reduced coordinates (eq. 6-7): q(p) = Phi alpha(x), x the
+parameters normalised to [-1, 1]. It returns the sensor harmonics U_h, V_h
+(or the whole field) and their derivatives with respect to the parameters in
+SI units, batched, in microseconds per parameter set.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import zarr
+
+from . import snapshots
+from .effects import Array
+from .pod import POD, feature_index, from_features, load_pod, to_features
+from .sensor import observable, sensor_dofs
+from .shaft import Shaft
+from .spgd import SparsePGD
+from .variants import Variant
+
+
+@dataclass
+class Library:
+    """Surrogate of one run's steady state over the variant's unknown parameters."""
+
+    run: str
+    parameters: list[str]
+    lower: Array
+    upper: Array
+    modes: Array  # POD basis Phi (features, m_d)
+    singular_values: Array
+    model: SparsePGD
+    n_harmonics: int  # H + 1
+    n_dof: int
+    sensor_dofs: list[int]
+    info: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        h = np.arange(self.n_harmonics)
+        rows = [feature_index(h, dof, self.n_harmonics, self.n_dof, imaginary)
+                for imaginary in (False, True) for dof in self.sensor_dofs]
+        self._sensor_modes = self.modes[np.concatenate(rows)]  # (2 * 2 * (H+1), m_d)
+
+    @property
+    def n_modes(self) -> int:
+        return self.modes.shape[1]
+
+    def normalise(self, values: Array) -> Array:
+        """SI parameter values (N, d) -> x in [-1, 1]."""
+        values = np.atleast_2d(np.asarray(values, dtype=float))
+        if values.shape[-1] != len(self.parameters):
+            raise ValueError(f"library {self.run}: expected {len(self.parameters)} parameters "
+                             f"{self.parameters}, got {values.shape[-1]}")
+        return 2.0 * (values - self.lower) / (self.upper - self.lower) - 1.0
+
+    def sensor(self, values: Array, jacobian: bool = False) -> Array | tuple[Array, Array]:
+        """Sensor harmonics (N, H+1, 2) complex [U_h, V_h]; with ``jacobian`` also d/dp (N, H+1, 2, d) [m / SI]."""
+        x = self.normalise(values)
+        if not jacobian:
+            return self._to_sensor(self.model.predict(x) @ self._sensor_modes.T)
+        alpha, dalpha = self.model.predict_with_jacobian(x)
+        y = self._to_sensor(alpha @ self._sensor_modes.T)
+        dy = np.einsum("fm,nmd->nfd", self._sensor_modes, dalpha, optimize=True) * (2.0 / (self.upper - self.lower))
+        return y, np.moveaxis(self._to_sensor(np.moveaxis(dy, -1, 1)), 1, -1)
+
+    def _to_sensor(self, features: Array) -> Array:
+        """(..., 2 * 2 * (H+1)) [Re U, Re V, Im U, Im V] -> (..., H+1, 2) complex."""
+        H1 = self.n_harmonics
+        parts = features.reshape(features.shape[:-1] + (2, 2, H1))
+        return np.moveaxis(parts[..., 0, :, :] + 1j * parts[..., 1, :, :], -2, -1)
+
+    def field(self, values: Array) -> Array:
+        """Harmonics of all DOFs (N, H+1, n) for parameter values (N, d)."""
+        return from_features(self.model.predict(self.normalise(values)) @ self.modes.T, self.n_harmonics, self.n_dof)
+
+    def save(self, path: str | Path) -> None:
+        """Write as a zarr v3 group."""
+        group = zarr.open_group(str(path), mode="w")
+        arrays = {"modes": self.modes, "singular_values": self.singular_values, "lower": self.lower,
+                  "upper": self.upper, **self.model.to_arrays()}
+        for name, data in arrays.items():
+            group.create_array(name, data=np.asarray(data))
+        group.attrs.update({"run": self.run, "parameters": self.parameters, "n_harmonics": self.n_harmonics,
+                            "n_dof": self.n_dof, "sensor_dofs": self.sensor_dofs,
+                            "info": json.loads(json.dumps(self.info, default=float))})
+
+    @classmethod
+    def load(cls, path: str | Path) -> "Library":
+        group = zarr.open_group(str(path), mode="r")
+        attrs = dict(group.attrs)
+        model = SparsePGD.from_arrays(group["amplitudes"][:], group["coefficients"][:])
+        return cls(attrs["run"], list(attrs["parameters"]), group["lower"][:], group["upper"][:], group["modes"][:],
+                   group["singular_values"][:], model, attrs["n_harmonics"], attrs["n_dof"],
+                   list(attrs["sensor_dofs"]), attrs.get("info", {}))
+
+
+def build_library(run: str, basis: POD, harmonics: Array, values: Array, split: Array, usable: Array,
+                  parameters: list[str], lower: Array, upper: Array, sensor_dofs: list[int],
+                  **spgd_options) -> Library:
+    """sPGD (eq. 6-7) of one run's reduced coordinates alpha = Phi^T q on its POD basis.
+
+    harmonics (S, H+1, n), values (S, d) SI, split (S,) in train/validation/test,
+    usable (S,): converged and observable scenarios (the others are left out and
+    counted in ``info``). Fitted on "train", its size chosen on "validation";
+    weights 1 / ||q||^2 make the least squares relative, scenario by scenario.
+    """
+    S, H1, n = harmonics.shape
+    usable = np.asarray(usable, bool)
+    train, val = usable & (split == "train"), usable & (split == "validation")
+    if train.sum() < 10 or val.sum() < 2:
+        raise ValueError(f"run {run}: too few usable scenarios to build a library "
+                         f"({train.sum()} training, {val.sum()} validation)")
+    features = np.where(usable[:, None], to_features(np.nan_to_num(harmonics)), 0.0)
+    alpha = basis.project(features)
+    x = 2.0 * (values - lower) / (upper - lower) - 1.0
+    weight = 1.0 / np.maximum((features * features).sum(1), 1e-300)
+    model = SparsePGD(**spgd_options).fit(x[train], alpha[train], x[val], alpha[val], weight[train], weight[val])
+    info = {"n_train": int(train.sum()), "n_validation": int(val.sum()),
+            "n_left_out": {s: int(((split == s) & ~usable).sum()) for s in ("train", "validation", "test")},
+            "n_modes": basis.n_modes, "n_terms": model.n_terms,
+            "validation_error": model.history.validation_error}
+    return Library(run, list(parameters), np.asarray(lower, float), np.asarray(upper, float), basis.modes,
+                   basis.singular_values, model, H1, n, list(sensor_dofs), info)
+
+
+def relative_sensor_error(predicted: Array, reference: Array) -> Array:
+    """Relative L2 error over a period of the sensor signals x(t), y(t), per scenario (Parseval).
+
+    predicted, reference: (N, H+1, 2) complex harmonics; ||x||^2 = X_0^2 + 1/2 sum_h |X_h|^2.
+    """
+    weights = np.full(reference.shape[1], 0.5)
+    weights[0] = 1.0
+    diff = np.einsum("h,nhc->n", weights, np.abs(predicted - reference) ** 2)
+    norm = np.einsum("h,nhc->n", weights, np.abs(reference) ** 2)
+    return np.sqrt(diff / norm)
+
+
+def build_run_library(variant: Variant, run: str, snapshots_path: str, pod_path: str, sensor_range_m: float,
+                      spgd_options: dict) -> Library:
+    """The library of ``run`` from the gathered snapshots and that run's POD."""
+    snaps = snapshots.load(snapshots_path, run)
+    basis, usable = load_pod(pod_path, run)
+    lower = np.array([variant.unknown[k][0] for k in snaps.parameters])
+    upper = np.array([variant.unknown[k][1] for k in snaps.parameters])
+    library = build_library(run, basis, snaps.harmonics[0], snaps.values, snaps.split, usable, snaps.parameters,
+                            lower, upper, sensor_dofs(variant.model.shaft), **spgd_options)
+    library.info["sensor_range_m"] = sensor_range_m
+    return library
+
+
+def validate_libraries(libraries: list[Library], snapshots_path: str, runs: pd.DataFrame, shaft: Shaft,
+                       sensor_range_m: float) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Each library against the full solver on its run's test scenarios.
+
+    Returns the per-run table (with an "all runs" row) and the parity data
+    (1X amplitudes, full solver vs library) for plotting.
+    """
+    snaps = snapshots.load(snapshots_path)
+    plan = runs.set_index("run")
+    rows, parity, pooled = [], [], []
+    for library in libraries:
+        r = snaps.run_index(library.run)
+        test = snaps.split == "test"
+        usable = test & snaps.success[r] & observable(snaps.harmonics[r], shaft, sensor_range_m)
+        reference = snaps.harmonics[r][usable][:, :, library.sensor_dofs]
+        predicted = library.sensor(snaps.values[usable])
+        error = relative_sensor_error(predicted, reference)
+        pooled.append(error)
+        rows.append({"run": library.run, "rpm": plan.loc[library.run, "rpm"],
+                     "eccentric_mass_g": plan.loc[library.run, "eccentric_mass_g"],
+                     **_error_stats(error), "n_failed": int((test & ~snaps.success[r]).sum()),
+                     "observable_fraction": float(usable.sum() / max(test.sum(), 1)),
+                     "n_modes": library.n_modes, "n_terms": library.model.n_terms})
+        parity.append(pd.DataFrame({"run": library.run, "eccentric_mass_g": rows[-1]["eccentric_mass_g"],
+                                    "solver_x_m": np.abs(reference[:, 1, 0]), "library_x_m": np.abs(predicted[:, 1, 0]),
+                                    "solver_y_m": np.abs(reference[:, 1, 1]), "library_y_m": np.abs(predicted[:, 1, 1])}))
+    error = np.concatenate(pooled)
+    rows.append({"run": "all runs", "rpm": np.nan, "eccentric_mass_g": np.nan, **_error_stats(error),
+                 "n_failed": sum(r["n_failed"] for r in rows), "observable_fraction": np.nan,
+                 "n_modes": np.nan, "n_terms": np.nan})
+    return pd.DataFrame(rows), pd.concat(parity, ignore_index=True)
+
+
+def _error_stats(error: Array) -> dict:
+    if error.size == 0:
+        return {"n_test": 0, "median_error_pct": np.nan, "p95_error_pct": np.nan, "max_error_pct": np.nan}
+    return {"n_test": int(error.size), "median_error_pct": 100 * float(np.median(error)),
+            "p95_error_pct": 100 * float(np.percentile(error, 95)), "max_error_pct": 100 * float(error.max())}

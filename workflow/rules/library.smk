@@ -1,0 +1,52 @@
+# sPGD library per run (paper eq. 6-7), then its validation against the full solver.
+
+
+rule spgd_library:
+    input:
+        snapshots="results/{variant}/snapshots.zarr",
+        pod="results/{variant}/pod.zarr",
+    output:
+        directory("results/{variant}/library/{run}.zarr"),
+    params:
+        spec=lambda wildcards: config["variants"][wildcards.variant],
+        offline=OFFLINE,
+    log:
+        "logs/{variant}/spgd_library_{run}.log",
+    benchmark:
+        "results/benchmarks/{variant}/spgd_library_{run}.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
+    script:
+        "../../scripts/spgd_library.py"
+
+
+rule validate_library:
+    """Library vs full solver on the held-out test scenarios, per run: table and parity plot."""
+    input:
+        snapshots="results/{variant}/snapshots.zarr",
+        libraries=expand("results/{{variant}}/library/{run}.zarr", run=RUNS),
+        runs=config["runs"],
+    output:
+        table=report(
+            "results/{variant}/library_validation.tsv",
+            caption="../report/library_validation.rst",
+            category="Offline library",
+            subcategory="{variant}",
+        ),
+        plot=report(
+            "results/{variant}/library_parity.png",
+            caption="../report/library_parity.rst",
+            category="Offline library",
+            subcategory="{variant}",
+        ),
+    params:
+        spec=lambda wildcards: config["variants"][wildcards.variant],
+        offline=OFFLINE,
+    log:
+        "logs/{variant}/validate_library.log",
+    benchmark:
+        "results/benchmarks/{variant}/validate_library.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
+    script:
+        "../../scripts/validate_library.py"

@@ -1,0 +1,25 @@
+# POD: per run, the SVD of the observable training snapshots, truncated by energy (paper eq. 4-5).
+
+
+rule pod:
+    input:
+        "results/{variant}/snapshots.zarr",
+    output:
+        store=directory("results/{variant}/pod.zarr"),
+        table=report(
+            "results/{variant}/pod.tsv",
+            caption="../report/pod.rst",
+            category="Offline library",
+            subcategory="{variant}",
+        ),
+    params:
+        spec=lambda wildcards: config["variants"][wildcards.variant],
+        offline=OFFLINE,
+    log:
+        "logs/{variant}/pod.log",
+    benchmark:
+        "results/benchmarks/{variant}/pod.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
+    script:
+        "../../scripts/pod.py"
