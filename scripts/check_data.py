@@ -21,5 +21,6 @@ for row in summary.itertuples():
 if errors:
     for run, message in errors.items():
         log.error("run %s: %s", run, message)
-    raise SystemExit(f"check_data: {len(errors)} invalid record(s) in {smk.input.sheet}:\n" + "\n".join(errors.values()))
+    raise SystemExit(f"check_data: {len(errors)} invalid record(s) in {smk.input.sheet}:\n"
+                     + "\n".join(errors.values()))
 write_tsv(summary, smk.output.summary)

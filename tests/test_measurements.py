@@ -1,0 +1,294 @@
+"""Reading and checking measured runs: every bad-input case fails the way it should, naming file and problem."""
+
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from hybridtwin.cli import main
+from hybridtwin.measurements import (
+    DataError, DataWarning, check_coverage, check_length, detect_saturation, read_record, read_runs, sheet_entry,
+)
+from hybridtwin.preprocessing import analyse_record
+
+RPM = 600.0
+
+
+def write_record(path: Path, rpm: float = RPM, seconds: float = 2.0, fs: float = 2000.0, amplitude_mm: float = 1.0,
+                 noise_mm: float = 0.05, unit: str = "mm", seed: int = 0) -> Path:
+    """A clean synthetic record: 1X orbit + 3X + offset + noise (no model solve needed here)."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(int(seconds * fs)) / fs
+    angle = 2 * np.pi * rpm / 60 * t
+    x = amplitude_mm * np.cos(angle) + 0.02 * np.cos(3 * angle) + 0.3 + noise_mm * rng.standard_normal(t.size)
+    y = amplitude_mm * np.sin(angle) - 0.1 + noise_mm * rng.standard_normal(t.size)
+    scale = 1.0 if unit == "mm" else 1e-3
+    table = pd.DataFrame({"time_s": t, f"x_{unit}": x * scale, f"y_{unit}": y * scale})
+    path.parent.mkdir(parents=True, exist_ok=True)
+    table.to_csv(path, index=False, float_format="%.8f")
+    return path
+
+
+def edit_line(path: Path, line: int, column: int, value: str) -> None:
+    """Replace one cell (1-based line number as in the messages, 0-based column)."""
+    lines = path.read_text().splitlines()
+    cells = lines[line - 1].split(",")
+    cells[column] = value
+    lines[line - 1] = ",".join(cells)
+    path.write_text("\n".join(lines) + "\n")
+
+
+def write_sheet(folder: Path, text: str) -> Path:
+    path = folder / "runs.tsv"
+    path.write_text(text.replace("|", "\t"))
+    return path
+
+
+@pytest.fixture
+def dataset(tmp_path):
+    """A valid two-run data set."""
+    write_record(tmp_path / "records" / "a.csv")
+    write_record(tmp_path / "records" / "b.csv", rpm=700.0, seed=1)
+    sheet = write_sheet(tmp_path, "run|rpm|eccentric_mass_g|path|role|operator\n"
+                                  "a|600|14.8|records/a.csv|fit|ann\nb|700||records/b.csv|validate|bob\n")
+    return sheet
+
+
+# --- the runs sheet ---------------------------------------------------------------------
+
+
+def test_valid_sheet_is_read_with_records_resolved_and_extra_columns_kept(dataset):
+    runs = read_runs(dataset)
+    assert runs["run"].tolist() == ["a", "b"]
+    assert runs["rpm"].tolist() == [600.0, 700.0]
+    assert runs["eccentric_mass_g"].iloc[0] == 14.8 and np.isnan(runs["eccentric_mass_g"].iloc[1])  # unknown mass
+    assert runs["role"].tolist() == ["fit", "validate"]
+    assert runs["operator"].tolist() == ["ann", "bob"]  # extra columns carried through
+    assert Path(runs["record"].iloc[0]) == dataset.parent / "records" / "a.csv"  # relative to the sheet's folder
+    entry = sheet_entry(dataset, "b")
+    assert entry["eccentric_mass_g"] is None and entry["rpm"] == 700.0
+
+
+def test_sheet_with_misnamed_column(tmp_path):
+    sheet = write_sheet(tmp_path, "run|speed_rpm|eccentric_mass_g|path\na|600|0|a.csv\n")
+    with pytest.raises(DataError) as err:
+        read_runs(sheet, check_files=False)
+    message = str(err.value)
+    assert str(sheet) in message and "line 1" in message and "'rpm'" in message and "'speed_rpm'" in message
+
+
+def test_sheet_with_duplicate_run_ids_names_both_lines(tmp_path):
+    sheet = write_sheet(tmp_path, "run|rpm|eccentric_mass_g|path\na|600|0|a.csv\nb|650|0|b.csv\na|700|0|c.csv\n")
+    with pytest.raises(DataError, match=r"lines 2, 4, column run: duplicate run id 'a'"):
+        read_runs(sheet, check_files=False)
+
+
+def test_sheet_with_missing_record_names_line_and_path(dataset):
+    (dataset.parent / "records" / "b.csv").unlink()
+    with pytest.raises(DataError) as err:
+        read_runs(dataset)
+    assert "line 3, column path" in str(err.value) and "records/b.csv" in str(err.value)
+    assert "does not exist" in str(err.value) and str(dataset) in str(err.value)
+
+
+def test_sheet_lists_every_bad_cell_at_once(tmp_path):
+    sheet = write_sheet(tmp_path, "run|rpm|eccentric_mass_g|path|role\n"
+                                  "a b|600|0|a.csv|fit\nc|fast|0|c.csv|fit\nd|-5|x|d.csv|test\ne|700|0||fit\n")
+    with pytest.raises(DataError) as err:
+        read_runs(sheet, check_files=False)
+    message = str(err.value)
+    assert "problems" in message  # all of them, not just the first
+    assert "line 2, column run: 'a b' is not a valid run id" in message
+    assert "column rpm: not a number on 1 line(s): line 3 ('fast')" in message
+    assert "line 4, column rpm: -5 is not a positive speed" in message
+    assert "column eccentric_mass_g: not a number on 1 line(s): line 4 ('x')" in message
+    assert "line 4, column role: 'test' is not a role" in message
+    assert "line 5, column path: empty" in message
+
+
+def test_speeds_and_masses_outside_the_covered_ranges(dataset):
+    runs = read_runs(dataset)
+    check_coverage(runs, rpm_range=(350, 1000), mass_range_g=None)  # covered: no error
+    with pytest.raises(DataError) as err:
+        check_coverage(runs, rpm_range=(350, 650), mass_range_g=(0, 10), source=dataset)
+    message = str(err.value)
+    assert str(dataset) in message
+    assert "line 3, run 'b': speed 700 RPM is outside the covered range [350, 650] RPM" in message
+    assert "line 2, run 'a': eccentric mass 14.8 g is outside the covered range [0, 10] g" in message
+    assert "line 3, run 'b': eccentric mass unknown" in message  # unknown mass cannot be shown covered
+
+
+def test_check_data_cli_exit_status_and_coverage(dataset, capsys):
+    assert main(["check-data", str(dataset)]) == 0
+    out, err = capsys.readouterr()
+    assert "rpm_true" in out and "x1X_mm" in out and "2 ok" in err
+    assert main(["check-data", str(dataset), "--rpm-range", "350", "650"]) == 1
+    out, err = capsys.readouterr()
+    assert "error" in err and "speed 700 RPM is outside the covered range" in err
+
+
+# --- a record ---------------------------------------------------------------------------
+
+
+def test_valid_record_in_mm_and_in_metres_read_in_si(tmp_path):
+    in_mm = read_record(write_record(tmp_path / "mm.csv"))
+    in_m = read_record(write_record(tmp_path / "m.csv", unit="m"))
+    assert in_mm.unit == "mm" and in_m.unit == "m"
+    assert in_mm.n_samples == 4000 and in_mm.sample_rate_hz == pytest.approx(2000.0)
+    np.testing.assert_allclose(in_mm.x_m, in_m.x_m, rtol=0, atol=1e-8)  # same signal; 1e-8 m: the m file resolution
+    assert 0.5e-3 < in_mm.x_m.max() < 2e-3  # 1 mm amplitude + 0.3 mm offset, read as metres
+    assert in_mm.keyphasor is None
+
+
+@pytest.mark.parametrize("header, expected", [
+    ("time,x_mm,y_mm", "missing column(s) 'time_s' (found 'time': misnamed?)"),
+    ("time_s,x_in,y_in", "unknown unit 'in' (use x_mm or x_m)"),
+    ("time_s,x_mm,yy_mm", "missing column y_mm (or y_m) (found 'yy_mm': misnamed?)"),
+    ("time_s,x_mm,x_m,y_mm", "more than one x displacement column"),
+])
+def test_record_with_misnamed_columns_or_unknown_units(tmp_path, header, expected):
+    path = write_record(tmp_path / "r.csv")
+    lines = path.read_text().splitlines()
+    body = lines[1:] if header.count(",") == 2 else [line + ",0" for line in lines[1:]]
+    path.write_text("\n".join([header] + body) + "\n")
+    with pytest.raises(DataError) as err:
+        read_record(path)
+    assert str(path) in str(err.value) and "line 1 (header)" in str(err.value) and expected in str(err.value)
+
+
+def test_record_with_non_numeric_cell_names_line_and_column(tmp_path):
+    path = write_record(tmp_path / "r.csv")
+    edit_line(path, 101, 1, "1.2.3")
+    with pytest.raises(DataError, match=r"r\.csv: column x_mm: not a number on 1 line\(s\): line 101 \('1\.2\.3'\)"):
+        read_record(path)
+
+
+@pytest.mark.parametrize("cell", ["", "NaN", "nan"])
+def test_record_with_nan_or_empty_cell(tmp_path, cell):
+    path = write_record(tmp_path / "r.csv")
+    edit_line(path, 57, 2, cell)
+    with pytest.raises(DataError, match=r"column y_mm: missing value \(empty or NaN\) on 1 line\(s\): line 57"):
+        read_record(path)
+
+
+def test_record_with_blank_line_keeps_line_numbers(tmp_path):
+    path = write_record(tmp_path / "r.csv")
+    lines = path.read_text().splitlines()
+    path.write_text("\n".join(lines[:9] + [""] + lines[9:]) + "\n")  # blank line 10
+    with pytest.raises(DataError, match=r"column time_s: missing value \(empty or NaN\) on 1 line\(s\): line 10"):
+        read_record(path)
+
+
+def test_record_with_non_increasing_time(tmp_path):
+    path = write_record(tmp_path / "r.csv")
+    edit_line(path, 31, 0, "0.0100")  # line 31 holds t = 0.0145 s; 0.0100 s goes back in time
+    with pytest.raises(DataError, match=r"column time_s: not increasing on 1 line\(s\): line 31"):
+        read_record(path)
+
+
+def test_record_with_a_gap(tmp_path):
+    path = write_record(tmp_path / "r.csv")
+    lines = path.read_text().splitlines()
+    path.write_text("\n".join(lines[:200] + lines[210:]) + "\n")  # 10 samples missing after line 200
+    with pytest.raises(DataError, match=r"column time_s: gap \(missing samples\) on 1 line\(s\): line 201 "
+                                        r"\(0\.0055 s = 11\.0 steps"):
+        read_record(path)
+
+
+def test_record_with_non_uniform_time(tmp_path):
+    path = write_record(tmp_path / "r.csv")
+    edit_line(path, 500, 0, "0.24905")  # 0.2490 s + 10 % of a step: jitter beyond the 1 % tolerance
+    with pytest.raises(DataError, match=r"column time_s: non-uniform step \(median 0\.0005 s, tolerance 1 %\)"):
+        read_record(path)
+
+
+def test_record_too_short_for_a_few_revolutions(tmp_path):
+    record = read_record(write_record(tmp_path / "r.csv", seconds=0.4))  # 4 revolutions at 600 RPM
+    with pytest.raises(DataError, match=r"too short: 800 samples, 0\.4 s = 4\.0 revolution\(s\) at 600 RPM nominal; "
+                                        r"at least 5"):
+        check_length(record, RPM)
+    check_length(record, 900.0)  # 6 revolutions at 900 RPM: long enough
+
+
+def test_keyphasor_column_must_hold_marks(tmp_path):
+    path = write_record(tmp_path / "r.csv")
+    lines = path.read_text().splitlines()
+    path.write_text("\n".join([lines[0] + ",keyphasor"] + [line + ",0" for line in lines[1:]]) + "\n")
+    with pytest.raises(DataError, match="column keyphasor: no mark"):
+        read_record(path)
+    edit_line(path, 3, 3, "yes")
+    with pytest.raises(DataError, match=r"column keyphasor: not 0 or 1 on 1 line\(s\): line 3 \('yes'\)"):
+        read_record(path)
+
+
+def test_empty_and_missing_files(tmp_path):
+    (tmp_path / "empty.csv").write_text("")
+    with pytest.raises(DataError, match="empty.csv: file is empty"):
+        read_record(tmp_path / "empty.csv")
+    with pytest.raises(DataError, match="nowhere.csv: file does not exist"):
+        read_record(tmp_path / "nowhere.csv")
+
+
+# --- flat and clipped signals -----------------------------------------------------------
+
+
+def _clip(path: Path, column: int, limit_mm: float) -> None:
+    table = pd.read_csv(path)
+    name = table.columns[column]
+    table[name] = table[name].clip(-limit_mm, limit_mm)
+    table.to_csv(path, index=False, float_format="%.8f")
+
+
+def test_clipped_channel_is_detected_warned_and_excluded(tmp_path):
+    path = write_record(tmp_path / "r.csv", amplitude_mm=2.0)
+    _clip(path, 1, 1.9)  # x saturates at +1.9 mm (its positive peaks reach 2.3 mm)
+    record = read_record(path)
+    with pytest.warns(DataWarning, match=r"channel x is clipped at \+1\.9000 mm: \d+ samples .* flat top"):
+        found = detect_saturation(record)
+    assert [(f.channel, f.kind) for f in found] == [("x", "clipped")]
+    assert found[0].n_flat_tops >= 15  # one flat top per revolution, 20 revolutions
+    with pytest.warns(DataWarning):
+        analysis = analyse_record(record, RPM)
+    assert analysis.saturated and not analysis.usable and "excluded (saturated" in analysis.note
+
+
+def test_noisy_unclipped_record_is_not_flagged(tmp_path):
+    record = read_record(write_record(tmp_path / "r.csv", amplitude_mm=2.0))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DataWarning)  # any warning fails the test
+        assert detect_saturation(record) == []
+
+
+def test_clipping_at_a_known_sensor_range(tmp_path):
+    record = read_record(write_record(tmp_path / "r.csv", amplitude_mm=2.0))
+    with pytest.warns(DataWarning, match="channel x is clipped"):
+        # x peaks reach 2.32 mm + noise, y only -2.1 mm - noise
+        found = detect_saturation(record, sensor_range_m=2.35e-3)
+    assert {f.channel for f in found} == {"x"}
+
+
+def test_flat_channel_is_excluded_with_a_warning_and_the_cli_reports_it(tmp_path, capsys):
+    path = write_record(tmp_path / "records" / "dead.csv")
+    table = pd.read_csv(path)
+    table["y_mm"] = 3.25
+    table.to_csv(path, index=False)
+    write_record(tmp_path / "records" / "ok.csv", seed=3)
+    sheet = write_sheet(tmp_path, "run|rpm|eccentric_mass_g|path\ndead|600|0|records/dead.csv\n"
+                                  "ok|600|0|records/ok.csv\n")
+    with pytest.warns(DataWarning, match=r"channel y is flat \(constant 3\.2500 mm"):
+        analysis = analyse_record(read_record(path), RPM)
+    assert analysis.flat and not analysis.usable and analysis.orders is None and analysis.note == "excluded: y flat"
+    assert main(["check-data", str(sheet)]) == 0  # flagged, not invalid: the run is kept and reported
+    out, err = capsys.readouterr()
+    assert "excluded: y flat" in out and "channel y is flat" in err and "1 flagged" in err
+    assert main(["check-data", str(sheet), "--strict"]) == 1
+
+
+def test_check_data_cli_reports_an_invalid_record_and_keeps_checking(dataset, capsys):
+    edit_line(dataset.parent / "records" / "a.csv", 12, 1, "abc")
+    assert main(["check-data", str(dataset)]) == 1
+    out, err = capsys.readouterr()
+    assert "run a:" in err and "a.csv: column x_mm: not a number" in err and "line 12 ('abc')" in err
+    assert "1 ok" in err and "1 invalid" in err  # run b still checked and summarised

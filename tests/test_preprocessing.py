@@ -1,0 +1,159 @@
+"""Preprocessing recovers what the virtual rig put into its records (speed, harmonics, offsets) within the
+uncertainty it states, with and without a keyphasor, and a phase-aligned comparison ignores the nuisances."""
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from hybridtwin.measurements import Record, read_record, read_runs
+from hybridtwin.preprocessing import (
+    analyse_record, fit_phase, phase_aligned_residuals, preprocess_run, waveforms,
+)
+from hybridtwin.rig import Imperfections, RigSpec, generate
+
+H = 5
+PLAN = pd.DataFrame({
+    "run": ["r350", "r650", "r1000", "v900"], "rpm": [350.0, 650.0, 1000.0, 900.0],
+    "eccentric_mass_g": [25.9, 14.8, 0.0, 7.6], "role": ["fit", "fit", "fit", "validate"],
+})
+
+
+def _generate(folder, keyphasor):
+    # the default truth (Geometric + slope spring) and imperfections, 3 s records
+    spec = RigSpec(imperfections=Imperfections(duration_s=3.0, keyphasor=keyphasor), seed=11, harmonics=H)
+    truth = generate(PLAN, spec, folder)
+    runs = read_runs(folder / "runs.tsv")
+    analyses = [analyse_record(read_record(r), rpm, H) for r, rpm in zip(runs["record"], runs["rpm"])]
+    return truth, analyses
+
+
+@pytest.fixture(scope="module")
+def plain(tmp_path_factory):
+    return _generate(tmp_path_factory.mktemp("plain"), keyphasor=False)
+
+
+@pytest.fixture(scope="module")
+def with_keyphasor(tmp_path_factory):
+    return _generate(tmp_path_factory.mktemp("keyphasor"), keyphasor=True)
+
+
+def truth_harmonics(row: pd.Series) -> np.ndarray:
+    """(2, H+1) truth harmonics in the model frame (t = 0 with the unbalance on +x)."""
+    return np.array([[row[f"{c}{h}_re_m"] + 1j * row[f"{c}{h}_im_m"] for h in range(H + 1)] for c in "xy"])
+
+
+def in_record_frame(row: pd.Series, origin_s: float) -> np.ndarray:
+    """The truth as the record shows it, phases referred to record time ``origin_s``, offsets in h = 0."""
+    angle = 2 * np.pi * row["rpm_true"] / 60 * origin_s + row["phase_origin_rad"]
+    X = truth_harmonics(row) * np.exp(1j * np.arange(H + 1) * angle)
+    X[:, 0] += [row["offset_x_m"], row["offset_y_m"]]
+    return X
+
+
+def z_scores(estimate: np.ndarray, truth: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    z = (estimate - truth) / sigma
+    return np.concatenate([z.real.ravel(), z.imag.ravel()])
+
+
+# Tolerances. The estimates are means over K = 17..50 revolutions and sigma comes from the revolution scatter,
+# so (estimate - truth) / sigma is close to standard normal: |z| < 4 (a 6e-5 two-sided chance per value, for
+# ~100 values) catches a bias or an underestimated sigma; 0.5 < mean z^2 < 2 (mean of ~100 chi^2_1 values:
+# 1 +- 0.14) also catches a sigma that is too large, which |z| < 4 alone would not.
+
+
+def test_harmonics_and_offsets_recovered_within_the_stated_uncertainty(plain):
+    truth, analyses = plain
+    z = np.concatenate([z_scores(a.orders.harmonics, in_record_frame(row, a.origin.time_s), a.orders.sigma)
+                        for a, (_, row) in zip(analyses, truth.iterrows())])
+    assert z.size == len(PLAN) * 2 * (H + 1) * 2
+    assert np.abs(z).max() < 4.0
+    assert 0.5 < np.mean(z**2) < 2.0
+    for a in analyses:  # sigma is about noise * sqrt(2 / samples): 0.05 mm * sqrt(2 / 6000) ~ 1 um
+        assert np.all(a.orders.sigma[:, 1] < 3e-6) and np.all(a.orders.sigma[:, 1] > 3e-7)
+
+
+def test_true_speed_recovered_within_its_uncertainty(plain):
+    truth, analyses = plain
+    z = np.array([(a.speed.rpm - row["rpm_true"]) / a.speed.sigma_rpm for a, (_, row) in zip(analyses,
+                                                                                            truth.iterrows())])
+    assert np.abs(z).max() < 4.0
+    offset = np.abs(truth["rpm_true"] - truth["rpm"]).to_numpy()
+    sigma = np.array([a.speed.sigma_rpm for a in analyses])
+    # the rig's speed error (0.1 % rms) is resolved: nominal speed is far outside the estimate's uncertainty
+    assert np.all(sigma < 1e-4 * truth["rpm"].to_numpy()) and np.median(offset / sigma) > 10
+
+
+def test_noise_level_and_whole_revolutions(plain):
+    truth, analyses = plain
+    for a, (_, row) in zip(analyses, truth.iterrows()):
+        # residual std estimates the rig's 0.05 mm noise from >= 6000 samples: +-3 % covers it (sd 0.9 %)
+        np.testing.assert_allclose(a.orders.noise_m, [row["noise_x_m"], row["noise_y_m"]], rtol=0.03)
+        assert a.orders.n_revolutions == int(3.0 * row["rpm_true"] / 60)  # every whole revolution, none more
+        assert a.origin.source == "arbitrary"
+
+
+def test_keyphasor_gives_absolute_phases(plain, with_keyphasor):
+    truth, analyses = with_keyphasor
+    z = np.concatenate([z_scores(a.orders.harmonics[:, 1:], truth_harmonics(row)[:, 1:], a.orders.sigma[:, 1:])
+                        for a, (_, row) in zip(analyses, truth.iterrows())])
+    assert np.abs(z).max() < 4.0 and 0.5 < np.mean(z**2) < 2.0  # model frame directly, no phase fitted
+    for a, (_, row) in zip(analyses, truth.iterrows()):
+        assert a.origin.source == "keyphasor"
+        # marks on the nearest sample: each mark's error lies in +-dt/2, so the least-squares period over K marks
+        # errs by at most sum|k - mean k| (dt/2) / sum (k - mean k)^2 ~ 1.5 dt / K (a hard bound: near-integer
+        # T/dt makes the errors correlated, and the statistical dt / sqrt(K^3) would be too optimistic)
+        K, period = a.origin.n_marks, 60 / row["rpm_true"]
+        assert 0 < abs(a.origin.rpm_keyphasor / row["rpm_true"] - 1) < 1.5 * 5e-4 / (K * period)
+    # without a keyphasor the same comparison fails: the phase origin is random (a nuisance)
+    truth_plain, plain_analyses = plain
+    misfit = [np.abs(z_scores(a.orders.harmonics[:, 1:2], truth_harmonics(row)[:, 1:2], a.orders.sigma[:, 1:2]))
+              for a, (_, row) in zip(plain_analyses, truth_plain.iterrows())]
+    assert np.median(np.concatenate(misfit)) > 20
+
+
+def test_phase_aligned_comparison_ignores_time_origin_and_offsets(plain):
+    truth, analyses = plain
+    a, row = analyses[2], truth.iloc[2]  # 0 g at 1000 RPM: the largest response, 3X visible
+    model = truth_harmonics(row)
+    r, phi = phase_aligned_residuals(a.orders.harmonics, a.orders.sigma, model)
+    assert np.abs(r).max() < 4.0
+    expected = 2 * np.pi * row["rpm_true"] / 60 * a.origin.time_s + row["phase_origin_rad"]
+    assert np.angle(np.exp(1j * (phi - expected))) == pytest.approx(0.0, abs=1e-3)  # the record's phase origin
+    # the same run recorded from another instant and with other sensor offsets
+    record = a.record
+    cut = slice(137, None)
+    shifted = Record(record.path, record.time_s[cut] - record.time_s[137], record.x_m[cut] + 2e-4,
+                     record.y_m[cut] - 1e-4, None, record.unit)
+    b = analyse_record(shifted, row["rpm"], H)
+    r_b, phi_b = phase_aligned_residuals(b.orders.harmonics, b.orders.sigma, model)
+    assert np.abs(r_b).max() < 4.0 and phi_b != pytest.approx(phi, abs=1e-2)  # a different nuisance phase
+    np.testing.assert_allclose(np.abs(b.orders.harmonics[:, 1:]), np.abs(a.orders.harmonics[:, 1:]),
+                               atol=4 * a.orders.sigma[:, 1:].max())
+    assert b.orders.harmonics[0, 0].real - a.orders.harmonics[0, 0].real == pytest.approx(2e-4, abs=1e-5)
+
+
+def test_fit_phase_is_exact_on_a_rotated_copy():
+    rng = np.random.default_rng(5)
+    model = rng.normal(size=(2, H + 1)) + 1j * rng.normal(size=(2, H + 1))
+    for phi in (0.3, 2.9, 5.5):
+        measured = model * np.exp(1j * np.arange(H + 1) * phi)
+        assert fit_phase(measured, model) == pytest.approx(phi, abs=1e-8)
+
+
+def test_per_run_table_and_two_cycle_waveforms(plain, tmp_path):
+    truth, analyses = plain
+    a = analyses[1]
+    wave = waveforms(a)
+    period = 60 / a.speed.rpm
+    assert list(wave.columns) == ["time_s", "angle_rad", "x_m", "y_m", "x_raw_m", "y_raw_m"]
+    assert wave["time_s"].iloc[0] >= 0 and wave["time_s"].iloc[-1] < 2 * period
+    assert len(wave) == pytest.approx(2 * period * 2000, abs=1)
+    # the clean waveform is the raw one without noise: their difference has the noise's std (+-15 %, ~370 samples)
+    np.testing.assert_allclose((wave["x_raw_m"] - wave["x_m"]).std(), truth["noise_x_m"].iloc[1], rtol=0.15)
+    sheet = read_runs(a.record.path.parents[1] / "runs.tsv")
+    table, _ = preprocess_run(sheet.iloc[1].to_dict(), H)
+    assert len(table) == 1 and table["run"].iloc[0] == "r650" and table["usable"].iloc[0]
+    for column in ("rpm_true", "rpm_true_sigma", "x1_re_m", "x1_im_m", "x1_sigma_m", "y5_amp_m", "noise_y_m",
+                   "offset_x_m", "phase_reference", "eccentric_mass_g", "role"):
+        assert column in table
+    assert table["x1_re_m"].iloc[0] == pytest.approx(a.orders.harmonics[0, 1].real)

@@ -1,0 +1,162 @@
+"""The virtual rig: reproducible, honest about uniqueness and the sensor range, and the bundled data set is
+exactly what the configured truth generates."""
+
+import filecmp
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+
+from hybridtwin.cli import main
+from hybridtwin.measurements import DataWarning, detect_saturation, read_record, read_runs
+from hybridtwin.rig import (
+    DEFAULT_TRUTH, Imperfections, RigError, RigSpec, RigWarning, Truth, generate, read_plan,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+DEFAULT_DATA = ROOT / "data" / "default"
+GEOMETRIC = ["centrifugal_softening", "structural_damping", "upper_housing", "lower_bearing", "unbalance",
+             "shaft_bow", "geometric_spring"]
+
+
+def plan(*runs):
+    """A run plan from (run, rpm, eccentric_mass_g) triples."""
+    return pd.DataFrame({"run": [r[0] for r in runs], "rpm": [float(r[1]) for r in runs],
+                         "eccentric_mass_g": [float(r[2]) for r in runs], "role": "fit"})
+
+
+SMALL = plan(("a", 400, 25.9), ("b", 800, 14.8), ("c", 950, 0.0))
+SHORT = Imperfections(duration_s=1.0)
+
+
+def files(folder):
+    return sorted(p.relative_to(folder) for p in folder.rglob("*") if p.is_file())
+
+
+def test_same_seed_same_files_and_runs_independent_of_the_plan(tmp_path):
+    spec = RigSpec(imperfections=SHORT, seed=3, harmonics=5)
+    two_runs = SMALL.iloc[:2]
+    generate(two_runs, spec, tmp_path / "one")
+    generate(two_runs, spec, tmp_path / "two")
+    assert files(tmp_path / "one") == files(tmp_path / "two")
+    for name in files(tmp_path / "one"):
+        assert filecmp.cmp(tmp_path / "one" / name, tmp_path / "two" / name, shallow=False), name
+    generate(two_runs, RigSpec(imperfections=SHORT, seed=4, harmonics=5), tmp_path / "other")
+    assert not filecmp.cmp(tmp_path / "one" / "records" / "a.csv", tmp_path / "other" / "records" / "a.csv",
+                           shallow=False)
+    # each run's draws come from (seed, run id): dropping other runs from the plan leaves its record unchanged
+    generate(two_runs.iloc[[1]], spec, tmp_path / "alone")
+    assert filecmp.cmp(tmp_path / "one" / "records" / "b.csv", tmp_path / "alone" / "records" / "b.csv",
+                       shallow=False)
+
+
+def test_records_and_answer_key(tmp_path):
+    spec = RigSpec(imperfections=Imperfections(duration_s=1.5, noise_mm=(0.03, 0.17), offset_mm=0.4), seed=8,
+                   harmonics=5)
+    truth = generate(SMALL, spec, tmp_path)
+    sheet = read_runs(tmp_path / "runs.tsv")  # a valid runs sheet pointing at records that exist
+    assert sheet["run"].tolist() == ["a", "b", "c"] and sheet["path"].tolist()[0] == "records/a.csv"
+    record = read_record(sheet["record"].iloc[0])
+    assert record.n_samples == 3000 and record.sample_rate_hz == pytest.approx(2000.0) and record.keyphasor is None
+    assert truth["unique"].all() and truth["inside_range"].all() and (truth["clipped_samples"] == 0).all()
+    assert truth["noise_x_m"].between(0.03e-3, 0.17e-3).all() and truth["offset_y_m"].abs().max() <= 0.4e-3
+    assert (abs(truth["rpm_true"] / truth["rpm"] - 1) < 5e-3).all() and (truth["rpm_true"] != truth["rpm"]).all()
+    key = yaml.safe_load((tmp_path / "truth.yaml").read_text())
+    assert key["seed"] == 8 and key["truth"]["effects"][-1] == "slope_spring"
+    assert key["truth"]["values"]["k_w"] == 324.2 and key["imperfections"]["noise_mm"] == [0.03, 0.17]
+    # the record is the truth's steady state: its mean is the drawn offset (the truth has no 0X), to 4 sigma
+    row = truth.iloc[0]
+    assert abs(record.x_m.mean() - row["offset_x_m"]) < 4 * row["noise_x_m"] / np.sqrt(record.n_samples) + 2e-6
+
+
+def test_keyphasor_marks_the_unbalance_on_plus_x_once_per_turn(tmp_path):
+    spec = RigSpec(imperfections=Imperfections(duration_s=1.0, keyphasor=True), seed=2, harmonics=3)
+    truth = generate(SMALL.iloc[[1]], spec, tmp_path)
+    record = read_record(tmp_path / "records" / "b.csv")
+    marks = record.time_s[record.keyphasor]
+    omega = 2 * np.pi * truth["rpm_true"].iloc[0] / 60
+    np.testing.assert_allclose(np.diff(marks), 2 * np.pi / omega, atol=record.dt_s)  # one per revolution
+    angle = omega * marks + truth["phase_origin_rad"].iloc[0]  # rotor angle at the marks
+    assert np.abs(np.angle(np.exp(1j * angle))).max() <= omega * record.dt_s / 2 + 1e-9  # nearest sample to 0
+    assert len(marks) == pytest.approx(omega / (2 * np.pi), abs=1)
+
+
+def test_response_beyond_the_sensor_range_is_clipped_flagged_and_detected(tmp_path):
+    truth_model = Truth.from_spec({"effects": DEFAULT_TRUTH["effects"],
+                                   "values": {**DEFAULT_TRUTH["values"], "q_x": 0.005, "q_y": 0.005}})
+    spec = RigSpec(truth_model, Imperfections(duration_s=1.0, speed_error=0.0), seed=1, harmonics=5)
+    with pytest.warns(RigWarning, match=r"run c: the response reaches 2\d\.\d+ mm .* \d+ sample\(s\) clipped"):
+        truth = generate(plan(("c", 975, 0.0)), spec, tmp_path)  # 0 g near the resonance: ~24 mm
+    assert not truth["inside_range"].iloc[0] and truth["clipped_samples"].iloc[0] > 100
+    record = read_record(tmp_path / "records" / "c.csv")
+    assert np.abs(record.x_m).max() == pytest.approx(14e-3, abs=1e-12)  # flat tops at the range
+    with pytest.warns(DataWarning, match="is clipped at"):
+        found = detect_saturation(record)
+    assert {f.channel for f in found} == {"x", "y"} and {f.kind for f in found} == {"clipped"}
+
+
+def test_non_unique_steady_state_is_reported(tmp_path):
+    # a lightly damped Geometric machine softens (the u v^2 term) near 900 RPM: run-up and run-down differ
+    truth_model = Truth.from_spec({"effects": GEOMETRIC, "values": {"k_b": 2411.3, "zeta_s": 0.01, "zeta_bup": 0.0,
+                                                                    "q_x": 0.006, "q_y": 0.006}})
+    spec = RigSpec(truth_model, Imperfections(duration_s=1.0, speed_error=0.0, clip=False), seed=1, harmonics=5)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", RigWarning)
+        truth = generate(plan(("d", 900, 0.0)), spec, tmp_path)
+    assert not truth["unique"].iloc[0] and truth["updown_difference_rel"].iloc[0] > 0.5
+    messages = [str(w.message) for w in caught]
+    assert any("not unique" in m and "follows the run-up branch" in m for m in messages)
+    assert any("not clipped (clip off)" in m for m in messages)  # 19 mm, reported but left unclipped
+
+
+@pytest.mark.parametrize("spec, message", [
+    ({"truth": {"effects": ["unbalance", "no_such_effect"]}}, "no effect named 'no_such_effect'"),
+    ({"truth": {"values": {"m_e": 0.01}}}, "m_e comes from each run's eccentric_mass_g"),
+    ({"imperfections": {"noise": 0.1}}, r"imperfections: unknown key\(s\) \['noise'\]"),
+    ({"imperfections": {"noise_mm": [0.2, 0.1]}}, "noise_mm must be"),
+    ({"imperfections": {"unit": "inch"}}, "unit must be 'mm' or 'm'"),
+    ({"colour": "red"}, r"rig: unknown key\(s\) \['colour'\]"),
+])
+def test_bad_rig_specs_are_rejected_with_the_reason(spec, message):
+    with pytest.raises(RigError, match=message):
+        RigSpec.from_mapping(spec)
+
+
+def test_plan_needs_every_mass(tmp_path):
+    (tmp_path / "plan.tsv").write_text("run\trpm\teccentric_mass_g\na\t400\t\n")
+    with pytest.raises(RigError, match=r"plan.tsv: the rig needs every run's eccentric mass; empty for \['a'\]"):
+        read_plan(tmp_path / "plan.tsv")
+
+
+def test_cli_rig_with_options(tmp_path, capsys):
+    (tmp_path / "plan.tsv").write_text("run\trpm\teccentric_mass_g\trole\nk1\t700\t19.5\tvalidate\n")
+    code = main(["rig", "--plan", str(tmp_path / "plan.tsv"), "--out", str(tmp_path / "out"), "--seed", "5",
+                 "--duration-s", "0.5", "--keyphasor", "--unit", "m", "--noise-mm", "0.03", "0.17",
+                 "--set", "q_x=0.003", "--harmonics", "3"])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    assert "k1" in out and "True" in out and "wrote 1 record(s)" in err
+    header = (tmp_path / "out" / "records" / "k1.csv").read_text().splitlines()[0]
+    assert header == "time_s,x_m,y_m,keyphasor"
+    key = yaml.safe_load((tmp_path / "out" / "truth.yaml").read_text())
+    assert key["truth"]["values"]["q_x"] == 0.003 and key["imperfections"]["keyphasor"] is True
+    assert main(["rig", "--plan", str(tmp_path / "nowhere.tsv"), "--out", str(tmp_path / "x")]) == 1
+    assert "nowhere.tsv: file does not exist" in capsys.readouterr().err
+
+
+def test_bundled_data_set_is_what_the_configured_truth_generates(tmp_path):
+    """data/default is reproduced byte for byte from config/config.yaml's rig: default entry (README claim)."""
+    config = yaml.safe_load((ROOT / "config" / "config.yaml").read_text())
+    entry = config["rig"]["default"]
+    truth = generate(read_plan(ROOT / entry["plan"]), RigSpec.from_mapping(entry), tmp_path)
+    for name in ["runs.tsv", "truth.tsv", "truth.yaml"] + [f"records/{r}.csv" for r in truth["run"]]:
+        assert filecmp.cmp(DEFAULT_DATA / name, tmp_path / name, shallow=False), name
+    # the data set's documented properties: the paper's 19 + 3 runs, unique steady states, inside +-14 mm
+    assert len(truth) == 22 and (truth["role"] == "validate").sum() == 3
+    assert truth["unique"].all() and truth["inside_range"].all() and (truth["clipped_samples"] == 0).all()
+    assert truth["updown_difference_rel"].max() < 1e-10
+    assert 1e3 * truth[["peak_x_m", "peak_y_m"]].to_numpy().max() < 14 - 0.5 - 4 * 0.05  # range - offset - noise
+    assert sum(p.stat().st_size for p in DEFAULT_DATA.rglob("*")) < 10e6  # small enough for git
