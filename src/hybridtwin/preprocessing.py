@@ -505,7 +505,7 @@ def format_summary(summary: pd.DataFrame, harmonics: int) -> str:
         "revs": summary["n_revolutions"],
         "noise_x_mm": (mm * summary["noise_x_m"]).round(4), "noise_y_mm": (mm * summary["noise_y_m"]).round(4),
         "offset_x_mm": (mm * summary["offset_x_m"]).round(4), "offset_y_mm": (mm * summary["offset_y_m"]).round(4),
-        "phase": summary["phase_reference"], "status": summary["status"],
+        "phase": summary["phase_reference"], "saturated": summary["saturated"], "status": summary["status"],
     })
     amplitudes = pd.DataFrame({"run": summary["run"]})
     for name in CHANNELS:
