@@ -49,6 +49,10 @@ def n_scenarios(config: Mapping, variant_: Variant) -> int:
 def run_plan(config: Mapping) -> pd.DataFrame:
     """The runs the libraries are built for: run, rpm, eccentric_mass_g, role (from the runs sheet)."""
     sheet = pd.read_csv(config["runs"], sep="\t", dtype={"run": str})
+    unknown_mass = sheet.loc[sheet["eccentric_mass_g"].isna(), "run"].tolist()
+    if unknown_mass:
+        raise ValueError(f"{config['runs']}: run(s) {unknown_mass} have no eccentric_mass_g; the offline "
+                         "libraries are built per (rpm, eccentric mass) and need it")
     return sheet[["run", "rpm", "eccentric_mass_g"] + (["role"] if "role" in sheet else [])]
 
 

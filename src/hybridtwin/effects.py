@@ -54,14 +54,20 @@ class Parameter:
 class Params(Mapping[str, Array]):
     """Parameter values of S scenarios: ``p.k_b`` or ``p["k_b"]``, each shape (S,)."""
 
-    def __init__(self, values: Mapping[str, Array]):
+    def __init__(self, values: Mapping[str, Array], rows: Array | slice | None = None):
         self._values = dict(values)
+        self._rows = rows
+
+    def rows(self, rows: Array) -> "Params":
+        """The same parameters for scenarios ``rows`` only (sliced lazily, name by name)."""
+        return Params(self._values, rows)
 
     def __getitem__(self, name: str) -> Array:
         try:
-            return self._values[name]
+            value = self._values[name]
         except KeyError:
             raise KeyError(f"parameter {name!r} has no value (known: {sorted(self._values)})") from None
+        return value if self._rows is None else value[self._rows]
 
     def __getattr__(self, name: str) -> Array:
         if name.startswith("_"):

@@ -55,10 +55,13 @@ class System:
     forcing: dict[int, Array]
     forces: list[LocalForce] = field(default_factory=list)
     rows: np.ndarray | None = None
+    problems: np.ndarray | None = None  # (S,) str: why a scenario has no steady state ("" if none known)
 
     def __post_init__(self) -> None:
         if self.rows is None:
             self.rows = np.arange(self.n_scenarios)
+        if self.problems is None:
+            self.problems = np.full(self.n_scenarios, "", dtype=object)
 
     @property
     def n_scenarios(self) -> int:
@@ -71,11 +74,13 @@ class System:
     def subset(self, sel: np.ndarray) -> "System":
         """The same system restricted to scenarios ``sel`` (indices or mask)."""
         return System(self.M[sel], self.C[sel], self.K[sel], self.Omega[sel],
-                      {h: f[sel] for h, f in self.forcing.items()}, self.forces, self.rows[sel])
+                      {h: f[sel] for h, f in self.forcing.items()}, self.forces, self.rows[sel], self.problems[sel])
 
 
 def _first_mode(K: Array, M: Array) -> tuple[Array, Array]:
     """Lowest undamped natural frequency and mode shape of the pencils (K, M), batched.
+
+    omega_1 is NaN where the lowest eigenvalue is not positive (unstable at rest).
 
     Symmetric K: Cholesky reduction and eigh; otherwise the general eigenproblem
     of M^-1 K, taking the eigenvalue of least real part.
@@ -94,13 +99,7 @@ def _first_mode(K: Array, M: Array) -> tuple[Array, Array]:
         rows = np.arange(K.shape[0])
         lam1 = lam[rows, first].real
         phi = vec[rows, :, first].real
-    if np.any(lam1 <= 0):
-        bad = np.flatnonzero(lam1 <= 0)
-        raise ValueError(
-            f"the structure at rest is not stable for scenario(s) {bad[:10].tolist()}: "
-            f"lowest eigenvalue {lam1[bad[0]]:.3g} <= 0 (check the bearing stiffnesses)"
-        )
-    return np.sqrt(lam1), phi
+    return np.sqrt(np.where(lam1 > 0, lam1, np.nan)), phi
 
 
 class Model:
@@ -153,7 +152,7 @@ class Model:
                 forcing[h] = forcing.get(h, 0) + np.broadcast_to(f, (ctx.n_scenarios, self.shaft.n_dof))
 
         def bind(effect: Effect) -> Callable[[Array, np.ndarray], tuple[Array, Array]]:
-            return lambda q, rows: effect.force(q, Params({k: v[rows] for k, v in ctx.p.items()}))
+            return lambda q, rows: effect.force(q, ctx.p.rows(rows))
 
         forces = [
             LocalForce(e.name, np.array([self.shaft.dof(d) for d in e.dofs]), bind(e), e.degree)
@@ -161,7 +160,9 @@ class Model:
         ]
         M = np.broadcast_to(ctx.M, K.shape).copy()
         C = np.broadcast_to(C, K.shape).copy()
-        return System(M, C, K, ctx.Omega, forcing, forces)
+        problems = np.where(np.isnan(ctx.omega_1), "the structure at rest is unstable (a natural frequency of "
+                            "the x plane at Omega = 0 is not real): no steady state", "").astype(object)
+        return System(M, C, K, ctx.Omega, forcing, forces, problems=problems)
 
     def _sum(self, hook: str, ctx: Context) -> Array:
         n = self.shaft.n_dof

@@ -28,10 +28,11 @@ import numpy as np
 from .effects import Array
 from .model import System
 
-CONVERGED, MAX_ITER, SINGULAR, DIVERGED, LINEAR_SINGULAR = 0, 1, 2, 3, 4
+CONVERGED, MAX_ITER, SINGULAR, DIVERGED, LINEAR_SINGULAR, INVALID = 0, 1, 2, 3, 4, 5
 
 # amplitude growth (vs the linear response) taken as "no bounded periodic solution found"
 _DIVERGENCE_FACTOR = 1e3
+_MAX_HALVINGS = 8  # backtracking steps of the damped Newton
 
 
 @dataclass
@@ -153,7 +154,7 @@ class _Condensed:
     def _force_series(self, x: Array, idx: Array, jacobian: bool) -> tuple[Array, Array | None]:
         """Nonlinear forces (S', c, N) and their derivatives (S', c, c, N) at x's time samples."""
         c, N = len(self.dofs), self.N
-        xt = np.einsum("sik,nk->sin", x, self.E, optimize=True)
+        xt = x @ self.E.T
         F = np.zeros((len(idx), c, N))
         J = np.zeros((len(idx), c, c, N)) if jacobian else None
         rows = self.system.rows[idx]
@@ -167,13 +168,14 @@ class _Condensed:
     def evaluate(self, x: Array, idx: Array, jacobian: bool = True) -> tuple[Array, Array | None]:
         """Residual r = x - a - H G(x) (S', c, 2H+1) and, optionally, dr/dx (S', m, m)."""
         F, J = self._force_series(x, idx, jacobian)
-        g = np.einsum("sin,kn->sik", F, self.E_plus, optimize=True).reshape(len(idx), -1)
+        g = (F @ self.E_plus.T).reshape(len(idx), -1)
         Hr = self.Hreal[idx]
         r = x - self.a[idx] - (Hr @ g[:, :, None]).reshape(x.shape)
         if not jacobian:
             return r, None
         m = g.shape[1]
-        dG = np.einsum("kn,sijn,nl->sikjl", self.E_plus, J, self.E, optimize=True).reshape(len(idx), m, m)
+        # dG[s, i, k, j, l] = sum_n E+[k, n] J[s, i, j, n] E[n, l]
+        dG = np.swapaxes((J[:, :, :, None, :] * self.E_plus) @ self.E, 2, 3).reshape(len(idx), m, m)
         return r, np.eye(m) - Hr @ dG
 
     def full_harmonics(self, x: Array, idx: Array) -> Array:
@@ -181,7 +183,7 @@ class _Condensed:
         if len(self.dofs) == 0:
             return self.X_lin[idx]
         F, _ = self._force_series(x, idx, jacobian=False)
-        G = _to_complex(np.einsum("sin,kn->sik", F, self.E_plus, optimize=True))  # (S', c, H+1)
+        G = _to_complex(F @ self.E_plus.T)  # (S', c, H+1)
         return self.X_lin[idx] + np.einsum("shnc,sch->shn", self.R[idx], G, optimize=True)
 
 
@@ -255,7 +257,7 @@ def solve(
     initial: Array | None = None,
     n_time: int | None = None,
     tol: float = 1e-10,
-    max_iter: int = 50,
+    max_iter: int = 30,
     relaxation: float = 0.5,
     fixed_point_iter: int = 300,
     branch: str = "direct",
@@ -292,6 +294,8 @@ def solve(
             notes[fallback] = " after fixed-point fallback to Newton"
             x[fallback] = np.where(np.isfinite(x[fallback]), x[fallback], prob.a[fallback])
         _newton(prob, x, np.flatnonzero(status == MAX_ITER), status, iterations, residual, tol, max_iter)
+    invalid = system.problems != ""
+    status[invalid] = INVALID
     success = status == CONVERGED
     Q = np.full((S, harmonics + 1, system.n_dof), np.nan + 0j)
     if success.any():
@@ -299,6 +303,7 @@ def solve(
     x[~success] = np.nan
     messages = np.array([_message(s, it, r) + n for s, it, r, n in zip(status, iterations, residual, notes)],
                         dtype=object)
+    messages[invalid] = system.problems[invalid]
     return SteadyState(
         harmonics=Q, Omega=system.Omega.copy(), success=success, status=status, message=messages,
         iterations=iterations, residual=residual, branch=np.full(S, branch, dtype=object), state=x, n_time=prob.N,
@@ -363,7 +368,7 @@ def _newton(prob, x, idx, status, iterations, residual, tol, max_iter) -> None:
         # backtracking: halve the step of the scenarios whose residual did not decrease
         alpha = np.ones(idx.size)
         trial_r, trial_J = prob.evaluate(x[idx] + step, idx)
-        for _ in range(12):
+        for _ in range(_MAX_HALVINGS):
             worse = ~(_norm(trial_r) < nr)
             if not worse.any():
                 break
@@ -390,7 +395,7 @@ def solve_sweep(
     n_scenarios: int,
     *,
     direction: str = "up",
-    max_refine: int = 4,
+    max_refine: int = 3,
     **options,
 ) -> Sweep:
     """Solve a speed sweep by continuation (run-up or run-down) for S scenarios.
