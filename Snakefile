@@ -21,6 +21,8 @@ include: "workflow/rules/measurements.smk"
 
 rule all:
     input:
+        "results/data/check.tsv",
+        "results/data/harmonics.tsv",
         expand("results/{variant}/whitebox/sweep.tsv", variant=VARIANTS),
         expand("results/{variant}/whitebox/sweep.png", variant=VARIANTS),
         expand("results/{variant}/library_validation.tsv", variant=VARIANTS),

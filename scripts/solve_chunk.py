@@ -15,7 +15,7 @@ variant = cfg.variant(smk.config, smk.wildcards.variant)
 scenarios = pd.read_csv(smk.input.scenarios, sep="\t")
 chunk = int(smk.wildcards.chunk)
 mine = scenarios.iloc[np.array_split(np.arange(len(scenarios)), smk.params.n_chunks)[chunk]]
-runs = cfg.run_plan(smk.config)
+runs = cfg.run_plan(smk.config, smk.input.speeds if smk.params.measured else None)
 log.info("chunk %d: scenarios %d..%d (%d) at %d runs, H = %d", chunk, mine["scenario"].min(),
          mine["scenario"].max(), len(mine), len(runs), smk.params.harmonics)
 start = time.perf_counter()

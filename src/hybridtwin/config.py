@@ -33,7 +33,8 @@ def variant(config: Mapping, name: str, config_dir: Path = CONFIG_DIR) -> Varian
 
 def offline(config: Mapping) -> dict:
     """The ``offline:`` options with their defaults filled in."""
-    defaults = {"seed": 1, "n_scenarios": {}, "n_test": 200, "validation_fraction": 0.2, "chunks": 4,
+    defaults = {"seed": 1, "speed": "measured", "n_scenarios": {}, "n_test": 200, "validation_fraction": 0.2,
+                "chunks": 4,
                 "sensor_range_mm": 14.0, "pod_energy_tolerance": 1e-10,
                 "spgd": {"degree": 6, "max_terms": 60, "ridge": 1e-8, "patience": 8, "backfit_iterations": 3}}
     options = {**defaults, **(config.get("offline") or {})}
@@ -46,9 +47,19 @@ def n_scenarios(config: Mapping, variant_: Variant) -> int:
     return int(offline(config)["n_scenarios"].get(variant_.name, default_n_scenarios(len(variant_.unknown))))
 
 
-def run_plan(config: Mapping) -> pd.DataFrame:
-    """The runs the libraries are built for: run, rpm, eccentric_mass_g, role (from the runs sheet)."""
+def run_plan(config: Mapping, measured: str | Path | None = None) -> pd.DataFrame:
+    """The runs the libraries are built for: run, rpm, eccentric_mass_g, role (from the runs sheet).
+
+    With ``measured`` (the preprocessed table, results/data/harmonics.tsv) each run's
+    rpm is the true speed refined from its record (rpm_true) instead of the nominal one.
+    """
     sheet = pd.read_csv(config["runs"], sep="\t", dtype={"run": str})
+    if measured is not None:
+        speeds = pd.read_csv(measured, sep="\t", dtype={"run": str}).set_index("run")["rpm_true"]
+        missing = sorted(set(sheet["run"]) - set(speeds.index))
+        if missing:
+            raise ValueError(f"{measured} has no refined speed for run(s) {missing}")
+        sheet["rpm"] = sheet["run"].map(speeds).to_numpy(float)
     unknown_mass = sheet.loc[sheet["eccentric_mass_g"].isna(), "run"].tolist()
     if unknown_mass:
         raise ValueError(f"{config['runs']}: run(s) {unknown_mass} have no eccentric_mass_g; the offline "

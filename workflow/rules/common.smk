@@ -11,6 +11,8 @@ VARIANTS = list(config["variants"])
 OFFLINE = offline(config)
 CHUNKS = [f"{i:03d}" for i in range(OFFLINE["chunks"])]
 RUNS = list(run_plan(config)["run"])
+# the speeds the libraries are built at: refined from the records, or the sheet's nominal ones
+SPEEDS = "results/data/harmonics.tsv" if OFFLINE["speed"] == "measured" else config["runs"]
 
 
 wildcard_constraints:

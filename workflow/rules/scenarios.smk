@@ -25,10 +25,12 @@ rule solve_chunk:
     input:
         scenarios="results/{variant}/scenarios.tsv",
         runs=config["runs"],
+        speeds=SPEEDS,
     output:
         directory("results/{variant}/chunks/{chunk}.zarr"),
     params:
         spec=lambda wildcards: config["variants"][wildcards.variant],
+        measured=OFFLINE["speed"] == "measured",
         n_chunks=OFFLINE["chunks"],
         harmonics=config["harmonics"],
     resources:
