@@ -28,11 +28,12 @@ import numpy as np
 from .effects import Array
 from .model import System
 
-CONVERGED, MAX_ITER, SINGULAR, DIVERGED, LINEAR_SINGULAR, INVALID = 0, 1, 2, 3, 4, 5
+CONVERGED, MAX_ITER, SINGULAR, DIVERGED, LINEAR_SINGULAR, INVALID, STALLED = 0, 1, 2, 3, 4, 5, 6
 
 # amplitude growth (vs the linear response) taken as "no bounded periodic solution found"
 _DIVERGENCE_FACTOR = 1e3
 _MAX_HALVINGS = 8  # backtracking steps of the damped Newton
+_STALL_WINDOW = 8  # fresh starts in sweeps give up when the residual has not halved over this many iterations
 
 
 @dataclass
@@ -261,6 +262,7 @@ def solve(
     relaxation: float = 0.5,
     fixed_point_iter: int = 300,
     branch: str = "direct",
+    stall_window: int | None = None,
 ) -> SteadyState:
     """Periodic steady state of every scenario of ``system`` (harmonics 0..H).
 
@@ -268,6 +270,9 @@ def solve(
     relaxation ``relaxation``; scenarios it does not converge fall back to Newton).
     initial: condensed start (S, c, 2H+1), e.g. a previous speed's ``state``;
     default the linear response. tol: ||r|| <= tol ||x|| per scenario.
+    stall_window: give a scenario up when its residual has not halved over this
+    many Newton iterations (None: never; near folds Newton may need long damped
+    progress before it converges, so continuation steps do not use it).
     """
     if method not in ("newton", "fixed-point"):
         raise ValueError(f"method must be 'newton' or 'fixed-point', got {method!r}")
@@ -293,7 +298,8 @@ def solve(
             fallback = np.flatnonzero(status == MAX_ITER)
             notes[fallback] = " after fixed-point fallback to Newton"
             x[fallback] = np.where(np.isfinite(x[fallback]), x[fallback], prob.a[fallback])
-        _newton(prob, x, np.flatnonzero(status == MAX_ITER), status, iterations, residual, tol, max_iter)
+        _newton(prob, x, np.flatnonzero(status == MAX_ITER), status, iterations, residual, tol, max_iter,
+                stall_window or max_iter + 1)
     invalid = system.problems != ""
     status[invalid] = INVALID
     success = status == CONVERGED
@@ -317,6 +323,8 @@ def _message(status: int, iterations: int, residual: float) -> str:
         return f"Newton did not converge in {iterations} iterations (residual {residual:.1e})"
     if status == SINGULAR:
         return f"singular Jacobian after {iterations} iterations (turning point or bifurcation)"
+    if status == STALLED:
+        return f"Newton stalled: the residual stopped falling after {iterations} iterations (residual {residual:.1e})"
     if status == DIVERGED:
         return (f"diverged after {iterations} iterations (amplitude > {_DIVERGENCE_FACTOR:g} x the linear "
                 "response or not finite): no bounded periodic solution found")
@@ -342,21 +350,28 @@ def _fixed_point(prob, x, idx, status, iterations, residual, beta, max_iter, tol
         idx = idx_left
 
 
-def _newton(prob, x, idx, status, iterations, residual, tol, max_iter) -> None:
+def _newton(prob, x, idx, status, iterations, residual, tol, max_iter, stall_window) -> None:
     """Damped Newton on r(x) = 0, batched; updates x, status, iterations, residual in place."""
     if idx.size == 0:
         return
     r, Jr = prob.evaluate(x[idx], idx)
     a_norm = np.maximum(_norm(prob.a), 1e-300)
+    start = iterations.copy()
+    history = np.full((len(status), max_iter + 1), np.inf)  # residual norm per Newton iteration
     for _ in range(max_iter + 1):
         nr, nx = _norm(r), _norm(x[idx])
         residual[idx] = nr / np.maximum(nx, 1e-300)
+        step_no = iterations[idx] - start[idx]
+        history[idx, step_no] = nr
         done = nr <= tol * nx
         done |= (nr == 0.0)
         bad = ~np.isfinite(nr) | (nx > _DIVERGENCE_FACTOR * a_norm[idx])
+        stalled = (step_no >= stall_window) & (
+            nr > 0.5 * history[idx, np.maximum(step_no - stall_window, 0)])
         status[idx[done]] = CONVERGED
         status[idx[bad & ~done]] = DIVERGED
-        keep = ~done & ~bad & (iterations[idx] < max_iter)
+        status[idx[stalled & ~done & ~bad]] = STALLED
+        keep = ~done & ~bad & ~stalled & (iterations[idx] < max_iter)
         idx, r, Jr, nr = idx[keep], r[keep], Jr[keep], nr[keep]
         if idx.size == 0:
             return
@@ -405,7 +420,7 @@ def solve_sweep(
     that fails to continue is retried with the speed step halved up to
     ``max_refine`` times. If it still fails, its branch has ended at a fold and
     the machine would jump: the other branch is sought from several starting
-    points (the linear response, the last state scaled by 0.5 .. 3), and the
+    points (the linear response, the last state scaled by 0.5 .. 5), and the
     result's ``branch`` says "run-up, jump between A and B RPM". Nothing is
     jumped silently, and a scenario for which no start converges is reported
     failed with the reason.
@@ -432,14 +447,14 @@ def solve_sweep(
                                             label, options))
             parts.append(res_c)
         if fresh.size:
-            parts.append(solve(build(speed, fresh), **options))
+            parts.append(solve(build(speed, fresh), stall_window=_STALL_WINDOW, **options))
         res = SteadyState.concatenate(parts, np.argsort(np.concatenate([cont, fresh])))
         results.append(res)
         previous, previous_rpm = res, speed
     return Sweep(speeds, results, direction)
 
 
-_JUMP_STARTS = (None, 1.5, 2.0, 3.0, 0.5)  # None: the linear response; a number: scaled last state
+_JUMP_STARTS = (None, 1.5, 2.0, 3.0, 5.0, 0.5)  # None: the linear response; a number: scaled last state
 
 
 def _jump(build, rpm_from, rpm_to, x_last, rows, label, options) -> SteadyState:
@@ -454,7 +469,7 @@ def _jump(build, rpm_from, rpm_to, x_last, rows, label, options) -> SteadyState:
         start = None if scale is None else scale * x_last[open_]
         if start is not None and start.size and np.isnan(start).any():
             continue
-        trial = solve(system.subset(open_), initial=start, branch=branch, **options)
+        trial = solve(system.subset(open_), initial=start, branch=branch, stall_window=_STALL_WINDOW, **options)
         if best is None:
             best = trial
         else:
