@@ -1,0 +1,1346 @@
+"""Grey-box identification on the sPGD libraries (paper sec. 2.3, eq. 9-11; sec. 4.1).
+
+The unknown parameters p of a variant are found by minimising, over the
+parameters normalised to x = 2 (p - lo) / (hi - lo) - 1 in [-1, 1],
+
+    L(x, phi) = L2 + L1,                                                       (eq. 9)
+    L2 = (1 / n_r) sum_{run, h = 1..H, c = x, y} |X_hc - exp(i h phi_run) M_hc(x)|^2 / s_hc^2,   (eq. 10)
+    L1 = lambda sum_j |p_j| / max(|lo_j|, |hi_j|),                            (eq. 11)
+
+with X_hc the measured sensor harmonics (results/data/harmonics.tsv), M_hc the
+library's (``Library``: response and exact Jacobian), s_hc the standard
+uncertainty of each real and imaginary part (the measured sigma, plus, by
+default, the library's own error, see ``total_sigma``) and n_r = 4 H per run
+the number of real residuals. How the paper's loss is made precise here:
+
+- eq. 10 is a sum of squares weighted by the uncertainties (a chi^2 per
+  residual), so L2 ~ 1 when the model explains the data to within its noise;
+  the paper's unweighted norm becomes that when the noise is white.
+- Nuisances. Without a keyphasor the time origin of each record is arbitrary:
+  a per-run phase phi rotates harmonic h by exp(i h phi) and is estimated with
+  the parameters (it is never a physical result). DC offsets only touch h = 0,
+  which is left out.
+- eq. 11 acts on p / max|range| (the paper's normalisation, its Table 4), where
+  0 is physical zero, so the L1 term switches terms off; on [-1, 1] min-max
+  coordinates 0 would be the middle of the range. |s| is smoothed as
+  s^2 / sqrt(s^2 + eps^2) (eps = ``l1_epsilon``) and enters the least squares
+  as a residual rho = sqrt(lambda n_r) s / (s^2 + eps^2)^(1/4), so the same
+  problem goes to scipy.optimize.least_squares unchanged.
+
+Optimiser: Levenberg-Marquardt batched over trials (``levenberg_marquardt``):
+every trial (random start, Monte Carlo repeat) advances in the same numpy
+operations, with its own damping factor mu (Nielsen's update), Marquardt's
+scaling diag(J^T J), and trials that have converged are masked out. Bounds
+[-1, 1] are handled by projection with an active set: a parameter on a bound
+whose gradient points outwards is held fixed for the step, the others take the
+damped Gauss-Newton step, and the result is clipped back into the box (a
+projected LM; no transform, so the Jacobian at the optimum is the model's).
+
+Runs are joined in one block-arrow problem: shared physical parameters
+(k_b, zeta_s, ...), and per run a block of local parameters (q_x, q_y by
+default) and its phase. The normal matrix [[A, B], [B^T, C]] has one small
+C_r per run and is solved by the Schur complement, so a joint fit of R runs
+costs R small solves, not one dense n x n one (``arrow_solve``). A per-run fit
+is the same problem with one run and every parameter "shared".
+
+The paper's protocol (``ProtocolOptions``): tau = 50 random trials, the
+lowest-loss trial kept; n_MC = 1000 Monte Carlo repeats on data re-sampled
+with the measured sigmas (X + sigma (N(0,1) + i N(0,1))); lambda = 0 for the
+Geometric model, 0.1 for the Expansion model. The estimate reported is the
+best trial on the measured data; the Monte Carlo repeats give the paper's
+average and a distribution that checks the linearised uncertainty.
+
+Uncertainty and identifiability (``analyse_uncertainty``): covariance
+s^2 V S^-2 V^T from the SVD of the weighted Jacobian of the free parameters,
+s^2 = chi^2 / dof; parameters at a bound are held fixed (their covariance is
+not valid and the others' is conditional on them); correlation matrix;
+collinearity index (Brun et al. 2001) of the unit-normalised sensitivities of
+the physical parameters with the phases projected out; flags for
+non-identifiable parameters and estimates at a range edge ("revise the range").
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+import pandas as pd
+from numpy.polynomial import chebyshev
+
+from .library import Library
+from .pod import feature_index
+
+Array = np.ndarray
+
+CHANNELS = ("x", "y")
+#: status codes of a trial (scipy.optimize.least_squares' meanings)
+RUNNING, MAX_ITERATIONS, GTOL, FTOL, XTOL, STALLED = -1, 0, 1, 2, 3, 4
+STATUS_MESSAGES = {
+    MAX_ITERATIONS: "the maximum number of iterations was reached",
+    GTOL: "gtol termination: the projected gradient of the loss is below gtol",
+    FTOL: "ftol termination: the relative reduction of the loss is below ftol",
+    XTOL: "xtol termination: the step is below xtol",
+    STALLED: "stall termination: chi^2 fell by less than stall_chi2 over the last stall_window iterations "
+             "(a flat valley: the points along it are statistically equivalent)",
+}
+#: an estimate within this distance (normalised units, of 2) of a range edge is "at the bound"
+BOUND_TOLERANCE = 1e-3
+#: collinearity index above which a parameter set is poorly identifiable (Brun et al. 2001: 10-15)
+COLLINEARITY_LIMIT = 15.0
+#: singular values below this fraction of the largest are treated as zero (non-identifiable directions)
+RCOND = 1e-12
+
+
+class WarningLevel(UserWarning):
+    """An identification result a user must look at (estimate at a bound, non-identifiable parameter)."""
+
+
+# --- measured data ----------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class RunData:
+    """One run's measured sensor harmonics h = 1..H (DC excluded) and their uncertainties.
+
+    X: (H, 2) complex [m], channels x, y; sigma: (H, 2) [m], standard uncertainty of
+    each of the real and imaginary parts (measured, from the synchronous analysis).
+    """
+
+    run: str
+    rpm: float
+    eccentric_mass_g: float
+    role: str
+    X: Array
+    sigma: Array
+    usable: bool = True
+    note: str = "ok"
+
+    @property
+    def H(self) -> int:
+        return self.X.shape[0]
+
+
+def read_harmonics(path: str | Path) -> pd.DataFrame:
+    """The preprocessed table (results/data/harmonics.tsv), run ids as strings."""
+    return pd.read_csv(path, sep="\t", dtype={"run": str})
+
+
+def table_harmonics(table: pd.DataFrame) -> int:
+    """Highest harmonic H present in a harmonics table (columns x{h}_re_m)."""
+    h = 0
+    while f"x{h + 1}_re_m" in table:
+        h += 1
+    if h == 0:
+        raise ValueError("the harmonics table has no x1_re_m column (not results/data/harmonics.tsv?)")
+    return h
+
+
+def run_data(table: pd.DataFrame, run: str, harmonics: int | None = None) -> RunData:
+    """The measured harmonics of ``run`` from the preprocessed table (h = 1..H, SI)."""
+    rows = table[table["run"] == run]
+    if len(rows) != 1:
+        raise ValueError(f"the harmonics table has {len(rows)} rows for run {run!r} (expected 1)")
+    row = rows.iloc[0]
+    H = table_harmonics(table) if harmonics is None else min(harmonics, table_harmonics(table))
+    X = np.array([[row[f"{c}{h}_re_m"] + 1j * row[f"{c}{h}_im_m"] for c in CHANNELS] for h in range(1, H + 1)])
+    sigma = np.array([[row[f"{c}{h}_sigma_m"] for c in CHANNELS] for h in range(1, H + 1)], float)
+    usable = bool(row.get("usable", True)) and np.isfinite(X).all() and np.isfinite(sigma).all()
+    return RunData(str(run), float(row.get("rpm_true", row["rpm"])), float(row["eccentric_mass_g"]),
+                   str(row.get("role", "fit")), X, sigma, usable, str(row.get("note", "ok")))
+
+
+def total_sigma(data: RunData, relative_model_error: float = 0.0) -> Array:
+    """Residual weights s_hc (eq. 10): the measured sigma and a relative model error in quadrature.
+
+    A library with relative error e (its validation table's median) misses each
+    harmonic by about e |X_hc|, i.e. e |X_hc| / sqrt(2) per real and imaginary part.
+    """
+    return np.sqrt(data.sigma**2 + 0.5 * (relative_model_error * np.abs(data.X)) ** 2)
+
+
+def model_errors(validation: pd.DataFrame | None, runs: Sequence[str], column: str | None = "median_error_pct"
+                 ) -> dict[str, float]:
+    """Relative library error per run (fraction) from library_validation.tsv; 0 without a table or column."""
+    if validation is None or column in (None, "none"):
+        return {r: 0.0 for r in runs}
+    table = validation.set_index(validation["run"].astype(str))
+    out = {}
+    for run in runs:
+        value = table[column].get(run, np.nan) if column in table else np.nan
+        out[run] = 0.0 if not np.isfinite(value) else float(value) / 100.0
+    return out
+
+
+# --- the response models ----------------------------------------------------------------
+
+
+class HarmonicModel(Protocol):
+    """A run's sensor harmonics h = 1..H as a function of its parameters normalised to [-1, 1]."""
+
+    parameters: list[str]
+    lower: Array
+    upper: Array
+    H: int
+
+    def evaluate(self, x: Array, jacobian: bool = True) -> tuple[Array, Array | None]:
+        """x (N, d) -> M (N, H, 2) complex [m] and dM/dx (N, H, 2, d)."""
+
+
+class SensorSurrogate:
+    """A library's sensor harmonics h = 1..H and exact derivatives, evaluated for many trials at once.
+
+    Same numbers as ``Library.sensor`` (the sPGD of eq. 6-7 on the POD basis,
+    projected on the sensor DOFs once): y = (prod_j F_j(x_j)) A_s with
+    A_s = amplitudes Phi_sensor^T, so a batch costs d + 1 matrix products.
+    """
+
+    def __init__(self, library: Library, harmonics: int | None = None):
+        H_lib = library.n_harmonics - 1
+        self.H = H_lib if harmonics is None else min(int(harmonics), H_lib)
+        if self.H < 1:
+            raise ValueError(f"library {library.run} has no harmonic h >= 1")
+        h = np.arange(1, self.H + 1)
+        rows = [feature_index(h, dof, library.n_harmonics, library.n_dof, imaginary)
+                for imaginary in (False, True) for dof in library.sensor_dofs]
+        sensor_modes = library.modes[np.concatenate(rows)]  # (4H, m): Re x, Re y, Im x, Im y
+        self.amplitudes = library.model.amplitudes @ sensor_modes.T  # (K, 4H)
+        self.coefficients = library.model.coefficients  # (K, d, n_b)
+        self.degree = self.coefficients.shape[-1] - 1
+        self.parameters = list(library.parameters)
+        self.lower, self.upper = np.asarray(library.lower, float), np.asarray(library.upper, float)
+        self.run = library.run
+        derivative = np.stack([chebyshev.chebder(np.eye(self.degree + 1)[i]) for i in range(self.degree + 1)], 1)
+        self._derivative = derivative  # maps T_0..T_{n-1} values to dT_i/dx
+
+    def evaluate(self, x: Array, jacobian: bool = True) -> tuple[Array, Array | None]:
+        """M (N, H, 2) complex and dM/dx (N, H, 2, d) at normalised x (N, d) in [-1, 1]."""
+        x = np.clip(np.atleast_2d(x), -1.0, 1.0)
+        N, d = x.shape
+        factors, slopes = [], []
+        for j in range(d):
+            basis = chebyshev.chebvander(x[:, j], self.degree)
+            if jacobian:
+                dbasis = (chebyshev.chebvander(x[:, j], self.degree - 1) @ self._derivative if self.degree > 0
+                          else np.zeros_like(basis))
+                both = np.concatenate([basis, dbasis]) @ self.coefficients[:, j, :].T  # (2N, K)
+                factors.append(both[:N])
+                slopes.append(both[N:])
+            else:
+                factors.append(basis @ self.coefficients[:, j, :].T)
+        if not jacobian:
+            product = factors[0]
+            for F in factors[1:]:
+                product = product * F
+            return self._complex(product @ self.amplitudes), None
+        # stacked[0] = prod_j F_j; stacked[1 + j] = (prod_{i != j} F_i) dF_j (prefix and suffix products)
+        stacked = np.empty((d + 1, N, factors[0].shape[1]))
+        suffix = np.ones_like(factors[0])
+        for j in range(d - 1, -1, -1):
+            stacked[1 + j] = suffix * slopes[j]
+            suffix = suffix * factors[j]
+        stacked[0] = suffix
+        prefix = factors[0]
+        for j in range(1, d):
+            stacked[1 + j] *= prefix
+            prefix = prefix * factors[j]
+        out = self._complex((stacked.reshape((d + 1) * N, -1) @ self.amplitudes)).reshape(d + 1, N, self.H, 2)
+        return out[0], np.moveaxis(out[1:], 0, -1)
+
+    def _complex(self, features: Array) -> Array:
+        """(N, 4H) [Re x, Re y, Im x, Im y] -> (N, H, 2) complex."""
+        parts = features.reshape(features.shape[0], 2, 2, self.H)  # (N, Re/Im, channel, h)
+        return np.swapaxes(parts[:, 0] + 1j * parts[:, 1], 1, 2)
+
+
+# --- the problem: parameters, residuals, block-arrow Jacobian ---------------------------
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Where each unknown sits in theta = [shared (d_s), run 1 block, ..., run R block].
+
+    A run's block is its local parameters (d_l) then its phase [rad]. Physical
+    parameters are normalised to [-1, 1] with ``lower``/``upper`` (SI, in the
+    order of ``parameters``, the libraries' order); phases are free.
+    """
+
+    parameters: tuple[str, ...]
+    lower: tuple[float, ...]
+    upper: tuple[float, ...]
+    shared: tuple[str, ...]
+    local: tuple[str, ...]
+    runs: tuple[str, ...]
+
+    def __post_init__(self) -> None:
+        both = set(self.shared) & set(self.local)
+        if both or set(self.shared) | set(self.local) != set(self.parameters):
+            raise ValueError(f"shared {list(self.shared)} and per-run {list(self.local)} parameters must split "
+                             f"the libraries' parameters {list(self.parameters)} exactly")
+
+    @classmethod
+    def build(cls, parameters: Sequence[str], lower: Sequence[float], upper: Sequence[float],
+              runs: Sequence[str], per_run: Sequence[str] = ()) -> "Layout":
+        local = tuple(p for p in parameters if p in set(per_run))
+        shared = tuple(p for p in parameters if p not in set(local))
+        return cls(tuple(parameters), tuple(map(float, lower)), tuple(map(float, upper)), shared, local,
+                   tuple(runs))
+
+    @property
+    def n_shared(self) -> int:
+        return len(self.shared)
+
+    @property
+    def n_block(self) -> int:
+        return len(self.local) + 1
+
+    @property
+    def n_runs(self) -> int:
+        return len(self.runs)
+
+    @property
+    def n(self) -> int:
+        return self.n_shared + self.n_runs * self.n_block
+
+    def index(self, name: str) -> int:
+        return self.parameters.index(name)
+
+    @property
+    def shared_index(self) -> Array:
+        """Positions of the shared parameters in the libraries' parameter order."""
+        return np.array([self.index(p) for p in self.shared], int)
+
+    @property
+    def local_index(self) -> Array:
+        return np.array([self.index(p) for p in self.local], int)
+
+    def block(self, r: int) -> slice:
+        start = self.n_shared + r * self.n_block
+        return slice(start, start + self.n_block)
+
+    def entries(self) -> list[tuple[str, str]]:
+        """(parameter, run) of every entry of theta; run "all" for shared ones, parameter "phase" for phases."""
+        out = [(p, "all") for p in self.shared]
+        for run in self.runs:
+            out += [(p, run) for p in self.local] + [("phase", run)]
+        return out
+
+    @property
+    def is_phase(self) -> Array:
+        return np.array([p == "phase" for p, _ in self.entries()])
+
+    def bounds(self) -> tuple[Array, Array]:
+        """Bounds of theta: [-1, 1] for physical parameters, +-inf for phases."""
+        lo = np.where(self.is_phase, -np.inf, -1.0)
+        return lo, -lo
+
+    def scale(self) -> Array:
+        """dp/dtheta: (hi - lo) / 2 for physical entries [SI], 1 for phases [rad]."""
+        half = {p: 0.5 * (hi - lo) for p, lo, hi in zip(self.parameters, self.lower, self.upper)}
+        return np.array([1.0 if p == "phase" else half[p] for p, _ in self.entries()])
+
+    def to_si(self, theta: Array) -> Array:
+        """theta (..., n) -> physical values [SI] (phases unchanged, wrapped to (-pi, pi])."""
+        lo = {p: v for p, v in zip(self.parameters, self.lower)}
+        hi = {p: v for p, v in zip(self.parameters, self.upper)}
+        out = np.array(theta, dtype=float, copy=True)
+        for i, (p, _) in enumerate(self.entries()):
+            out[..., i] = wrap(out[..., i]) if p == "phase" else lo[p] + 0.5 * (out[..., i] + 1.0) * (hi[p] - lo[p])
+        return out
+
+    def normalise(self, name: str, value: Array | float) -> Array:
+        i = self.index(name)
+        return 2.0 * (np.asarray(value, float) - self.lower[i]) / (self.upper[i] - self.lower[i]) - 1.0
+
+    def run_parameters(self, theta: Array, r: int) -> tuple[Array, Array]:
+        """Run r's normalised library parameters x (N, d) and phase (N,) from theta (N, n)."""
+        N = theta.shape[0]
+        x = np.empty((N, len(self.parameters)))
+        x[:, self.shared_index] = theta[:, : self.n_shared]
+        block = theta[:, self.block(r)]
+        x[:, self.local_index] = block[:, :-1]
+        return x, block[:, -1]
+
+    def l1_scale(self) -> tuple[Array, Array]:
+        """s = a theta + b, the paper's normalisation p / max|range| (eq. 11) of each entry (0 for phases)."""
+        a, b = np.zeros(self.n), np.zeros(self.n)
+        for i, (p, _) in enumerate(self.entries()):
+            if p == "phase":
+                continue
+            k = self.index(p)
+            lo, hi = self.lower[k], self.upper[k]
+            top = max(abs(lo), abs(hi))
+            a[i], b[i] = 0.5 * (hi - lo) / top, (lo + 0.5 * (hi - lo)) / top
+        return a, b
+
+
+def wrap(phase: Array | float) -> Array:
+    """Angle wrapped to (-pi, pi]."""
+    return np.pi - np.mod(np.pi - np.asarray(phase, float), 2.0 * np.pi)
+
+
+@dataclass
+class Evaluation:
+    """Residuals and block-arrow Jacobian of N trials.
+
+    r: (N, R, m) data residuals (Re then Im of (X - e^{ih phi} M) / s), rho: (N, n)
+    sparsity residuals (eq. 11, one per entry of theta, 0 for phases);
+    Js: (N, R, m, d_s) d r / d shared, Jl: (N, R, m, k) d r / d run block,
+    jd: (N, n) d rho / d theta (diagonal).
+    """
+
+    r: Array
+    rho: Array
+    Js: Array | None = None
+    Jl: Array | None = None
+    jd: Array | None = None
+
+    @property
+    def chi2(self) -> Array:
+        return np.einsum("nrm,nrm->n", self.r, self.r)
+
+    @property
+    def objective(self) -> Array:
+        """||r||^2 + ||rho||^2 (twice scipy's cost)."""
+        return self.chi2 + np.einsum("ni,ni->n", self.rho, self.rho)
+
+
+class ArrowProblem:
+    """The weighted least-squares problem of eq. 9-11 for R runs in the layout's block-arrow form."""
+
+    def __init__(self, models: Sequence[HarmonicModel], layout: Layout, sigma: Array, sparsity: float = 0.0,
+                 l1_epsilon: float = 1e-3):
+        if len(models) != layout.n_runs:
+            raise ValueError(f"{len(models)} models for {layout.n_runs} runs")
+        for model in models:
+            if list(model.parameters) != list(layout.parameters):
+                raise ValueError(f"model parameters {model.parameters} differ from {list(layout.parameters)}")
+            if not (np.allclose(model.lower, layout.lower) and np.allclose(model.upper, layout.upper)):
+                raise ValueError("the libraries of a joint fit must share the parameter ranges")
+        self.models = list(models)
+        self.layout = layout
+        self.H = int(sigma.shape[1])
+        if any(m.H < self.H for m in models):
+            raise ValueError(f"a model has fewer harmonics than the data's H = {self.H}")
+        self.sigma = np.asarray(sigma, float)  # (R, H, 2)
+        self.sparsity = float(sparsity)
+        self.l1_epsilon = float(l1_epsilon)
+        self.l1_a, self.l1_b = layout.l1_scale()
+        self.h = np.arange(1, self.H + 1)
+
+    @property
+    def n_data(self) -> int:
+        """Real data residuals per trial, n_r of eq. 10."""
+        return self.layout.n_runs * 4 * self.H
+
+    def model_response(self, theta: Array, r: int, jacobian: bool) -> tuple[Array, Array | None, Array]:
+        """Run r's harmonics in the record's frame e^{ih phi} M (N, H, 2), d/dx (N, H, 2, d), rotation."""
+        x, phi = self.layout.run_parameters(theta, r)
+        M, dM = self.models[r].evaluate(x, jacobian)
+        rotation = np.exp(1j * np.outer(phi, self.h))[:, :, None]  # (N, H, 1)
+        M = rotation * M[:, : self.H]
+        return M, (None if dM is None else rotation[..., None] * dM[:, : self.H]), rotation
+
+    def evaluate(self, theta: Array, X: Array, jacobian: bool = True) -> Evaluation:
+        """Residuals (and Jacobian) at theta (N, n) for data X (N, R, H, 2) complex."""
+        N, R, L = theta.shape[0], self.layout.n_runs, self.layout
+        m = 4 * self.H
+        r = np.empty((N, R, m))
+        Js = np.empty((N, R, m, L.n_shared)) if jacobian else None
+        Jl = np.empty((N, R, m, L.n_block)) if jacobian else None
+        for k in range(R):
+            M, dM, _ = self.model_response(theta, k, jacobian)
+            r[:, k] = _real((X[:, k] - M) / self.sigma[k])
+            if jacobian:
+                dM = -dM / self.sigma[k][None, :, :, None]
+                Js[:, k] = _real(dM[..., L.shared_index])
+                Jl[:, k, :, :-1] = _real(dM[..., L.local_index])
+                Jl[:, k, :, -1] = _real(-1j * self.h[None, :, None] * M / self.sigma[k])
+        rho, jd = self._sparsity(theta, jacobian)
+        return Evaluation(r, rho, Js, Jl, jd)
+
+    def _sparsity(self, theta: Array, jacobian: bool) -> tuple[Array, Array | None]:
+        """rho = sqrt(lambda n_r) s / (s^2 + eps^2)^(1/4), s = a theta + b (module docstring, eq. 11)."""
+        if self.sparsity <= 0:
+            return np.zeros_like(theta), (np.zeros_like(theta) if jacobian else None)
+        c = math.sqrt(self.sparsity * self.n_data)
+        s = self.l1_a * theta + self.l1_b
+        q = s * s + self.l1_epsilon**2
+        rho = np.where(self.l1_a > 0, c * s * q**-0.25, 0.0)
+        if not jacobian:
+            return rho, None
+        return rho, np.where(self.l1_a > 0, c * (0.5 * s * s + self.l1_epsilon**2) * q**-1.25 * self.l1_a, 0.0)
+
+    def initial_phases(self, theta: Array, X: Array) -> Array:
+        """theta with each run's phase set to align the 1X response: phi = arg(sum_c X_1c conj(M_1c) / s^2)."""
+        theta = theta.copy()
+        for k in range(self.layout.n_runs):
+            x, _ = self.layout.run_parameters(theta, k)
+            M, _ = self.models[k].evaluate(x, jacobian=False)
+            weight = 1.0 / self.sigma[k, 0] ** 2
+            theta[:, self.layout.block(k).stop - 1] = np.angle((X[:, k, 0] * np.conj(M[:, 0]) * weight).sum(-1))
+        return theta
+
+    def dense_jacobian(self, evaluation: Evaluation, trial: int = 0, data_only: bool = True) -> Array:
+        """The trial's Jacobian as a dense (R m [+ n], n) matrix (uncertainty, scipy comparison)."""
+        L = self.layout
+        R, m = evaluation.r.shape[1:]
+        J = np.zeros((R * m, L.n))
+        for k in range(R):
+            J[k * m:(k + 1) * m, : L.n_shared] = evaluation.Js[trial, k]
+            J[k * m:(k + 1) * m, L.block(k)] = evaluation.Jl[trial, k]
+        if data_only:
+            return J
+        return np.vstack([J, np.diag(evaluation.jd[trial])])
+
+    def loss(self, evaluation: Evaluation) -> Array:
+        """The paper's loss (eq. 9): chi^2 / n_r + lambda ||s||_1 (smoothed)."""
+        return evaluation.objective / self.n_data
+
+
+def _real(z: Array) -> Array:
+    """Complex (N, H, 2, ...) -> real (N, 4H, ...) as [Re (H, 2) flattened, Im (H, 2) flattened]."""
+    N = z.shape[0]
+    flat = z.reshape((N, z.shape[1] * z.shape[2]) + z.shape[3:])
+    return np.concatenate([flat.real, flat.imag], axis=1)
+
+
+# --- the block-arrow normal equations ---------------------------------------------------
+
+
+@dataclass
+class Normal:
+    """J^T J as [[A, B_1..B_R], [B_r^T, C_r]] and g = J^T r, for N trials."""
+
+    A: Array  # (N, d_s, d_s)
+    B: Array  # (N, R, d_s, k)
+    C: Array  # (N, R, k, k)
+    gs: Array  # (N, d_s)
+    gl: Array  # (N, R, k)
+
+    @classmethod
+    def assemble(cls, ev: Evaluation, layout: Layout) -> "Normal":
+        N, R = ev.r.shape[:2]
+        ds, k = layout.n_shared, layout.n_block
+        jd = ev.jd.reshape(N, -1)
+        A = np.einsum("nrmi,nrmj->nij", ev.Js, ev.Js, optimize=True)
+        B = np.einsum("nrmi,nrmj->nrij", ev.Js, ev.Jl, optimize=True)
+        C = np.einsum("nrmi,nrmj->nrij", ev.Jl, ev.Jl, optimize=True)
+        gs = np.einsum("nrmi,nrm->ni", ev.Js, ev.r, optimize=True) + jd[:, :ds] * ev.rho[:, :ds]
+        gl = np.einsum("nrmi,nrm->nri", ev.Jl, ev.r, optimize=True) + (jd[:, ds:] * ev.rho[:, ds:]).reshape(N, R, k)
+        A[:, np.arange(ds), np.arange(ds)] += jd[:, :ds] ** 2
+        C[:, :, np.arange(k), np.arange(k)] += (jd[:, ds:] ** 2).reshape(N, R, k)
+        return cls(A, B, C, gs, gl)
+
+    def gradient(self) -> Array:
+        """g = J^T r flattened as theta (N, n)."""
+        return np.concatenate([self.gs, self.gl.reshape(self.gl.shape[0], -1)], axis=1)
+
+    def diagonal(self) -> Array:
+        """diag(J^T J) (N, n)."""
+        ds = self.A.shape[1]
+        a = self.A[:, np.arange(ds), np.arange(ds)]
+        k = self.C.shape[-1]
+        c = self.C[:, :, np.arange(k), np.arange(k)].reshape(self.C.shape[0], -1)
+        return np.concatenate([a, c], axis=1)
+
+
+def arrow_solve(normal: Normal, damping: Array, free: Array, gs: Array | None = None, gl: Array | None = None
+                ) -> Array:
+    """Solve (J^T J + diag(damping)) delta = -g over the free entries (delta = 0 elsewhere), Schur complement.
+
+    g = (gs, gl), by default the normal equations' gradient J^T r.
+
+    damping, free: (N, n). C_r^-1 per run, S = A - sum_r B_r C_r^-1 B_r^T,
+    delta_s = S^-1 (-g_s + sum_r B_r C_r^-1 g_r), delta_r = C_r^-1 (-g_r - B_r^T delta_s).
+    """
+    N, ds = normal.gs.shape
+    R, k = normal.gl.shape[1:]
+    fs, fl = free[:, :ds].astype(float), free[:, ds:].reshape(N, R, k).astype(float)
+    ds_idx, k_idx = np.arange(ds), np.arange(k)
+    A = normal.A * fs[:, :, None] * fs[:, None, :]
+    A[:, ds_idx, ds_idx] += damping[:, :ds] * fs + (1.0 - fs)
+    C = normal.C * fl[..., :, None] * fl[..., None, :]
+    C[:, :, k_idx, k_idx] += damping[:, ds:].reshape(N, R, k) * fl + (1.0 - fl)
+    B = normal.B * fs[:, None, :, None] * fl[:, :, None, :]
+    gs = -(normal.gs if gs is None else gs) * fs
+    gl = -(normal.gl if gl is None else gl) * fl
+    C_inv = np.linalg.inv(C)
+    if ds == 0:
+        return np.einsum("nrij,nrj->nri", C_inv, gl).reshape(N, -1)
+    W = np.einsum("nrij,nrjk->nrik", B, C_inv)  # B_r C_r^-1 (N, R, ds, k)
+    S = A - np.einsum("nrik,nrjk->nij", W, B)
+    delta_s = np.linalg.solve(S, (gs - np.einsum("nrik,nrk->ni", W, gl))[..., None])[..., 0]
+    delta_l = np.einsum("nrij,nrj->nri", C_inv, gl - np.einsum("nrji,nj->nri", B, delta_s))
+    return np.concatenate([delta_s, delta_l.reshape(N, -1)], axis=1)
+
+
+def _jvp(ev: Evaluation, delta: Array, layout: Layout) -> tuple[Array, Array]:
+    """J delta: the data part (N, R, m) and the sparsity part (N, n)."""
+    ds = layout.n_shared
+    N, R = ev.r.shape[:2]
+    dl = delta[:, ds:].reshape(N, R, layout.n_block)
+    return (np.einsum("nrmi,ni->nrm", ev.Js, delta[:, :ds]) + np.einsum("nrmi,nri->nrm", ev.Jl, dl),
+            ev.jd * delta)
+
+
+def _jtv(ev: Evaluation, v: Array, v_rho: Array, layout: Layout) -> tuple[Array, Array]:
+    """J^T v as (shared (N, d_s), blocks (N, R, k))."""
+    N, R = ev.r.shape[:2]
+    ds = layout.n_shared
+    gs = np.einsum("nrmi,nrm->ni", ev.Js, v) + ev.jd[:, :ds] * v_rho[:, :ds]
+    gl = np.einsum("nrmi,nrm->nri", ev.Jl, v) + (ev.jd[:, ds:] * v_rho[:, ds:]).reshape(N, R, layout.n_block)
+    return gs, gl
+
+
+def _linearised(ev: Evaluation, delta: Array, layout: Layout) -> Array:
+    """||r + J delta||^2 + ||rho + jd delta||^2 (the Gauss-Newton model of the objective) (N,)."""
+    jr, jrho = _jvp(ev, delta, layout)
+    r, rho = ev.r + jr, ev.rho + jrho
+    return np.einsum("nrm,nrm->n", r, r) + np.einsum("ni,ni->n", rho, rho)
+
+
+def _geodesic(problem: "ArrowProblem", ev: Evaluation, normal: Normal, theta: Array, delta: Array, X: Array,
+              damping: Array, free: Array, h: float = 0.1) -> Array:
+    """Geodesic acceleration (Transtrum & Sethna 2012): a = -(J^T J + D)^-1 J^T r_vv, r_vv the second
+    directional derivative of the residuals along delta by finite differences (one extra evaluation)."""
+    lower, upper = problem.layout.bounds()
+    probe = problem.evaluate(np.clip(theta + h * delta, lower, upper), X, jacobian=False)
+    jr, jrho = _jvp(ev, delta, problem.layout)
+    rvv = (2.0 / h) * ((probe.r - ev.r) / h - jr)
+    rvv_rho = (2.0 / h) * ((probe.rho - ev.rho) / h - jrho)
+    gs, gl = _jtv(ev, rvv, rvv_rho, problem.layout)
+    return arrow_solve(normal, damping, free, gs, gl)
+
+
+# --- Levenberg-Marquardt, batched over trials -------------------------------------------
+
+
+@dataclass(frozen=True)
+class LMOptions:
+    """Stopping rules (scipy.optimize.least_squares' meanings) and the damping start."""
+
+    max_iterations: int = 100
+    ftol: float = 1e-8
+    xtol: float = 1e-8
+    gtol: float = 1e-8
+    initial_damping: float = 1e-3
+    stall_chi2: float = 1e-2  # stop when chi^2 fell by less than this over stall_window iterations (0: never)
+    stall_window: int = 5
+    geodesic: bool = False  # geodesic acceleration (faster along curved valleys)
+    geodesic_ratio: float = 0.75  # acceleration used when 2 |a| / |delta| <= this
+    batch: int = 10000  # trials advanced together (memory bound)
+
+
+@dataclass
+class LMResult:
+    """Per trial: x (T, n) theta at the end, cost (T,) = 0.5 (||r||^2 + ||rho||^2) as in scipy,
+    loss (T,) = the paper's loss (eq. 9), status (T,) (0 max iterations, 1 gtol, 2 ftol, 3 xtol),
+    nfev, nit (T,), active_mask (T, n) (-1 lower, 1 upper bound, 0 free), history (T, max_iter + 1)
+    loss after each iteration (NaN once stopped), seconds spent."""
+
+    x: Array
+    cost: Array
+    loss: Array
+    status: Array
+    nfev: Array
+    nit: Array
+    active_mask: Array
+    history: Array
+    seconds: float = 0.0
+
+    @property
+    def message(self) -> list[str]:
+        return [STATUS_MESSAGES.get(int(s), "running") for s in self.status]
+
+    @property
+    def success(self) -> Array:
+        return self.status > 0
+
+    def take(self, index: Array) -> "LMResult":
+        return LMResult(self.x[index], self.cost[index], self.loss[index], self.status[index], self.nfev[index],
+                        self.nit[index], self.active_mask[index], self.history[index], self.seconds)
+
+    @staticmethod
+    def concatenate(parts: Sequence["LMResult"]) -> "LMResult":
+        return LMResult(*(np.concatenate([getattr(p, f) for p in parts]) for f in
+                          ("x", "cost", "loss", "status", "nfev", "nit", "active_mask", "history")),
+                        sum(p.seconds for p in parts))
+
+
+def levenberg_marquardt(problem: ArrowProblem, theta0: Array, X: Array, options: LMOptions = LMOptions()
+                        ) -> LMResult:
+    """Minimise ||r||^2 + ||rho||^2 (eq. 9-11) from every start theta0 (T, n), trial t on data X[t] (T, R, H, 2).
+
+    Batched projected Levenberg-Marquardt (module docstring), in batches of ``options.batch`` trials.
+    """
+    parts = [_lm_batch(problem, theta0[s], X[s], options)
+             for s in _batches(theta0.shape[0], options.batch)]
+    return LMResult.concatenate(parts)
+
+
+def _batches(n: int, size: int) -> list[slice]:
+    return [slice(i, min(i + size, n)) for i in range(0, n, max(int(size), 1))]
+
+
+def _lm_batch(problem: ArrowProblem, theta0: Array, X: Array, options: LMOptions) -> LMResult:
+    start = time.perf_counter()
+    layout = problem.layout
+    lower, upper = layout.bounds()
+    T, n = theta0.shape
+    theta = np.clip(np.array(theta0, float), lower, upper)
+    ev = problem.evaluate(theta, X)
+    F = ev.objective
+    mu = np.full(T, options.initial_damping)
+    nu = np.full(T, 2.0)
+    status = np.full(T, RUNNING)
+    nfev, nit = np.ones(T, int), np.zeros(T, int)
+    history = np.full((T, options.max_iterations + 1), np.nan)
+    history[:, 0] = F / problem.n_data
+    grad_scale = 2.0 / problem.n_data
+    for iteration in range(options.max_iterations):
+        act = np.flatnonzero(status == RUNNING)
+        if act.size == 0:
+            break
+        sub = _take(ev, act)
+        normal = Normal.assemble(sub, layout)
+        g = normal.gradient()
+        th = theta[act]
+        free = ~(((th <= lower) & (g > 0)) | ((th >= upper) & (g < 0)))
+        done = grad_scale * np.abs(g * free).max(1) <= options.gtol
+        diag = normal.diagonal()
+        floor = 1e-12 * np.maximum(diag.max(1, keepdims=True), 1e-300)
+        damping = mu[act, None] * np.maximum(diag, floor)
+        delta = arrow_solve(normal, damping, free)
+        if options.geodesic:
+            acceleration = _geodesic(problem, sub, normal, th, delta, X[act], damping, free)
+            nfev[act] += 1
+            usable = (2 * np.linalg.norm(acceleration, axis=1)
+                      <= options.geodesic_ratio * np.linalg.norm(delta, axis=1))
+            delta = delta + 0.5 * acceleration * usable[:, None]
+        new = np.clip(th + delta, lower, upper)
+        delta = new - th
+        predicted = F[act] - _linearised(sub, delta, layout)
+        trial = problem.evaluate(new, X[act])
+        nfev[act] += 1
+        nit[act] += 1
+        F_new = trial.objective
+        actual = F[act] - F_new
+        accept = np.isfinite(F_new) & (actual > 0) & ~done
+        ratio = np.where(predicted > 0, actual / np.where(predicted > 0, predicted, 1.0), 0.0)
+        # Nielsen's damping update
+        mu[act] = np.where(accept, mu[act] * np.maximum(1 / 3, 1 - (2 * ratio - 1) ** 3), mu[act] * nu[act])
+        nu[act] = np.where(accept, 2.0, nu[act] * 2.0)
+        small_step = np.linalg.norm(delta, axis=1) <= options.xtol * (options.xtol + np.linalg.norm(th, axis=1))
+        small_gain = accept & (actual <= options.ftol * F[act])
+        keep = act[accept]
+        theta[keep] = new[accept]
+        F[keep] = F_new[accept]
+        _put(ev, keep, _take(trial, np.flatnonzero(accept)))
+        new_status = np.full(act.size, RUNNING)
+        new_status[small_step | (mu[act] > 1e20)] = XTOL
+        new_status[small_gain] = FTOL
+        new_status[done] = GTOL
+        history[act, iteration + 1] = F[act] / problem.n_data
+        if options.stall_chi2 > 0 and iteration + 1 >= options.stall_window:
+            gain = (history[act, iteration + 1 - options.stall_window] - history[act, iteration + 1]) * problem.n_data
+            new_status[(new_status == RUNNING) & (gain < options.stall_chi2)] = STALLED
+        status[act] = new_status
+    status[status == RUNNING] = MAX_ITERATIONS
+    active = np.where(theta <= lower, -1, np.where(theta >= upper, 1, 0))
+    return LMResult(theta, 0.5 * F, F / problem.n_data, status, nfev, nit, active, history,
+                    time.perf_counter() - start)
+
+
+def _take(ev: Evaluation, index: Array) -> Evaluation:
+    return Evaluation(*(None if a is None else a[index] for a in (ev.r, ev.rho, ev.Js, ev.Jl, ev.jd)))
+
+
+def _put(ev: Evaluation, index: Array, values: Evaluation) -> None:
+    for name in ("r", "rho", "Js", "Jl", "jd"):
+        getattr(ev, name)[index] = getattr(values, name)
+
+
+# --- the paper's protocol: tau trials, n_MC Monte Carlo repeats -------------------------
+
+
+@dataclass(frozen=True)
+class ProtocolOptions:
+    """The paper's protocol (sec. 2.3, 4.1): tau trials, n_MC repeats, lambda; LM stopping rules."""
+
+    trials: int = 50  # tau
+    monte_carlo: int = 1000  # n_MC
+    sparsity: float = 0.0  # lambda (eq. 11): 0 Geometric, 0.1 Expansion
+    l1_epsilon: float = 1e-3
+    seed: int = 0
+    confidence: float = 0.95
+    lm: LMOptions = LMOptions()
+
+
+@dataclass
+class ProtocolResult:
+    """Trials on the measured data (repeat 0) and the best trial of every Monte Carlo repeat.
+
+    trials: LMResult of repeat 0's trials (with loss histories); best: index of the
+    lowest-loss one; monte_carlo: (n_MC, n) best theta of each repeat;
+    monte_carlo_loss: (n_MC,); seconds: wall time of the whole protocol.
+    """
+
+    trials: LMResult
+    best: int
+    monte_carlo: Array
+    monte_carlo_loss: Array
+    seconds: float
+    n_lm: int  # LM problems solved in all
+
+    @property
+    def theta(self) -> Array:
+        return self.trials.x[self.best]
+
+
+def random_starts(layout: Layout, n: int, rng: np.random.Generator) -> Array:
+    """n uniform random starts in [-1, 1] for the physical entries (phases set later), (n, layout.n)."""
+    theta = rng.uniform(-1.0, 1.0, (n, layout.n))
+    theta[:, layout.is_phase] = 0.0
+    return theta
+
+
+def run_protocol(problem: ArrowProblem, X: Array, sigma_noise: Array, options: ProtocolOptions = ProtocolOptions(),
+                 extra_starts: Array | None = None) -> ProtocolResult:
+    """tau random trials (+ ``extra_starts``) on the data and on n_MC re-sampled copies, one batched LM.
+
+    X, sigma_noise: (R, H, 2) measured harmonics and the measured sigmas used for
+    re-sampling (X + sigma (N(0,1) + i N(0,1)), independently per repeat).
+    """
+    start = time.perf_counter()
+    rng = np.random.default_rng(options.seed)
+    layout = problem.layout
+    extra = np.zeros((0, layout.n)) if extra_starts is None else np.atleast_2d(extra_starts)
+    per_repeat = options.trials + extra.shape[0]
+    if per_repeat < 1:
+        raise ValueError("the protocol needs at least one trial")
+    repeats = 1 + options.monte_carlo
+    noise = rng.standard_normal((options.monte_carlo, *X.shape)) + 1j * rng.standard_normal(
+        (options.monte_carlo, *X.shape))
+    data = np.concatenate([X[None], X[None] + sigma_noise[None] * noise])  # (repeats, R, H, 2)
+    theta0 = np.concatenate([np.concatenate([random_starts(layout, options.trials, rng), extra])
+                             for _ in range(repeats)])
+    data_t = np.repeat(data, per_repeat, axis=0)
+    theta0 = _initial_phases(problem, theta0, data_t, extra.shape[0], per_repeat)
+    result = levenberg_marquardt(problem, theta0, data_t, options.lm)
+    loss = result.loss.reshape(repeats, per_repeat)
+    best = loss.argmin(1)
+    best_theta = result.x.reshape(repeats, per_repeat, -1)[np.arange(repeats), best]
+    return ProtocolResult(result.take(np.arange(per_repeat)), int(best[0]), best_theta[1:],
+                          loss[np.arange(repeats), best][1:], time.perf_counter() - start, theta0.shape[0])
+
+
+def _initial_phases(problem: ArrowProblem, theta0: Array, data: Array, n_extra: int, per_repeat: int) -> Array:
+    """Random starts get 1X-aligned phases; extra starts keep theirs unless they are zero."""
+    out = theta0.copy()
+    aligned = np.concatenate([problem.initial_phases(theta0[s], data[s]) for s in _batches(len(theta0), 20000)])
+    is_extra = (np.arange(len(theta0)) % per_repeat) >= per_repeat - n_extra
+    phase = problem.layout.is_phase
+    keep = is_extra[:, None] & phase[None, :] & (theta0 != 0)
+    out[:, phase] = np.where(keep[:, phase], theta0[:, phase], aligned[:, phase])
+    return out
+
+
+# --- uncertainty and identifiability ----------------------------------------------------
+
+
+@dataclass
+class Uncertainty:
+    """Linearised uncertainty at the optimum (entries of theta; SI through ``scale``).
+
+    covariance (n, n) [SI^2], NaN for entries held at a bound; chi2, dof,
+    chi2_dof = chi^2 / dof (the residual noise the covariance is scaled by);
+    singular_values of the weighted Jacobian of the free entries;
+    collinearity_index of the physical free entries (phases projected out);
+    vif: variance inflation of each physical entry; identifiable, at_bound flags;
+    notes: sentences for the log and the summary.
+    """
+
+    covariance: Array
+    stderr: Array
+    correlation: Array
+    chi2: float
+    dof: int
+    singular_values: Array
+    collinearity_index: float
+    vif: Array
+    at_bound: Array
+    identifiable: Array
+    null_loading: Array
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def chi2_dof(self) -> float:
+        return self.chi2 / self.dof if self.dof > 0 else float("nan")
+
+
+def analyse_uncertainty(J: Array, r: Array, theta: Array, layout: Layout, scale_by_residual: bool = True,
+                        rcond: float = RCOND) -> Uncertainty:
+    """Covariance from the SVD of the weighted Jacobian J (m, n) at theta, scaled by chi^2/dof (module docstring).
+
+    J is d r / d theta (normalised parameters, phases in rad), so the SVD
+    compares dimensionless directions; the covariance is converted to SI after.
+    Entries at a bound are held fixed (their covariance is not valid, and the
+    others' is conditional on them: said in ``notes``). Directions with a
+    singular value below rcond * the largest are numerically null: left out of
+    the pseudo-inverse, and the entries loading on them flagged. A parameter is
+    identifiable when it is free, not on a null direction, and its 95 %
+    interval is narrower than its range.
+    """
+    n = layout.n
+    scale = layout.scale()
+    lo, hi = layout.bounds()
+    at_bound = (theta <= lo + BOUND_TOLERANCE) | (theta >= hi - BOUND_TOLERANCE)
+    free = ~at_bound
+    chi2 = float(r @ r)
+    dof = int(J.shape[0] - free.sum())
+    s2 = chi2 / dof if (scale_by_residual and dof > 0) else 1.0
+    U, S, Vt = np.linalg.svd(J[:, free], full_matrices=False)
+    keep = S > rcond * (S[0] if S.size else 1.0)
+    inverse = np.where(keep, 1.0 / np.where(keep, S, 1.0) ** 2, 0.0)
+    covariance = np.full((n, n), np.nan)
+    covariance[np.ix_(free, free)] = s2 * (Vt.T * inverse) @ Vt * np.outer(scale[free], scale[free])
+    stderr = np.sqrt(np.diag(covariance).clip(min=0))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        correlation = covariance / np.outer(stderr, stderr)
+    null = np.zeros(n)
+    null[free] = (Vt[~keep] ** 2).sum(0) if (~keep).any() else 0.0
+    gamma, vif = _collinearity(J, free, layout)
+    width = np.where(layout.is_phase, np.inf, 2.0 * scale)  # the range width [SI]
+    identifiable = free & (null < 0.1) & (2 * 1.96 * stderr < width) & np.isfinite(stderr)
+    notes = _uncertainty_notes(layout, at_bound, identifiable, gamma, chi2, dof)
+    return Uncertainty(covariance, stderr, correlation, chi2, dof, S, gamma, vif, at_bound, identifiable, null,
+                       notes)
+
+
+def _collinearity(J: Array, free: Array, layout: Layout) -> tuple[float, Array]:
+    """Brun's collinearity index of the free physical entries, phases projected out, and their VIFs."""
+    phys = free & ~layout.is_phase
+    vif = np.full(layout.n, np.nan)
+    if not phys.any():
+        return float("nan"), vif
+    S = J[:, phys]
+    phases = J[:, free & layout.is_phase]
+    if phases.size:
+        Q, _ = np.linalg.qr(phases)
+        S = S - Q @ (Q.T @ S)
+    norms = np.linalg.norm(S, axis=0)
+    if (norms <= 0).any():
+        vif[phys] = np.where(norms > 0, np.nan, np.inf)
+        return float("inf"), vif
+    Sn = S / norms
+    sv = np.linalg.svd(Sn, compute_uv=False)
+    gamma = float(1.0 / sv[-1]) if sv[-1] > 0 else float("inf")
+    try:
+        vif[phys] = np.diag(np.linalg.inv(Sn.T @ Sn))
+    except np.linalg.LinAlgError:
+        vif[phys] = np.inf
+    return gamma, vif
+
+
+def _uncertainty_notes(layout: Layout, at_bound: Array, identifiable: Array, gamma: float, chi2: float,
+                       dof: int) -> list[str]:
+    notes = []
+    names = [p if run == "all" else f"{p}[{run}]" for p, run in layout.entries()]
+    bound = [n for n, b, ph in zip(names, at_bound, layout.is_phase) if b and not ph]
+    if bound:
+        notes.append(f"estimate at a range edge for {', '.join(bound)}: revise the range (widen it and rebuild "
+                     "the library); their standard errors are not valid (held fixed) and the others' covariance "
+                     "is conditional on them")
+    weak = [n for n, ok, b, ph in zip(names, identifiable, at_bound, layout.is_phase) if not ok and not b and not ph]
+    if weak:
+        notes.append(f"not identifiable from these data: {', '.join(weak)} (null direction of the Jacobian or "
+                     "95 % interval wider than the range)")
+    if np.isfinite(gamma) and gamma > COLLINEARITY_LIMIT:
+        notes.append(f"collinearity index {gamma:.1f} > {COLLINEARITY_LIMIT:g}: the physical parameters are "
+                     "poorly identifiable together (their effects on the response nearly compensate)")
+    if dof > 0 and chi2 / dof > 4.0:
+        notes.append(f"chi^2/dof = {chi2 / dof:.3g}: the residuals exceed the stated noise (model or library "
+                     "error); the covariance is scaled up by it")
+    return notes
+
+
+def student_t(confidence: float, dof: int) -> float:
+    """Two-sided quantile of Student's t (the normal one for dof > 1000)."""
+    from scipy.stats import t
+
+    return float(t.ppf(0.5 + 0.5 * confidence, max(dof, 1)))
+
+
+# --- results ----------------------------------------------------------------------------
+
+
+@dataclass
+class Identification:
+    """An identification (one run or several jointly), scipy-like: x [SI] per entry of the layout,
+    cost, fun (weighted data residuals), jac (d fun / d p, SI), status, message; plus the protocol,
+    the uncertainty and the tables."""
+
+    layout: Layout
+    problem: ArrowProblem
+    protocol: ProtocolResult
+    x: Array
+    theta: Array
+    cost: float
+    loss: float
+    fun: Array
+    jac: Array
+    status: int
+    message: str
+    uncertainty: Uncertainty
+    confidence: float
+    data: list[RunData]
+    X: Array  # (R, H, 2) measured harmonics used
+    units: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def success(self) -> bool:
+        return self.status > 0
+
+    @property
+    def chi2_dof(self) -> float:
+        return self.uncertainty.chi2_dof
+
+    def values(self, run: str | None = None) -> dict[str, float]:
+        """Physical values [SI] of the shared parameters and of ``run``'s local ones (first run by default)."""
+        run = self.layout.runs[0] if run is None else run
+        return {p: float(v) for (p, r), v in zip(self.layout.entries(), self.x) if p != "phase"
+                and r in ("all", run)}
+
+    def fitted(self, trial_theta: Array | None = None) -> Array:
+        """The fitted harmonics in each record's frame (R, H, 2) complex [m]."""
+        theta = (self.theta if trial_theta is None else trial_theta)[None]
+        return np.stack([self.problem.model_response(theta, k, False)[0][0] for k in range(self.layout.n_runs)])
+
+    def table(self) -> pd.DataFrame:
+        """parameter, run, kind, unit, value, normalised, stderr, ci_low, ci_high, at_bound, identifiable,
+        lower, upper, mc_mean, mc_std, mc_ci_low, mc_ci_high, vif (SI; one row per entry of theta)."""
+        u, L = self.uncertainty, self.layout
+        t = student_t(self.confidence, u.dof)
+        mc = self.layout.to_si(self.protocol.monte_carlo) if len(self.protocol.monte_carlo) else None
+        alpha = 100 * (0.5 - 0.5 * self.confidence)
+        rows = []
+        bounds = {p: (lo, hi) for p, lo, hi in zip(L.parameters, L.lower, L.upper)}
+        for i, (p, run) in enumerate(L.entries()):
+            phase = p == "phase"
+            lo, hi = (-np.pi, np.pi) if phase else bounds[p]
+            values = None if mc is None else (_unwrap_around(mc[:, i], self.x[i]) if phase else mc[:, i])
+            rows.append({
+                "parameter": p, "run": run, "kind": "nuisance" if phase else ("shared" if run == "all" else "per_run"),
+                "unit": "rad" if phase else self.units.get(p, ""), "value": self.x[i],
+                "normalised": np.nan if phase else self.theta[i],
+                "stderr": u.stderr[i], "ci_low": self.x[i] - t * u.stderr[i], "ci_high": self.x[i] + t * u.stderr[i],
+                "at_bound": bool(u.at_bound[i]) and not phase, "identifiable": bool(u.identifiable[i]),
+                "lower": lo, "upper": hi,
+                "mc_mean": np.nan if values is None else values.mean(),
+                "mc_std": np.nan if values is None or len(values) < 2 else values.std(ddof=1),
+                "mc_ci_low": np.nan if values is None else np.percentile(values, alpha),
+                "mc_ci_high": np.nan if values is None else np.percentile(values, 100 - alpha),
+                "vif": u.vif[i],
+            })
+        return pd.DataFrame(rows)
+
+    def correlation_table(self) -> pd.DataFrame:
+        names = [p if r == "all" else f"{p}[{r}]" for p, r in self.layout.entries()]
+        return pd.DataFrame(self.uncertainty.correlation, index=names, columns=names)
+
+    def history_table(self) -> pd.DataFrame:
+        """Loss (eq. 9) of every trial on the measured data after each iteration (long format)."""
+        h = self.protocol.trials.history
+        trial, iteration = np.nonzero(np.isfinite(h))
+        return pd.DataFrame({"trial": trial, "iteration": iteration, "loss": h[trial, iteration],
+                             "selected": trial == self.protocol.best})
+
+    def trials_table(self) -> pd.DataFrame:
+        """One row per trial on the measured data: final loss, status, iterations and parameters [SI]."""
+        tr = self.protocol.trials
+        si = self.layout.to_si(tr.x)
+        out = pd.DataFrame({"trial": np.arange(len(tr.loss)), "loss": tr.loss, "status": tr.status,
+                            "iterations": tr.nit, "selected": np.arange(len(tr.loss)) == self.protocol.best})
+        for i, (p, run) in enumerate(self.layout.entries()):
+            out[p if run == "all" or self.layout.n_runs == 1 else f"{p}[{run}]"] = si[:, i]
+        return out
+
+    def summary(self) -> dict:
+        u, tr = self.uncertainty, self.protocol.trials
+        at_best = np.isclose(tr.loss, tr.loss[self.protocol.best], rtol=1e-6, atol=1e-12)
+        return {"runs": list(self.layout.runs), "shared": list(self.layout.shared),
+                "per_run": list(self.layout.local), "n_data": int(self.problem.n_data), "dof": int(u.dof),
+                "chi2": float(u.chi2), "chi2_dof": float(u.chi2_dof), "loss": float(self.loss),
+                "cost": float(self.cost), "status": int(self.status), "message": self.message,
+                "collinearity_index": float(u.collinearity_index), "trials": int(len(tr.loss)),
+                "trials_at_best": int(at_best.sum()), "monte_carlo": int(len(self.protocol.monte_carlo)),
+                "lm_problems": int(self.protocol.n_lm), "seconds": float(self.protocol.seconds),
+                "sparsity": float(self.problem.sparsity), "notes": list(u.notes)}
+
+
+def _unwrap_around(phases: Array, centre: float) -> Array:
+    return centre + wrap(phases - centre)
+
+
+def identify(models: Sequence[HarmonicModel], data: Sequence[RunData], per_run: Sequence[str] = (),
+             options: ProtocolOptions = ProtocolOptions(), model_error: Mapping[str, float] | None = None,
+             extra_starts: Array | None = None, units: Mapping[str, str] | None = None,
+             scale_by_residual: bool = True) -> Identification:
+    """Identify from R runs jointly (R = 1: a per-run fit): the protocol, then uncertainty at the best trial.
+
+    models: one per run (libraries' ``SensorSurrogate`` or the full solver's
+    ``SolverModel``), all with the same parameters and ranges; per_run: the
+    parameters estimated per run (the others are shared); model_error: relative
+    library error per run, added to the weights (``total_sigma``).
+    """
+    data = list(data)
+    H = min(min(d.H for d in data), min(m.H for m in models))
+    data = [replace(d, X=d.X[:H], sigma=d.sigma[:H]) for d in data]
+    first = models[0]
+    layout = Layout.build(first.parameters, first.lower, first.upper, [d.run for d in data], per_run)
+    errors = model_error or {}
+    sigma = np.stack([total_sigma(d, errors.get(d.run, 0.0)) for d in data])
+    X = np.stack([d.X for d in data])
+    problem = ArrowProblem(models, layout, sigma, options.sparsity, options.l1_epsilon)
+    protocol = run_protocol(problem, X, np.stack([d.sigma for d in data]), options, extra_starts)
+    return conclude(problem, protocol, data, X, options.confidence, units, scale_by_residual)
+
+
+def conclude(problem: ArrowProblem, protocol: ProtocolResult, data: Sequence[RunData], X: Array,
+             confidence: float = 0.95, units: Mapping[str, str] | None = None,
+             scale_by_residual: bool = True) -> Identification:
+    """The result object at the protocol's best trial: residuals, Jacobian [SI], uncertainty."""
+    layout = problem.layout
+    theta = protocol.theta
+    ev = problem.evaluate(theta[None], X[None])
+    J = problem.dense_jacobian(ev)
+    r = ev.r[0].reshape(-1)
+    uncertainty = analyse_uncertainty(J, r, theta, layout, scale_by_residual)
+    status = int(protocol.trials.status[protocol.best])
+    return Identification(layout, problem, protocol, layout.to_si(theta), theta,
+                          float(protocol.trials.cost[protocol.best]), float(protocol.trials.loss[protocol.best]),
+                          r, J / layout.scale(), status, STATUS_MESSAGES[status], uncertainty, confidence,
+                          list(data), X, dict(units or {}))
+
+
+# --- validation runs: predicted, never fitted -------------------------------------------
+
+
+def bow_law(table: pd.DataFrame, parameter: str, law: str = "law") -> tuple[Array, callable]:
+    """A per-run parameter as a function of speed and unbalance, from its per-run estimates.
+
+    law "law": weighted least squares of q = c0 + c1 Omega^2 + c2 Omega^2 m_e (the
+    first-order form of the paper's eq. 35-37: bow grows with speed, and with the
+    unbalance when there is one); "mean": the weighted mean. Needs rows with
+    rpm, eccentric_mass_g, value, stderr. Returns (coefficients, predict(rpm, mass_g)).
+    """
+    omega2 = (np.asarray(table["rpm"], float) * 2 * np.pi / 60) ** 2
+    mass = np.asarray(table["eccentric_mass_g"], float) * 1e-3
+    stderr = np.asarray(table["stderr"], float)
+    w = 1.0 / np.where(np.isfinite(stderr) & (stderr > 0), stderr, np.nanmax(np.append(stderr, 1.0))) ** 2
+    y = np.asarray(table["value"], float)
+    if law == "law" and len(y) >= 4:
+        A = np.column_stack([np.ones_like(omega2), omega2, omega2 * mass])
+        coef = np.linalg.lstsq(A * np.sqrt(w)[:, None], y * np.sqrt(w), rcond=None)[0]
+
+        def predict(rpm: Array, mass_g: Array) -> Array:
+            o2 = (np.asarray(rpm, float) * 2 * np.pi / 60) ** 2
+            return coef[0] + coef[1] * o2 + coef[2] * o2 * np.asarray(mass_g, float) * 1e-3
+        return coef, predict
+    mean = float((w * y).sum() / w.sum())
+    return np.array([mean]), lambda rpm, mass_g: np.full(np.shape(rpm), mean)
+
+
+def _with_dc(z: Array, fill: float = 0.0) -> Array:
+    """(H, 2) h = 1..H -> (2, H+1) with an h = 0 column (``fit_phase``'s layout; h = 0 is ignored there)."""
+    return np.vstack([np.full((1, 2), fill, z.dtype), z]).T
+
+
+def predict_run(model: HarmonicModel, data: RunData, values: Mapping[str, float], model_error: float = 0.0
+                ) -> dict:
+    """A run predicted with given parameter values [SI]: only its phase (a nuisance) is aligned.
+
+    Returns error_rel (relative L2 error of the signals' h >= 1 part, Parseval),
+    chi2_per_residual (with the measured sigmas and the library error), the
+    phase, 1X amplitudes measured and predicted, and the predicted harmonics.
+    """
+    from .preprocessing import fit_phase
+
+    H = min(data.H, model.H)
+    x = np.array([2 * (values[p] - lo) / (hi - lo) - 1 for p, lo, hi in zip(model.parameters, model.lower,
+                                                                             model.upper)])
+    outside = [p for p, v in zip(model.parameters, x) if abs(v) > 1 + 1e-9]
+    M = model.evaluate(np.clip(x, -1, 1)[None], jacobian=False)[0][0, :H]  # (H, 2)
+    X, sigma = data.X[:H], total_sigma(data, model_error)[:H]
+    phi = fit_phase(_with_dc(X), _with_dc(M), _with_dc(sigma, fill=1.0))
+    aligned = M * np.exp(1j * np.arange(1, H + 1) * phi)[:, None]
+    error = np.sqrt((np.abs(X - aligned) ** 2).sum() / (np.abs(X) ** 2).sum())
+    residual = (X - aligned) / sigma
+    return {"run": data.run, "rpm": data.rpm, "eccentric_mass_g": data.eccentric_mass_g,
+            "error_rel": float(error), "chi2_per_residual": float((np.abs(residual) ** 2).sum() / (4 * H)),
+            "phase_rad": float(wrap(phi)), "x1_amp_measured_m": abs(X[0, 0]), "x1_amp_predicted_m": abs(M[0, 0]),
+            "y1_amp_measured_m": abs(X[0, 1]), "y1_amp_predicted_m": abs(M[0, 1]),
+            "outside_range": ",".join(outside), "fitted": aligned}
+
+
+# --- the full solver as a model (polish) ------------------------------------------------
+
+
+class SolverModel:
+    """A run's sensor harmonics from the full harmonic-balance solver (run-up to the run's speed).
+
+    Same interface as ``SensorSurrogate``: evaluate(x (N, d)) -> M, dM/dx, the
+    derivative by forward differences (step ``step`` in normalised units), all
+    N (1 + d) parameter sets solved in one batched run-up (``solve_runs``).
+    """
+
+    def __init__(self, variant, run: str, rpm: float, eccentric_mass_g: float, parameters: Sequence[str],
+                 lower: Array, upper: Array, harmonics: int, step: float = 1e-5):
+        self.variant, self.run = variant, run
+        self.plan = pd.DataFrame({"run": [run], "rpm": [float(rpm)], "eccentric_mass_g": [float(eccentric_mass_g)]})
+        self.parameters = list(parameters)
+        self.lower, self.upper = np.asarray(lower, float), np.asarray(upper, float)
+        self.harmonics = int(harmonics)
+        self.H = self.harmonics
+        self.step = float(step)
+        self.n_solves = 0
+        if "m_e" in self.parameters:
+            raise ValueError("the full-solver polish cannot treat m_e as unknown: scenarios.solve_runs sets m_e "
+                             "from each run's eccentric mass")
+
+    def _solve(self, x: Array) -> Array:
+        from .scenarios import solve_runs
+        from .sensor import sensor_harmonics
+
+        values = {p: self.lower[j] + 0.5 * (x[:, j] + 1) * (self.upper[j] - self.lower[j])
+                  for j, p in enumerate(self.parameters)}
+        solution = solve_runs(self.variant, self.plan, values, self.harmonics)
+        self.n_solves += x.shape[0]
+        U, V = sensor_harmonics(solution.harmonics[0], self.variant.model.shaft)  # (N, H+1) each
+        M = np.stack([U[:, 1:], V[:, 1:]], axis=-1)
+        M[~solution.success[0]] = np.nan
+        return M
+
+    def evaluate(self, x: Array, jacobian: bool = True) -> tuple[Array, Array | None]:
+        x = np.atleast_2d(x)
+        N, d = x.shape
+        if not jacobian:
+            return self._solve(x), None
+        steps = np.where(x + self.step <= 1.0, self.step, -self.step)  # (N, d), backwards at the upper bound
+        shifted = np.repeat(x[:, None, :], d, axis=1)
+        shifted[:, np.arange(d), np.arange(d)] += steps
+        M_all = self._solve(np.concatenate([x, shifted.reshape(N * d, d)]))
+        M = M_all[:N]
+        dM = (M_all[N:].reshape(N, d, *M.shape[1:]) - M[:, None]) / steps[:, :, None, None]
+        return M, np.moveaxis(dM, 1, -1)
+
+
+def polish(problem: ArrowProblem, solver_models: Sequence[HarmonicModel], theta: Array, X: Array,
+           max_iterations: int = 8) -> tuple[ArrowProblem, LMResult]:
+    """Refine a library optimum theta with the full solver (no surrogate error): LM from theta, one trial."""
+    exact = ArrowProblem(solver_models, problem.layout, problem.sigma, problem.sparsity, problem.l1_epsilon)
+    options = LMOptions(max_iterations=max_iterations, ftol=1e-6, xtol=1e-8, gtol=1e-10, initial_damping=1e-4)
+    return exact, levenberg_marquardt(exact, theta[None], X[None], options)
+
+
+def compare_polish(library_fit: Identification, polished: Identification) -> pd.DataFrame:
+    """Library optimum vs full-solver optimum per entry: difference in SI, relative, and in standard errors."""
+    a, b = library_fit.table(), polished.table()
+    out = a[["parameter", "run", "unit"]].copy()
+    out["library_value"], out["solver_value"] = a["value"], b["value"]
+    out["difference"] = b["value"] - a["value"]
+    out["difference_rel"] = out["difference"] / b["value"].abs().where(b["value"] != 0)
+    out["difference_in_stderr"] = out["difference"] / b["stderr"]
+    out["stderr"] = b["stderr"]
+    return out
+
+
+# --- per-run drift and plots ------------------------------------------------------------
+
+
+def drift_table(per_run: Sequence[pd.DataFrame], runs: pd.DataFrame) -> pd.DataFrame:
+    """The per-run fits side by side (one row per run and parameter) with speed and unbalance.
+
+    A physical constant that drifts with speed means the model misses something
+    (the per-run fits' diagnostic); ``spread_in_stderr``: |value - weighted mean| / stderr.
+    """
+    rows = []
+    for table in per_run:
+        rows.append(table[table["kind"] != "nuisance"])
+    if not rows:
+        return pd.DataFrame()
+    out = pd.concat(rows, ignore_index=True)
+    out = out.merge(runs[["run", "rpm", "eccentric_mass_g"]], on="run", how="left", suffixes=("", "_sheet"))
+    for p, group in out.groupby("parameter"):
+        w = 1.0 / group["stderr"].where(group["stderr"] > 0) ** 2
+        mean = (w * group["value"]).sum() / w.sum() if w.notna().any() else group["value"].mean()
+        out.loc[group.index, "weighted_mean"] = mean
+        out.loc[group.index, "spread_in_stderr"] = (group["value"] - mean).abs() / group["stderr"]
+    return out
+
+
+def plot_per_run(drift: pd.DataFrame, joint: pd.DataFrame | None, title: str):
+    """Per-run estimates vs speed (the paper's Fig. 9) with their intervals, and the joint values."""
+    from .plots import plt
+
+    names = list(dict.fromkeys(drift["parameter"])) if len(drift) else []
+    fig, axes = plt.subplots(1, max(len(names), 1), figsize=(3.2 * max(len(names), 1), 3.4), squeeze=False)
+    for ax, p in zip(axes[0], names):
+        group = drift[drift["parameter"] == p]
+        for colour, (mass, sub) in enumerate(group.groupby("eccentric_mass_g")):
+            err = np.vstack([sub["value"] - sub["ci_low"], sub["ci_high"] - sub["value"]])
+            ax.errorbar(sub["rpm"], sub["value"], yerr=np.nan_to_num(err), fmt="o", ms=3, color=f"C{colour}",
+                        label=f"{mass:g} g", capsize=2)
+        if joint is not None:
+            shared = joint[(joint["parameter"] == p) & (joint["run"] == "all")]
+            for row in shared.itertuples():
+                ax.axhline(row.value, color="k", lw=1, label="joint")
+                ax.axhspan(row.ci_low, row.ci_high, color="k", alpha=0.1)
+            local = joint[(joint["parameter"] == p) & (joint["run"] != "all")].merge(
+                drift[["run", "rpm"]].drop_duplicates(), on="run")
+            if len(local):
+                ax.plot(local["rpm"], local["value"], "k+", label="joint")
+        ax.set_title(p)
+        ax.set_xlabel("speed [RPM]")
+        ax.grid(alpha=0.3)
+    axes[0][0].legend(fontsize=7)
+    fig.suptitle(f"variant {title}: per-run estimates (95 % intervals) and the joint fit")
+    fig.tight_layout()
+    return fig
+
+
+def write_fit(path: str | Path, fit: Identification, rpm: Sequence[float], cycles: int = 2, n_time: int = 200) -> None:
+    """The fitted response for plotting (zarr v3): per run, measured and fitted harmonics h = 1..H in the
+    record's frame, sigmas, and two revolutions of x, y (measured synchronous average and fitted)."""
+    import zarr
+
+    group = zarr.open_group(str(path), mode="w")
+    fitted = fit.fitted()
+    H = fit.X.shape[1]
+    angle = np.linspace(0, 2 * np.pi * cycles, n_time, endpoint=False)
+    wave = np.exp(1j * np.outer(angle, np.arange(1, H + 1)))  # (T, H)
+    arrays = {
+        "harmonic": np.arange(1, H + 1), "angle_rad": angle,
+        "measured_re_m": fit.X.real, "measured_im_m": fit.X.imag,
+        "fitted_re_m": fitted.real, "fitted_im_m": fitted.imag,
+        "sigma_m": fit.problem.sigma,
+        "measured_wave_m": np.einsum("th,rhc->rtc", wave, fit.X).real,
+        "fitted_wave_m": np.einsum("th,rhc->rtc", wave, fitted).real,
+    }
+    for name, data in arrays.items():
+        group.create_array(name, data=np.asarray(data, float))
+    group.attrs.update({"runs": list(fit.layout.runs), "rpm": [float(v) for v in rpm],
+                        "channels": list(CHANNELS), "chi2_dof": float(fit.chi2_dof),
+                        "values": {k: float(v) for k, v in fit.values().items()},
+                        "layout": "arrays (run, harmonic, channel); waves (run, time, channel); angle = Omega t"})
+
+
+def warn_notes(notes: Sequence[str], where: str) -> None:
+    for note in notes:
+        warnings.warn(f"{where}: {note}", WarningLevel, stacklevel=2)
