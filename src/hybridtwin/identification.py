@@ -80,8 +80,9 @@ Array = np.ndarray
 
 CHANNELS = ("x", "y")
 #: status codes of a trial (scipy.optimize.least_squares' meanings)
-RUNNING, MAX_ITERATIONS, GTOL, FTOL, XTOL, STALLED = -1, 0, 1, 2, 3, 4
+RUNNING, NONFINITE, MAX_ITERATIONS, GTOL, FTOL, XTOL, STALLED = -1, -2, 0, 1, 2, 3, 4
 STATUS_MESSAGES = {
+    NONFINITE: "no response at the start (the model failed there)",
     MAX_ITERATIONS: "the maximum number of iterations was reached",
     GTOL: "gtol termination: the projected gradient of the loss is below gtol",
     FTOL: "ftol termination: the relative reduction of the loss is below ftol",
@@ -698,7 +699,7 @@ def _lm_batch(problem: ArrowProblem, theta0: Array, X: Array, options: LMOptions
     F = ev.objective
     mu = np.full(T, options.initial_damping)
     nu = np.full(T, 2.0)
-    status = np.full(T, RUNNING)
+    status = np.where(np.isfinite(F), RUNNING, NONFINITE)
     nfev, nit = np.ones(T, int), np.zeros(T, int)
     history = np.full((T, options.max_iterations + 1), np.nan)
     history[:, 0] = F / problem.n_data
@@ -1002,6 +1003,7 @@ class Identification:
     data: list[RunData]
     X: Array  # (R, H, 2) measured harmonics used
     units: dict[str, str] = field(default_factory=dict)
+    source: str = "library"  # the response model: "library" (sPGD) or "solver" (full harmonic balance)
 
     @property
     def success(self) -> bool:
@@ -1031,12 +1033,14 @@ class Identification:
         alpha = 100 * (0.5 - 0.5 * self.confidence)
         rows = []
         bounds = {p: (lo, hi) for p, lo, hi in zip(L.parameters, L.lower, L.upper)}
+        single = L.n_runs == 1
         for i, (p, run) in enumerate(L.entries()):
             phase = p == "phase"
             lo, hi = (-np.pi, np.pi) if phase else bounds[p]
             values = None if mc is None else (_unwrap_around(mc[:, i], self.x[i]) if phase else mc[:, i])
             rows.append({
-                "parameter": p, "run": run, "kind": "nuisance" if phase else ("shared" if run == "all" else "per_run"),
+                "parameter": p, "run": L.runs[0] if single else run,
+                "kind": "nuisance" if phase else ("shared" if run == "all" else "per_run"),
                 "unit": "rad" if phase else self.units.get(p, ""), "value": self.x[i],
                 "normalised": np.nan if phase else self.theta[i],
                 "stderr": u.stderr[i], "ci_low": self.x[i] - t * u.stderr[i], "ci_high": self.x[i] + t * u.stderr[i],
@@ -1046,7 +1050,7 @@ class Identification:
                 "mc_std": np.nan if values is None or len(values) < 2 else values.std(ddof=1),
                 "mc_ci_low": np.nan if values is None else np.percentile(values, alpha),
                 "mc_ci_high": np.nan if values is None else np.percentile(values, 100 - alpha),
-                "vif": u.vif[i],
+                "vif": u.vif[i], "source": self.source,
             })
         return pd.DataFrame(rows)
 
@@ -1126,7 +1130,8 @@ def conclude(problem: ArrowProblem, protocol: ProtocolResult, data: Sequence[Run
     return Identification(layout, problem, protocol, layout.to_si(theta), theta,
                           float(protocol.trials.cost[protocol.best]), float(protocol.trials.loss[protocol.best]),
                           r, J / layout.scale(), status, STATUS_MESSAGES[status], uncertainty, confidence,
-                          list(data), X, dict(units or {}))
+                          list(data), X, dict(units or {}),
+                          "solver" if any(isinstance(m, SolverModel) for m in problem.models) else "library")
 
 
 # --- validation runs: predicted, never fitted -------------------------------------------
@@ -1241,12 +1246,23 @@ class SolverModel:
         return M, np.moveaxis(dM, 1, -1)
 
 
-def polish(problem: ArrowProblem, solver_models: Sequence[HarmonicModel], theta: Array, X: Array,
-           max_iterations: int = 8) -> tuple[ArrowProblem, LMResult]:
-    """Refine a library optimum theta with the full solver (no surrogate error): LM from theta, one trial."""
-    exact = ArrowProblem(solver_models, problem.layout, problem.sigma, problem.sparsity, problem.l1_epsilon)
-    options = LMOptions(max_iterations=max_iterations, ftol=1e-6, xtol=1e-8, gtol=1e-10, initial_damping=1e-4)
-    return exact, levenberg_marquardt(exact, theta[None], X[None], options)
+def polish(fit: Identification, solver_models: Sequence[HarmonicModel], max_iterations: int = 30,
+           starts: Array | None = None) -> Identification:
+    """Refine a library optimum with the full solver (no surrogate error), the result and its uncertainty.
+
+    LM from fit.theta (and any extra ``starts``, all advanced in the same batched
+    solves), on the same data weighted by the measured sigmas only (the solver
+    has no library error to allow for). The uncertainty is recomputed from the
+    solver's Jacobian (forward differences).
+    """
+    sigma = np.stack([d.sigma[: fit.X.shape[1]] for d in fit.data])
+    exact = ArrowProblem(solver_models, fit.layout, sigma, fit.problem.sparsity, fit.problem.l1_epsilon)
+    theta0 = fit.theta[None] if starts is None else np.vstack([fit.theta[None], starts])
+    options = LMOptions(max_iterations=max_iterations, ftol=1e-8, xtol=1e-8, gtol=1e-10, stall_chi2=1e-3)
+    result = levenberg_marquardt(exact, theta0, np.repeat(fit.X[None], len(theta0), axis=0), options)
+    best = int(np.argmin(result.loss))
+    protocol = ProtocolResult(result, best, np.zeros((0, fit.layout.n)), np.zeros(0), result.seconds, len(theta0))
+    return conclude(exact, protocol, fit.data, fit.X, fit.confidence, fit.units)
 
 
 def compare_polish(library_fit: Identification, polished: Identification) -> pd.DataFrame:
@@ -1344,3 +1360,95 @@ def write_fit(path: str | Path, fit: Identification, rpm: Sequence[float], cycle
 def warn_notes(notes: Sequence[str], where: str) -> None:
     for note in notes:
         warnings.warn(f"{where}: {note}", WarningLevel, stacklevel=2)
+
+
+# --- workflow configuration -------------------------------------------------------------
+
+#: the ``identification:`` section's defaults (config/config.yaml; schema in workflow/schemas)
+DEFAULTS: dict = {
+    "trials": 50,  # tau, random trials per fit (paper sec. 4.1)
+    "monte_carlo": 1000,  # n_MC repeats per per-run fit
+    "sparsity": {"expansion": 0.1},  # lambda per variant (eq. 11); 0 for the others
+    "l1_epsilon": 1e-3,
+    "seed": 1,
+    "per_run": ["q_x", "q_y"],  # joint fit: estimated per run; the other unknowns are shared
+    "model_error": "median_error_pct",  # library error added to the weights (library_validation.tsv column | none)
+    "confidence": 0.95,
+    "max_iterations": 100,
+    "joint": {"trials": 50, "monte_carlo": 100},
+    "polish": {"joint": True, "runs": False, "max_iterations": 30},
+    "validation_bow": "law",  # per-run parameters of validation runs: law (c0 + c1 W^2 + c2 W^2 m_e) | mean
+}
+
+
+def settings(config: Mapping, variant: str) -> dict:
+    """The identification options for ``variant``: defaults, then the config's section; lambda resolved."""
+    given = dict(config.get("identification") or {})
+    out = {**DEFAULTS, **given}
+    for key in ("joint", "polish"):
+        out[key] = {**DEFAULTS[key], **(given.get(key) or {})}
+    sparsity = out["sparsity"]
+    out["lambda"] = float(sparsity.get(variant, 0.0) if isinstance(sparsity, Mapping) else sparsity)
+    return out
+
+
+def protocol_options(options: Mapping, joint: bool = False) -> ProtocolOptions:
+    """ProtocolOptions from ``settings``; ``joint`` takes the joint fit's trials and repeats."""
+    source = options["joint"] if joint else options
+    return ProtocolOptions(trials=int(source["trials"]), monte_carlo=int(source["monte_carlo"]),
+                           sparsity=float(options["lambda"]), l1_epsilon=float(options["l1_epsilon"]),
+                           seed=int(options["seed"]), confidence=float(options["confidence"]),
+                           lm=LMOptions(max_iterations=int(options["max_iterations"])))
+
+
+def units(variant) -> dict[str, str]:
+    """Parameter units of a variant ("1" for dimensionless)."""
+    return {name: p.unit for name, p in variant.model.parameters.items()}
+
+
+def start_from_runs(layout: Layout, per_run: Mapping[str, pd.DataFrame]) -> Array | None:
+    """A joint start from the per-run fits: shared entries at the median of the runs' estimates,
+    local ones and phases from each run's own fit (None when a run has no usable fit)."""
+    theta = np.zeros(layout.n)
+    for i, (p, run) in enumerate(layout.entries()):
+        if run == "all":
+            values = [t.loc[t["parameter"] == p, "normalised"].item() for t in per_run.values()]
+            values = [v for v in values if np.isfinite(v)]
+            if not values:
+                return None
+            theta[i] = float(np.median(values))
+            continue
+        table = per_run.get(run)
+        if table is None or not (table["parameter"] == p).any():
+            return None
+        column = "value" if p == "phase" else "normalised"
+        theta[i] = table.loc[table["parameter"] == p, column].item()
+    return theta if np.isfinite(theta).all() else None
+
+
+def excluded_table(data: RunData, parameters: Sequence[str], units_: Mapping[str, str]) -> pd.DataFrame:
+    """The parameter table of a run that cannot be fitted (not usable): NaN values and the reason."""
+    rows = [{"parameter": p, "run": data.run, "kind": "shared", "unit": units_.get(p, ""), "value": np.nan,
+             "normalised": np.nan, "stderr": np.nan, "ci_low": np.nan, "ci_high": np.nan, "at_bound": False,
+             "identifiable": False, "note": data.note} for p in list(parameters) + ["phase"]]
+    rows[-1].update(kind="nuisance", unit="rad")
+    return pd.DataFrame(rows)
+
+
+def validation_values(joint: pd.DataFrame, run: RunData, law: str = "law", runs: pd.DataFrame | None = None
+                      ) -> dict[str, float]:
+    """Parameter values [SI] to predict a validation run with: the shared estimates, and each per-run
+    parameter from its law over the fitted runs (``bow_law``); m_e from the sheet when it is per run."""
+    physical = joint[joint["kind"] != "nuisance"]
+    values = {r.parameter: float(r.value) for r in physical.itertuples() if r.run == "all"}
+    local = physical[physical["run"] != "all"]
+    if runs is not None and len(local):
+        local = local.drop(columns=[c for c in ("rpm", "eccentric_mass_g") if c in local]).merge(
+            runs[["run", "rpm", "eccentric_mass_g"]], on="run", how="left")
+    for p, group in local.groupby("parameter", sort=False):
+        if p == "m_e" and np.isfinite(run.eccentric_mass_g):
+            values[p] = run.eccentric_mass_g * 1e-3
+            continue
+        _, predict = bow_law(group, p, law)
+        values[p] = float(predict(run.rpm, run.eccentric_mass_g))
+    return values

@@ -1,0 +1,76 @@
+"""Rule identify_joint: all fit runs at once, shared physical parameters, per-run ones (thin wrapper).
+
+The library protocol finds the optimum (random trials + a start from the per-run fits), the full solver
+polishes it when asked (identification: polish: joint), and the per-run fits are gathered into the drift
+table and plot.
+"""
+
+import time
+
+import pandas as pd
+import yaml
+
+from hybridtwin import config as cfg
+from hybridtwin import identification as idn
+from hybridtwin.library import Library
+
+smk = snakemake  # noqa: F821 (injected by Snakemake)
+log = cfg.rule_logger(smk.log[0], "identify_joint")
+variant = cfg.variant(smk.config, smk.wildcards.variant)
+options = idn.settings(smk.config, variant.name)
+units = idn.units(variant)
+table = idn.read_harmonics(smk.input.harmonics)
+per_run = {path.split("/")[-2]: pd.read_csv(path, sep="\t", dtype={"run": str}) for path in smk.input.per_run}
+data, models = [], []
+for path in smk.input.libraries:
+    library = Library.load(path)
+    run = idn.run_data(table, library.run)
+    if not run.usable:
+        log.warning("run %s left out of the joint fit: %s", run.run, run.note)
+        continue
+    data.append(run)
+    models.append(idn.SensorSurrogate(library))
+if not data:
+    raise ValueError("no usable fit run for the joint identification")
+errors = idn.model_errors(pd.read_csv(smk.input.validation, sep="\t"), [d.run for d in data], options["model_error"])
+parameters = models[0].parameters
+layout = idn.Layout.build(parameters, models[0].lower, models[0].upper, [d.run for d in data], options["per_run"])
+start_theta = idn.start_from_runs(layout, {d.run: per_run[d.run] for d in data if d.run in per_run})
+start = time.perf_counter()
+fit = idn.identify(models, data, options["per_run"], idn.protocol_options(options, joint=True), errors,
+                   extra_starts=start_theta, units=units)
+log.info("joint fit of %d runs (%d unknowns): %d LM problems in %.1f s, loss %.4g, chi^2/dof %.3g (%s)",
+         len(data), layout.n, fit.protocol.n_lm, time.perf_counter() - start, fit.loss, fit.chi2_dof, fit.message)
+library_table = fit.table()
+library_table.to_csv(smk.output.library_table, sep="\t", index=False, float_format="%.9g")
+summary = {"library": fit.summary()}
+comparison = pd.DataFrame(columns=["parameter", "run", "unit", "library_value", "solver_value", "difference",
+                                   "difference_rel", "difference_in_stderr", "stderr"])
+if options["polish"]["joint"]:
+    solver = [idn.SolverModel(variant, d.run, d.rpm, d.eccentric_mass_g, parameters, models[0].lower,
+                              models[0].upper, smk.config["harmonics"]) for d in data]
+    start = time.perf_counter()
+    exact = idn.polish(fit, solver, int(options["polish"]["max_iterations"]))
+    comparison = idn.compare_polish(fit, exact)
+    exact.protocol.monte_carlo = fit.protocol.monte_carlo  # the library's Monte Carlo spread, for reference
+    summary["solver"] = exact.summary() | {"seconds": time.perf_counter() - start,
+                                           "solves": int(sum(m.n_solves for m in solver))}
+    log.info("polished with the full solver in %.1f s: loss %.4g -> %.4g, chi^2/dof %.3g (%s)",
+             time.perf_counter() - start, fit.loss, exact.loss, exact.chi2_dof, exact.message)
+    fit = exact
+result = fit.table()
+result.to_csv(smk.output.table, sep="\t", index=False, float_format="%.9g")
+comparison.to_csv(smk.output.polish, sep="\t", index=False, float_format="%.9g")
+fit.correlation_table().to_csv(smk.output.correlation, sep="\t", float_format="%.6g")
+fit.history_table().to_csv(smk.output.history, sep="\t", index=False, float_format="%.9g")
+idn.write_fit(smk.output.fit, fit, [d.rpm for d in data])
+runs = pd.DataFrame({"run": [d.run for d in data], "rpm": [d.rpm for d in data],
+                     "eccentric_mass_g": [d.eccentric_mass_g for d in data]})
+drift = idn.drift_table([per_run[r] for r in per_run if r in set(runs["run"])], runs)
+drift.to_csv(smk.output.per_run, sep="\t", index=False, float_format="%.9g")
+idn.plot_per_run(drift, result, variant.name).savefig(smk.output.plot, dpi=120)
+summary["final"] = fit.summary()
+with open(smk.output.summary, "w") as stream:
+    yaml.safe_dump(summary, stream, sort_keys=False)
+for note in fit.uncertainty.notes:
+    log.warning("%s", note)

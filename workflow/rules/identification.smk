@@ -1,0 +1,109 @@
+# Grey box (issue 5): the variant's unknowns identified from the measured harmonics on the libraries
+# (paper sec. 2.3, eq. 9-11): per fit run by the paper's protocol, then all fit runs jointly (shared
+# physical parameters, per-run bow), polished with the full solver; validation runs only predicted.
+import pandas as pd
+
+from hybridtwin.identification import settings as identification_settings
+
+
+def runs_with_role(role):
+    """Runs of the sheet with this role (no role column: every run is a fit run)."""
+    sheet = pd.read_csv(config["runs"], sep="\t", dtype={"run": str})
+    roles = sheet["role"].fillna("fit") if "role" in sheet else pd.Series("fit", index=sheet.index)
+    return sheet.loc[roles == role, "run"].tolist()
+
+
+FIT_RUNS = runs_with_role("fit")
+VALIDATION_RUNS = runs_with_role("validate")
+
+
+rule identify_run:
+    """One fit run: tau random trials x (1 + n_MC) Monte Carlo repeats of batched LM on its library."""
+    input:
+        library="results/{variant}/library/{run}.zarr",
+        harmonics="results/data/harmonics.tsv",
+        validation="results/{variant}/library_validation.tsv",
+    output:
+        parameters="results/{variant}/runs/{run}/parameters.tsv",
+        history="results/{variant}/runs/{run}/history.tsv",
+        fit=directory("results/{variant}/runs/{run}/fit.zarr"),
+    params:
+        spec=lambda wildcards: config["variants"][wildcards.variant],
+        options=lambda wildcards: identification_settings(config, wildcards.variant),
+    log:
+        "logs/{variant}/identify_run_{run}.log",
+    benchmark:
+        "results/benchmarks/{variant}/identify_run_{run}.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
+    script:
+        "../../scripts/identify_run.py"
+
+
+rule identify_joint:
+    """All fit runs jointly: shared physical parameters, per-run ones and phases; polish; drift of the per-run fits."""
+    input:
+        libraries=expand("results/{{variant}}/library/{run}.zarr", run=FIT_RUNS),
+        per_run=expand("results/{{variant}}/runs/{run}/parameters.tsv", run=FIT_RUNS),
+        harmonics="results/data/harmonics.tsv",
+        validation="results/{variant}/library_validation.tsv",
+    output:
+        table=report(
+            "results/{variant}/parameters.tsv",
+            caption="../report/identification_parameters.rst",
+            category="Identification",
+            subcategory="{variant}",
+        ),
+        library_table="results/{variant}/identification/library_parameters.tsv",
+        polish="results/{variant}/identification/polish.tsv",
+        correlation="results/{variant}/identification/correlation.tsv",
+        history="results/{variant}/identification/history.tsv",
+        summary="results/{variant}/identification/summary.yaml",
+        per_run="results/{variant}/identification/per_run.tsv",
+        plot=report(
+            "results/{variant}/identification/per_run.png",
+            caption="../report/identification_per_run.rst",
+            category="Identification",
+            subcategory="{variant}",
+        ),
+        fit=directory("results/{variant}/identification/fit.zarr"),
+    params:
+        spec=lambda wildcards: config["variants"][wildcards.variant],
+        options=lambda wildcards: identification_settings(config, wildcards.variant),
+        harmonics=config["harmonics"],
+    log:
+        "logs/{variant}/identify_joint.log",
+    benchmark:
+        "results/benchmarks/{variant}/identify_joint.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
+    script:
+        "../../scripts/identify_joint.py"
+
+
+rule predict_validation:
+    """Validation runs predicted with the joint parameters (never fitted): error per run."""
+    input:
+        parameters="results/{variant}/parameters.tsv",
+        libraries=expand("results/{{variant}}/library/{run}.zarr", run=VALIDATION_RUNS),
+        harmonics="results/data/harmonics.tsv",
+        validation="results/{variant}/library_validation.tsv",
+    output:
+        table=report(
+            "results/{variant}/validation.tsv",
+            caption="../report/identification_validation.rst",
+            category="Identification",
+            subcategory="{variant}",
+        ),
+    params:
+        spec=lambda wildcards: config["variants"][wildcards.variant],
+        options=lambda wildcards: identification_settings(config, wildcards.variant),
+        harmonics=config["harmonics"],
+    log:
+        "logs/{variant}/predict_validation.log",
+    benchmark:
+        "results/benchmarks/{variant}/predict_validation.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
+    script:
+        "../../scripts/identify_validation.py"
