@@ -17,6 +17,7 @@ include: "workflow/rules/snapshots.smk"
 include: "workflow/rules/pod.smk"
 include: "workflow/rules/library.smk"
 include: "workflow/rules/measurements.smk"
+include: "workflow/rules/identification.smk"
 
 
 rule all:
@@ -28,4 +29,7 @@ rule all:
         expand("results/{variant}/library_validation.tsv", variant=VARIANTS),
         expand("results/{variant}/library_parity.png", variant=VARIANTS),
         expand("results/{variant}/pod.tsv", variant=VARIANTS),
+        expand("results/{variant}/runs/{run}/parameters.tsv", variant=VARIANTS, run=FIT_RUNS),
+        expand("results/{variant}/parameters.tsv", variant=VARIANTS),
+        expand("results/{variant}/validation.tsv", variant=VARIANTS),
     default_target: True

@@ -1040,7 +1040,7 @@ class Identification:
             values = None if mc is None else (_unwrap_around(mc[:, i], self.x[i]) if phase else mc[:, i])
             rows.append({
                 "parameter": p, "run": L.runs[0] if single else run,
-                "kind": "nuisance" if phase else ("shared" if run == "all" else "per_run"),
+                "kind": "nuisance" if phase else ("physical" if single else ("shared" if run == "all" else "per_run")),
                 "unit": "rad" if phase else self.units.get(p, ""), "value": self.x[i],
                 "normalised": np.nan if phase else self.theta[i],
                 "stderr": u.stderr[i], "ci_low": self.x[i] - t * u.stderr[i], "ci_high": self.x[i] + t * u.stderr[i],
@@ -1197,39 +1197,61 @@ def predict_run(model: HarmonicModel, data: RunData, values: Mapping[str, float]
 # --- the full solver as a model (polish) ------------------------------------------------
 
 
+def run_up(variant, rpm: Sequence[float], values: Mapping[str, Array | float], harmonics: int,
+           start_rpm: float = 300.0, step_rpm: float = 50.0) -> list:
+    """Steady states of S parameter sets at each of ``rpm``, reached by one run-up from ``start_rpm``.
+
+    values: parameter values [SI], scalars or (S,) arrays, m_e included (unlike
+    ``scenarios.solve_runs``, which sets m_e from the run plan, an unknown m_e
+    keeps each set's own value). Steps between speeds are at most ``step_rpm``
+    (the offline stage's run-up). Returns the ``SteadyState`` at each of ``rpm``.
+    """
+    from .solver import solve_sweep
+
+    base = variant.values(values)
+    S = max(np.size(v) for v in base.values())
+    arrays = {k: np.broadcast_to(np.asarray(v, float), (S,)) for k, v in base.items()}
+    targets = np.asarray(rpm, float)
+    points = np.unique(np.append(targets, min(start_rpm, targets.min())))
+    grid = np.concatenate([np.linspace(a, b, int(np.ceil((b - a) / step_rpm)) + 1)[:-1]
+                           for a, b in zip(points[:-1], points[1:])] + [points[-1:]])
+    sweep = solve_sweep(lambda speed, rows: variant.model.system({k: v[rows] for k, v in arrays.items()}, speed),
+                        grid, S, harmonics=harmonics, direction="up")
+    by_rpm = dict(zip(sweep.rpm, sweep.results))
+    return [by_rpm[r] for r in targets]
+
+
 class SolverModel:
     """A run's sensor harmonics from the full harmonic-balance solver (run-up to the run's speed).
 
     Same interface as ``SensorSurrogate``: evaluate(x (N, d)) -> M, dM/dx, the
     derivative by forward differences (step ``step`` in normalised units), all
-    N (1 + d) parameter sets solved in one batched run-up (``solve_runs``).
+    N (1 + d) parameter sets solved in one batched run-up (``run_up``). m_e is
+    the run's eccentric mass unless it is one of the parameters.
     """
 
     def __init__(self, variant, run: str, rpm: float, eccentric_mass_g: float, parameters: Sequence[str],
                  lower: Array, upper: Array, harmonics: int, step: float = 1e-5):
         self.variant, self.run = variant, run
-        self.plan = pd.DataFrame({"run": [run], "rpm": [float(rpm)], "eccentric_mass_g": [float(eccentric_mass_g)]})
+        self.rpm, self.eccentric_mass_g = float(rpm), float(eccentric_mass_g)
         self.parameters = list(parameters)
         self.lower, self.upper = np.asarray(lower, float), np.asarray(upper, float)
         self.harmonics = int(harmonics)
         self.H = self.harmonics
         self.step = float(step)
         self.n_solves = 0
-        if "m_e" in self.parameters:
-            raise ValueError("the full-solver polish cannot treat m_e as unknown: scenarios.solve_runs sets m_e "
-                             "from each run's eccentric mass")
 
     def _solve(self, x: Array) -> Array:
-        from .scenarios import solve_runs
         from .sensor import sensor_harmonics
 
-        values = {p: self.lower[j] + 0.5 * (x[:, j] + 1) * (self.upper[j] - self.lower[j])
-                  for j, p in enumerate(self.parameters)}
-        solution = solve_runs(self.variant, self.plan, values, self.harmonics)
+        values = {"m_e": self.eccentric_mass_g * 1e-3}
+        values |= {p: self.lower[j] + 0.5 * (x[:, j] + 1) * (self.upper[j] - self.lower[j])
+                   for j, p in enumerate(self.parameters)}
+        result = run_up(self.variant, [self.rpm], values, self.harmonics)[0]
         self.n_solves += x.shape[0]
-        U, V = sensor_harmonics(solution.harmonics[0], self.variant.model.shaft)  # (N, H+1) each
+        U, V = sensor_harmonics(result.harmonics, self.variant.model.shaft)  # (N, H+1) each
         M = np.stack([U[:, 1:], V[:, 1:]], axis=-1)
-        M[~solution.success[0]] = np.nan
+        M[~result.success] = np.nan
         return M
 
     def evaluate(self, x: Array, jacobian: bool = True) -> tuple[Array, Array | None]:

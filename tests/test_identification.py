@@ -1,0 +1,256 @@
+"""Grey-box identification (paper sec. 2.3, eq. 9-11): the batched LM, its agreement with scipy, nuisance
+invariance, uncertainty flags, and the Geometric-truth recovery through the workflow on a reduced configuration.
+
+Reduced configuration (module fixture ``geometric_truth``, about a minute): the virtual rig with a Geometric
+truth (noise 0.05 mm) at the five runs nearest the resonance (where the damping is visible) plus one validation
+run, 16 s records (instead of 4 s: a few runs carry a quarter of the 19 runs' information, and the longer
+records give it back), narrow ranges around the truth so that 120-scenario libraries are accurate, and the
+bow shared by all runs (the truth's own structure; with a per-run bow, the default, the upper-bearing damping is
+not identifiable at this noise: benchmarks/identification_benchmark.py shows it at full scale).
+"""
+
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+import zarr
+from scipy.optimize import least_squares
+
+from hybridtwin import identification as idn
+from hybridtwin.rig import RigSpec, generate, read_plan
+
+ROOT = Path(__file__).resolve().parents[1]
+GEOMETRIC = ["centrifugal_softening", "structural_damping", "upper_housing", "lower_bearing", "unbalance",
+             "shaft_bow", "geometric_spring"]
+TRUTH = {"k_b": 2331.5, "zeta_s": 0.0271, "zeta_bup": 0.0215, "q_x": 0.0018, "q_y": 0.0012}
+FIT = ["r850_m14p8", "r850_m0p0", "r900_m0p0", "r950_m0p0", "r1000_m0p0"]
+VALIDATE = ["v700_m19p5"]
+TARGETS = ["results/geometric/parameters.tsv", "results/geometric/validation.tsv"]
+RANGES = {"k_b": [2100, 2600], "zeta_s": [0.015, 0.04], "zeta_bup": [0.005, 0.035], "q_x": [0.001, 0.003],
+          "q_y": [0.0008, 0.002]}
+
+
+# --- a small analytic problem: two harmonics of a damped oscillator-like response -------------------------
+
+
+class ToyModel:
+    """M_h(p) for h = 1, 2 and two channels, smooth in the physical p (a, b, c), exact derivatives in x."""
+
+    parameters = ["a", "b", "c"]
+    lower, upper = np.array([1.0, 0.1, -1.0]), np.array([3.0, 0.5, 1.0])
+    H = 2
+
+    def evaluate(self, x, jacobian=True):
+        x = np.atleast_2d(x)
+        half = (self.upper - self.lower) / 2
+        p = self.lower + (x + 1) * half
+        a, b, c = p[:, 0, None], p[:, 1, None], p[:, 2, None]
+        h = np.array([1.0, 2.0])[None, :]
+        base = 1.0 / (1.0 + a - 0.5j * h * (1.0 + 2.0 * b))  # (N, H)
+        turn = np.exp(0.4j * h)
+        M = np.stack([base, (0.6 + 0.3 * c) * base * turn], axis=-1)  # (N, H, 2)
+        if not jacobian:
+            return M, None
+        dbase = [-base**2, 1j * h * base**2]  # d/da, d/db
+        dM = np.zeros(M.shape + (3,), complex)
+        for j in range(2):
+            dM[..., 0, j] = dbase[j]
+            dM[..., 1, j] = (0.6 + 0.3 * c) * dbase[j] * turn
+        dM[..., 1, 2] = 0.3 * base * turn
+        return M, dM * half
+
+
+def toy_data(x_true, phase, noise=0.0, seed=0, run="toy"):
+    M, _ = ToyModel().evaluate(np.asarray(x_true)[None], jacobian=False)
+    X = M[0] * np.exp(1j * np.arange(1, 3) * phase)[:, None]
+    sigma = np.full((2, 2), 1e-3)
+    rng = np.random.default_rng(seed)
+    X = X + noise * sigma * (rng.standard_normal(X.shape) + 1j * rng.standard_normal(X.shape))
+    return idn.RunData(run, 500.0, 10.0, "fit", X, sigma)
+
+
+FAST = idn.ProtocolOptions(trials=10, monte_carlo=0, seed=3)
+
+
+def test_lm_recovers_known_parameters_and_phase():
+    x_true = np.array([0.3, -0.4, 0.5])
+    fit = idn.identify([ToyModel()], [toy_data(x_true, 1.1)], options=FAST)
+    assert fit.success and fit.loss < 1e-16
+    np.testing.assert_allclose(fit.theta[:3], x_true, atol=1e-7)
+    assert abs(idn.wrap(fit.theta[3] - 1.1)) < 1e-7
+    table = fit.table()
+    assert list(table["parameter"]) == ["a", "b", "c", "phase"]
+    np.testing.assert_allclose(table["value"][:3], ToyModel.lower + (x_true + 1) / 2 * (ToyModel.upper - ToyModel.lower))
+    assert {"parameter", "value", "normalised", "stderr", "ci_low", "ci_high", "at_bound"} <= set(table)
+
+
+def test_batched_lm_equals_scipy_least_squares_trial_by_trial():
+    """Same problem (residuals, Jacobian, bounds), same starts: same optimum for every trial."""
+    data = [toy_data([0.2, 0.1, -0.3], 0.7, noise=1.0, seed=1)]
+    problem_fit = idn.identify([ToyModel()], data, options=FAST)
+    problem, layout = problem_fit.problem, problem_fit.layout
+    rng = np.random.default_rng(5)
+    starts = problem.initial_phases(idn.random_starts(layout, 8, rng), np.repeat(problem_fit.X[None], 8, 0))
+    X = np.repeat(problem_fit.X[None], len(starts), 0)
+    batched = idn.levenberg_marquardt(problem, starts, X, idn.LMOptions(stall_chi2=0.0, ftol=1e-12, xtol=1e-12))
+    lower, upper = layout.bounds()
+    for t, start in enumerate(starts):
+        def fun(theta):
+            ev = problem.evaluate(theta[None], problem_fit.X[None], jacobian=False)
+            return np.concatenate([ev.r[0].ravel(), ev.rho[0]])
+
+        def jac(theta):
+            ev = problem.evaluate(theta[None], problem_fit.X[None])
+            return problem.dense_jacobian(ev, data_only=False)
+
+        reference = least_squares(fun, start, jac=jac, bounds=(lower, upper), method="trf", x_scale="jac",
+                                  ftol=1e-12, xtol=1e-12, gtol=1e-12)
+        assert batched.cost[t] == pytest.approx(reference.cost, rel=1e-8, abs=1e-12)
+        np.testing.assert_allclose(batched.x[t, :3], reference.x[:3], atol=1e-6)
+
+
+def test_phase_origin_and_dc_do_not_change_the_estimate():
+    """Rotating the record's time origin (X_h e^{i h psi}) only moves the phase; DC is never used."""
+    base = toy_data([0.2, 0.1, -0.3], 0.7, noise=1.0, seed=2)
+    shifted = idn.RunData(base.run, base.rpm, base.eccentric_mass_g, base.role,
+                          base.X * np.exp(1j * np.arange(1, 3) * 2.0)[:, None], base.sigma)
+    a = idn.identify([ToyModel()], [base], options=FAST)
+    b = idn.identify([ToyModel()], [shifted], options=FAST)
+    np.testing.assert_allclose(a.theta[:3], b.theta[:3], atol=1e-7)
+    assert a.loss == pytest.approx(b.loss, rel=1e-9)
+    assert abs(idn.wrap(b.theta[3] - a.theta[3] - 2.0)) < 1e-7
+
+
+def test_arrow_solve_equals_the_dense_normal_equations():
+    runs = [toy_data([0.1 * k, -0.2, 0.3], 0.5 * k, noise=1.0, seed=k, run=f"r{k}") for k in range(3)]
+    fit = idn.identify([ToyModel()] * 3, runs, per_run=["c"], options=FAST)
+    problem, layout = fit.problem, fit.layout
+    theta = fit.theta[None] + 0.05
+    ev = problem.evaluate(theta, fit.X[None])
+    J = problem.dense_jacobian(ev, data_only=False)
+    r = np.concatenate([ev.r[0].ravel(), ev.rho[0]])
+    damping = np.full((1, layout.n), 0.3)
+    free = np.ones((1, layout.n), bool)
+    free[0, 1] = False
+    delta = idn.arrow_solve(idn.Normal.assemble(ev, layout), damping, free)[0]
+    A = J.T @ J + np.diag(damping[0])
+    keep = free[0]
+    expected = np.zeros(layout.n)
+    expected[keep] = np.linalg.solve(A[np.ix_(keep, keep)], -(J.T @ r)[keep])
+    np.testing.assert_allclose(delta, expected, rtol=1e-9, atol=1e-12)
+    assert layout.n == 2 + 3 * 2 and list(fit.table()["run"][:2]) == ["all", "all"]
+
+
+def test_estimate_at_a_range_edge_is_flagged_and_its_covariance_declared_invalid():
+    """Truth outside the range: the estimate stops at the edge, with the 'revise the range' warning."""
+    data = toy_data([0.2, 0.1, -0.3], 0.7, noise=1.0, seed=4)  # a = 2.2, outside [1, 1.5]
+    narrow = type("Narrow", (ToyModel,), {"lower": np.array([1.0, 0.1, -1.0]), "upper": np.array([1.5, 0.5, 1.0])})
+    fit = idn.identify([narrow()], [data], options=FAST)
+    table = fit.table().set_index("parameter")
+    assert table.loc["a", "at_bound"] and np.isnan(table.loc["a", "stderr"])
+    assert any("revise the range" in note for note in fit.uncertainty.notes)
+
+
+def test_sparsity_shrinks_a_useless_parameter_to_zero():
+    """A parameter without effect (toy 'c' on a channel weighted out) goes to physical zero with lambda > 0."""
+    data = toy_data([0.2, 0.1, 0.0], 0.7, noise=1.0, seed=6)
+    data = idn.RunData(data.run, data.rpm, data.eccentric_mass_g, data.role, data.X,
+                       np.array([[1e-3, 1e3], [1e-3, 1e3]]))  # channel y carries no information
+    free = idn.identify([ToyModel()], [data], options=FAST)
+    sparse = idn.identify([ToyModel()], [data], options=idn.ProtocolOptions(trials=10, monte_carlo=0, sparsity=0.1))
+    assert abs(free.x[2]) > 1e-3  # unregularised: anywhere in its flat valley
+    assert abs(sparse.x[2]) < 1e-3  # the L1 term (eq. 11) acts on p / max|range|: 0 is physical zero
+
+
+def test_monte_carlo_spread_matches_the_linearised_uncertainty():
+    data = toy_data([0.2, 0.1, -0.3], 0.7, noise=1.0, seed=7)
+    fit = idn.identify([ToyModel()], [data], options=idn.ProtocolOptions(trials=5, monte_carlo=300, seed=1))
+    table = fit.table().iloc[:3]
+    ratio = table["mc_std"] / table["stderr"]
+    assert ((ratio > 0.7) & (ratio < 1.6)).all(), ratio  # MC noise is added on noisy data: sqrt(1)..sqrt(2)
+
+
+# --- the workflow on a reduced configuration with a Geometric truth -------------------------------------
+
+
+def small_config(runs_sheet: str) -> dict:
+    return {
+        "harmonics": 5, "runs": runs_sheet, "effects_files": [],
+        "offline": {"n_scenarios": {"geometric": 120}, "n_test": 20, "chunks": 2,
+                    "spgd": {"degree": 5, "max_terms": 30, "patience": 5}},
+        "variants": {"geometric": {"effects": GEOMETRIC, "unknown": RANGES}},
+        "identification": {"trials": 20, "monte_carlo": 20, "per_run": [], "joint": {"trials": 20, "monte_carlo": 10},
+                           "polish": {"joint": True, "runs": False, "max_iterations": 30}},
+    }
+
+
+def make_workdir(work: Path, duration_s: float = 16.0) -> Path:
+    """A copy of the workflow with a Geometric-truth rig data set (FIT + VALIDATE runs) and the small config."""
+    for item in ("Snakefile", "workflow", "scripts", "config", "profiles"):
+        source = ROOT / item
+        (shutil.copytree if source.is_dir() else shutil.copy)(source, work / item)
+    plan = read_plan(ROOT / "data" / "default" / "runs.tsv")
+    plan = plan[plan["run"].isin(FIT + VALIDATE)].reset_index(drop=True)
+    spec = RigSpec.from_mapping({"seed": 1, "harmonics": 7,
+                                 "truth": {"effects": GEOMETRIC, "values": TRUTH},
+                                 "imperfections": {"noise_mm": 0.05, "duration_s": duration_s}})
+    generate(plan, spec, work / "data" / "geometric")
+    (work / "config" / "config.yaml").write_text(yaml.safe_dump(small_config("data/geometric/runs.tsv")))
+    return work
+
+
+@pytest.fixture(scope="module")
+def geometric_truth(tmp_path_factory):
+    work = make_workdir(tmp_path_factory.mktemp("identification"))
+    start = time.perf_counter()
+    run = subprocess.run([sys.executable, "-m", "snakemake", "--cores", "2", *TARGETS], cwd=work,
+                         capture_output=True, text=True)
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
+    return work, time.perf_counter() - start
+
+
+def test_workflow_writes_the_per_run_joint_and_validation_outputs(geometric_truth):
+    work, _ = geometric_truth
+    results = work / "results" / "geometric"
+    for run in FIT:
+        table = pd.read_csv(results / "runs" / run / "parameters.tsv", sep="\t")
+        assert {"parameter", "value", "normalised", "stderr", "ci_low", "ci_high", "at_bound"} <= set(table)
+        assert (table["run"] == run).all() and len(table) == 6  # five unknowns and the phase
+        history = pd.read_csv(results / "runs" / run / "history.tsv", sep="\t")
+        assert history["trial"].nunique() == 20 and history["selected"].any()
+        fit = zarr.open_group(str(results / "runs" / run / "fit.zarr"), mode="r")
+        assert fit["fitted_re_m"].shape == fit["measured_re_m"].shape == (1, 5, 2)
+    for run in VALIDATE:  # validation runs are never fitted
+        assert not (results / "runs" / run).exists()
+    joint = pd.read_csv(results / "parameters.tsv", sep="\t")
+    assert set(joint["run"]) == {"all", *FIT} and not set(joint["run"]) & set(VALIDATE)
+    assert (joint["source"] == "solver").all()
+    validation = pd.read_csv(results / "validation.tsv", sep="\t")
+    assert set(validation["run"]) == set(VALIDATE) and set(validation["model"]) == {"library", "solver"}
+    assert (validation["error_rel"] < 0.02).all()  # predicted within 2 % without being fitted
+    summary = yaml.safe_load((results / "identification" / "summary.yaml").read_text())
+    assert {"library", "solver", "final"} <= set(summary)
+    assert (results / "identification" / "per_run.png").stat().st_size > 0
+    rerun = subprocess.run([sys.executable, "-m", "snakemake", "--cores", "2", "--dry-run", *TARGETS], cwd=work,
+                           capture_output=True, text=True)
+    assert "Nothing to be done" in rerun.stdout + rerun.stderr
+
+
+def test_joint_fit_recovers_the_geometric_truth(geometric_truth):
+    work, _ = geometric_truth
+    joint = pd.read_csv(work / "results" / "geometric" / "parameters.tsv", sep="\t")
+    physical = joint[joint["kind"] != "nuisance"].set_index("parameter")
+    tolerance = {"k_b": 0.01, "zeta_s": 0.10, "zeta_bup": 0.10, "q_x": 0.05, "q_y": 0.05}
+    for name, allowed in tolerance.items():
+        row = physical.loc[name]
+        assert abs(row["value"] / TRUTH[name] - 1) < allowed, (name, row["value"])
+        assert row["ci_low"] <= TRUTH[name] <= row["ci_high"], (name, row["ci_low"], row["ci_high"])
+        assert row["identifiable"] and not row["at_bound"]
+    summary = yaml.safe_load((work / "results" / "geometric" / "identification" / "summary.yaml").read_text())
+    assert 0.7 < summary["final"]["chi2_dof"] < 1.4
