@@ -401,6 +401,16 @@ class PolynomialBearing(Effect):
                     J[:, row, local] -= c * _product(others + [derivative])
         return F, J
 
+    @classmethod
+    def combined(cls, bearings: Sequence["PolynomialBearing"]) -> "PolynomialBearing":
+        """One bearing whose force is the sum of ``bearings``' (same node): one AFT evaluation, not many."""
+        nodes = {b.node for b in bearings}
+        if len(nodes) != 1:
+            raise ValueError(f"only bearings at one node can be combined, got nodes {sorted(nodes)}")
+        parameters = tuple({p.name: p for b in bearings for p in b.parameters}.values())
+        return cls(name="+".join(b.name for b in bearings), meaning="combined bearing forces",
+                   parameters=parameters, terms=tuple(t for b in bearings for t in b.terms), node=nodes.pop())
+
     def describe(self) -> str:
         text = super().describe()
         formula = " + ".join(t.label for t in self.terms)

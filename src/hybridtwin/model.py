@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .effects import Array, Context, Effect, Parameter, Params
+from .effects import Array, Context, Effect, Parameter, Params, PolynomialBearing
 from .shaft import Shaft
 
 
@@ -156,7 +156,7 @@ class Model:
 
         forces = [
             LocalForce(e.name, np.array([self.shaft.dof(d) for d in e.dofs]), bind(e), e.degree)
-            for e in self.effects if e.is_nonlinear
+            for e in _nonlinear_forces(self.effects)
         ]
         M = np.broadcast_to(ctx.M, K.shape).copy()
         C = np.broadcast_to(C, K.shape).copy()
@@ -172,6 +172,18 @@ class Model:
             if term is not None:
                 total += term
         return total
+
+
+def _nonlinear_forces(effects: Sequence[Effect]) -> list[Effect]:
+    """The effects with a local force; polynomial bearings at one node are evaluated as one."""
+    by_node: dict[int, list[PolynomialBearing]] = {}
+    others = []
+    for effect in effects:
+        if isinstance(effect, PolynomialBearing) and effect.is_nonlinear:
+            by_node.setdefault(effect.node, []).append(effect)
+        elif effect.is_nonlinear:
+            others.append(effect)
+    return [group[0] if len(group) == 1 else PolynomialBearing.combined(group) for group in by_node.values()] + others
 
 
 def _collect_parameters(effects: Sequence[Effect]) -> dict[str, Parameter]:
