@@ -635,6 +635,7 @@ class LMOptions:
     stall_window: int = 5
     geodesic: bool = False  # geodesic acceleration (faster along curved valleys)
     geodesic_ratio: float = 0.75  # acceleration used when 2 |a| / |delta| <= this
+    snap: float = BOUND_TOLERANCE  # a step ending this close to a bound lands on it (normalised units)
     batch: int = 10000  # trials advanced together (memory bound)
 
 
@@ -718,13 +719,18 @@ def _lm_batch(problem: ArrowProblem, theta0: Array, X: Array, options: LMOptions
         floor = 1e-12 * np.maximum(diag.max(1, keepdims=True), 1e-300)
         damping = mu[act, None] * np.maximum(diag, floor)
         delta = arrow_solve(normal, damping, free)
+        leaving = ((th <= lower) & (delta < 0)) | ((th >= upper) & (delta > 0))
+        if leaving.any():  # the coupled step pushes an entry out of the box: hold it and solve again
+            again = np.flatnonzero(leaving.any(1))
+            free[again] &= ~leaving[again]
+            delta[again] = arrow_solve(_rows(normal, again), damping[again], free[again])
         if options.geodesic:
             acceleration = _geodesic(problem, sub, normal, th, delta, X[act], damping, free)
             nfev[act] += 1
             usable = (2 * np.linalg.norm(acceleration, axis=1)
                       <= options.geodesic_ratio * np.linalg.norm(delta, axis=1))
             delta = delta + 0.5 * acceleration * usable[:, None]
-        new = np.clip(th + delta, lower, upper)
+        new = _snap(th + delta, delta, lower, upper, options.snap)
         delta = new - th
         predicted = F[act] - _linearised(sub, delta, layout)
         trial = problem.evaluate(new, X[act])
@@ -756,6 +762,18 @@ def _lm_batch(problem: ArrowProblem, theta0: Array, X: Array, options: LMOptions
     active = np.where(theta <= lower, -1, np.where(theta >= upper, 1, 0))
     return LMResult(theta, 0.5 * F, F / problem.n_data, status, nfev, nit, active, history,
                     time.perf_counter() - start)
+
+
+def _rows(normal: Normal, index: Array) -> Normal:
+    return Normal(*(getattr(normal, f)[index] for f in ("A", "B", "C", "gs", "gl")))
+
+
+def _snap(theta: Array, delta: Array, lower: Array, upper: Array, margin: float) -> Array:
+    """Project into the box; an entry moving towards a bound and ending within ``margin`` of it lands on it
+    (then the active set holds it there), so trials do not creep towards a bound in ever shorter steps."""
+    theta = np.where((delta > 0) & (theta > upper - margin), upper, theta)
+    theta = np.where((delta < 0) & (theta < lower + margin), lower, theta)
+    return np.clip(theta, lower, upper)
 
 
 def _take(ev: Evaluation, index: Array) -> Evaluation:
