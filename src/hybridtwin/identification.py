@@ -52,7 +52,7 @@ average and a distribution that checks the linearised uncertainty.
 
 Uncertainty and identifiability (``analyse_uncertainty``): covariance
 s^2 V S^-2 V^T from the SVD of the weighted Jacobian of the free parameters,
-s^2 = chi^2 / dof; parameters at a bound are held fixed (their covariance is
+s^2 = max(1, chi^2 / dof); parameters at a bound are held fixed (their covariance is
 not valid and the others' is conditional on them); correlation matrix;
 collinearity index (Brun et al. 2001) of the unit-normalised sensitivities of
 the physical parameters with the phases projected out; flags for
@@ -907,6 +907,9 @@ def analyse_uncertainty(J: Array, r: Array, theta: Array, layout: Layout, scale_
                         rcond: float = RCOND) -> Uncertainty:
     """Covariance from the SVD of the weighted Jacobian J (m, n) at theta, scaled by chi^2/dof (module docstring).
 
+    The scale is max(1, chi^2/dof) (Birge ratio): residuals above the stated
+    noise widen the intervals; below it (chance, dof finite) they never shrink
+    them under what the measured sigmas allow.
     J is d r / d theta (normalised parameters, phases in rad), so the SVD
     compares dimensionless directions; the covariance is converted to SI after.
     Entries at a bound are held fixed (their covariance is not valid, and the
@@ -923,7 +926,7 @@ def analyse_uncertainty(J: Array, r: Array, theta: Array, layout: Layout, scale_
     free = ~at_bound
     chi2 = float(r @ r)
     dof = int(J.shape[0] - free.sum())
-    s2 = chi2 / dof if (scale_by_residual and dof > 0) else 1.0
+    s2 = max(chi2 / dof, 1.0) if (scale_by_residual and dof > 0) else 1.0
     U, S, Vt = np.linalg.svd(J[:, free], full_matrices=False)
     keep = S > rcond * (S[0] if S.size else 1.0)
     inverse = np.where(keep, 1.0 / np.where(keep, S, 1.0) ** 2, 0.0)
