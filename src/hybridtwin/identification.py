@@ -1424,6 +1424,13 @@ DEFAULTS: dict = {
 }
 
 
+def runs_with_role(sheet: str | Path, role: str) -> list[str]:
+    """Runs of a runs sheet with this role (no role column: every run is a fit run)."""
+    table = pd.read_csv(sheet, sep="\t", dtype={"run": str})
+    roles = table["role"].fillna("fit") if "role" in table else pd.Series("fit", index=table.index)
+    return table.loc[roles == role, "run"].tolist()
+
+
 def settings(config: Mapping, variant: str) -> dict:
     """The identification options for ``variant``: defaults, then the config's section; lambda resolved."""
     given = dict(config.get("identification") or {})

@@ -1,20 +1,12 @@
 # Grey box (issue 5): the variant's unknowns identified from the measured harmonics on the libraries
 # (paper sec. 2.3, eq. 9-11): per fit run by the paper's protocol, then all fit runs jointly (shared
 # physical parameters, per-run bow), polished with the full solver; validation runs only predicted.
-import pandas as pd
-
+from hybridtwin.identification import runs_with_role
 from hybridtwin.identification import settings as identification_settings
 
 
-def runs_with_role(role):
-    """Runs of the sheet with this role (no role column: every run is a fit run)."""
-    sheet = pd.read_csv(config["runs"], sep="\t", dtype={"run": str})
-    roles = sheet["role"].fillna("fit") if "role" in sheet else pd.Series("fit", index=sheet.index)
-    return sheet.loc[roles == role, "run"].tolist()
-
-
-FIT_RUNS = runs_with_role("fit")
-VALIDATION_RUNS = runs_with_role("validate")
+FIT_RUNS = runs_with_role(config["runs"], "fit")
+VALIDATION_RUNS = runs_with_role(config["runs"], "validate")
 
 
 rule identify_run:
