@@ -976,9 +976,11 @@ def _uncertainty_notes(layout: Layout, at_bound: Array, identifiable: Array, gam
     names = [p if run == "all" else f"{p}[{run}]" for p, run in layout.entries()]
     bound = [n for n, b, ph in zip(names, at_bound, layout.is_phase) if b and not ph]
     if bound:
+        caveat = (" (the parameters are poorly identifiable together here, so an edge estimate may only mean "
+                  "that the data do not determine it)" if np.isfinite(gamma) and gamma > COLLINEARITY_LIMIT else "")
         notes.append(f"estimate at a range edge for {', '.join(bound)}: revise the range (widen it and rebuild "
                      "the library); their standard errors are not valid (held fixed) and the others' covariance "
-                     "is conditional on them")
+                     f"is conditional on them{caveat}")
     weak = [n for n, ok, b, ph in zip(names, identifiable, at_bound, layout.is_phase) if not ok and not b and not ph]
     if weak:
         notes.append(f"not identifiable from these data: {', '.join(weak)} (null direction of the Jacobian or "
