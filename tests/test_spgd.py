@@ -1,0 +1,122 @@
+"""sPGD regression, POD truncation and the library container, against known answers."""
+
+import numpy as np
+import pytest
+
+from hybridtwin.library import Library
+from hybridtwin.pod import from_features, pod, to_features
+from hybridtwin.spgd import SparsePGD, chebyshev_basis, chebyshev_derivative_basis
+
+RNG = np.random.default_rng(7)
+
+
+def _split(f, n=300, n_val=100, d=3):
+    X, X_val = RNG.uniform(-1, 1, (n, d)), RNG.uniform(-1, 1, (n_val, d))
+    return X, f(X), X_val, f(X_val)
+
+
+def rank_one(X):
+    """(1 + p1^2)(2 - p2)(p3^3 + 0.5) times a fixed output vector: one separated term."""
+    p1, p2, p3 = X.T
+    return np.outer((1 + p1 * p1) * (2 - p2) * (p3 * p3 * p3 + 0.5), [1.0, -2.0, 0.5])
+
+
+def rank_three(X):
+    p1, p2, p3 = X.T
+    return (np.outer((1 + p1 * p1) * (2 - p2) * (p3 * p3 * p3 + 0.5), [1.0, 2.0, 0.0])
+            + np.outer(p1, [0.3, -0.7, 0.0]) + np.outer(p2 * p3, [0.0, 0.0, 1.0]))
+
+
+def test_chebyshev_derivative_basis_is_the_derivative():
+    x = np.linspace(-1, 1, 11)
+    h = 1e-6  # central differences of polynomials of degree <= 6: truncation ~1e-11, round-off ~1e-10
+    fd = (chebyshev_basis(x + h, 6) - chebyshev_basis(x - h, 6)) / (2 * h)
+    np.testing.assert_allclose(chebyshev_derivative_basis(x, 6), fd, atol=1e-7)
+
+
+def test_a_separable_function_is_reproduced_exactly():
+    X, Y, X_val, Y_val = _split(rank_one)
+    model = SparsePGD(degree=4, max_terms=4, patience=2).fit(X, Y, X_val, Y_val)
+    X_test = RNG.uniform(-1, 1, (500, 3))
+    # exact in the basis (cubic factors, degree 4): ALS converges to round-off; 1e-8 leaves
+    # room for the ALS stopping tolerance (1e-8 relative change) and the ridge (1e-8)
+    np.testing.assert_allclose(model.predict(X_test), rank_one(X_test), atol=1e-7 * np.abs(Y).max())
+    assert model.history.validation_error[0] < 1e-7
+
+
+def test_a_sum_of_separable_terms_is_recovered_by_enrichment():
+    X, Y, X_val, Y_val = _split(rank_three)
+    model = SparsePGD(degree=4, max_terms=20, backfit_iterations=10).fit(X, Y, X_val, Y_val)
+    X_test = RNG.uniform(-1, 1, (500, 3))
+    error = np.linalg.norm(model.predict(X_test) - rank_three(X_test)) / np.linalg.norm(rank_three(X_test))
+    # greedy rank-one terms are not the three exact ones, but enrichment with joint backfitting
+    # converges to them: measured ~1e-7; one rank-one term alone leaves ~10 % (history[0])
+    assert error < 1e-5
+    assert model.history.validation_error[0] > 0.05
+
+
+def test_the_number_of_terms_is_chosen_on_validation_data():
+    X, Y, X_val, Y_val = _split(rank_three, n=40, n_val=40)
+    Y_noisy = Y + 0.05 * RNG.standard_normal(Y.shape)
+    model = SparsePGD(degree=6, max_terms=15, patience=5).fit(X, Y_noisy, X_val, Y_val)
+    best = int(np.argmin(model.history.validation_error)) + 1
+    assert model.n_terms == best
+    # on noisy data the training error keeps falling after the validation optimum
+    assert model.history.train_error[-1] < model.history.train_error[best - 1]
+
+
+def test_jacobian_matches_finite_differences():
+    X, Y, X_val, Y_val = _split(rank_three)
+    model = SparsePGD(degree=5, max_terms=8).fit(X, Y, X_val, Y_val)
+    X_test = RNG.uniform(-0.9, 0.9, (50, 3))
+    y, J = model.predict_with_jacobian(X_test)
+    np.testing.assert_allclose(y, model.predict(X_test), rtol=1e-12, atol=1e-14)
+    h = 1e-6  # central differences: O(h^2) truncation of degree-5 products ~1e-10, round-off ~1e-10
+    for j in range(3):
+        step = np.zeros(3)
+        step[j] = h
+        fd = (model.predict(X_test + step) - model.predict(X_test - step)) / (2 * h)
+        np.testing.assert_allclose(J[:, :, j], fd, atol=1e-6 * np.abs(fd).max())
+
+
+def test_inputs_outside_the_normalised_box_are_refused():
+    X, Y, X_val, Y_val = _split(rank_one)
+    model = SparsePGD(degree=3, max_terms=2).fit(X, Y, X_val, Y_val)
+    with pytest.raises(ValueError, match="normalised"):
+        model.predict(np.array([[1.5, 0.0, 0.0]]))
+
+
+def test_pod_keeps_the_rank_of_a_low_rank_snapshot_set():
+    modes = np.linalg.qr(RNG.standard_normal((60, 3)))[0]
+    snapshots = RNG.standard_normal((200, 3)) * [10.0, 1.0, 0.1] @ modes.T
+    basis = pod(snapshots + 1e-9 * RNG.standard_normal(snapshots.shape), energy_tolerance=1e-10)
+    assert basis.n_modes == 3  # the noise holds ~1e-20 of the energy
+    np.testing.assert_allclose(basis.reconstruct(basis.project(snapshots)), snapshots, atol=1e-7)
+    assert basis.ratios[1] == pytest.approx(0.1, rel=0.2) and basis.ratios[2] == pytest.approx(0.01, rel=0.2)
+    with pytest.raises(ValueError, match="NaN"):
+        pod(np.full((3, 4), np.nan))
+
+
+def test_feature_layout_round_trips():
+    Q = RNG.standard_normal((4, 6, 44)) + 1j * RNG.standard_normal((4, 6, 44))
+    np.testing.assert_array_equal(from_features(to_features(Q), 6, 44), Q)
+
+
+def test_library_save_load_round_trip(tmp_path):
+    X, Y, X_val, Y_val = _split(rank_three)
+    model = SparsePGD(degree=4, max_terms=6).fit(X, Y, X_val, Y_val)
+    modes = np.linalg.qr(RNG.standard_normal((2 * 2 * 44, 3)))[0]
+    library = Library("r1", ["a", "b", "c"], np.zeros(3), np.array([1.0, 2.0, 4.0]), modes, np.ones(3), model,
+                      2, 44, [2, 24], {"note": "test"})
+    library.save(tmp_path / "lib.zarr")
+    again = Library.load(tmp_path / "lib.zarr")
+    values = RNG.uniform([0, 0, 0], [1, 2, 4], (20, 3))
+    y, J = library.sensor(values, jacobian=True)
+    y2, J2 = again.sensor(values, jacobian=True)
+    np.testing.assert_array_equal(y, y2)
+    np.testing.assert_array_equal(J, J2)
+    # the Jacobian in SI units is the normalised one times 2 / (upper - lower)
+    h = 1e-6
+    step = np.array([0.0, 0.0, h])
+    fd = (library.sensor(values + step) - library.sensor(values - step)) / (2 * h)
+    np.testing.assert_allclose(J[..., 2], fd, atol=1e-6 * np.abs(fd).max())
