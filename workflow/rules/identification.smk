@@ -2,7 +2,7 @@
 # (paper sec. 2.3, eq. 9-11): per fit run by the paper's protocol, then all fit runs jointly (shared
 # physical parameters, per-run bow), polished with the full solver; validation runs only predicted.
 from hybridtwin.identification import runs_with_role
-from hybridtwin.identification import settings as identification_settings
+from hybridtwin.identification import rule_settings
 
 
 FIT_RUNS = runs_with_role(config["runs"], "fit")
@@ -21,7 +21,7 @@ rule identify_run:
         fit=directory("results/{variant}/runs/{run}/fit.zarr"),
     params:
         spec=lambda wildcards: config["variants"][wildcards.variant],
-        options=lambda wildcards: identification_settings(config, wildcards.variant),
+        options=lambda wildcards: rule_settings(config, wildcards.variant, "run"),
     log:
         "logs/{variant}/identify_run_{run}.log",
     benchmark:
@@ -61,7 +61,7 @@ rule identify_joint:
         fit=directory("results/{variant}/identification/fit.zarr"),
     params:
         spec=lambda wildcards: config["variants"][wildcards.variant],
-        options=lambda wildcards: identification_settings(config, wildcards.variant),
+        options=lambda wildcards: rule_settings(config, wildcards.variant, "joint"),
         harmonics=config["harmonics"],
     log:
         "logs/{variant}/identify_joint.log",
@@ -89,7 +89,7 @@ rule predict_validation:
         ),
     params:
         spec=lambda wildcards: config["variants"][wildcards.variant],
-        options=lambda wildcards: identification_settings(config, wildcards.variant),
+        options=lambda wildcards: rule_settings(config, wildcards.variant, "validation"),
         harmonics=config["harmonics"],
     log:
         "logs/{variant}/predict_validation.log",
