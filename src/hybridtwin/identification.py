@@ -21,7 +21,8 @@ the number of real residuals. How the paper's loss is made precise here:
   the parameters (it is never a physical result). DC offsets only touch h = 0,
   which is left out.
 - eq. 11 acts on p / max|range| (the paper's normalisation, its Table 4), where
-  0 is physical zero, so the L1 term switches terms off; on [-1, 1] min-max
+  0 is physical zero, so the L1 term switches terms off (only parameters whose
+  range contains 0 are penalised); on [-1, 1] min-max
   coordinates 0 would be the middle of the range. |s| is smoothed as
   s^2 / sqrt(s^2 + eps^2) (eps = ``l1_epsilon``) and enters the least squares
   as a residual rho = sqrt(lambda n_r) s / (s^2 + eps^2)^(1/4), so the same
@@ -31,10 +32,16 @@ Optimiser: Levenberg-Marquardt batched over trials (``levenberg_marquardt``):
 every trial (random start, Monte Carlo repeat) advances in the same numpy
 operations, with its own damping factor mu (Nielsen's update), Marquardt's
 scaling diag(J^T J), and trials that have converged are masked out. Bounds
-[-1, 1] are handled by projection with an active set: a parameter on a bound
-whose gradient points outwards is held fixed for the step, the others take the
-damped Gauss-Newton step, and the result is clipped back into the box (a
-projected LM; no transform, so the Jacobian at the optimum is the model's).
+[-1, 1] are handled by projection with an active set (no transform, so the
+Jacobian at the optimum is the model's): a parameter on a bound whose gradient
+points outwards is held fixed; if the coupled damped Gauss-Newton step still
+pushes a bound parameter out, it is held too and the step solved again; the
+step is then projected into the box, and an entry ending within
+``BOUND_TOLERANCE`` of a bound lands on it (no creeping in ever shorter steps).
+Stopping: scipy's ftol/xtol/gtol, plus a stall rule (chi^2 fell by less than
+0.01 over 5 iterations: points along a flat valley are statistically
+equivalent, and per-run problems are such valleys). Optional geodesic
+acceleration (Transtrum & Sethna) is used by the full-solver polish.
 
 Runs are joined in one block-arrow problem: shared physical parameters
 (k_b, zeta_s, ...), and per run a block of local parameters (q_x, q_y by
@@ -98,7 +105,7 @@ COLLINEARITY_LIMIT = 15.0
 RCOND = 1e-12
 
 
-class WarningLevel(UserWarning):
+class IdentificationWarning(UserWarning):
     """An identification result a user must look at (estimate at a bound, non-identifiable parameter)."""
 
 
@@ -368,13 +375,19 @@ class Layout:
         return x, block[:, -1]
 
     def l1_scale(self) -> tuple[Array, Array]:
-        """s = a theta + b, the paper's normalisation p / max|range| (eq. 11) of each entry (0 for phases)."""
+        """s = a theta + b, the paper's normalisation p / max|range| (eq. 11) of each entry.
+
+        a = b = 0 (no L1 term) for phases and for parameters whose range excludes 0
+        (e.g. the bow q in [1, 10] mm: sparsity means switching a term off).
+        """
         a, b = np.zeros(self.n), np.zeros(self.n)
         for i, (p, _) in enumerate(self.entries()):
             if p == "phase":
                 continue
             k = self.index(p)
             lo, hi = self.lower[k], self.upper[k]
+            if not lo <= 0.0 <= hi:  # a term that cannot be switched off is not penalised
+                continue
             top = max(abs(lo), abs(hi))
             a[i], b[i] = 0.5 * (hi - lo) / top, (lo + 0.5 * (hi - lo)) / top
         return a, b
@@ -1405,7 +1418,7 @@ def write_fit(path: str | Path, fit: Identification, rpm: Sequence[float], cycle
 
 def warn_notes(notes: Sequence[str], where: str) -> None:
     for note in notes:
-        warnings.warn(f"{where}: {note}", WarningLevel, stacklevel=2)
+        warnings.warn(f"{where}: {note}", IdentificationWarning, stacklevel=2)
 
 
 # --- workflow configuration -------------------------------------------------------------
