@@ -65,6 +65,8 @@ class RunSolutions:
     """Steady states of S scenarios at each run: harmonics (R, S, H+1, n) and per-point status."""
 
     runs: list[str]
+    rpm: list[float]  # the speed each run was solved at
+    eccentric_mass_g: list[float]
     harmonics: Array
     success: Array  # (R, S)
     message: Array  # (R, S) object
@@ -87,7 +89,8 @@ def solve_runs(variant: Variant, runs: pd.DataFrame, values: Mapping[str, Array 
     S = max([np.size(v) for v in base.values()])
     n_dof = variant.model.shaft.n_dof
     R = len(runs)
-    out = RunSolutions(list(runs["run"].astype(str)), np.full((R, S, harmonics + 1, n_dof), np.nan + 0j),
+    out = RunSolutions(list(runs["run"].astype(str)), runs["rpm"].astype(float).tolist(),
+                       runs["eccentric_mass_g"].astype(float).tolist(), np.full((R, S, harmonics + 1, n_dof), np.nan + 0j),
                        np.zeros((R, S), bool), np.empty((R, S), object), np.empty((R, S), object))
     for mass_g, group in runs.groupby("eccentric_mass_g", sort=True):
         scenario_values = {k: np.broadcast_to(v, (S,)) for k, v in base.items()}

@@ -10,7 +10,7 @@ group; ``gather`` checks that the chunks hold exactly the sampled scenarios
       message     (R, S) str                  the solver's reason, per run and scenario
       branch      (R, S) str                  direct / run-up / run-up, jump between ...
       scenario    (S,) int64,  split (S,) str,  parameters (S, d) float64 [SI]
-      attrs: variant, runs, parameter names, harmonics, n_dof
+      attrs: variant, runs, rpm and eccentric_mass_g of each run (as solved), parameter names
 """
 
 from __future__ import annotations
@@ -33,6 +33,8 @@ class Snapshots:
 
     variant: str
     runs: list[str]
+    rpm: list[float]  # the speed each run was solved at (refined from its record, or nominal)
+    eccentric_mass_g: list[float]
     parameters: list[str]
     scenario: Array
     split: Array
@@ -58,7 +60,8 @@ def write_chunk(path: str | Path, variant: str, scenarios: pd.DataFrame, paramet
                 solutions: RunSolutions) -> None:
     """One chunk job's result: its scenarios at every run."""
     group = zarr.open_group(str(path), mode="w")
-    group.attrs.update({"variant": variant, "runs": solutions.runs, "parameters": list(parameters)})
+    group.attrs.update({"variant": variant, "runs": solutions.runs, "rpm": solutions.rpm,
+                        "eccentric_mass_g": solutions.eccentric_mass_g, "parameters": list(parameters)})
     _write(group, "scenario", scenarios["scenario"].to_numpy(np.int64))
     _write(group, "split", scenarios["split"].to_numpy(str))
     _write(group, "parameters", scenarios[list(parameters)].to_numpy(float))
@@ -87,16 +90,18 @@ def gather(chunk_paths: Sequence[str | Path], expected: pd.DataFrame, out: str |
             f"missing {missing[:10].tolist()}, duplicated {twice[twice > 1].index[:10].tolist()}, "
             f"unexpected {np.setdiff1d(scenario, wanted)[:10].tolist()}"
         )
-    runs = parts[0].attrs["runs"]
+    plan = {k: parts[0].attrs[k] for k in ("runs", "rpm", "eccentric_mass_g")}
     for path, g in zip(chunk_paths, parts):
-        if g.attrs["runs"] != runs:
-            raise ValueError(f"chunk store {path} was solved for other runs ({g.attrs['runs']} vs {runs})")
+        other = {k: g.attrs[k] for k in plan}
+        if other != plan:
+            raise ValueError(f"chunk store {path} was solved for another run plan ({other} vs {plan})")
     order = np.argsort(scenario)
     stack = {name: np.concatenate([g[name][:] for g in parts], axis=axis)
              for name, axis in (("harmonics", 1), ("success", 1), ("message", 1), ("branch", 1),
                                 ("split", 0), ("parameters", 0))}
     snapshots = Snapshots(
-        variant=parts[0].attrs["variant"], runs=list(runs), parameters=list(parts[0].attrs["parameters"]),
+        variant=parts[0].attrs["variant"], runs=list(plan["runs"]), rpm=list(plan["rpm"]),
+        eccentric_mass_g=list(plan["eccentric_mass_g"]), parameters=list(parts[0].attrs["parameters"]),
         scenario=scenario[order], split=stack["split"][order], values=stack["parameters"][order],
         harmonics=stack["harmonics"][:, order], success=stack["success"][:, order],
         message=stack["message"][:, order], branch=stack["branch"][:, order],
@@ -108,7 +113,8 @@ def gather(chunk_paths: Sequence[str | Path], expected: pd.DataFrame, out: str |
 def save(snapshots: Snapshots, path: str | Path) -> None:
     """Write the gathered store, chunked by run (what the per-run library jobs read)."""
     group = zarr.open_group(str(path), mode="w")
-    group.attrs.update({"variant": snapshots.variant, "runs": snapshots.runs, "parameters": snapshots.parameters})
+    group.attrs.update({"variant": snapshots.variant, "runs": snapshots.runs, "rpm": snapshots.rpm,
+                        "eccentric_mass_g": snapshots.eccentric_mass_g, "parameters": snapshots.parameters})
     R, S = snapshots.success.shape
     _write(group, "harmonics", snapshots.harmonics, (1, S) + snapshots.harmonics.shape[2:])
     for name in ("success", "message", "branch"):
@@ -128,7 +134,8 @@ def load(path: str | Path, run: str | None = None) -> Snapshots:
             raise KeyError(f"run {run!r} is not in {path} (runs: {runs})")
         sel = slice(runs.index(run), runs.index(run) + 1)
     return Snapshots(
-        variant=group.attrs["variant"], runs=runs[sel], parameters=list(group.attrs["parameters"]),
+        variant=group.attrs["variant"], runs=runs[sel], rpm=list(group.attrs["rpm"])[sel],
+        eccentric_mass_g=list(group.attrs["eccentric_mass_g"])[sel], parameters=list(group.attrs["parameters"]),
         scenario=group["scenario"][:], split=group["split"][:].astype(object), values=group["parameters"][:],
         harmonics=group["harmonics"][sel], success=group["success"][sel], message=group["message"][sel],
         branch=group["branch"][sel],

@@ -79,6 +79,7 @@ class SparsePGD:
         """Greedy enrichment + backfitting on (X, Y); K and each term's degree chosen on (X_val, Y_val)."""
         X, X_val = _check_inputs(X), _check_inputs(X_val)
         Y, Y_val = np.asarray(Y, dtype=float), np.asarray(Y_val, dtype=float)
+        self.history = FitHistory()
         n, d = X.shape
         w = np.ones(n) if weights is None else np.asarray(weights, float)
         B = np.stack([chebyshev_basis(X[:, j], self.degree) for j in range(d)])  # (d, n, nb)
