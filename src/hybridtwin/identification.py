@@ -36,8 +36,8 @@ scaling diag(J^T J), and trials that have converged are masked out. Bounds
 Jacobian at the optimum is the model's): a parameter on a bound whose gradient
 points outwards is held fixed; if the coupled damped Gauss-Newton step still
 pushes a bound parameter out, it is held too and the step solved again; the
-step is then projected into the box, and an entry ending within
-``BOUND_TOLERANCE`` of a bound lands on it (no creeping in ever shorter steps).
+step is then projected into the box, and an entry ending within ``SNAP``
+of a bound lands on it (no creeping in ever shorter steps).
 Stopping: scipy's ftol/xtol/gtol, plus a stall rule (chi^2 fell by less than
 0.01 over 5 iterations: points along a flat valley are statistically
 equivalent, and per-run problems are such valleys). Optional geodesic
@@ -97,8 +97,10 @@ STATUS_MESSAGES = {
     STALLED: "stall termination: chi^2 fell by less than stall_chi2 over the last stall_window iterations "
              "(a flat valley: the points along it are statistically equivalent)",
 }
-#: an estimate within this distance (normalised units, of 2) of a range edge is "at the bound"
-BOUND_TOLERANCE = 1e-3
+#: an LM step ending this close to a bound (normalised units; the range is 2 wide) lands on it
+SNAP = 1e-3
+#: an estimate within this distance of a range edge (0.1 % of the range) is "at the bound"
+BOUND_TOLERANCE = 2e-3
 #: collinearity index above which a parameter set is poorly identifiable (Brun et al. 2001: 10-15)
 COLLINEARITY_LIMIT = 15.0
 #: singular values below this fraction of the largest are treated as zero (non-identifiable directions)
@@ -648,7 +650,7 @@ class LMOptions:
     stall_window: int = 5
     geodesic: bool = False  # geodesic acceleration (faster along curved valleys)
     geodesic_ratio: float = 0.75  # acceleration used when 2 |a| / |delta| <= this
-    snap: float = BOUND_TOLERANCE  # a step ending this close to a bound lands on it (normalised units)
+    snap: float = SNAP  # a step ending this close to a bound lands on it (normalised units)
     batch: int = 10000  # trials advanced together (memory bound)
 
 
