@@ -1363,31 +1363,44 @@ def drift_table(per_run: Sequence[pd.DataFrame], runs: pd.DataFrame) -> pd.DataF
 
 
 def plot_per_run(drift: pd.DataFrame, joint: pd.DataFrame | None, title: str):
-    """Per-run estimates vs speed (the paper's Fig. 9) with their intervals, and the joint values."""
+    """Per-run estimates vs speed (the paper's Fig. 9) with their intervals, and the joint values.
+
+    The axes span each parameter's range (an interval wider than the range is cut at it); open markers
+    are estimates the uncertainty analysis calls not identifiable, crosses estimates at a range edge.
+    """
     from .plots import plt
 
     names = list(dict.fromkeys(drift["parameter"])) if len(drift) else []
     fig, axes = plt.subplots(1, max(len(names), 1), figsize=(3.2 * max(len(names), 1), 3.4), squeeze=False)
     for ax, p in zip(axes[0], names):
         group = drift[drift["parameter"] == p]
+        lo, hi = float(group["lower"].iloc[0]), float(group["upper"].iloc[0])
         for colour, (mass, sub) in enumerate(group.groupby("eccentric_mass_g")):
-            err = np.vstack([sub["value"] - sub["ci_low"], sub["ci_high"] - sub["value"]])
-            ax.errorbar(sub["rpm"], sub["value"], yerr=np.nan_to_num(err), fmt="o", ms=3, color=f"C{colour}",
-                        label=f"{mass:g} g", capsize=2)
+            low, high = sub["ci_low"].clip(lo, hi), sub["ci_high"].clip(lo, hi)
+            err = np.nan_to_num(np.vstack([sub["value"] - low, high - sub["value"]]).clip(min=0))
+            ok = sub["identifiable"].astype(bool).to_numpy()
+            edge = sub["at_bound"].astype(bool).to_numpy()
+            ax.errorbar(sub["rpm"], sub["value"], yerr=err, fmt="none", color=f"C{colour}", capsize=2, lw=0.8)
+            ax.plot(sub["rpm"][ok], sub["value"][ok], "o", ms=4, color=f"C{colour}", label=f"{mass:g} g")
+            ax.plot(sub["rpm"][~ok & ~edge], sub["value"][~ok & ~edge], "o", ms=4, mfc="none", color=f"C{colour}")
+            ax.plot(sub["rpm"][edge], sub["value"][edge], "x", ms=5, color=f"C{colour}")
         if joint is not None:
             shared = joint[(joint["parameter"] == p) & (joint["run"] == "all")]
             for row in shared.itertuples():
                 ax.axhline(row.value, color="k", lw=1, label="joint")
-                ax.axhspan(row.ci_low, row.ci_high, color="k", alpha=0.1)
+                ax.axhspan(max(row.ci_low, lo), min(row.ci_high, hi), color="k", alpha=0.1)
             local = joint[(joint["parameter"] == p) & (joint["run"] != "all")].merge(
                 drift[["run", "rpm"]].drop_duplicates(), on="run")
             if len(local):
                 ax.plot(local["rpm"], local["value"], "k+", label="joint")
+        pad = 0.05 * (hi - lo)
+        ax.set_ylim(lo - pad, hi + pad)
         ax.set_title(p)
         ax.set_xlabel("speed [RPM]")
         ax.grid(alpha=0.3)
     axes[0][0].legend(fontsize=7)
-    fig.suptitle(f"variant {title}: per-run estimates (95 % intervals) and the joint fit")
+    fig.suptitle(f"variant {title}: per-run estimates (95 % intervals; open: not identifiable, x: at a range "
+                 "edge) and the joint fit", fontsize=9)
     fig.tight_layout()
     return fig
 
