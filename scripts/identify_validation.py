@@ -38,4 +38,6 @@ for path in smk.input.libraries:
         rows.append(row)
         log.info("%s (%s): relative error %.3g, chi^2 per residual %.3g", data.run, name, row["error_rel"],
                  row["chi2_per_residual"])
-pd.DataFrame(rows).to_csv(smk.output.table, sep="\t", index=False, float_format="%.9g")
+columns = ["run", "rpm", "eccentric_mass_g", "model", "error_rel", "chi2_per_residual", "note"]
+pd.DataFrame(rows, columns=None if rows else columns).to_csv(smk.output.table, sep="\t", index=False,
+                                                            float_format="%.9g")
