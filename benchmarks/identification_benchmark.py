@@ -290,8 +290,8 @@ def main() -> None:
     runs = fit_runs(work)
     bench = pd.concat([pd.read_csv(p, sep="\t").assign(run=p.stem.removeprefix("identify_run_"))
                        for p in sorted((work / "results" / "benchmarks" / "geometric").glob("identify_run_*.tsv"))])
-    print(f"   workflow rule identify_run (tau = 50, n_MC = 1000, 2 jobs in parallel): median {bench['s'].median():.1f} s"
-          f", max {bench['s'].max():.1f} s per run (incl. start-up and outputs)")
+    print(f"   workflow rule identify_run (tau = 50, n_MC = 1000, 2 jobs in parallel): median "
+          f"{bench['s'].median():.1f} s, max {bench['s'].max():.1f} s per run (incl. start-up and outputs)")
     with threadpool_limits(1):
         picked = [runs[i] for i in np.linspace(0, len(runs) - 1, args.timing_runs).round().astype(int)]
         print("\n2. protocol per run, in-process, one BLAS thread (50 trials x (1 + 1000) repeats)")

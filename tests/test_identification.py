@@ -86,7 +86,8 @@ def test_lm_recovers_known_parameters_and_phase():
     assert abs(idn.wrap(fit.theta[3] - 1.1)) < 1e-7
     table = fit.table()
     assert list(table["parameter"]) == ["a", "b", "c", "phase"]
-    np.testing.assert_allclose(table["value"][:3], ToyModel.lower + (x_true + 1) / 2 * (ToyModel.upper - ToyModel.lower))
+    physical = ToyModel.lower + (x_true + 1) / 2 * (ToyModel.upper - ToyModel.lower)
+    np.testing.assert_allclose(table["value"][:3], physical)
     assert {"parameter", "value", "normalised", "stderr", "ci_low", "ci_high", "at_bound"} <= set(table)
 
 
@@ -240,6 +241,21 @@ def test_workflow_writes_the_per_run_joint_and_validation_outputs(geometric_trut
     rerun = subprocess.run([sys.executable, "-m", "snakemake", "--cores", "2", "--dry-run", *TARGETS], cwd=work,
                            capture_output=True, text=True)
     assert "Nothing to be done" in rerun.stdout + rerun.stderr
+
+
+def test_batched_surrogate_equals_the_library(geometric_truth):
+    """SensorSurrogate (sPGD projected on the sensor once, d + 1 products) is Library.sensor, h >= 1."""
+    from hybridtwin.library import Library
+
+    work, _ = geometric_truth
+    library = Library.load(work / "results" / "geometric" / "library" / f"{FIT[0]}.zarr")
+    x = np.random.default_rng(0).uniform(-1, 1, (7, len(library.parameters)))
+    values = library.lower + (x + 1) / 2 * (library.upper - library.lower)
+    reference, d_reference = library.sensor(values, jacobian=True)
+    M, dM = idn.SensorSurrogate(library).evaluate(x)
+    scale = np.abs(reference).max()
+    np.testing.assert_allclose(M, reference[:, 1:], atol=1e-12 * scale)
+    np.testing.assert_allclose(dM, d_reference[:, 1:] * (library.upper - library.lower) / 2, atol=1e-12 * scale)
 
 
 def test_joint_fit_recovers_the_geometric_truth(geometric_truth):

@@ -71,7 +71,7 @@ from __future__ import annotations
 import math
 import time
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Protocol
@@ -1175,7 +1175,8 @@ def conclude(problem: ArrowProblem, protocol: ProtocolResult, data: Sequence[Run
 # --- validation runs: predicted, never fitted -------------------------------------------
 
 
-def bow_law(table: pd.DataFrame, parameter: str, law: str = "law") -> tuple[Array, callable]:
+def bow_law(table: pd.DataFrame, parameter: str, law: str = "law"
+            ) -> tuple[Array, Callable[[Array, Array], Array]]:
     """A per-run parameter as a function of speed and unbalance, from its per-run estimates.
 
     law "law": weighted least squares of q = c0 + c1 Omega^2 + c2 Omega^2 m_e (the
@@ -1362,7 +1363,8 @@ def drift_table(per_run: Sequence[pd.DataFrame], runs: pd.DataFrame) -> pd.DataF
     return out
 
 
-def plot_per_run(drift: pd.DataFrame, joint: pd.DataFrame | None, title: str):
+def plot_per_run(drift: pd.DataFrame, joint: pd.DataFrame | None,
+                 title: str) -> "matplotlib.figure.Figure":  # noqa: F821
     """Per-run estimates vs speed (the paper's Fig. 9) with their intervals, and the joint values.
 
     The axes span each parameter's range (an interval wider than the range is cut at it); open markers
