@@ -238,3 +238,19 @@ def test_builtin_effects_describe_themselves():
                 assert par.unit and par.meaning and par.bounds[0] <= par.nominal <= par.bounds[1]
         text = variant.describe()
         assert all(k in text for k in variant.unknown)
+
+
+def test_solve_runs_keeps_an_unknown_eccentric_mass():
+    """m_e given per scenario (the sixth unknown) is not overwritten by the run's mass."""
+    import pandas as pd
+
+    from hybridtwin.scenarios import solve_runs
+
+    variant = builtin_variant("geometric")
+    runs = pd.DataFrame({"run": ["a"], "rpm": [500.0], "eccentric_mass_g": [25.9]})
+    given = solve_runs(variant, runs, {"m_e": np.array([0.0259, 0.010])}, 3)
+    from_sheet = solve_runs(variant, runs, {}, 3)
+    # the same mass by either route gives the same steady state; another mass another one
+    np.testing.assert_allclose(given.harmonics[0, 0], from_sheet.harmonics[0, 0], rtol=1e-12, atol=1e-18)
+    assert np.abs(given.harmonics[0, 1, 1] - from_sheet.harmonics[0, 0, 1]).max() > 0.1 * np.abs(
+        from_sheet.harmonics[0, 0, 1]).max()

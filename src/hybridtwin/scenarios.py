@@ -94,7 +94,8 @@ def solve_runs(variant: Variant, runs: pd.DataFrame, values: Mapping[str, Array 
                        np.zeros((R, S), bool), np.empty((R, S), object), np.empty((R, S), object))
     for mass_g, group in runs.groupby("eccentric_mass_g", sort=True):
         scenario_values = {k: np.broadcast_to(v, (S,)) for k, v in base.items()}
-        scenario_values["m_e"] = np.full(S, float(mass_g) * 1e-3)
+        if "m_e" not in values:  # an unknown m_e keeps each scenario's own value
+            scenario_values["m_e"] = np.full(S, float(mass_g) * 1e-3)
         speeds = _with_intermediate(np.unique(np.append(group["rpm"].to_numpy(float), start_rpm)), step_rpm)
 
         def build(rpm: float, rows: Array):
