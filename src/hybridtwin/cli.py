@@ -18,7 +18,7 @@ import yaml
 from .effects import Effect, builtin_effects
 from .sensor import harmonics_frame, time_series_frame
 from .solver import SteadyState, solve, solve_sweep
-from .variants import BUILTIN_VARIANTS, Variant, load_effects_file
+from .variants import BUILTIN_VARIANTS, EffectsFileError, Variant, load_effects_files
 
 
 class UsageError(Exception):
@@ -82,12 +82,10 @@ def load_variants(config: Path | None, effects_files: Sequence[Path]) -> tuple[d
             raise UsageError(f"config file {config} is not valid YAML: {err}") from None
         specs = dict(data.get("variants") or specs)
         files += [config.parent / f for f in data.get("effects_files") or []]
-    user: dict[str, Effect] = {}
-    for f in files:
-        try:
-            user |= load_effects_file(f)
-        except (OSError, ValueError, RuntimeError) as err:
-            raise UsageError(str(err)) from None
+    try:
+        user = load_effects_files(files)
+    except EffectsFileError as err:
+        raise UsageError(str(err)) from None
     try:
         variants = {name: Variant.from_spec(name, spec, user) for name, spec in specs.items()}
     except ValueError as err:

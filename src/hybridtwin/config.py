@@ -11,17 +11,14 @@ from threadpoolctl import threadpool_limits
 
 from .effects import Effect
 from .scenarios import default_n_scenarios
-from .variants import Variant, load_effects_file
+from .variants import Variant, load_effects_files
 
 CONFIG_DIR = Path("config")
 
 
 def user_effects(config: Mapping, config_dir: Path = CONFIG_DIR) -> dict[str, Effect]:
     """Effects from the config's ``effects_files`` (paths relative to the config folder)."""
-    effects: dict[str, Effect] = {}
-    for path in config.get("effects_files") or []:
-        effects |= load_effects_file(config_dir / path)
-    return effects
+    return load_effects_files([config_dir / path for path in config.get("effects_files") or []])
 
 
 def variant(config: Mapping, name: str, config_dir: Path = CONFIG_DIR) -> Variant:

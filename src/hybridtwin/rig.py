@@ -49,7 +49,7 @@ from .measurements import DataError, read_runs
 from .model import rpm_to_rad_s
 from .sensor import sensor_dofs
 from .solver import solve_sweep
-from .variants import Variant, load_effects_file
+from .variants import EffectsFileError, Variant, load_effects_files
 
 Array = np.ndarray
 
@@ -433,12 +433,10 @@ def load_spec(path: Path | None, effects_files: list[Path] | None = None) -> tup
             raise RigError(f"rig spec {path}: expected a mapping (truth, imperfections, seed, ...)")
         base = path.parent
     files = [base / f for f in mapping.pop("effects_files", []) or []] + list(effects_files or [])
-    effects = {}
-    for f in files:
-        try:
-            effects |= load_effects_file(f)
-        except (OSError, ValueError, RuntimeError) as err:
-            raise RigError(str(err)) from None
+    try:
+        effects = load_effects_files(files)
+    except EffectsFileError as err:
+        raise RigError(str(err)) from None
     plan = mapping.get("plan")
     return RigSpec.from_mapping(mapping, effects), (base / plan if plan and base else None)
 

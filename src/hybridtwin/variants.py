@@ -18,7 +18,7 @@ instance there is usable by its ``name``.
 from __future__ import annotations
 
 import importlib.util
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -167,3 +167,18 @@ def load_effects_file(path: str | Path) -> dict[str, Effect]:
     if not found:
         raise ValueError(f"effects file {path} defines no Effect instance")
     return found
+
+
+class EffectsFileError(ValueError):
+    """An effects file is missing, fails to run, or defines no Effect: the message names the file."""
+
+
+def load_effects_files(paths: Sequence[str | Path]) -> dict[str, Effect]:
+    """Effects of several user files, by name; any problem raises EffectsFileError naming the file."""
+    effects: dict[str, Effect] = {}
+    for path in paths:
+        try:
+            effects |= load_effects_file(path)
+        except (OSError, ValueError, RuntimeError) as err:
+            raise EffectsFileError(str(err)) from None
+    return effects
