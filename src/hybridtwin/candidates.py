@@ -7,6 +7,11 @@ forcing or force), so a base model extended by any set of candidates at zero
 the response to its parameters at zero (``hybridtwin.diagnosis``) and, for the
 most promising, refits with it added.
 
+Built in (``BUILTIN_TESTED``): the Expansion model's extra terms and the slope force (eq. 23-24,
+38-39), and the "candidate effects" of effects.py: upper-bearing anisotropy, cross-coupled
+stiffness and damping, moment stiffness at the upper bearing, lower-bearing compliance, 2X and
+3X rotating forces and speed-dependent damping (ranges and why: the comment above them there).
+
 Users add their own: any Effect in a file listed under the config's
 ``effects_files`` whose name appears in ``diagnosis: candidates`` (all its
 parameters are then tested, so they must vanish at zero).
@@ -64,6 +69,15 @@ BUILTIN_TESTED: dict[str, tuple[str, ...]] = {
     "expansion_k5": ("k5",),  # u v
     "expansion_k6": ("k6",),  # (u')^3
     "expansion_k7": ("k7",),  # u v^2
+    # effects.py, "candidate effects": what else the machine may have (ranges and their reasoning there)
+    "upper_bearing_anisotropy": ("dk_up",),  # K[u0,u0] += dk_up, K[v0,v0] -= dk_up
+    "cross_coupled_stiffness": ("k_xy",),  # K[u0,v0] = +k_xy, K[v0,u0] = -k_xy
+    "cross_coupled_damping": ("c_xy",),  # C[u0,v0] = +c_xy, C[v0,u0] = -c_xy
+    "moment_stiffness": ("k_rot",),  # K[du0,du0] = K[dv0,dv0] += k_rot
+    "lower_bearing_compliance": ("dk_lo",),  # the known k off by dk_lo at the last node
+    "excitation_2x": ("f2_c", "f2_s"),  # 2X rotating force at node 0 (misalignment)
+    "excitation_3x": ("f3_c", "f3_s"),  # 3X rotating force at node 0
+    "speed_damping": ("zeta_v",),  # C += 2 zeta_v Omega M (extends eq. 31-32)
 }
 
 
