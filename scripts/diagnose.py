@@ -1,0 +1,31 @@
+"""Rule diagnose: score tests of the candidate effects at the joint fit, refits of the best (thin wrapper)."""
+
+import pandas as pd
+import yaml
+
+from hybridtwin import config as cfg
+from hybridtwin import diagnosis as dg
+from hybridtwin import identification as idn
+from hybridtwin.candidates import candidates_for
+
+smk = snakemake  # noqa: F821 (injected by Snakemake)
+log = cfg.rule_logger(smk.log[0], "diagnose")
+variant = cfg.variant(smk.config, smk.wildcards.variant)
+options = smk.params.options
+table = pd.read_csv(smk.input.parameters, sep="\t", dtype={"run": str})
+harmonics = idn.read_harmonics(smk.input.harmonics)
+runs = [r for r in dict.fromkeys(table["run"]) if r != "all"]
+data = [idn.run_data(harmonics, run) for run in runs]
+base = dg.BaseFit.from_table(variant, table, data, int(smk.params.harmonics))
+candidates = candidates_for([e.name for e in variant.model.effects], options["candidates"],
+                            cfg.user_effects(smk.config))
+log.info("diagnosing %s on %d fit runs: %d candidates (%s)", variant.name, len(data), len(candidates),
+         ", ".join(c.name for c in candidates))
+result = dg.diagnose(base, candidates, options, log)
+result.table.to_csv(smk.output.table, sep="\t", index=False, float_format="%.6g")
+with open(smk.output.recommendation, "w") as stream:
+    stream.write(dg.markdown(result))
+with open(smk.output.summary, "w") as stream:
+    yaml.safe_dump(result.summary, stream, sort_keys=False)
+dg.plot(result).savefig(smk.output.plot, dpi=120)
+log.info("%s", result.conclusion)

@@ -1,0 +1,505 @@
+"""Diagnosis: which physical effect is the model missing? (issue 6)
+
+Input: a variant fitted jointly to the fit runs (the identification stage's
+``results/{variant}/parameters.tsv``: shared parameters, per-run ones, phases)
+and candidate effects (``hybridtwin.candidates``), each switched on by
+parameters beta that are absent at zero. Every response below comes from the
+full harmonic-balance solver (``identification.SolverModel``), never from a
+library: the candidates are not in the libraries, and the test must not
+mistake surrogate error for physics.
+
+1. Score (Lagrange multiplier) test of every candidate at the fitted base.
+   r: the weighted residuals of eq. 10 with the measured sigmas, so r ~ N(0, I)
+   when the model is right; J = d r / d theta of the base entries (shared,
+   per-run, phases; entries held at a range edge excluded, as in the fit);
+   G = d r / d beta at beta = 0, all candidates in one batched solve (the base
+   extended by every candidate at zero *is* the base). With Q an orthonormal
+   basis of J, r_p = r - Q Q^T r and G_p = G - Q Q^T G (the base's
+   sensitivities projected out, so an effect the base can absorb scores ~0):
+
+       S = ||r_p||^2 - min_b ||r_p + G_p b||^2,          b >= 0 if 0 is a range edge,
+
+   the chi^2 drop the candidate predicts to first order, and S ~ chi^2(k)
+   under "absent" (k = its parameters; with a sign constraint the law is the
+   chi-bar^2 mixture, so chi^2(k) is conservative). Bonferroni over the
+   candidates keeps the family-wise false-alarm rate at ``alpha``.
+2. Confirmation of the best ones: a joint refit with the candidate added
+   (full solver, LM from the base optimum and from the linear estimate b):
+   likelihood ratio LR = chi^2_base - chi^2_new ~ chi^2(k),
+   Delta BIC = -LR + k ln n, and the new parameters' 95 % intervals.
+3. Verdicts, said honestly: "add" (confirmed, explains the discrepancy down to
+   the noise), "add, explains part" (a discrepancy remains), "confounded with
+   X" (both confirmed, these data cannot tell them apart: their Delta BIC
+   differ by less than ``confounded_bic``), "part of X" (its sensitivities
+   lie within X's: nested), "not confirmed", "not significant"; and overall
+   "no missing effect" (the base fits to the noise and nothing is
+   significant), or "unexplained discrepancy" when the base misfit is real and
+   no candidate explains most of it: the evidence (chi^2/dof, the best
+   candidate's share) is given instead of a least-bad name.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+from scipy import optimize, stats
+
+from .candidates import Candidate
+from .identification import (BOUND_TOLERANCE, ArrowProblem, Identification, Layout, LMOptions, ProtocolResult,
+                             RunData, SolverModel, conclude, levenberg_marquardt)
+from .model import Model
+from .variants import Variant
+
+Array = np.ndarray
+
+#: the ``diagnosis:`` section's defaults (config/config.yaml; schema in workflow/schemas)
+DEFAULTS: dict = {
+    "candidates": None,  # names to test (built in or from effects_files); None: every built-in candidate
+    "confirm": 3,  # candidates refitted (the best by score, plus any within confounded_bic of the best)
+    "alpha": 0.01,  # family-wise false-alarm rate (Bonferroni over the candidates)
+    "explained": 0.9,  # share of the excess chi^2 an effect must remove to "explain the discrepancy"
+    "misfit_ratio": 1.2,  # chi^2/dof above which a significant misfit is called a discrepancy (sigma tolerance)
+    "confounded_bic": 6.0,  # candidates whose Delta BIC differ by less cannot be told apart ("strong" evidence)
+    "bic_threshold": -10.0,  # Delta BIC a confirmed effect must reach ("very strong" evidence, Kass & Raftery)
+    "max_iterations": 100,  # LM iterations of a confirmation refit
+}
+
+
+@dataclass
+class BaseFit:
+    """A variant's joint fit: layout, normalised optimum theta and the data it was fitted to."""
+
+    variant: Variant
+    layout: Layout
+    theta: Array
+    data: list[RunData]
+    harmonics: int
+
+    @property
+    def X(self) -> Array:
+        return np.stack([d.X[: self.harmonics] for d in self.data])
+
+    @property
+    def sigma(self) -> Array:
+        return np.stack([d.sigma[: self.harmonics] for d in self.data])
+
+    @classmethod
+    def from_table(cls, variant: Variant, table: pd.DataFrame, data: Sequence[RunData], harmonics: int
+                   ) -> "BaseFit":
+        """From a joint parameter table (``Identification.table``: parameter, run, normalised, value)."""
+        runs = [d.run for d in data]
+        fitted = table[table["kind"] != "nuisance"]
+        per_run = sorted(set(fitted.loc[fitted["run"] != "all", "parameter"]), key=list(variant.unknown).index)
+        lower, upper = zip(*variant.unknown.values())
+        layout = Layout.build(list(variant.unknown), lower, upper, runs, per_run)
+        index = {(str(row.parameter), str(row.run)): row for row in table.itertuples()}
+        theta = np.empty(layout.n)
+        for i, (p, run) in enumerate(layout.entries()):
+            row = index.get((p, run))
+            if row is None:
+                raise ValueError(f"the parameter table has no row for {p} (run {run})")
+            theta[i] = row.value if p == "phase" else row.normalised
+        if not np.isfinite(theta).all():
+            raise ValueError("the parameter table has non-finite estimates: the fit failed, nothing to diagnose")
+        return cls(variant, layout, theta, list(data), harmonics)
+
+
+def extend(variant: Variant, candidates: Sequence[Candidate]) -> Variant:
+    """The variant with the candidates' effects added and their tested parameters unknown (absent at 0)."""
+    for c in candidates:
+        for p in c.parameters:
+            lo, hi = p.bounds
+            if not lo <= 0.0 <= hi:
+                raise ValueError(f"candidate {c.name}: the range [{lo:g}, {hi:g}] of {p.name} excludes 0 (absent)")
+            if p.name in variant.unknown or p.name in variant.fixed:
+                raise ValueError(f"candidate {c.name}: parameter {p.name} is already one of variant "
+                                 f"{variant.name!r}'s")
+    effects = variant.model.effects + [c.effect for c in candidates]
+    unknown = dict(variant.unknown) | {p.name: p.bounds for c in candidates for p in c.parameters}
+    name = "+".join([variant.name] + [c.name for c in candidates])
+    return Variant(name, Model(effects, variant.model.shaft), unknown, dict(variant.fixed), variant.description)
+
+
+def extended_problem(base: BaseFit, candidates: Sequence[Candidate]) -> tuple[ArrowProblem, Array]:
+    """The joint problem of the base extended by ``candidates`` (full solver), and theta at beta = 0."""
+    ext = extend(base.variant, candidates)
+    lower, upper = zip(*ext.unknown.values())
+    layout = Layout.build(list(ext.unknown), lower, upper, base.layout.runs, base.layout.local)
+    models = [SolverModel(ext, d.run, d.rpm, d.eccentric_mass_g, layout.parameters, np.array(lower),
+                          np.array(upper), base.harmonics) for d in base.data]
+    known = dict(zip(base.layout.entries(), base.theta))
+    theta = np.array([known[e] if e in known else float(layout.normalise(e[0], 0.0)) for e in layout.entries()])
+    return ArrowProblem(models, layout, base.sigma), theta
+
+
+def _basis(J: Array) -> Array:
+    """Orthonormal basis of the column space of J (rank-revealing SVD)."""
+    if J.shape[1] == 0:
+        return np.zeros((J.shape[0], 0))
+    U, s, _ = np.linalg.svd(J, full_matrices=False)
+    return U[:, s > 1e-10 * s[0]] if s.size and s[0] > 0 else np.zeros((J.shape[0], 0))
+
+
+@dataclass
+class Score:
+    """One candidate's score test: statistic S, its p-value, the linear estimate b (normalised step) and the
+    projected sensitivities G_p (for nesting and confounding)."""
+
+    candidate: Candidate
+    statistic: float
+    p_value: float
+    log_p: float
+    step: Array
+    projected: Array
+    beyond_range: bool
+
+
+@dataclass
+class Scores:
+    base_chi2: float
+    base_dof: int
+    n_data: int
+    residual: Array  # r, weighted
+    projected_residual: Array  # r_p
+    scores: list[Score]
+    seconds: float
+
+
+def score_tests(base: BaseFit, candidates: Sequence[Candidate]) -> Scores:
+    """Score (LM) test of every candidate at the base optimum (module docstring, step 1), one batched solve."""
+    start = time.perf_counter()
+    problem, theta = extended_problem(base, candidates)
+    layout = problem.layout
+    ev = problem.evaluate(theta[None], base.X[None], jacobian=True)
+    r = ev.r[0].reshape(-1)
+    J = problem.dense_jacobian(ev)
+    if not (np.isfinite(r).all() and np.isfinite(J).all()):
+        raise RuntimeError("the full solver failed at the base optimum (or next to it): no periodic solution "
+                           "to diagnose from")
+    entries = layout.entries()
+    tested = {p.name for c in candidates for p in c.parameters}
+    is_base = np.array([p not in tested for p, _ in entries])
+    free = is_base & (layout.is_phase | (np.abs(theta) < 1.0 - BOUND_TOLERANCE))
+    Q = _basis(J[:, free])
+    r_p = r - Q @ (Q.T @ r)
+    scores = []
+    for c in candidates:
+        cols = [entries.index((p.name, "all")) for p in c.parameters]
+        G = J[:, cols] - Q @ (Q.T @ J[:, cols])
+        at_zero_edge = theta[cols] <= -1.0 + BOUND_TOLERANCE  # 0 is the lower edge: only b >= 0 is physical
+        at_top_edge = theta[cols] >= 1.0 - BOUND_TOLERANCE
+        lower = np.where(at_zero_edge, 0.0, -np.inf)
+        upper = np.where(at_top_edge, 0.0, np.inf)
+        if np.linalg.norm(G) == 0:
+            step = np.zeros(len(cols))
+        else:
+            step = optimize.lsq_linear(G, -r_p, bounds=(lower, upper), method="bvls").x
+        statistic = float(r_p @ r_p - np.sum((r_p + G @ step) ** 2))
+        statistic = max(statistic, 0.0)
+        k = len(cols)
+        beyond = bool(np.any(np.abs(theta[cols] + step) > 1.0))
+        scores.append(Score(c, statistic, float(stats.chi2.sf(statistic, k)), float(stats.chi2.logsf(statistic, k)),
+                            step, G, beyond))
+    dof = r.size - int(free.sum())
+    return Scores(float(r @ r), dof, r.size, r, r_p, scores, time.perf_counter() - start)
+
+
+def nested(a: Array, b: Array, tolerance: float = 1e-3) -> bool:
+    """Whether span(a) lies within span(b): all principal angles between them are ~0."""
+    Qa, Qb = _basis(a), _basis(b)
+    if Qa.shape[1] == 0 or Qa.shape[1] > Qb.shape[1]:
+        return False
+    cosines = np.linalg.svd(Qa.T @ Qb, compute_uv=False)
+    return bool(cosines.min() > 1.0 - tolerance)
+
+
+@dataclass
+class Confirmation:
+    """A refit with one candidate added: chi^2, likelihood ratio, Delta BIC, the new parameters' intervals."""
+
+    candidate: Candidate
+    fit: Identification
+    chi2: float
+    dof: int
+    lr: float
+    lr_p_value: float
+    delta_bic: float
+    estimates: pd.DataFrame  # the candidate's rows of the refit's table
+    excludes_zero: bool
+    seconds: float
+
+
+def confirm(base: BaseFit, score: Score, scores: Scores, max_iterations: int = 100,
+            confidence: float = 0.95) -> Confirmation:
+    """Refit with ``score.candidate`` added (full solver): from beta = 0 and from the score's linear estimate."""
+    start = time.perf_counter()
+    c = score.candidate
+    problem, theta0 = extended_problem(base, [c])
+    layout = problem.layout
+    cols = [layout.entries().index((p.name, "all")) for p in c.parameters]
+    # the linear estimate overshoots when the response bends (a cubic term): start from it damped to at most
+    # half the range, and from beta = 0
+    step = score.step * min(1.0, 1.0 / max(np.abs(score.step).max(), 1e-12))
+    linear = theta0.copy()
+    linear[cols] = np.clip(theta0[cols] + step, -1.0, 1.0)
+    starts = np.vstack([theta0, linear])
+    options = LMOptions(max_iterations=max_iterations, ftol=1e-8, xtol=1e-8, gtol=1e-10, stall_chi2=1e-3,
+                        geodesic=True)
+    result = levenberg_marquardt(problem, starts, np.repeat(base.X[None], len(starts), axis=0), options)
+    best = int(np.nanargmin(np.where(np.isfinite(result.loss), result.loss, np.inf)))
+    protocol = ProtocolResult(result, best, np.zeros((0, layout.n)), np.zeros(0), result.seconds, len(starts))
+    units = {name: p.unit for name, p in problem.models[0].variant.model.parameters.items()}
+    fit = conclude(problem, protocol, base.data, base.X, confidence, units)
+    chi2 = float(fit.uncertainty.chi2)
+    k, n = len(cols), scores.n_data
+    lr = scores.base_chi2 - chi2
+    table = fit.table()
+    estimates = table[table["parameter"].isin([p.name for p in c.parameters]) & (table["run"] == "all")]
+    excludes = bool(((estimates["ci_low"] > 0) | (estimates["ci_high"] < 0)).any())
+    return Confirmation(c, fit, chi2, int(fit.uncertainty.dof), float(lr),
+                        float(stats.chi2.sf(max(lr, 0.0), k)), float(-lr + k * np.log(n)), estimates, excludes,
+                        time.perf_counter() - start)
+
+
+@dataclass
+class Diagnosis:
+    """The ranked table, the overall conclusion and the recommendation (config lines to add)."""
+
+    table: pd.DataFrame
+    conclusion: str
+    recommendation: str
+    summary: dict = field(default_factory=dict)
+    confirmations: dict[str, Confirmation] = field(default_factory=dict)
+
+
+def diagnose(base: BaseFit, candidates: Sequence[Candidate], options: Mapping | None = None,
+             log=None) -> Diagnosis:
+    """Score every candidate, confirm the best by refitting, rank and give verdicts (module docstring)."""
+    o = DEFAULTS | dict(options or {})
+    if not candidates:
+        raise ValueError("no candidate effect to test (all are already in the variant, or none was listed)")
+    scores = score_tests(base, candidates)
+    if log:
+        log.info("score tests of %d candidates in %.1f s: base chi^2/dof %.3g", len(candidates), scores.seconds,
+                 scores.base_chi2 / scores.base_dof)
+    alpha_each = o["alpha"] / len(candidates)
+    order = sorted(scores.scores, key=lambda s: (s.log_p, -s.statistic))
+    significant = [s for s in order if s.p_value < alpha_each]
+    chosen = significant[: int(o["confirm"])]
+    if significant:  # also refit any candidate whose predicted drop is as good as the best's: maybe confounded
+        top = significant[0].statistic
+        chosen += [s for s in significant[len(chosen):] if top - s.statistic < o["confounded_bic"]]
+    confirmations = {}
+    for s in chosen:
+        confirmations[s.candidate.name] = confirm(base, s, scores, int(o["max_iterations"]))
+        if log:
+            cf = confirmations[s.candidate.name]
+            log.info("refit with %s: chi^2 %.4g -> %.4g, Delta BIC %.3g (%.1f s)", s.candidate.name,
+                     scores.base_chi2, cf.chi2, cf.delta_bic, cf.seconds)
+    return _conclude(base, scores, confirmations, o, alpha_each)
+
+
+def _excess(scores: Scores) -> float:
+    return max(scores.base_chi2 - scores.base_dof, 1e-12)
+
+
+def _is_confirmed(cf: Confirmation, o: Mapping, alpha_each: float) -> bool:
+    return cf.lr_p_value < alpha_each and cf.delta_bic < o["bic_threshold"] and cf.excludes_zero
+
+
+def _conclude(base: BaseFit, scores: Scores, confirmations: Mapping[str, Confirmation], o: Mapping,
+              alpha_each: float) -> Diagnosis:
+    excess = _excess(scores)
+    base_ratio = scores.base_chi2 / scores.base_dof
+    misfit = (stats.chi2.sf(scores.base_chi2, scores.base_dof) < o["alpha"]) and base_ratio > o["misfit_ratio"]
+    by_name = {s.candidate.name: s for s in scores.scores}
+    confirmed = sorted((cf for cf in confirmations.values() if _is_confirmed(cf, o, alpha_each)),
+                       key=lambda cf: cf.delta_bic)
+    best = confirmed[0] if confirmed else None
+    verdicts: dict[str, str] = {}
+    confounded: list[str] = []
+    for cf in confirmed:
+        name = cf.candidate.name
+        if cf is best:
+            continue
+        projected, best_projected = by_name[name].projected, by_name[best.candidate.name].projected
+        within_best, contains_best = nested(projected, best_projected), nested(best_projected, projected)
+        inside = [b.candidate.name for b in confirmed if b is not cf and b.delta_bic <= cf.delta_bic
+                  and nested(projected, by_name[b.candidate.name].projected)]
+        if within_best and contains_best or (not inside and not contains_best
+                                             and cf.delta_bic - best.delta_bic < o["confounded_bic"]):
+            confounded.append(name)
+            verdicts[name] = (f"confounded with {best.candidate.name}: these data cannot tell them apart "
+                              f"(Delta BIC {cf.delta_bic:.1f} vs {best.delta_bic:.1f})")
+        elif inside:
+            verdicts[name] = f"part of {inside[0]} (its sensitivities lie within that effect's)"
+        elif contains_best:
+            verdicts[name] = (f"contains {best.candidate.name}; its extra terms are not supported by the data "
+                              f"(Delta BIC {cf.delta_bic:.1f} vs {best.delta_bic:.1f})")
+        else:
+            verdicts[name] = f"confirmed, but weaker than {best.candidate.name}"
+    share = 0.0 if best is None else (scores.base_chi2 - best.chi2) / excess
+    gof_after = 0.0 if best is None else stats.chi2.sf(best.chi2, best.dof)
+    if best is not None:
+        name = best.candidate.name
+        if share >= o["explained"] or gof_after >= o["alpha"]:
+            verdicts[name] = "add: explains the discrepancy"
+        elif share >= 0.5:
+            verdicts[name] = f"add: explains {100 * share:.0f} % of the excess chi^2; a discrepancy remains"
+        else:
+            verdicts[name] = f"explains only {100 * share:.0f} % of the excess chi^2"
+        if confounded:
+            verdicts[name] += f" (confounded with {', '.join(confounded)})"
+    for name, cf in confirmations.items():
+        verdicts.setdefault(name, "not confirmed by the refit")
+    for s in scores.scores:
+        verdicts.setdefault(s.candidate.name, "significant, not refitted (ranked below the refitted ones)"
+                            if s.p_value < alpha_each else "not significant")
+    table = _table(scores, confirmations, verdicts, confirmed)
+    conclusion, recommendation = _recommend(base, scores, best, confounded, share, misfit, base_ratio, o)
+    summary = {"variant": base.variant.name, "runs": list(base.layout.runs), "n_data": scores.n_data,
+               "base_chi2": scores.base_chi2, "base_dof": scores.base_dof, "base_chi2_dof": base_ratio,
+               "base_gof_p_value": float(stats.chi2.sf(scores.base_chi2, scores.base_dof)),
+               "misfit": bool(misfit), "alpha_per_candidate": alpha_each,
+               "candidates": [s.candidate.name for s in scores.scores], "refitted": list(confirmations),
+               "conclusion": conclusion, "score_seconds": scores.seconds,
+               "refit_seconds": float(sum(cf.seconds for cf in confirmations.values()))}
+    return Diagnosis(table, conclusion, recommendation, summary, dict(confirmations))
+
+
+def _estimate_text(cf: Confirmation) -> str:
+    return "; ".join(f"{r.parameter} = {r.value:.4g} [{r.ci_low:.4g}, {r.ci_high:.4g}] {r.unit}".rstrip()
+                     for r in cf.estimates.itertuples())
+
+
+def _table(scores: Scores, confirmations: Mapping[str, Confirmation], verdicts: Mapping[str, str],
+           confirmed: Sequence[Confirmation]) -> pd.DataFrame:
+    """One row per candidate: confirmed ones first (by Delta BIC), then by score p-value."""
+    excess = _excess(scores)
+    first = [cf.candidate.name for cf in confirmed]
+    rest = [s.candidate.name for s in sorted(scores.scores, key=lambda s: (s.log_p, -s.statistic))
+            if s.candidate.name not in first]
+    by_name = {s.candidate.name: s for s in scores.scores}
+    rows = []
+    for rank, name in enumerate(first + rest, start=1):
+        s, cf = by_name[name], confirmations.get(name)
+        k = len(s.candidate.parameters)
+        rows.append({
+            "rank": rank, "effect": name, "meaning": s.candidate.meaning,
+            "parameters": ",".join(p.name for p in s.candidate.parameters),
+            "statistic": s.statistic, "dof": k, "p_value": s.p_value, "log10_p_value": s.log_p / np.log(10),
+            "predicted_error_drop_pct": 100 * s.statistic / excess,
+            "predicted_chi2_dof": (scores.base_chi2 - s.statistic) / max(scores.base_dof - k, 1),
+            "confirmed_error_drop_pct": np.nan if cf is None else 100 * (scores.base_chi2 - cf.chi2) / excess,
+            "confirmed_chi2_dof": np.nan if cf is None else cf.chi2 / cf.dof,
+            "lr_statistic": np.nan if cf is None else cf.lr,
+            "lr_p_value": np.nan if cf is None else cf.lr_p_value,
+            "delta_bic": np.nan if cf is None else cf.delta_bic,
+            "estimate": "" if cf is None else _estimate_text(cf),
+            "beyond_range": s.beyond_range,
+            "verdict": verdicts[name],
+        })
+    return pd.DataFrame(rows)
+
+
+def variant_lines(base: Variant, candidate: Candidate, name: str) -> str:
+    """The YAML of a new variant = ``base`` + ``candidate`` (to paste under ``variants:`` in config.yaml)."""
+    effects = ", ".join([e.name for e in base.model.effects] + [candidate.name])
+    unknown = dict(base.unknown) | {p.name: p.bounds for p in candidate.parameters}
+    ranges = ", ".join(f"{k}: [{lo:g}, {hi:g}]" for k, (lo, hi) in unknown.items())
+    lines = [f"  {name}:", f"    description: \"{base.name} + {candidate.name}: {candidate.meaning}\"",
+             f"    effects: [{effects}]", f"    unknown: {{{ranges}}}"]
+    if base.fixed:
+        lines.append("    fixed: {" + ", ".join(f"{k}: {v:g}" for k, v in base.fixed.items()) + "}")
+    return "\n".join(lines)
+
+
+def _recommend(base: BaseFit, scores: Scores, best: Confirmation | None, confounded: Sequence[str],
+               share: float, misfit: bool, base_ratio: float, o: Mapping) -> tuple[str, str]:
+    variant = base.variant
+    if best is None:
+        if not misfit:
+            return ("no missing effect: the model fits the data to within the noise "
+                    f"(chi^2/dof {base_ratio:.3g}) and no candidate is significant"), ""
+        top = max(scores.scores, key=lambda s: s.statistic)
+        return (f"unexplained discrepancy: chi^2/dof {base_ratio:.3g} is well above the noise floor (1), and no "
+                f"candidate is confirmed (the best, {top.candidate.name}, would remove "
+                f"{100 * top.statistic / _excess(scores):.0f} % of the excess chi^2 to first order); the missing "
+                "physics is not among the candidates: look at the residual spectrum and the error map, and add "
+                "your own candidate effects"), ""
+    name = best.candidate.name
+    if confounded:
+        head = (f"add {name} or {', '.join(confounded)}: these data cannot tell them apart (measure where their "
+                "responses differ, e.g. more speeds or unbalance masses, to decide)")
+    elif share >= o["explained"]:
+        head = f"add {name}: it explains the discrepancy ({100 * share:.0f} % of the excess chi^2)"
+    elif share >= 0.5:
+        head = f"add {name}: it explains {100 * share:.0f} % of the excess chi^2; a discrepancy remains"
+    else:
+        head = (f"unexplained discrepancy: the best confirmed candidate, {name}, explains only "
+                f"{100 * share:.0f} % of the excess chi^2")
+    conclusion = (f"{head}; chi^2/dof {base_ratio:.3g} -> {best.chi2 / best.dof:.3g} with it, "
+                  f"Delta BIC {best.delta_bic:.1f}; {_estimate_text(best)}")
+    new_name = f"{variant.name}_{name}"
+    recommendation = (f"Add this variant under `variants:` in config/config.yaml, then run `snakemake --cores 2` "
+                      f"(only the new variant is built) and compare in results/ledger.tsv:\n\n"
+                      f"{variant_lines(variant, best.candidate, new_name)}\n")
+    return conclusion, recommendation
+
+
+def settings(config: Mapping) -> dict:
+    """The diagnosis options: defaults, then the config's ``diagnosis:`` section."""
+    return DEFAULTS | dict(config.get("diagnosis") or {})
+
+
+def markdown(result: Diagnosis) -> str:
+    """The conclusion, the recommendation (config lines) and the ranked table, as Markdown."""
+    s = result.summary
+    columns = ["rank", "effect", "statistic", "p_value", "predicted_error_drop_pct", "confirmed_chi2_dof",
+               "delta_bic", "estimate", "verdict"]
+    rows = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
+    for r in result.table[columns].itertuples(index=False):
+        rows.append("| " + " | ".join(f"{v:.4g}" if isinstance(v, float) else str(v) for v in r) + " |")
+    recommendation = f"\n## What to do\n\n{result.recommendation}" if result.recommendation else ""
+    if recommendation:
+        recommendation = recommendation.replace("\n\n  ", "\n\n```yaml\n  ", 1) + "```\n"
+    return (f"# Diagnosis of variant {s['variant']}\n\n"
+            f"{len(s['runs'])} fit runs, {s['n_data']} data; chi^2/dof {s['base_chi2_dof']:.3g} "
+            f"(goodness-of-fit p = {s['base_gof_p_value']:.3g}); {len(s['candidates'])} candidates tested, "
+            f"{len(s['refitted'])} refitted.\n\n**{result.conclusion}**\n{recommendation}\n"
+            "## Candidates\n\n" + "\n".join(rows) + "\n")
+
+
+def plot(result: Diagnosis):
+    """Score statistics with the significance threshold; chi^2/dof before and after each refitted effect."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = result.table.iloc[::-1]
+    s = result.summary
+    fig, (left, right) = plt.subplots(1, 2, figsize=(12, 0.45 * len(t) + 2.0), sharey=True)
+    colours = ["tab:green" if v.startswith("add") else "tab:orange" if "confounded" in v or "part of" in v
+               or "contains" in v else "tab:red" if "significant," in v or "confirmed," in v else "tab:gray"
+               for v in t["verdict"]]
+    left.barh(t["effect"], np.maximum(t["statistic"], 1e-3), color=colours)
+    left.set_xscale("log")
+    threshold = stats.chi2.isf(s["alpha_per_candidate"], t["dof"])
+    left.plot(threshold, t["effect"], "k|", markersize=14, label="significance threshold")
+    left.set_xlabel("score statistic (predicted chi^2 drop)")
+    left.legend(loc="lower right", fontsize=8)
+    left.set_title(f"{s['variant']}: candidate effects (green: add)")
+    right.axvline(s["base_chi2_dof"], color="tab:red", label=f"{s['variant']}: {s['base_chi2_dof']:.3g}")
+    right.axvline(1.0, color="k", linestyle="--", label="noise floor")
+    right.plot(t["predicted_chi2_dof"], t["effect"], "o", mfc="none", color="tab:blue", label="predicted, added")
+    right.plot(t["confirmed_chi2_dof"], t["effect"], "o", color="tab:blue", label="refitted, added")
+    right.set_xscale("log")
+    right.set_xlabel("chi^2 / dof")
+    right.legend(loc="lower right", fontsize=8)
+    fig.tight_layout()
+    return fig

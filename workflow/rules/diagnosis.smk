@@ -1,0 +1,42 @@
+# Diagnosis (issue 6): which candidate effect is the variant missing? Score tests at the joint fit with the
+# full solver's sensitivities, the best confirmed by refitting, ranked with verdicts and a recommendation.
+from hybridtwin.diagnosis import settings as diagnosis_settings
+
+
+rule diagnose:
+    """Score test of every candidate effect at the variant's joint fit, refits of the best, verdicts."""
+    input:
+        parameters="results/{variant}/parameters.tsv",
+        harmonics="results/data/harmonics.tsv",
+    output:
+        table=report(
+            "results/{variant}/diagnosis.tsv",
+            caption="../report/diagnosis_table.rst",
+            category="Diagnosis",
+            subcategory="{variant}",
+        ),
+        recommendation=report(
+            "results/{variant}/diagnosis.md",
+            caption="../report/diagnosis_recommendation.rst",
+            category="Diagnosis",
+            subcategory="{variant}",
+        ),
+        summary="results/{variant}/diagnosis.yaml",
+        plot=report(
+            "results/{variant}/diagnosis.png",
+            caption="../report/diagnosis_plot.rst",
+            category="Diagnosis",
+            subcategory="{variant}",
+        ),
+    params:
+        spec=lambda wildcards: config["variants"][wildcards.variant],
+        options=diagnosis_settings(config),
+        harmonics=config["harmonics"],
+    log:
+        "logs/{variant}/diagnose.log",
+    benchmark:
+        "results/benchmarks/{variant}/diagnose.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
+    script:
+        "../../scripts/diagnose.py"
