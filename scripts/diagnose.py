@@ -23,8 +23,13 @@ log.info("diagnosing %s on %d fit runs: %d candidates (%s)", variant.name, len(d
          ", ".join(c.name for c in candidates))
 result = dg.diagnose(base, candidates, options, log)
 result.table.to_csv(smk.output.table, sep="\t", index=False, float_format="%.6g")
+sparse, sparse_name = None, options["sparse_variant"]
+if "sparse" in smk.input.keys():
+    sparse = dg.sparse_route(pd.read_csv(smk.input.sparse, sep="\t", dtype={"run": str}),
+                             cfg.variant(smk.config, sparse_name))
+    result.summary["sparse_route"] = {"variant": sparse_name, "active": sparse.loc[sparse["active"], "parameter"].tolist()}
 with open(smk.output.recommendation, "w") as stream:
-    stream.write(dg.markdown(result))
+    stream.write(dg.markdown(result, sparse, sparse_name))
 with open(smk.output.summary, "w") as stream:
     yaml.safe_dump(result.summary, stream, sort_keys=False)
 dg.plot(result).savefig(smk.output.plot, dpi=120)

@@ -175,3 +175,21 @@ def test_a_candidate_whose_range_excludes_zero_is_refused(slope_base):
                                              bad.effect.parameters[1]))
     with pytest.raises(ValueError, match="excludes 0"):
         dg.extend(slope_base.variant, [Candidate(effect, ("k2",))])
+
+
+def test_sparse_route_reads_which_terms_an_l1_fit_kept():
+    """The paper's route side by side: active = interval excludes zero, or pushed to a range edge away from 0."""
+    import pandas as pd
+
+    spec = {"effects": GEOMETRIC["effects"][:-1] + ["expansion_k3", "expansion_k4", "expansion_k6"],
+            "unknown": {"k3": [0, 7000], "k4": [-1000, 1000], "k6": [-1000, 1000], "q_x": [0.001, 0.01]}}
+    variant = Variant.from_spec("expansion", spec)
+    table = pd.DataFrame({
+        "parameter": ["k3", "k4", "k6", "q_x", "phase"], "run": ["all", "all", "all", "r1", "r1"],
+        "kind": ["shared", "shared", "shared", "per_run", "nuisance"], "unit": ["N/m", "N", "N", "m", "rad"],
+        "value": [5460.0, 399.0, -1000.0 + 1e-9, 0.003, 0.1], "ci_low": [5397.0, -5.0, np.nan, 0.002, 0.0],
+        "ci_high": [5523.0, 800.0, np.nan, 0.004, 0.2], "at_bound": [False, False, True, False, False]})
+    route = dg.sparse_route(table, variant).set_index("parameter")
+    assert list(route.index) == ["k3", "k4", "k6"]  # q_x cannot be switched off, phases are nuisances
+    assert route.loc["k3", "active"] and not route.loc["k4", "active"] and route.loc["k6", "active"]
+    assert route.loc["k4", "effect"] == "expansion_k4"

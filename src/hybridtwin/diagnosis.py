@@ -66,6 +66,7 @@ DEFAULTS: dict = {
     "confounded_bic": 6.0,  # candidates whose Delta BIC differ by less cannot be told apart ("strong" evidence)
     "bic_threshold": -10.0,  # Delta BIC a confirmed effect must reach ("very strong" evidence, Kass & Raftery)
     "max_iterations": 100,  # LM iterations of a confirmation refit
+    "sparse_variant": "expansion",  # the paper's route, shown side by side: that variant's L1-sparse fit (or null)
 }
 
 
@@ -456,8 +457,43 @@ def settings(config: Mapping) -> dict:
     return DEFAULTS | dict(config.get("diagnosis") or {})
 
 
-def markdown(result: Diagnosis) -> str:
-    """The conclusion, the recommendation (config lines) and the ranked table, as Markdown."""
+def sparse_route(table: pd.DataFrame, variant: Variant) -> pd.DataFrame:
+    """The paper's route (sec. 4.2): which terms an L1-sparse fit (eq. 11) of ``variant`` kept, from its joint
+    parameter table. A term is active when its 95 % interval excludes zero, or when it sits at a range edge
+    away from zero (the fit wanted more of it); the others are switched off or undetermined."""
+    meanings = {p.name: (e.name, e.meaning) for e in variant.model.effects for p in e.parameters}
+    rows = []
+    for r in table[(table["run"] == "all") & (table["kind"] != "nuisance")].itertuples():
+        lo, hi = variant.unknown.get(r.parameter, (np.nan, np.nan))
+        if not lo <= 0.0 <= hi:  # a term that cannot be switched off (e.g. the bow) is not part of the route
+            continue
+        at_edge = bool(r.at_bound) and abs(r.value) > 0.01 * max(abs(lo), abs(hi))
+        active = at_edge or bool(r.ci_low > 0 or r.ci_high < 0)
+        effect, meaning = meanings.get(r.parameter, ("", ""))
+        rows.append({"parameter": r.parameter, "effect": effect, "meaning": meaning, "value": r.value,
+                     "ci_low": r.ci_low, "ci_high": r.ci_high, "unit": r.unit, "at_bound": bool(r.at_bound),
+                     "active": active})
+    return pd.DataFrame(rows, columns=["parameter", "effect", "meaning", "value", "ci_low", "ci_high", "unit",
+                                       "at_bound", "active"])
+
+
+def _sparse_markdown(sparse: pd.DataFrame, name: str) -> str:
+    if sparse.empty:
+        return ""
+    def text(r) -> str:
+        interval = "at its range edge" if r.at_bound else f"[{r.ci_low:.4g}, {r.ci_high:.4g}]"
+        return f"{r.parameter} ({r.meaning}) = {r.value:.4g} {r.unit} {interval}"
+    active = [text(r) for r in sparse[sparse["active"]].itertuples()]
+    off = ", ".join(sparse.loc[~sparse["active"], "parameter"])
+    lines = [f"\n## The paper's route, side by side\n\nThe L1-sparse fit of variant `{name}` (eq. 11) keeps:\n"]
+    lines += [f"- {a}" for a in active] or ["- no term"]
+    lines.append(f"\nand switches off (interval contains zero): {off or 'none'}.\n")
+    return "\n".join(lines)
+
+
+def markdown(result: Diagnosis, sparse: pd.DataFrame | None = None, sparse_name: str = "") -> str:
+    """The conclusion, the recommendation (config lines), the ranked table and, when given, the paper's route
+    (``sparse_route`` of variant ``sparse_name``), as Markdown."""
     s = result.summary
     columns = ["rank", "effect", "statistic", "p_value", "predicted_error_drop_pct", "confirmed_chi2_dof",
                "delta_bic", "estimate", "verdict"]
@@ -471,7 +507,8 @@ def markdown(result: Diagnosis) -> str:
             f"{len(s['runs'])} fit runs, {s['n_data']} data; chi^2/dof {s['base_chi2_dof']:.3g} "
             f"(goodness-of-fit p = {s['base_gof_p_value']:.3g}); {len(s['candidates'])} candidates tested, "
             f"{len(s['refitted'])} refitted.\n\n**{result.conclusion}**\n{recommendation}\n"
-            "## Candidates\n\n" + "\n".join(rows) + "\n")
+            "## Candidates\n\n" + "\n".join(rows) + "\n"
+            + ("" if sparse is None else _sparse_markdown(sparse, sparse_name)))
 
 
 def plot(result: Diagnosis):

@@ -3,11 +3,20 @@
 from hybridtwin.diagnosis import settings as diagnosis_settings
 
 
+def sparse_route_input(wildcards):
+    """The paper's route shown side by side: the L1-sparse variant's joint fit, when declared and not this one."""
+    name = diagnosis_settings(config)["sparse_variant"]
+    if name in config["variants"] and name != wildcards.variant:
+        return {"sparse": f"results/{name}/parameters.tsv"}
+    return {}
+
+
 rule diagnose:
     """Score test of every candidate effect at the variant's joint fit, refits of the best, verdicts."""
     input:
         parameters="results/{variant}/parameters.tsv",
         harmonics="results/data/harmonics.tsv",
+        unpack(sparse_route_input),
     output:
         table=report(
             "results/{variant}/diagnosis.tsv",
