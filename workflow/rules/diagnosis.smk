@@ -14,9 +14,9 @@ def sparse_route_input(wildcards):
 rule diagnose:
     """Score test of every candidate effect at the variant's joint fit, refits of the best, verdicts."""
     input:
+        unpack(sparse_route_input),
         parameters="results/{variant}/parameters.tsv",
         harmonics="results/data/harmonics.tsv",
-        unpack(sparse_route_input),
     output:
         table=report(
             "results/{variant}/diagnosis.tsv",
