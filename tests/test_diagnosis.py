@@ -114,6 +114,9 @@ def test_hidden_slope_force_is_ranked_first_and_confirmed(slope_base):
     assert table.loc[0, "delta_bic"] < -10
     # the recommended variant is a valid config entry that adds the effect
     assert f"geometric_{table.loc[0, 'effect']}" in result.recommendation
+    recommended = result.summary["recommended_variant"]
+    assert recommended["spec"]["effects"][-1] == table.loc[0, "effect"]
+    assert Variant.from_spec(recommended["name"], recommended["spec"]).unknown_names[-1] in table.loc[0, "parameters"]
     markdown = dg.markdown(result)
     assert result.conclusion in markdown and "| rank |" in markdown
     dg.plot(result)

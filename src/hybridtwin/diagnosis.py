@@ -368,6 +368,9 @@ def _conclude(base: BaseFit, scores: Scores, confirmations: Mapping[str, Confirm
                "misfit": bool(misfit), "alpha_per_candidate": alpha_each,
                "candidates": [s.candidate.name for s in scores.scores], "refitted": list(confirmations),
                "conclusion": conclusion, "score_seconds": scores.seconds,
+               "recommended_variant": None if best is None else {
+                   "name": f"{base.variant.name}_{best.candidate.name}",
+                   "spec": variant_spec(base.variant, best.candidate)},
                "refit_seconds": float(sum(cf.seconds for cf in confirmations.values()))}
     return Diagnosis(table, conclusion, recommendation, summary, dict(confirmations))
 
@@ -407,15 +410,27 @@ def _table(scores: Scores, confirmations: Mapping[str, Confirmation], verdicts: 
     return pd.DataFrame(rows)
 
 
-def variant_lines(base: Variant, candidate: Candidate, name: str) -> str:
-    """The YAML of a new variant = ``base`` + ``candidate`` (to paste under ``variants:`` in config.yaml)."""
-    effects = ", ".join([e.name for e in base.model.effects] + [candidate.name])
+def variant_spec(base: Variant, candidate: Candidate) -> dict:
+    """The config entry (``variants:`` form) of ``base`` + ``candidate``, the candidate's parameters unknown."""
     unknown = dict(base.unknown) | {p.name: p.bounds for p in candidate.parameters}
-    ranges = ", ".join(f"{k}: [{lo:g}, {hi:g}]" for k, (lo, hi) in unknown.items())
-    lines = [f"  {name}:", f"    description: \"{base.name} + {candidate.name}: {candidate.meaning}\"",
-             f"    effects: [{effects}]", f"    unknown: {{{ranges}}}"]
+    spec = {"description": f"{base.name} + {candidate.name}: {candidate.meaning}",
+            "effects": [e.name for e in base.model.effects] + [candidate.name],
+            "unknown": {k: [float(lo), float(hi)] for k, (lo, hi) in unknown.items()}}
     if base.fixed:
-        lines.append("    fixed: {" + ", ".join(f"{k}: {v:g}" for k, v in base.fixed.items()) + "}")
+        spec["fixed"] = {k: float(v) for k, v in base.fixed.items()}
+    return spec
+
+
+def variant_lines(name: str, spec: Mapping) -> str:
+    """``spec`` as YAML lines to paste under ``variants:`` in config/config.yaml."""
+    def flow(value) -> str:
+        if isinstance(value, Mapping):
+            return "{" + ", ".join(f"{k}: {flow(v)}" for k, v in value.items()) + "}"
+        if isinstance(value, list):
+            return "[" + ", ".join(flow(v) for v in value) + "]"
+        return f"{value:g}" if isinstance(value, float) else str(value)
+    lines = [f"  {name}:", f"    description: \"{spec['description']}\""]
+    lines += [f"    {key}: {flow(spec[key])}" for key in ("effects", "unknown", "fixed") if key in spec]
     return "\n".join(lines)
 
 
@@ -448,7 +463,7 @@ def _recommend(base: BaseFit, scores: Scores, best: Confirmation | None, confoun
     new_name = f"{variant.name}_{name}"
     recommendation = (f"Add this variant under `variants:` in config/config.yaml, then run `snakemake --cores 2` "
                       f"(only the new variant is built) and compare in results/ledger.tsv:\n\n"
-                      f"{variant_lines(variant, best.candidate, new_name)}\n")
+                      f"{variant_lines(new_name, variant_spec(variant, best.candidate))}\n")
     return conclusion, recommendation
 
 
