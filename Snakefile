@@ -18,6 +18,7 @@ include: "workflow/rules/pod.smk"
 include: "workflow/rules/library.smk"
 include: "workflow/rules/measurements.smk"
 include: "workflow/rules/identification.smk"
+include: "workflow/rules/report.smk"
 
 
 rule all:
@@ -32,4 +33,7 @@ rule all:
         expand("results/{variant}/runs/{run}/parameters.tsv", variant=VARIANTS, run=FIT_RUNS),
         expand("results/{variant}/parameters.tsv", variant=VARIANTS),
         expand("results/{variant}/validation.tsv", variant=VARIANTS),
+        expand("results/{variant}/report/{name}", variant=VARIANTS, name=REPORT_FILES),
+        "results/ledger.tsv",
+        "results/ledger.png",
     default_target: True

@@ -1,0 +1,22 @@
+"""Rule report_overview: per-run errors (fit and validation runs apart), Bode, polar and error map (thin wrapper)."""
+
+import pandas as pd
+
+from hybridtwin import config as cfg
+from hybridtwin import report
+
+smk = snakemake  # noqa: F821 (injected by Snakemake)
+log = cfg.rule_logger(smk.log[0], "report_overview")
+variant = smk.wildcards.variant
+comparisons = report.read_comparisons(pd.read_csv(smk.input.table, sep="\t", dtype={"run": str}))
+errors = report.error_table(comparisons)
+for role, path in (("fit", smk.output.errors), ("validate", smk.output.validation_errors)):
+    errors[errors["role"] == role].to_csv(path, sep="\t", index=False, float_format="%.6g")
+    log.info("%s runs: %s", role, report.pooled(errors[errors["role"] == role]))
+figures = {"bode": lambda: report.plot_bode(comparisons, variant),
+           "polar": lambda: report.plot_polar(comparisons, variant),
+           "error_map": lambda: report.plot_error_map(errors, variant)}
+for name, plot in figures.items():
+    figure = plot()
+    figure.savefig(smk.output[name], dpi=100)
+    report.plt.close(figure)

@@ -1,0 +1,18 @@
+"""Rule report_runs: one figure per run, orbit, signals with the residual, residual whirl spectrum (thin wrapper)."""
+
+from pathlib import Path
+
+import pandas as pd
+
+from hybridtwin import config as cfg
+from hybridtwin import report
+
+smk = snakemake  # noqa: F821 (injected by Snakemake)
+log = cfg.rule_logger(smk.log[0], "report_runs")
+folder = Path(smk.output.runs)
+folder.mkdir(parents=True, exist_ok=True)
+for comparison in report.read_comparisons(pd.read_csv(smk.input.table, sep="\t", dtype={"run": str})):
+    figure = report.plot_run(comparison, smk.wildcards.variant)
+    figure.savefig(folder / f"{comparison.run}.png", dpi=100)
+    report.plt.close(figure)
+    log.info("%s: chi^2/dof %.4g", comparison.run, comparison.chi2_dof)

@@ -1,0 +1,268 @@
+"""The report stage (hybridtwin.report): the numbers the figures and the ledger show, on synthetic fits with known
+harmonics, and that every figure is written. Seconds, no solver."""
+
+from types import SimpleNamespace
+
+import numpy as np
+import pandas as pd
+import pytest
+from scipy import stats
+
+from hybridtwin import identification as idn
+from hybridtwin import report
+
+H = 3
+RUNS = ["a", "b"]
+RPM = [500.0, 800.0]
+MASS = {"a": 25.9, "b": 0.0}
+PHASES = {"a": 0.7, "b": -2.1}
+
+
+def _model() -> np.ndarray:
+    """Model harmonics (2 runs, H, 2): a forward circular 1X of radius 1 mm and 2 mm, a small 3X."""
+    M = np.zeros((2, H, 2), complex)
+    for k, radius in enumerate((1e-3, 2e-3)):
+        M[k, 0] = radius * np.array([1.0, -1j])  # x = r cos, y = r sin: forward whirl
+        M[k, 2] = 1e-5 * np.array([1.0 + 0.5j, 0.3j])
+    return M
+
+
+def _residual() -> np.ndarray:
+    """Known misfit in the model's frame: run a on the noise floor, run b a backward 3X of 40 um."""
+    rng = np.random.default_rng(3)
+    R = 1e-6 * (rng.standard_normal((2, H, 2)) + 1j * rng.standard_normal((2, H, 2)))
+    R[1, 2] += 40e-6 * np.array([1.0, 1j])  # x = c cos 3wt, y = -c sin 3wt: backward
+    return R
+
+
+def _rotate(Z: np.ndarray, phase: float) -> np.ndarray:
+    return Z * np.exp(1j * np.arange(1, H + 1) * phase)[:, None]
+
+
+@pytest.fixture
+def synthetic(tmp_path):
+    """A joint fit stored by identification.write_fit (duck-typed result), its parameters, summary and sheet."""
+    M, R = _model(), _residual()
+    fitted = np.stack([_rotate(M[k], PHASES[r]) for k, r in enumerate(RUNS)])
+    measured = np.stack([_rotate(M[k] + R[k], PHASES[r]) for k, r in enumerate(RUNS)])
+    sigma = np.full((2, H, 2), 1e-6)
+    fit = SimpleNamespace(X=measured, fitted=lambda: fitted, problem=SimpleNamespace(sigma=sigma),
+                          layout=SimpleNamespace(runs=tuple(RUNS)), chi2_dof=1.0, values=lambda: {"k": 1.0})
+    idn.write_fit(tmp_path / "fit.zarr", fit, RPM)
+    parameters = pd.DataFrame({"parameter": ["k"] + ["phase"] * 2, "run": ["all"] + RUNS,
+                               "kind": ["shared", "nuisance", "nuisance"], "value": [1.0, *PHASES.values()],
+                               "source": "solver"})
+    summary = {"n_data": 4 * H * 2, "dof": 4 * H * 2 - 5}
+    sheet = pd.DataFrame({"run": RUNS, "eccentric_mass_g": [MASS[r] for r in RUNS]})
+    comparisons = report.fit_comparisons(tmp_path / "fit.zarr", parameters, summary, sheet)
+    return SimpleNamespace(comparisons=comparisons, M=M, R=R, sigma=sigma, summary=summary, parameters=parameters)
+
+
+def test_whirl_splits_circular_and_elliptic_orbits():
+    forward, backward = report.whirl(np.array([[1.0, -1j]]))  # x = cos, y = sin
+    assert forward[0] == pytest.approx(1.0) and abs(backward[0]) < 1e-15
+    forward, backward = report.whirl(np.array([[1.0, 1j]]))  # x = cos, y = -sin
+    assert abs(forward[0]) < 1e-15 and backward[0] == pytest.approx(1.0)
+    Z = np.array([[3.0, -2j], [0.0, 0.0]])  # ellipse x = 3 cos, y = 2 sin: forward 2.5, backward 0.5
+    forward, backward = report.whirl(Z)
+    assert abs(forward[0]) == pytest.approx(2.5) and abs(backward[0]) == pytest.approx(0.5)
+    angle, xy = report.waveform(Z, 1.0, 50)
+    z = xy[:, 0] + 1j * xy[:, 1]
+    assert np.allclose(z, forward[0] * np.exp(1j * angle) + backward[0] * np.exp(-1j * angle))
+
+
+def test_whirl_noise_is_the_rms_of_a_noise_only_component():
+    rng = np.random.default_rng(0)
+    sigma = np.array([[2.0, 1.0]])
+    n = 200000
+    noise = sigma * (rng.standard_normal((n, 1, 2)) + 1j * rng.standard_normal((n, 1, 2)))
+    forward, backward = report.whirl(noise[:, 0, :].reshape(n, 2))
+    expected = report.whirl_noise(sigma)[0]
+    assert np.sqrt(np.mean(np.abs(forward) ** 2)) == pytest.approx(expected, rel=0.01)
+    assert np.sqrt(np.mean(np.abs(backward) ** 2)) == pytest.approx(expected, rel=0.01)
+
+
+def test_fit_runs_return_to_the_model_frame_with_the_known_residual(synthetic):
+    for k, c in enumerate(synthetic.comparisons):
+        assert c.run == RUNS[k] and c.role == "fit" and c.rpm == RPM[k] and c.eccentric_mass_g == MASS[c.run]
+        assert np.allclose(c.model, synthetic.M[k], atol=1e-15)
+        assert np.allclose(c.residual, synthetic.R[k], atol=1e-15)
+        assert c.chi2 == pytest.approx((np.abs(synthetic.R[k]) ** 2).sum() / 1e-12)
+    # the residual spectrum shows what was put in: run b's backward 3X of 40 um, nothing forward above noise
+    forward, backward = report.whirl(synthetic.comparisons[1].residual)
+    assert abs(backward[2]) == pytest.approx(40e-6, rel=0.1)
+    assert abs(forward[2]) < 5e-6
+
+
+def test_run_dofs_add_up_to_the_joint_fit(synthetic):
+    errors = report.error_table(synthetic.comparisons)
+    assert errors["dof"].sum() == pytest.approx(synthetic.summary["dof"])
+    total = sum(c.chi2 for c in synthetic.comparisons)
+    assert report.pooled(errors)["chi2_dof"] == pytest.approx(total / synthetic.summary["dof"])
+    dof = 4 * H * synthetic.summary["dof"] / synthetic.summary["n_data"]
+    assert errors["chi2_dof"].tolist() == pytest.approx([c.chi2 / dof for c in synthetic.comparisons])
+    assert errors["p_value"].tolist() == pytest.approx([stats.chi2.sf(c.chi2, dof) for c in synthetic.comparisons])
+    assert errors["beyond_noise"].tolist() == [False, True]
+    relative = [np.linalg.norm(synthetic.R[k]) / np.linalg.norm(synthetic.M[k] + synthetic.R[k]) for k in range(2)]
+    assert errors["error_pct"].tolist() == pytest.approx([100 * e for e in relative])
+
+
+def test_comparison_table_round_trip(synthetic):
+    back = report.read_comparisons(report.comparison_table(synthetic.comparisons))
+    for a, b in zip(synthetic.comparisons, back):
+        assert (a.run, a.role, a.rpm, a.eccentric_mass_g, a.dof, a.source) == (b.run, b.role, b.rpm,
+                                                                                b.eccentric_mass_g, b.dof, b.source)
+        assert np.array_equal(a.measured, b.measured) and np.array_equal(a.model, b.model)
+
+
+class _Fixed:
+    """A HarmonicModel returning fixed harmonics (the validation path without a library)."""
+
+    parameters, lower, upper, H = ["k"], np.array([0.0]), np.array([2.0]), H
+
+    def __init__(self, M: np.ndarray):
+        self.M = M
+
+    def evaluate(self, x, jacobian=True):
+        return np.repeat(self.M[None], len(np.atleast_2d(x)), axis=0), None
+
+
+def test_validation_run_is_scored_like_predict_validation():
+    M, R = _model()[0], _residual()[1]
+    sigma = np.full((H, 2), 1e-6)
+    data = idn.RunData("v", 700.0, 19.5, "validate", _rotate(M + R, 1.3), sigma)
+    c = report.validation_comparison(_Fixed(M), data, {"k": 1.0}, 0.0, "library")
+    scored = idn.predict_run(_Fixed(M), data, {"k": 1.0})
+    assert c.role == "validate" and c.dof == 4 * H - 1
+    assert c.error_rel == pytest.approx(scored["error_rel"])
+    assert c.chi2 == pytest.approx(scored["chi2_per_residual"] * 4 * H)
+    assert np.allclose(c.model, M, atol=1e-12)  # the model is in its own frame, the measurement rotated to it
+    clean = idn.RunData("v", 700.0, 19.5, "validate", _rotate(M, 1.3), sigma)
+    exact = report.validation_comparison(_Fixed(M), clean, {"k": 1.0}, 0.0, "library")
+    assert np.allclose(exact.measured, M, atol=1e-12) and exact.chi2 < 1e-12
+
+
+def test_drift_test_recovers_a_slope_and_flags_a_drift():
+    rpm = np.linspace(400, 1000, 13)
+    line = report.drift_test(2.0 + 1e-3 * rpm, np.full(13, 0.01), rpm)
+    assert line["slope_per_rpm"] == pytest.approx(1e-3)
+    assert line["slope_stderr_per_rpm"] == pytest.approx(0.01 / np.sqrt(((rpm - rpm.mean()) ** 2).sum()))
+    assert line["drifts"]
+    rng = np.random.default_rng(1)
+    step = np.where(rpm > 700, 1.0, 0.0) * np.cos(rpm)  # no trend, but not one value
+    assert report.drift_test(5 + step + 0.05 * rng.standard_normal(13), np.full(13, 0.05), rpm)["drifts"]
+
+
+def test_drift_test_false_alarm_rate_on_constants_with_noise():
+    """Constants with Gaussian noise of the stated sigma: flagged at most ALPHA of the time (Bonferroni over the
+    two tests, so between ALPHA / 2 and ALPHA); 4000 series, bounds at 3 binomial standard deviations."""
+    rng = np.random.default_rng(2)
+    rpm = np.linspace(350, 1000, 15)
+    sigma = rng.uniform(0.5, 2.0, 15)
+    n = 4000
+    flags = sum(report.drift_test(3.0 + sigma * rng.standard_normal(15), sigma, rpm)["drifts"] for _ in range(n))
+    spread = 3 * np.sqrt(report.ALPHA * (1 - report.ALPHA) / n)
+    assert report.ALPHA / 2 - spread < flags / n < report.ALPHA + spread
+
+
+def _per_run(values: dict[str, np.ndarray], rpm: np.ndarray, at_bound: dict[str, np.ndarray]) -> pd.DataFrame:
+    rows = []
+    for p, v in values.items():
+        for i, (r, value) in enumerate(zip(rpm, v)):
+            rows.append({"parameter": p, "run": f"r{i}", "unit": "1", "value": value, "stderr": 1e3,
+                         "mc_std": 0.1, "at_bound": bool(at_bound[p][i]), "rpm": r, "eccentric_mass_g": 10.0,
+                         "lower": 0.0, "upper": 10.0})
+    return pd.DataFrame(rows)
+
+
+def test_drift_statistics_flag_only_drifting_constants():
+    rpm = np.linspace(400, 1000, 10)
+    rng = np.random.default_rng(4)
+    noise = 0.1 * rng.standard_normal(10)
+    bound = np.zeros(10, bool)
+    bound[[2, 5]] = True
+    per_run = _per_run({"k": 5 + 0.004 * (rpm - 700) + noise, "c": 5 + noise, "q": 1 + 0.004 * (rpm - 400)},
+                       rpm, {"k": bound, "c": np.zeros(10, bool), "q": np.zeros(10, bool)})
+    joint = pd.DataFrame({"parameter": ["k", "c"] + ["q"] * 10 + ["phase"] * 10,
+                          "run": ["all", "all"] + [f"r{i}" for i in range(10)] * 2,
+                          "kind": ["shared", "shared"] + ["per_run"] * 10 + ["nuisance"] * 10,
+                          "value": [5.0, 5.0] + [1.0] * 10 + [0.0] * 10})
+    table = report.drift_statistics(per_run, joint).set_index("parameter")
+    assert table.loc["k", "n_used"] == 8 and table.loc["k", "n_at_bound"] == 2  # edge estimates not tested
+    assert table.loc["k", "sigma_source"] == "monte_carlo"  # the MC spread, not the (huge) linearised stderr
+    assert table.loc["k", "flagged"] and not table.loc["c", "flagged"]
+    assert table.loc["q", "drifts"] and not table.loc["q", "flagged"]  # per-run: allowed to vary
+    assert table.loc["k", "slope_per_rpm"] == pytest.approx(0.004, rel=0.1)
+    assert table.loc["k", "joint_value"] == 5.0 and np.isnan(table.loc["q", "joint_value"])
+
+
+def test_bic_and_ledger_rows_from_known_inputs():
+    assert report.bic(100.0, 40, 30) == pytest.approx(100.0 + 10 * np.log(40))
+    errors = pd.DataFrame({
+        "run": ["a", "b", "v"], "role": ["fit", "fit", "validate"], "source": "solver",
+        "chi2": [10.0, 30.0, 57.0], "dof": [10.0, 10.0, 19.0], "chi2_dof": [1.0, 3.0, 3.0],
+        "beyond_noise": [False, True, True], "error_pct": [1.0, 2.0, 4.0], "signal_m": [1.0, 1.0, 2.0]})
+    rows = [report.ledger_row("base", "the base", {"n_data": 24, "dof": 20, "chi2": 40.0}, errors),
+            report.ledger_row("better", "", {"n_data": 24, "dof": 18, "chi2": 19.0}, errors)]
+    ledger = report.ledger_table(rows)
+    assert list(ledger.columns[: len(report.LEDGER_COLUMNS)]) == report.LEDGER_COLUMNS
+    assert ledger["variant"].tolist() == ["base", "better"]  # config order kept
+    base = ledger.iloc[0]
+    assert base["k"] == 4 and base["chi2_dof"] == pytest.approx(2.0) and base["excess_over_noise_pct"] == 100.0
+    assert base["bic"] == pytest.approx(40 + 4 * np.log(24))
+    assert ledger["delta_bic"].tolist() == pytest.approx([40 + 4 * np.log(24) - 19 - 6 * np.log(24), 0.0])
+    assert base["error_pct"] == pytest.approx(np.sqrt((1 + 4) / 2))
+    assert (base["run_chi2_dof_median"], base["run_chi2_dof_max"], base["worst_run"]) == (2.0, 3.0, "b")
+    assert base["runs_beyond_noise"] == 1
+    assert base["validation_chi2_dof"] == 3.0 and base["validation_error_pct"] == pytest.approx(4.0)
+    assert (base["chi2_dof_a"], base["chi2_dof_b"], base["chi2_dof_v"]) == (1.0, 3.0, 3.0)
+
+
+def test_figures_show_the_numbers_and_are_written(synthetic, tmp_path):
+    M = _model()[0]
+    data = idn.RunData("v", 650.0, 19.5, "validate", _rotate(M * 1.1, 0.4), np.full((H, 2), 1e-6))
+    comparisons = synthetic.comparisons + [report.validation_comparison(_Fixed(M), data, {"k": 1.0}, 0.0, "solver")]
+    errors = report.error_table(comparisons)
+    # the error map colours each run by its chi^2/dof, fit runs and the validation run in separate markers
+    error_map = report.plot_error_map(errors, "synthetic")
+    fit_points, validation_points = error_map.axes[0].collections[:2]
+    assert np.allclose(fit_points.get_array(), errors.loc[errors["role"] == "fit", "chi2_dof"])
+    assert np.allclose(validation_points.get_array(), errors.loc[errors["role"] == "validate", "chi2_dof"])
+    # the run figure's residual bars are the residual's whirl components (backward -H..-1, forward 1..H) in um
+    run_figure = report.plot_run(comparisons[1], "synthetic")
+    spectrum = run_figure.axes[-1]
+    bars = {c.get_label(): [b.get_height() for b in c] for c in spectrum.containers}
+    forward, backward = report.whirl(synthetic.R[1])
+    expected = np.abs(np.concatenate([backward[::-1], forward])) * 1e6
+    floor = spectrum.get_ylim()[0]
+    assert np.allclose(bars["residual"], np.maximum(expected, floor))
+    per_run = _per_run({"k": np.linspace(4, 6, 5)}, np.linspace(400, 800, 5), {"k": np.zeros(5, bool)})
+    statistics = report.drift_statistics(per_run, synthetic.parameters)
+    figures = {"run": run_figure, "error_map": error_map, "bode": report.plot_bode(comparisons, "synthetic"),
+               "polar": report.plot_polar(comparisons, "synthetic"),
+               "drift": report.plot_drift(per_run, statistics, synthetic.parameters, "synthetic"),
+               "ledger": report.plot_ledger(report.ledger_table([report.ledger_row(
+                   "synthetic", "", {"n_data": 24, "dof": 19, "chi2": errors["chi2"][:2].sum()}, errors)]),
+                   {"synthetic": errors})}
+    for name, figure in figures.items():
+        figure.savefig(tmp_path / f"{name}.png", dpi=40)
+        report.plt.close(figure)
+        assert (tmp_path / f"{name}.png").stat().st_size > 1000
+
+
+def test_two_fit_runs_and_no_validation_run(synthetic, tmp_path):
+    """The smallest workflow: too few runs to test a drift, no validation run; tables and figures still made."""
+    per_run = _per_run({"k": np.array([4.0, 6.0])}, np.array(RPM), {"k": np.zeros(2, bool)})
+    statistics = report.drift_statistics(per_run, synthetic.parameters)
+    assert list(statistics.columns) == report.DRIFT_COLUMNS  # the same columns whatever the number of runs
+    assert statistics["verdict"].tolist() == ["too few usable per-run estimates to test"]
+    assert not statistics["flagged"].any()
+    errors = report.error_table(synthetic.comparisons)
+    row = report.ledger_row("v", "", {"n_data": 24, "dof": 19, "chi2": errors["chi2"].sum()}, errors)
+    assert np.isnan(row["validation_chi2_dof"]) and row["worst_validation_run"] == ""
+    figures = [report.plot_drift(per_run, statistics, synthetic.parameters, "small"),
+               report.plot_error_map(errors, "small"), report.plot_bode(synthetic.comparisons, "small"),
+               report.plot_ledger(report.ledger_table([row]), {"v": errors})]
+    for i, figure in enumerate(figures):
+        figure.savefig(tmp_path / f"{i}.png", dpi=30)
+        report.plt.close(figure)

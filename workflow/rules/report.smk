@@ -1,0 +1,151 @@
+# Compare and see where it fails (issue 6): per variant, the joint fit's runs and the validation runs against the
+# measurements (per-run figures, Bode and polar plots, error map, drift of the per-run estimates), and the ledger
+# of all variants. Everything reads the identification outputs; only the validation predictions are recomputed.
+
+
+REPORT_FILES = ["harmonics.tsv", "runs", "errors.tsv", "validation_errors.tsv", "bode.png", "polar.png",
+                "error_map.png", "drift.tsv", "drift.png"]
+
+
+rule report_harmonics:
+    """Measured and model harmonics of every fit and validation run, in the model's frame."""
+    input:
+        fit="results/{variant}/identification/fit.zarr",
+        parameters="results/{variant}/parameters.tsv",
+        summary="results/{variant}/identification/summary.yaml",
+        validation="results/{variant}/validation.tsv",
+        libraries=expand("results/{{variant}}/library/{run}.zarr", run=VALIDATION_RUNS),
+        library_validation="results/{variant}/library_validation.tsv",
+        harmonics="results/data/harmonics.tsv",
+    output:
+        table="results/{variant}/report/harmonics.tsv",
+    params:
+        spec=lambda wildcards: config["variants"][wildcards.variant],
+        options=lambda wildcards: rule_settings(config, wildcards.variant, "validation"),
+        harmonics=config["harmonics"],
+    log:
+        "logs/{variant}/report_harmonics.log",
+    benchmark:
+        "results/benchmarks/{variant}/report_harmonics.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
+    script:
+        "../../scripts/report_harmonics.py"
+
+
+rule report_runs:
+    """One figure per run: orbit, x and y over two revolutions with the residual, residual whirl spectrum."""
+    input:
+        table="results/{variant}/report/harmonics.tsv",
+    output:
+        runs=report(
+            directory("results/{variant}/report/runs"),
+            patterns=["{run}.png"],
+            caption="../report/report_runs.rst",
+            category="Comparison per run",
+            subcategory="{variant}",
+            labels={"variant": "{variant}", "run": "{run}"},
+        ),
+    log:
+        "logs/{variant}/report_runs.log",
+    benchmark:
+        "results/benchmarks/{variant}/report_runs.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
+    script:
+        "../../scripts/report_runs.py"
+
+
+rule report_overview:
+    """Errors per run (fit and validation runs apart), Bode and polar plots of 1X-3X, the error map."""
+    input:
+        table="results/{variant}/report/harmonics.tsv",
+    output:
+        errors=report(
+            "results/{variant}/report/errors.tsv",
+            caption="../report/report_errors.rst",
+            category="Comparison",
+            subcategory="{variant}",
+        ),
+        validation_errors=report(
+            "results/{variant}/report/validation_errors.tsv",
+            caption="../report/report_validation_errors.rst",
+            category="Comparison",
+            subcategory="{variant}",
+        ),
+        bode=report(
+            "results/{variant}/report/bode.png",
+            caption="../report/report_bode.rst",
+            category="Comparison",
+            subcategory="{variant}",
+        ),
+        polar=report(
+            "results/{variant}/report/polar.png",
+            caption="../report/report_polar.rst",
+            category="Comparison",
+            subcategory="{variant}",
+        ),
+        error_map=report(
+            "results/{variant}/report/error_map.png",
+            caption="../report/report_error_map.rst",
+            category="Comparison",
+            subcategory="{variant}",
+        ),
+    log:
+        "logs/{variant}/report_overview.log",
+    benchmark:
+        "results/benchmarks/{variant}/report_overview.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
+    script:
+        "../../scripts/report_overview.py"
+
+
+rule report_drift:
+    """Per-run estimates vs speed: does a constant of the model drift? (chi^2 and slope tests)"""
+    input:
+        per_run="results/{variant}/identification/per_run.tsv",
+        parameters="results/{variant}/parameters.tsv",
+    output:
+        table=report(
+            "results/{variant}/report/drift.tsv",
+            caption="../report/report_drift_table.rst",
+            category="Comparison",
+            subcategory="{variant}",
+        ),
+        plot=report(
+            "results/{variant}/report/drift.png",
+            caption="../report/report_drift.rst",
+            category="Comparison",
+            subcategory="{variant}",
+        ),
+    log:
+        "logs/{variant}/report_drift.log",
+    benchmark:
+        "results/benchmarks/{variant}/report_drift.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
+    script:
+        "../../scripts/report_drift.py"
+
+
+rule ledger:
+    """All variants of the config side by side: normalised error, BIC, validation error (results/ledger.tsv)."""
+    input:
+        summaries=expand("results/{variant}/identification/summary.yaml", variant=VARIANTS),
+        errors=expand("results/{variant}/report/errors.tsv", variant=VARIANTS),
+        validation_errors=expand("results/{variant}/report/validation_errors.tsv", variant=VARIANTS),
+    output:
+        table=report("results/ledger.tsv", caption="../report/ledger.rst", category="Ledger"),
+        plot=report("results/ledger.png", caption="../report/ledger_plot.rst", category="Ledger"),
+    params:
+        variants=VARIANTS,
+        descriptions={name: spec.get("description", "") for name, spec in config["variants"].items()},
+    log:
+        "logs/ledger.log",
+    benchmark:
+        "results/benchmarks/ledger.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
+    script:
+        "../../scripts/ledger.py"
