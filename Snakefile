@@ -18,7 +18,11 @@ include: "workflow/rules/pod.smk"
 include: "workflow/rules/library.smk"
 include: "workflow/rules/measurements.smk"
 include: "workflow/rules/identification.smk"
+include: "workflow/rules/diagnosis.smk"
 include: "workflow/rules/report.smk"
+
+
+localrules: check_data, measured_harmonics, sample_scenarios  # seconds-long, run on the submit host under profiles/slurm
 
 
 rule all:
@@ -33,6 +37,8 @@ rule all:
         expand("results/{variant}/runs/{run}/parameters.tsv", variant=VARIANTS, run=FIT_RUNS),
         expand("results/{variant}/parameters.tsv", variant=VARIANTS),
         expand("results/{variant}/validation.tsv", variant=VARIANTS),
+        expand("results/{variant}/diagnosis.tsv", variant=VARIANTS),
+        expand("results/{variant}/diagnosis.md", variant=VARIANTS),
         expand("results/{variant}/report/{name}", variant=VARIANTS, name=REPORT_FILES),
         "results/ledger.tsv",
         "results/ledger.png",

@@ -3,6 +3,7 @@ import pandas as pd
 from snakemake.utils import validate
 
 from hybridtwin.config import offline, run_plan
+from hybridtwin.diagnosis import settings as diagnosis_settings
 
 
 validate(config, "../schemas/config.schema.yaml")
@@ -19,3 +20,11 @@ wildcard_constraints:
     variant="|".join(VARIANTS),
     chunk=r"\d{3}",
     run="|".join(RUNS),
+
+
+def sparse_route_input(wildcards):
+    """The paper's route shown side by side: the L1-sparse variant's joint fit, when declared and not this one."""
+    name = diagnosis_settings(config)["sparse_variant"]
+    if name in config["variants"] and name != wildcards.variant:
+        return {"sparse": f"results/{name}/parameters.tsv"}
+    return {}

@@ -1,16 +1,5 @@
 # Diagnosis (issue 6): which candidate effect is the variant missing? Score tests at the joint fit with the
 # full solver's sensitivities, the best confirmed by refitting, ranked with verdicts and a recommendation.
-from hybridtwin.diagnosis import settings as diagnosis_settings
-
-
-def sparse_route_input(wildcards):
-    """The paper's route shown side by side: the L1-sparse variant's joint fit, when declared and not this one."""
-    name = diagnosis_settings(config)["sparse_variant"]
-    if name in config["variants"] and name != wildcards.variant:
-        return {"sparse": f"results/{name}/parameters.tsv"}
-    return {}
-
-
 rule diagnose:
     """Score test of every candidate effect at the variant's joint fit, refits of the best, verdicts."""
     input:
