@@ -1,13 +1,29 @@
-"""Rule gather_snapshots: chunks -> one snapshot store, failures listed (thin wrapper)."""
+"""Rule gather_snapshots: chunks -> one snapshot store, failures listed (thin wrapper).
+
+A chunk store that fails its manifest check (a file missing, changed or unlisted, or no
+manifest: see hybridtwin.snapshots) is removed and the job fails naming it, so the next
+`snakemake` run solves that chunk again instead of gathering zeros.
+"""
+
+import shutil
+import sys
 
 import pandas as pd
 
 from hybridtwin import config as cfg
-from hybridtwin.snapshots import gather
+from hybridtwin.snapshots import CorruptStoreError, gather
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "gather_snapshots")
-snapshots = gather(smk.input.chunks, pd.read_csv(smk.input.scenarios, sep="\t"), smk.output.store)
+try:
+    snapshots = gather(smk.input.chunks, pd.read_csv(smk.input.scenarios, sep="\t"), smk.output.store)
+except CorruptStoreError as error:
+    for path in error.problems:
+        shutil.rmtree(path, ignore_errors=True)
+    message = (f"{error}\nremoved {len(error.problems)} chunk store(s): {', '.join(error.problems)}; "
+               "run snakemake again to solve them anew")
+    log.error(message)
+    sys.exit(message)
 failures = snapshots.failures()
 failures.to_csv(smk.output.failures, sep="\t", index=False)
 log.info("%d scenarios x %d runs gathered; %d failed solves", snapshots.success.shape[1], len(snapshots.runs),

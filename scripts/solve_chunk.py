@@ -25,3 +25,4 @@ for run, ok in zip(solutions.runs, solutions.success):
     log.info("run %s: %d of %d converged", run, ok.sum(), ok.size)
 log.info("solved in %.1f s (%.2f ms per scenario and run)", elapsed, 1e3 * elapsed / solutions.success.size)
 write_chunk(smk.output[0], variant.name, mine, variant.unknown_names, solutions)
+log.info("wrote %s, its manifest.sha256 last (gather_snapshots verifies it)", smk.output[0])

@@ -11,10 +11,20 @@ group; ``gather`` checks that the chunks hold exactly the sampled scenarios
       branch      (R, S) str                  direct / run-up / run-up, jump between ...
       scenario    (S,) int64,  split (S,) str,  parameters (S, d) float64 [SI]
       attrs: variant, runs, rpm and eccentric_mass_g of each run (as solved), parameter names
+      manifest.sha256                         sha256 of every other file (``sha256sum -c`` format)
+
+Integrity: zarr reads a missing chunk file as the array's fill value (zeros here), so a
+store that lost a file on the way (a node's disk, a partial copy, an interrupted write)
+would give plausible-looking zeros. Every store written here ends with a manifest of its
+files' checksums, written last (a store without one is incomplete); ``gather`` verifies
+each chunk store against it and reports every bad one by name (``CorruptStoreError``), and
+``load`` verifies the gathered store.
 """
 
 from __future__ import annotations
 
+import hashlib
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,6 +35,71 @@ import zarr
 
 from .effects import Array
 from .scenarios import RunSolutions
+
+
+MANIFEST = "manifest.sha256"
+# files a store may hold besides the manifested ones (Snakemake marks its directory outputs with this one)
+_UNLISTED = {MANIFEST, ".snakemake_timestamp"}
+
+
+class CorruptStoreError(ValueError):
+    """Stores whose files do not match their manifest; ``problems`` maps each store to what is wrong."""
+
+    def __init__(self, problems: dict[str, list[str]], what: str = "store"):
+        self.problems = problems
+        lines = [f"{path}: {'; '.join(found[:5])}{' ...' if len(found) > 5 else ''}"
+                 for path, found in problems.items()]
+        super().__init__(f"corrupt or incomplete {what}(s), not read (a missing zarr chunk would read as zeros):\n  "
+                         + "\n  ".join(lines))
+
+
+def _sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as file:
+        for block in iter(lambda: file.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def _store_files(root: Path) -> list[Path]:
+    return sorted(p for p in root.rglob("*") if p.is_file() and p.name not in _UNLISTED)
+
+
+def write_manifest(path: str | Path) -> None:
+    """Checksum every file of the store into ``manifest.sha256`` (atomically, as the store's last file)."""
+    root = Path(path)
+    lines = [f"{_sha256(f)}  {f.relative_to(root).as_posix()}\n" for f in _store_files(root)]
+    partial = root / f".{MANIFEST}.partial"
+    partial.write_text("".join(lines))
+    os.replace(partial, root / MANIFEST)
+
+
+def verify_store(path: str | Path, require_manifest: bool = True) -> list[str]:
+    """What is wrong with a store against its manifest: missing, changed or unlisted files ([] if intact).
+
+    Without a manifest the store is reported incomplete, or (``require_manifest=False``, stores
+    written before manifests existed) accepted unchecked.
+    """
+    root = Path(path)
+    if not root.is_dir():
+        return ["store missing"]
+    manifest = root / MANIFEST
+    if not manifest.is_file():
+        return ["no manifest.sha256 (incomplete: its job did not finish writing it)"] if require_manifest else []
+    listed = {}
+    for line in manifest.read_text().splitlines():
+        digest, _, name = line.partition("  ")
+        listed[name] = digest
+    problems = []
+    for name, digest in listed.items():
+        file = root / name
+        if not file.is_file():
+            problems.append(f"missing {name}")
+        elif _sha256(file) != digest:
+            problems.append(f"changed {name}")
+    problems += [f"unlisted {name}" for name in sorted({f.relative_to(root).as_posix() for f in _store_files(root)}
+                                                       - set(listed))]
+    return problems
 
 
 @dataclass
@@ -69,6 +144,7 @@ def write_chunk(path: str | Path, variant: str, scenarios: pd.DataFrame, paramet
     _write(group, "success", solutions.success)
     _write(group, "message", solutions.message.astype(str))
     _write(group, "branch", solutions.branch.astype(str))
+    write_manifest(path)
 
 
 def _write(group: zarr.Group, name: str, data: Array, chunks: tuple[int, ...] | None = None) -> None:
@@ -76,10 +152,18 @@ def _write(group: zarr.Group, name: str, data: Array, chunks: tuple[int, ...] | 
 
 
 def gather(chunk_paths: Sequence[str | Path], expected: pd.DataFrame, out: str | Path) -> Snapshots:
-    """Join the chunk stores into one; the scenarios must be exactly those of ``expected``."""
-    parts = [zarr.open_group(str(p), mode="r") for p in chunk_paths]
-    if not parts:
+    """Join the chunk stores into one; the scenarios must be exactly those of ``expected``.
+
+    Every chunk store is first verified against its manifest: a missing, changed or unlisted
+    file, or no manifest at all, raises ``CorruptStoreError`` naming each bad chunk (all of
+    them, so one rerun rebuilds them all).
+    """
+    if not chunk_paths:
         raise ValueError("no chunk stores to gather")
+    bad = {str(p): found for p in chunk_paths if (found := verify_store(p))}
+    if bad:
+        raise CorruptStoreError(bad, "chunk store")
+    parts = [zarr.open_group(str(p), mode="r") for p in chunk_paths]
     scenario = np.concatenate([g["scenario"][:] for g in parts])
     wanted = expected["scenario"].to_numpy(np.int64)
     missing = np.setdiff1d(wanted, scenario)
@@ -122,10 +206,17 @@ def save(snapshots: Snapshots, path: str | Path) -> None:
     _write(group, "scenario", snapshots.scenario)
     _write(group, "split", snapshots.split.astype(str))
     _write(group, "parameters", snapshots.values)
+    write_manifest(path)
 
 
 def load(path: str | Path, run: str | None = None) -> Snapshots:
-    """Read a gathered store, all runs or only ``run`` (reads that run's chunks only)."""
+    """Read a gathered store, all runs or only ``run`` (reads that run's chunks only).
+
+    The store is verified against its manifest first (stores from before manifests are read unchecked).
+    """
+    problems = verify_store(path, require_manifest=False)
+    if problems:
+        raise CorruptStoreError({str(path): problems}, "snapshot store")
     group = zarr.open_group(str(path), mode="r")
     runs = list(group.attrs["runs"])
     sel = slice(None)

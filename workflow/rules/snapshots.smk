@@ -1,8 +1,11 @@
 # Snapshots: the chunks gathered into one zarr v3 store per variant; every failure listed.
+# Each chunk store carries the checksum manifest its solve_chunk job wrote last (manifest.sha256): a chunk
+# that is incomplete, or lost or changed a file since, is removed and named, and the job fails, so that
+# the next run solves it again (a missing zarr chunk file would otherwise read as zeros).
 
 
 rule gather_snapshots:
-    """Check the chunks hold exactly the sampled scenarios and join them; list failures with reasons."""
+    """Verify the chunks against their manifests, check they hold exactly the sampled scenarios, join them."""
     input:
         scenarios="results/{variant}/scenarios.tsv",
         chunks=expand("results/{{variant}}/chunks/{chunk}.zarr", chunk=CHUNKS),
