@@ -246,16 +246,17 @@ def confirm(base: BaseFit, score: Score, scores: Scores, max_iterations: int = 4
     problem, theta0 = extended_problem(base, [c])
     layout = problem.layout
     cols = [layout.entries().index((p.name, "all")) for p in c.parameters]
-    # the linear estimate overshoots when the response bends (a cubic term): start from it damped to at most
-    # half the range, and from beta = 0
+    # the linear estimate overshoots when the response bends (a cubic term): start from beta = 0 and along the
+    # linear estimate, damped to at most half the range and to a third of that (fits with several new
+    # parameters have local minima on the box's faces, e.g. one term at its edge compensating another)
     step = score.step * min(1.0, 1.0 / max(np.abs(score.step).max(), 1e-12))
-    linear = theta0.copy()
-    linear[cols] = np.clip(theta0[cols] + step, -1.0, 1.0)
-    starts = np.vstack([theta0, linear])
+    starts = np.repeat(theta0[None], 3, axis=0)
+    for row, scale in ((1, 1.0), (2, 1.0 / 3.0)):
+        starts[row, cols] = np.clip(theta0[cols] + scale * step, -1.0, 1.0)
     # the verdicts compare chi^2 drops against thresholds of 6-10: chi^2 to within ~0.5 is all they need, and
     # stopping there saves the long crawl along flat valleys (each iteration is a full-solver run-up per run)
     options = LMOptions(max_iterations=max_iterations, ftol=1e-6, xtol=1e-6, gtol=1e-8, stall_chi2=STALL_CHI2,
-                        stall_window=3, geodesic=True)
+                        geodesic=True)
     result = levenberg_marquardt(problem, starts, np.repeat(base.X[None], len(starts), axis=0), options)
     best = int(np.nanargmin(np.where(np.isfinite(result.loss), result.loss, np.inf)))
     protocol = ProtocolResult(result, best, np.zeros((0, layout.n)), np.zeros(0), result.seconds, len(starts))
@@ -266,7 +267,10 @@ def confirm(base: BaseFit, score: Score, scores: Scores, max_iterations: int = 4
     lr = scores.base_chi2 - chi2
     table = fit.table()
     estimates = table[table["parameter"].isin([p.name for p in c.parameters]) & (table["run"] == "all")]
-    excludes = bool(((estimates["ci_low"] > 0) | (estimates["ci_high"] < 0)).any())
+    # zero is excluded by the interval, or by an estimate pinned at the range edge away from zero (the data want
+    # more of the effect than the range allows: its interval is not valid there, the likelihood ratio is)
+    far_edge = estimates["at_bound"].astype(bool) & (estimates["value"].abs() > 0)
+    excludes = bool(((estimates["ci_low"] > 0) | (estimates["ci_high"] < 0) | far_edge).any())
     return Confirmation(c, fit, chi2, int(fit.uncertainty.dof), float(lr),
                         float(stats.chi2.sf(max(lr, 0.0), k)), float(-lr + k * np.log(n)), estimates, excludes,
                         time.perf_counter() - start)
@@ -382,8 +386,11 @@ def _conclude(base: BaseFit, scores: Scores, confirmations: Mapping[str, Confirm
 
 
 def _estimate_text(cf: Confirmation) -> str:
-    return "; ".join(f"{r.parameter} = {r.value:.4g} [{r.ci_low:.4g}, {r.ci_high:.4g}] {r.unit}".rstrip()
-                     for r in cf.estimates.itertuples())
+    def one(r) -> str:
+        if r.at_bound:
+            return f"{r.parameter} = {r.value:.4g} {r.unit} (at its range edge: widen the range)"
+        return f"{r.parameter} = {r.value:.4g} [{r.ci_low:.4g}, {r.ci_high:.4g}] {r.unit}".rstrip()
+    return "; ".join(one(r) for r in cf.estimates.itertuples())
 
 
 def _table(scores: Scores, confirmations: Mapping[str, Confirmation], verdicts: Mapping[str, str],

@@ -771,7 +771,8 @@ def _lm_batch(problem: ArrowProblem, theta0: Array, X: Array, options: LMOptions
         history[act, iteration + 1] = F[act] / problem.n_data
         if options.stall_chi2 > 0 and iteration + 1 >= options.stall_window:
             gain = (history[act, iteration + 1 - options.stall_window] - history[act, iteration + 1]) * problem.n_data
-            new_status[(new_status == RUNNING) & (gain < options.stall_chi2)] = STALLED
+            # only on an accepted step: rejected ones (the damping growing) are not a flat valley
+            new_status[(new_status == RUNNING) & accept & (gain < options.stall_chi2)] = STALLED
         status[act] = new_status
     status[status == RUNNING] = MAX_ITERATIONS
     active = np.where(theta <= lower, -1, np.where(theta >= upper, 1, 0))
