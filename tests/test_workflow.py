@@ -39,18 +39,19 @@ variants:
 """
 
 
-def _copy_workflow(work: Path) -> Path:
+def _copy_workflow(work: Path, runs: list[str] = RUNS, config: str = SMALL) -> Path:
+    """The workflow in ``work`` with the bundled records of ``runs`` as data/small and ``config`` as its config."""
     for item in ("Snakefile", "workflow", "scripts", "config", "profiles"):
         source = ROOT / item
         (shutil.copytree if source.is_dir() else shutil.copy)(source, work / item)
     small = work / "data" / "small"
     (small / "records").mkdir(parents=True)
     sheet = pd.read_csv(ROOT / "data" / "default" / "runs.tsv", sep="\t")
-    sheet = sheet[sheet["run"].isin(RUNS)]
+    sheet = sheet[sheet["run"].isin(runs)]
     for path in sheet["path"]:
         shutil.copy(ROOT / "data" / "default" / path, small / path)
     sheet.to_csv(small / "runs.tsv", sep="\t", index=False)
-    (work / "config" / "config.yaml").write_text(SMALL)  # a whole config: overlays cannot remove variants
+    (work / "config" / "config.yaml").write_text(config)  # a whole config: overlays cannot remove variants
     return work
 
 
