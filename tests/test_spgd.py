@@ -121,3 +121,34 @@ def test_library_save_load_round_trip(tmp_path):
     step = np.array([0.0, 0.0, h])
     fd = (library.sensor(values + step) - library.sensor(values - step)) / (2 * h)
     np.testing.assert_allclose(J[..., 2], fd, atol=1e-6 * np.abs(fd).max())
+
+
+def test_evaluation_in_blocks_with_projected_amplitudes_matches_the_plain_sum():
+    """evaluate(): blocks of _CHUNK rows and amplitudes projected beforehand give sum_k a_k prod_j F_j^k."""
+    from hybridtwin import spgd
+
+    X, Y, X_val, Y_val = _split(rank_three)
+    model = SparsePGD(degree=5, max_terms=6).fit(X, Y, X_val, Y_val)
+    X_test = RNG.uniform(-1, 1, (2 * spgd._CHUNK + 7, 3))  # three blocks, the last one short
+    F = np.stack([chebyshev_basis(X_test[:, j], 5) @ model.coefficients[:, j].T for j in range(3)])  # (d, N, K)
+    dF = np.stack([chebyshev_derivative_basis(X_test[:, j], 5) @ model.coefficients[:, j].T for j in range(3)])
+    reference = np.prod(F, axis=0) @ model.amplitudes
+    P = RNG.standard_normal((model.amplitudes.shape[1], 2))  # a projection of the outputs
+    y, J = model.evaluate(X_test, model.amplitudes @ P, jacobian=True)
+    np.testing.assert_allclose(y, reference @ P, rtol=1e-12, atol=1e-12 * np.abs(reference @ P).max())
+    for j in range(3):
+        Jj = (np.prod(np.delete(F, j, axis=0), axis=0) * dF[j]) @ model.amplitudes @ P
+        np.testing.assert_allclose(J[j], Jj, rtol=1e-12, atol=1e-12 * np.abs(Jj).max())
+    np.testing.assert_allclose(model.predict(X_test), reference, rtol=1e-12, atol=1e-12 * np.abs(reference).max())
+
+
+def test_library_sensor_equals_the_field_at_the_sensor_dofs():
+    X, Y, X_val, Y_val = _split(rank_three)
+    model = SparsePGD(degree=4, max_terms=6).fit(X, Y, X_val, Y_val)
+    modes = np.linalg.qr(RNG.standard_normal((2 * 2 * 44, 3)))[0]
+    library = Library("r1", ["a", "b", "c"], np.zeros(3), np.array([1.0, 2.0, 4.0]), modes, np.ones(3), model,
+                      2, 44, [2, 24])
+    values = RNG.uniform([0, 0, 0], [1, 2, 4], (300, 3))
+    np.testing.assert_allclose(library.sensor(values), library.field(values)[:, :, [2, 24]], rtol=1e-12, atol=1e-14)
+    y, _ = library.sensor(values, jacobian=True)
+    np.testing.assert_allclose(y, library.sensor(values), rtol=1e-12, atol=1e-14)

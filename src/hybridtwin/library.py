@@ -61,14 +61,24 @@ class Library:
         return 2.0 * (values - self.lower) / (self.upper - self.lower) - 1.0
 
     def sensor(self, values: Array, jacobian: bool = False) -> Array | tuple[Array, Array]:
-        """Sensor harmonics (N, H+1, 2) complex [U_h, V_h]; with ``jacobian`` also d/dp (N, H+1, 2, d) [m / SI]."""
+        """Sensor harmonics (N, H+1, 2) complex [U_h, V_h]; with ``jacobian`` also d/dp (N, H+1, 2, d) [m / SI].
+
+        The sPGD amplitudes are projected on the sensor rows of the POD basis once (the response is
+        linear in them), so a batch costs the factors and one product with (K, 4 (H+1)) amplitudes.
+        """
         x = self.normalise(values)
+        y, J = self.model.evaluate(x, self._sensor_amplitudes(), jacobian)
         if not jacobian:
-            return self._to_sensor(self.model.predict(x) @ self._sensor_modes.T)
-        alpha, dalpha = self.model.predict_with_jacobian(x)
-        y = self._to_sensor(alpha @ self._sensor_modes.T)
-        dy = np.einsum("fm,nmd->nfd", self._sensor_modes, dalpha, optimize=True) * (2.0 / (self.upper - self.lower))
-        return y, np.moveaxis(self._to_sensor(np.moveaxis(dy, -1, 1)), 1, -1)
+            return self._to_sensor(y)
+        J *= (2.0 / (self.upper - self.lower))[:, None, None]
+        return self._to_sensor(y), np.moveaxis(self._to_sensor(J), 0, -1)
+
+    def _sensor_amplitudes(self) -> Array:
+        """a_k Phi_sensor^T (K, 4 (H+1)), cached for the current amplitudes."""
+        amplitudes = self.model.amplitudes
+        if getattr(self, "_sensor_cache", (None,))[0] is not amplitudes:
+            self._sensor_cache = (amplitudes, np.ascontiguousarray(amplitudes @ self._sensor_modes.T))
+        return self._sensor_cache[1]
 
     def _to_sensor(self, features: Array) -> Array:
         """(..., 2 * 2 * (H+1)) [Re U, Re V, Im U, Im V] -> (..., H+1, 2) complex."""

@@ -35,6 +35,8 @@ from numpy.polynomial import chebyshev
 
 from .effects import Array
 
+_CHUNK = 256  # parameter sets per block in evaluate: the intermediates stay in cache (measured 3x faster than one block of 1000)
+
 
 def chebyshev_basis(x: Array, degree: int) -> Array:
     """T_0..T_degree at x (N,) -> (N, degree+1)."""
@@ -182,33 +184,63 @@ class SparsePGD:
         """Ridge term scaled to the normal matrix: ridge * mean(diag G) * I."""
         return self.ridge * (np.trace(G) / G.shape[0] + 1e-300) * np.eye(G.shape[0])
 
-    def _factors(self, X: Array) -> tuple[Array, Array]:
-        """F_j^k(p_j) and dF_j^k/dp_j at X: each (K, d, N)."""
+    def evaluate(self, X: Array, amplitudes: Array | None = None, jacobian: bool = False) -> tuple[Array, Array | None]:
+        """y = sum_k a_k prod_j F_j^k (N, m) at X (N, d) and, with ``jacobian``, dy/dp stacked as (d, N, m).
+
+        ``amplitudes`` (K, m') replaces a_k, e.g. a_k projected on a few outputs beforehand (the sensor
+        rows of the POD basis): the output is linear in a_k, so projecting first is exact and cheaper.
+        All factors come from one Chebyshev recurrence over every parameter at once and one batched
+        product per parameter; the Jacobian uses prefix and suffix products of the factors
+        (no division) and one matrix product for y and all d derivatives together.
+        """
         X = _check_inputs(X)
-        d = X.shape[1]
-        B = np.stack([chebyshev_basis(X[:, j], self.degree) for j in range(d)])
-        dB = np.stack([chebyshev_derivative_basis(X[:, j], self.degree) for j in range(d)])
-        F = np.einsum("jnb,kjb->kjn", B, self.coefficients, optimize=True)
-        dF = np.einsum("jnb,kjb->kjn", dB, self.coefficients, optimize=True)
-        return F, dF
+        A = self.amplitudes if amplitudes is None else np.asarray(amplitudes)
+        N, d = X.shape
+        y = np.zeros((N, A.shape[1]))
+        J = np.zeros((d, N, A.shape[1])) if jacobian else None
+        if self.coefficients.shape[0] == 0:
+            return y, J
+        C = np.ascontiguousarray(self.coefficients.transpose(1, 2, 0))  # (d, n+1, K)
+        for start in range(0, N, _CHUNK):  # blocks small enough for the intermediates to stay in cache
+            rows = slice(start, min(start + _CHUNK, N))
+            self._evaluate_block(X[rows], A, C, y[rows], None if J is None else J[:, rows])
+        return y, J
+
+    @staticmethod
+    def _evaluate_block(X: Array, A: Array, C: Array, y: Array, J: Array | None) -> None:
+        N, d = X.shape
+        K = C.shape[-1]
+        F = np.matmul(_chebyshev_stack(X, C.shape[1] - 1, J is not None), C)  # (d, N or 2N, K)
+        if J is None:
+            product = F[0]
+            for j in range(1, d):
+                product = product * F[j]
+            np.matmul(product, A, out=y)
+            return
+        F, dF = F[:, :N], F[:, N:]
+        stacked = np.empty((d + 1, N, K))
+        suffix = np.ones((N, K))
+        for j in range(d - 1, -1, -1):
+            np.multiply(suffix, dF[j], out=stacked[1 + j])
+            suffix = suffix * F[j]
+        stacked[0] = suffix
+        prefix = F[0]
+        for j in range(1, d):
+            stacked[1 + j] *= prefix
+            if j < d - 1:
+                prefix = prefix * F[j]
+        out = (stacked.reshape((d + 1) * N, K) @ A).reshape(d + 1, N, -1)
+        y[:] = out[0]
+        J[:] = out[1:]
 
     def predict(self, X: Array) -> Array:
         """y(p) at X (N, d) -> (N, m)."""
-        F, _ = self._factors(X)
-        return np.einsum("kn,km->nm", np.prod(F, axis=1), self.amplitudes, optimize=True)
+        return self.evaluate(X)[0]
 
     def predict_with_jacobian(self, X: Array) -> tuple[Array, Array]:
         """y(p) (N, m) and dy/dp (N, m, d) at X (N, d), exact."""
-        F, dF = self._factors(X)
-        K, d, N = F.shape
-        before = np.ones((K, d, N))
-        after = np.ones((K, d, N))
-        for j in range(1, d):
-            before[:, j] = before[:, j - 1] * F[:, j - 1]
-            after[:, d - 1 - j] = after[:, d - j] * F[:, d - j]
-        y = np.einsum("kn,km->nm", before[:, -1] * F[:, -1], self.amplitudes, optimize=True)
-        J = np.einsum("kjn,km->nmj", before * after * dF, self.amplitudes, optimize=True)
-        return y, J
+        y, J = self.evaluate(X, jacobian=True)
+        return y, np.moveaxis(J, 0, -1)
 
     def to_arrays(self) -> dict[str, Array]:
         return {"amplitudes": self.amplitudes, "coefficients": self.coefficients}
@@ -218,6 +250,30 @@ class SparsePGD:
         model = cls(degree=coefficients.shape[-1] - 1)
         model.amplitudes, model.coefficients = np.asarray(amplitudes), np.asarray(coefficients)
         return model
+
+
+def _chebyshev_stack(X: Array, degree: int, derivative: bool = False) -> Array:
+    """T_0..T_degree of every column of X (N, d) -> (d, N, degree+1); with ``derivative`` the
+    derivatives dT_b/dx stacked below -> (d, 2N, degree+1). Three-term recurrences
+    T_b = 2x T_{b-1} - T_{b-2} and T_b' = 2 T_{b-1} + 2x T_{b-1}' - T_{b-2}'."""
+    N, d = X.shape
+    x = X.T  # (d, N)
+    out = np.empty((d, 2 * N if derivative else N, degree + 1))
+    T = out[:, :N]
+    T[:, :, 0] = 1.0
+    if degree >= 1:
+        T[:, :, 1] = x
+    two_x = 2.0 * x
+    for b in range(2, degree + 1):
+        T[:, :, b] = two_x * T[:, :, b - 1] - T[:, :, b - 2]
+    if derivative:
+        D = out[:, N:]
+        D[:, :, 0] = 0.0
+        if degree >= 1:
+            D[:, :, 1] = 1.0
+        for b in range(2, degree + 1):
+            D[:, :, b] = 2.0 * T[:, :, b - 1] + two_x * D[:, :, b - 1] - D[:, :, b - 2]
+    return out
 
 
 def _products(B: Array, C: Array) -> Array:
