@@ -286,3 +286,19 @@ def test_joint_fit_recovers_the_geometric_truth(geometric_truth):
             assert row["ci_low"] <= TRUTH[name] <= row["ci_high"], (name, row["ci_low"], row["ci_high"])
         assert row["identifiable"] and not row["at_bound"]
     assert 0.7 < summary["final"]["chi2_dof"] < 1.3
+
+
+def test_solver_model_derivative_steps_back_when_the_forward_solve_fails():
+    """Next to a fold the forward-shifted solve may have no solution: the derivative then uses a backward step
+    (exact here for a linear response), never NaN."""
+
+    class Edge(idn.SolverModel):
+        def _solve(self, x):
+            M = np.stack([x[:, 0] + 2j * x[:, 1], 3.0 * x[:, 1] + 0j], axis=-1)[:, None, :]  # (N, 1, 2), linear
+            return np.where((x[:, 0] > 0.5)[:, None, None], np.nan, M)
+
+    model = Edge(None, "r", 500.0, 0.0, ["a", "b"], np.zeros(2), np.ones(2), 1)
+    M, dM = model.evaluate(np.array([[0.5 - 1e-7, 0.2]]))
+    assert np.isfinite(dM).all()
+    np.testing.assert_allclose(dM[0, 0, 0], [1.0, 2j], atol=1e-9)  # d/dx0 and d/dx1 of the x channel
+    np.testing.assert_allclose(dM[0, 0, 1], [0.0, 3.0], atol=1e-9)

@@ -39,6 +39,14 @@ def offline(config: Mapping) -> dict:
     return options
 
 
+def offline_for(config: Mapping, name: str) -> dict:
+    """The ``offline:`` options as variant ``name``'s rules see them: its own n_s only, so that declaring
+    another variant (and its n_s) never changes this one's rule parameters (nothing of it reruns)."""
+    options = offline(config)
+    options["n_scenarios"] = n_scenarios(config, variant(config, name))
+    return options
+
+
 def n_scenarios(config: Mapping, variant_: Variant) -> int:
     """n_s of a variant: the config's per-variant value or the paper's default for its unknown count."""
     return int(offline(config)["n_scenarios"].get(variant_.name, default_n_scenarios(len(variant_.unknown))))

@@ -938,6 +938,8 @@ def analyse_uncertainty(J: Array, r: Array, theta: Array, layout: Layout, scale_
     n = layout.n
     scale = layout.scale()
     lo, hi = layout.bounds()
+    undefined = ~np.isfinite(J).all(0)  # a sensitivity the model could not give (no solution either side)
+    J = np.where(undefined, 0.0, J)
     at_bound = (theta <= lo + BOUND_TOLERANCE) | (theta >= hi - BOUND_TOLERANCE)
     free = ~at_bound
     chi2 = float(r @ r)
@@ -957,6 +959,10 @@ def analyse_uncertainty(J: Array, r: Array, theta: Array, layout: Layout, scale_
     width = np.where(layout.is_phase, np.inf, 2.0 * scale)  # the range width [SI]
     identifiable = free & (null < 0.1) & (2 * 1.96 * stderr < width) & np.isfinite(stderr)
     notes = _uncertainty_notes(layout, at_bound, identifiable, gamma, chi2, dof)
+    if undefined.any():
+        names = [p if run == "all" else f"{p}[{run}]" for (p, run), u in zip(layout.entries(), undefined) if u]
+        notes.append(f"no sensitivity for {', '.join(names)} (the model has no solution next to the estimate): "
+                     "treated as not identifiable")
     return Uncertainty(covariance, stderr, correlation, chi2, dof, S, gamma, vif, at_bound, identifiable, null,
                        notes)
 
@@ -1304,7 +1310,16 @@ class SolverModel:
         shifted[:, np.arange(d), np.arange(d)] += steps
         M_all = self._solve(np.concatenate([x, shifted.reshape(N * d, d)]))
         M = M_all[:N]
-        dM = (M_all[N:].reshape(N, d, *M.shape[1:]) - M[:, None]) / steps[:, :, None, None]
+        M_shifted = M_all[N:].reshape(N, d, *M.shape[1:])
+        # a shifted solve that fails (next to a fold, say) while the point itself solves: step the other way
+        failed = ~np.isfinite(M_shifted).all(axis=(2, 3)) & np.isfinite(M).all(axis=(1, 2))[:, None]
+        if failed.any():
+            n, j = np.nonzero(failed)
+            steps[n, j] = -steps[n, j]
+            retry = x[n].copy()
+            retry[np.arange(n.size), j] += steps[n, j]
+            M_shifted[n, j] = self._solve(retry)
+        dM = (M_shifted - M[:, None]) / steps[:, :, None, None]
         return M, np.moveaxis(dM, 1, -1)
 
 

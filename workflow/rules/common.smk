@@ -2,7 +2,7 @@
 import pandas as pd
 from snakemake.utils import validate
 
-from hybridtwin.config import offline, run_plan
+from hybridtwin.config import offline, offline_for, run_plan
 from hybridtwin.diagnosis import settings as diagnosis_settings
 
 

@@ -9,7 +9,7 @@ rule spgd_library:
         directory("results/{variant}/library/{run}.zarr"),
     params:
         spec=lambda wildcards: config["variants"][wildcards.variant],
-        offline=OFFLINE,
+        offline=lambda wildcards: offline_for(config, wildcards.variant),
     log:
         "logs/{variant}/spgd_library_{run}.log",
     benchmark:
@@ -41,7 +41,7 @@ rule validate_library:
         ),
     params:
         spec=lambda wildcards: config["variants"][wildcards.variant],
-        offline=OFFLINE,
+        offline=lambda wildcards: offline_for(config, wildcards.variant),
     log:
         "logs/{variant}/validate_library.log",
     benchmark:

@@ -14,7 +14,7 @@ rule pod:
         ),
     params:
         spec=lambda wildcards: config["variants"][wildcards.variant],
-        offline=OFFLINE,
+        offline=lambda wildcards: offline_for(config, wildcards.variant),
     log:
         "logs/{variant}/pod.log",
     benchmark:

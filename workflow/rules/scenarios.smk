@@ -9,7 +9,7 @@ rule sample_scenarios:
         "results/{variant}/scenarios.tsv",
     params:
         spec=lambda wildcards: config["variants"][wildcards.variant],
-        offline=OFFLINE,
+        offline=lambda wildcards: offline_for(config, wildcards.variant),
     log:
         "logs/{variant}/sample_scenarios.log",
     benchmark:
