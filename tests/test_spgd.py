@@ -152,3 +152,14 @@ def test_library_sensor_equals_the_field_at_the_sensor_dofs():
     np.testing.assert_allclose(library.sensor(values), library.field(values)[:, :, [2, 24]], rtol=1e-12, atol=1e-14)
     y, _ = library.sensor(values, jacobian=True)
     np.testing.assert_allclose(y, library.sensor(values), rtol=1e-12, atol=1e-14)
+
+
+def test_sensor_weights_are_the_inverse_squared_sensor_signal_norm():
+    from hybridtwin.library import sensor_signal_norm, sensor_weights
+
+    Q = RNG.standard_normal((50, 6, 44)) + 1j * RNG.standard_normal((50, 6, 44))
+    Q[0] *= 1e-6  # a near-cancelling scenario: floored
+    w = sensor_weights(to_features(Q), 6, 44, [2, 24])
+    norm2 = sensor_signal_norm(Q[:, :, [2, 24]]) ** 2
+    np.testing.assert_allclose(w[1:], 1.0 / norm2[1:], rtol=1e-12)
+    assert w[0] == pytest.approx(1.0 / (1e-2 * np.median(norm2)), rel=0.05)
