@@ -7,6 +7,7 @@ table and plot.
 
 import time
 
+import numpy as np
 import pandas as pd
 import yaml
 
@@ -50,14 +51,21 @@ if options["polish"]["joint"]:
     solver = [idn.SolverModel(variant, d.run, d.rpm, d.eccentric_mass_g, parameters, models[0].lower,
                               models[0].upper, smk.config["harmonics"]) for d in data]
     start = time.perf_counter()
-    exact = idn.polish(fit, solver, int(options["polish"]["max_iterations"]))
-    comparison = idn.compare_polish(fit, exact)
-    exact.protocol.monte_carlo = fit.protocol.monte_carlo  # the library's Monte Carlo spread, for reference
-    summary["solver"] = exact.summary() | {"seconds": time.perf_counter() - start,
-                                           "solves": int(sum(m.n_solves for m in solver))}
-    log.info("polished with the full solver in %.1f s: loss %.4g -> %.4g, chi^2/dof %.3g (%s)",
-             time.perf_counter() - start, fit.loss, exact.loss, exact.chi2_dof, exact.message)
-    fit = exact
+    exact = idn.polish(fit, solver, int(options["polish"]["max_iterations"]), idn.next_best_trials(fit))
+    if np.isfinite(exact.loss):
+        comparison = idn.compare_polish(fit, exact)
+        exact.protocol.monte_carlo = fit.protocol.monte_carlo  # the library's Monte Carlo spread, for reference
+        summary["solver"] = exact.summary() | {"seconds": time.perf_counter() - start,
+                                               "solves": int(sum(m.n_solves for m in solver))}
+        log.info("polished with the full solver in %.1f s: loss %.4g -> %.4g, chi^2/dof %.3g (%s)",
+                 time.perf_counter() - start, fit.loss, exact.loss, exact.chi2_dof, exact.message)
+        fit = exact
+    else:
+        note = ("the full solver has no periodic solution at the library's best trials (a fold or an unstable "
+                "region next to them): the library's estimate is kept, with the library's error in its weights")
+        fit.uncertainty.notes.append(note)
+        summary["solver"] = {"failed": note, "seconds": time.perf_counter() - start}
+        log.warning("polish failed: %s", note)
 result = fit.table()
 result.to_csv(smk.output.table, sep="\t", index=False, float_format="%.9g")
 comparison.to_csv(smk.output.polish, sep="\t", index=False, float_format="%.9g")

@@ -302,3 +302,14 @@ def test_solver_model_derivative_steps_back_when_the_forward_solve_fails():
     assert np.isfinite(dM).all()
     np.testing.assert_allclose(dM[0, 0, 0], [1.0, 2j], atol=1e-9)  # d/dx0 and d/dx1 of the x channel
     np.testing.assert_allclose(dM[0, 0, 1], [0.0, 3.0], atol=1e-9)
+
+
+def test_next_best_trials_are_distinct_finite_and_ordered():
+    from types import SimpleNamespace
+
+    x = np.array([[0.0, 0.0], [0.5, 0.5], [0.5, 0.5 + 1e-6], [np.nan, 0.0], [-0.5, 0.1], [0.2, 0.2]])
+    loss = np.array([1.0, 2.0, 2.0 + 1e-9, np.nan, 3.0, 4.0])
+    fit = SimpleNamespace(protocol=SimpleNamespace(trials=SimpleNamespace(x=x, loss=loss)), theta=x[0],
+                          layout=SimpleNamespace(n=2))
+    starts = idn.next_best_trials(fit, n=2)
+    np.testing.assert_array_equal(starts, x[[1, 4]])  # the near-duplicate and the failed trial are skipped

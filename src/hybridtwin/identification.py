@@ -1338,9 +1338,24 @@ def polish(fit: Identification, solver_models: Sequence[HarmonicModel], max_iter
     options = LMOptions(max_iterations=max_iterations, ftol=1e-8, xtol=1e-8, gtol=1e-10, stall_chi2=1e-3,
                         geodesic=True)  # one extra solve per iteration, 2-3x fewer iterations in the valleys
     result = levenberg_marquardt(exact, theta0, np.repeat(fit.X[None], len(theta0), axis=0), options)
-    best = int(np.argmin(result.loss))
+    best = int(np.argmin(np.where(np.isfinite(result.loss), result.loss, np.inf)))  # a start may not solve
     protocol = ProtocolResult(result, best, np.zeros((0, fit.layout.n)), np.zeros(0), result.seconds, len(theta0))
     return conclude(exact, protocol, fit.data, fit.X, fit.confidence, fit.units)
+
+
+def next_best_trials(fit: Identification, n: int = 4, distinct: float = 1e-3) -> Array:
+    """Extra polish starts: the protocol's next-best trials on the measured data (distinct from the best by
+    more than ``distinct`` in normalised units), so that the polish survives a best trial where the full
+    solver has no solution."""
+    trials = fit.protocol.trials
+    order = np.argsort(np.where(np.isfinite(trials.loss), trials.loss, np.inf))
+    chosen: list[Array] = []
+    for i in order[1:]:
+        if not np.isfinite(trials.loss[i]) or len(chosen) == n:
+            break
+        if all(np.abs(trials.x[i] - c).max() > distinct for c in chosen + [fit.theta]):
+            chosen.append(trials.x[i])
+    return np.array(chosen).reshape(-1, fit.layout.n)
 
 
 def compare_polish(library_fit: Identification, polished: Identification) -> pd.DataFrame:
