@@ -30,6 +30,7 @@ if "sparse" in smk.input.keys():
     result.summary["sparse_route"] = {"variant": sparse_name, "active": sparse.loc[sparse["active"], "parameter"].tolist()}
 with open(smk.output.recommendation, "w") as stream:
     stream.write(dg.markdown(result, sparse, sparse_name))
+dg.refits_table(result).to_csv(smk.output.refits, sep="\t", index=False, float_format="%.12g")
 with open(smk.output.summary, "w") as stream:
     yaml.safe_dump(result.summary, stream, sort_keys=False)
 dg.plot(result).savefig(smk.output.plot, dpi=120)

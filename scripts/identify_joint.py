@@ -12,6 +12,7 @@ import pandas as pd
 import yaml
 
 from hybridtwin import config as cfg
+from hybridtwin import diagnosis as dg
 from hybridtwin import identification as idn
 from hybridtwin.library import Library
 
@@ -51,7 +52,17 @@ if options["polish"]["joint"]:
     solver = [idn.SolverModel(variant, d.run, d.rpm, d.eccentric_mass_g, parameters, models[0].lower,
                               models[0].upper, smk.config["harmonics"]) for d in data]
     start = time.perf_counter()
-    exact = idn.polish(fit, solver, int(options["polish"]["max_iterations"]), idn.next_best_trials(fit))
+    starts = idn.next_best_trials(fit)
+    if "refits" in smk.input.keys():  # this variant adds one effect to another: its diagnosis refit is a start
+        parent = dg.parent_variant(smk.config["variants"], variant.name)
+        extra = (set(smk.config["variants"][variant.name]["effects"])
+                 - set(smk.config["variants"][parent]["effects"])).pop()
+        refit = dg.start_from_refit(pd.read_csv(smk.input.refits, sep="\t", dtype={"run": str}), extra, layout)
+        log.info("polish also starts from %s's diagnosis refit with %s: %s", parent, extra,
+                 "found" if refit is not None else "not there (not refitted)")
+        if refit is not None:
+            starts = np.vstack([starts, refit[None]])
+    exact = idn.polish(fit, solver, int(options["polish"]["max_iterations"]), starts)
     if np.isfinite(exact.loss):
         comparison = idn.compare_polish(fit, exact)
         exact.protocol.monte_carlo = fit.protocol.monte_carlo  # the library's Monte Carlo spread, for reference

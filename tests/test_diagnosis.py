@@ -196,3 +196,27 @@ def test_sparse_route_reads_which_terms_an_l1_fit_kept():
     assert list(route.index) == ["k3", "k4", "k6"]  # q_x cannot be switched off, phases are nuisances
     assert route.loc["k3", "active"] and not route.loc["k4", "active"] and route.loc["k6", "active"]
     assert route.loc["k4", "effect"] == "expansion_k4"
+
+
+def test_parent_variant_is_the_one_extended_by_exactly_one_effect():
+    base = ["centrifugal_softening", "unbalance", "geometric_spring"]
+    variants = {"geometric": {"effects": base, "unknown": {"k_b": [0, 1]}},
+                "geometric_slope": {"effects": base + ["slope_spring"], "unknown": {"k_b": [0, 1], "k_w": [0, 1]}},
+                "two_more": {"effects": base + ["slope_spring", "speed_damping"],
+                             "unknown": {"k_b": [0, 1], "k_w": [0, 1], "zeta_v": [0, 1]}},
+                "other": {"effects": ["unbalance", "radial_spring", "slope_spring"], "unknown": {"k_b": [0, 1]}}}
+    assert dg.parent_variant(variants, "geometric_slope") == "geometric"
+    assert dg.parent_variant(variants, "two_more") == "geometric_slope"
+    assert dg.parent_variant(variants, "geometric") is None
+    assert dg.parent_variant(variants, "other") is None
+
+
+def test_start_from_refit_normalises_with_the_new_layout():
+    import pandas as pd
+
+    layout = idn.Layout.build(["k_b", "k_w"], [2000.0, 0.0], [3500.0, 1000.0], ["r1"], ["k_w"])
+    refits = pd.DataFrame({"effect": ["slope_spring"] * 3 + ["other"],
+                           "parameter": ["k_b", "k_w", "phase", "k_b"], "run": ["all", "r1", "r1", "all"],
+                           "value": [2750.0, 250.0, 0.3, 3000.0]})
+    np.testing.assert_allclose(dg.start_from_refit(refits, "slope_spring", layout), [0.0, -0.5, 0.3])
+    assert dg.start_from_refit(refits, "other", layout) is None  # does not cover every entry

@@ -423,6 +423,16 @@ def _table(scores: Scores, confirmations: Mapping[str, Confirmation], verdicts: 
     return pd.DataFrame(rows)
 
 
+def refits_table(result: Diagnosis) -> pd.DataFrame:
+    """Every refit's parameter table (``Identification.table``) with its ``effect``: full-solver joint fits of
+    the variant with one effect added, which the identification of such a variant starts its polish from."""
+    tables = [cf.fit.table().assign(effect=name) for name, cf in result.confirmations.items()]
+    if not tables:
+        return pd.DataFrame(columns=["effect", "parameter", "run", "value", "normalised"])
+    table = pd.concat(tables, ignore_index=True)
+    return table[["effect"] + [c for c in table if c != "effect"]]
+
+
 def variant_spec(base: Variant, candidate: Candidate) -> dict:
     """The config entry (``variants:`` form) of ``base`` + ``candidate``, the candidate's parameters unknown."""
     unknown = dict(base.unknown) | {p.name: p.bounds for p in candidate.parameters}
@@ -478,6 +488,32 @@ def _recommend(base: BaseFit, scores: Scores, best: Confirmation | None, confoun
                       f"(only the new variant is built) and compare in results/ledger.tsv:\n\n"
                       f"{variant_lines(new_name, variant_spec(variant, best.candidate))}\n")
     return conclusion, recommendation
+
+
+def parent_variant(variants: Mapping[str, Mapping], name: str) -> str | None:
+    """The variant that ``name`` extends by exactly one effect (same other effects, its unknowns a subset),
+    i.e. the one whose diagnosis may have refitted it; None when there is none."""
+    spec = variants[name]
+    effects = set(spec.get("effects", []))
+    for other, base in variants.items():
+        extra = effects - set(base.get("effects", []))
+        if (other != name and len(extra) == 1 and set(base.get("effects", [])) <= effects
+                and set(base.get("unknown", {})) <= set(spec.get("unknown", {}))):
+            return other
+    return None
+
+
+def start_from_refit(refits: pd.DataFrame, effect: str, layout: Layout) -> Array | None:
+    """theta of ``layout`` from the diagnosis refit with ``effect`` (None when that refit is not there or
+    does not cover every entry); SI values normalised with the layout's own ranges."""
+    table = refits[refits["effect"] == effect]
+    values = {(str(r.parameter), str(r.run)): float(r.value) for r in table.itertuples()}
+    theta = np.empty(layout.n)
+    for i, (p, run) in enumerate(layout.entries()):
+        if (p, run) not in values:
+            return None
+        theta[i] = values[(p, run)] if p == "phase" else float(layout.normalise(p, values[(p, run)]))
+    return np.clip(theta, *layout.bounds()) if np.isfinite(theta).all() else None
 
 
 def settings(config: Mapping) -> dict:

@@ -3,7 +3,7 @@ import pandas as pd
 from snakemake.utils import validate
 
 from hybridtwin.config import offline, offline_for, run_plan
-from hybridtwin.diagnosis import settings as diagnosis_settings
+from hybridtwin.diagnosis import parent_variant, settings as diagnosis_settings
 
 
 validate(config, "../schemas/config.schema.yaml")
@@ -28,3 +28,10 @@ def sparse_route_input(wildcards):
     if name in config["variants"] and name != wildcards.variant:
         return {"sparse": f"results/{name}/parameters.tsv"}
     return {}
+
+
+def parent_refits_input(wildcards):
+    """A variant that adds one effect to another (the model-improvement loop) starts its polish from that
+    variant's diagnosis refit with the effect: the full-solver fit is already there."""
+    parent = parent_variant(config["variants"], wildcards.variant)
+    return {"refits": f"results/{parent}/diagnosis_refits.tsv"} if parent else {}

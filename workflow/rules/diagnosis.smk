@@ -20,6 +20,7 @@ rule diagnose:
             subcategory="{variant}",
         ),
         summary="results/{variant}/diagnosis.yaml",
+        refits="results/{variant}/diagnosis_refits.tsv",
         plot=report(
             "results/{variant}/diagnosis.png",
             caption="../report/diagnosis_plot.rst",
