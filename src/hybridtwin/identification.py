@@ -78,7 +78,6 @@ from typing import Protocol
 
 import numpy as np
 import pandas as pd
-from numpy.polynomial import chebyshev
 
 from .library import Library
 from .pod import feature_index
@@ -207,7 +206,8 @@ class SensorSurrogate:
 
     Same numbers as ``Library.sensor`` (the sPGD of eq. 6-7 on the POD basis,
     projected on the sensor DOFs once): y = (prod_j F_j(x_j)) A_s with
-    A_s = amplitudes Phi_sensor^T, so a batch costs d + 1 matrix products.
+    A_s = amplitudes Phi_sensor^T, evaluated by ``SparsePGD.evaluate``, here in
+    normalised coordinates and without the mean (h = 0).
     """
 
     def __init__(self, library: Library, harmonics: int | None = None):
@@ -219,48 +219,21 @@ class SensorSurrogate:
         rows = [feature_index(h, dof, library.n_harmonics, library.n_dof, imaginary)
                 for imaginary in (False, True) for dof in library.sensor_dofs]
         sensor_modes = library.modes[np.concatenate(rows)]  # (4H, m): Re x, Re y, Im x, Im y
-        self.amplitudes = library.model.amplitudes @ sensor_modes.T  # (K, 4H)
-        self.coefficients = library.model.coefficients  # (K, d, n_b)
-        self.degree = self.coefficients.shape[-1] - 1
+        self.model = library.model
+        self.amplitudes = np.ascontiguousarray(library.model.amplitudes @ sensor_modes.T)  # (K, 4H)
         self.parameters = list(library.parameters)
         self.lower, self.upper = np.asarray(library.lower, float), np.asarray(library.upper, float)
         self.run = library.run
-        derivative = np.stack([chebyshev.chebder(np.eye(self.degree + 1)[i]) for i in range(self.degree + 1)], 1)
-        self._derivative = derivative  # maps T_0..T_{n-1} values to dT_i/dx
 
     def evaluate(self, x: Array, jacobian: bool = True) -> tuple[Array, Array | None]:
         """M (N, H, 2) complex and dM/dx (N, H, 2, d) at normalised x (N, d) in [-1, 1]."""
         x = np.clip(np.atleast_2d(x), -1.0, 1.0)
-        N, d = x.shape
-        factors, slopes = [], []
-        for j in range(d):
-            basis = chebyshev.chebvander(x[:, j], self.degree)
-            if jacobian:
-                dbasis = (chebyshev.chebvander(x[:, j], self.degree - 1) @ self._derivative if self.degree > 0
-                          else np.zeros_like(basis))
-                both = np.concatenate([basis, dbasis]) @ self.coefficients[:, j, :].T  # (2N, K)
-                factors.append(both[:N])
-                slopes.append(both[N:])
-            else:
-                factors.append(basis @ self.coefficients[:, j, :].T)
+        y, J = self.model.evaluate(x, self.amplitudes, jacobian)
         if not jacobian:
-            product = factors[0]
-            for F in factors[1:]:
-                product = product * F
-            return self._complex(product @ self.amplitudes), None
-        # stacked[0] = prod_j F_j; stacked[1 + j] = (prod_{i != j} F_i) dF_j (prefix and suffix products)
-        stacked = np.empty((d + 1, N, factors[0].shape[1]))
-        suffix = np.ones_like(factors[0])
-        for j in range(d - 1, -1, -1):
-            stacked[1 + j] = suffix * slopes[j]
-            suffix = suffix * factors[j]
-        stacked[0] = suffix
-        prefix = factors[0]
-        for j in range(1, d):
-            stacked[1 + j] *= prefix
-            prefix = prefix * factors[j]
-        out = self._complex((stacked.reshape((d + 1) * N, -1) @ self.amplitudes)).reshape(d + 1, N, self.H, 2)
-        return out[0], np.moveaxis(out[1:], 0, -1)
+            return self._complex(y), None
+        N, d = x.shape
+        out = self._complex(J.reshape(d * N, -1)).reshape(d, N, self.H, 2)
+        return self._complex(y), np.moveaxis(out, 0, -1)
 
     def _complex(self, features: Array) -> Array:
         """(N, 4H) [Re x, Re y, Im x, Im y] -> (N, H, 2) complex."""
