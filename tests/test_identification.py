@@ -313,3 +313,14 @@ def test_next_best_trials_are_distinct_finite_and_ordered():
                           layout=SimpleNamespace(n=2))
     starts = idn.next_best_trials(fit, n=2)
     np.testing.assert_array_equal(starts, x[[1, 4]])  # the near-duplicate and the failed trial are skipped
+
+
+def test_solver_model_answers_nan_for_a_nan_parameter_set():
+    """A NaN parameter set (a failed LM step) is NaN out, not an exception from the eigen-solver."""
+    from hybridtwin.variants import builtin_variant
+
+    variant = builtin_variant("geometric")
+    lower, upper = zip(*variant.unknown.values())
+    model = idn.SolverModel(variant, "r", 500.0, 25.9, list(variant.unknown), np.array(lower), np.array(upper), 2)
+    M = model._solve(np.array([[0.0] * 5, [np.nan] + [0.0] * 4]))
+    assert np.isfinite(M[0]).all() and np.isnan(M[1]).all()

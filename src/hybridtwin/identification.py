@@ -1261,6 +1261,13 @@ class SolverModel:
         self.n_solves = 0
 
     def _solve(self, x: Array) -> Array:
+        """Sensor harmonics (N, H, 2) at normalised x (N, d); NaN where there is no solution (or x is NaN)."""
+        finite = np.isfinite(x).all(axis=1)
+        if not finite.all():
+            M = np.full((x.shape[0], self.harmonics, 2), np.nan + 0j)
+            if finite.any():
+                M[finite] = self._solve(x[finite])
+            return M
         from .sensor import sensor_harmonics
 
         values = {"m_e": self.eccentric_mass_g * 1e-3}
