@@ -60,7 +60,7 @@ average and a distribution that checks the linearised uncertainty.
 Uncertainty and identifiability (``analyse_uncertainty``): covariance
 s^2 V S^-2 V^T from the SVD of the weighted Jacobian of the free parameters,
 s^2 = max(1, chi^2 / dof); parameters at a bound are held fixed (their covariance is
-not valid and the others' is conditional on them); correlation matrix;
+not valid, and the others' include their uncertainty, computed as if free); correlation matrix;
 collinearity index (Brun et al. 2001) of the unit-normalised sensitivities of
 the physical parameters with the phases projected out; flags for
 non-identifiable parameters and estimates at a range edge ("revise the range").
@@ -901,8 +901,10 @@ def analyse_uncertainty(J: Array, r: Array, theta: Array, layout: Layout, scale_
     them under what the measured sigmas allow.
     J is d r / d theta (normalised parameters, phases in rad), so the SVD
     compares dimensionless directions; the covariance is converted to SI after.
-    Entries at a bound are held fixed (their covariance is not valid, and the
-    others' is conditional on them: said in ``notes``). Directions with a
+    Entries at a bound have no valid interval of their own; the covariance is
+    computed with them as if free, so the others' intervals include their
+    uncertainty rather than being conditional on the edge values (said in
+    ``notes``). Directions with a
     singular value below rcond * the largest are numerically null: left out of
     the pseudo-inverse, and the entries loading on them flagged. A parameter is
     identifiable when it is free, not on a null direction, and its 95 %
@@ -918,16 +920,18 @@ def analyse_uncertainty(J: Array, r: Array, theta: Array, layout: Layout, scale_
     chi2 = float(r @ r)
     dof = int(J.shape[0] - free.sum())
     s2 = max(chi2 / dof, 1.0) if (scale_by_residual and dof > 0) else 1.0
-    U, S, Vt = np.linalg.svd(J[:, free], full_matrices=False)
+    # all entries, those at a bound as if free: the free ones' intervals then include how little the data fix
+    # the bound ones (conservative), instead of being conditional on the edge values
+    U, S, Vt = np.linalg.svd(J, full_matrices=False)
     keep = S > rcond * (S[0] if S.size else 1.0)
     inverse = np.where(keep, 1.0 / np.where(keep, S, 1.0) ** 2, 0.0)
-    covariance = np.full((n, n), np.nan)
-    covariance[np.ix_(free, free)] = s2 * (Vt.T * inverse) @ Vt * np.outer(scale[free], scale[free])
+    covariance = s2 * (Vt.T * inverse) @ Vt * np.outer(scale, scale)
+    covariance[at_bound, :] = np.nan  # an interval around an estimate pinned at a range edge is not valid
+    covariance[:, at_bound] = np.nan
     stderr = np.sqrt(np.diag(covariance).clip(min=0))
     with np.errstate(invalid="ignore", divide="ignore"):
         correlation = covariance / np.outer(stderr, stderr)
-    null = np.zeros(n)
-    null[free] = (Vt[~keep] ** 2).sum(0) if (~keep).any() else 0.0
+    null = (Vt[~keep] ** 2).sum(0) if (~keep).any() else np.zeros(n)
     gamma, vif = _collinearity(J, free, layout)
     width = np.where(layout.is_phase, np.inf, 2.0 * scale)  # the range width [SI]
     identifiable = free & (null < 0.1) & (2 * 1.96 * stderr < width) & np.isfinite(stderr)
@@ -974,8 +978,8 @@ def _uncertainty_notes(layout: Layout, at_bound: Array, identifiable: Array, gam
         caveat = (" (the parameters are poorly identifiable together here, so an edge estimate may only mean "
                   "that the data do not determine it)" if np.isfinite(gamma) and gamma > COLLINEARITY_LIMIT else "")
         notes.append(f"estimate at a range edge for {', '.join(bound)}: revise the range (widen it and rebuild "
-                     "the library); their standard errors are not valid (held fixed) and the others' covariance "
-                     f"is conditional on them{caveat}")
+                     "the library); their own intervals are not valid there, and the others' include their "
+                     f"uncertainty (computed as if they were free){caveat}")
     weak = [n for n, ok, b, ph in zip(names, identifiable, at_bound, layout.is_phase) if not ok and not b and not ph]
     if weak:
         notes.append(f"not identifiable from these data: {', '.join(weak)} (null direction of the Jacobian or "
