@@ -55,18 +55,13 @@ from threadpoolctl import threadpool_limits
 from hybridtwin import diagnosis as dg
 from hybridtwin import identification as idn
 from hybridtwin.candidates import builtin_candidates
-from hybridtwin.variants import Variant
+from hybridtwin.variants import BUILTIN_VARIANTS, Variant
 
 SIGMA = 8e-7  # m per real/imaginary part, the bundled records' (results/data/harmonics.tsv: 6-10e-7)
 RUNS = [("r350_m25p9", 350.0, 25.9), ("r500_m25p9", 500.0, 25.9), ("r650_m25p9", 650.0, 25.9),
         ("r550_m14p8", 550.0, 14.8), ("r700_m14p8", 700.0, 14.8), ("r850_m14p8", 850.0, 14.8),
         ("r800_m0p0", 800.0, 0.0), ("r950_m0p0", 950.0, 0.0)]
-GEOMETRIC = {
-    "effects": ["centrifugal_softening", "structural_damping", "upper_housing", "lower_bearing", "unbalance",
-                "shaft_bow", "geometric_spring"],
-    "unknown": {"k_b": [2000, 3500], "zeta_s": [0.01, 0.05], "zeta_bup": [0.0, 0.05], "q_x": [0.001, 0.01],
-                "q_y": [0.001, 0.01]},
-}
+GEOMETRIC = BUILTIN_VARIANTS["geometric"]  # the paper's Geometric model, as in config/config.yaml
 TRUTH = {"k_b": 2411.3, "zeta_s": 0.024, "zeta_bup": 0.016, "q_x": 0.002, "q_y": 0.0015}
 
 #: (hidden effect, strength, its parameter values); "weak" values give a first-order lam1 ~ 50 (docstring)
