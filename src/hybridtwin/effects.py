@@ -556,8 +556,11 @@ RANGE_F3 = (-0.3, 0.3)
 RANGE_ZETA_V = (0.0, 0.05)
 
 
-def _set(out: Array, ctx: Context, row: str, col: str, value: Array) -> Array:
-    out[:, ctx.dof(row), ctx.dof(col)] += value
+def _entries(ctx: Context, values: Mapping[tuple[str, str], Array]) -> Array:
+    """(S, n, n) matrix with ``values`` (S,) at the (row DOF, column DOF) entries named by its keys."""
+    out = ctx.zeros()
+    for (row, col), value in values.items():
+        out[:, ctx.dof(row), ctx.dof(col)] += value
     return out
 
 
@@ -578,8 +581,7 @@ class UpperBearingAnisotropy(Effect):
                             "added to the node-0 stiffness in x, removed in y"),)
 
     def stiffness(self, ctx: Context) -> Array:
-        out = _set(ctx.zeros(), ctx, "u0", "u0", ctx.p.dk_up)
-        return _set(out, ctx, "v0", "v0", -ctx.p.dk_up)
+        return _entries(ctx, {("u0", "u0"): ctx.p.dk_up, ("v0", "v0"): -ctx.p.dk_up})
 
 
 class CrossCoupledStiffness(Effect):
@@ -597,8 +599,7 @@ class CrossCoupledStiffness(Effect):
     parameters = (Parameter("k_xy", "N/m", RANGE_K_XY, 0.0, "K[u0, v0] = +k_xy, K[v0, u0] = -k_xy"),)
 
     def stiffness(self, ctx: Context) -> Array:
-        out = _set(ctx.zeros(), ctx, "u0", "v0", ctx.p.k_xy)
-        return _set(out, ctx, "v0", "u0", -ctx.p.k_xy)
+        return _entries(ctx, {("u0", "v0"): ctx.p.k_xy, ("v0", "u0"): -ctx.p.k_xy})
 
 
 class CrossCoupledDamping(Effect):
@@ -614,8 +615,7 @@ class CrossCoupledDamping(Effect):
     parameters = (Parameter("c_xy", "N s/m", RANGE_C_XY, 0.0, "C[u0, v0] = +c_xy, C[v0, u0] = -c_xy"),)
 
     def damping(self, ctx: Context) -> Array:
-        out = _set(ctx.zeros(), ctx, "u0", "v0", ctx.p.c_xy)
-        return _set(out, ctx, "v0", "u0", -ctx.p.c_xy)
+        return _entries(ctx, {("u0", "v0"): ctx.p.c_xy, ("v0", "u0"): -ctx.p.c_xy})
 
 
 class MomentStiffness(Effect):
@@ -633,8 +633,7 @@ class MomentStiffness(Effect):
     parameters = (Parameter("k_rot", "N m/rad", RANGE_K_ROT, 0.0, "moment per unit slope at node 0, both planes"),)
 
     def stiffness(self, ctx: Context) -> Array:
-        out = _set(ctx.zeros(), ctx, "du0", "du0", ctx.p.k_rot)
-        return _set(out, ctx, "dv0", "dv0", ctx.p.k_rot)
+        return _entries(ctx, {("du0", "du0"): ctx.p.k_rot, ("dv0", "dv0"): ctx.p.k_rot})
 
 
 class LowerBearingCompliance(Effect):
@@ -652,8 +651,7 @@ class LowerBearingCompliance(Effect):
 
     def stiffness(self, ctx: Context) -> Array:
         n = ctx.shaft.n
-        out = _set(ctx.zeros(), ctx, f"u{n}", f"u{n}", ctx.p.dk_lo)
-        return _set(out, ctx, f"v{n}", f"v{n}", ctx.p.dk_lo)
+        return _entries(ctx, {(f"u{n}", f"u{n}"): ctx.p.dk_lo, (f"v{n}", f"v{n}"): ctx.p.dk_lo})
 
 
 @dataclass(eq=False)
