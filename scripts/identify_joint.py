@@ -54,10 +54,9 @@ if options["polish"]["joint"]:
     start = time.perf_counter()
     starts = idn.next_best_trials(fit)
     if "refits" in smk.input.keys():  # this variant adds one effect to another: its diagnosis refit is a start
-        parent = dg.parent_variant(smk.config["variants"], variant.name)
-        extra = (set(smk.config["variants"][variant.name]["effects"])
-                 - set(smk.config["variants"][parent]["effects"])).pop()
-        refit = dg.start_from_refit(pd.read_csv(smk.input.refits, sep="\t", dtype={"run": str}), extra, layout)
+        parent, extra = dg.parent_variant(smk.config["variants"], variant.name)
+        refits = pd.read_csv(smk.input.refits, sep="\t", dtype={"run": str})
+        refit = dg.theta_from_table(refits[refits["effect"] == extra], layout)
         log.info("polish also starts from %s's diagnosis refit with %s: %s", parent, extra,
                  "found" if refit is not None else "not there (not refitted)")
         if refit is not None:

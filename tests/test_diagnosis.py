@@ -200,18 +200,19 @@ def test_parent_variant_is_the_one_extended_by_exactly_one_effect():
                 "two_more": {"effects": base + ["slope_spring", "speed_damping"],
                              "unknown": {"k_b": [0, 1], "k_w": [0, 1], "zeta_v": [0, 1]}},
                 "other": {"effects": ["unbalance", "radial_spring", "slope_spring"], "unknown": {"k_b": [0, 1]}}}
-    assert dg.parent_variant(variants, "geometric_slope") == "geometric"
-    assert dg.parent_variant(variants, "two_more") == "geometric_slope"
+    assert dg.parent_variant(variants, "geometric_slope") == ("geometric", "slope_spring")
+    assert dg.parent_variant(variants, "two_more") == ("geometric_slope", "speed_damping")
     assert dg.parent_variant(variants, "geometric") is None
     assert dg.parent_variant(variants, "other") is None
 
 
-def test_start_from_refit_normalises_with_the_new_layout():
+def test_theta_from_table_normalises_with_the_new_layout():
     import pandas as pd
 
     layout = idn.Layout.build(["k_b", "k_w"], [2000.0, 0.0], [3500.0, 1000.0], ["r1"], ["k_w"])
     refits = pd.DataFrame({"effect": ["slope_spring"] * 3 + ["other"],
                            "parameter": ["k_b", "k_w", "phase", "k_b"], "run": ["all", "r1", "r1", "all"],
                            "value": [2750.0, 250.0, 0.3, 3000.0]})
-    np.testing.assert_allclose(dg.start_from_refit(refits, "slope_spring", layout), [0.0, -0.5, 0.3])
-    assert dg.start_from_refit(refits, "other", layout) is None  # does not cover every entry
+    slope, other = (refits[refits["effect"] == e] for e in ("slope_spring", "other"))
+    np.testing.assert_allclose(dg.theta_from_table(slope, layout), [0.0, -0.5, 0.3])
+    assert dg.theta_from_table(other, layout) is None  # does not cover every entry

@@ -7,44 +7,39 @@ Small libraries (80 scenarios), a light protocol and H = 3 keep it to a few minu
 polished with the full solver, so the verdicts do not depend on the libraries' accuracy.
 """
 
+import copy
 import re
 
 import pandas as pd
 import pytest
 import yaml
 
-from test_workflow import _copy_workflow, _snakemake
+from test_workflow import SMALL, _copy_workflow, _snakemake
 
 RUNS = ["r850_m14p8", "r900_m0p0", "r950_m0p0", "r1000_m0p0"]
-LOOP = """
-harmonics: 3
-runs: data/small/runs.tsv
-effects_files: []
-offline: {n_scenarios: {geometric: 80}, n_test: 20, chunks: 2, spgd: {degree: 3, max_terms: 12, patience: 4}}
-identification: {trials: 8, monte_carlo: 10, joint: {trials: 8, monte_carlo: 0}, polish: {max_iterations: 25}}
-diagnosis: {sparse_variant: null, confirm: 1, max_iterations: 25,
-            candidates: [slope_spring, expansion_k4, expansion_k2, expansion_k7, cross_coupled_stiffness,
-                         lower_bearing_compliance, speed_damping]}
-variants:
-  geometric:
-    effects: [centrifugal_softening, structural_damping, upper_housing, lower_bearing, unbalance, shaft_bow,
-              geometric_spring]
-    unknown: {k_b: [2000, 3500], zeta_s: [0.01, 0.05], zeta_bup: [0.0, 0.05], q_x: [0.001, 0.01],
-              q_y: [0.001, 0.01]}
-"""
+# the small configuration's settings where they fit (its Geometric variant), lighter identification and diagnosis
+LOOP = {"harmonics": 3, "runs": "data/small/runs.tsv", "effects_files": [],
+        "offline": {"n_scenarios": {"geometric": 80}, "n_test": 20, "chunks": 2,
+                    "spgd": {"degree": 3, "max_terms": 12, "patience": 4}},
+        "identification": {"trials": 8, "monte_carlo": 10, "joint": {"trials": 8, "monte_carlo": 0},
+                           "polish": {"max_iterations": 25}},
+        "diagnosis": {"sparse_variant": None, "confirm": 1, "max_iterations": 25,
+                      "candidates": ["slope_spring", "expansion_k4", "expansion_k2", "expansion_k7",
+                                     "cross_coupled_stiffness", "lower_bearing_compliance", "speed_damping"]},
+        "variants": {"geometric": yaml.safe_load(SMALL)["variants"]["geometric"]}}
 SLOPE_FORCE = {"slope_spring", "expansion_k4", "expansion_k6"}  # k_w u' + k_z u'^3 and its two terms
 TRUTH = {"k_w": 324.2, "k_z": 301.1}  # data/default/README.md
 
 
 @pytest.fixture(scope="module")
 def loop(tmp_path_factory):
-    work = _copy_workflow(tmp_path_factory.mktemp("loop"), RUNS, LOOP)
+    work = _copy_workflow(tmp_path_factory.mktemp("loop"), RUNS, yaml.safe_dump(LOOP, sort_keys=False))
     first = _snakemake(work, "results/geometric/diagnosis.tsv", "results/ledger.tsv")
     assert first.returncode == 0, first.stdout[-3000:] + first.stderr[-3000:]
     summary = yaml.safe_load((work / "results" / "geometric" / "diagnosis.yaml").read_text())
     recommended = summary["recommended_variant"]
     assert recommended is not None, summary["conclusion"]
-    config = yaml.safe_load(LOOP)
+    config = copy.deepcopy(LOOP)
     config["variants"][recommended["name"]] = recommended["spec"]  # the user pastes the recommended lines
     config["offline"]["n_scenarios"][recommended["name"]] = 80
     (work / "config" / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False))

@@ -50,7 +50,7 @@ from scipy import optimize, stats
 
 from .candidates import Candidate
 from .identification import (BOUND_TOLERANCE, ArrowProblem, Identification, Layout, LMOptions, ProtocolResult,
-                             RunData, SolverModel, conclude, levenberg_marquardt)
+                             RunData, SolverModel, conclude, levenberg_marquardt, units)
 from .model import Model
 from .variants import Variant
 
@@ -101,15 +101,10 @@ class BaseFit:
         per_run = sorted(set(fitted.loc[fitted["run"] != "all", "parameter"]), key=list(variant.unknown).index)
         lower, upper = zip(*variant.unknown.values())
         layout = Layout.build(list(variant.unknown), lower, upper, runs, per_run)
-        index = {(str(row.parameter), str(row.run)): row for row in table.itertuples()}
-        theta = np.empty(layout.n)
-        for i, (p, run) in enumerate(layout.entries()):
-            row = index.get((p, run))
-            if row is None:
-                raise ValueError(f"the parameter table has no row for {p} (run {run})")
-            theta[i] = row.value if p == "phase" else row.normalised
-        if not np.isfinite(theta).all():
-            raise ValueError("the parameter table has non-finite estimates: the fit failed, nothing to diagnose")
+        theta = theta_from_table(table, layout)
+        if theta is None:
+            raise ValueError("the parameter table lacks an entry or has a non-finite estimate: the fit failed, "
+                             "nothing to diagnose")
         return cls(variant, layout, theta, list(data), harmonics)
 
 
@@ -213,6 +208,11 @@ def score_tests(base: BaseFit, candidates: Sequence[Candidate]) -> Scores:
     return Scores(float(r @ r), dof, r.size, r, r_p, scores, time.perf_counter() - start)
 
 
+def _by_score(score: Score) -> tuple[float, float]:
+    """Ranking key: most significant first (log p-value, exact where p underflows), then the larger drop."""
+    return score.log_p, -score.statistic
+
+
 def nested(a: Array, b: Array, tolerance: float = 1e-3) -> bool:
     """Whether span(a) lies within span(b): all principal angles between them are ~0."""
     Qa, Qb = _basis(a), _basis(b)
@@ -260,8 +260,7 @@ def confirm(base: BaseFit, score: Score, scores: Scores, max_iterations: int = 4
     result = levenberg_marquardt(problem, starts, np.repeat(base.X[None], len(starts), axis=0), options)
     best = int(np.nanargmin(np.where(np.isfinite(result.loss), result.loss, np.inf)))
     protocol = ProtocolResult(result, best, np.zeros((0, layout.n)), np.zeros(0), result.seconds, len(starts))
-    units = {name: p.unit for name, p in problem.models[0].variant.model.parameters.items()}
-    fit = conclude(problem, protocol, base.data, base.X, confidence, units)
+    fit = conclude(problem, protocol, base.data, base.X, confidence, units(problem.models[0].variant))
     chi2 = float(fit.uncertainty.chi2)
     k, n = len(cols), scores.n_data
     lr = scores.base_chi2 - chi2
@@ -298,7 +297,7 @@ def diagnose(base: BaseFit, candidates: Sequence[Candidate], options: Mapping | 
         log.info("score tests of %d candidates in %.1f s: base chi^2/dof %.3g", len(candidates), scores.seconds,
                  scores.base_chi2 / scores.base_dof)
     alpha_each = o["alpha"] / len(candidates)
-    order = sorted(scores.scores, key=lambda s: (s.log_p, -s.statistic))
+    order = sorted(scores.scores, key=_by_score)
     significant = [s for s in order if s.p_value < alpha_each]
     chosen = significant[: int(o["confirm"])]
     if significant:  # also refit any candidate whose predicted drop is as good as the best's: maybe confounded
@@ -398,7 +397,7 @@ def _table(scores: Scores, confirmations: Mapping[str, Confirmation], verdicts: 
     """One row per candidate: confirmed ones first (by Delta BIC), then by score p-value."""
     excess = _excess(scores)
     first = [cf.candidate.name for cf in confirmed]
-    rest = [s.candidate.name for s in sorted(scores.scores, key=lambda s: (s.log_p, -s.statistic))
+    rest = [s.candidate.name for s in sorted(scores.scores, key=_by_score)
             if s.candidate.name not in first]
     by_name = {s.candidate.name: s for s in scores.scores}
     rows = []
@@ -490,29 +489,27 @@ def _recommend(base: BaseFit, scores: Scores, best: Confirmation | None, confoun
     return conclusion, recommendation
 
 
-def parent_variant(variants: Mapping[str, Mapping], name: str) -> str | None:
+def parent_variant(variants: Mapping[str, Mapping], name: str) -> tuple[str, str] | None:
     """The variant that ``name`` extends by exactly one effect (same other effects, its unknowns a subset),
-    i.e. the one whose diagnosis may have refitted it; None when there is none."""
+    i.e. the one whose diagnosis may have refitted it, and that effect; None when there is none."""
     spec = variants[name]
     effects = set(spec.get("effects", []))
     for other, base in variants.items():
         extra = effects - set(base.get("effects", []))
         if (other != name and len(extra) == 1 and set(base.get("effects", [])) <= effects
                 and set(base.get("unknown", {})) <= set(spec.get("unknown", {}))):
-            return other
+            return other, extra.pop()
     return None
 
 
-def start_from_refit(refits: pd.DataFrame, effect: str, layout: Layout) -> Array | None:
-    """theta of ``layout`` from the diagnosis refit with ``effect`` (None when that refit is not there or
-    does not cover every entry); SI values normalised with the layout's own ranges."""
-    table = refits[refits["effect"] == effect]
+def theta_from_table(table: pd.DataFrame, layout: Layout) -> Array | None:
+    """theta of ``layout`` from a parameter table (``Identification.table``: parameter, run, value [SI]),
+    values normalised with the layout's own ranges; None when an entry is missing or not finite."""
     values = {(str(r.parameter), str(r.run)): float(r.value) for r in table.itertuples()}
-    theta = np.empty(layout.n)
-    for i, (p, run) in enumerate(layout.entries()):
-        if (p, run) not in values:
-            return None
-        theta[i] = values[(p, run)] if p == "phase" else float(layout.normalise(p, values[(p, run)]))
+    if any(e not in values for e in layout.entries()):
+        return None
+    theta = np.array([values[(p, run)] if p == "phase" else float(layout.normalise(p, values[(p, run)]))
+                      for p, run in layout.entries()])
     return np.clip(theta, *layout.bounds()) if np.isfinite(theta).all() else None
 
 

@@ -34,4 +34,4 @@ def parent_refits_input(wildcards):
     """A variant that adds one effect to another (the model-improvement loop) starts its polish from that
     variant's diagnosis refit with the effect: the full-solver fit is already there."""
     parent = parent_variant(config["variants"], wildcards.variant)
-    return {"refits": f"results/{parent}/diagnosis_refits.tsv"} if parent else {}
+    return {"refits": f"results/{parent[0]}/diagnosis_refits.tsv"} if parent else {}
