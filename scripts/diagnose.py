@@ -15,7 +15,8 @@ options = smk.params.options
 table = pd.read_csv(smk.input.parameters, sep="\t", dtype={"run": str})
 harmonics = idn.read_harmonics(smk.input.harmonics)
 runs = [r for r in dict.fromkeys(table["run"]) if r != "all"]
-data = [idn.run_data(harmonics, run) for run in runs]
+keyphasor = idn.settings(smk.config, variant.name)["keyphasor"]  # as the identification used it
+data = [idn.run_data(harmonics, run, keyphasor=keyphasor) for run in runs]
 base = dg.BaseFit.from_table(variant, table, data, int(smk.params.harmonics))
 candidates = candidates_for([e.name for e in variant.model.effects], options["candidates"],
                             cfg.user_effects(smk.config))

@@ -26,7 +26,7 @@ per_run = {path.split("/")[-2]: pd.read_csv(path, sep="\t", dtype={"run": str}) 
 data, models = [], []
 for path in smk.input.libraries:
     library = Library.load(path)
-    run = idn.run_data(table, library.run)
+    run = idn.run_data(table, library.run, keyphasor=options["keyphasor"])
     if not run.usable:
         log.warning("run %s left out of the joint fit: %s", run.run, run.note)
         continue
@@ -36,7 +36,7 @@ if not data:
     raise ValueError("no usable fit run for the joint identification")
 errors = idn.model_errors(pd.read_csv(smk.input.validation, sep="\t"), [d.run for d in data], options["model_error"])
 parameters = models[0].parameters
-layout = idn.Layout.build(parameters, models[0].lower, models[0].upper, [d.run for d in data], options["per_run"])
+layout = idn.Layout.for_data(parameters, models[0].lower, models[0].upper, data, options["per_run"])
 start_theta = idn.start_from_runs(layout, {d.run: per_run[d.run] for d in data if d.run in per_run})
 start = time.perf_counter()
 fit = idn.identify(models, data, options["per_run"], idn.protocol_options(options, joint=True), errors,

@@ -17,7 +17,7 @@ log = cfg.rule_logger(smk.log[0], "identify_run")
 variant = cfg.variant(smk.config, smk.wildcards.variant)
 options = idn.settings(smk.config, variant.name)
 run = smk.wildcards.run
-data = idn.run_data(idn.read_harmonics(smk.input.harmonics), run)
+data = idn.run_data(idn.read_harmonics(smk.input.harmonics), run, keyphasor=options["keyphasor"])
 library = Library.load(smk.input.library)
 units = idn.units(variant)
 if not data.usable:

@@ -20,7 +20,7 @@ fitted_runs = table[["run", "rpm_true", "eccentric_mass_g"]].rename(columns={"rp
 rows = []
 for path in smk.input.libraries:
     library = Library.load(path)
-    data = idn.run_data(table, library.run)
+    data = idn.run_data(table, library.run, keyphasor=options["keyphasor"])
     if not data.usable:
         rows.append({"run": data.run, "rpm": data.rpm, "eccentric_mass_g": data.eccentric_mass_g,
                      "model": "none", "note": data.note})

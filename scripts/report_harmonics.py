@@ -35,7 +35,7 @@ for row in validation.to_dict("records"):
     if row["model"] != source:
         continue
     library = Library.load(libraries[row["run"]])
-    data = idn.run_data(table, row["run"])
+    data = idn.run_data(table, row["run"], keyphasor=options["keyphasor"])
     if source == "solver":
         model = idn.SolverModel(variant, data.run, data.rpm, data.eccentric_mass_g, library.parameters,
                                 library.lower, library.upper, smk.config["harmonics"])

@@ -13,6 +13,7 @@ import shutil
 import subprocess
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -126,6 +127,29 @@ def test_phase_origin_and_dc_do_not_change_the_estimate():
     np.testing.assert_allclose(a.theta[:3], b.theta[:3], atol=1e-7)
     assert a.loss == pytest.approx(b.loss, rel=1e-9)
     assert abs(idn.wrap(b.theta[3] - a.theta[3] - 2.0)) < 1e-7
+
+
+def test_keyphasor_phase_is_held_and_keeps_the_phase_information():
+    """A run with absolute (keyphasor) phases: no phase is fitted, the estimate is unchanged on exact data,
+    and the parameters' covariance is the one of the Jacobian without the phase column (computed here with
+    numpy from the fit's own Jacobian, an independent route through the pseudo-inverse)."""
+    x_true = [0.2, 0.1, -0.3]
+    free = toy_data(x_true, 0.0, noise=1.0, seed=4)
+    keyed = replace(free, absolute_phase=True)
+    a = idn.identify([ToyModel()], [free], options=FAST)
+    b = idn.identify([ToyModel()], [keyed], options=FAST)
+    assert list(b.layout.fixed) == [False, False, False, True]
+    assert b.theta[3] == 0.0 and b.table()["stderr"].iloc[3] == 0.0
+    assert a.theta[3] != 0.0  # with the phase free the noise moves it
+    J = b.jac[:, :3] * b.layout.scale()[:3]  # d r / d theta of the three estimated entries
+    s2 = max(b.uncertainty.chi2_dof, 1.0)
+    reference = s2 * np.linalg.inv(J.T @ J) * np.outer(b.layout.scale()[:3], b.layout.scale()[:3])
+    np.testing.assert_allclose(b.uncertainty.covariance[:3, :3], reference, rtol=1e-8)
+    assert b.uncertainty.dof == 8 - 3  # 2 harmonics x 2 channels x Re/Im, three estimated parameters
+    # the phase of this response depends on b: fixing the phase must narrow b's interval
+    assert b.uncertainty.stderr[1] < 0.8 * a.uncertainty.stderr[1]
+    # and the prediction of a keyphasor run is not re-aligned
+    assert idn.predict_run(ToyModel(), keyed, b.values())["phase_rad"] == 0.0
 
 
 def test_arrow_solve_equals_the_dense_normal_equations():

@@ -96,11 +96,10 @@ class BaseFit:
     def from_table(cls, variant: Variant, table: pd.DataFrame, data: Sequence[RunData], harmonics: int
                    ) -> "BaseFit":
         """From a joint parameter table (``Identification.table``: parameter, run, normalised, value)."""
-        runs = [d.run for d in data]
         fitted = table[table["kind"] != "nuisance"]
         per_run = sorted(set(fitted.loc[fitted["run"] != "all", "parameter"]), key=list(variant.unknown).index)
         lower, upper = zip(*variant.unknown.values())
-        layout = Layout.build(list(variant.unknown), lower, upper, runs, per_run)
+        layout = Layout.for_data(list(variant.unknown), lower, upper, data, per_run)
         theta = theta_from_table(table, layout)
         if theta is None:
             raise ValueError("the parameter table lacks an entry or has a non-finite estimate: the fit failed, "
@@ -128,7 +127,8 @@ def extended_problem(base: BaseFit, candidates: Sequence[Candidate]) -> tuple[Ar
     """The joint problem of the base extended by ``candidates`` (full solver), and theta at beta = 0."""
     ext = extend(base.variant, candidates)
     lower, upper = zip(*ext.unknown.values())
-    layout = Layout.build(list(ext.unknown), lower, upper, base.layout.runs, base.layout.local)
+    layout = Layout.build(list(ext.unknown), lower, upper, base.layout.runs, base.layout.local,
+                          base.layout.fixed_phase)
     models = [SolverModel(ext, d.run, d.rpm, d.eccentric_mass_g, layout.parameters, np.array(lower),
                           np.array(upper), base.harmonics) for d in base.data]
     known = dict(zip(base.layout.entries(), base.theta))
@@ -183,7 +183,7 @@ def score_tests(base: BaseFit, candidates: Sequence[Candidate]) -> Scores:
     entries = layout.entries()
     tested = {p.name for c in candidates for p in c.parameters}
     is_base = np.array([p not in tested for p, _ in entries])
-    free = is_base & (layout.is_phase | (np.abs(theta) < 1.0 - BOUND_TOLERANCE))
+    free = is_base & ~layout.fixed & (layout.is_phase | (np.abs(theta) < 1.0 - BOUND_TOLERANCE))
     Q = _basis(J[:, free])
     r_p = r - Q @ (Q.T @ r)
     scores = []
