@@ -129,27 +129,38 @@ def test_phase_origin_and_dc_do_not_change_the_estimate():
     assert abs(idn.wrap(b.theta[3] - a.theta[3] - 2.0)) < 1e-7
 
 
-def test_keyphasor_phase_is_held_and_keeps_the_phase_information():
-    """A run with absolute (keyphasor) phases: no phase is fitted, the estimate is unchanged on exact data,
-    and the parameters' covariance is the one of the Jacobian without the phase column (computed here with
-    numpy from the fit's own Jacobian, an independent route through the pseudo-inverse)."""
+def test_keyphasor_phase_prior_keeps_the_phase_information():
+    """A run with absolute (keyphasor) phases keeps its phase, with a prior N(0, phase_sigma^2).
+
+    References, each independent of the fit's own uncertainty code: the covariance is s^2 (J^T J)^-1 with J the
+    data Jacobian (numpy, from the fit's residual derivatives) stacked with the prior's row; a huge phase_sigma
+    gives the free-phase fit; a tight one holds the phase within a few phase_sigma of 0 and narrows b's interval
+    (the phase of this response depends on b, so an absolute phase carries information on it).
+    """
     x_true = [0.2, 0.1, -0.3]
     free = toy_data(x_true, 0.0, noise=1.0, seed=4)
-    keyed = replace(free, absolute_phase=True)
     a = idn.identify([ToyModel()], [free], options=FAST)
-    b = idn.identify([ToyModel()], [keyed], options=FAST)
-    assert list(b.layout.fixed) == [False, False, False, True]
-    assert b.theta[3] == 0.0 and b.table()["stderr"].iloc[3] == 0.0
-    assert a.theta[3] != 0.0  # with the phase free the noise moves it
-    J = b.jac[:, :3] * b.layout.scale()[:3]  # d r / d theta of the three estimated entries
+    loose = idn.identify([ToyModel()], [replace(free, phase_sigma=1e6)], options=FAST)
+    np.testing.assert_allclose(loose.theta, a.theta, atol=1e-6)  # a prior of 1e6 rad is no prior
+    b = idn.identify([ToyModel()], [replace(free, phase_sigma=1e-4)], options=FAST)
+    assert np.abs(b.layout.phase_prior - [0, 0, 0, 1e4]).max() == 0
+    assert abs(b.theta[3]) < 5e-4 and abs(a.theta[3]) > 1e-3  # the free phase absorbs noise, the prior holds it
+    ev = b.problem.evaluate(b.theta[None], b.X[None])
+    J = np.vstack([b.problem.dense_jacobian(ev), [[0, 0, 0, 1e4]]])
+    scale = b.layout.scale()
     s2 = max(b.uncertainty.chi2_dof, 1.0)
-    reference = s2 * np.linalg.inv(J.T @ J) * np.outer(b.layout.scale()[:3], b.layout.scale()[:3])
-    np.testing.assert_allclose(b.uncertainty.covariance[:3, :3], reference, rtol=1e-8)
-    assert b.uncertainty.dof == 8 - 3  # 2 harmonics x 2 channels x Re/Im, three estimated parameters
-    # the phase of this response depends on b: fixing the phase must narrow b's interval
+    reference = s2 * np.linalg.inv(J.T @ J) * np.outer(scale, scale)
+    np.testing.assert_allclose(b.uncertainty.covariance, reference, rtol=1e-8, atol=1e-12 * np.abs(reference).max())
+    assert b.uncertainty.dof == 8 + 1 - 4  # 2 harmonics x 2 channels x Re/Im and the prior, four entries
     assert b.uncertainty.stderr[1] < 0.8 * a.uncertainty.stderr[1]
-    # and the prediction of a keyphasor run is not re-aligned
-    assert idn.predict_run(ToyModel(), keyed, b.values())["phase_rad"] == 0.0
+    # a keyphasor run's prediction moves its phase only within the prior: 0 on data equal to the model
+    exact = replace(toy_data(x_true, 0.0), phase_sigma=1e-4)
+    values = dict(zip(ToyModel.parameters, ToyModel.lower + (np.array(x_true) + 1) / 2 * (ToyModel.upper
+                                                                                         - ToyModel.lower)))
+    assert abs(idn.predict_run(ToyModel(), exact, values)["phase_rad"]) < 1e-12
+    rotated = replace(exact, X=exact.X * np.exp(1j * np.arange(1, 3) * 1e-4)[:, None])
+    phi = idn.predict_run(ToyModel(), rotated, values)["phase_rad"]
+    assert 0 < phi < 1e-4  # pulled towards the data's rotation, held back by the prior
 
 
 def test_arrow_solve_equals_the_dense_normal_equations():

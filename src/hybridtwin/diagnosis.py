@@ -128,7 +128,7 @@ def extended_problem(base: BaseFit, candidates: Sequence[Candidate]) -> tuple[Ar
     ext = extend(base.variant, candidates)
     lower, upper = zip(*ext.unknown.values())
     layout = Layout.build(list(ext.unknown), lower, upper, base.layout.runs, base.layout.local,
-                          base.layout.fixed_phase)
+                          base.layout.phase_sigma)
     models = [SolverModel(ext, d.run, d.rpm, d.eccentric_mass_g, layout.parameters, np.array(lower),
                           np.array(upper), base.harmonics) for d in base.data]
     known = dict(zip(base.layout.entries(), base.theta))
@@ -175,15 +175,16 @@ def score_tests(base: BaseFit, candidates: Sequence[Candidate]) -> Scores:
     problem, theta = extended_problem(base, candidates)
     layout = problem.layout
     ev = problem.evaluate(theta[None], base.X[None], jacobian=True)
-    r = ev.r[0].reshape(-1)
-    J = problem.dense_jacobian(ev)
+    prior_J, prior_r = problem.prior_rows(theta)  # keyphasor phases: their prior counts as data, as in the fit
+    r = np.concatenate([ev.r[0].reshape(-1), prior_r])
+    J = np.vstack([problem.dense_jacobian(ev), prior_J])
     if not (np.isfinite(r).all() and np.isfinite(J).all()):
         raise RuntimeError("the full solver failed at the base optimum (or next to it): no periodic solution "
                            "to diagnose from")
     entries = layout.entries()
     tested = {p.name for c in candidates for p in c.parameters}
     is_base = np.array([p not in tested for p, _ in entries])
-    free = is_base & ~layout.fixed & (layout.is_phase | (np.abs(theta) < 1.0 - BOUND_TOLERANCE))
+    free = is_base & (layout.is_phase | (np.abs(theta) < 1.0 - BOUND_TOLERANCE))
     Q = _basis(J[:, free])
     r_p = r - Q @ (Q.T @ r)
     scores = []

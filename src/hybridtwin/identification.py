@@ -19,11 +19,15 @@ the number of real residuals. How the paper's loss is made precise here:
 - Nuisances. Without a keyphasor the time origin of each record is arbitrary:
   a per-run phase phi rotates harmonic h by exp(i h phi) and is estimated with
   the parameters (it is never a physical result). With a keyphasor the phases
-  are absolute (the unbalance on +x at the mark, measurement-format.md): no
-  phase is fitted (``RunData.absolute_phase``, ``Layout.fixed``), which keeps
-  the information the phase of the response carries on the damping (on
-  Geometric-truth data with a bow per run, the standard error of zeta_bup
-  falls from 34 % to 1.5 %). DC offsets only touch h = 0, which is left out.
+  are absolute (the unbalance on +x at the mark, measurement-format.md), known
+  to within the mark's timing uncertainty sigma_t: one common rotation of the
+  record, h Omega delta_t. The run's phase is then kept, with a Gaussian prior
+  phi ~ N(0, (Omega sigma_t)^2) (a residual phi / (Omega sigma_t) in the least
+  squares, ``RunData.phase_sigma``, ``Layout.phase_prior``), and the measured
+  sigmas are those of the noise alone (the origin's share, which
+  preprocessing folds into them, taken out: it is that same rotation). The
+  phase of the response then tells the damping apart from a bow fitted per
+  run. DC offsets only touch h = 0, which is left out.
 - eq. 11 acts on p / max|range| (the paper's normalisation, its Table 4), where
   0 is physical zero, so the L1 term switches terms off (only parameters whose
   range contains 0 are penalised); on [-1, 1] min-max
@@ -133,7 +137,7 @@ class RunData:
     sigma: Array
     usable: bool = True
     note: str = "ok"
-    absolute_phase: bool = False  # the record has a keyphasor: X's phases are absolute, no phase is fitted
+    phase_sigma: float = math.inf  # [rad] uncertainty of X's absolute phase (keyphasor); inf: arbitrary origin
 
     @property
     def H(self) -> int:
@@ -159,7 +163,8 @@ def run_data(table: pd.DataFrame, run: str, harmonics: int | None = None, keypha
     """The measured harmonics of ``run`` from the preprocessed table (h = 1..H, SI).
 
     With ``keyphasor`` (the default), a run whose phases were referred to its keyphasor mark
-    (``phase_reference`` "keyphasor") has absolute phases: no per-run phase is fitted for it.
+    (``phase_reference`` "keyphasor") has absolute phases: phase_sigma = Omega sigma_t, and sigma is
+    the noise's alone (the origin's share, ``preprocessing.origin_share``, taken out of the table's).
     """
     rows = table[table["run"] == run]
     if len(rows) != 1:
@@ -168,10 +173,18 @@ def run_data(table: pd.DataFrame, run: str, harmonics: int | None = None, keypha
     H = table_harmonics(table) if harmonics is None else min(harmonics, table_harmonics(table))
     X = np.array([[row[f"{c}{h}_re_m"] + 1j * row[f"{c}{h}_im_m"] for c in CHANNELS] for h in range(1, H + 1)])
     sigma = np.array([[row[f"{c}{h}_sigma_m"] for c in CHANNELS] for h in range(1, H + 1)], float)
+    rpm = float(row.get("rpm_true", row["rpm"]))
+    phase_sigma = math.inf
+    if keyphasor and str(row.get("phase_reference", "arbitrary")) == "keyphasor":
+        from .preprocessing import origin_share
+
+        omega, sigma_t = rpm * math.pi / 30.0, float(row["phase_origin_sigma_s"])
+        share = origin_share(np.vstack([np.zeros((1, 2)), X]).T, omega, sigma_t).T[1:]  # (H, 2)
+        sigma = np.sqrt(np.maximum(sigma**2 - share**2, (1e-3 * sigma) ** 2))
+        phase_sigma = max(omega * sigma_t, 1e-9)
     usable = bool(row.get("usable", True)) and np.isfinite(X).all() and np.isfinite(sigma).all()
-    return RunData(str(run), float(row.get("rpm_true", row["rpm"])), float(row["eccentric_mass_g"]),
-                   str(row.get("role", "fit")), X, sigma, usable, str(row.get("note", "ok")),
-                   keyphasor and str(row.get("phase_reference", "arbitrary")) == "keyphasor")
+    return RunData(str(run), rpm, float(row["eccentric_mass_g"]), str(row.get("role", "fit")), X, sigma, usable,
+                   str(row.get("note", "ok")), phase_sigma)
 
 
 def total_sigma(data: RunData, relative_model_error: float = 0.0) -> Array:
@@ -260,8 +273,8 @@ class Layout:
 
     A run's block is its local parameters (d_l) then its phase [rad]. Physical
     parameters are normalised to [-1, 1] with ``lower``/``upper`` (SI, in the
-    order of ``parameters``, the libraries' order); phases are free, except
-    those of runs with ``fixed_phase`` (a keyphasor gave absolute phases): held at 0.
+    order of ``parameters``, the libraries' order); phases are free, with a
+    Gaussian prior N(0, phase_sigma^2) for runs with a keyphasor (finite phase_sigma).
     """
 
     parameters: tuple[str, ...]
@@ -270,13 +283,13 @@ class Layout:
     shared: tuple[str, ...]
     local: tuple[str, ...]
     runs: tuple[str, ...]
-    fixed_phase: tuple[bool, ...] = ()  # per run; () = none fixed
+    phase_sigma: tuple[float, ...] = ()  # [rad] per run, inf: arbitrary origin (the default for all)
 
     def __post_init__(self) -> None:
-        if not self.fixed_phase:
-            object.__setattr__(self, "fixed_phase", (False,) * len(self.runs))
-        if len(self.fixed_phase) != len(self.runs):
-            raise ValueError(f"fixed_phase has {len(self.fixed_phase)} entries for {len(self.runs)} runs")
+        if not self.phase_sigma:
+            object.__setattr__(self, "phase_sigma", (math.inf,) * len(self.runs))
+        if len(self.phase_sigma) != len(self.runs):
+            raise ValueError(f"phase_sigma has {len(self.phase_sigma)} entries for {len(self.runs)} runs")
         both = set(self.shared) & set(self.local)
         if both or set(self.shared) | set(self.local) != set(self.parameters):
             raise ValueError(f"shared {list(self.shared)} and per-run {list(self.local)} parameters must split "
@@ -284,18 +297,18 @@ class Layout:
 
     @classmethod
     def build(cls, parameters: Sequence[str], lower: Sequence[float], upper: Sequence[float],
-              runs: Sequence[str], per_run: Sequence[str] = (), fixed_phase: Sequence[bool] = ()) -> "Layout":
+              runs: Sequence[str], per_run: Sequence[str] = (), phase_sigma: Sequence[float] = ()) -> "Layout":
         local = tuple(p for p in parameters if p in set(per_run))
         shared = tuple(p for p in parameters if p not in set(local))
         return cls(tuple(parameters), tuple(map(float, lower)), tuple(map(float, upper)), shared, local,
-                   tuple(runs), tuple(map(bool, fixed_phase)))
+                   tuple(runs), tuple(map(float, phase_sigma)))
 
     @classmethod
     def for_data(cls, parameters: Sequence[str], lower: Sequence[float], upper: Sequence[float],
                  data: Sequence[RunData], per_run: Sequence[str] = ()) -> "Layout":
-        """The layout of a fit of ``data``: phases fixed for the runs with absolute (keyphasor) phases."""
+        """The layout of a fit of ``data``: a phase prior for the runs with absolute (keyphasor) phases."""
         return cls.build(parameters, lower, upper, [d.run for d in data], per_run,
-                         [d.absolute_phase for d in data])
+                         [d.phase_sigma for d in data])
 
     @property
     def n_shared(self) -> int:
@@ -341,15 +354,19 @@ class Layout:
         return np.array([p == "phase" for p, _ in self.entries()])
 
     @property
-    def fixed(self) -> Array:
-        """Entries held at 0, never estimated: the phases of runs with absolute (keyphasor) phases."""
-        fixed = dict(zip(self.runs, self.fixed_phase))
-        return np.array([p == "phase" and fixed[run] for p, run in self.entries()])
+    def phase_prior(self) -> Array:
+        """1 / phase_sigma of each entry [1/rad]: nonzero for the phases of runs with a keyphasor, else 0."""
+        sigma = dict(zip(self.runs, self.phase_sigma))
+        return np.array([1.0 / sigma[run] if p == "phase" else 0.0 for p, run in self.entries()])
+
+    @property
+    def absolute_runs(self) -> list[str]:
+        """The runs whose phases are absolute (a keyphasor): their phase has a prior."""
+        return [run for run, sigma in zip(self.runs, self.phase_sigma) if math.isfinite(sigma)]
 
     def bounds(self) -> tuple[Array, Array]:
-        """Bounds of theta: [-1, 1] for physical parameters, +-inf for phases, [0, 0] for fixed phases."""
+        """Bounds of theta: [-1, 1] for physical parameters, +-inf for phases."""
         lo = np.where(self.is_phase, -np.inf, -1.0)
-        lo[self.fixed] = 0.0
         return lo, -lo
 
     def scale(self) -> Array:
@@ -408,7 +425,8 @@ class Evaluation:
     """Residuals and block-arrow Jacobian of N trials.
 
     r: (N, R, m) data residuals (Re then Im of (X - e^{ih phi} M) / s), rho: (N, n)
-    sparsity residuals (eq. 11, one per entry of theta, 0 for phases);
+    sparsity residuals (eq. 11, one per entry of theta, 0 for phases) plus, for
+    the phases of keyphasor runs, their prior phi / phase_sigma;
     Js: (N, R, m, d_s) d r / d shared, Jl: (N, R, m, k) d r / d run block,
     jd: (N, n) d rho / d theta (diagonal).
     """
@@ -481,7 +499,14 @@ class ArrowProblem:
                 Jl[:, k, :, :-1] = _real(dM[..., L.local_index])
                 Jl[:, k, :, -1] = _real(-1j * self.h[None, :, None] * M / self.sigma[k])
         rho, jd = self._sparsity(theta, jacobian)
-        return Evaluation(r, rho, Js, Jl, jd)
+        prior = self.layout.phase_prior  # the keyphasor phases' prior, phi / (Omega sigma_t), on other entries
+        return Evaluation(r, rho + prior * theta, Js, Jl, None if jd is None else jd + prior)
+
+    def prior_rows(self, theta: Array) -> tuple[Array, Array]:
+        """The phase prior as pseudo-measurements at theta (n,): rows (p, n) of d rho / d theta, residuals (p,)."""
+        prior = self.layout.phase_prior
+        rows = np.diag(prior)[prior > 0]
+        return rows, rows @ theta
 
     def _sparsity(self, theta: Array, jacobian: bool) -> tuple[Array, Array | None]:
         """rho = sqrt(lambda n_r) s / (s^2 + eps^2)^(1/4), s = a theta + b (module docstring, eq. 11)."""
@@ -499,8 +524,8 @@ class ArrowProblem:
         """theta with each run's phase set to align the 1X response: phi = arg(sum_c X_1c conj(M_1c) / s^2)."""
         theta = theta.copy()
         for k in range(self.layout.n_runs):
-            if self.layout.fixed_phase[k]:
-                continue
+            if math.isfinite(self.layout.phase_sigma[k]):
+                continue  # absolute phases: start at the keyphasor's 0
             x, _ = self.layout.run_parameters(theta, k)
             M, _ = self.models[k].evaluate(x, jacobian=False)
             weight = 1.0 / self.sigma[k, 0] ** 2
@@ -733,7 +758,7 @@ def _lm_batch(problem: ArrowProblem, theta0: Array, X: Array, options: LMOptions
         normal = Normal.assemble(sub, layout)
         g = normal.gradient()
         th = theta[act]
-        free = ~(((th <= lower) & (g > 0)) | ((th >= upper) & (g < 0)) | layout.fixed)
+        free = ~(((th <= lower) & (g > 0)) | ((th >= upper) & (g < 0)))
         done = grad_scale * np.abs(g * free).max(1) <= options.gtol
         diag = normal.diagonal()
         floor = 1e-12 * np.maximum(diag.max(1, keepdims=True), 1e-300)
@@ -947,17 +972,14 @@ def analyse_uncertainty(J: Array, r: Array, theta: Array, layout: Layout, scale_
     lo, hi = layout.bounds()
     undefined = ~np.isfinite(J).all(0)  # a sensitivity the model could not give (no solution either side)
     J = np.where(undefined, 0.0, J)
-    fixed = layout.fixed  # known, not estimated (keyphasor phases): no column, no variance
-    at_bound = ((theta <= lo + BOUND_TOLERANCE) | (theta >= hi - BOUND_TOLERANCE)) & ~fixed
-    free = ~at_bound & ~fixed
+    at_bound = (theta <= lo + BOUND_TOLERANCE) | (theta >= hi - BOUND_TOLERANCE)
+    free = ~at_bound
     chi2 = float(r @ r)
     dof = int(J.shape[0] - free.sum())
     s2 = max(chi2 / dof, 1.0) if (scale_by_residual and dof > 0) else 1.0
     # all estimated entries, those at a bound as if free: the free ones' intervals then include how little the
     # data fix the bound ones (conservative), instead of being conditional on the edge values
-    U, S, Vt_estimated = np.linalg.svd(J[:, ~fixed], full_matrices=False)
-    Vt = np.zeros((Vt_estimated.shape[0], n))
-    Vt[:, ~fixed] = Vt_estimated
+    U, S, Vt = np.linalg.svd(J, full_matrices=False)
     keep = S > rcond * (S[0] if S.size else 1.0)
     inverse = np.where(keep, 1.0 / np.where(keep, S, 1.0) ** 2, 0.0)
     covariance = s2 * (Vt.T * inverse) @ Vt * np.outer(scale, scale)
@@ -969,7 +991,7 @@ def analyse_uncertainty(J: Array, r: Array, theta: Array, layout: Layout, scale_
     null = (Vt[~keep] ** 2).sum(0) if (~keep).any() else np.zeros(n)
     gamma, vif = _collinearity(J, free, layout)
     width = np.where(layout.is_phase, np.inf, 2.0 * scale)  # the range width [SI]
-    identifiable = (free & (null < 0.1) & (2 * 1.96 * stderr < width) & np.isfinite(stderr)) | fixed
+    identifiable = free & (null < 0.1) & (2 * 1.96 * stderr < width) & np.isfinite(stderr)
     notes = _uncertainty_notes(layout, at_bound, identifiable, gamma, chi2, dof)
     if undefined.any():
         names = [p if run == "all" else f"{p}[{run}]" for (p, run), u in zip(layout.entries(), undefined) if u]
@@ -1019,10 +1041,6 @@ def _uncertainty_notes(layout: Layout, at_bound: Array, identifiable: Array, gam
     if weak:
         notes.append(f"not identifiable from these data: {', '.join(weak)} (null direction of the Jacobian or "
                      "95 % interval wider than the range)")
-    absolute = [run for run, fixed in zip(layout.runs, layout.fixed_phase) if fixed]
-    if absolute:
-        notes.append(f"absolute phases from the keyphasor, no phase fitted, for {len(absolute)} of "
-                     f"{layout.n_runs} run(s): {', '.join(absolute)}")
     if np.isfinite(gamma) and gamma > COLLINEARITY_LIMIT:
         notes.append(f"collinearity index {gamma:.1f} > {COLLINEARITY_LIMIT:g}: the physical parameters are "
                      "poorly identifiable together (their effects on the response nearly compensate)")
@@ -1184,8 +1202,9 @@ def conclude(problem: ArrowProblem, protocol: ProtocolResult, data: Sequence[Run
     layout = problem.layout
     theta = protocol.theta
     ev = problem.evaluate(theta[None], X[None])
-    J = problem.dense_jacobian(ev)
-    r = ev.r[0].reshape(-1)
+    prior_J, prior_r = problem.prior_rows(theta)  # the keyphasor phases' prior counts as data here
+    J = np.vstack([problem.dense_jacobian(ev), prior_J])
+    r = np.concatenate([ev.r[0].reshape(-1), prior_r])
     uncertainty = analyse_uncertainty(J, r, theta, layout, scale_by_residual)
     status = int(protocol.trials.status[protocol.best])
     return Identification(layout, problem, protocol, layout.to_si(theta), theta,
@@ -1229,10 +1248,23 @@ def _with_dc(z: Array, fill: float = 0.0) -> Array:
     return np.vstack([np.full((1, 2), fill, z.dtype), z]).T
 
 
+def keyphasor_phase(X: Array, M: Array, sigma: Array, phase_sigma: float, iterations: int = 3) -> float:
+    """The phase [rad] of a record with absolute phases: phi minimising
+    sum |X - e^{ih phi} M|^2 / s^2 + (phi / phase_sigma)^2 (the fit's prior), by Gauss-Newton from 0."""
+    h = np.arange(1, X.shape[0] + 1)[:, None]
+    phi = 0.0
+    for _ in range(iterations):
+        rotated = np.exp(1j * h * phi) * M
+        r, d = (X - rotated) / sigma, 1j * h * rotated / sigma  # residual and its -d/dphi
+        phi += float(((np.conj(d) * r).real.sum() - phi / phase_sigma**2) / ((np.abs(d) ** 2).sum()
+                                                                          + 1.0 / phase_sigma**2))
+    return phi
+
+
 def predict_run(model: HarmonicModel, data: RunData, values: Mapping[str, float], model_error: float = 0.0
                 ) -> dict:
-    """A run predicted with given parameter values [SI]: only its phase (a nuisance) is aligned, unless it is
-    absolute (keyphasor).
+    """A run predicted with given parameter values [SI]: only its phase (a nuisance) is aligned (within its
+    prior when it is absolute: ``keyphasor_phase``).
 
     Returns error_rel (relative L2 error of the signals' h >= 1 part, Parseval),
     chi2_per_residual (with the measured sigmas and the library error), the
@@ -1246,7 +1278,10 @@ def predict_run(model: HarmonicModel, data: RunData, values: Mapping[str, float]
     outside = [p for p, v in zip(model.parameters, x) if abs(v) > 1 + 1e-9]
     M = model.evaluate(np.clip(x, -1, 1)[None], jacobian=False)[0][0, :H]  # (H, 2)
     X, sigma = data.X[:H], total_sigma(data, model_error)[:H]
-    phi = 0.0 if data.absolute_phase else fit_phase(_with_dc(X), _with_dc(M), _with_dc(sigma, fill=1.0))
+    if math.isfinite(data.phase_sigma):
+        phi = keyphasor_phase(X, M, sigma, data.phase_sigma)
+    else:
+        phi = fit_phase(_with_dc(X), _with_dc(M), _with_dc(sigma, fill=1.0))
     aligned = M * np.exp(1j * np.arange(1, H + 1) * phi)[:, None]
     error = np.sqrt((np.abs(X - aligned) ** 2).sum() / (np.abs(X) ** 2).sum())
     residual = (X - aligned) / sigma
@@ -1508,7 +1543,7 @@ DEFAULTS: dict = {
     "max_iterations": 100,
     "joint": {"trials": 50, "monte_carlo": 100},
     "polish": {"joint": True, "runs": False, "max_iterations": 60},
-    "keyphasor": True,  # runs with a keyphasor have absolute phases: no phase fitted (false: fit one anyway)
+    "keyphasor": True,  # runs with a keyphasor: absolute phases, phase prior N(0, (Omega sigma_t)^2); false: free
     "validation_bow": "law",  # per-run parameters of validation runs: law (c0 + c1 W^2 + c2 W^2 m_e) | mean
 }
 

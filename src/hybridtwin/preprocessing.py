@@ -289,12 +289,20 @@ def order_analysis(record: Record, speed: SpeedEstimate, origin: PhaseOrigin, ha
     per_rev = _to_complex(np.moveaxis(coef, 2, 1))  # (K, 2, H+1)
     mean = per_rev.mean(0)
     scatter = np.sqrt(0.5 * (per_rev.real.var(0, ddof=1) + per_rev.imag.var(0, ddof=1)) / K)
-    h = np.arange(harmonics + 1)
-    origin_share = h * omega * origin.sigma_s * np.abs(mean) / np.sqrt(2.0)
-    sigma = np.sqrt(scatter**2 + origin_share**2)
+    sigma = np.sqrt(scatter**2 + origin_share(mean, omega, origin.sigma_s) ** 2)
     residual = data - A @ _to_real(mean).T
     noise = np.sqrt((residual**2).sum(0) / (used.sum() - A.shape[1]))
     return OrderAnalysis(mean, sigma, per_rev, noise, float(start), int(used.sum()))
+
+
+def origin_share(harmonics: Array, omega: float, sigma_t: float) -> Array:
+    """The phase origin's share of each harmonic's sigma, h Omega sigma_t |X_h| / sqrt(2) (step 3).
+
+    harmonics: (..., H+1) over h = 0..H; a timing error delta_t rotates X_h by h Omega delta_t, the same
+    for every harmonic and channel of a record (one common rotation, not independent noise).
+    """
+    h = np.arange(np.shape(harmonics)[-1])
+    return h * omega * sigma_t * np.abs(harmonics) / np.sqrt(2.0)
 
 
 def _to_complex(coef: Array) -> Array:
