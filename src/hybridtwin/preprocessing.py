@@ -18,11 +18,16 @@ it with a steady-state model (u(t) = Re(sum_h U_h exp(i h Omega t)), 0-peak):
    is least affected by the speed's uncertainty. With a keyphasor the origin
    is the mark (the unbalance on +x, measurement-format.md): the marks' times
    are fitted as t_k = t_c + k T_kp, and the origin is the fitted mark nearest
-   the middle ("keyphasor"). The virtual rig writes a mark on the sample
-   nearest to the event, so a mark's time error is uniform in +-dt/2; its
-   uncertainty is the regression's plus, for the part of that quantisation
-   the marks did not sample (resultant length R of their sub-sample
-   positions), a common error R dt / sqrt(12).
+   the middle ("keyphasor"). A mark lands on the sample nearest to the event
+   (the virtual rig does so), so its time error is the rounding
+   dt (round(u + k f) - (u + k f)), f = T / dt, u the unknown sub-sample
+   position of mark 0. These errors are not independent: along the sequence
+   k f mod 1 they largely cancel in the regression. Its uncertainty is
+   therefore the RMS, over u uniform in [0, 1), of the regression's error
+   for the record's own f and mark numbers (``quantisation_sigma``), plus
+   the regression's share of any scatter beyond the rounding (jitter).
+   Measured on 66 virtual-rig records: (origin error / sigma) has an RMS of
+   0.50 with an independent-error formula, about 1 with this one.
 3. Order analysis over whole revolutions. The record is cut into the K whole
    revolutions [t_ref + k T, t_ref + (k+1) T) it contains; in each the DC and
    1X..HX of x and y are fitted by least squares (exact, no resampling);
@@ -261,9 +266,23 @@ def phase_origin(record: Record, speed: SpeedEstimate) -> PhaseOrigin:
     t_c = intercept + slope * k_c
     s2 = (residual**2).sum() / max(k.size - 2, 1)
     lever = 1.0 / k.size + (k_c - k.mean()) ** 2 / ((k - k.mean()) ** 2).sum()
-    sub_sample = np.abs(np.exp(2j * np.pi * (intercept + slope * k) / record.dt_s).mean())
-    sigma = np.sqrt(s2 * lever + (sub_sample * record.dt_s) ** 2 / 12.0)
+    weights = 1.0 / k.size + (k_c - k.mean()) * (k - k.mean()) / ((k - k.mean()) ** 2).sum()  # t_c = w . t_k
+    jitter2 = max(s2 - record.dt_s**2 / 12.0, 0.0)  # scatter beyond the rounding's
+    sigma = np.sqrt(quantisation_sigma(weights, k, slope / record.dt_s, record.dt_s) ** 2 + jitter2 * lever)
     return PhaseOrigin(float(t_c), float(sigma), "keyphasor", 60.0 / slope, int(k.size))
+
+
+def quantisation_sigma(weights: Array, k: Array, f: float, dt: float, n_positions: int = 512) -> float:
+    """RMS error [s] of the estimate w . t_k when each mark t_k is rounded to the sample grid (step 2).
+
+    Mark k sits at u + k f samples, u the unknown sub-sample position of mark 0: the estimate errs by
+    dt sum_k w_k (round(u + k f) - (u + k f)) (an exact linear estimator, sum w = 1, is blind to the
+    events' own linear trend); its mean square over u uniform in [0, 1), on a grid of ``n_positions``.
+    """
+    u = (np.arange(n_positions) + 0.5) / n_positions
+    position = u[:, None] + np.mod(k * f, 1.0)[None, :]
+    error = dt * ((np.round(position) - position) @ weights)
+    return float(np.sqrt(np.mean(error * error)))
 
 
 # --- step 3: order analysis -------------------------------------------------------------
