@@ -56,6 +56,29 @@ def test_a_sum_of_separable_terms_is_recovered_by_enrichment():
     assert model.history.validation_error[0] > 0.05
 
 
+def linear_in_p1(X):
+    """(1 + 0.5 p1)(p2^5 - p2^2 + 1)(2 - p3): linear in p1 and p3, quintic in p2."""
+    p1, p2, p3 = X.T
+    return np.outer((1 + 0.5 * p1) * (p2 ** 5 - p2 * p2 + 1) * (2 - p3), [1.0, -0.5])
+
+
+def test_each_parameter_gets_the_degree_it_needs():
+    X, Y, X_val, Y_val = _split(linear_in_p1)
+    noise = 1e-3 * np.abs(Y).max()
+    Y, Y_val = Y + noise * RNG.standard_normal(Y.shape), Y_val + noise * RNG.standard_normal(Y_val.shape)
+    model = SparsePGD(degree=8, max_terms=3, patience=2, degree_tolerance=1e-2).fit(X, Y, X_val, Y_val)
+    # degrees above the true ones only fit the noise: within 1 % of the best validation error the
+    # lowest degree is kept (linear in p1 and p3); p2 needs at least its true degree 5
+    assert model.degrees[0, 0] == 1 and model.degrees[0, 2] == 1 and model.degrees[0, 1] >= 5
+    assert model.coefficients.shape[-1] == model.degrees.max() + 1  # trimmed to the highest degree used
+    X_test = RNG.uniform(-1, 1, (500, 3))
+    error = np.linalg.norm(model.predict(X_test) - linear_in_p1(X_test)) / np.linalg.norm(linear_in_p1(X_test))
+    assert error < 1e-3
+    again = SparsePGD.from_arrays(**model.to_arrays())
+    np.testing.assert_array_equal(again.degrees, model.degrees)
+    np.testing.assert_array_equal(again.predict(X_test), model.predict(X_test))
+
+
 def test_the_number_of_terms_is_chosen_on_validation_data():
     X, Y, X_val, Y_val = _split(rank_three, n=40, n_val=40)
     Y_noisy = Y + 0.05 * RNG.standard_normal(Y.shape)
