@@ -105,6 +105,8 @@ def parse_args(argv=None) -> argparse.Namespace:
                         help="BLAS threads (1, as the workflow's rules pin it) [%(default)s]")
     parser.add_argument("--no-peers", action="store_true", help="skip the GP and RBF peers")
     parser.add_argument("--no-scope", action="store_true", help="skip the per-run vs global scope comparison")
+    parser.add_argument("--spgd", action="append", default=[], metavar="KEY=VALUE",
+                        help="override a config offline.spgd option, e.g. --spgd degree_search=parameter (repeatable)")
     parser.add_argument("--global-max-terms", type=int, default=None,
                         help="max sPGD terms of the global library [config offline.spgd.max_terms]")
     return parser.parse_args(argv)
@@ -123,6 +125,9 @@ class Setup:
                          f"(snakemake --cores 2 {self.results}/library_validation.tsv)")
         self.config = yaml.safe_load(Path(args.config).read_text())
         self.offline = cfg.offline(self.config)
+        for item in args.spgd:  # values parsed as YAML scalars (numbers, words)
+            key, _, value = item.partition("=")
+            self.offline["spgd"][key] = yaml.safe_load(value)
         import zarr
 
         group = zarr.open_group(str(self.store), mode="r")

@@ -66,7 +66,8 @@ def test_each_parameter_gets_the_degree_it_needs():
     X, Y, X_val, Y_val = _split(linear_in_p1)
     noise = 1e-3 * np.abs(Y).max()
     Y, Y_val = Y + noise * RNG.standard_normal(Y.shape), Y_val + noise * RNG.standard_normal(Y_val.shape)
-    model = SparsePGD(degree=8, max_terms=3, patience=2, degree_tolerance=1e-2).fit(X, Y, X_val, Y_val)
+    model = SparsePGD(degree=8, max_terms=3, patience=2, degree_search="parameter",
+                      degree_tolerance=1e-2).fit(X, Y, X_val, Y_val)
     # degrees above the true ones only fit the noise: within 1 % of the best validation error the
     # lowest degree is kept (linear in p1 and p3); p2 needs at least its true degree 5
     assert model.degrees[0, 0] == 1 and model.degrees[0, 2] == 1 and model.degrees[0, 1] >= 5
@@ -77,6 +78,16 @@ def test_each_parameter_gets_the_degree_it_needs():
     again = SparsePGD.from_arrays(**model.to_arrays())
     np.testing.assert_array_equal(again.degrees, model.degrees)
     np.testing.assert_array_equal(again.predict(X_test), model.predict(X_test))
+
+
+def test_the_default_degree_search_gives_each_term_one_degree():
+    """degree_search="term" (the default): a term has the same degree in every parameter, so the quintic in
+    p2 makes the first term quintic in p1 and p3 too (where "parameter" keeps them linear, test above)."""
+    X, Y, X_val, Y_val = _split(linear_in_p1)
+    model = SparsePGD(degree=8, max_terms=3, patience=2).fit(X, Y, X_val, Y_val)
+    assert (model.degrees == model.degrees[:, :1]).all() and model.degrees[0, 0] >= 5
+    with pytest.raises(ValueError, match="degree_search"):
+        SparsePGD(degree_search="everything")
 
 
 def test_the_number_of_terms_is_chosen_on_validation_data():

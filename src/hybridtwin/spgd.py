@@ -14,15 +14,18 @@ measured to matter):
 - backfitting: after each enrichment every earlier term is refitted with the
   others fixed (a few ALS iterations), then all amplitudes a_k are solved
   jointly by least squares;
-- adaptive order per parameter: each new term is first fitted with the same
-  degree 1..n in every parameter, then, parameter by parameter, with that
-  parameter's degree changed to each of 0..n; the degrees that best lower the
-  validation error are kept. Terms stay simple where the response is (a
-  product of d high-degree factors overfits small samples) and take a high
-  degree only in the parameters that need it (benchmarks/library_benchmark.py,
-  geometric, 5 runs, n = 10 against one degree per term with n = 6: pooled
-  test error median 0.030 -> 0.018 %, p95 2.47 -> 1.61 %; the evaluation with
-  Jacobian 1.4 -> 2.1 us per set, the factors being wider);
+- adaptive order: each new term is fitted with the same degree 1..n in every
+  parameter and the degree that best lowers the validation error is kept, so
+  early terms stay simple (a product of d high-degree factors overfits small
+  samples). With ``degree_search="parameter"`` the term is then refitted
+  parameter by parameter with that parameter's degree changed to each of
+  0..n, so it takes a high degree only in the parameters that need it. That
+  costs d (n + 1) more ALS fits per term: benchmarks/library_benchmark.py
+  (geometric, 5 runs), n = 10 per parameter against n = 6 per term: pooled
+  test error median 0.030 -> 0.018 %, p95 2.47 -> 1.61 %, but the fit 15 ->
+  132 s (an Expansion library, 9 parameters: 4.7 -> 46 s) and the evaluation
+  with Jacobian 1.4 -> 2.1 us per set. Per parameter at n = 6 gains little
+  (median 0.029 %). The default is "term";
 - the number of terms K is chosen on held-out (validation) data, never on the
   training residual: enrichment stops when the validation error has not
   improved for ``patience`` terms and the best K is kept.
@@ -71,11 +74,13 @@ class SparsePGD:
 
     def __init__(self, degree: int = 6, max_terms: int = 60, ridge: float = 1e-8, als_iterations: int = 30,
                  als_tol: float = 1e-8, backfit_iterations: int = 3, patience: int = 8,
-                 degree_tolerance: float = 0.0):
+                 degree_search: str = "term", degree_tolerance: float = 0.0):
+        if degree_search not in ("term", "parameter"):
+            raise ValueError(f"degree_search must be 'term' or 'parameter', not {degree_search!r}")
         self.degree, self.max_terms, self.ridge = degree, max_terms, ridge
         self.als_iterations, self.als_tol = als_iterations, als_tol
         self.backfit_iterations, self.patience = backfit_iterations, patience
-        self.degree_tolerance = degree_tolerance
+        self.degree_search, self.degree_tolerance = degree_search, degree_tolerance
         self.amplitudes = np.zeros((0, 0))  # a_k, (K, m)
         self.coefficients = np.zeros((0, 0, degree + 1))  # c_j^k, (K, d, n_used+1), zero above each degree
         self.degrees = np.zeros((0, 0), int)  # polynomial degree of each term in each parameter, (K, d)
@@ -120,15 +125,16 @@ class SparsePGD:
                 w_val: Array | None) -> tuple[Array, Array, Array]:
         """The new rank-one term and its degrees (d,), chosen on the validation error of the residual.
 
-        First one degree 1..n for all parameters, then one parameter at a time each degree 0..n with
-        the others fixed; every trial is a full ALS fit. Each choice is the lowest degree whose
+        One degree 1..n for all parameters; then, with ``degree_search="parameter"``, one parameter
+        at a time each degree 0..n with the others fixed. Every trial is a full ALS fit. Each choice is the
+        lowest degree whose
         validation error is within ``degree_tolerance`` of the best trial's: higher degrees that
         gain less only fit noise in the validation data (and cost evaluation time).
         """
         d = B.shape[0]
         fit = partial(self._trial, B, B_val, residual, residual_val, w, w_val)
         best = self._lowest_good([fit(np.full(d, p)) for p in range(min(1, self.degree), self.degree + 1)])
-        for j in range(d):
+        for j in range(d if self.degree_search == "parameter" else 0):
             trials = [best if p == best[3][j] else fit(np.where(np.arange(d) == j, p, best[3]))
                       for p in range(self.degree + 1)]
             best = self._lowest_good(trials)
