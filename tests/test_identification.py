@@ -313,6 +313,7 @@ def test_joint_fit_recovers_the_geometric_truth(geometric_truth):
     tolerance = {"k_b": 0.01, "zeta_s": 0.10, "zeta_bup": 0.10, "q_x": 0.05, "q_y": 0.05}
     summary = yaml.safe_load((results / "identification" / "summary.yaml").read_text())
     dof = summary["final"]["dof"]
+    assert sorted(summary["final"]["keyphasor_runs"]) == sorted(FIT)  # every fit run's phase held near its keyphasor's
     for row in estimates.itertuples():
         truth = TRUTH[row.parameter]
         assert abs(row.value / truth - 1) < tolerance[row.parameter], (row.parameter, row.run, row.value)

@@ -977,8 +977,8 @@ def analyse_uncertainty(J: Array, r: Array, theta: Array, layout: Layout, scale_
     chi2 = float(r @ r)
     dof = int(J.shape[0] - free.sum())
     s2 = max(chi2 / dof, 1.0) if (scale_by_residual and dof > 0) else 1.0
-    # all estimated entries, those at a bound as if free: the free ones' intervals then include how little the
-    # data fix the bound ones (conservative), instead of being conditional on the edge values
+    # all entries, those at a bound as if free: the free ones' intervals then include how little the data fix
+    # the bound ones (conservative), instead of being conditional on the edge values
     U, S, Vt = np.linalg.svd(J, full_matrices=False)
     keep = S > rcond * (S[0] if S.size else 1.0)
     inverse = np.where(keep, 1.0 / np.where(keep, S, 1.0) ** 2, 0.0)
@@ -1158,7 +1158,8 @@ class Identification:
         u, tr = self.uncertainty, self.protocol.trials
         at_best = np.isclose(tr.loss, tr.loss[self.protocol.best], rtol=1e-6, atol=1e-12)
         return {"runs": list(self.layout.runs), "shared": list(self.layout.shared),
-                "per_run": list(self.layout.local), "n_data": int(self.problem.n_data), "dof": int(u.dof),
+                "per_run": list(self.layout.local), "keyphasor_runs": self.layout.absolute_runs,
+                "n_data": int(self.problem.n_data), "dof": int(u.dof),
                 "chi2": float(u.chi2), "chi2_dof": float(u.chi2_dof), "loss": float(self.loss),
                 "cost": float(self.cost), "status": int(self.status), "message": self.message,
                 "collinearity_index": float(u.collinearity_index), "trials": int(len(tr.loss)),
