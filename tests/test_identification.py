@@ -184,6 +184,63 @@ def test_arrow_solve_equals_the_dense_normal_equations():
     assert layout.n == 2 + 3 * 2 and list(fit.table()["run"][:2]) == ["all", "all"]
 
 
+class LinearValley:
+    """M(x) = G x + m0 (H = 2, two channels) with nearly parallel columns: a long flat valley whose floor
+    leaves the box [-1, 1]^3, so the constrained optimum lies on a bound, deep in a correlated direction."""
+
+    parameters = ["a", "b", "c"]
+    lower, upper = -np.ones(3), np.ones(3)
+    H = 2
+
+    def __init__(self):
+        rng = np.random.default_rng(11)
+        base = rng.standard_normal((8, 1))
+        self.G = np.hstack([base, base + 0.002 * rng.standard_normal((8, 1)), rng.standard_normal((8, 1))])
+        self.m0 = rng.standard_normal(8)
+
+    def _complex(self, real):  # (..., 8) as [Re (H, 2), Im (H, 2)] -> (..., H, 2)
+        return (real[..., :4] + 1j * real[..., 4:]).reshape(real.shape[:-1] + (2, 2))
+
+    def evaluate(self, x, jacobian=True):
+        x = np.atleast_2d(x)
+        M = self._complex(x @ self.G.T + self.m0)
+        if not jacobian:
+            return M, None
+        return M, np.moveaxis(self._complex(np.broadcast_to(self.G.T, (x.shape[0], 3, 8))), 1, -1)
+
+
+def test_lm_reaches_a_bound_optimum_along_a_correlated_valley():
+    """A step leaving the box is shortened along its direction, not projected entry by entry.
+
+    Reference: scipy.optimize.lsq_linear (bounded linear least squares, an exact active-set method) on the
+    same weighted residuals. The unbounded minimiser has |x_a|, |x_b| >> 1 along the valley; entry-by-entry
+    projection of a Gauss-Newton step there turns it off the valley (it no longer descends): the LM then
+    crept (21-98 iterations) and two of the three trials stopped short of the optimum (cost 4e-4 relative
+    above it). Tolerance: the cost to 1e-9 relative (a converged optimum of a convex problem), in at most
+    20 iterations (6-11 with shortened steps).
+    """
+    from scipy.optimize import lsq_linear
+
+    model = LinearValley()
+    x_free = np.array([6.0, -5.5, 0.3])  # the data's exact (unbounded) minimiser, outside the box
+    M, _ = model.evaluate(x_free, jacobian=False)
+    data = replace(idn.RunData("valley", 500.0, 0.0, "fit", M[0], np.full((2, 2), 0.1)), phase_sigma=1e-6)
+    fit = idn.identify([model], [data], options=FAST)
+    problem, X = fit.problem, fit.X
+    starts = np.array([[0.5, 0.5, 0.0, 0.0], [-0.9, 0.9, 0.5, 0.0], [0.0, -0.5, -0.5, 0.0]])
+    result = idn.levenberg_marquardt(problem, starts, np.repeat(X[None], 3, 0),
+                                     idn.LMOptions(stall_chi2=0.0, max_iterations=200, ftol=1e-12, xtol=1e-12))
+    # the same residuals r = (X - G x - m0) / sigma as a linear problem in x (the phase prior pins phi = 0)
+    real = lambda z: np.concatenate([z.real.reshape(z.shape[0], -1), z.imag.reshape(z.shape[0], -1)], axis=1)
+    G = real(model._complex(model.G.T)).T  # (8, 3), rows in the residuals' order
+    b = real(X[0][None] - model._complex(model.m0)[None])[0]
+    reference = lsq_linear(G / data.sigma[0, 0], b / data.sigma[0, 0], bounds=(-1, 1), tol=1e-14)
+    assert np.abs(reference.x).max() == pytest.approx(1.0)  # the optimum is on a bound
+    np.testing.assert_allclose(result.cost, reference.cost, rtol=1e-9)
+    np.testing.assert_allclose(result.x[:, :3], np.repeat(reference.x[None], 3, 0), atol=1e-6)
+    assert result.nit.max() <= 20
+
+
 def test_estimate_at_a_range_edge_is_flagged_and_its_covariance_declared_invalid():
     """Truth outside the range: the estimate stops at the edge, with the 'revise the range' warning."""
     data = toy_data([0.2, 0.1, -0.3], 0.7, noise=1.0, seed=4)  # a = 2.2, outside [1, 1.5]
