@@ -126,18 +126,20 @@ class SparsePGD:
         """The new rank-one term and its degrees (d,), chosen on the validation error of the residual.
 
         One degree 1..n for all parameters; then, with ``degree_search="parameter"``, one parameter
-        at a time each degree 0..n with the others fixed. Every trial is a full ALS fit. Each choice is the
-        lowest degree whose
+        at a time each degree 0..n with the others fixed. Every trial is a full ALS fit; the trials of
+        one choice are fitted together (``_rank_one``). Each choice is the lowest degree whose
         validation error is within ``degree_tolerance`` of the best trial's: higher degrees that
         gain less only fit noise in the validation data (and cost evaluation time).
         """
         d = B.shape[0]
-        fit = partial(self._trial, B, B_val, residual, residual_val, w, w_val)
-        best = self._lowest_good([fit(np.full(d, p)) for p in range(min(1, self.degree), self.degree + 1)])
+        fit = partial(self._trials, B, B_val, residual, residual_val, w, w_val)
+        best = self._lowest_good(fit(np.repeat(np.arange(min(1, self.degree), self.degree + 1)[:, None], d, 1)))
         for j in range(d if self.degree_search == "parameter" else 0):
-            trials = [best if p == best[3][j] else fit(np.where(np.arange(d) == j, p, best[3]))
-                      for p in range(self.degree + 1)]
-            best = self._lowest_good(trials)
+            others = [p for p in range(self.degree + 1) if p != best[3][j]]
+            degrees = np.repeat(best[3][None], len(others), 0)
+            degrees[:, j] = others
+            trials = fit(degrees) + [best]
+            best = self._lowest_good(sorted(trials, key=lambda t: t[3][j]))
         return best[1], best[2], best[3]
 
     def _lowest_good(self, trials: list[tuple]) -> tuple:
@@ -145,38 +147,56 @@ class SparsePGD:
         threshold = min(t[0] for t in trials) * (1 + self.degree_tolerance)
         return next(t for t in trials if t[0] <= threshold)
 
-    def _trial(self, B: Array, B_val: Array, residual: Array, residual_val: Array, w: Array,
-               w_val: Array | None, degrees: Array) -> tuple[float, Array, Array, Array]:
-        """A rank-one fit with the given degree per parameter: (validation error, a, c padded to n+1, degrees)."""
-        a, factors = self._rank_one([B[j][:, : p + 1] for j, p in enumerate(degrees)], residual, w)
-        c = np.stack([np.pad(f, (0, self.degree + 1 - f.size)) for f in factors])
-        error = _relative_error(residual_val - _evaluate(B_val, a[None], c[None]), residual_val, w_val)
-        return error, a, c, degrees
+    def _trials(self, B: Array, B_val: Array, residual: Array, residual_val: Array, w: Array,
+                w_val: Array | None, degrees: Array) -> list[tuple[float, Array, Array, Array]]:
+        """Rank-one fits with the given degrees (T, d): per trial (validation error, a, c (d, n+1), degrees)."""
+        a, c = self._rank_one(B, degrees, residual, w)
+        return [(_relative_error(residual_val - _evaluate(B_val, a[t][None], c[t][None]), residual_val, w_val),
+                 a[t], c[t], degrees[t]) for t in range(len(degrees))]
 
-    def _rank_one(self, B: list[Array], R: Array, w: Array) -> tuple[Array, list[Array]]:
-        """Best a prod_j (N_j c_j) for the residual R (n, m) by ALS with ridge (the enrichment step).
+    def _rank_one(self, B: Array, degrees: Array, R: Array, w: Array) -> tuple[Array, Array]:
+        """Best a prod_j (N_j c_j) for the residual R (n, m) by ALS with ridge (the enrichment step),
+        for T trials at once that differ in their degrees (T, d): a (T, m), c (T, d, n+1).
 
-        B: per parameter its basis N_j (n, p_j + 1), truncated to that parameter's degree.
+        Trial t's factor j lives on N_j's first degrees[t, j] + 1 functions: its normal matrix is
+        masked to them (identity elsewhere, zero right-hand side), so each trial solves exactly its
+        own truncated least squares, in one batched solve per parameter. A trial stops updating once
+        its term changes by less than ``als_tol``.
         """
+        d, n, nb = B.shape
+        T = degrees.shape[0]
+        mask = np.arange(nb)[None, None, :] <= degrees[:, :, None]  # (T, d, nb)
         _, s, vt = np.linalg.svd(R * np.sqrt(w)[:, None], full_matrices=False)
-        a = s[0] * vt[0] / np.sqrt(w.sum())
-        c = [np.eye(Bj.shape[1])[0] for Bj in B]
-        F = np.ones((len(B), R.shape[0]))
-        previous = np.zeros_like(R)
+        a = np.repeat((s[0] * vt[0] / np.sqrt(w.sum()))[None], T, 0)
+        c = np.zeros((T, d, nb))
+        c[:, :, 0] = 1.0  # T_0 = 1: every factor starts constant
+        F = np.ones((T, d, n))
+        previous = np.zeros((T, n, R.shape[1]))
+        running = np.ones(T, bool)
+        diagonal = np.arange(nb)
         for _ in range(self.als_iterations):
-            t = R @ a  # the residual projected on the output direction, (n,)
-            for j, Bj in enumerate(B):
-                g = np.prod(np.delete(F, j, axis=0), axis=0)
-                G = Bj.T @ (Bj * (w * g * g * (a @ a))[:, None])
-                c[j] = np.linalg.solve(G + self._ridge(G), Bj.T @ (w * g * t))
-                F[j] = Bj @ c[j]
-                scale = np.abs(F[j]).max() or 1.0
-                c[j] /= scale
-                F[j] /= scale
-            prod = np.prod(F, axis=0)
-            a = (R.T @ (w * prod)) / ((w * prod) @ prod + 1e-300)
-            current = np.outer(prod, a)
-            if np.linalg.norm(current - previous) <= self.als_tol * np.linalg.norm(current):
+            t_proj = a @ R.T  # the residual projected on each trial's output direction, (T, n)
+            aa = np.einsum("tm,tm->t", a, a)
+            for j in range(d):
+                g = _product_except(F, j)
+                G = np.matmul(B[j].T[None] * (w * g * g * aa[:, None])[:, None, :], B[j])  # (T, nb, nb)
+                rhs = (w * g * t_proj) @ B[j] * mask[:, j]
+                G *= mask[:, j, :, None] & mask[:, j, None, :]
+                ridge = self.ridge * (np.trace(G, axis1=1, axis2=2) / mask[:, j].sum(1) + 1e-300)
+                G[:, diagonal, diagonal] += np.where(mask[:, j], ridge[:, None], 1.0)
+                cj = np.linalg.solve(G, rhs[..., None])[..., 0]
+                Fj = cj @ B[j].T
+                scale = np.abs(Fj).max(axis=1)
+                scale[scale == 0] = 1.0
+                c[running, j] = cj[running] / scale[running, None]
+                F[running, j] = Fj[running] / scale[running, None]
+            prod = np.prod(F, axis=1)  # (T, n)
+            a_new = ((w * prod) @ R) / (np.einsum("tn,tn->t", w * prod, prod) + 1e-300)[:, None]
+            a[running] = a_new[running]
+            current = prod[:, :, None] * a[:, None, :]
+            change = np.linalg.norm((current - previous).reshape(T, -1), axis=1)
+            running &= change > self.als_tol * np.linalg.norm(current.reshape(T, -1), axis=1)
+            if not running.any():
                 break
             previous = current
         return a, c
@@ -187,22 +207,21 @@ class SparsePGD:
         With every factor but the j-th fixed the model is linear in {c_j^k}_k:
         y_n = sum_{k,b} Z[n, (k, b)] a_k c_j^k[b], Z[n, (k, b)] = g_k(n) N_b(p_nj),
         g_k the product of term k's other factors: a ridge least-squares problem.
-        Term k keeps its degrees: coefficients of parameter j above degrees[k, j] stay zero.
+        Term k keeps its degrees: coefficients of parameter j above degrees[k, j] stay zero, and only
+        the columns (k, b <= degrees[k, j]) enter the normal matrix.
         """
         K, d, nb = C.shape
         for _ in range(self.backfit_iterations):
             for j in range(d):
-                active = (np.arange(nb)[None, :] <= degrees[:, j, None]).reshape(-1)
-                g = np.prod(np.delete(np.einsum("jnb,kjb->kjn", B, C), j, axis=1), axis=1)  # (K, n)
-                Z = (g.T[:, :, None] * B[j][:, None, :]).reshape(-1, K * nb)
+                term, b = np.nonzero(np.arange(nb)[None, :] <= degrees[:, j, None])  # the active (k, b)
+                g = _product_except(np.einsum("jnb,kjb->kjn", B, C), j)  # (K, n)
+                Z = g[term].T * B[j][:, b]  # (n, active)
                 Zw = Z * w[:, None]
-                G = ((Z.T @ Zw).reshape(K, nb, K, nb) * (A @ A.T)[:, None, :, None]).reshape(K * nb, K * nb)
-                YA = Y @ A.T  # (n, K)
-                rhs = np.einsum("nkb,nk->kb", Zw.reshape(-1, K, nb), YA).reshape(-1)
-                G, rhs = G[np.ix_(active, active)], rhs[active]
-                solution = np.zeros(K * nb)
-                solution[active] = np.linalg.solve(G + self._ridge(G), rhs)
-                C[:, j] = solution.reshape(K, nb)
+                G = (Z.T @ Zw) * (A @ A.T)[np.ix_(term, term)]
+                rhs = np.einsum("na,na->a", Zw, (Y @ A.T)[:, term])
+                G[np.diag_indices_from(G)] += self.ridge * (np.trace(G) / G.shape[0] + 1e-300)
+                C[:, j] = 0.0
+                C[term, j, b] = np.linalg.solve(G, rhs)
                 scale = np.abs(B[j] @ C[:, j].T).max(axis=0)
                 scale[scale == 0] = 1.0
                 C[:, j] /= scale[:, None]
@@ -312,6 +331,12 @@ def _chebyshev_stack(X: Array, degree: int, derivative: bool = False) -> Array:
         for b in range(2, degree + 1):
             D[:, :, b] = 2.0 * T[:, :, b - 1] + two_x * D[:, :, b - 1] - D[:, :, b - 2]
     return out
+
+
+def _product_except(F: Array, j: int) -> Array:
+    """prod over axis -2 of F (..., d, n) leaving out row j (no division: a factor may vanish)."""
+    rows = [i for i in range(F.shape[-2]) if i != j]
+    return np.prod(F[..., rows, :], axis=-2) if rows else np.ones(F.shape[:-2] + F.shape[-1:])
 
 
 def _products(B: Array, C: Array) -> Array:
