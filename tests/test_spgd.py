@@ -197,3 +197,34 @@ def test_sensor_weights_are_the_inverse_squared_sensor_signal_norm():
     norm2 = sensor_signal_norm(Q[:, :, [2, 24]]) ** 2
     np.testing.assert_allclose(w[1:], 1.0 / norm2[1:], rtol=1e-12)
     assert w[0] == pytest.approx(1.0 / (1e-2 * np.median(norm2)), rel=0.05)
+
+
+def test_a_global_library_sliced_at_an_operating_point_equals_the_global_one_there(tmp_path):
+    """Library.at_operating_point: fixing rpm and eccentric mass folds their factors into the amplitudes.
+
+    Reference: the global library itself, evaluated with the operating point appended to the unknowns; the
+    slice must give the same response and the same derivatives with respect to the unknowns (exact algebra:
+    round-off only), and keep the unknowns' ranges. The slice survives a save/load round trip.
+    """
+    X = RNG.uniform(-1, 1, (400, 5))
+    Y = np.stack([(1 + X[:, 0]) * np.cos(X[:, 3]) * (2 + X[:, 4] * X[:, 1]), X[:, 2] * np.exp(0.3 * X[:, 3])], 1)
+    model = SparsePGD(degree=4, max_terms=8, patience=3).fit(X[:300], Y[:300], X[300:], Y[300:])
+    modes = np.linalg.qr(RNG.standard_normal((2 * 2 * 44, 2)))[0]
+    lower, upper = np.array([0.0, 1.0, -2.0, 350.0, 0.0]), np.array([1.0, 3.0, 2.0, 1000.0, 25.9])
+    glib = Library("global", ["a", "b", "c", "rpm", "eccentric_mass_g"], lower, upper, modes, np.ones(2), model,
+                   2, 44, [2, 24])
+    run = glib.at_operating_point("r700_m14p8", 700.0, 14.8)
+    assert run.parameters == ["a", "b", "c"] and run.run == "r700_m14p8"
+    np.testing.assert_array_equal(run.lower, lower[:3])
+    values = RNG.uniform(lower[:3], upper[:3], (50, 3))
+    full = np.hstack([values, np.tile([700.0, 14.8], (50, 1))])
+    y, J = run.sensor(values, jacobian=True)
+    y_ref, J_ref = glib.sensor(full, jacobian=True)
+    np.testing.assert_allclose(y, y_ref, rtol=1e-12, atol=1e-13 * np.abs(y_ref).max())
+    np.testing.assert_allclose(J, J_ref[..., :3], rtol=1e-12, atol=1e-13 * np.abs(J_ref).max())
+    run.save(tmp_path / "run.zarr")
+    np.testing.assert_array_equal(Library.load(tmp_path / "run.zarr").sensor(values), run.sensor(values))
+    with pytest.raises(ValueError, match="outside the global library's range"):
+        glib.at_operating_point("r1100", 1100.0, 0.0)
+    with pytest.raises(ValueError, match="not a global library"):
+        run.at_operating_point("again", 700.0, 14.8)

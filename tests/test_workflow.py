@@ -148,3 +148,33 @@ def test_killed_run_resumes_with_the_same_results(workdir, tmp_path):
     first = pd.read_csv(workdir / "results" / "geometric" / "library_validation.tsv", sep="\t")
     second = pd.read_csv(work / "results" / "geometric" / "library_validation.tsv", sep="\t")
     pd.testing.assert_frame_equal(first, second)  # same seed, same results, interrupted or not
+
+
+def test_global_scope_serves_every_run_from_one_library(workdir, tmp_path):
+    """offline.scope: global: one sPGD over the unknowns, rpm and eccentric mass, fitted on the fit runs only;
+    every run's library (the validation run's too) is its slice at the run's operating point."""
+    from hybridtwin.library import Library
+    from hybridtwin.snapshots import load
+
+    work = tmp_path / "global"
+    shutil.copytree(workdir, work, symlinks=True)
+    moved = _snakemake(work, "--dry-run")  # a project copied elsewhere is up to date (no absolute input paths)
+    assert moved.returncode == 0 and "Nothing to be done" in moved.stdout + moved.stderr
+    (work / "global.yaml").write_text("offline: {scope: global}\n")
+    run = _snakemake(work, "results/geometric/library_validation.tsv", config="global.yaml")
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
+    jobs = run.stdout + run.stderr
+    assert "rule spgd_global" in jobs and "rule solve_chunk" not in jobs  # the snapshots are reused
+    results = work / "results" / "geometric"
+    global_library = Library.load(results / "library_global.zarr")
+    assert global_library.parameters[-2:] == ["rpm", "eccentric_mass_g"]
+    assert global_library.info["fit_runs"] == ["r400_m25p9", "r650_m25p9"]  # v700_m19p5 is never fitted
+    snaps = load(results / "snapshots.zarr")
+    values = snaps.values[:5]
+    for r, name in enumerate(RUNS):
+        library = Library.load(results / "library" / f"{name}.zarr")
+        assert library.info["scope"] == "global"
+        expected = global_library.at_operating_point(name, snaps.rpm[r], snaps.eccentric_mass_g[r])
+        np.testing.assert_array_equal(library.sensor(values), expected.sensor(values))
+    table = pd.read_csv(results / "library_validation.tsv", sep="\t")
+    assert table["run"].tolist() == RUNS + ["all runs"] and np.isfinite(table["median_error_pct"]).all()

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import logging
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import pandas as pd
@@ -31,7 +31,7 @@ def variant(config: Mapping, name: str, config_dir: Path = CONFIG_DIR) -> Varian
 def offline(config: Mapping) -> dict:
     """The ``offline:`` options with their defaults filled in."""
     defaults = {"seed": 1, "speed": "measured", "n_scenarios": {}, "n_test": 200, "validation_fraction": 0.2,
-                "chunks": 4,
+                "chunks": 4, "scope": "run",
                 "sensor_range_mm": 14.0, "pod_energy_tolerance": 1e-10,
                 "spgd": {"degree": 6, "max_terms": 60, "ridge": 1e-8, "patience": 8, "backfit_iterations": 3}}
     options = {**defaults, **(config.get("offline") or {})}
@@ -39,12 +39,14 @@ def offline(config: Mapping) -> dict:
     return options
 
 
-def offline_for(config: Mapping, name: str) -> dict:
+def offline_for(config: Mapping, name: str, keys: Sequence[str] | None = None) -> dict:
     """The ``offline:`` options as variant ``name``'s rules see them: its own n_s only, so that declaring
-    another variant (and its n_s) never changes this one's rule parameters (nothing of it reruns)."""
+    another variant (and its n_s) never changes this one's rule parameters (nothing of it reruns); with
+    ``keys``, only those options, so that a rule reruns only when an option it uses changes (the sPGD
+    options or the library scope never re-sample or re-solve the scenarios)."""
     options = offline(config)
     options["n_scenarios"] = n_scenarios(config, variant(config, name))
-    return options
+    return options if keys is None else {k: options[k] for k in keys}
 
 
 def n_scenarios(config: Mapping, variant_: Variant) -> int:

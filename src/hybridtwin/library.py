@@ -10,6 +10,7 @@ SI units, batched, in microseconds per parameter set.
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -19,11 +20,14 @@ import zarr
 
 from . import snapshots
 from .effects import Array
-from .pod import POD, feature_index, from_features, load_pod, to_features
+from .pod import POD, feature_index, from_features, load_pod, pod, to_features
 from .sensor import observable, sensor_dofs
 from .shaft import Shaft
-from .spgd import SparsePGD
+from .spgd import SparsePGD, chebyshev_basis
 from .variants import Variant
+
+#: the extra sPGD dimensions of a global library, after the unknowns (SI/boundary units: RPM, g)
+OPERATING_POINT = ["rpm", "eccentric_mass_g"]
 
 
 @dataclass
@@ -86,6 +90,30 @@ class Library:
         parts = features.reshape(features.shape[:-1] + (2, 2, H1))
         return np.moveaxis(parts[..., 0, :, :] + 1j * parts[..., 1, :, :], -2, -1)
 
+    def at_operating_point(self, run: str, rpm: float, eccentric_mass_g: float) -> "Library":
+        """A global library (``build_global_library``) sliced at one run's operating point: that run's
+        library over the unknowns alone, exact.
+
+        With x_rpm and x_me fixed, each term's last two factors are numbers (eq. 6-7):
+        a_k prod_j F_j^k = (a_k F_rpm^k(x_rpm) F_me^k(x_me)) prod_{j <= d} F_j^k.
+        """
+        if self.parameters[-len(OPERATING_POINT):] != OPERATING_POINT:
+            raise ValueError(f"library {self.run} is not a global library (parameters {self.parameters})")
+        d = len(self.parameters) - len(OPERATING_POINT)
+        point = np.array([rpm, eccentric_mass_g], float)
+        low, high = self.lower[d:], self.upper[d:]
+        if np.any(point < low - 1e-9 * np.abs(low)) or np.any(point > high + 1e-9 * np.abs(high)):
+            raise ValueError(f"run {run}: operating point {rpm:g} RPM, {eccentric_mass_g:g} g is outside the "
+                             f"global library's range ({low[0]:g}-{high[0]:g} RPM, {low[1]:g}-{high[1]:g} g)")
+        x = np.clip(2.0 * (point - low) / (high - low) - 1.0, -1.0, 1.0)
+        C = self.model.coefficients
+        factors = np.einsum("jb,kjb->kj", chebyshev_basis(x, C.shape[-1] - 1), C[:, d:])
+        model = SparsePGD.from_arrays(self.model.amplitudes * factors.prod(axis=1)[:, None], C[:, :d])
+        info = {**self.info, "scope": "global", "operating_point": {"rpm": float(rpm),
+                                                                    "eccentric_mass_g": float(eccentric_mass_g)}}
+        return Library(run, self.parameters[:d], self.lower[:d], self.upper[:d], self.modes, self.singular_values,
+                       model, self.n_harmonics, self.n_dof, self.sensor_dofs, info)
+
     def field(self, values: Array) -> Array:
         """Harmonics of all DOFs (N, H+1, n) for parameter values (N, d)."""
         return from_features(self.model.predict(self.normalise(values)) @ self.modes.T, self.n_harmonics, self.n_dof)
@@ -141,6 +169,50 @@ def build_library(run: str, basis: POD, harmonics: Array, values: Array, split: 
                    basis.singular_values, model, H1, n, list(sensor_dofs), info)
 
 
+def build_global_library(snaps: snapshots.Snapshots, fit_runs: Sequence[str], lower: Array, upper: Array,
+                         shaft: Shaft, sensor_range_m: float, energy_tolerance: float, **spgd_options) -> Library:
+    """One library for every run: an sPGD over the unknowns and the operating point (rpm, eccentric mass).
+
+    The library-scope option of the offline stage (``offline.scope: global``): the observable snapshots of
+    ``fit_runs`` stacked (each scenario at each run is one sample, its run's speed as solved and its
+    eccentric mass appended to the unknowns), one POD of their training share (eq. 4-5), one sPGD
+    (eq. 6-7) fitted on "train" and sized on "validation", with the sensor weights of ``build_library``.
+    Runs that are not fitted (validation runs) are never seen: ``at_operating_point`` predicts them. The
+    operating range spans every run of the store (a range of one value is widened by 1 RPM or 1 g each way).
+    """
+    fit_rows = [r for r, run in enumerate(snaps.runs) if run in set(fit_runs)]
+    if not fit_rows:
+        raise ValueError(f"none of the fit runs {list(fit_runs)} is in the snapshots (runs {snaps.runs})")
+    point = np.c_[snaps.rpm, snaps.eccentric_mass_g]
+    op_lower, op_upper = point.min(axis=0), point.max(axis=0)
+    flat = op_upper - op_lower < 1e-9
+    op_lower, op_upper = op_lower - flat, op_upper + flat
+    x_unknown = 2.0 * (snaps.values - lower) / (upper - lower) - 1.0
+    X, F, split = [], [], []
+    for r in fit_rows:
+        usable = snaps.success[r] & observable(snaps.harmonics[r], shaft, sensor_range_m)
+        x_point = 2.0 * (point[r] - op_lower) / (op_upper - op_lower) - 1.0
+        X.append(np.hstack([x_unknown[usable], np.broadcast_to(x_point, (usable.sum(), 2))]))
+        F.append(to_features(snaps.harmonics[r][usable]))
+        split.append(snaps.split[usable])
+    X, F, split = np.concatenate(X), np.concatenate(F), np.concatenate(split)
+    train, val = split == "train", split == "validation"
+    if train.sum() < 10 or val.sum() < 2:
+        raise ValueError(f"too few usable scenarios to build a global library ({train.sum()} training, "
+                         f"{val.sum()} validation)")
+    basis = pod(F[train], energy_tolerance)
+    alpha = basis.project(F)
+    H1, n = snaps.harmonics.shape[2:]
+    dofs = sensor_dofs(shaft)
+    weight = sensor_weights(F, H1, n, dofs)
+    model = SparsePGD(**spgd_options).fit(X[train], alpha[train], X[val], alpha[val], weight[train], weight[val])
+    info = {"scope": "global", "fit_runs": [snaps.runs[r] for r in fit_rows], "n_train": int(train.sum()),
+            "n_validation": int(val.sum()), "n_modes": basis.n_modes, "n_terms": model.n_terms,
+            "validation_error": model.history.validation_error}
+    return Library("global", list(snaps.parameters) + OPERATING_POINT, np.concatenate([lower, op_lower]),
+                   np.concatenate([upper, op_upper]), basis.modes, basis.singular_values, model, H1, n, dofs, info)
+
+
 def sensor_weights(features: Array, n_harmonics: int, n_dof: int, sensor_dofs: list[int],
                    floor: float = 1e-2) -> Array:
     """Least-squares weight per scenario: 1 / ||x, y||^2 of its sensor signals over a period (Parseval).
@@ -190,6 +262,26 @@ def build_run_library(variant: Variant, run: str, snapshots_path: str, pod_path:
                             lower, upper, sensor_dofs(variant.model.shaft), **spgd_options)
     library.info["sensor_range_m"] = sensor_range_m
     return library
+
+
+def build_variant_global_library(variant: Variant, snapshots_path: str, runs: pd.DataFrame, sensor_range_m: float,
+                                 energy_tolerance: float, spgd_options: dict) -> Library:
+    """The global library of a variant from its gathered snapshots, trained on the runs with role "fit"."""
+    snaps = snapshots.load(snapshots_path)
+    roles = runs.set_index("run")["role"] if "role" in runs else pd.Series("fit", index=runs["run"])
+    fit_runs = [run for run in snaps.runs if roles.get(run, "fit") == "fit"]
+    lower = np.array([variant.unknown[k][0] for k in snaps.parameters])
+    upper = np.array([variant.unknown[k][1] for k in snaps.parameters])
+    library = build_global_library(snaps, fit_runs, lower, upper, variant.model.shaft, sensor_range_m,
+                                   energy_tolerance, **spgd_options)
+    library.info["sensor_range_m"] = sensor_range_m
+    return library
+
+
+def global_run_library(global_path: str, snapshots_path: str, run: str) -> Library:
+    """The library of ``run``: the global library sliced at the run's speed (as solved) and eccentric mass."""
+    snaps = snapshots.load(snapshots_path, run)
+    return Library.load(global_path).at_operating_point(run, snaps.rpm[0], snaps.eccentric_mass_g[0])
 
 
 def validate_libraries(libraries: list[Library], snapshots_path: str, runs: pd.DataFrame, shaft: Shaft,

@@ -12,6 +12,14 @@ VARIANTS = list(config["variants"])
 OFFLINE = offline(config)
 CHUNKS = [f"{i:03d}" for i in range(OFFLINE["chunks"])]
 RUNS = list(run_plan(config)["run"])
+# the offline options each job uses: a job reruns only when one of its own options changes
+OFFLINE_USED = {
+    "sample_scenarios": ("seed", "n_scenarios", "n_test", "validation_fraction"),
+    "pod": ("sensor_range_mm", "pod_energy_tolerance"),
+    "spgd_global": ("sensor_range_mm", "pod_energy_tolerance", "spgd"),
+    "spgd_library": ("scope", "sensor_range_mm", "spgd"),
+    "validate_library": ("sensor_range_mm",),
+}
 # the speeds the libraries are built at: refined from the records, or the sheet's nominal ones
 SPEEDS = "results/data/harmonics.tsv" if OFFLINE["speed"] == "measured" else config["runs"]
 
@@ -35,3 +43,12 @@ def parent_refits_input(wildcards):
     variant's diagnosis refit with the effect: the full-solver fit is already there."""
     parent = parent_variant(config["variants"], wildcards.variant)
     return {"refits": f"results/{parent[0]}/diagnosis_refits.tsv"} if parent else {}
+
+
+def library_input(wildcards):
+    """A run's library: fitted on its own snapshots and POD (offline.scope: run), or sliced from the variant's
+    global library (offline.scope: global)."""
+    inputs = {"snapshots": f"results/{wildcards.variant}/snapshots.zarr"}
+    if offline_for(config, wildcards.variant)["scope"] == "global":
+        return inputs | {"global_library": f"results/{wildcards.variant}/library_global.zarr"}
+    return inputs | {"pod": f"results/{wildcards.variant}/pod.zarr"}

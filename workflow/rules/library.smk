@@ -1,15 +1,34 @@
 # sPGD library per run (paper eq. 6-7), then its validation against the full solver.
 
 
-rule spgd_library:
+rule spgd_global:
+    """offline.scope: global: one sPGD over the unknowns, rpm and eccentric mass, fitted on the fit runs."""
     input:
         snapshots="results/{variant}/snapshots.zarr",
-        pod="results/{variant}/pod.zarr",
+        runs=config["runs"],
+    output:
+        directory("results/{variant}/library_global.zarr"),
+    params:
+        spec=lambda wildcards: config["variants"][wildcards.variant],
+        offline=lambda wildcards: offline_for(config, wildcards.variant, OFFLINE_USED["spgd_global"]),
+    log:
+        "logs/{variant}/spgd_global.log",
+    benchmark:
+        "results/benchmarks/{variant}/spgd_global.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
+    script:
+        "../../scripts/spgd_global.py"
+
+
+rule spgd_library:
+    input:
+        unpack(library_input),
     output:
         directory("results/{variant}/library/{run}.zarr"),
     params:
         spec=lambda wildcards: config["variants"][wildcards.variant],
-        offline=lambda wildcards: offline_for(config, wildcards.variant),
+        offline=lambda wildcards: offline_for(config, wildcards.variant, OFFLINE_USED["spgd_library"]),
     log:
         "logs/{variant}/spgd_library_{run}.log",
     benchmark:
@@ -41,7 +60,7 @@ rule validate_library:
         ),
     params:
         spec=lambda wildcards: config["variants"][wildcards.variant],
-        offline=lambda wildcards: offline_for(config, wildcards.variant),
+        offline=lambda wildcards: offline_for(config, wildcards.variant, OFFLINE_USED["validate_library"]),
     log:
         "logs/{variant}/validate_library.log",
     benchmark:

@@ -12,7 +12,7 @@ rule check_data:
     input:
         sheet=RUNS_SHEET,
         records=lambda wildcards: list(read_runs(RUNS_SHEET)["record"]),
-        schema=workflow.source_path("../schemas/runs.schema.yaml"),
+        schema="workflow/schemas/runs.schema.yaml",  # relative: a moved or copied project reruns nothing
     output:
         summary="results/data/check.tsv",
     params:

@@ -14,7 +14,7 @@ rule pod:
         ),
     params:
         spec=lambda wildcards: config["variants"][wildcards.variant],
-        offline=lambda wildcards: offline_for(config, wildcards.variant),
+        offline=lambda wildcards: offline_for(config, wildcards.variant, OFFLINE_USED["pod"]),
     log:
         "logs/{variant}/pod.log",
     benchmark:

@@ -9,7 +9,7 @@ rule sample_scenarios:
         "results/{variant}/scenarios.tsv",
     params:
         spec=lambda wildcards: config["variants"][wildcards.variant],
-        offline=lambda wildcards: offline_for(config, wildcards.variant),
+        offline=lambda wildcards: offline_for(config, wildcards.variant, OFFLINE_USED["sample_scenarios"]),
     log:
         "logs/{variant}/sample_scenarios.log",
     benchmark:
