@@ -21,10 +21,11 @@ measures:
    (variant.solve at the run's rpm and eccentric mass, batched over the run's test scenarios) per scenario.
    Targets: sPGD error <= 2x the GP's, sPGD evaluation with Jacobian <= 10 us per set, >= 100x faster
    than the full solver.
-2. Library scope: "per run" (the workflow's libraries, one per run) vs "global" (ONE sPGD over the unknown
-   parameters plus rpm and eccentric mass, fitted on the stacked snapshots of the fit runs of the runs
-   sheet, POD over all of them), scored on the test scenarios of every run; the validation runs (role
-   "validate") are operating points the global library never saw. For those, the per-run scope is also
+2. Library scope: "per run" (the workflow's libraries, one per run) vs "global" (offline.scope: global,
+   hybridtwin.library.build_global_library: ONE sPGD over the unknown parameters plus rpm and eccentric
+   mass, fitted on the stacked snapshots of the fit runs of the runs sheet, POD over all of them, each run
+   served by its slice at its operating point), scored on the test scenarios of every run; the validation
+   runs (role "validate") are operating points the global library never saw. For those, the per-run scope is also
    shown as a user without new snapshots would use it: the library of the nearest fit run.
 
 Usage (from the repository root, in the project's environment):
@@ -54,10 +55,9 @@ import yaml
 
 from hybridtwin import config as cfg
 from hybridtwin import snapshots
-from hybridtwin.library import Library, build_library, relative_sensor_error
-from hybridtwin.pod import from_features, load_pod, pod, to_features
+from hybridtwin.library import Library, build_global_library, build_library, relative_sensor_error
+from hybridtwin.pod import load_pod, to_features
 from hybridtwin.sensor import observable, sensor_dofs
-from hybridtwin.spgd import SparsePGD
 from hybridtwin.variants import BUILTIN_VARIANTS, Variant, builtin_variant
 
 DEFAULT_RPMS = (350, 700, 850, 900, 950)  # the default subset: a representative spread of speeds
@@ -457,27 +457,6 @@ def report_targets(overall: dict, rows: list[dict], peers: bool) -> list[tuple[s
 
 # ----------------------------------------------------------------------------------------------- part 2
 
-def global_dataset(setup: Setup):
-    """Every run's observable scenarios: inputs [unknowns, rpm, mass] in [-1, 1], features, split, run."""
-    snaps = snapshots.load(setup.store)
-    rpm = setup.rpm.to_numpy(float)
-    mass = setup.plan["eccentric_mass_g"].to_numpy(float)
-    # the library's declared operating range: every run of the sheet (fit and validation)
-    op_lower, op_upper = np.array([rpm.min(), mass.min()]), np.array([rpm.max(), mass.max()])
-    x_unknown = 2.0 * (snaps.values - setup.lower) / (setup.upper - setup.lower) - 1.0
-    X, F, split, run_of = [], [], [], []
-    for r, run in enumerate(snaps.runs):
-        usable = snaps.success[r] & observable(snaps.harmonics[r], setup.shaft, setup.sensor_range_m)
-        op = 2.0 * (np.array([rpm[r], mass[r]]) - op_lower) / (op_upper - op_lower) - 1.0
-        X.append(np.hstack([x_unknown[usable], np.broadcast_to(op, (usable.sum(), 2))]))
-        F.append(to_features(snaps.harmonics[r][usable]))
-        split.append(snaps.split[usable])
-        run_of.append(np.full(usable.sum(), run, dtype=object))
-    shape = snaps.harmonics.shape[2:]
-    return (np.concatenate(X), np.concatenate(F), np.concatenate(split), np.concatenate(run_of), shape,
-            op_lower, op_upper)
-
-
 def better(row: dict) -> None:
     """Which library wins on the median: per run vs global, and (unseen runs) global vs the nearest fit run's."""
     row["better: per-run|global"] = "per-run" if row["per-run med%"] <= row["global med%"] else "global"
@@ -486,32 +465,19 @@ def better(row: dict) -> None:
 
 
 def scope_comparison(setup: Setup, args) -> dict:
-    X, F, split, run_of, (H1, n_dof), op_lower, op_upper = global_dataset(setup)
     roles = setup.plan["role"]
     fit_runs = [r for r in setup.runs if roles[r] == "fit"]
-    unseen = [r for r in setup.runs if roles[r] != "fit"]
-    in_fit = np.isin(run_of, fit_runs)
-    train, val, test = in_fit & (split == "train"), in_fit & (split == "validation"), split == "test"
     options = dict(setup.offline["spgd"])
     if args.global_max_terms:
         options["max_terms"] = args.global_max_terms
-
-    with Clock() as pod_clock:
-        basis = pod(F[train], setup.offline["pod_energy_tolerance"])
-    alpha = basis.project(F)
-    weight = 1.0 / np.maximum((F * F).sum(1), 1e-300)
-    print(f"  global library: fitting on {int(train.sum())} scenarios ...", flush=True)
+    snaps = snapshots.load(setup.store)
+    print("  global library: fitting (hybridtwin.library.build_global_library, as offline.scope: global) ...",
+          flush=True)
     with Clock() as fit_clock:
-        model = SparsePGD(**options).fit(X[train], alpha[train], X[val], alpha[val], weight[train], weight[val])
-    predicted = from_features(model.predict(X[test]) @ basis.modes.T, H1, n_dof)[:, :, setup.sensor_dofs]
-    reference = from_features(F[test], H1, n_dof)[:, :, setup.sensor_dofs]
-    global_error = relative_sensor_error(predicted, reference)
-    test_run = run_of[test]
-
-    # evaluation with Jacobian: the global sPGD wrapped as a Library over 7 parameters
-    names = setup.parameters + ["rpm", "eccentric_mass_g"]
-    glib = Library("global", names, np.concatenate([setup.lower, op_lower]), np.concatenate([setup.upper, op_upper]),
-                   basis.modes, basis.singular_values, model, H1, n_dof, setup.sensor_dofs)
+        glib = build_global_library(snaps, fit_runs, setup.lower, setup.upper, setup.shaft, setup.sensor_range_m,
+                                    setup.offline["pod_energy_tolerance"], **options)
+    model, names = glib.model, glib.parameters
+    op_lower, op_upper = glib.lower[-2:], glib.upper[-2:]
     rng = np.random.default_rng(0)
     batch = glib.lower + (glib.upper - glib.lower) * rng.random((BATCH, len(names)))
     eval_us = 1e6 * best_time(lambda: glib.sensor(batch, jacobian=True), args.repeats) / BATCH
@@ -527,33 +493,34 @@ def scope_comparison(setup: Setup, args) -> dict:
                 libraries[run] = library
                 continue
         # missing, or stale (not built on the current POD basis): build it as the workflow does
-        snaps = snapshots.load(setup.store, run)
-        libraries[run] = build_library(run, b, snaps.harmonics[0], snaps.values, snaps.split, usable,
+        one = snapshots.load(setup.store, run)
+        libraries[run] = build_library(run, b, one.harmonics[0], one.values, one.split, usable,
                                        setup.parameters, setup.lower, setup.upper, setup.sensor_dofs,
                                        **setup.offline["spgd"])
         built.append(run)
     source = (f"loaded from {setup.results / 'library'}" if not built else
               f"loaded from {setup.results / 'library'}, except {built} (missing or not on the current POD: "
               "built here with build_library)")
-    op = {r: (2.0 * (np.array([setup.rpm[r], setup.plan.loc[r, "eccentric_mass_g"]]) - op_lower)
-              / (op_upper - op_lower) - 1.0) for r in setup.runs}
+    point = dict(zip(snaps.runs, zip(snaps.rpm, snaps.eccentric_mass_g)))  # each run's, as solved
+    op = {r: 2.0 * (np.array(point[r]) - op_lower) / (op_upper - op_lower) - 1.0 for r in setup.runs}
+    unseen = [r for r in setup.runs if r not in fit_runs]
 
     rows, pooled = [], {"fit": {"per-run": [], "global": [], "nearest": []},
                         "unseen": {"per-run": [], "global": [], "nearest": []}}
-    unknown_values = setup.lower + (X[:, : len(setup.parameters)] + 1.0) / 2.0 * (setup.upper - setup.lower)
-    for run in setup.runs:
-        here = test_run == run
-        values = unknown_values[test][here]
-        own = relative_sensor_error(libraries[run].sensor(values), reference[here]) if here.any() else np.array([])
-        glob = global_error[here]
+    for r, run in enumerate(snaps.runs):
+        here = (snaps.split == "test") & snaps.success[r] & observable(snaps.harmonics[r], setup.shaft,
+                                                                       setup.sensor_range_m)
+        values, reference = snaps.values[here], snaps.harmonics[r][here][:, :, setup.sensor_dofs]
+        own = relative_sensor_error(libraries[run].sensor(values), reference)
+        glob = relative_sensor_error(glib.at_operating_point(run, *point[run]).sensor(values), reference)
         kind = "fit" if run in fit_runs else "unseen"
-        row = {"run": run, "role": roles[run], "rpm": float(setup.rpm[run]),
-               "m_e_g": float(setup.plan.loc[run, "eccentric_mass_g"]), "n_test": int(here.sum())}
+        row = {"run": run, "role": roles[run], "rpm": float(point[run][0]), "m_e_g": float(point[run][1]),
+               "n_test": int(here.sum())}
         row["per-run med%"], row["per-run p95%"] = stats(own)
         row["global med%"], row["global p95%"] = stats(glob)
         if kind == "unseen":
             nearest = min(fit_runs, key=lambda f: np.linalg.norm(op[f] - op[run]))
-            near = relative_sensor_error(libraries[nearest].sensor(values), reference[here])
+            near = relative_sensor_error(libraries[nearest].sensor(values), reference)
             row["nearest fit run"] = nearest
             row["nearest med%"], row["nearest p95%"] = stats(near)
             pooled[kind]["nearest"].append(near)
@@ -579,9 +546,10 @@ def scope_comparison(setup: Setup, args) -> dict:
                        "run's snapshots) vs global (ONE sPGD over the unknowns + rpm + eccentric mass, fitted on the "
                        "fit runs only); relative sensor error on every run's test scenarios [%]; for the unseen "
                        "runs also the library of the nearest fit run (what per-run scope offers without new solves)")
-    print(f"\n    global library: {int(train.sum())} training / {int(val.sum())} validation scenarios from "
-          f"{len(fit_runs)} fit runs; POD {basis.n_modes} modes ({pod_clock.wall:.1f} s; sigma2/sigma1 = "
-          f"{basis.ratios[1]:.3g}); sPGD {model.n_terms} terms (max {options['max_terms']}), degree "
+    ratio = glib.singular_values[1] / glib.singular_values[0]
+    print(f"\n    global library: {glib.info['n_train']} training / {glib.info['n_validation']} validation scenarios "
+          f"from {len(fit_runs)} fit runs; POD {glib.n_modes} modes (sigma2/sigma1 = {ratio:.3g}); sPGD "
+          f"{model.n_terms} terms (max {options['max_terms']}), degree "
           f"{options['degree']}, fit {fit_clock.wall:.0f} s (CPU {fit_clock.cpu:.0f} s); evaluation with Jacobian {eval_us:.2f} us per set "
           f"({len(names)} parameters); operating range rpm {op_lower[0]:.0f}-{op_upper[0]:.0f}, "
           f"m_e {op_lower[1]:g}-{op_upper[1]:g} g (trained at masses "
@@ -593,7 +561,7 @@ def scope_comparison(setup: Setup, args) -> dict:
           f"{len(masses)} in every factor, mass included, which {len(masses)} training masses cannot determine "
           f"(an adaptive degree is one per term, shared by all parameters)")
     return {"table": table, "unseen": unseen, "fit_s": fit_clock.wall, "eval_us": eval_us, "terms": model.n_terms,
-            "modes": basis.n_modes}
+            "modes": glib.n_modes}
 
 
 def report_scope(result: dict) -> str:
