@@ -185,8 +185,8 @@ def build_global_library(snaps: snapshots.Snapshots, fit_runs: Sequence[str], lo
         raise ValueError(f"none of the fit runs {list(fit_runs)} is in the snapshots (runs {snaps.runs})")
     point = np.c_[snaps.rpm, snaps.eccentric_mass_g]
     op_lower, op_upper = point.min(axis=0), point.max(axis=0)
-    flat = op_upper - op_lower < 1e-9
-    op_lower, op_upper = op_lower - flat, op_upper + flat
+    widen = np.where(op_upper - op_lower < 1e-9, 1.0, 0.0)
+    op_lower, op_upper = op_lower - widen, op_upper + widen
     x_unknown = 2.0 * (snaps.values - lower) / (upper - lower) - 1.0
     X, F, split = [], [], []
     for r in fit_rows:
@@ -280,8 +280,7 @@ def build_variant_global_library(variant: Variant, snapshots_path: str, runs: pd
 
 def global_run_library(global_path: str, snapshots_path: str, run: str) -> Library:
     """The library of ``run``: the global library sliced at the run's speed (as solved) and eccentric mass."""
-    snaps = snapshots.load(snapshots_path, run)
-    return Library.load(global_path).at_operating_point(run, snaps.rpm[0], snaps.eccentric_mass_g[0])
+    return Library.load(global_path).at_operating_point(run, *snapshots.operating_point(snapshots_path, run))
 
 
 def validate_libraries(libraries: list[Library], snapshots_path: str, runs: pd.DataFrame, shaft: Shaft,

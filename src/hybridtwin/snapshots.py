@@ -209,6 +209,15 @@ def save(snapshots: Snapshots, path: str | Path) -> None:
     write_manifest(path)
 
 
+def operating_point(path: str | Path, run: str) -> tuple[float, float]:
+    """A run's speed as solved [RPM] and eccentric mass [g], from the store's attributes (no array is read)."""
+    attrs = zarr.open_group(str(path), mode="r").attrs
+    runs = list(attrs["runs"])
+    if run not in runs:
+        raise KeyError(f"run {run!r} is not in {path} (runs: {runs})")
+    return float(attrs["rpm"][runs.index(run)]), float(attrs["eccentric_mass_g"][runs.index(run)])
+
+
 def load(path: str | Path, run: str | None = None) -> Snapshots:
     """Read a gathered store, all runs or only ``run`` (reads that run's chunks only).
 
