@@ -408,10 +408,13 @@ def test_analytic_jacobian_matches_finite_differences(variant, overrides):
             rm, _ = prob.evaluate(xm.reshape(x.shape), idx, jacobian=False)
             return (rp - rm).reshape(len(idx), m) / (2 * step[:, j, None])
 
-        # Central differences with one Richardson step (error O(step^4); exact up to
-        # round-off for the polynomial forces of degree <= 3 here). step = 1e-3 x the
-        # amplitude keeps the round-off of r (|r| ~ |x| >> |H G| for weak terms) small.
-        step = np.broadcast_to(1e-3 * scale, x.shape).reshape(len(idx), m)
+        # Central differences with one Richardson step (error O(step^4) f^(5): exact up to
+        # round-off for the polynomial forces of degree <= 3 here, since the AFT residual is
+        # then itself a cubic polynomial of x, for any step). A large step, 0.1 x the
+        # amplitude, keeps the round-off of r (~1e-16 |x|, and |r| ~ |x| >> |H G| for weak
+        # terms) small against the differences: with 1e-3 x the amplitude the round-off
+        # reached 2e-6 of a weak column with numpy 2.4's FFT.
+        step = np.broadcast_to(0.1 * scale, x.shape).reshape(len(idx), m)
         J_fd = np.empty_like(J)
         for j in range(m):
             J_fd[:, :, j] = (4.0 * central(j, step) - central(j, 2.0 * step)) / 3.0
@@ -424,8 +427,8 @@ def test_analytic_jacobian_matches_finite_differences(variant, overrides):
             # does not depend on, e.g. u0 for the slope force, are zero).
             col = np.abs(nonlinear).max(axis=0)
             err = np.abs(J_fd[s] - J[s]).max(axis=0) / np.maximum(col, 1e-3 * col.max())
-            # Observed ~1e-9: round-off of r (~1e-16 |x|) over the step. 1e-6 catches any
-            # wrong term (a wrong factor or sign is O(1); a 0.1 % error in one term is caught).
+            # Observed <= 1e-8: round-off of r over the step. 1e-6 catches any wrong term
+            # (a wrong factor or sign is O(1); a 0.1 % error in one term is caught).
             assert err.max() < 1e-6, (variant, names, s, err.max())
 
 
