@@ -20,12 +20,12 @@ measured to matter):
   samples). With ``degree_search="parameter"`` the term is then refitted
   parameter by parameter with that parameter's degree changed to each of
   0..n, so it takes a high degree only in the parameters that need it. That
-  costs d (n + 1) more ALS fits per term: benchmarks/library_benchmark.py
+  costs d (n + 1) more ALS fits per term (the trials of one choice are
+  fitted together, in one batched ALS): benchmarks/library_benchmark.py
   (geometric, 5 runs), n = 10 per parameter against n = 6 per term: pooled
-  test error median 0.030 -> 0.018 %, p95 2.47 -> 1.61 %, but the fit 15 ->
-  132 s (an Expansion library, 9 parameters: 4.7 -> 46 s) and the evaluation
-  with Jacobian 1.4 -> 2.1 us per set. Per parameter at n = 6 gains little
-  (median 0.029 %). The default is "term";
+  test error median 0.030 -> 0.018 %, p95 2.47 -> 1.61 %, but the fit
+  15 -> 94 s and the evaluation with Jacobian 1.8 -> 2.3 us per set. Per
+  parameter at n = 6 gains little (median 0.029 %). The default is "term";
 - the number of terms K is chosen on held-out (validation) data, never on the
   training residual: enrichment stops when the validation error has not
   improved for ``patience`` terms and the best K is kept.
