@@ -217,8 +217,7 @@ def me_libraries(work: Path, runs: list[str]) -> dict[str, Library]:
     print(f"  m_e scenarios: {len(scenarios)} x {len(runs)} runs solved in {time.perf_counter() - start:.0f} s")
     config = yaml.safe_load((work / "config" / "config.yaml").read_text())
     spgd = config["offline"]["spgd"]
-    lower = np.array([variant.unknown[k][0] for k in names])
-    upper = np.array([variant.unknown[k][1] for k in names])
+    lower, upper = variant.bounds(names)
     folder.mkdir(exist_ok=True)
     out = {}
     split = scenarios["split"].to_numpy()

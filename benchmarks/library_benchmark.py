@@ -143,8 +143,7 @@ class Setup:
         self.shaft = self.variant.model.shaft
         self.sensor_dofs = sensor_dofs(self.shaft)
         self.sensor_range_m = self.offline["sensor_range_mm"] * 1e-3
-        self.lower = np.array([self.variant.unknown[k][0] for k in self.parameters])
-        self.upper = np.array([self.variant.unknown[k][1] for k in self.parameters])
+        self.lower, self.upper = self.variant.bounds(self.parameters)
         self.plan = cfg.run_plan(self.config).set_index("run")
         missing = sorted(set(self.runs) - set(self.plan.index))
         if missing:

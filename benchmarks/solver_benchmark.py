@@ -87,8 +87,7 @@ def scenarios(n: int, seed: int, eccentric_mass: float) -> dict[str, np.ndarray]
     """Latin-hypercube values of the variant's unknown parameters, plus the fixed m_e."""
     variant = builtin_variant(VARIANT)
     names = variant.unknown_names
-    lo = np.array([variant.unknown[k][0] for k in names])
-    hi = np.array([variant.unknown[k][1] for k in names])
+    lo, hi = variant.bounds(names)
     unit = qmc.LatinHypercube(d=len(names), seed=seed).random(n)
     X = qmc.scale(unit, lo, hi)
     values = {k: X[:, i] for i, k in enumerate(names)}

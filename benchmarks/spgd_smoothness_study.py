@@ -75,8 +75,7 @@ def chebyshev_decay(variant: Variant, rpm: float, mass_g: float, degree: int = 2
     """|c_n| / max |U_1x| along each unknown through the box centre, n = 0, 2, ..., degree."""
     x = np.cos(np.pi * (np.arange(points) + 0.5) / points)
     names = variant.unknown_names
-    lo = np.array([variant.unknown[k][0] for k in names])
-    hi = np.array([variant.unknown[k][1] for k in names])
+    lo, hi = variant.bounds(names)
     rows = []
     for j, name in enumerate(names):
         values = np.tile((lo + hi) / 2, (points, 1))
@@ -109,8 +108,7 @@ def surrogate_errors(variant: Variant, rpm: float, mass_g: float, n: int, seed: 
     split = table["split"].to_numpy()
     train, test = usable & (split == "train"), usable & (split == "test")
     basis = pod(to_features(result.harmonics[train]))
-    lo = np.array([variant.unknown[k][0] for k in names])
-    hi = np.array([variant.unknown[k][1] for k in names])
+    lo, hi = variant.bounds(names)
     start = time.perf_counter()
     library = build_library("study", basis, result.harmonics, values, split, usable, names, lo, hi,
                             sensor_dofs(shaft), **spgd)

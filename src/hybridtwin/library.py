@@ -256,8 +256,7 @@ def build_run_library(variant: Variant, run: str, snapshots_path: str, pod_path:
     """The library of ``run`` from the gathered snapshots and that run's POD."""
     snaps = snapshots.load(snapshots_path, run)
     basis, usable = load_pod(pod_path, run)
-    lower = np.array([variant.unknown[k][0] for k in snaps.parameters])
-    upper = np.array([variant.unknown[k][1] for k in snaps.parameters])
+    lower, upper = variant.bounds(snaps.parameters)
     library = build_library(run, basis, snaps.harmonics[0], snaps.values, snaps.split, usable, snaps.parameters,
                             lower, upper, sensor_dofs(variant.model.shaft), **spgd_options)
     library.info["sensor_range_m"] = sensor_range_m
@@ -270,8 +269,7 @@ def build_variant_global_library(variant: Variant, snapshots_path: str, runs: pd
     snaps = snapshots.load(snapshots_path)
     roles = runs.set_index("run")["role"] if "role" in runs else pd.Series("fit", index=runs["run"])
     fit_runs = [run for run in snaps.runs if roles.get(run, "fit") == "fit"]
-    lower = np.array([variant.unknown[k][0] for k in snaps.parameters])
-    upper = np.array([variant.unknown[k][1] for k in snaps.parameters])
+    lower, upper = variant.bounds(snaps.parameters)
     library = build_global_library(snaps, fit_runs, lower, upper, variant.model.shaft, sensor_range_m,
                                    energy_tolerance, **spgd_options)
     library.info["sensor_range_m"] = sensor_range_m

@@ -47,8 +47,7 @@ def sample_scenarios(variant: Variant, n: int, seed: int, validation_fraction: f
         raise ValueError(f"need n >= 2, n_test >= 0 and 0 <= validation_fraction < 1 "
                          f"(got {n}, {n_test}, {validation_fraction})")
     names = variant.unknown_names
-    lo = np.array([variant.unknown[k][0] for k in names])
-    hi = np.array([variant.unknown[k][1] for k in names])
+    lo, hi = variant.bounds(names)
     rng = np.random.default_rng(seed)
     design = qmc.LatinHypercube(d=len(names), seed=rng).random(n)
     test = qmc.LatinHypercube(d=len(names), seed=rng).random(n_test)

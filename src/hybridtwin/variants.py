@@ -113,6 +113,12 @@ class Variant:
     def unknown_names(self) -> list[str]:
         return list(self.unknown)
 
+    def bounds(self, names: Sequence[str] | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Lower and upper ends of the unknowns' ranges, in the order of ``names`` (default: as declared)."""
+        names = self.unknown_names if names is None else list(names)
+        return (np.array([self.unknown[k][0] for k in names], float),
+                np.array([self.unknown[k][1] for k in names], float))
+
     def values(self, overrides: Mapping[str, float | Array] | None = None) -> dict[str, Array]:
         """All parameter values: nominal, then the variant's fixed values, then ``overrides``."""
         overrides = dict(overrides or {})
