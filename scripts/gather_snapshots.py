@@ -15,8 +15,13 @@ from hybridtwin.snapshots import CorruptStoreError, gather
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "gather_snapshots")
+expected = pd.read_csv(smk.input.scenarios, sep="\t")
+chunks = list(smk.input.chunks)
+if "enrichment" in smk.input.keys():  # offline.enrichment: the adaptive scenarios join the first design
+    expected = pd.concat([expected, pd.read_csv(smk.input.enrichment, sep="\t")], ignore_index=True)
+    chunks += list(smk.input.enrichment_chunks)
 try:
-    snapshots = gather(smk.input.chunks, pd.read_csv(smk.input.scenarios, sep="\t"), smk.output.store)
+    snapshots = gather(chunks, expected, smk.output.store)
 except CorruptStoreError as error:
     for path in error.problems:
         shutil.rmtree(path, ignore_errors=True)
@@ -26,7 +31,7 @@ except CorruptStoreError as error:
     sys.exit(message)
 failures = snapshots.failures()
 failures.to_csv(smk.output.failures, sep="\t", index=False)
-log.info("%d scenarios x %d runs gathered; %d failed solves", snapshots.success.shape[1], len(snapshots.runs),
-         len(failures))
+log.info("%d scenarios (%d from the enrichment) x %d runs gathered; %d failed solves", snapshots.success.shape[1],
+         int((snapshots.design == "enrichment").sum()), len(snapshots.runs), len(failures))
 for run, count in failures["run"].value_counts().items():
     log.warning("run %s: %d scenarios without a periodic solution (see %s)", run, count, smk.output.failures)

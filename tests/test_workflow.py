@@ -1,7 +1,9 @@
 """The Snakemake workflow end to end on a small configuration, in temporary copies.
 
-Small = 3 runs, 2 variants, 80 + 20 scenarios in 2 chunks, H = 3, cubic sPGD:
-the same rules and code paths as the default configuration, in about a minute.
+Small = 3 runs, 2 variants, 80 + 20 scenarios in 2 chunks, H = 3, cubic sPGD, and
+10 enrichment scenarios per eccentric mass (observable_below 1.01 makes every run
+count as thin): the same rules and code paths as the default configuration, in
+about a minute.
 """
 
 import os
@@ -17,6 +19,9 @@ import pandas as pd
 import pytest
 import zarr
 
+from hybridtwin import snapshots
+from hybridtwin.scenarios import NOT_SOLVED
+
 ROOT = Path(__file__).resolve().parents[1]
 SNAKEMAKE = [sys.executable, "-m", "snakemake"]
 RUNS = ["r400_m25p9", "r650_m25p9", "v700_m19p5"]
@@ -25,7 +30,8 @@ harmonics: 3
 runs: data/small/runs.tsv
 effects_files: []
 offline: {n_scenarios: {geometric: 80, final: 80}, n_test: 20, chunks: 2,
-          spgd: {degree: 3, max_terms: 12, patience: 4}}
+          spgd: {degree: 3, max_terms: 12, patience: 4},
+          enrichment: {observable_below: 1.01, n_scenarios: 10, chunks: 1}}
 variants:
   geometric:
     effects: [centrifugal_softening, structural_damping, upper_housing, lower_bearing, unbalance, shaft_bow,
@@ -105,6 +111,31 @@ def test_chunks_hold_exactly_the_sampled_scenarios(workdir):
         assert all(m for m in group["message"][:].ravel())
     seen = np.concatenate(seen)
     assert sorted(seen.tolist()) == scenarios["scenario"].tolist()  # each scenario exactly once
+
+
+def test_enrichment_is_solved_at_its_eccentric_mass_only_and_never_listed_as_failed(workdir):
+    results = workdir / "results" / "geometric"
+    first = pd.read_csv(results / "scenarios.tsv", sep="\t")
+    added = pd.read_csv(results / "enrichment.tsv", sep="\t")
+    # every run counts as thin here (observable_below 1.01): 10 scenarios per eccentric mass of the plan
+    assert added.groupby("eccentric_mass_g").size().to_dict() == {19.5: 10, 25.9: 10}
+    assert added["scenario"].tolist() == list(range(len(first), len(first) + 20))  # ids follow the first design
+    assert set(added["split"]) <= {"train", "validation"}  # the test hypercube is never enriched
+    snaps = snapshots.load(results / "snapshots.zarr")
+    assert sorted(snaps.scenario.tolist()) == first["scenario"].tolist() + added["scenario"].tolist()
+    enriched = snaps.design == "enrichment"
+    assert enriched.sum() == 20
+    mass = added.set_index("scenario").loc[snaps.scenario[enriched], "eccentric_mass_g"].to_numpy()
+    for r, run_mass in enumerate(snaps.eccentric_mass_g):
+        mine = enriched.copy()
+        mine[enriched] = mass == run_mass
+        others = enriched & ~mine
+        assert snaps.solved[r, mine].all() and snaps.success[r, mine].all()
+        assert not snaps.solved[r, others].any() and np.isnan(snaps.harmonics[r][others]).all()
+    failures = pd.read_csv(results / "failures.tsv", sep="\t")
+    assert not failures["message"].astype(str).str.startswith(NOT_SOLVED).any()
+    pod = pd.read_csv(results / "pod.tsv", sep="\t")
+    assert (pod["n_enriched"] > 0).all() and (pod["n_snapshots"] > pod["n_enriched"]).all()
 
 
 def test_rerun_is_a_no_op(workdir):

@@ -84,11 +84,14 @@ def pod_of_runs(snapshots_path: str, out_path: str, shaft: Shaft, sensor_range_m
     """POD per run of the observable (converged, inside the sensor range) training snapshots.
 
     Writes a zarr v3 group per run (modes, singular_values, usable mask) and
-    returns the summary table (snapshots, m_d, singular value ratios).
+    returns the summary table: training snapshots (of which from the enrichment),
+    the observable share of the first design (the box's share a rig can measure
+    at that run), failed solves, m_d and the singular value ratios.
     """
     snaps = snapshots.load(snapshots_path)
     store = zarr.open_group(out_path, mode="w")
     rows = []
+    first_design = snaps.design == "hypercube"
     for r, run in enumerate(snaps.runs):
         usable = snaps.success[r] & observable(snaps.harmonics[r], shaft, sensor_range_m)
         train = usable & (snaps.split == "train")
@@ -99,8 +102,9 @@ def pod_of_runs(snapshots_path: str, out_path: str, shaft: Shaft, sensor_range_m
         group.create_array("usable", data=usable)
         group.attrs["energy_tolerance"] = energy_tolerance
         ratios = np.pad(basis.ratios, (0, 3))
-        rows.append({"run": run, "n_snapshots": int(train.sum()), "observable_fraction": float(usable.mean()),
-                     "n_failed": int((~snaps.success[r]).sum()), "n_modes": basis.n_modes,
+        rows.append({"run": run, "n_snapshots": int(train.sum()), "n_enriched": int((train & ~first_design).sum()),
+                     "observable_fraction": float(usable[first_design].mean()),
+                     "n_failed": int((~snaps.success[r] & snaps.solved[r]).sum()), "n_modes": basis.n_modes,
                      "sigma2_over_sigma1": ratios[1], "sigma3_over_sigma1": ratios[2],
                      "sigma4_over_sigma1": ratios[3]})
     return pd.DataFrame(rows)

@@ -7,6 +7,9 @@
   over scenarios, the way the rig is driven: per eccentric mass a run-up by
   continuation through that mass's speeds, so that near the resonance each
   point is on the branch a run-up reaches and says which branch that is.
+- ``sample_enrichment`` / ``solve_enrichment``: adaptive sampling after the
+  first design, more scenarios where the runs near the resonance can be
+  measured (most of the box is outside the sensor range there).
 """
 
 from __future__ import annotations
@@ -86,11 +89,7 @@ def solve_runs(variant: Variant, runs: pd.DataFrame, values: Mapping[str, Array 
             raise ValueError(f"the run plan needs a column {column!r} (has {list(runs.columns)})")
     base = variant.values(values)
     S = max([np.size(v) for v in base.values()])
-    n_dof = variant.model.shaft.n_dof
-    R = len(runs)
-    out = RunSolutions(list(runs["run"].astype(str)), runs["rpm"].astype(float).tolist(),
-                       runs["eccentric_mass_g"].astype(float).tolist(), np.full((R, S, harmonics + 1, n_dof), np.nan + 0j),
-                       np.zeros((R, S), bool), np.empty((R, S), object), np.empty((R, S), object))
+    out = _unsolved(runs, S, harmonics, variant.model.shaft.n_dof)
     for mass_g, group in runs.groupby("eccentric_mass_g", sort=True):
         scenario_values = {k: np.broadcast_to(v, (S,)) for k, v in base.items()}
         if "m_e" not in values:  # an unknown m_e keeps each scenario's own value
@@ -107,11 +106,95 @@ def solve_runs(variant: Variant, runs: pd.DataFrame, values: Mapping[str, Array 
     return out
 
 
+def _unsolved(runs: pd.DataFrame, S: int, harmonics: int, n_dof: int) -> RunSolutions:
+    """S scenarios at the runs, nothing solved yet: NaN harmonics, no success, empty messages."""
+    R = len(runs)
+    return RunSolutions(list(runs["run"].astype(str)), runs["rpm"].astype(float).tolist(),
+                        runs["eccentric_mass_g"].astype(float).tolist(), np.full((R, S, harmonics + 1, n_dof), np.nan + 0j),
+                        np.zeros((R, S), bool), np.full((R, S), "", object), np.full((R, S), "", object))
+
+
 def _store(out: RunSolutions, position: int, result: SteadyState) -> None:
     out.harmonics[position] = result.harmonics
     out.success[position] = result.success
     out.message[position] = result.message
     out.branch[position] = result.branch
+
+
+#: message of an enrichment scenario at a run it was not solved for (it targets other runs); not a failure
+NOT_SOLVED = "not solved at this run: an enrichment scenario of the runs at"
+
+
+def sample_enrichment(variant: Variant, values: Array, split: Array, observable: Array, runs: pd.DataFrame,
+                      first_scenario: int, n: int, below: float, seed: int, validation_fraction: float = 0.2,
+                      neighbours: int = 8, oversampling: int = 40) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Extra scenarios where the thin runs can be measured (adaptive sampling after the first design).
+
+    A run is thin when fewer than ``below`` of the fitting scenarios (train and validation)
+    are observable there (converged and inside the sensor range): near the resonance most of
+    the box is not (e.g. geometric at 950 RPM, 0 g: 21 %), so its library rests on few points.
+    Per eccentric mass with a thin run: a Latin hypercube of ``oversampling`` x ``n``
+    candidates, each kept when most of its ``neighbours`` nearest first-design scenarios
+    (scaled to the unit box) are observable at one of that mass's thin runs; the first ``n``
+    kept (the hypercube's order is random) become new scenarios, split train/validation.
+    They are solved at that mass's runs only. The test scenarios are never enriched, so the
+    libraries are still scored on an independent hypercube over the whole box.
+
+    values (S, d) SI, split (S,), observable (R, S) in the order of ``runs`` (run, eccentric_mass_g).
+    Returns the new scenarios (scenario from ``first_scenario``, split, eccentric_mass_g, one
+    column per unknown) and a summary per thin run (observable share, candidates kept, added).
+    """
+    from scipy.spatial import cKDTree
+    from scipy.stats import qmc
+
+    names = variant.unknown_names
+    lo, hi = variant.bounds(names)
+    fit = np.asarray(split) != "test"
+    share = observable[:, fit].mean(axis=1)
+    thin = share < below
+    rng = np.random.default_rng(seed)
+    tree = cKDTree((values[fit] - lo) / (hi - lo))
+    tables, summary = [], []
+    masses = runs["eccentric_mass_g"].to_numpy(float)
+    for mass in np.unique(masses[thin]):
+        rows = np.flatnonzero(thin & (masses == mass))
+        candidates = qmc.LatinHypercube(d=len(names), seed=rng).random(oversampling * n)
+        _, nearest = tree.query(candidates, k=min(neighbours, tree.n))
+        votes = observable[np.ix_(rows, np.flatnonzero(fit))][:, nearest.reshape(len(candidates), -1)].mean(axis=2)
+        kept = np.flatnonzero((votes > 0.5).any(axis=0))
+        chosen = candidates[kept[:n]]
+        table = pd.DataFrame(qmc.scale(chosen, lo, hi), columns=names) if chosen.size else pd.DataFrame(columns=names)
+        table.insert(0, "eccentric_mass_g", float(mass))
+        tables.append(table)
+        for r, v in zip(rows, votes):
+            summary.append({"run": runs["run"].iloc[r], "eccentric_mass_g": float(mass),
+                            "observable_share": float(share[r]), "candidates_kept_pct": 100 * float((v > 0.5).mean()),
+                            "added": len(table)})
+    table = pd.concat(tables, ignore_index=True) if tables else pd.DataFrame(columns=["eccentric_mass_g", *names])
+    table.insert(0, "split", np.where(rng.random(len(table)) < validation_fraction, "validation", "train"))
+    table.insert(0, "scenario", np.arange(first_scenario, first_scenario + len(table)))
+    return table, pd.DataFrame(summary, columns=["run", "eccentric_mass_g", "observable_share",
+                                                 "candidates_kept_pct", "added"])
+
+
+def solve_enrichment(variant: Variant, runs: pd.DataFrame, table: pd.DataFrame, harmonics: int = 5) -> RunSolutions:
+    """Enrichment scenarios (``sample_enrichment``) solved at the runs of their eccentric mass, by run-up;
+    at every other run they are marked ``NOT_SOLVED`` (not a failure)."""
+    S = len(table)
+    out = _unsolved(runs, S, harmonics, variant.model.shaft.n_dof)
+    masses = runs["eccentric_mass_g"].to_numpy(float)
+    for mass, group in table.groupby("eccentric_mass_g", sort=True):
+        cols = table.index.get_indexer(group.index)
+        at = np.flatnonzero(masses == mass)
+        if not at.size:
+            raise ValueError(f"enrichment scenarios for {mass:g} g, but no run has that eccentric mass "
+                             f"(runs: {sorted(set(masses))} g)")
+        out.message[np.ix_(np.flatnonzero(masses != mass), cols)] = f"{NOT_SOLVED} {mass:g} g"
+        part = solve_runs(variant, runs.iloc[at], {k: group[k].to_numpy(float) for k in variant.unknown_names},
+                          harmonics)
+        for name in ("harmonics", "success", "message", "branch"):
+            getattr(out, name)[np.ix_(at, cols)] = getattr(part, name)
+    return out
 
 
 def solve_operating_points(variant: Variant, points: pd.DataFrame, overrides: Mapping[str, float] | None = None,

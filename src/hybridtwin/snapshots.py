@@ -10,6 +10,9 @@ group; ``gather`` checks that the chunks hold exactly the sampled scenarios
       message     (R, S) str                  the solver's reason, per run and scenario
       branch      (R, S) str                  direct / run-up / run-up, jump between ...
       scenario    (S,) int64,  split (S,) str,  parameters (S, d) float64 [SI]
+      design      (S,) str                    hypercube (the first design) or enrichment
+                                              (``scenarios.sample_enrichment``: solved only at the runs
+                                              of one eccentric mass, ``NOT_SOLVED`` at the others)
       attrs: variant, runs, rpm and eccentric_mass_g of each run (as solved), parameter names
       manifest.sha256                         sha256 of every other file (``sha256sum -c`` format)
 
@@ -34,7 +37,7 @@ import pandas as pd
 import zarr
 
 from .effects import Array
-from .scenarios import RunSolutions
+from .scenarios import NOT_SOLVED, RunSolutions
 
 
 MANIFEST = "manifest.sha256"
@@ -118,6 +121,16 @@ class Snapshots:
     success: Array
     message: Array
     branch: Array
+    design: Array | None = None  # (S,) hypercube / enrichment; None: all hypercube (stores from before it)
+
+    def __post_init__(self) -> None:
+        if self.design is None:
+            self.design = np.full(self.scenario.shape, "hypercube", dtype=object)
+
+    @property
+    def solved(self) -> Array:
+        """(R, S): the scenario was solved at the run (enrichment scenarios only at their eccentric mass)."""
+        return ~np.char.startswith(self.message.astype(str), NOT_SOLVED)
 
     def run_index(self, run: str) -> int:
         if run not in self.runs:
@@ -125,20 +138,21 @@ class Snapshots:
         return self.runs.index(run)
 
     def failures(self) -> pd.DataFrame:
-        """Every failed (run, scenario) with its reason."""
-        r, s = np.nonzero(~self.success)
+        """Every failed (run, scenario) with its reason (not the runs an enrichment scenario was not meant for)."""
+        r, s = np.nonzero(~self.success & self.solved)
         return pd.DataFrame({"run": np.asarray(self.runs)[r], "scenario": self.scenario[s],
                              "split": self.split[s], "message": self.message[r, s]})
 
 
 def write_chunk(path: str | Path, variant: str, scenarios: pd.DataFrame, parameters: Sequence[str],
-                solutions: RunSolutions) -> None:
-    """One chunk job's result: its scenarios at every run."""
+                solutions: RunSolutions, design: str = "hypercube") -> None:
+    """One chunk job's result: its scenarios at every run (``design``: hypercube or enrichment)."""
     group = zarr.open_group(str(path), mode="w")
     group.attrs.update({"variant": variant, "runs": solutions.runs, "rpm": solutions.rpm,
                         "eccentric_mass_g": solutions.eccentric_mass_g, "parameters": list(parameters)})
     _write(group, "scenario", scenarios["scenario"].to_numpy(np.int64))
     _write(group, "split", scenarios["split"].to_numpy(str))
+    _write(group, "design", np.full(len(scenarios), design))
     _write(group, "parameters", scenarios[list(parameters)].to_numpy(float))
     _write(group, "harmonics", solutions.harmonics)
     _write(group, "success", solutions.success)
@@ -152,7 +166,14 @@ def _write(group: zarr.Group, name: str, data: Array, chunks: tuple[int, ...] | 
 
 
 def gather(chunk_paths: Sequence[str | Path], expected: pd.DataFrame, out: str | Path) -> Snapshots:
-    """Join the chunk stores into one; the scenarios must be exactly those of ``expected``.
+    """Join the chunk stores into one store at ``out`` (``read_chunks``, then ``save``)."""
+    snapshots = read_chunks(chunk_paths, expected)
+    save(snapshots, out)
+    return snapshots
+
+
+def read_chunks(chunk_paths: Sequence[str | Path], expected: pd.DataFrame) -> Snapshots:
+    """The chunk stores joined, in scenario order; the scenarios must be exactly those of ``expected``.
 
     Every chunk store is first verified against its manifest: a missing, changed or unlisted
     file, or no manifest at all, raises ``CorruptStoreError`` naming each bad chunk (all of
@@ -183,15 +204,16 @@ def gather(chunk_paths: Sequence[str | Path], expected: pd.DataFrame, out: str |
     stack = {name: np.concatenate([g[name][:] for g in parts], axis=axis)
              for name, axis in (("harmonics", 1), ("success", 1), ("message", 1), ("branch", 1),
                                 ("split", 0), ("parameters", 0))}
-    snapshots = Snapshots(
+    # chunk stores from before the enrichment have no design array: all hypercube
+    stack["design"] = np.concatenate([g["design"][:] if "design" in g else np.full(g["scenario"].shape, "hypercube")
+                                      for g in parts]).astype(object)
+    return Snapshots(
         variant=parts[0].attrs["variant"], runs=list(plan["runs"]), rpm=list(plan["rpm"]),
         eccentric_mass_g=list(plan["eccentric_mass_g"]), parameters=list(parts[0].attrs["parameters"]),
         scenario=scenario[order], split=stack["split"][order], values=stack["parameters"][order],
         harmonics=stack["harmonics"][:, order], success=stack["success"][:, order],
-        message=stack["message"][:, order], branch=stack["branch"][:, order],
+        message=stack["message"][:, order], branch=stack["branch"][:, order], design=stack["design"][order],
     )
-    save(snapshots, out)
-    return snapshots
 
 
 def save(snapshots: Snapshots, path: str | Path) -> None:
@@ -205,6 +227,7 @@ def save(snapshots: Snapshots, path: str | Path) -> None:
         _write(group, name, getattr(snapshots, name).astype(bool if name == "success" else str), (1, S))
     _write(group, "scenario", snapshots.scenario)
     _write(group, "split", snapshots.split.astype(str))
+    _write(group, "design", snapshots.design.astype(str))
     _write(group, "parameters", snapshots.values)
     write_manifest(path)
 
@@ -238,5 +261,5 @@ def load(path: str | Path, run: str | None = None) -> Snapshots:
         eccentric_mass_g=list(group.attrs["eccentric_mass_g"])[sel], parameters=list(group.attrs["parameters"]),
         scenario=group["scenario"][:], split=group["split"][:].astype(object), values=group["parameters"][:],
         harmonics=group["harmonics"][sel], success=group["success"][sel], message=group["message"][sel],
-        branch=group["branch"][sel],
+        branch=group["branch"][sel], design=group["design"][:].astype(object) if "design" in group else None,
     )

@@ -11,10 +11,12 @@ validate(config, "../schemas/config.schema.yaml")
 VARIANTS = list(config["variants"])
 OFFLINE = offline(config)
 CHUNKS = [f"{i:03d}" for i in range(OFFLINE["chunks"])]
+ENRICHMENT_CHUNKS = [f"{i:03d}" for i in range(OFFLINE["enrichment"]["chunks"] if OFFLINE["enrichment"]["n_scenarios"] else 0)]
 RUNS = list(run_plan(config)["run"])
 # the offline options each job uses: a job reruns only when one of its own options changes
 OFFLINE_USED = {
     "sample_scenarios": ("seed", "n_scenarios", "n_test", "validation_fraction"),
+    "sample_enrichment": ("seed", "validation_fraction", "sensor_range_mm", "enrichment"),
     "pod": ("sensor_range_mm", "pod_energy_tolerance"),
     "spgd_global": ("sensor_range_mm", "pod_energy_tolerance", "spgd"),
     "spgd_library": ("scope", "sensor_range_mm", "spgd"),
@@ -43,6 +45,17 @@ def parent_refits_input(wildcards):
     variant's diagnosis refit with the effect: the full-solver fit is already there."""
     parent = parent_variant(config["variants"], wildcards.variant)
     return {"refits": f"results/{parent[0]}/diagnosis_refits.tsv"} if parent else {}
+
+
+def gather_input(wildcards):
+    """The first design's chunk stores and, with offline.enrichment.n_scenarios > 0, the enrichment's."""
+    inputs = {"scenarios": f"results/{wildcards.variant}/scenarios.tsv",
+              "chunks": expand("results/{variant}/chunks/{chunk}.zarr", variant=wildcards.variant, chunk=CHUNKS)}
+    if not ENRICHMENT_CHUNKS:
+        return inputs
+    return inputs | {"enrichment": f"results/{wildcards.variant}/enrichment.tsv",
+                     "enrichment_chunks": expand("results/{variant}/enrichment/{chunk}.zarr",
+                                                 variant=wildcards.variant, chunk=ENRICHMENT_CHUNKS)}
 
 
 def library_input(wildcards):

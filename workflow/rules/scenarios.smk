@@ -43,3 +43,56 @@ rule solve_chunk:
         "../envs/hybridtwin.yaml"
     script:
         "../../scripts/solve_chunk.py"
+
+
+# Enrichment (offline.enrichment): runs where little of the box is observable (near the resonance) get extra
+# scenarios where the first design says they can be measured; solved at those runs' eccentric mass only.
+rule sample_enrichment:
+    """Thin runs found in the first design's chunks; candidates kept where their nearest scenarios are observable."""
+    input:
+        scenarios="results/{variant}/scenarios.tsv",
+        chunks=expand("results/{{variant}}/chunks/{chunk}.zarr", chunk=CHUNKS),
+    output:
+        scenarios="results/{variant}/enrichment.tsv",
+        summary=report(
+            "results/{variant}/enrichment_summary.tsv",
+            caption="../report/enrichment.rst",
+            category="Offline library",
+            subcategory="{variant}",
+        ),
+    params:
+        spec=lambda wildcards: config["variants"][wildcards.variant],
+        offline=lambda wildcards: offline_for(config, wildcards.variant, OFFLINE_USED["sample_enrichment"]),
+    log:
+        "logs/{variant}/sample_enrichment.log",
+    benchmark:
+        "results/benchmarks/{variant}/sample_enrichment.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
+    script:
+        "../../scripts/sample_enrichment.py"
+
+
+rule solve_enrichment:
+    """One slice of the enrichment scenarios solved by run-up at their eccentric mass's runs (zarr v3 group)."""
+    input:
+        scenarios="results/{variant}/enrichment.tsv",
+        runs=config["runs"],
+        speeds=SPEEDS,
+    output:
+        directory("results/{variant}/enrichment/{chunk}.zarr"),
+    params:
+        spec=lambda wildcards: config["variants"][wildcards.variant],
+        measured=OFFLINE["speed"] == "measured",
+        n_chunks=OFFLINE["enrichment"]["chunks"],
+        harmonics=config["harmonics"],
+    resources:
+        mem_mb=2000,
+    log:
+        "logs/{variant}/solve_enrichment_{chunk}.log",
+    benchmark:
+        "results/benchmarks/{variant}/solve_enrichment_{chunk}.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
+    script:
+        "../../scripts/solve_enrichment.py"

@@ -7,8 +7,7 @@
 rule gather_snapshots:
     """Verify the chunks against their manifests, check they hold exactly the sampled scenarios, join them."""
     input:
-        scenarios="results/{variant}/scenarios.tsv",
-        chunks=expand("results/{{variant}}/chunks/{chunk}.zarr", chunk=CHUNKS),
+        unpack(gather_input),
     output:
         store=directory("results/{variant}/snapshots.zarr"),
         failures=report(

@@ -1,0 +1,37 @@
+"""Rule sample_enrichment: extra scenarios where the thin runs can be measured (thin wrapper).
+
+Reads the first design's chunk stores (verified against their manifests), finds the runs
+where fewer than offline.enrichment.observable_below of the fitting scenarios are observable,
+and samples offline.enrichment.n_scenarios more per eccentric mass of such runs
+(hybridtwin.scenarios.sample_enrichment).
+"""
+
+import pandas as pd
+
+from hybridtwin import config as cfg
+from hybridtwin.scenarios import sample_enrichment
+from hybridtwin.sensor import observable
+from hybridtwin.snapshots import read_chunks
+
+smk = snakemake  # noqa: F821 (injected by Snakemake)
+log = cfg.rule_logger(smk.log[0], "sample_enrichment")
+options = smk.params.offline
+enrichment = options["enrichment"]
+variant = cfg.variant(smk.config, smk.wildcards.variant)
+scenarios = pd.read_csv(smk.input.scenarios, sep="\t")
+snaps = read_chunks(smk.input.chunks, scenarios)
+runs = pd.DataFrame({"run": snaps.runs, "eccentric_mass_g": snaps.eccentric_mass_g})
+shaft = variant.model.shaft
+seen = observable(snaps.harmonics, shaft, 1e-3 * options["sensor_range_mm"]) & snaps.success
+table, summary = sample_enrichment(variant, snaps.values, snaps.split, seen, runs, int(scenarios["scenario"].max()) + 1,
+                                   enrichment["n_scenarios"], enrichment["observable_below"], options["seed"],
+                                   options["validation_fraction"])
+table.to_csv(smk.output.scenarios, sep="\t", index=False)
+summary.to_csv(smk.output.summary, sep="\t", index=False)
+if summary.empty:
+    log.info("no run has fewer than %.0f %% observable fitting scenarios: nothing to enrich",
+             100 * enrichment["observable_below"])
+for row in summary.itertuples():
+    log.info("run %s (%g g): %.1f %% of the fitting scenarios observable; %.1f %% of the candidates predicted "
+             "observable; %d scenarios added for its eccentric mass", row.run, row.eccentric_mass_g,
+             100 * row.observable_share, row.candidates_kept_pct, row.added)

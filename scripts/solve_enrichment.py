@@ -1,0 +1,29 @@
+"""Rule solve_enrichment: one slice of the enrichment scenarios solved at their eccentric mass's runs (thin wrapper)."""
+
+import time
+
+import numpy as np
+import pandas as pd
+
+from hybridtwin import config as cfg
+from hybridtwin.scenarios import solve_enrichment
+from hybridtwin.snapshots import write_chunk
+
+smk = snakemake  # noqa: F821 (injected by Snakemake)
+log = cfg.rule_logger(smk.log[0], "solve_enrichment")
+variant = cfg.variant(smk.config, smk.wildcards.variant)
+table = pd.read_csv(smk.input.scenarios, sep="\t")
+chunk = int(smk.wildcards.chunk)
+mine = table.iloc[np.array_split(np.arange(len(table)), smk.params.n_chunks)[chunk]].reset_index(drop=True)
+runs = cfg.run_plan(smk.config, smk.input.speeds if smk.params.measured else None)
+log.info("enrichment chunk %d: %d scenarios at eccentric masses %s g, H = %d", chunk, len(mine),
+         sorted(mine["eccentric_mass_g"].unique().tolist()), smk.params.harmonics)
+start = time.perf_counter()
+solutions = solve_enrichment(variant, runs, mine, smk.params.harmonics)
+log.info("solved in %.1f s", time.perf_counter() - start)
+for run, ok, mass in zip(solutions.runs, solutions.success, solutions.eccentric_mass_g):
+    targeted = int((mine["eccentric_mass_g"] == mass).sum())
+    if targeted:
+        log.info("run %s: %d of %d converged", run, ok.sum(), targeted)
+write_chunk(smk.output[0], variant.name, mine, variant.unknown_names, solutions, design="enrichment")
+log.info("wrote %s, its manifest.sha256 last (gather_snapshots verifies it)", smk.output[0])
