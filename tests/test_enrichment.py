@@ -6,6 +6,7 @@ import pytest
 from scipy.stats import qmc
 
 from hybridtwin.scenarios import NOT_SOLVED, sample_enrichment, solve_enrichment, solve_runs
+from hybridtwin.snapshots import read_chunks, write_chunk
 from hybridtwin.variants import builtin_variant
 
 RUNS = pd.DataFrame({"run": ["a950", "a1000", "b700"], "rpm": [950.0, 1000.0, 700.0],
@@ -70,3 +71,20 @@ def test_enrichment_is_solved_by_run_up_at_its_mass_and_marked_not_solved_elsewh
     assert np.isnan(out.harmonics[2, zero]).all() and not out.success[2, zero].any()
     with pytest.raises(ValueError, match="no run has that eccentric mass"):
         solve_enrichment(variant, RUNS, table.assign(eccentric_mass_g=[5.0, 5.0, 5.0]), harmonics=3)
+
+
+def test_an_empty_enrichment_chunk_gathers_with_the_first_design(first_design, tmp_path):
+    """No thin run: the enrichment jobs still run (the DAG is fixed beforehand) and write empty stores."""
+    variant, values, split, seen = first_design
+    names = variant.unknown_names
+    empty, _ = sample_enrichment(variant, values, split, seen, RUNS, first_scenario=2, n=10, below=0.0, seed=1)
+    base = pd.DataFrame(values[:2], columns=names)
+    base.insert(0, "split", "train")
+    base.insert(0, "scenario", [0, 1])
+    write_chunk(tmp_path / "base.zarr", "geometric", base, names,
+                solve_runs(variant, RUNS, {k: base[k].to_numpy() for k in names}, 3))
+    write_chunk(tmp_path / "none.zarr", "geometric", empty, names, solve_enrichment(variant, RUNS, empty, 3),
+                design="enrichment")
+    joined = read_chunks([tmp_path / "base.zarr", tmp_path / "none.zarr"], pd.concat([base, empty]))
+    assert joined.scenario.tolist() == [0, 1] and joined.harmonics.shape == (3, 2, 4, 44)
+    assert (joined.design == "hypercube").all() and joined.solved.all()
