@@ -24,8 +24,6 @@ from __future__ import annotations
 import argparse
 import multiprocessing
 import shutil
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -42,6 +40,7 @@ from hybridtwin.rig import RigSpec, generate, read_plan
 from hybridtwin.scenarios import default_n_scenarios, sample_scenarios
 from hybridtwin.sensor import observable, sensor_dofs
 from hybridtwin.variants import Variant
+from workflow_run import timed_snakemake
 
 ROOT = Path(__file__).resolve().parents[1]
 GEOMETRIC = ["centrifugal_softening", "structural_damping", "upper_housing", "lower_bearing", "unbalance",
@@ -66,15 +65,6 @@ def prepare(work: Path, keyphasor: bool = True) -> None:
     config["runs"] = "data/geometric/runs.tsv"
     config["variants"] = {"geometric": {"effects": GEOMETRIC, "unknown": RANGES}}
     (work / "config" / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False))
-
-
-def run_workflow(work: Path) -> float:
-    start = time.perf_counter()
-    run = subprocess.run([sys.executable, "-m", "snakemake", "--cores", "2", *TARGETS], cwd=work,
-                         capture_output=True, text=True)
-    if run.returncode:
-        raise SystemExit(run.stdout[-3000:] + run.stderr[-3000:])
-    return time.perf_counter() - start
 
 
 def load(work: Path, runs: list[str], keyphasor: bool = True) -> tuple[list[idn.RunData], list[Library], dict]:
@@ -291,7 +281,7 @@ def main() -> None:
     prepare(work, keyphasor=not args.no_keyphasor)
     print(f"1. workflow in {work} (Geometric truth, 19 fit + 3 validation runs)")
     if not args.reuse:
-        print(f"   done in {run_workflow(work):.0f} s")
+        print(f"   done in {timed_snakemake(work, TARGETS):.0f} s")
     runs = fit_runs(work)
     bench = pd.concat([pd.read_csv(p, sep="\t").assign(run=p.stem.removeprefix("identify_run_"))
                        for p in sorted((work / "results" / "benchmarks" / "geometric").glob("identify_run_*.tsv"))])

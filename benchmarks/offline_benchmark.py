@@ -21,12 +21,10 @@ from __future__ import annotations
 import argparse
 import re
 import shutil
-import subprocess
-import sys
-import time
 from pathlib import Path
 
 import pandas as pd
+from workflow_run import timed_snakemake
 
 ROOT = Path(__file__).resolve().parents[1]
 OFFLINE_RULES = ["sample_scenarios", "solve_chunk", "sample_enrichment", "solve_enrichment", "gather_snapshots",
@@ -45,12 +43,7 @@ def run_offline_stage(work: Path) -> float | None:
         source = ROOT / item
         if not (work / item).exists():
             (shutil.copytree if source.is_dir() else shutil.copy)(source, work / item)
-    start = time.perf_counter()
-    run = subprocess.run([sys.executable, "-m", "snakemake", "--cores", "2", *targets], cwd=work,
-                         capture_output=True, text=True)
-    if run.returncode:
-        raise SystemExit(run.stdout[-3000:] + run.stderr[-3000:])
-    return time.perf_counter() - start
+    return timed_snakemake(work, targets)
 
 
 def _variants(config: Path) -> list[str]:
