@@ -91,7 +91,7 @@ def pod_of_runs(snapshots_path: str, out_path: str, shaft: Shaft, sensor_range_m
     snaps = snapshots.load(snapshots_path)
     store = zarr.open_group(out_path, mode="w")
     rows = []
-    first_design = snaps.design == "hypercube"
+    first_design, solved = snaps.design == "hypercube", snaps.solved
     for r, run in enumerate(snaps.runs):
         usable = snaps.success[r] & observable(snaps.harmonics[r], shaft, sensor_range_m)
         train = usable & (snaps.split == "train")
@@ -104,7 +104,7 @@ def pod_of_runs(snapshots_path: str, out_path: str, shaft: Shaft, sensor_range_m
         ratios = np.pad(basis.ratios, (0, 3))
         rows.append({"run": run, "n_snapshots": int(train.sum()), "n_enriched": int((train & ~first_design).sum()),
                      "observable_fraction": float(usable[first_design].mean()),
-                     "n_failed": int((~snaps.success[r] & snaps.solved[r]).sum()), "n_modes": basis.n_modes,
+                     "n_failed": int((~snaps.success[r] & solved[r]).sum()), "n_modes": basis.n_modes,
                      "sigma2_over_sigma1": ratios[1], "sigma3_over_sigma1": ratios[2],
                      "sigma4_over_sigma1": ratios[3]})
     return pd.DataFrame(rows)
