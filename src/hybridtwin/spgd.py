@@ -166,12 +166,13 @@ class SparsePGD:
         d, n, nb = B.shape
         T = degrees.shape[0]
         mask = np.arange(nb)[None, None, :] <= degrees[:, :, None]  # (T, d, nb)
+        outer = np.einsum("jnb,jnc->jnbc", B, B).reshape(d, n, nb * nb)  # N_b N_c per point: G is one product
         _, s, vt = np.linalg.svd(R * np.sqrt(w)[:, None], full_matrices=False)
         a = np.repeat((s[0] * vt[0] / np.sqrt(w.sum()))[None], T, 0)
         c = np.zeros((T, d, nb))
         c[:, :, 0] = 1.0  # T_0 = 1: every factor starts constant
         F = np.ones((T, d, n))
-        previous = np.zeros((T, n, R.shape[1]))
+        previous_prod, previous_a = np.zeros((T, n)), np.zeros_like(a)
         running = np.ones(T, bool)
         diagonal = np.arange(nb)
         for _ in range(self.als_iterations):
@@ -179,7 +180,7 @@ class SparsePGD:
             aa = np.einsum("tm,tm->t", a, a)
             for j in range(d):
                 g = _product_except(F, j)
-                G = np.matmul(B[j].T[None] * (w * g * g * aa[:, None])[:, None, :], B[j])  # (T, nb, nb)
+                G = ((w * g * g * aa[:, None]) @ outer[j]).reshape(T, nb, nb)  # sum_n v_tn N_b N_c
                 rhs = (w * g * t_proj) @ B[j] * mask[:, j]
                 G *= mask[:, j, :, None] & mask[:, j, None, :]
                 ridge = self.ridge * (np.trace(G, axis1=1, axis2=2) / mask[:, j].sum(1) + 1e-300)
@@ -193,12 +194,15 @@ class SparsePGD:
             prod = np.prod(F, axis=1)  # (T, n)
             a_new = ((w * prod) @ R) / (np.einsum("tn,tn->t", w * prod, prod) + 1e-300)[:, None]
             a[running] = a_new[running]
-            current = prod[:, :, None] * a[:, None, :]
-            change = np.linalg.norm((current - previous).reshape(T, -1), axis=1)
-            running &= change > self.als_tol * np.linalg.norm(current.reshape(T, -1), axis=1)
+            # ||prod a^T - prod' a'^T||_F^2 from inner products, without forming the (T, n, m) terms
+            pp, aa_new = np.einsum("tn,tn->t", prod, prod), np.einsum("tm,tm->t", a, a)
+            cross = np.einsum("tn,tn->t", prod, previous_prod) * np.einsum("tm,tm->t", a, previous_a)
+            change2 = pp * aa_new + np.einsum("tn,tn->t", previous_prod, previous_prod) * np.einsum(
+                "tm,tm->t", previous_a, previous_a) - 2.0 * cross
+            running &= np.sqrt(np.maximum(change2, 0.0)) > self.als_tol * np.sqrt(pp * aa_new)
             if not running.any():
                 break
-            previous = current
+            previous_prod, previous_a = prod, a.copy()
         return a, c
 
     def _backfit(self, B: Array, Y: Array, w: Array, A: Array, C: Array, degrees: Array) -> tuple[Array, Array]:
