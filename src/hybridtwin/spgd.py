@@ -72,7 +72,7 @@ class FitHistory:
 class SparsePGD:
     """Separated-representation regression y(p) = sum_k a_k prod_j F_j^k(p_j), p in [-1, 1]^d."""
 
-    def __init__(self, degree: int = 6, max_terms: int = 60, ridge: float = 1e-8, als_iterations: int = 30,
+    def __init__(self, degree: int = 8, max_terms: int = 60, ridge: float = 1e-8, als_iterations: int = 30,
                  als_tol: float = 1e-8, backfit_iterations: int = 3, patience: int = 8,
                  degree_search: str = "term", degree_tolerance: float = 0.0):
         if degree_search not in ("term", "parameter"):
