@@ -5,7 +5,7 @@ import pytest
 
 from hybridtwin.library import Library
 from hybridtwin.pod import from_features, pod, to_features
-from hybridtwin.spgd import SparsePGD, chebyshev_basis, chebyshev_derivative_basis
+from hybridtwin.spgd import SparsePGD, _term_change, chebyshev_basis, chebyshev_derivative_basis
 
 RNG = np.random.default_rng(7)
 
@@ -112,6 +112,22 @@ def test_jacobian_matches_finite_differences():
         step[j] = h
         fd = (model.predict(X_test + step) - model.predict(X_test - step)) / (2 * h)
         np.testing.assert_allclose(J[:, :, j], fd, atol=1e-6 * np.abs(fd).max())
+
+
+@pytest.mark.parametrize("step", [1e-1, 1e-6, 1e-10])
+def test_the_als_stopping_change_matches_the_formed_terms_even_when_tiny(step):
+    """The ALS stops when its rank-one term changes by less than als_tol (1e-8) relative; the change is
+    computed from inner products. Reference: the (n, m) terms formed and subtracted directly. At a
+    relative step of 1e-10 an expanded ||X||^2 + ||X'||^2 - 2 X.X' would be rounding noise (~1e-8);
+    the difference form must stay within 1e-3 of the step (the direct reference itself has a rounding
+    error of ~1e-16 / 1e-10 relative to the step)."""
+    rng = np.random.default_rng(4)
+    T, n, m = 3, 50, 7
+    p0, a0 = rng.normal(size=(T, n)), rng.normal(size=(T, m))
+    p1, a1 = p0 + step * rng.normal(size=(T, n)), a0 + step * rng.normal(size=(T, m))
+    direct = np.array([np.linalg.norm(np.outer(p1[t], a1[t]) - np.outer(p0[t], a0[t]))
+                       / np.linalg.norm(np.outer(p1[t], a1[t])) for t in range(T)])
+    assert np.allclose(_term_change(p1, a1, p0, a0), direct, rtol=1e-3, atol=0)
 
 
 def test_inputs_outside_the_normalised_box_are_refused():

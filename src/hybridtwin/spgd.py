@@ -194,12 +194,7 @@ class SparsePGD:
             prod = np.prod(F, axis=1)  # (T, n)
             a_new = ((w * prod) @ R) / (np.einsum("tn,tn->t", w * prod, prod) + 1e-300)[:, None]
             a[running] = a_new[running]
-            # ||prod a^T - prod' a'^T||_F^2 from inner products, without forming the (T, n, m) terms
-            pp, aa_new = np.einsum("tn,tn->t", prod, prod), np.einsum("tm,tm->t", a, a)
-            cross = np.einsum("tn,tn->t", prod, previous_prod) * np.einsum("tm,tm->t", a, previous_a)
-            change2 = pp * aa_new + np.einsum("tn,tn->t", previous_prod, previous_prod) * np.einsum(
-                "tm,tm->t", previous_a, previous_a) - 2.0 * cross
-            running &= np.sqrt(np.maximum(change2, 0.0)) > self.als_tol * np.sqrt(pp * aa_new)
+            running &= _term_change(prod, a, previous_prod, previous_a) > self.als_tol
             if not running.any():
                 break
             previous_prod, previous_a = prod, a.copy()
@@ -335,6 +330,22 @@ def _chebyshev_stack(X: Array, degree: int, derivative: bool = False) -> Array:
         for b in range(2, degree + 1):
             D[:, :, b] = 2.0 * T[:, :, b - 1] + two_x * D[:, :, b - 1] - D[:, :, b - 2]
     return out
+
+
+def _term_change(prod: Array, a: Array, previous_prod: Array, previous_a: Array) -> Array:
+    """Relative change ||p a^T - p' a'^T||_F / ||p a^T||_F of T rank-one terms, (T,), from inner products
+    without forming the (T, n, m) terms. The difference is dp a^T + p' da^T (dp = p - p', da = a - a'),
+    so its squared norm is ||dp||^2 ||a||^2 + ||p'||^2 ||da||^2 + 2 (dp . p')(a . da): no cancellation
+    between two nearly equal norms when the change is small (the expanded form loses it below
+    ~sqrt(eps), at the tolerance's scale)."""
+    dp, da = prod - previous_prod, a - previous_a
+
+    def dot(x: Array, y: Array) -> Array:
+        return np.einsum("ti,ti->t", x, y)
+
+    change2 = dot(dp, dp) * dot(a, a) + dot(previous_prod, previous_prod) * dot(da, da) \
+        + 2.0 * dot(dp, previous_prod) * dot(a, da)
+    return np.sqrt(np.maximum(change2, 0.0) / (dot(prod, prod) * dot(a, a) + 1e-300))
 
 
 def _product_except(F: Array, j: int) -> Array:
