@@ -278,7 +278,7 @@ def small_config(runs_sheet: str) -> dict:
         "harmonics": 5, "runs": runs_sheet, "effects_files": [],
         "offline": {"n_scenarios": {"geometric": 120}, "n_test": 20, "chunks": 2,
                     "spgd": {"degree": 5, "max_terms": 30, "patience": 5},
-                    "enrichment": {"n_scenarios": 40, "chunks": 1}},  # the default 2000 is for full-size runs
+                    "enrichment": {"n_scenarios": 40, "chunks": 1}},  # the default 6000 is for full-size runs
         "variants": {"geometric": {"effects": GEOMETRIC, "unknown": RANGES}},
         "identification": {"trials": 20, "monte_carlo": 20, "joint": {"trials": 20, "monte_carlo": 10},
                            "polish": {"joint": True, "runs": False, "max_iterations": 30}},

@@ -21,7 +21,7 @@ RUNS = ["r850_m14p8", "r900_m0p0", "r950_m0p0", "r1000_m0p0"]
 LOOP = {"harmonics": 3, "runs": "data/small/runs.tsv", "effects_files": [],
         "offline": {"n_scenarios": {"geometric": 80}, "n_test": 20, "chunks": 2,
                     "spgd": {"degree": 3, "max_terms": 12, "patience": 4},
-                    "enrichment": {"n_scenarios": 40, "chunks": 1}},  # the default 2000 cost ~2 min here
+                    "enrichment": {"n_scenarios": 40, "chunks": 1}},  # the default (then 2000) cost ~2 min here
         "identification": {"trials": 8, "monte_carlo": 10, "joint": {"trials": 8, "monte_carlo": 0},
                            "polish": {"max_iterations": 25}},
         "diagnosis": {"sparse_variant": None, "confirm": 1, "max_iterations": 25,

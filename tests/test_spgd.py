@@ -5,7 +5,7 @@ import pytest
 
 from hybridtwin.library import Library
 from hybridtwin.pod import from_features, pod, to_features
-from hybridtwin.spgd import SparsePGD, _term_change, chebyshev_basis, chebyshev_derivative_basis
+from hybridtwin.spgd import SparsePGD, _term_change, chebyshev_basis, chebyshev_derivative_basis, fit_spgd
 
 RNG = np.random.default_rng(7)
 
@@ -100,6 +100,24 @@ def test_the_number_of_terms_is_chosen_on_validation_data():
     assert model.history.train_error[-1] < model.history.train_error[best - 1]
 
 
+def test_candidate_degrees_keep_the_fit_with_the_lowest_validation_error():
+    """cos(4 p1) needs degree ~10 for 1e-6 accuracy: at degree 3 a Chebyshev factor cannot follow it. Among
+    the candidates [3, 10] the degree-10 sPGD must be kept, and it must be exactly the standalone degree-10
+    fit (same data, deterministic ALS); a single candidate gives the plain sPGD."""
+    def wavy(X):
+        return np.outer(np.cos(4 * X[:, 0]) * (1.5 + X[:, 1]), [1.0, -0.5])
+
+    X, Y, X_val, Y_val = _split(wavy, n=200, n_val=80)
+    options = {"max_terms": 4, "patience": 2}
+    low = SparsePGD(degree=3, **options).fit(X, Y, X_val, Y_val)
+    high = SparsePGD(degree=10, **options).fit(X, Y, X_val, Y_val)
+    assert min(high.history.validation_error) < 1e-3 * min(low.history.validation_error)
+    chosen = fit_spgd(X, Y, X_val, Y_val, degree=[10, 3], **options)
+    assert chosen.degree == 10
+    assert np.array_equal(chosen.predict(X_val), high.predict(X_val))
+    assert np.array_equal(fit_spgd(X, Y, X_val, Y_val, degree=3, **options).predict(X_val), low.predict(X_val))
+
+
 def test_jacobian_matches_finite_differences():
     X, Y, X_val, Y_val = _split(rank_three)
     model = SparsePGD(degree=5, max_terms=8).fit(X, Y, X_val, Y_val)
@@ -180,8 +198,9 @@ def test_evaluation_in_blocks_with_projected_amplitudes_matches_the_plain_sum():
     X, Y, X_val, Y_val = _split(rank_three)
     model = SparsePGD(degree=5, max_terms=6).fit(X, Y, X_val, Y_val)
     X_test = RNG.uniform(-1, 1, (2 * spgd._CHUNK + 7, 3))  # three blocks, the last one short
-    F = np.stack([chebyshev_basis(X_test[:, j], 5) @ model.coefficients[:, j].T for j in range(3)])  # (d, N, K)
-    dF = np.stack([chebyshev_derivative_basis(X_test[:, j], 5) @ model.coefficients[:, j].T for j in range(3)])
+    n = model.coefficients.shape[-1] - 1  # stored up to the highest degree a term uses (<= 5)
+    F = np.stack([chebyshev_basis(X_test[:, j], n) @ model.coefficients[:, j].T for j in range(3)])  # (d, N, K)
+    dF = np.stack([chebyshev_derivative_basis(X_test[:, j], n) @ model.coefficients[:, j].T for j in range(3)])
     reference = np.prod(F, axis=0) @ model.amplitudes
     P = RNG.standard_normal((model.amplitudes.shape[1], 2))  # a projection of the outputs
     y, J = model.evaluate(X_test, model.amplitudes @ P, jacobian=True)

@@ -23,7 +23,7 @@ from .effects import Array
 from .pod import POD, feature_index, from_features, load_pod, pod, to_features
 from .sensor import observable, sensor_dofs
 from .shaft import Shaft
-from .spgd import SparsePGD, chebyshev_basis
+from .spgd import SparsePGD, chebyshev_basis, fit_spgd
 from .variants import Variant
 
 #: the extra sPGD dimensions of a global library, after the unknowns (SI/boundary units: RPM, g)
@@ -160,10 +160,10 @@ def build_library(run: str, basis: POD, harmonics: Array, values: Array, split: 
     alpha = basis.project(features)
     x = 2.0 * (values - lower) / (upper - lower) - 1.0
     weight = sensor_weights(features, H1, n, sensor_dofs)
-    model = SparsePGD(**spgd_options).fit(x[train], alpha[train], x[val], alpha[val], weight[train], weight[val])
+    model = fit_spgd(x[train], alpha[train], x[val], alpha[val], weight[train], weight[val], **spgd_options)
     info = {"n_train": int(train.sum()), "n_validation": int(val.sum()),
             "n_left_out": {s: int(((split == s) & ~usable).sum()) for s in ("train", "validation", "test")},
-            "n_modes": basis.n_modes, "n_terms": model.n_terms,
+            "n_modes": basis.n_modes, "n_terms": model.n_terms, "spgd_degree": model.degree,
             "validation_error": model.history.validation_error}
     return Library(run, list(parameters), np.asarray(lower, float), np.asarray(upper, float), basis.modes,
                    basis.singular_values, model, H1, n, list(sensor_dofs), info)
@@ -205,10 +205,10 @@ def build_global_library(snaps: snapshots.Snapshots, fit_runs: Sequence[str], lo
     H1, n = snaps.harmonics.shape[2:]
     dofs = sensor_dofs(shaft)
     weight = sensor_weights(F, H1, n, dofs)
-    model = SparsePGD(**spgd_options).fit(X[train], alpha[train], X[val], alpha[val], weight[train], weight[val])
+    model = fit_spgd(X[train], alpha[train], X[val], alpha[val], weight[train], weight[val], **spgd_options)
     info = {"scope": "global", "fit_runs": [snaps.runs[r] for r in fit_rows], "n_train": int(train.sum()),
             "n_validation": int(val.sum()), "n_modes": basis.n_modes, "n_terms": model.n_terms,
-            "validation_error": model.history.validation_error}
+            "spgd_degree": model.degree, "validation_error": model.history.validation_error}
     return Library("global", list(snaps.parameters) + OPERATING_POINT, np.concatenate([lower, op_lower]),
                    np.concatenate([upper, op_upper]), basis.modes, basis.singular_values, model, H1, n, dofs, info)
 
@@ -309,7 +309,8 @@ def validate_libraries(libraries: list[Library], snapshots_path: str, runs: pd.D
                      "p95_error_of_median_response_pct": 100 * float(np.percentile(typical, 95)) if size.size else np.nan,
                      "n_failed": int((test & ~snaps.success[r]).sum()),
                      "observable_fraction": float(usable.sum() / max(test.sum(), 1)),
-                     "n_modes": library.n_modes, "n_terms": library.model.n_terms})
+                     "n_modes": library.n_modes, "n_terms": library.model.n_terms,
+                     "spgd_degree": library.info.get("spgd_degree", np.nan)})
         parity.append(pd.DataFrame({"run": library.run, "eccentric_mass_g": rows[-1]["eccentric_mass_g"],
                                     "solver_x_m": np.abs(reference[:, 1, 0]), "library_x_m": np.abs(predicted[:, 1, 0]),
                                     "solver_y_m": np.abs(reference[:, 1, 1]), "library_y_m": np.abs(predicted[:, 1, 1])}))
@@ -317,7 +318,7 @@ def validate_libraries(libraries: list[Library], snapshots_path: str, runs: pd.D
     rows.append({"run": "all runs", "rpm": np.nan, "eccentric_mass_g": np.nan, **_error_stats(error),
                  "p95_error_of_median_response_pct": np.nan,
                  "n_failed": sum(r["n_failed"] for r in rows), "observable_fraction": np.nan,
-                 "n_modes": np.nan, "n_terms": np.nan})
+                 "n_modes": np.nan, "n_terms": np.nan, "spgd_degree": np.nan})
     return pd.DataFrame(rows), pd.concat(parity, ignore_index=True)
 
 

@@ -29,6 +29,11 @@ measured to matter):
 - the number of terms K is chosen on held-out (validation) data, never on the
   training residual: enrichment stops when the validation error has not
   improved for ``patience`` terms and the best K is kept.
+- the highest degree n itself may be a list of candidates (``fit_spgd``): one
+  sPGD per candidate, the lowest validation error kept. The greedy path
+  depends on n: a high n pays where the data are dense and the response
+  sharp (a resonance with thousands of enrichment scenarios), a low n where
+  they are few.
 
 Optional sample weights turn the least squares into relative errors
 (weight 1 / ||y_s||^2). ``predict`` returns y and ``jacobian`` its exact
@@ -37,6 +42,7 @@ derivative dy/dp, both batched.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import partial
 
@@ -306,6 +312,17 @@ class SparsePGD:
         nonzero = model.coefficients != 0
         model.degrees = np.where(nonzero.any(-1), nonzero.shape[-1] - 1 - np.argmax(nonzero[..., ::-1], -1), 0)
         return model
+
+
+def fit_spgd(X: Array, Y: Array, X_val: Array, Y_val: Array, weights: Array | None = None,
+             weights_val: Array | None = None, degree: int | Sequence[int] = 8, **options) -> SparsePGD:
+    """An sPGD per candidate highest degree (``degree``: one or several), the one with the lowest validation
+    error kept (the lowest degree on ties); ``options`` as ``SparsePGD``'s."""
+    candidates = [degree] if isinstance(degree, (int, np.integer)) else sorted(set(int(d) for d in degree))
+    if not candidates:
+        raise ValueError("sPGD: no candidate degree")
+    fits = [SparsePGD(degree=n, **options).fit(X, Y, X_val, Y_val, weights, weights_val) for n in candidates]
+    return min(fits, key=lambda model: min(model.history.validation_error, default=np.inf))
 
 
 def _chebyshev_stack(X: Array, degree: int, derivative: bool = False) -> Array:
