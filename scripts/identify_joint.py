@@ -6,6 +6,7 @@ table and plot.
 """
 
 import time
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -53,6 +54,7 @@ if options["polish"]["joint"]:
                               models[0].upper, smk.config["harmonics"]) for d in data]
     start = time.perf_counter()
     starts = idn.next_best_trials(fit)
+    labels = ["library optimum"] + [f"library trial {i + 2}" for i in range(len(starts))]
     if "refits" in smk.input.keys():  # this variant adds one effect to another: its diagnosis refit is a start
         parent, extra = dg.parent_variant(smk.config["variants"], variant.name)
         refits = pd.read_csv(smk.input.refits, sep="\t", dtype={"run": str})
@@ -61,14 +63,27 @@ if options["polish"]["joint"]:
                  "found" if refit is not None else "not there (not refitted)")
         if refit is not None:
             starts = np.vstack([starts, refit[None]])
+            labels.append(f"{parent}'s diagnosis refit with {extra}")
+    nested = smk.input.get("nested", [])
+    for path in [nested] if isinstance(nested, str) else nested:  # the simpler variants this one contains
+        parent = Path(path).parent.name
+        theta, mismatch = dg.theta_from_nested(pd.read_csv(path, sep="\t", dtype={"run": str}),
+                                               cfg.variant(smk.config, parent), variant, layout, fit.table())
+        log.info("polish also starts from %s's joint fit mapped onto %s's parameters (coefficient mismatch %.2g)%s",
+                 parent, variant.name, mismatch, "" if theta is not None else ": an entry is missing, not used")
+        if theta is not None:
+            starts = np.vstack([starts, theta[None]])
+            labels.append(f"{parent}'s joint fit")
     exact = idn.polish(fit, solver, int(options["polish"]["max_iterations"]), starts)
     if np.isfinite(exact.loss):
         comparison = idn.compare_polish(fit, exact)
         exact.protocol.monte_carlo = fit.protocol.monte_carlo  # the library's Monte Carlo spread, for reference
         summary["solver"] = exact.summary() | {"seconds": time.perf_counter() - start,
-                                               "solves": int(sum(m.n_solves for m in solver))}
-        log.info("polished with the full solver in %.1f s: loss %.4g -> %.4g, chi^2/dof %.3g (%s)",
-                 time.perf_counter() - start, fit.loss, exact.loss, exact.chi2_dof, exact.message)
+                                               "solves": int(sum(m.n_solves for m in solver)),
+                                               "starts": labels, "best_start": labels[exact.protocol.best]}
+        log.info("polished with the full solver in %.1f s from %d starts, the best from %s: loss %.4g -> %.4g, "
+                 "chi^2/dof %.3g (%s)", time.perf_counter() - start, len(labels), labels[exact.protocol.best],
+                 fit.loss, exact.loss, exact.chi2_dof, exact.message)
         fit = exact
     else:
         note = ("the full solver has no periodic solution at the library's best trials (a fold or an unstable "

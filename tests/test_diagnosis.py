@@ -216,3 +216,29 @@ def test_theta_from_table_normalises_with_the_new_layout():
     slope, other = (refits[refits["effect"] == e] for e in ("slope_spring", "other"))
     np.testing.assert_allclose(dg.theta_from_table(slope, layout), [0.0, -0.5, 0.3])
     assert dg.theta_from_table(other, layout) is None  # does not cover every entry
+
+
+def test_theta_from_nested_maps_the_shared_values_and_copies_the_runs():
+    """A Geometric fit as an Expansion start: k1 = k_b, k3 = 2 k_b, k7 = -4 k_b, the other k_i zero (eq. 22-24),
+    the bow and phases copied run by run, anything else from the fallback table."""
+    import pandas as pd
+
+    from hybridtwin.variants import builtin_variant
+
+    geometric, expansion = builtin_variant("geometric"), builtin_variant("expansion")
+    names = list(expansion.unknown)
+    lower, upper = expansion.bounds(names)
+    layout = idn.Layout.build(names, lower, upper, ["r1", "r2"], ["q_x", "q_y"])
+    fit = pd.DataFrame({"parameter": ["k_b", "zeta_s", "q_x", "q_y", "phase", "q_x", "q_y", "phase"],
+                        "run": ["all", "all", "r1", "r1", "r1", "r2", "r2", "r2"],
+                        "value": [3000.0, 0.02, 0.002, 0.003, 0.1, 0.004, 0.005, -0.2]})
+    fallback = pd.DataFrame({"parameter": ["k2"], "run": ["all"], "value": [123.0]})  # overridden by the map
+    theta, mismatch = dg.theta_from_nested(fit, geometric, expansion, layout, fallback)
+    assert mismatch < 1e-12
+    si = dict(zip(layout.entries(), layout.to_si(theta)))
+    expected = {("k1", "all"): 3000.0, ("k2", "all"): 0.0, ("k3", "all"): 6000.0, ("k7", "all"): -12000.0,
+                ("k4", "all"): 0.0, ("q_x", "r2"): 0.004, ("q_y", "r1"): 0.003, ("phase", "r2"): -0.2}
+    for entry, value in expected.items():
+        assert si[entry] == pytest.approx(value, abs=1e-9)
+    missing = fit[fit["parameter"] != "phase"]  # phases neither in the fit nor the fallback: no start
+    assert dg.theta_from_nested(missing, geometric, expansion, layout, fallback)[0] is None

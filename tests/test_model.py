@@ -254,3 +254,71 @@ def test_solve_runs_keeps_an_unknown_eccentric_mass():
     np.testing.assert_allclose(given.harmonics[0, 0], from_sheet.harmonics[0, 0], rtol=1e-12, atol=1e-18)
     assert np.abs(given.harmonics[0, 1, 1] - from_sheet.harmonics[0, 0, 1]).max() > 0.1 * np.abs(
         from_sheet.harmonics[0, 0, 1]).max()
+
+
+def _bearing_forces(variant, values, q):
+    """Linear stiffness matrix at rest and the summed local nonlinear bearing forces at states q (4, N)
+    = (u, v, u', v') of the upper bearing node, from the effects' own hooks."""
+    from hybridtwin import Params
+
+    full = variant.values(values)
+    K = variant.model.context(full, 0.0).K[0]
+    p = Params({k: np.atleast_1d(v) for k, v in full.items()})
+    F = np.zeros((2, q.shape[1]))
+    for effect in variant.model.effects:
+        if isinstance(effect, PolynomialBearing) and effect.is_nonlinear:
+            F += effect.force(q[None, : len(effect.dofs)], p)[0][0, :2]
+    return K, F
+
+
+@pytest.mark.parametrize("parent, values, expected", [
+    ("geometric", {"k_b": 2980.96, "zeta_s": 0.0155, "q_x": 0.002, "q_y": 0.003},
+     {"k1": 2980.96, "k2": 0.0, "k3": 2 * 2980.96, "k4": 0.0, "k5": 0.0, "k6": 0.0, "k7": -4 * 2980.96}),
+    ("final", {"k_b": 2411.3, "k_w": 324.2, "k_z": 301.1, "q_x": 0.002, "q_y": 0.003},
+     {"k1": 2411.3, "k2": 0.0, "k3": 2 * 2411.3, "k4": 324.2, "k5": 0.0, "k6": 301.1, "k7": 0.0}),
+])
+def test_simpler_models_embed_exactly_in_the_expansion_model(parent, values, expected):
+    """shared/varm-model.md: the Geometric model is the Expansion model at k1 = k_b, k3 = 2 k_b, k7 = -4 k_b
+    (eq. 22-24); the Final one (eq. 38-39) at k1 = k_b, k3 = 2 k_b, k4 = k_w, k6 = k_z. The mapped values
+    must also give the same stiffness matrix and nonlinear bearing force as the simpler model's effects."""
+    from hybridtwin.variants import contains, embed
+
+    small, expansion = builtin_variant(parent), builtin_variant("expansion")
+    assert contains(expansion, small) and not contains(small, expansion)
+    mapped, mismatch = embed(small, expansion, values)
+    assert mismatch < 1e-12  # an exact linear match: only round-off remains
+    for name, value in expected.items():
+        assert mapped[name] == pytest.approx(value, rel=1e-9, abs=1e-6)  # abs: zero terms, N/m scale ~1e3
+    assert (mapped["q_x"], mapped["q_y"]) == (0.002, 0.003)  # copied by name
+    q = np.random.default_rng(3).normal(scale=[[4e-3], [3e-3], [0.05], [0.04]], size=(4, 20))
+    K_small, F_small = _bearing_forces(small, values, q)
+    K_big, F_big = _bearing_forces(expansion, mapped, q)
+    np.testing.assert_allclose(K_big, K_small, rtol=1e-12, atol=1e-9 * np.abs(K_small).max())
+    np.testing.assert_allclose(F_big, F_small, rtol=1e-9, atol=1e-12 * np.abs(F_small).max())
+
+
+def test_embedding_reports_what_cannot_be_matched():
+    """A term the smaller model lacks (k4: a slope force) or a range too narrow leaves a mismatch > 0."""
+    from hybridtwin.variants import Variant, embed
+
+    geometric, expansion = builtin_variant("geometric"), builtin_variant("expansion")
+    values = {"k1": 2400.0, "k2": 0.0, "k3": 4800.0, "k4": 300.0, "k5": 0.0, "k6": 0.0, "k7": -9600.0}
+    _, mismatch = embed(expansion, geometric, values)
+    assert mismatch > 0.1  # the slope row cannot be matched at all: its scaled residual is 1
+    narrow = Variant("narrow", expansion.model, {**expansion.unknown, "k7": (-5000.0, 5000.0)}, expansion.fixed)
+    mapped, mismatch = embed(geometric, narrow, {"k_b": 2400.0})
+    assert mapped["k7"] == pytest.approx(-5000.0) and mismatch > 0.01
+
+
+def test_nested_parents_are_the_simplest_contained_variants():
+    """Expansion contains Geometric, Final and Geometric + slope; only the first two contain no other variant
+    (their fits wait for no other), so the Expansion polish starts from them."""
+    from hybridtwin.variants import BUILTIN_VARIANTS, Variant, nested_parents
+
+    specs = dict(BUILTIN_VARIANTS)
+    specs["geometric_slope"] = {**specs["geometric"], "effects": specs["geometric"]["effects"] + ["expansion_k4"],
+                                "unknown": {**specs["geometric"]["unknown"], "k4": (-1000.0, 1000.0)}}
+    variants = {name: Variant.from_spec(name, spec) for name, spec in specs.items()}
+    assert nested_parents(variants, "expansion") == ["geometric", "final"]
+    assert nested_parents(variants, "geometric_slope") == ["geometric"]
+    assert nested_parents(variants, "geometric") == [] and nested_parents(variants, "final") == []

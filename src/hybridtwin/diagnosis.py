@@ -52,7 +52,7 @@ from .candidates import Candidate
 from .identification import (BOUND_TOLERANCE, ArrowProblem, Identification, Layout, LMOptions, ProtocolResult,
                              RunData, SolverModel, conclude, levenberg_marquardt, units)
 from .model import Model
-from .variants import Variant
+from .variants import Variant, embed
 
 Array = np.ndarray
 
@@ -512,6 +512,20 @@ def theta_from_table(table: pd.DataFrame, layout: Layout) -> Array | None:
     theta = np.array([values[(p, run)] if p == "phase" else float(layout.normalise(p, values[(p, run)]))
                       for p, run in layout.entries()])
     return np.clip(theta, *layout.bounds()) if np.isfinite(theta).all() else None
+
+
+def theta_from_nested(table: pd.DataFrame, parent: Variant, variant: Variant, layout: Layout,
+                      fallback: pd.DataFrame) -> tuple[Array | None, float]:
+    """A start for ``variant`` from the joint fit (parameter table) of a variant nested in it: the shared values
+    mapped onto ``variant``'s unknowns (``hybridtwin.variants.embed``), the per-run entries (bow, phases) copied
+    run by run, and any entry neither gives taken from ``fallback`` (a table of ``variant``'s own fit). The
+    theta (None when an entry is still missing) and the mapping's coefficient mismatch (0: exact)."""
+    shared = table[table["run"] == "all"]
+    values, mismatch = embed(parent, variant, dict(zip(shared["parameter"], shared["value"].astype(float))))
+    mapped = pd.DataFrame({"parameter": list(values), "run": "all", "value": list(values.values())})
+    columns = ["parameter", "run", "value"]
+    rows = pd.concat([fallback[columns], table.loc[table["run"] != "all", columns], mapped])
+    return theta_from_table(rows.drop_duplicates(["parameter", "run"], keep="last"), layout), mismatch
 
 
 def settings(config: Mapping) -> dict:

@@ -1559,7 +1559,7 @@ DEFAULTS: dict = {
     "confidence": 0.95,
     "max_iterations": 100,
     "joint": {"trials": 50, "monte_carlo": 100},
-    "polish": {"joint": True, "runs": False, "max_iterations": 60},
+    "polish": {"joint": True, "runs": False, "max_iterations": 60, "nested": True},
     "keyphasor": True,  # runs with a keyphasor: absolute phases, phase prior N(0, (Omega sigma_t)^2); false: free
     "validation_bow": "law",  # per-run parameters of validation runs: law (c0 + c1 W^2 + c2 W^2 m_e) | mean
 }
@@ -1594,6 +1594,7 @@ def rule_settings(config: Mapping, variant: str, rule: str) -> dict:
                          "polish": options["polish"]["max_iterations"] if polish_runs else False}
     polish_joint = options["polish"]["max_iterations"] if options["polish"]["joint"] else False
     if rule == "joint":
+        # polish: nested changes the job's input files (the nested fits), which reruns it by itself
         return common | {"joint": options["joint"], "per_run": options["per_run"], "polish": polish_joint}
     return {"validation_bow": options["validation_bow"], "model_error": options["model_error"],
             "solver": bool(options["polish"]["joint"]), "keyphasor": options["keyphasor"]}

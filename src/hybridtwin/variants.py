@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .effects import Array, Effect, builtin_effects
+from .effects import Array, Effect, Params, PolynomialBearing, builtin_effects
 from .model import Model, System
 from .shaft import Shaft
 from .solver import SteadyState, solve
@@ -146,6 +146,82 @@ class Variant:
         if self.fixed:
             lines.append("fixed: " + ", ".join(f"{k} = {v:g}" for k, v in self.fixed.items()))
         return "\n".join(lines)
+
+
+Monomial = tuple[int, tuple[int, int, int, int]]  # (node, powers of u, v, u', v')
+
+
+def bearing_polynomial(variant: Variant, values: Mapping[str, float] | None = None) -> dict[Monomial, float]:
+    """The variant's polynomial bearing forces summed into one polynomial, F_x = -sum c u^a v^b (u')^c (v')^d
+    (eq. 22-24, 38-39): the coefficient c [SI] of each (node, powers) at ``values`` (default: nominal and
+    fixed values)."""
+    p = Params({k: np.atleast_1d(v) for k, v in variant.values(values).items()})
+    out: dict[Monomial, float] = {}
+    for effect in variant.model.effects:
+        if isinstance(effect, PolynomialBearing):
+            for term in effect.terms:
+                key = (effect.node, term.powers)
+                out[key] = out.get(key, 0.0) + float(term.coefficient(p)[0])
+    return out
+
+
+def _other_effects(variant: Variant) -> set[str]:
+    return {e.name for e in variant.model.effects if not isinstance(e, PolynomialBearing)}
+
+
+def contains(child: Variant, parent: Variant) -> bool:
+    """Whether ``child`` has ``parent`` as a special case and is larger: every effect of ``parent`` other than
+    its polynomial bearings is one of ``child``'s, and every monomial of ``parent``'s bearing polynomial is one
+    of ``child``'s (the Expansion model contains the Geometric and Final ones: eq. 22, 38-39 are eq. 23-24 at
+    particular k_i). Whether the coefficients can match is for ``embed`` to measure."""
+    inner = _other_effects(parent) <= _other_effects(child) and set(bearing_polynomial(parent)) <= set(
+        bearing_polynomial(child))
+    outer = _other_effects(child) <= _other_effects(parent) and set(bearing_polynomial(child)) <= set(
+        bearing_polynomial(parent))
+    return child.name != parent.name and inner and not outer
+
+
+def nested_parents(variants: Mapping[str, Variant], name: str) -> list[str]:
+    """The variants that ``name`` contains (``contains``) and that contain no other variant: the simplest
+    models nested in it, whose fits never wait for another variant's, so a start from them makes no cycle."""
+    child = variants[name]
+    roots = [n for n, v in variants.items() if not any(contains(v, w) for w in variants.values())]
+    return [n for n in roots if contains(child, variants[n])]
+
+
+def embed(parent: Variant, child: Variant, values: Mapping[str, float]) -> tuple[dict[str, float], float]:
+    """``child``'s unknowns that reproduce ``parent`` at ``values`` (its parameters, SI) and the mismatch.
+
+    The unknowns of ``child``'s polynomial bearings are fitted (bounded least squares, in their ranges) so
+    that its bearing polynomial matches ``parent``'s coefficient by coefficient, each monomial's row scaled
+    by the largest coefficient it has in either; other unknowns are copied by name from ``values``, or else
+    take their nominal value (clipped to the range). The mismatch is the scaled residual's norm over the
+    number of monomials: 0 when ``child`` contains ``parent`` at these values (``contains``).
+    """
+    from scipy.optimize import least_squares
+
+    target = bearing_polynomial(parent, {k: v for k, v in values.items() if k in parent.model.parameters})
+    bearing = {p for e in child.model.effects if isinstance(e, PolynomialBearing) for p in e.parameters}
+    free = [k for k in child.unknown if k in {p.name for p in bearing}]
+    out = {k: float(np.clip(values.get(k, child.model.parameters[k].nominal), *child.unknown[k]))
+           for k in child.unknown if k not in free}
+    if not free:
+        return out, 0.0
+    lower, upper = child.bounds(free)
+    keys = sorted(set(target) | set(bearing_polynomial(child)))
+
+    def coefficients(x: Array) -> Array:
+        own = bearing_polynomial(child, out | dict(zip(free, lower + x * (upper - lower))))
+        return np.array([own.get(key, 0.0) for key in keys])
+
+    corners = np.array([coefficients(np.eye(len(free))[i]) for i in range(len(free))] + [coefficients(np.zeros(len(free)))])
+    wanted = np.array([target.get(key, 0.0) for key in keys])
+    scale = np.maximum(np.abs(np.vstack([corners, wanted])).max(axis=0), 1e-300)
+    start = np.clip(np.array([child.model.parameters[k].nominal for k in free]) - lower, 0, None) / (upper - lower)
+    result = least_squares(lambda x: (coefficients(x) - wanted) / scale, np.clip(start, 0.0, 1.0), bounds=(0.0, 1.0),
+                           xtol=1e-14, ftol=1e-14, gtol=1e-14)
+    out |= dict(zip(free, (lower + result.x * (upper - lower)).tolist()))
+    return {k: out[k] for k in child.unknown}, float(np.linalg.norm(result.fun) / np.sqrt(len(keys)))
 
 
 def builtin_variant(name: str, shaft: Shaft | None = None) -> Variant:

@@ -2,8 +2,10 @@
 import pandas as pd
 from snakemake.utils import validate
 
-from hybridtwin.config import offline, offline_for, run_plan
+from hybridtwin.config import offline, offline_for, run_plan, variant as config_variant
 from hybridtwin.diagnosis import parent_variant, settings as diagnosis_settings
+from hybridtwin.identification import settings as identification_settings
+from hybridtwin.variants import nested_parents
 
 
 validate(config, "../schemas/config.schema.yaml")
@@ -45,6 +47,17 @@ def parent_refits_input(wildcards):
     variant's diagnosis refit with the effect: the full-solver fit is already there."""
     parent = parent_variant(config["variants"], wildcards.variant)
     return {"refits": f"results/{parent[0]}/diagnosis_refits.tsv"} if parent else {}
+
+
+def nested_fits_input(wildcards):
+    """The joint fits of the simplest variants this one contains (identification: polish: nested): its polish
+    also starts from each of them, mapped onto its own parameters."""
+    polish = identification_settings(config, wildcards.variant)["polish"]
+    if not (polish["joint"] and polish["nested"]):
+        return {}
+    variants = {name: config_variant(config, name) for name in VARIANTS}
+    parents = nested_parents(variants, wildcards.variant)
+    return {"nested": [f"results/{name}/parameters.tsv" for name in parents]} if parents else {}
 
 
 def gather_input(wildcards):

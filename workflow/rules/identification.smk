@@ -36,6 +36,7 @@ rule identify_joint:
     """All fit runs jointly: shared physical parameters, per-run ones and phases; polish; drift of the per-run fits."""
     input:
         unpack(parent_refits_input),
+        unpack(nested_fits_input),
         libraries=expand("results/{{variant}}/library/{run}.zarr", run=FIT_RUNS),
         per_run=expand("results/{{variant}}/runs/{run}/parameters.tsv", run=FIT_RUNS),
         harmonics="results/data/harmonics.tsv",
