@@ -18,6 +18,7 @@ from hybridtwin import identification as idn
 from hybridtwin.library import Library
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
+NESTED_MISMATCH = 1e-6  # a simpler variant's fit is a start when this variant reproduces it (round-off: ~1e-16)
 log = cfg.rule_logger(smk.log[0], "identify_joint")
 variant = cfg.variant(smk.config, smk.wildcards.variant)
 options = idn.settings(smk.config, variant.name)
@@ -69,9 +70,11 @@ if options["polish"]["joint"]:
         parent = Path(path).parent.name
         theta, mismatch = dg.theta_from_nested(pd.read_csv(path, sep="\t", dtype={"run": str}),
                                                cfg.variant(smk.config, parent), variant, layout, fit.table())
-        log.info("polish also starts from %s's joint fit mapped onto %s's parameters (coefficient mismatch %.2g)%s",
-                 parent, variant.name, mismatch, "" if theta is not None else ": an entry is missing, not used")
-        if theta is not None:
+        usable = theta is not None and mismatch < NESTED_MISMATCH
+        log.info("%s's joint fit mapped onto %s's parameters: coefficient mismatch %.2g, %s", parent, variant.name,
+                 mismatch, "a polish start" if usable else "not nested exactly, not used" if theta is not None
+                 else "an entry is missing, not used")
+        if usable:
             starts = np.vstack([starts, theta[None]])
             labels.append(f"{parent}'s joint fit")
     exact = idn.polish(fit, solver, int(options["polish"]["max_iterations"]), starts)

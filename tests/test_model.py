@@ -313,7 +313,7 @@ def test_embedding_reports_what_cannot_be_matched():
 def test_nested_parents_are_the_simplest_contained_variants():
     """Expansion contains Geometric, Final and Geometric + slope; only the first two contain no other variant
     (their fits wait for no other), so the Expansion polish starts from them."""
-    from hybridtwin.variants import BUILTIN_VARIANTS, Variant, nested_parents
+    from hybridtwin.variants import BUILTIN_VARIANTS, Variant, contains, nested_parents
 
     specs = dict(BUILTIN_VARIANTS)
     specs["geometric_slope"] = {**specs["geometric"], "effects": specs["geometric"]["effects"] + ["expansion_k4"],
@@ -322,3 +322,8 @@ def test_nested_parents_are_the_simplest_contained_variants():
     assert nested_parents(variants, "expansion") == ["geometric", "final"]
     assert nested_parents(variants, "geometric_slope") == ["geometric"]
     assert nested_parents(variants, "geometric") == [] and nested_parents(variants, "final") == []
+    slope = Variant.from_spec("slope", {
+        **specs["geometric"], "effects": specs["geometric"]["effects"] + ["slope_spring"],
+        "unknown": {**specs["geometric"]["unknown"], "k_w": (0.0, 1000.0), "k_z": (0.0, 1000.0)}})
+    # every Final monomial is there, but u v^2 comes with -4 k_b / l_i^2: Final is not a special case
+    assert not contains(slope, variants["final"]) and contains(slope, variants["geometric"])

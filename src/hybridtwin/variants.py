@@ -171,14 +171,20 @@ def _other_effects(variant: Variant) -> set[str]:
 
 def contains(child: Variant, parent: Variant) -> bool:
     """Whether ``child`` has ``parent`` as a special case and is larger: every effect of ``parent`` other than
-    its polynomial bearings is one of ``child``'s, and every monomial of ``parent``'s bearing polynomial is one
-    of ``child``'s (the Expansion model contains the Geometric and Final ones: eq. 22, 38-39 are eq. 23-24 at
-    particular k_i). Whether the coefficients can match is for ``embed`` to measure."""
-    inner = _other_effects(parent) <= _other_effects(child) and set(bearing_polynomial(parent)) <= set(
-        bearing_polynomial(child))
-    outer = _other_effects(child) <= _other_effects(parent) and set(bearing_polynomial(child)) <= set(
-        bearing_polynomial(parent))
-    return child.name != parent.name and inner and not outer
+    its polynomial bearings is one of ``child``'s, every monomial of ``parent``'s bearing polynomial is one of
+    ``child``'s, and ``child`` reproduces ``parent``'s polynomial at the middle of ``parent``'s ranges
+    (``embed``). The Expansion model contains the Geometric and Final ones (eq. 22 and 38-39 are eq. 23-24
+    at particular k_i); Geometric + slope force does not contain Final (its u v^2 term is tied to k_b)."""
+    if child.name == parent.name:
+        return False
+    monomials_child, monomials_parent = set(bearing_polynomial(child)), set(bearing_polynomial(parent))
+    others_child, others_parent = _other_effects(child), _other_effects(parent)
+    if not (others_parent <= others_child and monomials_parent <= monomials_child):
+        return False
+    if others_child <= others_parent and monomials_child <= monomials_parent:
+        return False  # the same structure: neither is the larger
+    middle = {k: 0.5 * (lo + hi) for k, (lo, hi) in parent.unknown.items()}
+    return embed(parent, child, middle)[1] < 1e-9
 
 
 def nested_parents(variants: Mapping[str, Variant], name: str) -> list[str]:
@@ -198,11 +204,11 @@ def embed(parent: Variant, child: Variant, values: Mapping[str, float]) -> tuple
     take their nominal value (clipped to the range). The mismatch is the scaled residual's norm over the
     number of monomials: 0 when ``child`` contains ``parent`` at these values (``contains``).
     """
-    from scipy.optimize import least_squares
+    from scipy.optimize import least_squares, lsq_linear
 
     target = bearing_polynomial(parent, {k: v for k, v in values.items() if k in parent.model.parameters})
-    bearing = {p for e in child.model.effects if isinstance(e, PolynomialBearing) for p in e.parameters}
-    free = [k for k in child.unknown if k in {p.name for p in bearing}]
+    bearing = {p.name for e in child.model.effects if isinstance(e, PolynomialBearing) for p in e.parameters}
+    free = [k for k in child.unknown if k in bearing]
     out = {k: float(np.clip(values.get(k, child.model.parameters[k].nominal), *child.unknown[k]))
            for k in child.unknown if k not in free}
     if not free:
@@ -210,18 +216,23 @@ def embed(parent: Variant, child: Variant, values: Mapping[str, float]) -> tuple
     lower, upper = child.bounds(free)
     keys = sorted(set(target) | set(bearing_polynomial(child)))
 
-    def coefficients(x: Array) -> Array:
+    def coefficients(x: Array) -> Array:  # x in [0, 1] over each free unknown's range
         own = bearing_polynomial(child, out | dict(zip(free, lower + x * (upper - lower))))
         return np.array([own.get(key, 0.0) for key in keys])
 
-    corners = np.array([coefficients(np.eye(len(free))[i]) for i in range(len(free))] + [coefficients(np.zeros(len(free)))])
+    origin = coefficients(np.zeros(len(free)))
+    A = np.stack([coefficients(e) - origin for e in np.eye(len(free))], axis=1)  # exact if affine in x
     wanted = np.array([target.get(key, 0.0) for key in keys])
-    scale = np.maximum(np.abs(np.vstack([corners, wanted])).max(axis=0), 1e-300)
-    start = np.clip(np.array([child.model.parameters[k].nominal for k in free]) - lower, 0, None) / (upper - lower)
-    result = least_squares(lambda x: (coefficients(x) - wanted) / scale, np.clip(start, 0.0, 1.0), bounds=(0.0, 1.0),
-                           xtol=1e-14, ftol=1e-14, gtol=1e-14)
-    out |= dict(zip(free, (lower + result.x * (upper - lower)).tolist()))
-    return {k: out[k] for k in child.unknown}, float(np.linalg.norm(result.fun) / np.sqrt(len(keys)))
+    scale = np.maximum(np.abs(np.column_stack([A + origin[:, None], origin, wanted])).max(axis=1), 1e-300)
+    half = np.full(len(free), 0.5)
+    if np.allclose(coefficients(half), origin + A @ half, rtol=1e-12, atol=1e-12 * scale.max()):
+        x = lsq_linear(A / scale[:, None], (wanted - origin) / scale, bounds=(0.0, 1.0), method="bvls").x
+    else:  # coefficients nonlinear in a bearing unknown (e.g. a free spring length l_i)
+        x = least_squares(lambda x: (coefficients(x) - wanted) / scale, half, bounds=(0.0, 1.0), xtol=1e-15,
+                          ftol=1e-15, gtol=1e-15).x
+    out |= dict(zip(free, (lower + x * (upper - lower)).tolist()))
+    residual = (coefficients(x) - wanted) / scale
+    return {k: out[k] for k in child.unknown}, float(np.linalg.norm(residual) / np.sqrt(len(keys)))
 
 
 def builtin_variant(name: str, shaft: Shaft | None = None) -> Variant:
