@@ -155,6 +155,33 @@ def test_changing_one_variants_range_reruns_only_that_variant(workdir):
     assert not any("results/geometric/" in line for line in outputs)
 
 
+NESTED = """
+variants:
+  expansion:
+    effects: [centrifugal_softening, structural_damping, upper_housing, lower_bearing, unbalance, shaft_bow,
+              expansion_k1, expansion_k2, expansion_k3, expansion_k4, expansion_k5, expansion_k6, expansion_k7]
+    unknown: {k1: [0, 3500], k2: [-1000, 1000], k3: [0, 7000], k4: [-1000, 1000], k5: [-1000, 1000],
+              k6: [-1000, 1000], k7: [-14000, 14000], q_x: [0.001, 0.01], q_y: [0.001, 0.01]}
+"""
+
+
+def test_a_variant_containing_others_polishes_from_their_fits(workdir):
+    """The Expansion model contains both small variants (Final's k_z is fixed there: k6 takes it), so its
+    joint fit waits for theirs and starts its polish from them; with polish: nested off it does not."""
+    def identify_joint_inputs(overlay: str) -> str:
+        (workdir / "nested.yaml").write_text(overlay)
+        plan = _snakemake(workdir, "--dry-run", "results/expansion/parameters.tsv", config="nested.yaml")
+        assert plan.returncode == 0, plan.stdout[-2000:] + plan.stderr[-2000:]
+        lines = (plan.stdout + plan.stderr).splitlines()
+        return next(line for line in lines if line.strip().startswith("input:") and "expansion/library" in line
+                    and "expansion/runs" in line)
+
+    inputs = identify_joint_inputs(NESTED)
+    assert "results/geometric/parameters.tsv" in inputs and "results/final/parameters.tsv" in inputs
+    off = identify_joint_inputs(NESTED + "identification: {polish: {nested: false}}\n")
+    assert "results/geometric/parameters.tsv" not in off and "results/final/parameters.tsv" not in off
+
+
 def test_invalid_config_is_rejected_with_the_reason(workdir):
     (workdir / "bad.yaml").write_text("harmonics: 0\n")
     run = _snakemake(workdir, "--dry-run", config="bad.yaml")
