@@ -167,12 +167,15 @@ class SparsePGD:
         Trial t's factor j lives on N_j's first degrees[t, j] + 1 functions: its normal matrix is
         masked to them (identity elsewhere, zero right-hand side), so each trial solves exactly its
         own truncated least squares, in one batched solve per parameter. A trial stops updating once
-        its term changes by less than ``als_tol``.
+        its term changes by less than ``als_tol``. The normal matrices use T_b T_c = (T_{b+c} + T_{|b-c|}) / 2:
+        sum_n v_n T_b T_c comes from the 2n + 1 moments sum_n v_n T_e, not from (n + 1)^2 products per point.
         """
         d, n, nb = B.shape
         T = degrees.shape[0]
         mask = np.arange(nb)[None, None, :] <= degrees[:, :, None]  # (T, d, nb)
-        outer = np.einsum("jnb,jnc->jnbc", B, B).reshape(d, n, nb * nb)  # N_b N_c per point: G is one product
+        moments_basis = np.stack([chebyshev_basis(B[j, :, min(1, nb - 1)], 2 * (nb - 1)) for j in range(d)])
+        index = np.arange(nb)
+        plus, minus = index[:, None] + index[None, :], np.abs(index[:, None] - index[None, :])
         _, s, vt = np.linalg.svd(R * np.sqrt(w)[:, None], full_matrices=False)
         a = np.repeat((s[0] * vt[0] / np.sqrt(w.sum()))[None], T, 0)
         c = np.zeros((T, d, nb))
@@ -186,7 +189,8 @@ class SparsePGD:
             aa = np.einsum("tm,tm->t", a, a)
             for j in range(d):
                 g = _product_except(F, j)
-                G = ((w * g * g * aa[:, None]) @ outer[j]).reshape(T, nb, nb)  # sum_n v_tn N_b N_c
+                moments = (w * g * g * aa[:, None]) @ moments_basis[j]  # sum_n v_tn T_e, (T, 2 nb - 1)
+                G = 0.5 * (moments[:, plus] + moments[:, minus])  # sum_n v_tn T_b T_c
                 rhs = (w * g * t_proj) @ B[j] * mask[:, j]
                 G *= mask[:, j, :, None] & mask[:, j, None, :]
                 ridge = self.ridge * (np.trace(G, axis1=1, axis2=2) / mask[:, j].sum(1) + 1e-300)
