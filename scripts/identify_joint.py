@@ -66,10 +66,11 @@ if options["polish"]["joint"]:
             starts = np.vstack([starts, refit[None]])
             labels.append(f"{parent}'s diagnosis refit with {extra}")
     nested = smk.input.get("nested", [])
+    own = fit.table()  # entries a nested fit does not give
     for path in [nested] if isinstance(nested, str) else nested:  # the simpler variants this one contains
         parent = Path(path).parent.name
         theta, mismatch = dg.theta_from_nested(pd.read_csv(path, sep="\t", dtype={"run": str}),
-                                               cfg.variant(smk.config, parent), variant, layout, fit.table())
+                                               cfg.variant(smk.config, parent), variant, layout, own)
         usable = theta is not None and mismatch < NESTED_MISMATCH
         log.info("%s's joint fit mapped onto %s's parameters: coefficient mismatch %.2g, %s", parent, variant.name,
                  mismatch, "a polish start" if usable else "not nested exactly, not used" if theta is not None

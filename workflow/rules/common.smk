@@ -1,4 +1,6 @@
 # Shared helpers: config validation, the runs sheet, the variants, the offline options.
+from functools import cache
+
 import pandas as pd
 from snakemake.utils import validate
 
@@ -49,14 +51,19 @@ def parent_refits_input(wildcards):
     return {"refits": f"results/{parent[0]}/diagnosis_refits.tsv"} if parent else {}
 
 
+@cache
+def nested_variants(name):
+    """The simplest variants that ``name`` contains (built once per variant, not once per job)."""
+    return nested_parents({other: config_variant(config, other) for other in VARIANTS}, name)
+
+
 def nested_fits_input(wildcards):
     """The joint fits of the simplest variants this one contains (identification: polish: nested): its polish
     also starts from each of them, mapped onto its own parameters."""
     polish = identification_settings(config, wildcards.variant)["polish"]
     if not (polish["joint"] and polish["nested"]):
         return {}
-    variants = {name: config_variant(config, name) for name in VARIANTS}
-    parents = nested_parents(variants, wildcards.variant)
+    parents = nested_variants(wildcards.variant)
     return {"nested": [f"results/{name}/parameters.tsv" for name in parents]} if parents else {}
 
 
