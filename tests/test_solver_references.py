@@ -21,7 +21,7 @@ from scipy.optimize import brentq
 
 from hybridtwin import Effect, LocalForce, Model, Parameter, PolynomialBearing, System, Term, solve, solve_sweep
 from hybridtwin.effects import K_B, base_effects
-from hybridtwin.solver import _Condensed
+from hybridtwin.solver import _backtrack, _Condensed
 from hybridtwin.variants import builtin_variant
 
 GEOMETRIC = builtin_variant("geometric")
@@ -286,6 +286,44 @@ def test_duffing_h7_reference_amplitudes():
         assert abs(res.harmonics[0, 1, 0]) == pytest.approx(ref, abs=1e-8)
         # Only odd harmonics for an odd force with cos forcing (symmetry x(t+T/2) = -x(t)).
         assert np.abs(res.harmonics[0, 0::2, 0]).max() < 1e-14
+
+
+def test_damped_newton_backtracks_at_resonance_and_lands_on_the_reference():
+    """From rest (x = 0, where the cubic has no stiffness) the first full Newton step is the linear
+    response; at Omega = 1 that is the lightly damped resonance peak, far above the hardened
+    response, so the step makes the residual 20x worse and the line search
+    (_backtrack) takes over. It must hand back the residual AND the Jacobian of the step it chose
+    (the fractions are screened on residuals alone), and the solve must reach NLvib's amplitude."""
+    system = duffing([1.0])
+    prob = _Condensed(system, 7, None)
+    screened = []
+    evaluate = prob.evaluate
+
+    def spy(x, idx, jacobian=True):
+        screened.append(not jacobian)
+        return evaluate(x, idx, jacobian)
+
+    prob.evaluate = spy
+    one = np.array([0])
+    x = np.zeros_like(prob.a)
+    r, J = prob.evaluate(x, one)
+    step = np.linalg.solve(J, -r.reshape(1, -1, 1)).reshape(r.shape)
+    nr = np.linalg.norm(r.ravel())
+    trial_r, trial_J = prob.evaluate(x + step, one)
+    assert np.linalg.norm(trial_r.ravel()) > 10 * nr  # the full step is far worse: backtracking needed
+    alpha = np.ones(1)
+    _backtrack(prob, x, one, step, np.array([nr]), alpha, one, trial_r, trial_J)
+    assert any(screened) and alpha[0] < 1
+    exact_r, exact_J = evaluate(x + alpha[0] * step, one)
+    # Same arithmetic on the same state, only the batch layout differs: equal to round-off (observed 0).
+    np.testing.assert_allclose(trial_r, exact_r, rtol=0, atol=1e-14 * np.abs(exact_r).max())
+    np.testing.assert_allclose(trial_J, exact_J, rtol=0, atol=1e-14 * np.abs(exact_J).max())
+    assert np.linalg.norm(trial_r.ravel()) < nr
+
+    res = solve(system, harmonics=7)
+    assert res.success[0]
+    # The reference is rounded to 9 decimals (error <= 5e-10): 1e-8 absolute.
+    assert abs(res.harmonics[0, 1, 0]) == pytest.approx(NLVIB_H7[1.0], abs=1e-8)
 
 
 @pytest.mark.parametrize("Om", sorted(NLVIB_H7))

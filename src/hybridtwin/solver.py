@@ -403,17 +403,18 @@ def _backtrack(prob, x, idx, step, nr, alpha, where, trial_r, trial_J) -> None:
     would; but all fractions are evaluated in one batched call, because the
     scenarios that need it are few and a call's fixed cost dominates (expansion
     chunk: 84 000 of 115 000 residual evaluations were single halvings of ~2
-    scenarios). Writes alpha, trial_r, trial_J at ``where``.
+    scenarios). The fractions' residuals come without Jacobians; the Jacobian
+    is evaluated at the chosen fraction only. Writes alpha, trial_r, trial_J at
+    ``where``.
     """
     fractions = 0.5 ** np.arange(1, _MAX_HALVINGS + 1)
     L, W = fractions.size, idx.size
     candidates = x[None] + fractions[:, None, None, None] * step[None]  # (L, W, c, 2H+1)
-    r, J = prob.evaluate(candidates.reshape((L * W,) + x.shape[1:]), np.tile(idx, L))
+    r, _ = prob.evaluate(candidates.reshape((L * W,) + x.shape[1:]), np.tile(idx, L), jacobian=False)
     lower = (_norm(r).reshape(L, W) < nr)
     first = np.where(lower.any(axis=0), lower.argmax(axis=0), L - 1)
-    pick = first * W + np.arange(W)
     alpha[where] = fractions[first]
-    trial_r[where], trial_J[where] = r[pick], J[pick]
+    trial_r[where], trial_J[where] = prob.evaluate(candidates[first, np.arange(W)], idx)
 
 
 @dataclass
