@@ -148,6 +148,25 @@ def test_the_als_stopping_change_matches_the_formed_terms_even_when_tiny(step):
     assert np.allclose(_term_change(p1, a1, p0, a0), direct, rtol=1e-3, atol=0)
 
 
+@pytest.mark.parametrize("degrees", [[12, 12, 11], [0, 1, 0, 1, 1, 0, 1, 0, 0, 1]])
+def test_backfit_normal_matrix_equals_the_gram_matrix_of_its_columns(degrees):
+    """The backfit's normal matrix sum_n w g_k g_l T_b T_c over the active columns (k, b <= degree_k),
+    against the Gram matrix of the columns formed one by one with numpy's chebvander. Three
+    degree-12 terms take the moment path (25 K^2 = 225 products per point, fewer than the 38^2
+    column pairs), ten terms of degree 0-1 the direct one (3 K^2 = 300 > 15^2)."""
+    rng = np.random.default_rng(3)
+    n, degrees = 400, np.array(degrees)
+    x, w = rng.uniform(-1, 1, n), rng.uniform(0.1, 2.0, n)
+    g = rng.standard_normal((degrees.size, n))
+    T = np.polynomial.chebyshev.chebvander(x, 12)
+    term, b = np.nonzero(np.arange(13)[None, :] <= degrees[:, None])
+    columns = np.stack([g[k] * T[:, c] for k, c in zip(term, b)], axis=1)
+    reference = columns.T @ (w[:, None] * columns)
+    G = SparsePGD._normal_matrix(T, g, w, term, b, 2 * int(degrees.max()))
+    # Both paths sum the same n products in a different order: round-off, ~n eps of the largest entry.
+    np.testing.assert_allclose(G, reference, rtol=0, atol=1e-12 * np.abs(reference).max())
+
+
 def test_inputs_outside_the_normalised_box_are_refused():
     X, Y, X_val, Y_val = _split(rank_one)
     model = SparsePGD(degree=3, max_terms=2).fit(X, Y, X_val, Y_val)

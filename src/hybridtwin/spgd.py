@@ -217,26 +217,50 @@ class SparsePGD:
         y_n = sum_{k,b} Z[n, (k, b)] a_k c_j^k[b], Z[n, (k, b)] = g_k(n) N_b(p_nj),
         g_k the product of term k's other factors: a ridge least-squares problem.
         Term k keeps its degrees: coefficients of parameter j above degrees[k, j] stay zero, and only
-        the columns (k, b <= degrees[k, j]) enter the normal matrix.
+        the columns (k, b <= degrees[k, j]) enter the normal matrix (``_normal_matrix``). The
+        factors of every term are kept and only the refitted parameter's row is updated.
         """
         K, d, nb = C.shape
+        index = np.arange(nb)
+        F = np.einsum("jnb,kjb->kjn", B, C)  # every factor at every point, (K, d, n)
         for _ in range(self.backfit_iterations):
             for j in range(d):
-                term, b = np.nonzero(np.arange(nb)[None, :] <= degrees[:, j, None])  # the active (k, b)
-                g = _product_except(np.einsum("jnb,kjb->kjn", B, C), j)  # (K, n)
-                Z = g[term].T * B[j][:, b]  # (n, active)
-                Zw = Z * w[:, None]
-                G = (Z.T @ Zw) * (A @ A.T)[np.ix_(term, term)]
-                rhs = np.einsum("na,na->a", Zw, (Y @ A.T)[:, term])
+                term, b = np.nonzero(index[None, :] <= degrees[:, j, None])  # the active (k, b)
+                g = _product_except(F, j)  # (K, n)
+                G = self._normal_matrix(B[j], g, w, term, b, 2 * int(degrees[:, j].max())) * (A @ A.T)[np.ix_(term, term)]
+                rhs = ((g * w * (Y @ A.T).T) @ B[j])[term, b]
                 G[np.diag_indices_from(G)] += self.ridge * (np.trace(G) / G.shape[0] + 1e-300)
                 C[:, j] = 0.0
                 C[term, j, b] = np.linalg.solve(G, rhs)
-                scale = np.abs(B[j] @ C[:, j].T).max(axis=0)
+                Fj = C[:, j] @ B[j].T  # (K, n)
+                scale = np.abs(Fj).max(axis=1)
                 scale[scale == 0] = 1.0
                 C[:, j] /= scale[:, None]
+                F[:, j] = Fj / scale[:, None]
                 A = A * scale[:, None]
             A = self._amplitudes(B, Y, w, C)
         return A, C
+
+    @staticmethod
+    def _normal_matrix(Bj: Array, g: Array, w: Array, term: Array, b: Array, top: int) -> Array:
+        """sum_n w_n g_k(n) g_l(n) T_b(p_nj) T_c(p_nj) over the active columns (k, b), (l, c).
+
+        By T_b T_c = (T_{b+c} + T_{|b-c|}) / 2 it follows from the K^2 (top + 1) moments
+        sum_n w g_k g_l T_e, e <= top (twice the highest degree): used where they take fewer products
+        per point than the Gram matrix of the columns (active^2), i.e. at many terms of high degree
+        (a 5522-point resonance run's fits, degrees 8 and 12: 44 -> 30 s), else the columns' Gram matrix.
+        """
+        K, active = g.shape[0], term.size
+        if (top + 1) * K * K > active * active:
+            Z = g[term].T * Bj[:, b]
+            return Z.T @ (Z * w[:, None])
+        moments_basis = chebyshev_basis(Bj[:, min(1, Bj.shape[1] - 1)], top)
+        gw = g * w
+        moments = np.stack([(gw * e) @ g.T for e in moments_basis.T], axis=-1)  # (K, K, top + 1)
+        index = np.arange(Bj.shape[1])
+        plus, minus = index[:, None] + index[None, :], np.abs(index[:, None] - index[None, :])
+        k, l, bb, cc = term[:, None], term[None, :], b[:, None], b[None, :]
+        return 0.5 * (moments[k, l, plus[bb, cc]] + moments[k, l, minus[bb, cc]])
 
     def _amplitudes(self, B: Array, Y: Array, w: Array, C: Array) -> Array:
         """All a_k at once by ridge least squares given the factors."""
