@@ -227,7 +227,8 @@ class SparsePGD:
             for j in range(d):
                 term, b = np.nonzero(index[None, :] <= degrees[:, j, None])  # the active (k, b)
                 g = _product_except(F, j)  # (K, n)
-                G = self._normal_matrix(B[j], g, w, term, b, 2 * int(degrees[:, j].max())) * (A @ A.T)[np.ix_(term, term)]
+                G = self._normal_matrix(B[j], g, w, term, b, 2 * int(degrees[:, j].max()))
+                G *= (A @ A.T)[np.ix_(term, term)]
                 rhs = ((g * w * (Y @ A.T).T) @ B[j])[term, b]
                 G[np.diag_indices_from(G)] += self.ridge * (np.trace(G) / G.shape[0] + 1e-300)
                 C[:, j] = 0.0
