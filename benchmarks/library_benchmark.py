@@ -55,7 +55,7 @@ import yaml
 
 from hybridtwin import config as cfg
 from hybridtwin import snapshots
-from hybridtwin.library import Library, build_global_library, build_library, relative_sensor_error
+from hybridtwin.library import Library, build_global_library, build_library, mode_scaling_kinks, relative_sensor_error
 from hybridtwin.pod import load_pod, to_features
 from hybridtwin.sensor import observable, sensor_dofs
 from hybridtwin.variants import BUILTIN_VARIANTS, Variant, builtin_variant
@@ -158,6 +158,12 @@ class Setup:
             self.measured_rpm = cfg.run_plan(self.config, table).set_index("run").loc[self.runs, "rpm"].astype(float)
         self.speeds_table = table
         self.rpm = self.nominal_rpm  # set by choose_speed
+
+    def kinks(self, values):
+        """The sPGD pieces as the workflow's (config offline.pieces)."""
+        if self.offline.get("pieces", "mode_scaling") == "none":
+            return None
+        return mode_scaling_kinks(self.variant, self.parameters, self.lower, self.upper, values)
         self.speed_source = "nominal"
 
 
@@ -294,7 +300,7 @@ def benchmark_run(setup: Setup, run: str, args, peers) -> tuple[dict, dict]:
 
     with Clock() as clock:
         library = build_library(run, basis, harmonics, values, split, usable, setup.parameters, setup.lower,
-                                setup.upper, setup.sensor_dofs, **setup.offline["spgd"])
+                                setup.upper, setup.sensor_dofs, setup.kinks(values), **setup.offline["spgd"])
     fit, cpu = {"sPGD": clock.wall}, {"sPGD": clock.cpu}
     errors = {"sPGD": relative_sensor_error(library.sensor(values[test]), reference)}
 
@@ -474,7 +480,7 @@ def scope_comparison(setup: Setup, args) -> dict:
           flush=True)
     with Clock() as fit_clock:
         glib = build_global_library(snaps, fit_runs, setup.lower, setup.upper, setup.shaft, setup.sensor_range_m,
-                                    setup.offline["pod_energy_tolerance"], **options)
+                                    setup.offline["pod_energy_tolerance"], setup.kinks(snaps.values), **options)
     model, names = glib.model, glib.parameters
     op_lower, op_upper = glib.lower[-2:], glib.upper[-2:]
     rng = np.random.default_rng(0)
@@ -495,7 +501,7 @@ def scope_comparison(setup: Setup, args) -> dict:
         one = snapshots.load(setup.store, run)
         libraries[run] = build_library(run, b, one.harmonics[0], one.values, one.split, usable,
                                        setup.parameters, setup.lower, setup.upper, setup.sensor_dofs,
-                                       **setup.offline["spgd"])
+                                       setup.kinks(one.values), **setup.offline["spgd"])
         built.append(run)
     source = (f"loaded from {setup.results / 'library'}" if not built else
               f"loaded from {setup.results / 'library'}, except {built} (missing or not on the current POD: "

@@ -9,9 +9,10 @@ variant = cfg.variant(smk.config, smk.wildcards.variant)
 options = smk.params.offline
 library = build_variant_global_library(variant, smk.input.snapshots, cfg.run_plan(smk.config),
                                        options["sensor_range_mm"] * 1e-3, options["pod_energy_tolerance"],
-                                       options["spgd"])
+                                       options["spgd"], options["pieces"])
 library.save(smk.output[0])
 info = library.info
 log.info("global library over %s from the fit runs %s: %d training / %d validation samples, %d POD modes, "
-         "%d sPGD terms, validation error %.3g", library.parameters, info["fit_runs"], info["n_train"],
-         info["n_validation"], library.n_modes, library.model.n_terms, min(info["validation_error"]))
+         "%d sPGD terms, validation error %.3g%s", library.parameters, info["fit_runs"], info["n_train"],
+         info["n_validation"], library.n_modes, library.model.n_terms, min(info["validation_error"]),
+         cfg.pieces_note(info))

@@ -15,9 +15,9 @@ if options["scope"] == "global":
 else:
     variant = cfg.variant(smk.config, smk.wildcards.variant)
     library = build_run_library(variant, run, smk.input.snapshots, smk.input.pod, options["sensor_range_mm"] * 1e-3,
-                                options["spgd"])
+                                options["spgd"], options["pieces"])
     info = library.info
     log.info("run %s: %d training / %d validation scenarios (left out: %s), %d POD modes, %d sPGD terms, "
-             "validation error %.3g", run, info["n_train"], info["n_validation"], info["n_left_out"],
-             library.n_modes, library.model.n_terms, min(info["validation_error"]))
+             "validation error %.3g%s", run, info["n_train"], info["n_validation"], info["n_left_out"],
+             library.n_modes, library.model.n_terms, min(info["validation_error"]), cfg.pieces_note(info))
 library.save(smk.output[0])

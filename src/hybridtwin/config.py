@@ -31,7 +31,7 @@ def variant(config: Mapping, name: str, config_dir: Path = CONFIG_DIR) -> Varian
 def offline(config: Mapping) -> dict:
     """The ``offline:`` options with their defaults filled in."""
     defaults = {"seed": 1, "speed": "measured", "n_scenarios": {}, "n_test": 200, "validation_fraction": 0.2,
-                "chunks": 4, "scope": "run",
+                "chunks": 4, "scope": "run", "pieces": "mode_scaling",
                 "sensor_range_mm": 14.0, "pod_energy_tolerance": 1e-10,
                 "spgd": {"degree": [8, 12], "max_terms": 60, "ridge": 1e-8, "patience": 8, "backfit_iterations": 3},
                 "enrichment": {"observable_below": 0.3, "n_scenarios": 6000, "chunks": 2}}
@@ -74,6 +74,14 @@ def run_plan(config: Mapping, measured: str | Path | None = None) -> pd.DataFram
         raise ValueError(f"{config['runs']}: run(s) {unknown_mass} have no eccentric_mass_g; the offline "
                          "libraries are built per (rpm, eccentric mass) and need it")
     return sheet[["run", "rpm", "eccentric_mass_g"] + (["role"] if "role" in sheet else [])]
+
+
+def pieces_note(info: Mapping) -> str:
+    """'' or ', pieces along <parameter> at <switches>' for a library's info."""
+    pieces = info.get("pieces")
+    if not pieces:
+        return ""
+    return f", one sPGD per side of {pieces['parameter']} = " + ", ".join(f"{e:.6g}" for e in pieces["edges"][1:-1])
 
 
 def rule_logger(log_path: str, name: str) -> logging.Logger:

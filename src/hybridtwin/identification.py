@@ -244,8 +244,7 @@ class SensorSurrogate:
         rows = [feature_index(h, dof, library.n_harmonics, library.n_dof, imaginary)
                 for imaginary in (False, True) for dof in library.sensor_dofs]
         sensor_modes = library.modes[np.concatenate(rows)]  # (4H, m): Re x, Re y, Im x, Im y
-        self.model = library.model
-        self.amplitudes = np.ascontiguousarray(library.model.amplitudes @ sensor_modes.T)  # (K, 4H)
+        self.model = library.model.projected(sensor_modes.T)  # outputs Re x, Re y, Im x, Im y (4H)
         self.parameters = list(library.parameters)
         self.lower, self.upper = np.asarray(library.lower, float), np.asarray(library.upper, float)
         self.run = library.run
@@ -253,7 +252,7 @@ class SensorSurrogate:
     def evaluate(self, x: Array, jacobian: bool = True) -> tuple[Array, Array | None]:
         """M (N, H, 2) complex and dM/dx (N, H, 2, d) at normalised x (N, d) in [-1, 1]."""
         x = np.clip(np.atleast_2d(x), -1.0, 1.0)
-        y, J = self.model.evaluate(x, self.amplitudes, jacobian)
+        y, J = self.model.evaluate(x, jacobian=jacobian)
         if not jacobian:
             return self._complex(y), None
         N, d = x.shape

@@ -23,7 +23,7 @@ from .effects import Array
 from .pod import POD, feature_index, from_features, load_pod, pod, to_features
 from .sensor import observable, sensor_dofs
 from .shaft import Shaft
-from .spgd import SparsePGD, chebyshev_basis, fit_spgd
+from .spgd import PiecewiseSPGD, SparsePGD, fit_piecewise, fit_spgd, model_from_arrays
 from .variants import Variant
 
 #: the extra sPGD dimensions of a global library, after the unknowns (SI/boundary units: RPM, g)
@@ -40,7 +40,7 @@ class Library:
     upper: Array
     modes: Array  # POD basis Phi (features, m_d)
     singular_values: Array
-    model: SparsePGD
+    model: SparsePGD | PiecewiseSPGD
     n_harmonics: int  # H + 1
     n_dof: int
     sensor_dofs: list[int]
@@ -71,17 +71,16 @@ class Library:
         linear in them), so a batch costs the factors and one product with (K, 4 (H+1)) amplitudes.
         """
         x = self.normalise(values)
-        y, J = self.model.evaluate(x, self._sensor_amplitudes(), jacobian)
+        y, J = self._sensor_model().evaluate(x, jacobian=jacobian)
         if not jacobian:
             return self._to_sensor(y)
         J *= (2.0 / (self.upper - self.lower))[:, None, None]
         return self._to_sensor(y), np.moveaxis(self._to_sensor(J), 0, -1)
 
-    def _sensor_amplitudes(self) -> Array:
-        """a_k Phi_sensor^T (K, 4 (H+1)), cached for the current amplitudes."""
-        amplitudes = self.model.amplitudes
-        if getattr(self, "_sensor_cache", (None,))[0] is not amplitudes:
-            self._sensor_cache = (amplitudes, np.ascontiguousarray(amplitudes @ self._sensor_modes.T))
+    def _sensor_model(self) -> SparsePGD | PiecewiseSPGD:
+        """The sPGD projected on the sensor rows, a_k Phi_sensor^T (K, 4 (H+1)), cached for the current model."""
+        if getattr(self, "_sensor_cache", (None,))[0] is not self.model:
+            self._sensor_cache = (self.model, self.model.projected(self._sensor_modes.T))
         return self._sensor_cache[1]
 
     def _to_sensor(self, features: Array) -> Array:
@@ -106,9 +105,7 @@ class Library:
             raise ValueError(f"run {run}: operating point {rpm:g} RPM, {eccentric_mass_g:g} g is outside the "
                              f"global library's range ({low[0]:g}-{high[0]:g} RPM, {low[1]:g}-{high[1]:g} g)")
         x = np.clip(2.0 * (point - low) / (high - low) - 1.0, -1.0, 1.0)
-        C = self.model.coefficients
-        factors = np.einsum("jb,kjb->kj", chebyshev_basis(x, C.shape[-1] - 1), C[:, d:])
-        model = SparsePGD.from_arrays(self.model.amplitudes * factors.prod(axis=1)[:, None], C[:, :d])
+        model = self.model.with_trailing_fixed(x)
         info = {**self.info, "scope": "global", "operating_point": {"rpm": float(rpm),
                                                                     "eccentric_mass_g": float(eccentric_mass_g)}}
         return Library(run, self.parameters[:d], self.lower[:d], self.upper[:d], self.modes, self.singular_values,
@@ -133,7 +130,7 @@ class Library:
     def load(cls, path: str | Path) -> "Library":
         group = zarr.open_group(str(path), mode="r")
         attrs = dict(group.attrs)
-        model = SparsePGD.from_arrays(group["amplitudes"][:], group["coefficients"][:])
+        model = model_from_arrays({name: group[name][:] for name in group.array_keys()})
         return cls(attrs["run"], list(attrs["parameters"]), group["lower"][:], group["upper"][:], group["modes"][:],
                    group["singular_values"][:], model, attrs["n_harmonics"], attrs["n_dof"],
                    list(attrs["sensor_dofs"]), attrs.get("info", {}))
@@ -141,7 +138,7 @@ class Library:
 
 def build_library(run: str, basis: POD, harmonics: Array, values: Array, split: Array, usable: Array,
                   parameters: list[str], lower: Array, upper: Array, sensor_dofs: list[int],
-                  **spgd_options) -> Library:
+                  kinks: tuple[int, Array] | None = None, **spgd_options) -> Library:
     """sPGD (eq. 6-7) of one run's reduced coordinates alpha = Phi^T q on its POD basis.
 
     harmonics (S, H+1, n), values (S, d) SI, split (S,) in train/validation/test,
@@ -149,6 +146,8 @@ def build_library(run: str, basis: POD, harmonics: Array, values: Array, split: 
     counted in ``info``). Fitted on "train", its size chosen on "validation";
     weights 1 / ||sensor signal||^2 make the least squares relative, scenario by
     scenario, in the norm the library is judged and used in (``sensor_weights``).
+    kinks: (parameter index, normalised values) where the response has a kink
+    (``mode_scaling_kinks``): one sPGD per interval between them (``pieces``).
     """
     S, H1, n = harmonics.shape
     usable = np.asarray(usable, bool)
@@ -160,17 +159,17 @@ def build_library(run: str, basis: POD, harmonics: Array, values: Array, split: 
     alpha = basis.project(features)
     x = 2.0 * (values - lower) / (upper - lower) - 1.0
     weight = sensor_weights(features, H1, n, sensor_dofs)
-    model = fit_spgd(x[train], alpha[train], x[val], alpha[val], weight[train], weight[val], **spgd_options)
+    model = _fit(x, alpha, weight, train, val, kinks, spgd_options)
     info = {"n_train": int(train.sum()), "n_validation": int(val.sum()),
             "n_left_out": {s: int(((split == s) & ~usable).sum()) for s in ("train", "validation", "test")},
-            "n_modes": basis.n_modes, "n_terms": model.n_terms, "spgd_degree": model.degree,
-            "validation_error": model.history.validation_error}
+            "n_modes": basis.n_modes, **_model_info(model, x[val], alpha[val], weight[val], parameters, lower, upper)}
     return Library(run, list(parameters), np.asarray(lower, float), np.asarray(upper, float), basis.modes,
                    basis.singular_values, model, H1, n, list(sensor_dofs), info)
 
 
 def build_global_library(snaps: snapshots.Snapshots, fit_runs: Sequence[str], lower: Array, upper: Array,
-                         shaft: Shaft, sensor_range_m: float, energy_tolerance: float, **spgd_options) -> Library:
+                         shaft: Shaft, sensor_range_m: float, energy_tolerance: float,
+                         kinks: tuple[int, Array] | None = None, **spgd_options) -> Library:
     """One library for every run: an sPGD over the unknowns and the operating point (rpm, eccentric mass).
 
     The library-scope option of the offline stage (``offline.scope: global``): the observable snapshots of
@@ -179,6 +178,7 @@ def build_global_library(snaps: snapshots.Snapshots, fit_runs: Sequence[str], lo
     (eq. 6-7) fitted on "train" and sized on "validation", with the sensor weights of ``build_library``.
     Runs that are not fitted (validation runs) are never seen: ``at_operating_point`` predicts them. The
     operating range spans every run of the store (a range of one value is widened by 1 RPM or 1 g each way).
+    kinks: along an unknown, as in ``build_library``.
     """
     fit_rows = [r for r, run in enumerate(snaps.runs) if run in set(fit_runs)]
     if not fit_rows:
@@ -205,12 +205,52 @@ def build_global_library(snaps: snapshots.Snapshots, fit_runs: Sequence[str], lo
     H1, n = snaps.harmonics.shape[2:]
     dofs = sensor_dofs(shaft)
     weight = sensor_weights(F, H1, n, dofs)
-    model = fit_spgd(X[train], alpha[train], X[val], alpha[val], weight[train], weight[val], **spgd_options)
+    model = _fit(X, alpha, weight, train, val, kinks, spgd_options)
+    parameters = list(snaps.parameters) + OPERATING_POINT
+    lower, upper = np.concatenate([lower, op_lower]), np.concatenate([upper, op_upper])
     info = {"scope": "global", "fit_runs": [snaps.runs[r] for r in fit_rows], "n_train": int(train.sum()),
-            "n_validation": int(val.sum()), "n_modes": basis.n_modes, "n_terms": model.n_terms,
-            "spgd_degree": model.degree, "validation_error": model.history.validation_error}
-    return Library("global", list(snaps.parameters) + OPERATING_POINT, np.concatenate([lower, op_lower]),
-                   np.concatenate([upper, op_upper]), basis.modes, basis.singular_values, model, H1, n, dofs, info)
+            "n_validation": int(val.sum()), "n_modes": basis.n_modes,
+            **_model_info(model, X[val], alpha[val], weight[val], parameters, lower, upper)}
+    return Library("global", parameters, lower, upper, basis.modes, basis.singular_values, model, H1, n, dofs, info)
+
+
+#: fewest training / validation scenarios of an sPGD piece; a thinner piece is joined to its neighbour
+MIN_PIECE = (10, 2)
+
+
+def _fit(x: Array, alpha: Array, weight: Array, train: Array, val: Array, kinks: tuple[int, Array] | None,
+         spgd_options: dict) -> SparsePGD | PiecewiseSPGD:
+    """One sPGD, or one per interval between the kinks (the kinks that would leave a piece with fewer than
+    ``MIN_PIECE`` training or validation scenarios are dropped)."""
+    if kinks is not None:
+        axis, at = kinks
+        edges = np.concatenate([[-1.0], np.sort(np.asarray(at, float)), [1.0]])
+        while edges.size > 2:
+            pieces = PiecewiseSPGD(axis, edges, [])
+            n_train = np.bincount(pieces.piece_of(x[train]), minlength=edges.size - 1)
+            n_val = np.bincount(pieces.piece_of(x[val]), minlength=edges.size - 1)
+            thin = np.flatnonzero((n_train < MIN_PIECE[0]) | (n_val < MIN_PIECE[1]))
+            if thin.size == 0:
+                return fit_piecewise(x[train], alpha[train], x[val], alpha[val], weight[train], weight[val],
+                                     axis, edges, **spgd_options)
+            edges = np.delete(edges, thin[0] if thin[0] > 0 else 1)
+    return fit_spgd(x[train], alpha[train], x[val], alpha[val], weight[train], weight[val], **spgd_options)
+
+
+def _model_info(model: SparsePGD | PiecewiseSPGD, x_val: Array, alpha_val: Array, weight_val: Array,
+                parameters: list[str], lower: Array, upper: Array) -> dict:
+    """n_terms, spgd_degree (the chosen degree cap; per piece, e.g. "12/8*"), the validation error per number of
+    terms (of the whole model, one value, for pieces) and the pieces' parameter and edges [SI]."""
+    if isinstance(model, SparsePGD):
+        return {"n_terms": model.n_terms, "spgd_degree": model.degree,
+                "validation_error": model.history.validation_error}
+    residual = alpha_val - model.predict(x_val)
+    error = np.sqrt((weight_val * (residual * residual).sum(1)).sum() / (weight_val * (alpha_val * alpha_val).sum(1)).sum())
+    a = model.axis
+    return {"n_terms": model.n_terms, "spgd_degree": model.degree,
+            "validation_error": [float(error)],
+            "pieces": {"parameter": parameters[a],
+                       "edges": (lower[a] + (model.edges + 1.0) * (upper[a] - lower[a]) / 2).tolist()}}
 
 
 def sensor_weights(features: Array, n_harmonics: int, n_dof: int, sensor_dofs: list[int],
@@ -251,29 +291,85 @@ def relative_sensor_error(predicted: Array, reference: Array) -> Array:
     return sensor_signal_norm(predicted - reference) / sensor_signal_norm(reference)
 
 
+def mode_scaling_kinks(variant: Variant, parameters: list[str], lower: Array, upper: Array,
+                       values: Array) -> tuple[int, Array] | None:
+    """Where the bow force's mode scaling changes node inside the box, if one parameter alone decides it.
+
+    Phi_1 is scaled so that its entry of largest magnitude is +1 (``../shared/varm-model.md``, eq. 30); where
+    that entry moves to another node, every response to the bow has a kink (Geometric: k_b = 2755 N/m;
+    ``benchmarks/spgd_smoothness_study.py``), across which polynomial factors converge slowly. The node is
+    computed for the scenarios ``values`` (S, d, SI). If, sorted by one parameter, each node occupies one
+    interval, the switches are located by bisection on the model (the other parameters at the box centre)
+    to 1e-12 of the range: (that parameter's index, the switches in normalised coordinates). None when the
+    node never changes, or when no single parameter decides it (one sPGD then).
+    """
+    def node(v: Array) -> Array:
+        return variant.model.mode_peak_node(variant.values(dict(zip(parameters, np.atleast_2d(v).T))))
+
+    nodes = node(values)
+    if np.unique(nodes).size == 1:
+        return None
+    x = 2.0 * (np.asarray(values, float) - lower) / (upper - lower) - 1.0
+    deciding = []
+    for j in range(x.shape[1]):
+        ordered = nodes[np.argsort(x[:, j], kind="stable")]
+        changes = np.flatnonzero(ordered[1:] != ordered[:-1])
+        if changes.size == np.unique(nodes).size - 1:
+            deciding.append((j, changes))
+    if len(deciding) != 1:
+        return None
+    j, changes = deciding[0]
+    xs = np.sort(x[:, j])
+    centre = (lower + upper) / 2.0
+    at = []
+    for c in changes:
+        lo, hi = xs[c], xs[c + 1]
+        probe = np.tile(centre, (2, 1))
+        probe[:, j] = lower[j] + (np.array([lo, hi]) + 1.0) * (upper[j] - lower[j]) / 2.0
+        below, above = node(probe)
+        if below == above:
+            return None  # the switch is not where the scenarios put it at the centre: not one parameter's
+        while hi - lo > 1e-12:
+            mid = 0.5 * (lo + hi)
+            probe = centre.copy()
+            probe[j] = lower[j] + (mid + 1.0) * (upper[j] - lower[j]) / 2.0
+            lo, hi = (mid, hi) if node(probe)[0] == below else (lo, mid)
+        at.append(0.5 * (lo + hi))
+    return j, np.array(at)
+
+
 def build_run_library(variant: Variant, run: str, snapshots_path: str, pod_path: str, sensor_range_m: float,
-                      spgd_options: dict) -> Library:
-    """The library of ``run`` from the gathered snapshots and that run's POD."""
+                      spgd_options: dict, pieces: str = "mode_scaling") -> Library:
+    """The library of ``run`` from the gathered snapshots and that run's POD; pieces: "mode_scaling" (one sPGD
+    per side of the mode scaling's kinks, ``mode_scaling_kinks``) or "none"."""
     snaps = snapshots.load(snapshots_path, run)
     basis, usable = load_pod(pod_path, run)
     lower, upper = variant.bounds(snaps.parameters)
+    kinks = _kinks(variant, snaps, lower, upper, pieces)
     library = build_library(run, basis, snaps.harmonics[0], snaps.values, snaps.split, usable, snaps.parameters,
-                            lower, upper, sensor_dofs(variant.model.shaft), **spgd_options)
+                            lower, upper, sensor_dofs(variant.model.shaft), kinks, **spgd_options)
     library.info["sensor_range_m"] = sensor_range_m
     return library
 
 
 def build_variant_global_library(variant: Variant, snapshots_path: str, runs: pd.DataFrame, sensor_range_m: float,
-                                 energy_tolerance: float, spgd_options: dict) -> Library:
+                                 energy_tolerance: float, spgd_options: dict, pieces: str = "mode_scaling") -> Library:
     """The global library of a variant from its gathered snapshots, trained on the runs with role "fit"."""
     snaps = snapshots.load(snapshots_path)
     roles = runs.set_index("run")["role"] if "role" in runs else pd.Series("fit", index=runs["run"])
     fit_runs = [run for run in snaps.runs if roles.get(run, "fit") == "fit"]
     lower, upper = variant.bounds(snaps.parameters)
     library = build_global_library(snaps, fit_runs, lower, upper, variant.model.shaft, sensor_range_m,
-                                   energy_tolerance, **spgd_options)
+                                   energy_tolerance, _kinks(variant, snaps, lower, upper, pieces), **spgd_options)
     library.info["sensor_range_m"] = sensor_range_m
     return library
+
+
+def _kinks(variant: Variant, snaps: snapshots.Snapshots, lower: Array, upper: Array,
+           pieces: str) -> tuple[int, Array] | None:
+    if pieces not in ("mode_scaling", "none"):
+        raise ValueError(f"offline.pieces must be mode_scaling or none, not {pieces!r}")
+    return mode_scaling_kinks(variant, snaps.parameters, lower, upper, snaps.values) if pieces == "mode_scaling" else None
 
 
 def global_run_library(global_path: str, snapshots_path: str, run: str) -> Library:

@@ -120,6 +120,10 @@ class Model:
     def __repr__(self) -> str:
         return f"Model({[e.name for e in self.effects]})"
 
+    def mode_peak_node(self, values: Mapping[str, Array]) -> Array:
+        """The node of the largest |entry| of the first mode at rest, which scales Phi_1 (eq. 30), (S,)."""
+        return np.argmax(np.abs(self.context(values, 0.0).Phi_1), axis=1)
+
     def context(self, values: Mapping[str, Array], rpm: Array | float) -> Context:
         """Assemble the linear part stage by stage; ``values`` complete, each (S,) or scalar."""
         missing = sorted(set(self.parameters) - set(values))

@@ -22,8 +22,8 @@ OFFLINE_USED = {
     "sample_scenarios": ("seed", "n_scenarios", "n_test", "validation_fraction"),
     "sample_enrichment": ("seed", "validation_fraction", "sensor_range_mm", "enrichment"),
     "pod": ("sensor_range_mm", "pod_energy_tolerance"),
-    "spgd_global": ("sensor_range_mm", "pod_energy_tolerance", "spgd"),
-    "spgd_library": ("scope", "sensor_range_mm", "spgd"),
+    "spgd_global": ("sensor_range_mm", "pod_energy_tolerance", "spgd", "pieces"),
+    "spgd_library": ("scope", "sensor_range_mm", "spgd", "pieces"),
     "validate_library": ("sensor_range_mm",),
 }
 # the speeds the libraries are built at: refined from the records, or the sheet's nominal ones
