@@ -13,7 +13,8 @@ kernel (the GP's Matern) does not care. The study shows it three ways:
    centre of the box (full solver at 41 Chebyshev points): fast (exponential) decay in a smooth direction,
    slow decay in k_b; the same with Phi_1 scaled by its node-5 entry instead (smooth in k_b, "node-5 scaling",
    the node of the unbalance mass), where the slow decay is gone;
-3. with --fit: the workflow's sPGD (config offline.spgd) and the benchmark's GP (ARD Matern 5/2) fitted on the
+3. with --fit: one sPGD (config offline.spgd, as with offline.pieces: none; the workflow's default splits the
+   library at the kink instead) and the benchmark's GP (ARD Matern 5/2) fitted on the
    same Latin-hypercube scenarios (the workflow's splits and sizes: n, 20 % validation, 200 test), with each
    scaling: median and p95 relative sensor error on the test scenarios and their ratio. Needs scikit-learn
    (pip install -e '.[bench]') and a few minutes.
