@@ -161,11 +161,11 @@ class Setup:
         self.speeds_table = table
         self.rpm = self.nominal_rpm  # set by choose_speed
 
-    def kinks(self, values):
+    def kinks(self):
         """The sPGD pieces as the workflow's (config offline.pieces)."""
         if self.offline.get("pieces", "mode_scaling") == "none":
             return None
-        return mode_scaling_kinks(self.variant, self.parameters, self.lower, self.upper, values)
+        return mode_scaling_kinks(self.variant, self.parameters, self.lower, self.upper)
         self.speed_source = "nominal"
 
 
@@ -302,7 +302,7 @@ def benchmark_run(setup: Setup, run: str, args, peers) -> tuple[dict, dict]:
 
     with Clock() as clock:
         library = build_library(run, basis, harmonics, values, split, usable, setup.parameters, setup.lower,
-                                setup.upper, setup.sensor_dofs, setup.kinks(values), **setup.offline["spgd"])
+                                setup.upper, setup.sensor_dofs, setup.kinks(), **setup.offline["spgd"])
     fit, cpu = {"sPGD": clock.wall}, {"sPGD": clock.cpu}
     errors = {"sPGD": relative_sensor_error(library.sensor(values[test]), reference)}
 
@@ -482,7 +482,7 @@ def scope_comparison(setup: Setup, args) -> dict:
           flush=True)
     with Clock() as fit_clock:
         glib = build_global_library(snaps, fit_runs, setup.lower, setup.upper, setup.shaft, setup.sensor_range_m,
-                                    setup.offline["pod_energy_tolerance"], setup.kinks(snaps.values), **options)
+                                    setup.offline["pod_energy_tolerance"], setup.kinks(), **options)
     model, names = glib.model, glib.parameters
     op_lower, op_upper = glib.lower[-2:], glib.upper[-2:]
     rng = np.random.default_rng(0)
@@ -503,7 +503,7 @@ def scope_comparison(setup: Setup, args) -> dict:
         one = snapshots.load(setup.store, run)
         libraries[run] = build_library(run, b, one.harmonics[0], one.values, one.split, usable,
                                        setup.parameters, setup.lower, setup.upper, setup.sensor_dofs,
-                                       setup.kinks(one.values), **setup.offline["spgd"])
+                                       setup.kinks(), **setup.offline["spgd"])
         built.append(run)
     source = (f"loaded from {setup.results / 'library'}" if not built else
               f"loaded from {setup.results / 'library'}, except {built} (missing or not on the current POD: "

@@ -23,7 +23,7 @@ from .effects import Array
 from .pod import POD, feature_index, from_features, load_pod, pod, to_features
 from .sensor import observable, sensor_dofs
 from .shaft import Shaft
-from .spgd import PiecewiseSPGD, SparsePGD, fit_piecewise, fit_spgd, model_from_arrays
+from .spgd import PiecewiseSPGD, SparsePGD, fit_piecewise, fit_spgd, model_from_arrays, relative_error
 from .variants import Variant
 
 #: the extra sPGD dimensions of a global library, after the unknowns (SI/boundary units: RPM, g)
@@ -244,11 +244,9 @@ def _model_info(model: SparsePGD | PiecewiseSPGD, x_val: Array, alpha_val: Array
     if isinstance(model, SparsePGD):
         return {"n_terms": model.n_terms, "spgd_degree": model.degree,
                 "validation_error": model.history.validation_error}
-    residual = alpha_val - model.predict(x_val)
-    error = np.sqrt((weight_val * (residual * residual).sum(1)).sum() / (weight_val * (alpha_val * alpha_val).sum(1)).sum())
     a = model.axis
     return {"n_terms": model.n_terms, "spgd_degree": model.degree,
-            "validation_error": [float(error)],
+            "validation_error": [relative_error(alpha_val - model.predict(x_val), alpha_val, weight_val)],
             "pieces": {"parameter": parameters[a],
                        "edges": (lower[a] + (model.edges + 1.0) * (upper[a] - lower[a]) / 2).tolist()}}
 
@@ -292,24 +290,25 @@ def relative_sensor_error(predicted: Array, reference: Array) -> Array:
 
 
 def mode_scaling_kinks(variant: Variant, parameters: list[str], lower: Array, upper: Array,
-                       values: Array) -> tuple[int, Array] | None:
+                       n_probe: int = 512) -> tuple[int, Array] | None:
     """Where the bow force's mode scaling changes node inside the box, if one parameter alone decides it.
 
     Phi_1 is scaled so that its entry of largest magnitude is +1 (``../shared/varm-model.md``, eq. 30); where
-    that entry moves to another node, every response to the bow has a kink (Geometric: k_b = 2755 N/m;
+    that entry moves to another node, every response to the bow has a kink (Geometric: k_b = 2753 N/m;
     ``benchmarks/spgd_smoothness_study.py``), across which polynomial factors converge slowly. The node is
-    computed for the scenarios ``values`` (S, d, SI). If, sorted by one parameter, each node occupies one
-    interval, the switches are located by bisection on the model (the other parameters at the box centre)
-    to 1e-12 of the range: (that parameter's index, the switches in normalised coordinates). None when the
-    node never changes, or when no single parameter decides it (one sPGD then).
+    computed at ``n_probe`` points of the box (seeded, uniform; a property of the model and the box, not of
+    the scenarios: the same for every run). If, sorted by one parameter, each node occupies one interval,
+    the switches are located by bisection on the model (the other parameters at the box centre) to 1e-12
+    of the range: (that parameter's index, the switches in normalised coordinates). None when the node
+    never changes, or when no single parameter decides it (one sPGD then).
     """
     def node(v: Array) -> Array:
         return variant.model.mode_peak_node(variant.values(dict(zip(parameters, np.atleast_2d(v).T))))
 
-    nodes = node(values)
+    x = 2.0 * np.random.default_rng(0).random((n_probe, len(parameters))) - 1.0
+    nodes = node(lower + (x + 1.0) * (upper - lower) / 2.0)
     if np.unique(nodes).size == 1:
         return None
-    x = 2.0 * (np.asarray(values, float) - lower) / (upper - lower) - 1.0
     deciding = []
     for j in range(x.shape[1]):
         ordered = nodes[np.argsort(x[:, j], kind="stable")]
@@ -369,7 +368,7 @@ def _kinks(variant: Variant, snaps: snapshots.Snapshots, lower: Array, upper: Ar
            pieces: str) -> tuple[int, Array] | None:
     if pieces not in ("mode_scaling", "none"):
         raise ValueError(f"offline.pieces must be mode_scaling or none, not {pieces!r}")
-    return mode_scaling_kinks(variant, snaps.parameters, lower, upper, snaps.values) if pieces == "mode_scaling" else None
+    return mode_scaling_kinks(variant, snaps.parameters, lower, upper) if pieces == "mode_scaling" else None
 
 
 def global_run_library(global_path: str, snapshots_path: str, run: str) -> Library:

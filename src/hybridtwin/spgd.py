@@ -116,8 +116,8 @@ class SparsePGD:
             degrees = np.vstack([degrees, p])
             A, C = self._backfit(B, Y, w, np.vstack([A, a[None]]), np.concatenate([C, c[None]]), degrees)
             residual = Y - _evaluate(B, A, C)
-            self.history.train_error.append(_relative_error(residual, Y, w))
-            val_error = _relative_error(Y_val - _evaluate(B_val, A, C), Y_val, weights_val)
+            self.history.train_error.append(relative_error(residual, Y, w))
+            val_error = relative_error(Y_val - _evaluate(B_val, A, C), Y_val, weights_val)
             self.history.validation_error.append(val_error)
             if val_error < best[0]:
                 best = (val_error, K, A.copy(), C.copy(), degrees.copy())
@@ -157,7 +157,7 @@ class SparsePGD:
                 w_val: Array | None, degrees: Array) -> list[tuple[float, Array, Array, Array]]:
         """Rank-one fits with the given degrees (T, d): per trial (validation error, a, c (d, n+1), degrees)."""
         a, c = self._rank_one(B, degrees, residual, w)
-        return [(_relative_error(residual_val - _evaluate(B_val, a[t][None], c[t][None]), residual_val, w_val),
+        return [(relative_error(residual_val - _evaluate(B_val, a[t][None], c[t][None]), residual_val, w_val),
                  a[t], c[t], degrees[t]) for t in range(len(degrees))]
 
     def _rank_one(self, B: Array, degrees: Array, R: Array, w: Array) -> tuple[Array, Array]:
@@ -174,8 +174,7 @@ class SparsePGD:
         T = degrees.shape[0]
         mask = np.arange(nb)[None, None, :] <= degrees[:, :, None]  # (T, d, nb)
         moments_basis = np.stack([chebyshev_basis(B[j, :, min(1, nb - 1)], 2 * (nb - 1)) for j in range(d)])
-        index = np.arange(nb)
-        plus, minus = index[:, None] + index[None, :], np.abs(index[:, None] - index[None, :])
+        plus, minus = _product_index(nb)
         _, s, vt = np.linalg.svd(R * np.sqrt(w)[:, None], full_matrices=False)
         a = np.repeat((s[0] * vt[0] / np.sqrt(w.sum()))[None], T, 0)
         c = np.zeros((T, d, nb))
@@ -258,8 +257,7 @@ class SparsePGD:
         moments_basis = chebyshev_basis(Bj[:, min(1, Bj.shape[1] - 1)], top)
         gw = g * w
         moments = np.stack([(gw * e) @ g.T for e in moments_basis.T], axis=-1)  # (K, K, top + 1)
-        index = np.arange(Bj.shape[1])
-        plus, minus = index[:, None] + index[None, :], np.abs(index[:, None] - index[None, :])
+        plus, minus = _product_index(Bj.shape[1])
         k, l, bb, cc = term[:, None], term[None, :], b[:, None], b[None, :]
         return 0.5 * (moments[k, l, plus[bb, cc]] + moments[k, l, minus[bb, cc]])
 
@@ -487,9 +485,9 @@ def fit_piecewise(X: Array, Y: Array, X_val: Array, Y_val: Array, weights: Array
         whole = fit_spgd(X, Y, X_val, Y_val, w, w_val, **options)
         for p in thin:
             rows = piece_val == p
-            alone_error = _relative_error(Y_val[rows] - model.pieces[p].predict(model._local(X_val[rows], p)),
+            alone_error = relative_error(Y_val[rows] - model.pieces[p].predict(model._local(X_val[rows], p)),
                                           Y_val[rows], w_val[rows])
-            if _relative_error(Y_val[rows] - whole.predict(X_val[rows]), Y_val[rows], w_val[rows]) < alone_error:
+            if relative_error(Y_val[rows] - whole.predict(X_val[rows]), Y_val[rows], w_val[rows]) < alone_error:
                 model.pieces[p], model.local[p] = whole, False
     return model
 
@@ -516,6 +514,12 @@ def _chebyshev_stack(X: Array, degree: int, derivative: bool = False) -> Array:
         for b in range(2, degree + 1):
             D[:, :, b] = 2.0 * T[:, :, b - 1] + two_x * D[:, :, b - 1] - D[:, :, b - 2]
     return out
+
+
+def _product_index(nb: int) -> tuple[Array, Array]:
+    """b + c and |b - c| for b, c < nb: T_b T_c = (T_{b+c} + T_{|b-c|}) / 2."""
+    index = np.arange(nb)
+    return index[:, None] + index[None, :], np.abs(index[:, None] - index[None, :])
 
 
 def _term_change(prod: Array, a: Array, previous_prod: Array, previous_a: Array) -> Array:
@@ -550,7 +554,8 @@ def _evaluate(B: Array, A: Array, C: Array) -> Array:
     return _products(B, C).T @ A
 
 
-def _relative_error(residual: Array, Y: Array, w: Array | None = None) -> float:
+def relative_error(residual: Array, Y: Array, w: Array | None = None) -> float:
+    """sqrt(sum_n w_n |r_n|^2 / sum_n w_n |y_n|^2), the error the fits and their validation use."""
     w = np.ones(Y.shape[0]) if w is None else w
     return float(np.sqrt((w * (residual * residual).sum(1)).sum() / (w * (Y * Y).sum(1)).sum()))
 
