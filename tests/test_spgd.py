@@ -11,8 +11,8 @@ from hybridtwin.spgd import (PiecewiseSPGD, SparsePGD, _term_change, chebyshev_b
 RNG = np.random.default_rng(7)
 
 
-def _split(f, n=300, n_val=100, d=3):
-    X, X_val = RNG.uniform(-1, 1, (n, d)), RNG.uniform(-1, 1, (n_val, d))
+def _split(f, n=300, n_val=100, d=3, rng=RNG):
+    X, X_val = rng.uniform(-1, 1, (n, d)), rng.uniform(-1, 1, (n_val, d))
     return X, f(X), X_val, f(X_val)
 
 
@@ -301,11 +301,11 @@ def test_pieces_split_at_a_kink_follow_it_where_one_spgd_cannot():
     sPGDs approach it to ~1e-6 (observed 1.7e-6 of the largest value; greedy rank-one terms are not the
     exact two); one sPGD across the kink converges only algebraically in p1 (|x|'s Chebyshev coefficients
     fall as 1/n^2) and stays at ~4e-2 (observed) with the same options: asserted at least 1000x apart."""
-    X, Y, X_val, Y_val = _split(kinked, n=400, n_val=120)
+    X, Y, X_val, Y_val = _split(kinked, n=400, n_val=120, rng=np.random.default_rng(11))
     options = {"degree": 8, "max_terms": 10, "patience": 4, "backfit_iterations": 10}
     pieces = fit_piecewise(X, Y, X_val, Y_val, None, None, 0, [-1.0, KINK, 1.0], **options)
     single = fit_spgd(X, Y, X_val, Y_val, **options)
-    X_test = RNG.uniform(-1, 1, (300, 3))
+    X_test = np.random.default_rng(12).uniform(-1, 1, (300, 3))
     reference = kinked(X_test)
     error = np.abs(pieces.predict(X_test) - reference).max() / np.abs(reference).max()
     single_error = np.abs(single.predict(X_test) - reference).max() / np.abs(reference).max()
@@ -315,10 +315,10 @@ def test_pieces_split_at_a_kink_follow_it_where_one_spgd_cannot():
 
 
 def test_pieces_jacobian_matches_finite_differences_on_each_side():
-    X, Y, X_val, Y_val = _split(kinked, n=400, n_val=120)
+    X, Y, X_val, Y_val = _split(kinked, n=400, n_val=120, rng=np.random.default_rng(11))
     model = fit_piecewise(X, Y, X_val, Y_val, None, None, 0, [-1.0, KINK, 1.0], degree=6, max_terms=10, patience=4,
                           backfit_iterations=10)
-    X_test = RNG.uniform(-0.95, 0.95, (60, 3))
+    X_test = np.random.default_rng(12).uniform(-0.95, 0.95, (60, 3))
     X_test = X_test[np.abs(X_test[:, 0] - KINK) > 1e-3]  # central differences must not straddle the kink
     y, J = model.predict_with_jacobian(X_test)
     np.testing.assert_allclose(y, model.predict(X_test), rtol=1e-12, atol=1e-14)  # two evaluation paths
@@ -337,18 +337,18 @@ def test_a_piecewise_library_round_trips_projects_and_slices(tmp_path):
     """Save/load gives the same model; the sensor evaluation (the pieces projected on the sensor rows) equals
     the full field at the sensor DOFs; fixing trailing parameters (a global library at an operating point)
     equals evaluating with them appended."""
-    X = RNG.uniform(-1, 1, (500, 4))
+    X = np.random.default_rng(13).uniform(-1, 1, (500, 4))
     Y = np.stack([np.abs(X[:, 0] - KINK) * (1 + X[:, 2]) + X[:, 1] * X[:, 3], np.cos(X[:, 3]) * (2 + X[:, 0])], 1)
     model = fit_piecewise(X[:400], Y[:400], X[400:], Y[400:], None, None, 0, [-1.0, KINK, 1.0], degree=4,
                           max_terms=6, patience=3)
-    modes = np.linalg.qr(RNG.standard_normal((2 * 2 * 44, 2)))[0]
+    modes = np.linalg.qr(np.random.default_rng(14).standard_normal((2 * 2 * 44, 2)))[0]
     lower, upper = np.array([0.0, 1.0, 350.0, 0.0]), np.array([1.0, 3.0, 1000.0, 25.9])
     glib = Library("global", ["a", "b", "rpm", "eccentric_mass_g"], lower, upper, modes, np.ones(2), model, 2, 44,
                    [2, 24])
     glib.save(tmp_path / "g.zarr")
     again = Library.load(tmp_path / "g.zarr")
     assert isinstance(again.model, PiecewiseSPGD) and again.model.axis == 0 and again.model.local == model.local
-    values = RNG.uniform(lower, upper, (80, 4))
+    values = np.random.default_rng(15).uniform(lower, upper, (80, 4))
     y, J = glib.sensor(values, jacobian=True)
     y2, J2 = again.sensor(values, jacobian=True)
     np.testing.assert_array_equal(y, y2)
@@ -381,7 +381,7 @@ def test_the_geometric_mode_scaling_switches_node_along_k_b_alone():
         assert names[axis] == expected and at.size == 1
         k_b = lower[axis] + (at[0] + 1) * (upper[axis] - lower[axis]) / 2
         assert 2700 < k_b < 2800  # the study's figure (benchmarks/spgd_smoothness_study.py): 2755 N/m
-        probe = lower + (upper - lower) * RNG.random((50, len(names)))
+        probe = lower + (upper - lower) * np.random.default_rng(16).random((50, len(names)))
         nodes = []
         for offset in (-1e-6, 1e-6):  # 1e-6 N/m either side: the switch is located to 1e-12 of the range
             probe[:, axis] = k_b + offset
@@ -394,7 +394,7 @@ def test_a_kink_that_leaves_a_piece_too_few_scenarios_is_not_split():
     would hold ~2 of 400 training points, so one sPGD is fitted; at 0.3 two pieces."""
     from hybridtwin.library import MIN_PIECE, _fit
 
-    X = RNG.uniform(-1, 1, (520, 3))
+    X = np.random.default_rng(17).uniform(-1, 1, (520, 3))
     Y = kinked(X)
     train, val = np.arange(520) < 400, np.arange(520) >= 400
     edge = _fit(X, Y, np.ones(520), train, val, (0, np.array([0.99])), {"degree": 3, "max_terms": 3})
@@ -413,7 +413,7 @@ def test_a_thin_piece_is_served_by_the_whole_box_spgd_where_that_validates_bette
     def smooth(X):
         return np.outer(np.cos(2 * X[:, 1]) * (1 + X[:, 0]) + X[:, 2], [1.0, 0.3])
 
-    X, Y, X_val, Y_val = _split(smooth, n=400, n_val=150)
+    X, Y, X_val, Y_val = _split(smooth, n=400, n_val=150, rng=np.random.default_rng(21))
     options = {"degree": 6, "max_terms": 6, "patience": 3}
     edges = [-1.0, 0.75, 1.0]  # the upper piece holds ~1/8 of the points
     own = fit_piecewise(X, Y, X_val, Y_val, None, None, 0, edges, alone=0, **options)  # never compared
@@ -426,8 +426,9 @@ def test_a_thin_piece_is_served_by_the_whole_box_spgd_where_that_validates_bette
         e_own = relative_error(Y_val[rows] - own.predict(X_val[rows]), Y_val[rows])
         e_whole = relative_error(Y_val[rows] - whole.predict(X_val[rows]), Y_val[rows])
         assert chosen.local[p] == (e_own <= e_whole)
-    assert not all(chosen.local)  # the thin piece at least: 50 points cannot beat 400 on a smooth function
-    X_test = RNG.uniform(-1, 1, (200, 3))
+    # the thin piece at least: 50 points cannot beat 400 on a smooth function (held for seeds 21-25)
+    assert not all(chosen.local)
+    X_test = np.random.default_rng(12).uniform(-1, 1, (200, 3))
     y, J = chosen.predict_with_jacobian(X_test)
     for p in range(2):
         rows = chosen.piece_of(X_test) == p
