@@ -1,5 +1,7 @@
 """sPGD regression, POD truncation and the library container, against known answers."""
 
+import sys
+
 import numpy as np
 import pytest
 
@@ -229,6 +231,37 @@ def test_evaluation_in_blocks_with_projected_amplitudes_matches_the_plain_sum():
         Jj = (np.prod(np.delete(F, j, axis=0), axis=0) * dF[j]) @ model.amplitudes @ P
         np.testing.assert_allclose(J[j], Jj, rtol=1e-12, atol=1e-12 * np.abs(Jj).max())
     np.testing.assert_allclose(model.predict(X_test), reference, rtol=1e-12, atol=1e-12 * np.abs(reference).max())
+
+
+def test_evaluation_scratch_space_is_neither_shared_between_threads_nor_returned():
+    """evaluate() keeps its intermediates in a per-thread workspace reused from call to call: models of other
+    sizes evaluated in between, or at the same time in other threads, leave each result as evaluated alone,
+    and a returned array is never overwritten by a later call."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    X, Y, X_val, Y_val = _split(rank_three)
+    models = [SparsePGD(degree=n, max_terms=k).fit(X, Y, X_val, Y_val) for n, k in ((5, 6), (3, 2))]
+    points = [RNG.uniform(-1, 1, (n, 3)) for n in (900, 50)]
+    alone = [m.evaluate(x, jacobian=True) for m, x in zip(models, points)]
+    kept = [(y.copy(), J.copy()) for y, J in alone]
+
+    def evaluate_many(i: int) -> list:
+        return [models[i].evaluate(points[i], jacobian=True) for _ in range(30)]
+
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(1e-6)  # threads switch every few numpy calls: shared buffers would mix
+    try:
+        with ThreadPoolExecutor(2) as pool:
+            concurrent = list(pool.map(evaluate_many, [0, 1, 0, 1]))
+    finally:
+        sys.setswitchinterval(interval)
+    for i, results in zip([0, 1, 0, 1], concurrent):
+        for y, J in results:
+            np.testing.assert_array_equal(y, kept[i][0])
+            np.testing.assert_array_equal(J, kept[i][1])
+    for (y, J), (y0, J0) in zip(alone, kept):
+        np.testing.assert_array_equal(y, y0)
+        np.testing.assert_array_equal(J, J0)
 
 
 def test_library_sensor_equals_the_field_at_the_sensor_dofs():

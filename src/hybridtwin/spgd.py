@@ -45,13 +45,36 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import partial
+import threading
 
 import numpy as np
 from numpy.polynomial import chebyshev
 
 from .effects import Array
 
-_CHUNK = 256  # parameter sets per block in evaluate: the intermediates stay in cache (measured 3x faster than one block of 1000)
+_CHUNK = 512  # parameter sets per block in evaluate (K = 60 terms, 1000 sets: 256 -> 512 per block 1.26 -> 1.10 us per set; 1000: 1.05)
+
+
+class _Workspace(threading.local):
+    """Scratch arrays of ``SparsePGD.evaluate``, kept per thread from call to call.
+
+    Fresh arrays of a few hundred kB are mapped anew and page-faulted on every call once the allocator has
+    returned the freed ones to the system; on this project's 2-core VM that doubled the evaluation time
+    (benchmarks/library_benchmark.py). The arrays grow to the largest request and are then reused.
+    """
+
+    def __init__(self) -> None:
+        self.buffers: dict[str, Array] = {}
+
+    def array(self, name: str, shape: tuple[int, ...]) -> Array:
+        """An uninitialised array of ``shape`` (a view of the buffer ``name``)."""
+        size = int(np.prod(shape))
+        if self.buffers.get(name, np.empty(0)).size < size:
+            self.buffers[name] = np.empty(size)
+        return self.buffers[name][:size].reshape(shape)
+
+
+_WORKSPACE = _Workspace()
 
 
 def chebyshev_basis(x: Array, degree: int) -> Array:
@@ -293,30 +316,33 @@ class SparsePGD:
 
     @staticmethod
     def _evaluate_block(X: Array, A: Array, C: Array, out: Array) -> None:
-        """y into out[0] (N, m) and, if out has d + 1 rows, dy/dp_j into out[1 + j]."""
+        """y into out[0] (N, m) and, if out has d + 1 rows, dy/dp_j into out[1 + j]; every intermediate
+        lives in this thread's ``_WORKSPACE``."""
         N, d = X.shape
         K = C.shape[-1]
         jacobian = out.shape[0] > 1
-        F = np.matmul(_chebyshev_stack(X, C.shape[1] - 1, jacobian), C)  # (d, N or 2N, K)
+        basis = _chebyshev_stack(X, C.shape[1] - 1, jacobian, _WORKSPACE.array("basis", (d, N * (1 + jacobian), C.shape[1])))
+        F = np.matmul(basis, C, out=_WORKSPACE.array("factors", (d, N * (1 + jacobian), K)))
+        product = _WORKSPACE.array("product", (N, K))
         if not jacobian:
-            product = F[0]
+            np.copyto(product, F[0])
             for j in range(1, d):
-                product = product * F[j]
+                product *= F[j]
             np.matmul(product, A, out=out[0])
             return
         F, dF = F[:, :N], F[:, N:]
-        stacked = np.empty((d + 1, N, K))
+        stacked = _WORKSPACE.array("stacked", (d + 1, N, K))
         stacked[d] = dF[d - 1]
-        suffix = F[d - 1]
+        np.copyto(product, F[d - 1])  # the suffix product F_{j+1} ... F_{d-1}
         for j in range(d - 2, -1, -1):
-            np.multiply(suffix, dF[j], out=stacked[1 + j])
-            suffix = suffix * F[j]
-        stacked[0] = suffix
-        prefix = F[0]
+            np.multiply(product, dF[j], out=stacked[1 + j])
+            product *= F[j]
+        stacked[0] = product
+        np.copyto(product, F[0])  # the prefix product F_0 ... F_{j-1}
         for j in range(1, d):
-            stacked[1 + j] *= prefix
+            stacked[1 + j] *= product
             if j < d - 1:
-                prefix = prefix * F[j]
+                product *= F[j]
         np.matmul(stacked, A, out=out)
 
     def predict(self, X: Array) -> Array:
@@ -492,13 +518,13 @@ def fit_piecewise(X: Array, Y: Array, X_val: Array, Y_val: Array, weights: Array
     return model
 
 
-def _chebyshev_stack(X: Array, degree: int, derivative: bool = False) -> Array:
+def _chebyshev_stack(X: Array, degree: int, derivative: bool = False, out: Array | None = None) -> Array:
     """T_0..T_degree of every column of X (N, d) -> (d, N, degree+1); with ``derivative`` the
     derivatives dT_b/dx stacked below -> (d, 2N, degree+1). Three-term recurrences
     T_b = 2x T_{b-1} - T_{b-2} and T_b' = 2 T_{b-1} + 2x T_{b-1}' - T_{b-2}'."""
     N, d = X.shape
     x = X.T  # (d, N)
-    out = np.empty((d, 2 * N if derivative else N, degree + 1))
+    out = np.empty((d, 2 * N if derivative else N, degree + 1)) if out is None else out
     T = out[:, :N]
     T[:, :, 0] = 1.0
     if degree >= 1:
