@@ -101,7 +101,8 @@ def parse_args(argv=None) -> argparse.Namespace:
                         help="test scenarios per run solved by the full solver for its timing [%(default)s]")
     parser.add_argument("--gp-restarts", type=int, default=0, help="GP optimizer restarts [%(default)s]")
     # 50, not 7: a batch takes ~2 ms, and on a shared machine the best of 7 still carried the load (lowest
-    # speed-up over the solver 71-101x in repeated runs of the same libraries; 101x with 200 repeats)
+    # speed-up over the solver 71-101x in repeated runs of the same libraries; 101x with 200 repeats; 113x
+    # since the evaluation reuses its intermediates)
     parser.add_argument("--repeats", type=int, default=50, help="timing repeats per batch (the best counts) [%(default)s]")
     parser.add_argument("--threads", type=int, default=1,
                         help="BLAS threads (1, as the workflow's rules pin it) [%(default)s]")
