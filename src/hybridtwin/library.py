@@ -23,7 +23,7 @@ from .effects import Array
 from .pod import POD, feature_index, from_features, load_pod, pod, to_features
 from .sensor import observable, sensor_dofs
 from .shaft import Shaft
-from .spgd import PiecewiseSPGD, SparsePGD, fit_piecewise, fit_spgd, model_from_arrays, relative_error
+from .spgd import PiecewiseSPGD, SparsePGD, fit_piecewise, fit_spgd, model_from_arrays, piece_index, relative_error
 from .variants import Variant
 
 #: the extra sPGD dimensions of a global library, after the unknowns (SI/boundary units: RPM, g)
@@ -226,9 +226,8 @@ def _fit(x: Array, alpha: Array, weight: Array, train: Array, val: Array, kinks:
         axis, at = kinks
         edges = np.concatenate([[-1.0], np.sort(np.asarray(at, float)), [1.0]])
         while edges.size > 2:
-            pieces = PiecewiseSPGD(axis, edges, [])
-            n_train = np.bincount(pieces.piece_of(x[train]), minlength=edges.size - 1)
-            n_val = np.bincount(pieces.piece_of(x[val]), minlength=edges.size - 1)
+            n_train = np.bincount(piece_index(x[train, axis], edges), minlength=edges.size - 1)
+            n_val = np.bincount(piece_index(x[val, axis], edges), minlength=edges.size - 1)
             thin = np.flatnonzero((n_train < MIN_PIECE[0]) | (n_val < MIN_PIECE[1]))
             if thin.size == 0:
                 return fit_piecewise(x[train], alpha[train], x[val], alpha[val], weight[train], weight[val],

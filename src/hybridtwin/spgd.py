@@ -419,8 +419,7 @@ class PiecewiseSPGD:
 
     def piece_of(self, X: Array) -> Array:
         """The piece of each row of X (N, d)."""
-        inner = np.searchsorted(self.edges[1:-1], X[:, self.axis], side="right")
-        return np.asarray(inner, int)
+        return piece_index(X[:, self.axis], self.edges)
 
     def evaluate(self, X: Array, jacobian: bool = False) -> tuple[Array, Array | None]:
         """As ``SparsePGD.evaluate`` (y (N, m), dy/dp (d, N, m)), each row by its piece."""
@@ -462,6 +461,11 @@ class PiecewiseSPGD:
         for p, piece in enumerate(self.pieces):
             out |= {f"{name}_{p}": data for name, data in piece.to_arrays().items()}
         return out
+
+
+def piece_index(x: Array, edges: Array) -> Array:
+    """The interval edges[p] <= x < edges[p + 1] of each value of x (N,) (the last one closed): (N,) int."""
+    return np.asarray(np.searchsorted(np.asarray(edges)[1:-1], x, side="right"), int)
 
 
 def model_from_arrays(arrays: dict[str, Array]) -> SparsePGD | PiecewiseSPGD:
