@@ -127,14 +127,15 @@ class Setup:
                 sys.exit(f"library_benchmark: {path} does not exist; build it first "
                          f"(snakemake --cores 2 {self.results}/library_validation.tsv)")
         self.config = yaml.safe_load(Path(args.config).read_text())
-        self.offline = cfg.offline(self.config)
-        for item in args.spgd:  # values parsed as YAML scalars (numbers, words)
-            key, _, value = item.partition("=")
-            self.offline["spgd"][key] = yaml.safe_load(value)
         import zarr
 
         group = zarr.open_group(str(self.store), mode="r")
         self.variant_name = group.attrs["variant"]
+        self.offline = cfg.offline(self.config)
+        self.offline["spgd"] = cfg.spgd_for(self.config, self.variant_name)
+        for item in args.spgd:  # values parsed as YAML scalars (numbers, words)
+            key, _, value = item.partition("=")
+            self.offline["spgd"][key] = yaml.safe_load(value)
         self.runs = list(group.attrs["runs"])
         self.parameters = list(group.attrs["parameters"])
         if self.variant_name in self.config.get("variants", {}):

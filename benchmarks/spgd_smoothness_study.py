@@ -146,7 +146,7 @@ def main(argv=None) -> int:
     variant = builtin_variant(args.variant)
     if "k_b" not in variant.unknown:
         sys.exit(f"spgd_smoothness_study: variant {args.variant!r} has no unknown k_b")
-    spgd = cfg.offline(yaml.safe_load(Path(args.config).read_text()))["spgd"]
+    spgd = cfg.spgd_for(yaml.safe_load(Path(args.config).read_text()), args.variant)
     pd.set_option("display.width", 200)
     with threadpool_limits(1):
         k_b = np.linspace(*variant.unknown["k_b"], 301)

@@ -159,6 +159,22 @@ def test_changing_one_variants_range_reruns_only_that_variant(workdir):
     assert not any("results/geometric/" in line for line in outputs)
 
 
+def test_one_variants_spgd_options_rerun_only_its_libraries(workdir):
+    """offline.spgd_variants replaces sPGD options for one variant: only its spgd_library jobs (and what reads
+    them) are planned, no sampling or solving, nothing of the other variant; a misspelt name is refused."""
+    (workdir / "spgd_final.yaml").write_text("offline: {spgd_variants: {final: {degree: 2}}}\n")
+    plan = _snakemake(workdir, "--dry-run", config="spgd_final.yaml")
+    assert plan.returncode == 0, plan.stdout[-2000:] + plan.stderr[-2000:]
+    outputs = [line for line in (plan.stdout + plan.stderr).splitlines() if line.strip().startswith("output:")]
+    assert sum("results/final/library/" in line for line in outputs) == len(RUNS)
+    assert not any("results/geometric/" in line or "scenarios.tsv" in line or "chunks" in line
+                   for line in outputs)
+    (workdir / "spgd_typo.yaml").write_text("offline: {spgd_variants: {fianl: {degree: 2}}}\n")
+    typo = _snakemake(workdir, "--dry-run", config="spgd_typo.yaml")
+    assert typo.returncode != 0
+    assert "offline.spgd_variants" in typo.stdout + typo.stderr and "fianl" in typo.stdout + typo.stderr
+
+
 NESTED = """
 variants:
   expansion:

@@ -34,21 +34,35 @@ def offline(config: Mapping) -> dict:
                 "chunks": 4, "scope": "run", "pieces": "mode_scaling",
                 "sensor_range_mm": 14.0, "pod_energy_tolerance": 1e-10,
                 "spgd": {"degree": [8, 12], "max_terms": 60, "ridge": 1e-8, "patience": 8, "backfit_iterations": 3},
-                "enrichment": {"observable_below": 0.3, "n_scenarios": 6000, "chunks": 2}}
+                "enrichment": {"observable_below": 0.3, "n_scenarios": 6000, "chunks": 2}, "spgd_variants": {}}
     options = {**defaults, **(config.get("offline") or {})}
     for nested in ("spgd", "enrichment"):
         options[nested] = {**defaults[nested], **(options.get(nested) or {})}
+    options["spgd_variants"] = dict(options.get("spgd_variants") or {})
+    unknown = sorted(set(options["spgd_variants"]) - set(config.get("variants") or {}))
+    if unknown:
+        raise ValueError(f"config offline.spgd_variants: no variant named {unknown} "
+                         f"(declared: {sorted(config.get('variants') or {})})")
     return options
 
 
 def offline_for(config: Mapping, name: str, keys: Sequence[str] | None = None) -> dict:
-    """The ``offline:`` options as variant ``name``'s rules see them: its own n_s only, so that declaring
-    another variant (and its n_s) never changes this one's rule parameters (nothing of it reruns); with
+    """The ``offline:`` options as variant ``name``'s rules see them: its own n_s and sPGD options
+    (``spgd`` updated by its ``spgd_variants`` entry) only, so that declaring another variant (and its
+    n_s or sPGD options) never changes this one's rule parameters (nothing of it reruns); with
     ``keys``, only those options, so that a rule reruns only when an option it uses changes (the sPGD
     options or the library scope never re-sample or re-solve the scenarios)."""
     options = offline(config)
     options["n_scenarios"] = n_scenarios(config, variant(config, name))
+    options["spgd"] = spgd_for(config, name)
+    del options["spgd_variants"]
     return options if keys is None else {k: options[k] for k in keys}
+
+
+def spgd_for(config: Mapping, name: str) -> dict:
+    """The sPGD options of variant ``name``: ``offline.spgd`` updated by its ``offline.spgd_variants`` entry."""
+    options = offline(config)
+    return {**options["spgd"], **options["spgd_variants"].get(name, {})}
 
 
 def n_scenarios(config: Mapping, variant_: Variant) -> int:
