@@ -10,6 +10,7 @@ SI units, batched, in microseconds per parameter set.
 from __future__ import annotations
 
 import json
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -130,7 +131,10 @@ class Library:
     def load(cls, path: str | Path) -> "Library":
         group = zarr.open_group(str(path), mode="r")
         attrs = dict(group.attrs)
-        model = model_from_arrays({name: group[name][:] for name in group.array_keys()})
+        with warnings.catch_warnings():  # Snakemake marks a directory output with this file: not a zarr member
+            warnings.filterwarnings("ignore", message=r"Object at \.snakemake_timestamp is not recognized")
+            names = list(group.array_keys())
+        model = model_from_arrays({name: group[name][:] for name in names})
         return cls(attrs["run"], list(attrs["parameters"]), group["lower"][:], group["upper"][:], group["modes"][:],
                    group["singular_values"][:], model, attrs["n_harmonics"], attrs["n_dof"],
                    list(attrs["sensor_dofs"]), attrs.get("info", {}))
