@@ -1,11 +1,15 @@
 """Adaptive enrichment of the scenario design (hybridtwin.scenarios.sample_enrichment, solve_enrichment)."""
 
+import warnings
+
 import numpy as np
 import pandas as pd
 import pytest
+import zarr
 from scipy.stats import qmc
 
 from hybridtwin.scenarios import NOT_SOLVED, sample_enrichment, solve_enrichment, solve_runs
+from hybridtwin import snapshots
 from hybridtwin.snapshots import read_chunks, write_chunk
 from hybridtwin.variants import builtin_variant
 
@@ -88,3 +92,39 @@ def test_an_empty_enrichment_chunk_gathers_with_the_first_design(first_design, t
     joined = read_chunks([tmp_path / "base.zarr", tmp_path / "none.zarr"], pd.concat([base, empty]))
     assert joined.scenario.tolist() == [0, 1] and joined.harmonics.shape == (3, 2, 4, 44)
     assert (joined.design == "hypercube").all() and joined.solved.all()
+
+
+def test_text_is_stored_as_zarr_v3_strings_and_older_fixed_length_stores_still_read(first_design, tmp_path,
+                                                                                      monkeypatch):
+    """Messages, branches, splits and designs go to zarr's variable-length UTF-8 type, which has a v3
+    specification (no warning from zarr); chunk stores written with numpy's fixed-length text before still
+    gather with them, and the gathered store reads back the same text."""
+    variant, values, _, _ = first_design
+    names = variant.unknown_names
+    tables = [pd.DataFrame(values[rows], columns=names) for rows in ([0, 1], [2, 3])]
+    for scenarios, table in zip(([0, 1], [2, 3]), tables):
+        table.insert(0, "split", ["train", "validation"])
+        table.insert(0, "scenario", scenarios)
+    solved = [solve_runs(variant, RUNS, {k: table[k].to_numpy() for k in names}, 3) for table in tables]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # zarr warns about a text type without a v3 specification
+        write_chunk(tmp_path / "new.zarr", "geometric", tables[0], names, solved[0])
+
+    def fixed_length(group, name, data, chunks=None):  # how the stores were written before
+        group.create_array(name, data=np.asarray(data), chunks=chunks or "auto")
+
+    with monkeypatch.context() as patch, warnings.catch_warnings():
+        patch.setattr(snapshots, "_write", fixed_length)
+        warnings.simplefilter("ignore")
+        write_chunk(tmp_path / "old.zarr", "geometric", tables[1], names, solved[1])
+    assert zarr.open_group(str(tmp_path / "old.zarr"), mode="r")["message"].dtype.kind == "U"
+    joined = read_chunks([tmp_path / "new.zarr", tmp_path / "old.zarr"], pd.concat(tables))
+    message = np.concatenate([s.message for s in solved], axis=1).astype(str)
+    assert joined.message.tolist() == message.tolist()
+    assert joined.split.tolist() == ["train", "validation"] * 2 and (joined.design == "hypercube").all()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        snapshots.save(joined, tmp_path / "gathered.zarr")
+    again = snapshots.load(tmp_path / "gathered.zarr", "b700")
+    assert again.message.tolist() == message[2:].tolist()
+    assert again.branch.tolist() == np.concatenate([s.branch for s in solved], axis=1)[2:].astype(str).tolist()

@@ -162,7 +162,18 @@ def write_chunk(path: str | Path, variant: str, scenarios: pd.DataFrame, paramet
 
 
 def _write(group: zarr.Group, name: str, data: Array, chunks: tuple[int, ...] | None = None) -> None:
-    group.create_array(name, data=np.asarray(data), chunks=chunks or "auto")
+    """One array; text as variable-length UTF-8 strings, zarr v3's specified string type (numpy's fixed-length
+    unicode has no v3 specification: zarr warns that other readers may not read it)."""
+    data = np.asarray(data)
+    if data.dtype.kind == "U":
+        data = data.astype(np.dtypes.StringDType())
+    group.create_array(name, data=data, chunks=chunks or "auto")
+
+
+def _text(array: Array) -> Array:
+    """A text array as numpy str, whether stored variable-length (``_write``) or fixed-length (older stores)."""
+    array = np.asarray(array)
+    return array if array.dtype.kind == "U" else array.astype(object).astype(str)
 
 
 def gather(chunk_paths: Sequence[str | Path], expected: pd.DataFrame, out: str | Path) -> Snapshots:
@@ -202,11 +213,12 @@ def read_chunks(chunk_paths: Sequence[str | Path], expected: pd.DataFrame) -> Sn
             raise ValueError(f"chunk store {path} was solved for another run plan ({other} vs {plan})")
     order = np.argsort(scenario)
     stack = {name: np.concatenate([g[name][:] for g in parts], axis=axis)
-             for name, axis in (("harmonics", 1), ("success", 1), ("message", 1), ("branch", 1),
-                                ("split", 0), ("parameters", 0))}
+             for name, axis in (("harmonics", 1), ("success", 1), ("parameters", 0))}
+    stack |= {name: np.concatenate([_text(g[name][:]) for g in parts], axis=axis)
+              for name, axis in (("message", 1), ("branch", 1), ("split", 0))}
     # chunk stores from before the enrichment have no design array: all hypercube
-    stack["design"] = np.concatenate([g["design"][:] if "design" in g else np.full(g["scenario"].shape, "hypercube")
-                                      for g in parts]).astype(object)
+    stack["design"] = np.concatenate([_text(g["design"][:]) if "design" in g
+                                      else np.full(g["scenario"].shape, "hypercube") for g in parts]).astype(object)
     return Snapshots(
         variant=parts[0].attrs["variant"], runs=list(plan["runs"]), rpm=list(plan["rpm"]),
         eccentric_mass_g=list(plan["eccentric_mass_g"]), parameters=list(parts[0].attrs["parameters"]),
@@ -259,7 +271,8 @@ def load(path: str | Path, run: str | None = None) -> Snapshots:
     return Snapshots(
         variant=group.attrs["variant"], runs=runs[sel], rpm=list(group.attrs["rpm"])[sel],
         eccentric_mass_g=list(group.attrs["eccentric_mass_g"])[sel], parameters=list(group.attrs["parameters"]),
-        scenario=group["scenario"][:], split=group["split"][:].astype(object), values=group["parameters"][:],
-        harmonics=group["harmonics"][sel], success=group["success"][sel], message=group["message"][sel],
-        branch=group["branch"][sel], design=group["design"][:].astype(object) if "design" in group else None,
+        scenario=group["scenario"][:], split=_text(group["split"][:]).astype(object), values=group["parameters"][:],
+        harmonics=group["harmonics"][sel], success=group["success"][sel], message=_text(group["message"][sel]),
+        branch=_text(group["branch"][sel]),
+        design=_text(group["design"][:]).astype(object) if "design" in group else None,
     )
