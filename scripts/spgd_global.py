@@ -1,7 +1,7 @@
 """Rule spgd_global: one sPGD library over the unknowns and the operating point, for every run (thin wrapper)."""
 
 from hybridtwin import config as cfg
-from hybridtwin.library import build_variant_global_library
+from hybridtwin.library import build_variant_global_library, pieces_note
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "spgd_global")
@@ -15,4 +15,4 @@ info = library.info
 log.info("global library over %s from the fit runs %s: %d training / %d validation samples, %d POD modes, "
          "%d sPGD terms, validation error %.3g%s", library.parameters, info["fit_runs"], info["n_train"],
          info["n_validation"], library.n_modes, library.model.n_terms, min(info["validation_error"]),
-         cfg.pieces_note(info))
+         pieces_note(info))

@@ -2,7 +2,7 @@
 library (offline.scope) (thin wrapper)."""
 
 from hybridtwin import config as cfg
-from hybridtwin.library import build_run_library, global_run_library
+from hybridtwin.library import build_run_library, global_run_library, pieces_note
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "spgd_library")
@@ -19,5 +19,5 @@ else:
     info = library.info
     log.info("run %s: %d training / %d validation scenarios (left out: %s), %d POD modes, %d sPGD terms, "
              "validation error %.3g%s", run, info["n_train"], info["n_validation"], info["n_left_out"],
-             library.n_modes, library.model.n_terms, min(info["validation_error"]), cfg.pieces_note(info))
+             library.n_modes, library.model.n_terms, min(info["validation_error"]), pieces_note(info))
 library.save(smk.output[0])

@@ -218,7 +218,7 @@ def test_library_save_load_round_trip(tmp_path):
 
 
 def test_evaluation_in_blocks_with_projected_amplitudes_matches_the_plain_sum():
-    """evaluate(): blocks of _CHUNK rows and amplitudes projected beforehand give sum_k a_k prod_j F_j^k."""
+    """evaluate(): blocks of _CHUNK rows, and the model projected on a few outputs, give sum_k a_k prod_j F_j^k."""
     from hybridtwin import spgd
 
     X, Y, X_val, Y_val = _split(rank_three)
@@ -229,7 +229,7 @@ def test_evaluation_in_blocks_with_projected_amplitudes_matches_the_plain_sum():
     dF = np.stack([chebyshev_derivative_basis(X_test[:, j], n) @ model.coefficients[:, j].T for j in range(3)])
     reference = np.prod(F, axis=0) @ model.amplitudes
     P = RNG.standard_normal((model.amplitudes.shape[1], 2))  # a projection of the outputs
-    y, J = model.evaluate(X_test, model.amplitudes @ P, jacobian=True)
+    y, J = model.projected(P).evaluate(X_test, jacobian=True)
     np.testing.assert_allclose(y, reference @ P, rtol=1e-12, atol=1e-12 * np.abs(reference @ P).max())
     for j in range(3):
         Jj = (np.prod(np.delete(F, j, axis=0), axis=0) * dF[j]) @ model.amplitudes @ P

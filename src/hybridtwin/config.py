@@ -54,14 +54,18 @@ def offline_for(config: Mapping, name: str, keys: Sequence[str] | None = None) -
     options or the library scope never re-sample or re-solve the scenarios)."""
     options = offline(config)
     options["n_scenarios"] = n_scenarios(config, variant(config, name))
-    options["spgd"] = spgd_for(config, name)
+    options["spgd"] = _variant_spgd(options, name)
     del options["spgd_variants"]
     return options if keys is None else {k: options[k] for k in keys}
 
 
 def spgd_for(config: Mapping, name: str) -> dict:
-    """The sPGD options of variant ``name``: ``offline.spgd`` updated by its ``offline.spgd_variants`` entry."""
-    options = offline(config)
+    """The sPGD options of variant ``name`` (declared or not): ``offline.spgd`` updated by its
+    ``offline.spgd_variants`` entry."""
+    return _variant_spgd(offline(config), name)
+
+
+def _variant_spgd(options: Mapping, name: str) -> dict:
     return {**options["spgd"], **options["spgd_variants"].get(name, {})}
 
 
@@ -88,14 +92,6 @@ def run_plan(config: Mapping, measured: str | Path | None = None) -> pd.DataFram
         raise ValueError(f"{config['runs']}: run(s) {unknown_mass} have no eccentric_mass_g; the offline "
                          "libraries are built per (rpm, eccentric mass) and need it")
     return sheet[["run", "rpm", "eccentric_mass_g"] + (["role"] if "role" in sheet else [])]
-
-
-def pieces_note(info: Mapping) -> str:
-    """'' or ', pieces along <parameter> at <switches>' for a library's info."""
-    pieces = info.get("pieces")
-    if not pieces:
-        return ""
-    return f", one sPGD per side of {pieces['parameter']} = " + ", ".join(f"{e:.6g}" for e in pieces["edges"][1:-1])
 
 
 def rule_logger(log_path: str, name: str) -> logging.Logger:

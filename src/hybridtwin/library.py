@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import json
 import warnings
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -252,6 +252,14 @@ def _model_info(model: SparsePGD | PiecewiseSPGD, x_val: Array, alpha_val: Array
             "validation_error": [relative_error(alpha_val - model.predict(x_val), alpha_val, weight_val)],
             "pieces": {"parameter": parameters[a],
                        "edges": (lower[a] + (model.edges + 1.0) * (upper[a] - lower[a]) / 2).tolist()}}
+
+
+def pieces_note(info: Mapping) -> str:
+    """'' or ', one sPGD per side of <parameter> = <switches>' for a library's ``info`` (rule logs)."""
+    pieces = info.get("pieces")
+    if not pieces:
+        return ""
+    return f", one sPGD per side of {pieces['parameter']} = " + ", ".join(f"{e:.6g}" for e in pieces["edges"][1:-1])
 
 
 def sensor_weights(features: Array, n_harmonics: int, n_dof: int, sensor_dofs: list[int],

@@ -297,22 +297,21 @@ class SparsePGD:
         """Ridge term scaled to the normal matrix: ridge * mean(diag G) * I."""
         return self.ridge * (np.trace(G) / G.shape[0] + 1e-300) * np.eye(G.shape[0])
 
-    def evaluate(self, X: Array, amplitudes: Array | None = None, jacobian: bool = False) -> tuple[Array, Array | None]:
+    def evaluate(self, X: Array, jacobian: bool = False) -> tuple[Array, Array | None]:
         """y = sum_k a_k prod_j F_j^k (N, m) at X (N, d) and, with ``jacobian``, dy/dp stacked as (d, N, m).
 
-        ``amplitudes`` (K, m') replaces a_k, e.g. a_k projected on a few outputs beforehand (the sensor
-        rows of the POD basis): the output is linear in a_k, so projecting first is exact and cheaper.
+        For a few outputs of many (the sensor rows of a POD basis), evaluate ``projected`` instead.
         All factors come from one Chebyshev recurrence over every parameter at once and one batched
         product per parameter; the Jacobian uses prefix and suffix products of the factors
         (no division) and one matrix product for y and all d derivatives together.
         """
         X = _check_inputs(X)
-        A = self.amplitudes if amplitudes is None else np.asarray(amplitudes)
+        A = self.amplitudes
         N, d = X.shape
         out = np.zeros((d + 1 if jacobian else 1, N, A.shape[1]))  # y, then dy/dp_1..d
         if self.coefficients.shape[0] > 0:
             C = np.ascontiguousarray(self.coefficients.transpose(1, 2, 0))  # (d, n+1, K)
-            for start in range(0, N, _CHUNK):  # blocks small enough for the intermediates to stay in cache
+            for start in range(0, N, _CHUNK):  # blocks of _CHUNK sets: the workspace stays bounded
                 rows = slice(start, min(start + _CHUNK, N))
                 self._evaluate_block(X[rows], A, C, out[:, rows])
         return out[0], (out[1:] if jacobian else None)
