@@ -122,6 +122,63 @@ def test_candidate_degrees_keep_the_fit_with_the_lowest_validation_error():
     assert np.array_equal(fit_spgd(X, Y, X_val, Y_val, degree=3, **options).predict(X_val), low.predict(X_val))
 
 
+def smooth_then_wavy(X):
+    """A dominant term of degree 1 in each parameter plus a small one that needs a high degree in p1."""
+    p1, p2, p3 = X.T
+    return (np.outer((1.5 + p1) * (2 - p2) * (1 + 0.5 * p3), [1.0, -0.5])
+            + np.outer(0.05 * np.cos(5 * p1) * (1 + p2), [0.2, 1.0]))
+
+
+def test_candidate_degrees_share_their_path_until_they_choose_differently():
+    """The candidates' greedy paths are computed once up to the first term where their caps pick different
+    trials. Each candidate's path must be the standalone sPGD of its degree: the same validation history and
+    predictions to round-off (the shared path works on a wider, zero-padded basis, so sums differ in length:
+    1e-9 relative; a wrong fork point or a state shared after the fork differs at the 1e-3 level or more).
+    The fork must be real: the caps agree on the first term (degree 1, within ``degree_tolerance`` of the best
+    trial: the wavy part is ~1 % of the response) and differ later (degree 3 cannot follow cos(5 p1))."""
+    X, Y, X_val, Y_val = _split(smooth_then_wavy, n=300, n_val=100, rng=np.random.default_rng(21))
+    options = {"max_terms": 6, "patience": 6, "degree_tolerance": 0.05}
+    paths = SparsePGD(degree=10, **options)._fit_paths(X, Y, X_val, Y_val, None, None, [3, 6, 10])
+    scale = np.abs(Y_val).max()
+    for n in (3, 6, 10):
+        alone = SparsePGD(degree=n, **options).fit(X, Y, X_val, Y_val)
+        shared = SparsePGD(degree=n, **options)
+        shared._adopt(paths[n])
+        np.testing.assert_allclose(shared.history.validation_error, alone.history.validation_error, rtol=1e-9)
+        np.testing.assert_allclose(shared.predict(X_val), alone.predict(X_val), rtol=0, atol=1e-9 * scale)
+    low, high = paths[3].history.validation_error, paths[10].history.validation_error
+    assert low[0] == high[0]
+    assert not np.allclose(low, high, rtol=1e-3)
+
+
+def test_tolerance_stops_the_path_where_it_is_reached():
+    """With ``tolerance`` the greedy path is the same, cut at the first number of terms whose validation error
+    is at most the tolerance."""
+    X, Y, X_val, Y_val = _split(rank_three, n=300, n_val=100, rng=np.random.default_rng(22))
+    options = {"degree": 4, "max_terms": 8, "patience": 8}
+    full = np.array(SparsePGD(**options).fit(X, Y, X_val, Y_val).history.validation_error)
+    assert full[1] > 2 * full[2]  # the third term is needed (a rank-three function)
+    tolerance = np.sqrt(full[1] * full[2])  # between the errors with two and three terms
+    cut = SparsePGD(tolerance=tolerance, **options).fit(X, Y, X_val, Y_val)
+    assert cut.n_terms == 3
+    np.testing.assert_allclose(cut.history.validation_error, full[:3], rtol=1e-12)
+
+
+def test_candidates_reaching_the_tolerance_keep_the_lowest_degree():
+    """cos(4 p1): degree 10 validates >1000x better than degree 3 (previous test). With a tolerance that
+    degree 3 reaches, degree 3 is kept: the errors below the tolerance tie."""
+    def wavy(X):
+        return np.outer(np.cos(4 * X[:, 0]) * (1.5 + X[:, 1]), [1.0, -0.5])
+
+    X, Y, X_val, Y_val = _split(wavy, n=200, n_val=80)
+    options = {"max_terms": 4, "patience": 2}
+    low = SparsePGD(degree=3, **options).fit(X, Y, X_val, Y_val)
+    tolerance = 2 * min(low.history.validation_error)
+    chosen = fit_spgd(X, Y, X_val, Y_val, degree=[10, 3], tolerance=tolerance, **options)
+    assert chosen.degree == 3
+    assert fit_spgd(X, Y, X_val, Y_val, degree=[10, 3], **options).degree == 10
+
+
 def test_jacobian_matches_finite_differences():
     X, Y, X_val, Y_val = _split(rank_three)
     model = SparsePGD(degree=5, max_terms=8).fit(X, Y, X_val, Y_val)

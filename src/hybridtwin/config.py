@@ -33,7 +33,8 @@ def offline(config: Mapping) -> dict:
     defaults = {"seed": 1, "speed": "measured", "n_scenarios": {}, "n_test": 200, "validation_fraction": 0.2,
                 "chunks": 4, "scope": "run", "pieces": "mode_scaling",
                 "sensor_range_mm": 14.0, "pod_energy_tolerance": 1e-10,
-                "spgd": {"degree": [8, 12], "max_terms": 60, "ridge": 1e-8, "patience": 8, "backfit_iterations": 3},
+                "spgd": {"degree": [8, 12], "max_terms": 60, "ridge": 1e-8, "patience": 8, "backfit_iterations": 3,
+                         "tolerance": 0.0},
                 "enrichment": {"observable_below": 0.3, "n_scenarios": 6000, "chunks": 2}, "spgd_variants": {}}
     options = {**defaults, **(config.get("offline") or {})}
     for nested in ("spgd", "enrichment"):
