@@ -115,20 +115,21 @@ class _Path:
     C: Array  # coefficients c_j^k, (K, d, nb)
     degrees: Array  # (K, d)
     residual: Array  # training residual, (n, m)
+    residual_val: Array  # validation residual, (n_val, m)
     history: FitHistory
     best: tuple
     done: bool = False
 
     @classmethod
-    def start(cls, cap: int, lower: list[int], Y: Array, d: int, degree: int) -> "_Path":
+    def start(cls, cap: int, lower: list[int], Y: Array, Y_val: Array, d: int, degree: int) -> "_Path":
         A, C, degrees = np.zeros((0, Y.shape[1])), np.zeros((0, d, degree + 1)), np.zeros((0, d), int)
-        return cls(cap, lower, A, C, degrees, Y.copy(), FitHistory(), (np.inf, 0, A, C, degrees))
+        return cls(cap, lower, A, C, degrees, Y.copy(), Y_val.copy(), FitHistory(), (np.inf, 0, A, C, degrees))
 
     def fork(self, cap: int) -> "_Path":
         """A copy of this path for ``cap`` and the lower caps below it, which leave this one."""
         history = FitHistory(list(self.history.train_error), list(self.history.validation_error))
         path = _Path(cap, [c for c in self.lower if c < cap], self.A, self.C, self.degrees, self.residual,
-                     history, self.best)
+                     self.residual_val, history, self.best)
         self.lower = [c for c in self.lower if c > cap]
         return path
 
@@ -177,13 +178,12 @@ class SparsePGD:
         B = np.stack([chebyshev_basis(X[:, j], self.degree) for j in range(d)])  # (d, n, nb)
         B_val = np.stack([chebyshev_basis(X_val[:, j], self.degree) for j in range(d)])
         caps = sorted(set(int(c) for c in caps))
-        open_paths = [_Path.start(caps[-1], caps[:-1], Y, d, self.degree)]
+        open_paths = [_Path.start(caps[-1], caps[:-1], Y, Y_val, d, self.degree)]
         done = []
         while open_paths:
             path = open_paths.pop()
             while not path.done:
-                trials = self._term_trials(B, B_val, path.residual, Y_val - _evaluate(B_val, path.A, path.C), w,
-                                           weights_val, path.cap)
+                trials = self._term_trials(B, B_val, path.residual, path.residual_val, w, weights_val, path.cap)
                 open_paths += self._advance(path, trials, B, Y, w, B_val, Y_val, weights_val)
             done.append(path)
         return {cap: path for path in done for cap in [path.cap, *path.lower]}
@@ -211,7 +211,8 @@ class SparsePGD:
                                        path.degrees)
         path.residual = Y - _evaluate(B, path.A, path.C)
         path.history.train_error.append(relative_error(path.residual, Y, w))
-        val_error = relative_error(Y_val - _evaluate(B_val, path.A, path.C), Y_val, w_val)
+        path.residual_val = Y_val - _evaluate(B_val, path.A, path.C)
+        val_error = relative_error(path.residual_val, Y_val, w_val)
         path.history.validation_error.append(val_error)
         K = path.A.shape[0]
         if val_error < path.best[0]:
