@@ -329,11 +329,9 @@ class SparsePGD:
         index = np.arange(nb)
         F = np.einsum("jnb,kjb->kjn", B, C)  # every factor at every point, (K, d, n)
         for _ in range(self.backfit_iterations):
-            suffix = _suffix_products(F)  # as in _rank_one: the prefix product follows the updates
-            prefix = np.ones(F[:, 0].shape)
             for j in range(d):
                 term, b = np.nonzero(index[None, :] <= degrees[:, j, None])  # the active (k, b)
-                g = prefix * suffix[j]  # the product of each term's other factors, (K, n)
+                g = _product_except(F, j)  # (K, n)
                 G = self._normal_matrix(B[j], g, w, term, b, 2 * int(degrees[:, j].max()))
                 G *= (A @ A.T)[np.ix_(term, term)]
                 rhs = ((g * w * (Y @ A.T).T) @ B[j])[term, b]
@@ -345,7 +343,6 @@ class SparsePGD:
                 scale[scale == 0] = 1.0
                 C[:, j] /= scale[:, None]
                 F[:, j] = Fj / scale[:, None]
-                prefix *= F[:, j]
                 A = A * scale[:, None]
             A = self._amplitudes(B, Y, w, C)
         return A, C
@@ -669,14 +666,19 @@ def _term_change(prod: Array, a: Array, previous_prod: Array, previous_a: Array)
 
 
 def _suffix_products(F: Array) -> Array:
-    """suffix[j] = prod_{i > j} F_i over axis -2 of F (..., d, n): (d, ..., n), suffix[d - 1] = 1. With a running
-    prefix product it gives each row's "product of the others" without division (a factor may vanish)."""
+    """suffix[j] = prod_{i > j} F_i over axis -2 of F (..., d, n): (d, ..., n), suffix[d - 1] = 1."""
     d = F.shape[-2]
     suffix = np.empty((d,) + F.shape[:-2] + F.shape[-1:])
     suffix[d - 1] = 1.0
     for j in range(d - 2, -1, -1):
         np.multiply(suffix[j + 1], F[..., j + 1, :], out=suffix[j])
     return suffix
+
+
+def _product_except(F: Array, j: int) -> Array:
+    """prod over axis -2 of F (..., d, n) leaving out row j (no division: a factor may vanish)."""
+    rows = [i for i in range(F.shape[-2]) if i != j]
+    return np.prod(F[..., rows, :], axis=-2) if rows else np.ones(F.shape[:-2] + F.shape[-1:])
 
 
 def _products(B: Array, C: Array) -> Array:
