@@ -256,6 +256,26 @@ def test_solve_runs_keeps_an_unknown_eccentric_mass():
         from_sheet.harmonics[0, 0, 1]).max()
 
 
+def test_solve_runs_gives_each_mass_the_result_of_its_own_run_up():
+    """The run-ups of all the masses are solved in one batched sweep: each run must hold exactly
+    (to the bit: the solver treats scenarios independently) what a plan of its mass alone gives."""
+    import pandas as pd
+
+    from hybridtwin.scenarios import solve_runs
+
+    variant = builtin_variant("geometric")
+    runs = pd.DataFrame({"run": ["a", "b", "c", "d"], "rpm": [400.0, 800.0, 450.0, 900.0],
+                         "eccentric_mass_g": [25.9, 0.0, 25.9, 14.8]})
+    values = {"k_b": np.array([2100.0, 3400.0]), "q_x": np.array([0.002, 0.009])}
+    together = solve_runs(variant, runs, values, 3)
+    assert together.success.all()
+    for mass, group in runs.groupby("eccentric_mass_g"):
+        alone = solve_runs(variant, group, values, 3)
+        where = runs.index.get_indexer(group.index)
+        np.testing.assert_array_equal(together.harmonics[where], alone.harmonics)
+        assert (together.branch[where] == alone.branch).all() and (together.message[where] == alone.message).all()
+
+
 def _bearing_forces(variant, values, q):
     """Linear stiffness matrix at rest and the summed local nonlinear bearing forces at states q (4, N)
     = (u, v, u', v') of the upper bearing node, from the effects' own hooks."""

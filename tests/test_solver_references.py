@@ -288,6 +288,43 @@ def test_duffing_h7_reference_amplitudes():
         assert np.abs(res.harmonics[0, 0::2, 0]).max() < 1e-14
 
 
+def test_sweeps_in_lockstep_equal_their_own_sweeps_jump_included():
+    """Per-scenario speeds (one batched sweep over sweeps of different lengths) against each sweep
+    solved on its own: the solver treats scenarios independently, so every step of every scenario,
+    including the run-up that passes the upper fold (1.25 < Om_fold < 1.3) and jumps, must be the
+    same to the bit, labels and messages included; a scenario whose sweep has ended is marked so."""
+    gammas = np.array([0.1, 0.05, 0.1])
+    ramps = [np.round(np.arange(0.5, 1.3001, 0.05), 10), np.round(np.arange(0.6, 1.0001, 0.1), 10),
+             np.round(np.arange(0.5, 0.7001, 0.05), 10)]
+    speeds = np.full((max(map(len, ramps)), 3), np.nan)
+    for s, ramp in enumerate(ramps):
+        speeds[: len(ramp), s] = ramp
+    lockstep = solve_sweep(lambda om, rows: duffing(om, gamma=gammas[rows]), speeds, 3, harmonics=3)
+    assert lockstep.rpm.shape == speeds.shape
+    for s, ramp in enumerate(ramps):
+        alone = solve_sweep(lambda om, rows: duffing(om, gamma=gammas[s]), ramp, 1, harmonics=3)
+        for step, result in enumerate(alone.results):
+            mine = lockstep.results[step]
+            np.testing.assert_array_equal(mine.harmonics[s], result.harmonics[0])
+            assert (mine.success[s], mine.message[s], mine.branch[s]) == (
+                result.success[0], result.message[0], result.branch[0])
+        for step in range(len(ramp), len(speeds)):
+            assert not lockstep.results[step].success[s]
+            assert "sweep has ended" in lockstep.results[step].message[s]
+    assert "jump between 1.25 and 1.3 RPM" in lockstep.results[len(ramps[0]) - 1].branch[0]
+
+
+@pytest.mark.parametrize("speeds, problem", [
+    ([[0.5, np.nan], [0.6, 0.7]], "first speed"),
+    ([[0.5, 0.5], [np.nan, 0.6], [0.7, 0.7]], "NaN only after"),
+    ([[0.5, 0.5], [0.6, 0.4]], "strictly increasing"),
+    ([[0.5, 0.5, 0.5]], "shape"),
+])
+def test_per_scenario_speeds_are_checked(speeds, problem):
+    with pytest.raises(ValueError, match=problem):
+        solve_sweep(lambda om, rows: duffing(om), np.array(speeds), 2, harmonics=1)
+
+
 def test_damped_newton_backtracks_at_resonance_and_lands_on_the_reference():
     """From rest (x = 0, where the cubic has no stiffness) the first full Newton step is the linear
     response; at Omega = 1 that is the lightly damped resonance peak, far above the hardened

@@ -80,9 +80,11 @@ def solve_runs(variant: Variant, runs: pd.DataFrame, values: Mapping[str, Array 
     """Every scenario of ``values`` at every run (rows with run, rpm, eccentric_mass_g), by run-up.
 
     values: parameter values, scalars or (S,) arrays (m_e is set from each run).
-    Per eccentric mass one batched sweep starts at ``start_rpm`` (or the lowest
-    speed if lower) and visits that mass's speeds, with intermediate speeds so
-    no step exceeds ``step_rpm`` (solved for continuation only).
+    Per eccentric mass a run-up starts at ``start_rpm`` (or the lowest speed if
+    lower) and visits that mass's speeds, with intermediate speeds so no step
+    exceeds ``step_rpm`` (solved for continuation only). The run-ups of all the
+    masses are one batched sweep with per-scenario speeds (``solve_sweep``): each
+    Newton call serves every mass, and each result is that of a run-up of its own.
     """
     for column in ("run", "rpm", "eccentric_mass_g"):
         if column not in runs:
@@ -90,19 +92,26 @@ def solve_runs(variant: Variant, runs: pd.DataFrame, values: Mapping[str, Array 
     base = variant.values(values)
     S = max([np.size(v) for v in base.values()])
     out = _unsolved(runs, S, harmonics, variant.model.shaft.n_dof)
-    for mass_g, group in runs.groupby("eccentric_mass_g", sort=True):
-        scenario_values = {k: np.broadcast_to(v, (S,)) for k, v in base.items()}
-        if "m_e" not in values:  # an unknown m_e keeps each scenario's own value
-            scenario_values["m_e"] = np.full(S, float(mass_g) * 1e-3)
-        speeds = _with_intermediate(np.unique(np.append(group["rpm"].to_numpy(float), start_rpm)), step_rpm)
+    groups = list(runs.groupby("eccentric_mass_g", sort=True))
+    if not groups:
+        return out
+    ramps = [_with_intermediate(np.unique(np.append(group["rpm"].to_numpy(float), start_rpm)), step_rpm)
+             for _, group in groups]
+    speeds = np.full((max(map(len, ramps)), len(groups) * S), np.nan)  # column g S + s: mass g, scenario s
+    for g, ramp in enumerate(ramps):
+        speeds[: len(ramp), g * S:(g + 1) * S] = ramp[:, None]
+    scenario_values = {k: np.tile(np.broadcast_to(v, (S,)), len(groups)) for k, v in base.items()}
+    if "m_e" not in values:  # an unknown m_e keeps each scenario's own value
+        scenario_values["m_e"] = np.repeat([float(mass_g) * 1e-3 for mass_g, _ in groups], S)
 
-        def build(rpm: float, rows: Array):
-            return variant.model.system({k: v[rows] for k, v in scenario_values.items()}, rpm)
+    def build(rpm: Array, rows: Array):
+        return variant.model.system({k: v[rows] for k, v in scenario_values.items()}, rpm)
 
-        sweep = solve_sweep(build, speeds, S, harmonics=harmonics, direction="up")
-        by_rpm = dict(zip(sweep.rpm, sweep.results))
+    sweep = solve_sweep(build, speeds, len(groups) * S, harmonics=harmonics, direction="up")
+    for g, ((_, group), ramp) in enumerate(zip(groups, ramps)):
         for position, rpm in zip(np.flatnonzero(runs.index.isin(group.index)), group["rpm"].to_numpy(float)):
-            _store(out, position, by_rpm[rpm])
+            step = int(np.flatnonzero(ramp == rpm)[0])
+            _store(out, position, sweep.results[step], slice(g * S, (g + 1) * S))
     return out
 
 
@@ -114,11 +123,12 @@ def _unsolved(runs: pd.DataFrame, S: int, harmonics: int, n_dof: int) -> RunSolu
                         np.zeros((R, S), bool), np.full((R, S), "", object), np.full((R, S), "", object))
 
 
-def _store(out: RunSolutions, position: int, result: SteadyState) -> None:
-    out.harmonics[position] = result.harmonics
-    out.success[position] = result.success
-    out.message[position] = result.message
-    out.branch[position] = result.branch
+def _store(out: RunSolutions, position: int, result: SteadyState, rows: slice) -> None:
+    """Run ``position``'s solutions: ``result``'s scenarios ``rows``."""
+    out.harmonics[position] = result.harmonics[rows]
+    out.success[position] = result.success[rows]
+    out.message[position] = result.message[rows]
+    out.branch[position] = result.branch[rows]
 
 
 #: message of an enrichment scenario at a run it was not solved for (it targets other runs); not a failure

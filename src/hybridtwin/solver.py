@@ -419,7 +419,11 @@ def _backtrack(prob, x, idx, step, nr, alpha, where, trial_r, trial_J) -> None:
 
 @dataclass
 class Sweep:
-    """Steady states along a speed sweep, in sweep order."""
+    """Steady states along a speed sweep, in sweep order.
+
+    rpm: (n,) the speeds shared by every scenario, or (n, S) each scenario's own (NaN after its last);
+    results[i] holds every scenario at step i (a scenario whose sweep has ended is marked unsolved).
+    """
 
     rpm: Array
     results: list[SteadyState]
@@ -427,8 +431,8 @@ class Sweep:
 
 
 def solve_sweep(
-    build: Callable[[float, Array], System],
-    rpm: Sequence[float],
+    build: Callable[[Array, Array], System],
+    rpm: Sequence[float] | Array,
     n_scenarios: int,
     *,
     direction: str = "up",
@@ -437,52 +441,88 @@ def solve_sweep(
 ) -> Sweep:
     """Solve a speed sweep by continuation (run-up or run-down) for S scenarios.
 
-    build(rpm, rows) -> System of scenarios ``rows`` at speed ``rpm``. Each speed
-    starts from the previous speed's solution of the same scenario; a scenario
-    that fails to continue is retried with the speed step halved up to
+    build(rpm, rows) -> System of scenarios ``rows`` at their speeds ``rpm`` (len(rows),).
+    Each speed starts from the previous speed's solution of the same scenario; a
+    scenario that fails to continue is retried with the speed step halved up to
     ``max_refine`` times. If it still fails, its branch has ended at a fold and
     the machine would jump: the other branch is sought from several starting
     points (the linear response, the last state scaled by 0.5 .. 5), and the
     result's ``branch`` says "run-up, jump between A and B RPM". Nothing is
     jumped silently, and a scenario for which no start converges is reported
     failed with the reason.
+
+    rpm: the speeds (n,), shared (sorted in the sweep's direction), or per scenario (n, S),
+    column s the speeds of scenario s in sweep order, NaN-padded after its last. Scenarios of
+    different sweeps (e.g. one run-up per eccentric mass) are then solved in lockstep: every
+    batched Newton call, step halving and jump serves all of them at once. Each scenario's
+    result is the same as in a sweep of its own (the solver treats scenarios independently).
     """
     if direction not in ("up", "down"):
         raise ValueError(f"direction must be 'up' or 'down', got {direction!r}")
-    speeds = np.sort(np.asarray(rpm, dtype=float))
-    if direction == "down":
-        speeds = speeds[::-1]
+    speeds = _sweep_speeds(rpm, n_scenarios, direction)
     label = "run-up" if direction == "up" else "run-down"
-    all_rows = np.arange(n_scenarios)
     results: list[SteadyState] = []
     previous: SteadyState | None = None
-    previous_rpm = np.nan
+    previous_rpm = np.full(n_scenarios, np.nan)
     for speed in speeds:
-        cont = np.flatnonzero(previous.success) if previous is not None else all_rows[:0]
-        fresh = np.setdiff1d(all_rows, cont)
+        active = ~np.isnan(speed)
+        cont = np.flatnonzero(active & previous.success) if previous is not None else np.arange(0)
+        fresh = np.setdiff1d(np.flatnonzero(active), cont)
         parts = []
         if cont.size:
-            res_c = _continue(build, previous_rpm, speed, previous.state[cont], cont, max_refine, label, options)
+            res_c = _continue(build, previous_rpm[cont], speed[cont], previous.state[cont], cont, max_refine, label,
+                              options)
             lost = np.flatnonzero(~res_c.success)
             if lost.size:
-                _replace(res_c, lost, _jump(build, previous_rpm, speed, previous.state[cont[lost]], cont[lost],
-                                            label, options))
+                _replace(res_c, lost, _jump(build, previous_rpm[cont[lost]], speed[cont[lost]],
+                                            previous.state[cont[lost]], cont[lost], label, options))
             parts.append(res_c)
         if fresh.size:
-            parts.append(solve(build(speed, fresh), stall_window=_STALL_WINDOW, **options))
-        res = SteadyState.concatenate(parts, np.argsort(np.concatenate([cont, fresh])))
+            parts.append(solve(build(speed[fresh], fresh), stall_window=_STALL_WINDOW, **options))
+        ended = np.flatnonzero(~active)
+        if ended.size:
+            parts.append(_ended(previous, ended))
+        res = SteadyState.concatenate(parts, np.argsort(np.concatenate([cont, fresh, ended])))
         results.append(res)
-        previous, previous_rpm = res, speed
-    return Sweep(speeds, results, direction)
+        previous, previous_rpm = res, np.where(active, speed, previous_rpm)
+    return Sweep(speeds[:, 0] if np.ndim(rpm) == 1 else speeds, results, direction)
+
+
+def _sweep_speeds(rpm: Sequence[float] | Array, n_scenarios: int, direction: str) -> Array:
+    """Every scenario's speed at every step (n, S): shared speeds sorted in the sweep's direction,
+    per-scenario ones checked (monotone in that direction, NaN only after a scenario's last)."""
+    speeds = np.asarray(rpm, dtype=float)
+    if speeds.ndim == 1:
+        speeds = np.sort(speeds)[::-1] if direction == "down" else np.sort(speeds)
+        return np.repeat(speeds[:, None], n_scenarios, axis=1)
+    if speeds.ndim != 2 or speeds.shape[1] != n_scenarios:
+        raise ValueError(f"per-scenario speeds must have shape (n_steps, {n_scenarios}), got {speeds.shape}")
+    missing = np.isnan(speeds)
+    if missing[0].any() or (missing[:-1] & ~missing[1:]).any():
+        raise ValueError("per-scenario speeds: every scenario needs a first speed, and NaN only after its last")
+    steps = np.diff(speeds, axis=0)
+    if ((steps <= 0) if direction == "up" else (steps >= 0))[~np.isnan(steps)].any():
+        raise ValueError(f"per-scenario speeds must be strictly {'increasing' if direction == 'up' else 'decreasing'}"
+                         f" along a {direction} sweep")
+    return speeds
+
+
+def _ended(previous: SteadyState, rows: Array) -> SteadyState:
+    """Scenarios ``rows`` at a step after their sweep's last speed: unsolved, with the reason."""
+    out = SteadyState.concatenate([previous], rows)
+    out.harmonics[:], out.state[:], out.residual[:] = np.nan, np.nan, np.nan
+    out.success[:], out.status[:], out.iterations[:] = False, INVALID, 0
+    out.message[:] = "no speed at this step: the scenario's sweep has ended"
+    return out
 
 
 _JUMP_STARTS = (None, 1.5, 2.0, 3.0, 5.0, 0.5)  # None: the linear response; a number: scaled last state
 
 
-def _jump(build, rpm_from, rpm_to, x_last, rows, label, options) -> SteadyState:
-    """Past a fold: look for the remaining branch at ``rpm_to`` from several starts."""
+def _jump(build, rpm_from: Array, rpm_to: Array, x_last, rows, label, options) -> SteadyState:
+    """Past a fold: look for the remaining branch at ``rpm_to`` (per row) from several starts."""
     system = build(rpm_to, rows)
-    branch = f"{label}, jump between {rpm_from:g} and {rpm_to:g} RPM"
+    branch = np.array([f"{label}, jump between {a:g} and {b:g} RPM" for a, b in zip(rpm_from, rpm_to)], object)
     best = None
     for scale in _JUMP_STARTS:
         open_ = np.arange(len(rows)) if best is None else np.flatnonzero(~best.success)
@@ -491,16 +531,16 @@ def _jump(build, rpm_from, rpm_to, x_last, rows, label, options) -> SteadyState:
         start = None if scale is None else scale * x_last[open_]
         if start is not None and start.size and np.isnan(start).any():
             continue
-        trial = solve(system.subset(open_), initial=start, branch=branch, stall_window=_STALL_WINDOW, **options)
+        trial = solve(system.subset(open_), initial=start, stall_window=_STALL_WINDOW, **options)
+        trial.branch[:] = branch[open_]
         if best is None:
             best = trial
         else:
             _replace(best, open_, trial)
-    failed = ~best.success
-    best.message[failed] = (
-        f"no periodic solution found at {rpm_to:g} RPM: the {label} branch ends at a fold after {rpm_from:g} RPM "
-        f"and none of {len(_JUMP_STARTS)} starting points converged"
-    )
+    failed = np.flatnonzero(~best.success)
+    best.message[failed] = [
+        f"no periodic solution found at {rpm_to[i]:g} RPM: the {label} branch ends at a fold after {rpm_from[i]:g} "
+        f"RPM and none of {len(_JUMP_STARTS)} starting points converged" for i in failed]
     best.branch[failed] = label
     return best
 
@@ -511,16 +551,17 @@ def _replace(target: SteadyState, where: Array, source: SteadyState) -> None:
         getattr(target, f)[where] = getattr(source, f)
 
 
-def _continue(build, rpm_from, rpm_to, x0, rows, depth, label, options) -> SteadyState:
-    """Continue from ``x0`` at ``rpm_from`` to ``rpm_to``, halving the step where Newton fails."""
+def _continue(build, rpm_from: Array, rpm_to: Array, x0, rows, depth, label, options) -> SteadyState:
+    """Continue from ``x0`` at ``rpm_from`` to ``rpm_to`` (per row), halving the step where Newton fails."""
     res = solve(build(rpm_to, rows), initial=x0, branch=label, stall_window=_CONTINUATION_STALL, **options)
     failed = np.flatnonzero(~res.success)
     if depth == 0 or failed.size == 0:
         return res
-    mid = 0.5 * (rpm_from + rpm_to)
-    half = _continue(build, rpm_from, mid, x0[failed], rows[failed], depth - 1, label, options)
+    mid = 0.5 * (rpm_from[failed] + rpm_to[failed])
+    half = _continue(build, rpm_from[failed], mid, x0[failed], rows[failed], depth - 1, label, options)
     ok = np.flatnonzero(half.success)
     if ok.size:
-        again = _continue(build, mid, rpm_to, half.state[ok], rows[failed[ok]], depth - 1, label, options)
+        again = _continue(build, mid[ok], rpm_to[failed[ok]], half.state[ok], rows[failed[ok]], depth - 1, label,
+                          options)
         _replace(res, failed[ok], again)
     return res
