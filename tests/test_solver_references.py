@@ -21,6 +21,7 @@ from scipy.optimize import brentq
 
 from hybridtwin import Effect, LocalForce, Model, Parameter, PolynomialBearing, System, Term, solve, solve_sweep
 from hybridtwin.effects import K_B, base_effects
+import hybridtwin.solver as solver_module
 from hybridtwin.solver import _backtrack, _Condensed
 from hybridtwin.variants import builtin_variant
 
@@ -288,11 +289,14 @@ def test_duffing_h7_reference_amplitudes():
         assert np.abs(res.harmonics[0, 0::2, 0]).max() < 1e-14
 
 
-def test_sweeps_in_lockstep_equal_their_own_sweeps_jump_included():
+@pytest.mark.parametrize("block", [256, 2])
+def test_sweeps_in_lockstep_equal_their_own_sweeps_jump_included(block, monkeypatch):
     """Per-scenario speeds (one batched sweep over sweeps of different lengths) against each sweep
     solved on its own: the solver treats scenarios independently, so every step of every scenario,
     including the run-up that passes the upper fold (1.25 < Om_fold < 1.3) and jumps, must be the
-    same to the bit, labels and messages included; a scenario whose sweep has ended is marked so."""
+    same to the bit, labels and messages included, whether the batch is solved whole or in blocks
+    (``block`` 2: the 3 scenarios in 2 blocks); a scenario whose sweep has ended is marked so."""
+    monkeypatch.setattr(solver_module, "_BLOCK", block)
     gammas = np.array([0.1, 0.05, 0.1])
     ramps = [np.round(np.arange(0.5, 1.3001, 0.05), 10), np.round(np.arange(0.6, 1.0001, 0.1), 10),
              np.round(np.arange(0.5, 0.7001, 0.05), 10)]
