@@ -276,6 +276,31 @@ def test_solve_runs_gives_each_mass_the_result_of_its_own_run_up():
         assert (together.branch[where] == alone.branch).all() and (together.message[where] == alone.message).all()
 
 
+def test_first_mode_of_a_scenario_does_not_depend_on_its_batch():
+    """k_w = 0 leaves K at rest symmetric (Cholesky + eigh), k_w > 0 does not (general eigenproblem).
+    In one batch each scenario must still get the mode it gets alone, to the bit; and a speed's
+    system from the reused rest stages (``system_at``) must equal the one assembled from scratch."""
+    from hybridtwin.model import _first_mode
+
+    variant = builtin_variant("final")
+    values = variant.values({"k_w": np.array([0.0, 500.0]), "k_z": np.array([0.0, 300.0])})
+    rest = variant.model.at_rest(values)
+    plane = slice(0, variant.model.shaft.n_plane)
+    K = rest.K[:, plane, plane]
+    assert np.array_equal(K[0], K[0].T) and not np.allclose(K[1], K[1].T)  # one of each kind
+    together = _first_mode(K, rest.M[:, plane, plane])
+    for s in range(2):
+        alone = _first_mode(K[s:s + 1], rest.M[s:s + 1, plane, plane])
+        assert together[0][s] == alone[0][0] and np.array_equal(together[1][s], alone[1][0])
+    for s in range(2):
+        reused = variant.model.system_at(rest.rows(np.array([s])), 650.0)
+        fresh = variant.model.system({k: np.atleast_1d(v)[s:s + 1] if np.size(v) > 1 else v
+                                      for k, v in values.items()}, 650.0)
+        for name in ("M", "C", "K", "Omega"):
+            np.testing.assert_array_equal(getattr(reused, name), getattr(fresh, name))
+        np.testing.assert_array_equal(reused.forcing[1], fresh.forcing[1])
+
+
 def _bearing_forces(variant, values, q):
     """Linear stiffness matrix at rest and the summed local nonlinear bearing forces at states q (4, N)
     = (u, v, u', v') of the upper bearing node, from the effects' own hooks."""

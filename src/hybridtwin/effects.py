@@ -26,7 +26,7 @@ new effect (in a user's own file) never needs a change to the solver.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -60,7 +60,9 @@ class Params(Mapping[str, Array]):
 
     def rows(self, rows: Array) -> "Params":
         """The same parameters for scenarios ``rows`` only (sliced lazily, name by name)."""
-        return Params(self._values, rows)
+        if self._rows is None:
+            return Params(self._values, rows)
+        return Params({name: self[name] for name in self._values}, rows)
 
     def __getitem__(self, name: str) -> Array:
         try:
@@ -104,6 +106,12 @@ class Context:
     @property
     def n_scenarios(self) -> int:
         return self.Omega.shape[0]
+
+    def rows(self, rows: Array) -> "Context":
+        """The same context for scenarios ``rows`` only: parameters and every assembled stage."""
+        staged = {f.name: getattr(self, f.name) for f in fields(self) if f.name not in ("shaft", "p")}
+        return Context(shaft=self.shaft, p=self.p.rows(rows),
+                       **{name: None if value is None else value[rows] for name, value in staged.items()})
 
     def dof(self, name: str) -> int:
         return self.shaft.dof(name)

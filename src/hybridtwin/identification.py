@@ -1329,7 +1329,8 @@ def run_up(variant, rpm: Sequence[float], values: Mapping[str, Array | float], h
     points = np.unique(np.append(targets, min(start_rpm, targets.min())))
     grid = np.concatenate([np.linspace(a, b, int(np.ceil((b - a) / step_rpm)) + 1)[:-1]
                            for a, b in zip(points[:-1], points[1:])] + [points[-1:]])
-    sweep = solve_sweep(lambda speed, rows: variant.model.system({k: v[rows] for k, v in arrays.items()}, speed),
+    rest = variant.model.at_rest(arrays)  # the speed-independent stages, once for the whole run-up
+    sweep = solve_sweep(lambda speed, rows: variant.model.system_at(rest.rows(rows), speed),
                         grid, S, harmonics=harmonics, direction="up")
     by_rpm = dict(zip(sweep.rpm, sweep.results))
     return [by_rpm[r] for r in targets]

@@ -12,7 +12,7 @@ Phi_1 of the x plane at Omega = 0), then speed terms, damping and forcing.
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -82,24 +82,33 @@ def _first_mode(K: Array, M: Array) -> tuple[Array, Array]:
 
     omega_1 is NaN where the lowest eigenvalue is not positive (unstable at rest).
 
-    Symmetric K: Cholesky reduction and eigh; otherwise the general eigenproblem
-    of M^-1 K, taking the eigenvalue of least real part.
+    Scenario by scenario (so a scenario's mode does not depend on the others in its batch):
+    symmetric K by Cholesky reduction and eigh, otherwise the general eigenproblem of M^-1 K,
+    taking the eigenvalue of least real part.
     """
-    if np.allclose(K, np.swapaxes(K, -1, -2), rtol=1e-12, atol=0.0):
-        L = np.linalg.cholesky(M)
-        Linv = np.linalg.inv(L)
-        A = Linv @ K @ np.swapaxes(Linv, -1, -2)
-        lam, vec = np.linalg.eigh(0.5 * (A + np.swapaxes(A, -1, -2)))
-        lam1 = lam[:, 0]
-        phi = np.swapaxes(Linv, -1, -2) @ vec[:, :, :1]
-        phi = phi[:, :, 0]
-    else:
-        lam, vec = np.linalg.eig(np.linalg.solve(M, K))
-        first = np.argmin(lam.real, axis=1)
-        rows = np.arange(K.shape[0])
-        lam1 = lam[rows, first].real
-        phi = vec[rows, :, first].real
+    symmetric = np.isclose(K, np.swapaxes(K, -1, -2), rtol=1e-12, atol=0.0).all(axis=(-2, -1))
+    lam1, phi = np.empty(K.shape[0]), np.empty(K.shape[:2])
+    for rows, mode in ((np.flatnonzero(symmetric), _symmetric_mode), (np.flatnonzero(~symmetric), _general_mode)):
+        if rows.size:
+            lam1[rows], phi[rows] = mode(K[rows], M[rows])
     return np.sqrt(np.where(lam1 > 0, lam1, np.nan)), phi
+
+
+def _symmetric_mode(K: Array, M: Array) -> tuple[Array, Array]:
+    """Lowest eigenvalue and its vector of symmetric pencils: Cholesky reduction L^-1 K L^-T, eigh."""
+    L = np.linalg.cholesky(M)
+    Linv = np.linalg.inv(L)
+    A = Linv @ K @ np.swapaxes(Linv, -1, -2)
+    lam, vec = np.linalg.eigh(0.5 * (A + np.swapaxes(A, -1, -2)))
+    return lam[:, 0], (np.swapaxes(Linv, -1, -2) @ vec[:, :, :1])[:, :, 0]
+
+
+def _general_mode(K: Array, M: Array) -> tuple[Array, Array]:
+    """The eigenvalue of least real part of M^-1 K and its vector (real parts)."""
+    lam, vec = np.linalg.eig(np.linalg.solve(M, K))
+    first = np.argmin(lam.real, axis=1)
+    rows = np.arange(K.shape[0])
+    return lam[rows, first].real, vec[rows, :, first].real
 
 
 class Model:
@@ -122,18 +131,21 @@ class Model:
 
     def mode_peak_node(self, values: Mapping[str, Array]) -> Array:
         """The node of the largest |entry| of the first mode at rest, which scales Phi_1 (eq. 30), (S,)."""
-        return np.argmax(np.abs(self.context(values, 0.0).Phi_1), axis=1)
+        return np.argmax(np.abs(self.at_rest(values).Phi_1), axis=1)
 
-    def context(self, values: Mapping[str, Array], rpm: Array | float) -> Context:
-        """Assemble the linear part stage by stage; ``values`` complete, each (S,) or scalar."""
+    def at_rest(self, values: Mapping[str, Array], n_scenarios: int = 1) -> Context:
+        """The stages that do not depend on the speed: mass, stiffness at rest, first mode.
+
+        ``values`` complete, each (S,) or scalar (S at least ``n_scenarios``); Omega is 0 until
+        ``system_at`` (or ``context``) sets the speed. A sweep assembles this once and reuses it
+        at every speed (``Context.rows`` for the scenarios of each step).
+        """
         missing = sorted(set(self.parameters) - set(values))
         if missing:
             raise ValueError(f"model: no value for parameter(s) {missing}")
-        Omega = np.atleast_1d(rpm_to_rad_s(rpm))
-        S = max([Omega.shape[0]] + [np.size(v) for v in values.values()])
-        Omega = np.broadcast_to(Omega, (S,)).astype(float)
+        S = max([n_scenarios] + [np.size(v) for v in values.values()])
         p = Params({k: np.broadcast_to(np.asarray(v, dtype=float), (S,)) for k, v in values.items()})
-        ctx = Context(shaft=self.shaft, p=p, Omega=Omega)
+        ctx = Context(shaft=self.shaft, p=p, Omega=np.zeros(S))
         K0, M0 = self.shaft.matrices()
         ctx.M = M0 + self._sum("mass", ctx)
         ctx.K_support = self._sum("stiffness", ctx)
@@ -145,9 +157,17 @@ class Model:
         ctx.Phi_1 = phi / peak[:, None]
         return ctx
 
+    def context(self, values: Mapping[str, Array], rpm: Array | float) -> Context:
+        """Assemble the linear part stage by stage; ``values`` complete, each (S,) or scalar."""
+        return _at_speed(self.at_rest(values, np.size(rpm)), rpm)
+
     def system(self, values: Mapping[str, Array], rpm: Array | float) -> System:
         """The system for S scenarios at speed(s) ``rpm`` (eq. 29), ready for the solver."""
-        ctx = self.context(values, rpm)
+        return self.system_at(self.at_rest(values, np.size(rpm)), rpm)
+
+    def system_at(self, rest: Context, rpm: Array | float) -> System:
+        """The system (eq. 29) of the scenarios of ``rest`` (``at_rest``) at speed(s) ``rpm``."""
+        ctx = _at_speed(rest, rpm)
         K = ctx.K + self._sum("speed_stiffness", ctx)
         C = self._sum("damping", ctx)
         forcing: dict[int, Array] = {}
@@ -176,6 +196,12 @@ class Model:
             if term is not None:
                 total += term
         return total
+
+
+def _at_speed(rest: Context, rpm: Array | float) -> Context:
+    """``rest`` with the speed set, for the stages that depend on it (speed terms, damping, forcing)."""
+    Omega = np.broadcast_to(np.atleast_1d(rpm_to_rad_s(rpm)), (rest.n_scenarios,)).astype(float)
+    return replace(rest, Omega=Omega)
 
 
 def _nonlinear_forces(effects: Sequence[Effect]) -> list[Effect]:

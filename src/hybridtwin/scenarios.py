@@ -104,8 +104,10 @@ def solve_runs(variant: Variant, runs: pd.DataFrame, values: Mapping[str, Array 
     if "m_e" not in values:  # an unknown m_e keeps each scenario's own value
         scenario_values["m_e"] = np.repeat([float(mass_g) * 1e-3 for mass_g, _ in groups], S)
 
+    rest = variant.model.at_rest(scenario_values)  # the speed-independent stages, once for every step
+
     def build(rpm: Array, rows: Array):
-        return variant.model.system({k: v[rows] for k, v in scenario_values.items()}, rpm)
+        return variant.model.system_at(rest.rows(rows), rpm)
 
     sweep = solve_sweep(build, speeds, len(groups) * S, harmonics=harmonics, direction="up")
     for g, ((_, group), ramp) in enumerate(zip(groups, ramps)):
