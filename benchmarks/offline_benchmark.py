@@ -1,12 +1,15 @@
 """Offline-stage benchmark: the whole white-box stage of the default configuration, timed, side by side.
 
     python benchmarks/offline_benchmark.py --workdir DIR [--baseline OTHER/results]
+    python benchmarks/offline_benchmark.py --workdir DIR --variants geometric expansion final --fit-runs
     python benchmarks/offline_benchmark.py --results DIR/results [--baseline OTHER/results]
 
 1. With --workdir: a copy of the workflow and the bundled data in DIR (kept, so a second call only
    summarises), then `snakemake --cores 2` on every variant's library_validation.tsv from scratch: scenarios,
    chunk solves, enrichment, gather, POD, sPGD libraries and their validation (the identification and later
-   stages are not run). Prints the wall time.
+   stages are not run). Prints the wall time. --variants: only these variants (default: every declared
+   one); --fit-runs: only the runs sheet's fit runs (a copy of the sheet without the validation runs).
+   The second line is issue 3's own plan: the paper's three variants at its 19 runs.
 2. Job-seconds per rule and variant from Snakemake's own per-rule benchmark files
    (results/benchmarks/{variant}/{rule}[_{wildcards}].tsv, column s), with the job count.
 3. Library accuracy per run (results/{variant}/library_validation.tsv: median and 95th percentile of the
@@ -21,6 +24,7 @@ from __future__ import annotations
 import argparse
 import re
 import shutil
+from collections.abc import Sequence
 from pathlib import Path
 
 import pandas as pd
@@ -32,10 +36,15 @@ OFFLINE_RULES = ["sample_scenarios", "solve_chunk", "sample_enrichment", "solve_
 _RULE = re.compile(r"^(" + "|".join(sorted(OFFLINE_RULES, key=len, reverse=True)) + r")(_.*)?$")
 
 
-def run_offline_stage(work: Path) -> float | None:
-    """Copy the workflow into ``work`` and build every variant's libraries from scratch; the wall time [s]
-    (None when ``work`` already holds a finished run)."""
-    variants = _variants(ROOT / "config" / "config.yaml")
+def run_offline_stage(work: Path, variants: Sequence[str] | None = None, fit_runs: bool = False) -> float | None:
+    """Copy the workflow into ``work`` and build the libraries of ``variants`` (default: every declared one)
+    from scratch, at every run of the runs sheet or only its fit runs; the wall time [s] (None when ``work``
+    already holds a finished run)."""
+    declared = _variants(ROOT / "config" / "config.yaml")
+    unknown = sorted(set(variants or []) - set(declared))
+    if unknown:
+        raise SystemExit(f"--variants: {unknown} not declared in config/config.yaml (declared: {declared})")
+    variants = list(variants or declared)
     targets = [f"results/{v}/library_validation.tsv" for v in variants]
     if all((work / t).exists() for t in targets):
         return None
@@ -43,7 +52,18 @@ def run_offline_stage(work: Path) -> float | None:
         source = ROOT / item
         if not (work / item).exists():
             (shutil.copytree if source.is_dir() else shutil.copy)(source, work / item)
-    return timed_snakemake(work, targets)
+    return timed_snakemake(work, targets, ["--config", f"runs={_fit_runs_sheet(work)}"] if fit_runs else [])
+
+
+def _fit_runs_sheet(work: Path) -> str:
+    """A copy of the config's runs sheet with its fit runs only, next to it (record paths stay valid)."""
+    import yaml
+
+    sheet = Path(yaml.safe_load((work / "config" / "config.yaml").read_text())["runs"])
+    runs = pd.read_csv(work / sheet, sep="\t")
+    fit = sheet.with_name(f"{sheet.stem}_fit_only.tsv")
+    runs[runs["role"] == "fit"].to_csv(work / fit, sep="\t", index=False)
+    return str(fit)
 
 
 def _variants(config: Path) -> list[str]:
@@ -91,10 +111,12 @@ def main() -> None:
     where.add_argument("--workdir", type=Path, help="run the offline stage from scratch in this folder")
     where.add_argument("--results", type=Path, help="only summarise this results folder")
     parser.add_argument("--baseline", type=Path, help="a results folder to compare with, side by side")
+    parser.add_argument("--variants", nargs="+", metavar="NAME", help="only these variants (with --workdir)")
+    parser.add_argument("--fit-runs", action="store_true", help="only the runs sheet's fit runs (with --workdir)")
     args = parser.parse_args()
     if args.workdir:
         args.workdir.mkdir(parents=True, exist_ok=True)
-        wall = run_offline_stage(args.workdir)
+        wall = run_offline_stage(args.workdir, args.variants, args.fit_runs)
         print("offline stage from scratch: " + (f"{wall:.0f} s wall" if wall is not None else
                                                 "already built (delete the folder to time it again)"))
         results = args.workdir / "results"
