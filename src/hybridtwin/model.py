@@ -7,6 +7,9 @@ system that the steady-state solver works on (eq. 29)::
 
 in the effects' stage order: mass, stiffness at rest, first mode (omega_1,
 Phi_1 of the x plane at Omega = 0), then speed terms, damping and forcing.
+``Model.at_rest`` runs the stages up to the first mode (they do not depend on the
+speed) and ``Model.system_at`` the rest at any speed, so a sweep assembles the
+former once.
 """
 
 from __future__ import annotations
