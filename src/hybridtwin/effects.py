@@ -60,9 +60,7 @@ class Params(Mapping[str, Array]):
 
     def rows(self, rows: Array) -> "Params":
         """The same parameters for scenarios ``rows`` only (sliced lazily, name by name)."""
-        if self._rows is None:
-            return Params(self._values, rows)
-        return Params({name: self[name] for name in self._values}, rows)
+        return Params(self._values, rows)
 
     def __getitem__(self, name: str) -> Array:
         try:
@@ -108,9 +106,10 @@ class Context:
         return self.Omega.shape[0]
 
     def rows(self, rows: Array) -> "Context":
-        """The same context for scenarios ``rows`` only: parameters and every assembled stage."""
+        """The same context for scenarios ``rows`` only: parameters and every assembled stage, sliced now
+        (a system's forces slice its parameters again, lazily, at every evaluation)."""
         staged = {f.name: getattr(self, f.name) for f in fields(self) if f.name not in ("shaft", "p")}
-        return Context(shaft=self.shaft, p=self.p.rows(rows),
+        return Context(shaft=self.shaft, p=Params({name: self.p[name][rows] for name in self.p}),
                        **{name: None if value is None else value[rows] for name, value in staged.items()})
 
     def dof(self, name: str) -> int:
