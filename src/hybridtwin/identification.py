@@ -91,6 +91,7 @@ import pandas as pd
 
 from .library import Library
 from .pod import feature_index
+from .scenarios import intermediate_speeds
 
 Array = np.ndarray
 
@@ -1327,8 +1328,7 @@ def run_up(variant, rpm: Sequence[float], values: Mapping[str, Array | float], h
     arrays = {k: np.broadcast_to(np.asarray(v, float), (S,)) for k, v in base.items()}
     targets = np.asarray(rpm, float)
     points = np.unique(np.append(targets, min(start_rpm, targets.min())))
-    grid = np.concatenate([np.linspace(a, b, int(np.ceil((b - a) / step_rpm)) + 1)[:-1]
-                           for a, b in zip(points[:-1], points[1:])] + [points[-1:]])
+    grid = intermediate_speeds(points, step_rpm)
     rest = variant.model.at_rest(arrays)  # the speed-independent stages, once for the whole run-up
     sweep = solve_sweep(lambda speed, rows: variant.model.system_at(rest.rows(rows), speed),
                         grid, S, harmonics=harmonics, direction="up")

@@ -95,7 +95,7 @@ def solve_runs(variant: Variant, runs: pd.DataFrame, values: Mapping[str, Array 
     groups = list(runs.groupby("eccentric_mass_g", sort=True))
     if not groups:
         return out
-    ramps = [_with_intermediate(np.unique(np.append(group["rpm"].to_numpy(float), start_rpm)), step_rpm)
+    ramps = [intermediate_speeds(np.unique(np.append(group["rpm"].to_numpy(float), start_rpm)), step_rpm)
              for _, group in groups]
     speeds = np.full((max(map(len, ramps)), len(groups) * S), np.nan)  # column g S + s: mass g, scenario s
     for g, ramp in enumerate(ramps):
@@ -229,7 +229,7 @@ def solve_operating_points(variant: Variant, points: pd.DataFrame, overrides: Ma
     return out
 
 
-def _with_intermediate(speeds: Array, step: float) -> Array:
+def intermediate_speeds(speeds: Array, step: float) -> Array:
     """The sorted speeds plus evenly spaced intermediate ones so no gap exceeds ``step``."""
     if speeds.size < 2:
         return speeds
