@@ -20,7 +20,7 @@ Amplitudes are 0-peak; t = 0 when the unbalance points to +x.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -120,13 +120,15 @@ def default_n_time(H: int, forces: Sequence) -> int:
 class _Condensed:
     """The harmonic-balance problem on the c nonlinear DOFs: x = a + H G(x) in real form."""
 
-    def __init__(self, system: System, H: int, n_time: int | None):
+    def __init__(self, system: System, H: int, n_time: int | None, linear: bool = True):
         self.system, self.H = system, H
         self.dofs = np.unique(np.concatenate([f.dofs for f in system.forces])) if system.forces else np.array([], int)
         self.local = [np.searchsorted(self.dofs, f.dofs) for f in system.forces]
         self.N = n_time or default_n_time(H, system.forces)
         self.E, self.E_plus = fourier_matrices(H, self.N)
         self.linear_ok = np.ones(system.n_scenarios, bool)
+        if not linear:  # the AFT of the local forces only (``sensitivity``): no linear solves
+            return
         self.X_lin, self.R = self._linear_solves()
         c, K2 = len(self.dofs), 2 * H + 1
         self.a = _to_real(self.X_lin[:, :, self.dofs])  # (S, c, 2H+1)
@@ -583,3 +585,97 @@ def _continue(build, rpm_from: Array, rpm_to: Array, x0, rows, depth, label, opt
                           options)
         _replace(res, failed[ok], again)
     return res
+
+
+# --- sensitivities of the steady state ---------------------------------------------------
+
+
+def sensitivity(build: Callable[[Mapping[str, Array]], System], values: Mapping[str, Array], names: Sequence[str],
+                state: SteadyState, steps: Sequence[float] | Array) -> Array:
+    """dQ_h/dp of converged steady states for each parameter p in ``names``, (S, P, H+1, n) complex.
+
+    The harmonic-balance equations of eq. 29, per harmonic h,
+
+        R_h(Q, p) = D_h(p) Q_h - F_h(p) - B G_h(B^T Q, p) = 0,   D_h = K + i h Omega C - (h Omega)^2 M,
+
+    hold at every converged state, so by the implicit function theorem
+
+        D_h dQ_h - B (dG/dx dx)_h = -(dD_h/dp Q_h - dF_h/dp - B dG_h/dp),   x = B^T Q.
+
+    Condensed on the nonlinear DOFs as in ``solve`` (dQ_h = D_h^-1 rhs_h + R_h dG_h), this is
+    J_r dx = B^T D^-1 rhs with J_r = I - H dG/dx, the Newton Jacobian at the solution: one linear
+    solve per scenario for all parameters at once, no new steady state. The parameters' own
+    derivatives dD_h/dp, dF_h/dp and dG_h/dp at fixed x are central differences of the *assembly*
+    (``build``, no solve) with step ``steps[j]`` (SI): exact up to round-off for parameters that enter
+    the matrices, forcing or force coefficients linearly (stiffness, damping, forcing, bearing
+    coefficients), O(step^2) for the others (e.g. through omega_1 and Phi_1). Any effect is
+    handled the same way: the solver never needs to know how a parameter enters.
+
+    build(values) -> System of the scenarios whose parameter values are ``values`` (each (S',)), at
+    the speeds of ``state``; values: complete, each (S,); state: ``solve``'s result for build(values)
+    (its ``state`` and ``n_time`` are used). Failed scenarios get NaN.
+    """
+    names = list(names)
+    steps = np.asarray(steps, float)
+    S, P, H = state.n_scenarios, len(names), state.H
+    values = {k: np.broadcast_to(np.asarray(v, float), (S,)) for k, v in values.items()}
+    if steps.shape != (P,) or not (np.isfinite(steps).all() and (steps > 0).all()):
+        raise ValueError(f"sensitivity: need one positive step per parameter ({P}), got {steps}")
+    out = np.full((S, P, H + 1, state.harmonics.shape[2]), np.nan + 0j)
+    ok = np.flatnonzero(state.success)
+    if ok.size == 0 or P == 0:
+        return out
+    values = {k: v[ok] for k, v in values.items()}
+    s = ok.size
+    system = build(values)
+    # the perturbed assemblies, ordered (parameter, sign, scenario)
+    stacked = {k: np.tile(v, 2 * P) for k, v in values.items()}
+    for j, name in enumerate(names):
+        for sign, offset in ((+1.0, 2 * j * s), (-1.0, (2 * j + 1) * s)):
+            stacked[name][offset:offset + s] = values[name] + sign * steps[j]
+    perturbed = build(stacked)
+
+    def derivative(A: Array) -> Array:
+        """(2 P s, ...) -> central difference (P, s, ...) per unit of each parameter."""
+        A = A.reshape((P, 2, s) + A.shape[1:])
+        return (A[:, 0] - A[:, 1]) / (2.0 * steps.reshape((P, 1) + (1,) * (A.ndim - 3)))
+
+    dM, dC, dK = derivative(perturbed.M), derivative(perturbed.C), derivative(perturbed.K)
+    Q = state.harmonics[ok]  # (s, H+1, n)
+    x = state.state[ok]  # (s, c, 2H+1)
+    Omega = system.Omega
+    n = system.n_dof
+    prob = _Condensed(system, H, state.n_time)
+    c = len(prob.dofs)
+    # the local forces' own parameter derivative at fixed x: dG_h/dp (P, s, c, H+1)
+    dG_p = np.zeros((P, s, c, H + 1), complex)
+    if c:
+        aft = _Condensed(perturbed, H, state.n_time, linear=False)
+        F, _ = aft._force_series(np.tile(x, (2 * P, 1, 1)), np.arange(2 * P * s), jacobian=False)
+        dG_p = derivative(_to_complex(F @ aft.E_plus.T))
+        B = np.zeros((n, c))
+        B[prob.dofs, np.arange(c)] = 1.0
+    Dinv_rhs = np.empty((s, P, H + 1, n), complex)
+    for h in range(H + 1):
+        w = (h * Omega)[:, None, None]
+        D = system.K + 1j * w * system.C - w * w * system.M  # (s, n, n)
+        dD = dK + 1j * w[None] * dC - (w * w)[None] * dM  # (P, s, n, n)
+        dF = derivative(perturbed.forcing[h]) if h in perturbed.forcing else 0.0
+        rhs = -(np.einsum("psij,sj->psi", dD, Q[:, h]) - dF)  # (P, s, n)
+        if c:
+            rhs = rhs + np.einsum("ik,psk->psi", B, dG_p[..., h])
+        ok_h = np.ones(s, bool)
+        Dinv_rhs[:, :, h] = np.moveaxis(_batched_solve(D, np.moveaxis(rhs, 0, 2), ok_h), 2, 1)
+    if c == 0:
+        out[ok] = Dinv_rhs
+        return out
+    # condensed: J_r dx = B^T D^-1 rhs (real form), J_r the Newton Jacobian at x
+    _, Jr = prob.evaluate(x, np.arange(s), jacobian=True)
+    a = _to_real(Dinv_rhs[..., prob.dofs].reshape(s * P, H + 1, c)).reshape(s, P, -1)
+    dx = np.linalg.solve(Jr, np.swapaxes(a, 1, 2))  # (s, m, P)
+    dx = np.swapaxes(dx, 1, 2).reshape(s, P, c, 2 * H + 1)
+    _, J = prob._force_series(x, np.arange(s), jacobian=True)  # dF/dq (s, c, c, N)
+    dF_t = np.einsum("sijn,spjn->spin", J, dx @ prob.E.T, optimize=True)  # (s, P, c, N)
+    dG = _to_complex((dF_t @ prob.E_plus.T).reshape(s * P, c, -1)).reshape(s, P, c, H + 1)
+    out[ok] = Dinv_rhs + np.einsum("shnc,spch->sphn", prob.R, dG, optimize=True)
+    return out
