@@ -65,22 +65,26 @@ def test_sensitivities_match_finite_differences_of_the_solve(rpm):
     variant = _extended()
     build, vals, state = _solved(variant, rpm, VALUES | {"m_e": 0.0148})
     names = list(FINAL.unknown) + ["dk_up", "k_xy", "f2_c", "dk_lo", "zeta_v", "k_rot", "m_e", "l_i"]
-    dQ = sensitivity(build, vals, names, state, _steps(names))
+    dQ, dx = sensitivity(build, vals, names, state, _steps(names), condensed=True)
     assert dQ.shape == (1, len(names), 6, state.harmonics.shape[2])
+    assert dx.shape == (1, len(names)) + state.state.shape[1:]
     for j, name in enumerate(names):
         h = 1e-4 * SCALES[name]
-        solved = []
+        solved, states = [], []
         for sign in (1.0, -1.0):
             shifted = {k: v.copy() for k, v in vals.items()}
             shifted[name] = shifted[name] + sign * h
             again = solve(build(shifted), 5, initial=state.state, tol=1e-14)
             assert again.success.all()
             solved.append(again.harmonics[0])
+            states.append(again.state[0])
         fd = (solved[0] - solved[1]) / (2 * h)
         err = np.abs(fd - dQ[0, j]).max() / np.abs(fd).max()
         # both sides carry O(h^2) and round-off errors of ~1e-8 (see _steps); a wrong term, sign or
         # factor is O(1), a missing coupling (e.g. through the local force) >= 1e-3
         assert err < 1e-6, (rpm, name, err)
+        fd_x = (states[0] - states[1]) / (2 * h)  # the condensed state (the continuation's predictor)
+        assert np.abs(fd_x - dx[0, j]).max() < 1e-6 * np.abs(fd_x).max(), (rpm, name)
 
 
 def test_linear_system_closed_form():

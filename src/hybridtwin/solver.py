@@ -591,7 +591,8 @@ def _continue(build, rpm_from: Array, rpm_to: Array, x0, rows, depth, label, opt
 
 
 def sensitivity(build: Callable[[Mapping[str, Array]], System], values: Mapping[str, Array], names: Sequence[str],
-                state: SteadyState, steps: Sequence[float] | Array) -> Array:
+                state: SteadyState, steps: Sequence[float] | Array, condensed: bool = False
+                ) -> Array | tuple[Array, Array]:
     """dQ_h/dp of converged steady states for each parameter p in ``names``, (S, P, H+1, n) complex.
 
     The harmonic-balance equations of eq. 29, per harmonic h,
@@ -613,7 +614,8 @@ def sensitivity(build: Callable[[Mapping[str, Array]], System], values: Mapping[
 
     build(values) -> System of the scenarios whose parameter values are ``values`` (each (S',)), at
     the speeds of ``state``; values: complete, each (S,); state: ``solve``'s result for build(values)
-    (its ``state`` and ``n_time`` are used). Failed scenarios get NaN.
+    (its ``state`` and ``n_time`` are used). Failed scenarios get NaN. With ``condensed``, also the
+    derivative of ``state.state`` (S, P, c, 2H+1), e.g. to predict a neighbour's state (continuation).
     """
     names = list(names)
     steps = np.asarray(steps, float)
@@ -622,9 +624,10 @@ def sensitivity(build: Callable[[Mapping[str, Array]], System], values: Mapping[
     if steps.shape != (P,) or not (np.isfinite(steps).all() and (steps > 0).all()):
         raise ValueError(f"sensitivity: need one positive step per parameter ({P}), got {steps}")
     out = np.full((S, P, H + 1, state.harmonics.shape[2]), np.nan + 0j)
+    out_x = np.full((S, P) + state.state.shape[1:], np.nan)
     ok = np.flatnonzero(state.success)
     if ok.size == 0 or P == 0:
-        return out
+        return (out, out_x) if condensed else out
     values = {k: v[ok] for k, v in values.items()}
     s = ok.size
     system = build(values)
@@ -668,7 +671,7 @@ def sensitivity(build: Callable[[Mapping[str, Array]], System], values: Mapping[
         Dinv_rhs[:, :, h] = np.moveaxis(_batched_solve(D, np.moveaxis(rhs, 0, 2), ok_h), 2, 1)
     if c == 0:
         out[ok] = Dinv_rhs
-        return out
+        return (out, out_x) if condensed else out
     # condensed: J_r dx = B^T D^-1 rhs (real form), J_r the Newton Jacobian at x
     _, Jr = prob.evaluate(x, np.arange(s), jacobian=True)
     a = _to_real(Dinv_rhs[..., prob.dofs].reshape(s * P, H + 1, c)).reshape(s, P, -1)
@@ -678,4 +681,5 @@ def sensitivity(build: Callable[[Mapping[str, Array]], System], values: Mapping[
     dF_t = np.einsum("sijn,spjn->spin", J, dx @ prob.E.T, optimize=True)  # (s, P, c, N)
     dG = _to_complex((dF_t @ prob.E_plus.T).reshape(s * P, c, -1)).reshape(s, P, c, H + 1)
     out[ok] = Dinv_rhs + np.einsum("shnc,spch->sphn", prob.R, dG, optimize=True)
-    return out
+    out_x[ok] = dx
+    return (out, out_x) if condensed else out
