@@ -278,6 +278,21 @@ def test_harmonic_excitation_forces_harmonic_h_only_with_the_direct_solve_amplit
     assert 1e-5 < np.abs(U[shaft.dof("u1")]) < 14e-3  # a measurable response at the sensor
 
 
+@pytest.mark.parametrize("rpm", [400.0, 900.0])
+def test_inertial_2x_law_is_the_constant_force_times_omega_squared(rpm):
+    # the Omega^2 law at e = f / Omega^2 forces exactly what the constant law forces with f, at any speed;
+    # so their responses are equal there, and the law differs from the constant one by Omega^2 across speeds
+    e_c, e_s = 2e-5, -1e-5
+    Omega = float(rpm_to_rad_s(rpm))
+    inertial = _linear("excitation_2x_inertial").system(rpm, {**LINEAR, "e2_c": e_c, "e2_s": e_s})
+    constant = _linear("excitation_2x").system(rpm, {**LINEAR, "f2_c": e_c * Omega**2, "f2_s": e_s * Omega**2})
+    np.testing.assert_allclose(inertial.forcing[2], constant.forcing[2], rtol=1e-14)
+    shaft = _linear().model.shaft
+    assert abs(inertial.forcing[2][0, shaft.dof("u0")] - (e_c + 1j * e_s) * Omega**2) < 1e-15
+    with pytest.raises(ValueError, match="law must be"):
+        dataclasses.replace(builtin_effects()["excitation_2x"], law="cubic")
+
+
 def test_absent_excitation_leaves_no_harmonic_so_low_H_still_solves():
     variant = _linear("excitation_3x")
     result = variant.solve(500.0, {**LINEAR, "f3_c": 0.0, "f3_s": 0.0}, harmonics=1)

@@ -76,6 +76,7 @@ BUILTIN_TESTED: dict[str, tuple[str, ...]] = {
     "moment_stiffness": ("k_rot",),  # K[du0,du0] = K[dv0,dv0] += k_rot
     "lower_bearing_compliance": ("dk_lo",),  # the known k off by dk_lo at the last node
     "excitation_2x": ("f2_c", "f2_s"),  # 2X rotating force at node 0 (misalignment)
+    "excitation_2x_inertial": ("e2_c", "e2_s"),  # the same growing like Omega^2 (another law of the 2X force)
     "excitation_3x": ("f3_c", "f3_s"),  # 3X rotating force at node 0
     "speed_damping": ("zeta_v",),  # C += 2 zeta_v Omega M (extends eq. 31-32)
 }

@@ -37,18 +37,27 @@ Array = np.ndarray
 
 @dataclass(frozen=True)
 class Parameter:
-    """A model parameter: SI unit, plausible range, nominal value, meaning."""
+    """A model parameter: SI unit, plausible range, nominal value, meaning.
+
+    ``limits``: how far the range may physically go when a fit needs more (the diagnosis widens a
+    candidate's range up to them, e.g. a stiffness change that would make a spring negative is
+    not physical); None: no limit known (the diagnosis then widens up to 100 times the range).
+    """
 
     name: str
     unit: str
     bounds: tuple[float, float]
     nominal: float
     meaning: str
+    limits: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         lo, hi = self.bounds
         if not lo <= hi:
             raise ValueError(f"parameter {self.name}: range {self.bounds} is empty")
+        if self.limits is not None and not self.limits[0] <= lo <= hi <= self.limits[1]:
+            raise ValueError(f"parameter {self.name}: range {self.bounds} is not inside its physical limits "
+                             f"{self.limits}")
 
 
 class Params(Mapping[str, Array]):
@@ -561,6 +570,23 @@ RANGE_DK_LO = (-2000.0, 2000.0)
 RANGE_F2 = (-0.5, 0.5)
 RANGE_F3 = (-0.3, 0.3)
 RANGE_ZETA_V = (0.0, 0.05)
+# e2 +-4.5e-5 kg m (a 2X unbalance of 45 g mm): the 2X force e Omega^2 reaches f2's range, 0.5 N, at
+# 1000 RPM (Omega^2 = 1.1e4) and is 4 times weaker at 500 RPM.
+RANGE_E2 = (-4.5e-5, 4.5e-5)
+# Physical limits (Parameter.limits), how far the diagnosis may widen a range when an estimate sits at its
+# edge: the upper bearing's x or y stiffness 2 k_b +- dk_up stays positive at the lowest k_b of the base
+# ranges (2000 N/m); the lower bearing's k + dk_lo stays above 1 % of k = 1e4 N/m and below 10 k; k_rot up
+# to ~ 4 EI/h = 4140 N m/rad of an element, beyond which the tilt is clamped and more changes nothing;
+# a damping ratio below 1; the others ten times their range, where the response would be far off the
+# sensors' scale.
+LIMIT_DK_UP = (-4000.0, 4000.0)
+LIMIT_K_XY = (-2000.0, 2000.0)
+LIMIT_C_XY = (-50.0, 50.0)
+LIMIT_K_ROT = (0.0, 4140.0)
+LIMIT_DK_LO = (-9900.0, 90000.0)
+LIMIT_F = (-10.0, 10.0)
+LIMIT_E = (-4.5e-4, 4.5e-4)
+LIMIT_ZETA_V = (0.0, 1.0)
 
 
 def _entries(ctx: Context, values: Mapping[tuple[str, str], Array]) -> Array:
@@ -585,7 +611,7 @@ class UpperBearingAnisotropy(Effect):
     name = "upper_bearing_anisotropy"
     meaning = "upper bearing stiffer along x than along y by 2 dk_up (unequal springs), mean stiffness unchanged"
     parameters = (Parameter("dk_up", "N/m", RANGE_DK_UP, 0.0,
-                            "added to the node-0 stiffness in x, removed in y"),)
+                            "added to the node-0 stiffness in x, removed in y", LIMIT_DK_UP),)
 
     def stiffness(self, ctx: Context) -> Array:
         return _entries(ctx, {("u0", "u0"): ctx.p.dk_up, ("v0", "v0"): -ctx.p.dk_up})
@@ -603,7 +629,8 @@ class CrossCoupledStiffness(Effect):
 
     name = "cross_coupled_stiffness"
     meaning = "cross-coupled (circulatory) stiffness at the upper bearing, force k_xy (-v, u) along the rotation"
-    parameters = (Parameter("k_xy", "N/m", RANGE_K_XY, 0.0, "K[u0, v0] = +k_xy, K[v0, u0] = -k_xy"),)
+    parameters = (Parameter("k_xy", "N/m", RANGE_K_XY, 0.0, "K[u0, v0] = +k_xy, K[v0, u0] = -k_xy",
+                            LIMIT_K_XY),)
 
     def stiffness(self, ctx: Context) -> Array:
         return _entries(ctx, {("u0", "v0"): ctx.p.k_xy, ("v0", "u0"): -ctx.p.k_xy})
@@ -619,7 +646,8 @@ class CrossCoupledDamping(Effect):
 
     name = "cross_coupled_damping"
     meaning = "cross-coupled (skew-symmetric) damping at the upper bearing, force c_xy (-v', u')"
-    parameters = (Parameter("c_xy", "N s/m", RANGE_C_XY, 0.0, "C[u0, v0] = +c_xy, C[v0, u0] = -c_xy"),)
+    parameters = (Parameter("c_xy", "N s/m", RANGE_C_XY, 0.0, "C[u0, v0] = +c_xy, C[v0, u0] = -c_xy",
+                            LIMIT_C_XY),)
 
     def damping(self, ctx: Context) -> Array:
         return _entries(ctx, {("u0", "v0"): ctx.p.c_xy, ("v0", "u0"): -ctx.p.c_xy})
@@ -637,7 +665,8 @@ class MomentStiffness(Effect):
 
     name = "moment_stiffness"
     meaning = "rotational (moment) stiffness of the upper bearing against the shaft's tilt at node 0"
-    parameters = (Parameter("k_rot", "N m/rad", RANGE_K_ROT, 0.0, "moment per unit slope at node 0, both planes"),)
+    parameters = (Parameter("k_rot", "N m/rad", RANGE_K_ROT, 0.0, "moment per unit slope at node 0, both planes",
+                            LIMIT_K_ROT),)
 
     def stiffness(self, ctx: Context) -> Array:
         return _entries(ctx, {("du0", "du0"): ctx.p.k_rot, ("dv0", "dv0"): ctx.p.k_rot})
@@ -654,7 +683,8 @@ class LowerBearingCompliance(Effect):
 
     name = "lower_bearing_compliance"
     meaning = "lower bearing stiffness differs from its known value k by dk_lo (both planes, last node)"
-    parameters = (Parameter("dk_lo", "N/m", RANGE_DK_LO, 0.0, "error of the known lower bearing stiffness k"),)
+    parameters = (Parameter("dk_lo", "N/m", RANGE_DK_LO, 0.0, "error of the known lower bearing stiffness k",
+                            LIMIT_DK_LO),)
 
     def stiffness(self, ctx: Context) -> Array:
         n = ctx.shaft.n
@@ -680,6 +710,12 @@ class HarmonicExcitation(Effect):
     550 RPM, comparably above 650 RPM). A user who wants the coupling itself builds
     ``HarmonicExcitation(name=..., meaning=..., harmonic=2, node=10, bounds=...)``; off node 0
     the parameters are named f{h}_c_{node}, f{h}_s_{node} so that both can be in one model.
+
+    Law: ``law="constant"`` (above), or ``law="omega2"``: the force grows like an unbalance,
+    F_h = (e_c + i e_s) Omega^2 with e_c, e_s [kg m] (parameters e{h}_c, e{h}_s): an inertial
+    source turning at h Omega, e.g. a coupling or a part mounted off-axis twice per turn. On data
+    over a range of speeds the two laws differ by Omega^2, so the diagnosis can say which one the
+    data prefer (or that they are confounded, on a narrow speed range).
     """
 
     name: str = ""
@@ -687,23 +723,31 @@ class HarmonicExcitation(Effect):
     harmonic: int = 2
     node: int = 0
     bounds: tuple[float, float] = (-1.0, 1.0)
+    law: str = "constant"
+    limits: tuple[float, float] | None = None
     parameters: tuple[Parameter, ...] = field(init=False)
 
     def __post_init__(self) -> None:
         if int(self.harmonic) != self.harmonic or self.harmonic < 1:
             raise ValueError(f"effect {self.name}: harmonic must be a positive integer, got {self.harmonic!r}")
+        if self.law not in ("constant", "omega2"):
+            raise ValueError(f"effect {self.name}: law must be 'constant' or 'omega2', got {self.law!r}")
         h, node = self.harmonic, self.node
         suffix = "" if node == 0 else f"_{node}"
-        self._names = (f"f{h}_c{suffix}", f"f{h}_s{suffix}")
+        letter, unit, what = ("f", "N", "force") if self.law == "constant" else ("e", "kg m", "force / Omega^2")
+        self._names = (f"{letter}{h}_c{suffix}", f"{letter}{h}_s{suffix}")
         self.parameters = (
-            Parameter(self._names[0], "N", self.bounds, 0.0, f"{h}X force at t = 0 along the unbalance (node {node})"),
-            Parameter(self._names[1], "N", self.bounds, 0.0,
-                      f"{h}X force at t = 0, 90 degrees ahead of the unbalance (node {node})"),
+            Parameter(self._names[0], unit, self.bounds, 0.0, f"{h}X {what} at t = 0 along the unbalance "
+                      f"(node {node})", self.limits),
+            Parameter(self._names[1], unit, self.bounds, 0.0,
+                      f"{h}X {what} at t = 0, 90 degrees ahead of the unbalance (node {node})", self.limits),
         )
 
     def forcing(self, ctx: Context) -> dict[int, Array]:
         h = self.harmonic
         F = ctx.p[self._names[0]] + 1j * ctx.p[self._names[1]]
+        if self.law == "omega2":
+            F = F * ctx.Omega**2
         if not np.any(F):
             return {}  # absent: not even a zero harmonic (a solver with H < h must still run)
         f = ctx.zero_vector()
@@ -714,14 +758,22 @@ class HarmonicExcitation(Effect):
 
 def misalignment_2x() -> HarmonicExcitation:
     """2X excitation (misalignment) at the upper bearing."""
-    return HarmonicExcitation(name="excitation_2x", harmonic=2, node=0, bounds=RANGE_F2,
+    return HarmonicExcitation(name="excitation_2x", harmonic=2, node=0, bounds=RANGE_F2, limits=LIMIT_F,
                               meaning="2X rotating force at the upper bearing (shaft-line misalignment), "
                                       "in-phase and quadrature to the unbalance")
 
 
+def excitation_2x_inertial() -> HarmonicExcitation:
+    """2X excitation at the upper bearing growing like an unbalance, (e_c + i e_s) Omega^2."""
+    return HarmonicExcitation(name="excitation_2x_inertial", harmonic=2, node=0, bounds=RANGE_E2, law="omega2",
+                              limits=LIMIT_E, meaning="2X rotating force at the upper bearing growing like "
+                              "Omega^2 (an inertial source turning twice per revolution), in-phase and "
+                              "quadrature to the unbalance")
+
+
 def excitation_3x() -> HarmonicExcitation:
     """3X excitation at the upper bearing."""
-    return HarmonicExcitation(name="excitation_3x", harmonic=3, node=0, bounds=RANGE_F3,
+    return HarmonicExcitation(name="excitation_3x", harmonic=3, node=0, bounds=RANGE_F3, limits=LIMIT_F,
                               meaning="3X rotating force at the upper bearing (misalignment, coupling, bearing "
                                       "defect), in-phase and quadrature to the unbalance")
 
@@ -738,7 +790,7 @@ class SpeedDependentDamping(Effect):
     name = "speed_damping"
     meaning = "mass-proportional damping growing with speed, C += 2 zeta_v Omega M (extends eq. 31-32)"
     parameters = (Parameter("zeta_v", "1", RANGE_ZETA_V, 0.0,
-                            "added first-mode damping ratio per unit Omega / omega_1"),)
+                            "added first-mode damping ratio per unit Omega / omega_1", LIMIT_ZETA_V),)
 
     def damping(self, ctx: Context) -> Array:
         return (2.0 * ctx.p.zeta_v * ctx.Omega)[:, None, None] * ctx.M
@@ -747,7 +799,8 @@ class SpeedDependentDamping(Effect):
 def candidate_effects() -> list[Effect]:
     """The candidate effects (issue 6) with parameters absent at zero; see candidates.BUILTIN_TESTED."""
     return [UpperBearingAnisotropy(), CrossCoupledStiffness(), CrossCoupledDamping(), MomentStiffness(),
-            LowerBearingCompliance(), misalignment_2x(), excitation_3x(), SpeedDependentDamping()]
+            LowerBearingCompliance(), misalignment_2x(), excitation_2x_inertial(), excitation_3x(),
+            SpeedDependentDamping()]
 
 
 def base_effects() -> list[Effect]:
