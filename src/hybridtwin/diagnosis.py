@@ -41,6 +41,7 @@ mistake surrogate error for physics.
 from __future__ import annotations
 
 import time
+import zlib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
@@ -59,7 +60,11 @@ Array = np.ndarray
 #: the ``diagnosis:`` section's defaults (config/config.yaml; schema in workflow/schemas)
 DEFAULTS: dict = {
     "candidates": None,  # names to test (built in or from effects_files); None: every built-in candidate
-    "confirm": 3,  # candidates refitted (the best by score, plus any within confounded_bic of the best)
+    "confirm": "all",  # candidates refitted: every significant one, or the n best by score (+ any within
+    # confounded_bic of the best)
+    "starts": 4,  # points across a candidate's range a refit starts from, besides zero and the linear estimate
+    "widen": 4,  # times a refit may widen a candidate's range (x3 towards the edge its estimate sits at)
+    "max_effects": 3,  # effects the forward selection adds at most
     "alpha": 0.01,  # family-wise false-alarm rate (Bonferroni over the candidates)
     "explained": 0.9,  # share of the excess chi^2 an effect must remove to "explain the discrepancy"
     "misfit_ratio": 1.2,  # chi^2/dof above which a significant misfit is called a discrepancy (sigma tolerance)
@@ -107,25 +112,30 @@ class BaseFit:
         return cls(variant, layout, theta, list(data), harmonics)
 
 
-def extend(variant: Variant, candidates: Sequence[Candidate]) -> Variant:
-    """The variant with the candidates' effects added and their tested parameters unknown (absent at 0)."""
+def extend(variant: Variant, candidates: Sequence[Candidate], ranges: Mapping[str, tuple[float, float]] | None = None
+           ) -> Variant:
+    """The variant with the candidates' effects added and their tested parameters unknown (absent at 0), in their
+    ranges (``ranges`` overrides a parameter's default range, e.g. one widened by a refit)."""
+    ranges = dict(ranges or {})
     for c in candidates:
         for p in c.parameters:
-            lo, hi = p.bounds
+            lo, hi = ranges.get(p.name, p.bounds)
             if not lo <= 0.0 <= hi:
                 raise ValueError(f"candidate {c.name}: the range [{lo:g}, {hi:g}] of {p.name} excludes 0 (absent)")
             if p.name in variant.unknown or p.name in variant.fixed:
                 raise ValueError(f"candidate {c.name}: parameter {p.name} is already one of variant "
                                  f"{variant.name!r}'s")
     effects = variant.model.effects + [c.effect for c in candidates]
-    unknown = dict(variant.unknown) | {p.name: p.bounds for c in candidates for p in c.parameters}
+    unknown = dict(variant.unknown) | {p.name: tuple(ranges.get(p.name, p.bounds)) for c in candidates
+                                       for p in c.parameters}
     name = "+".join([variant.name] + [c.name for c in candidates])
     return Variant(name, Model(effects, variant.model.shaft), unknown, dict(variant.fixed), variant.description)
 
 
-def extended_problem(base: BaseFit, candidates: Sequence[Candidate]) -> tuple[ArrowProblem, Array]:
+def extended_problem(base: BaseFit, candidates: Sequence[Candidate],
+                     ranges: Mapping[str, tuple[float, float]] | None = None) -> tuple[ArrowProblem, Array]:
     """The joint problem of the base extended by ``candidates`` (full solver), and theta at beta = 0."""
-    ext = extend(base.variant, candidates)
+    ext = extend(base.variant, candidates, ranges)
     lower, upper = zip(*ext.unknown.values())
     layout = Layout.build(list(ext.unknown), lower, upper, base.layout.runs, base.layout.local,
                           base.layout.phase_sigma)
@@ -225,7 +235,11 @@ def nested(a: Array, b: Array, tolerance: float = 1e-3) -> bool:
 
 @dataclass
 class Confirmation:
-    """A refit with one candidate added: chi^2, likelihood ratio, Delta BIC, the new parameters' intervals."""
+    """A refit with one candidate added: chi^2, likelihood ratio, Delta BIC, the new parameters' intervals.
+
+    ranges: the candidate's parameter ranges the refit ended with; widened: (parameter, old range, new range)
+    of each widening (``refit``); start_chi2: the full solver's chi^2 at each start of the first refit.
+    """
 
     candidate: Candidate
     fit: Identification
@@ -237,43 +251,130 @@ class Confirmation:
     estimates: pd.DataFrame  # the candidate's rows of the refit's table
     excludes_zero: bool
     seconds: float
+    ranges: dict = field(default_factory=dict)
+    widened: list = field(default_factory=list)
+    start_chi2: list = field(default_factory=list)
+
+    @property
+    def at_limit(self) -> list[str]:
+        """Parameters whose estimate still sits at a range edge away from zero (the physical limit reached)."""
+        edge = self.estimates["at_bound"].astype(bool) & (self.estimates["value"].abs() > 0)
+        return self.estimates.loc[edge, "parameter"].tolist()
+
+
+def _refit_starts(theta0: Array, cols: list[int], step: Array, n_points: int, seed: int) -> Array:
+    """Starts of a refit: beta = 0; the score's linear estimate, damped into the range, and a third of it (the
+    linear estimate overshoots when the response bends, e.g. a cubic term); and ``n_points`` points across the
+    candidate's range (a seeded Latin hypercube in [-0.7, 0.7], normalised): fits with several new parameters
+    have local minima (one term at its edge compensating another), and where the base is far from the
+    truth the linear estimate can point the wrong way."""
+    starts = [theta0]
+    if step is not None and np.any(step):
+        step = step * min(1.0, 1.0 / max(np.abs(step).max(), 1e-12))
+        for scale in (1.0, 1.0 / 3.0):
+            start = theta0.copy()
+            start[cols] = np.clip(theta0[cols] + scale * step, -1.0, 1.0)
+            starts.append(start)
+    if n_points:
+        rng = np.random.default_rng(seed)
+        k = len(cols)
+        grid = (np.argsort(rng.random((k, n_points)), axis=1).T + rng.random((n_points, k))) / n_points
+        for point in 1.4 * grid - 0.7:
+            start = theta0.copy()
+            start[cols] = point
+            starts.append(start)
+    return np.array(starts)
+
+
+def _widened(ranges: Mapping[str, tuple[float, float]], estimates: pd.DataFrame, candidate: Candidate,
+             factor: float = 3.0) -> dict[str, tuple[float, float]]:
+    """The ranges of the candidate's parameters whose estimate sits at a range edge away from zero, widened
+    ``factor`` times towards that edge, up to the parameter's physical limits (``Parameter.limits``; without
+    them 100 times the default range, never across zero for a range with 0 as an edge). Unchanged ranges
+    (estimate inside, at zero, or at the limit already) are left out: an empty result means nothing to widen."""
+    by_name = {p.name: p for p in candidate.parameters}
+    out = {}
+    for r in estimates.itertuples():
+        if not (bool(r.at_bound) and abs(r.value) > 0):
+            continue
+        par = by_name[r.parameter]
+        lo, hi = ranges[r.parameter]
+        width = hi - lo
+        d_lo, d_hi = par.bounds
+        limit = par.limits or (d_lo - 100 * (d_hi - d_lo) if d_lo < 0 else d_lo,
+                               d_hi + 100 * (d_hi - d_lo) if d_hi > 0 else d_hi)
+        upper_edge = abs(r.value - hi) <= abs(r.value - lo)
+        new = (lo, min(hi + (factor - 1) * width, limit[1])) if upper_edge else (max(lo - (factor - 1) * width,
+                                                                                        limit[0]), hi)
+        if new != (lo, hi):
+            out[r.parameter] = new
+    return out
+
+
+def _theta_in(layout: Layout, fit: Identification) -> Array:
+    """A fit's estimate (SI) as theta of another layout with the same entries (other ranges)."""
+    values = dict(zip(fit.layout.entries(), fit.x))
+    return np.array([values[e] if e[0] == "phase" else float(layout.normalise(e[0], values[e]))
+                     for e in layout.entries()])
 
 
 def confirm(base: BaseFit, score: Score, scores: Scores, max_iterations: int = 40,
-            confidence: float = 0.95) -> Confirmation:
-    """Refit with ``score.candidate`` added (full solver): from beta = 0 and from the score's linear estimate."""
-    start = time.perf_counter()
+            confidence: float = 0.95, starts: int = 4, widen: int = 4) -> Confirmation:
+    """Refit with ``score.candidate`` added (full solver), from several starts (``_refit_starts``), its range
+    widened while its estimate sits at an edge (``_widened``, at most ``widen`` times).
+
+    The result is the best start's (lowest chi^2); the full solver's chi^2 at every start is kept
+    (``start_chi2``). After a widening the refit starts again from the previous optimum, so each widening can
+    only lower chi^2."""
+    start_time = time.perf_counter()
     c = score.candidate
-    problem, theta0 = extended_problem(base, [c])
-    layout = problem.layout
-    cols = [layout.entries().index((p.name, "all")) for p in c.parameters]
-    # the linear estimate overshoots when the response bends (a cubic term): start from beta = 0 and along the
-    # linear estimate, damped to at most half the range and to a third of that (fits with several new
-    # parameters have local minima on the box's faces, e.g. one term at its edge compensating another)
-    step = score.step * min(1.0, 1.0 / max(np.abs(score.step).max(), 1e-12))
-    starts = np.repeat(theta0[None], 3, axis=0)
-    for row, scale in ((1, 1.0), (2, 1.0 / 3.0)):
-        starts[row, cols] = np.clip(theta0[cols] + scale * step, -1.0, 1.0)
+    ranges = {p.name: tuple(p.bounds) for p in c.parameters}
+    widened: list = []
     # the verdicts compare chi^2 drops against thresholds of 6-10: chi^2 to within ~0.5 is all they need, and
-    # stopping there saves the long crawl along flat valleys (each iteration is a full-solver run-up per run)
+    # stopping there saves the long crawl along flat valleys
     options = LMOptions(max_iterations=max_iterations, ftol=1e-6, xtol=1e-6, gtol=1e-8, stall_chi2=STALL_CHI2,
                         geodesic=True)
-    result = levenberg_marquardt(problem, starts, np.repeat(base.X[None], len(starts), axis=0), options)
-    best = int(np.nanargmin(np.where(np.isfinite(result.loss), result.loss, np.inf)))
-    protocol = ProtocolResult(result, best, np.zeros((0, layout.n)), np.zeros(0), result.seconds, len(starts))
-    fit = conclude(problem, protocol, base.data, base.X, confidence, units(problem.models[0].variant))
+    fit, start_chi2 = None, []
+    for attempt in range(widen + 1):
+        problem, theta0 = extended_problem(base, [c], ranges)
+        layout = problem.layout
+        cols = [layout.entries().index((p.name, "all")) for p in c.parameters]
+        if fit is None:
+            theta = _refit_starts(theta0, cols, score.step, starts, zlib.crc32(c.name.encode()))
+        else:  # widened: from the previous optimum, and halfway from it to the new edge
+            previous = _theta_in(layout, fit)
+            further = previous.copy()
+            for j, p in zip(cols, c.parameters):
+                if p.name in wider:
+                    edge = 1.0 if wider[p.name][1] > old[p.name][1] else -1.0
+                    further[j] = 0.5 * (previous[j] + edge)
+            theta = np.vstack([previous, further])
+        X = np.repeat(base.X[None], len(theta), axis=0)
+        if fit is None:
+            start_chi2 = problem.evaluate(theta, X, jacobian=False).chi2.tolist()
+        result = levenberg_marquardt(problem, theta, X, options)
+        best = int(np.nanargmin(np.where(np.isfinite(result.loss), result.loss, np.inf)))
+        protocol = ProtocolResult(result, best, np.zeros((0, layout.n)), np.zeros(0), result.seconds, len(theta))
+        fit = conclude(problem, protocol, base.data, base.X, confidence, units(problem.models[0].variant))
+        table = fit.table()
+        estimates = table[table["parameter"].isin(list(ranges)) & (table["run"] == "all")]
+        wider = _widened(ranges, estimates, c)
+        if not wider or attempt == widen:
+            break
+        widened += [(name, ranges[name], new) for name, new in wider.items()]
+        old = dict(ranges)
+        ranges |= wider
     chi2 = float(fit.uncertainty.chi2)
-    k, n = len(cols), scores.n_data
+    k, n = len(ranges), scores.n_data
     lr = scores.base_chi2 - chi2
-    table = fit.table()
-    estimates = table[table["parameter"].isin([p.name for p in c.parameters]) & (table["run"] == "all")]
     # zero is excluded by the interval, or by an estimate pinned at the range edge away from zero (the data want
-    # more of the effect than the range allows: its interval is not valid there, the likelihood ratio is)
+    # more of the effect than the physical limit allows: its interval is not valid there, the likelihood ratio is)
     far_edge = estimates["at_bound"].astype(bool) & (estimates["value"].abs() > 0)
     excludes = bool(((estimates["ci_low"] > 0) | (estimates["ci_high"] < 0) | far_edge).any())
     return Confirmation(c, fit, chi2, int(fit.uncertainty.dof), float(lr),
                         float(stats.chi2.sf(max(lr, 0.0), k)), float(-lr + k * np.log(n)), estimates, excludes,
-                        time.perf_counter() - start)
+                        time.perf_counter() - start_time, {k_: tuple(map(float, v)) for k_, v in ranges.items()},
+                        widened, [float(v) for v in start_chi2])
 
 
 @dataclass
@@ -285,11 +386,68 @@ class Diagnosis:
     recommendation: str
     summary: dict = field(default_factory=dict)
     confirmations: dict[str, Confirmation] = field(default_factory=dict)
+    best: Confirmation | None = None  # the first step's best confirmed effect
+    path: list = field(default_factory=list)  # forward selection, a Step per effect added
+
+    def path_table(self) -> pd.DataFrame:
+        """One row per forward-selection step: effect, chi^2/dof before and after, Delta BIC, explained share."""
+        rows = [dict(step.row(), step=i + 1) for i, step in enumerate(self.path)]
+        return pd.DataFrame(rows, columns=["step", "effect", "chi2_dof_before", "chi2_dof_after", "delta_bic",
+                                           "explained_pct", "estimate"])
+
+
+@dataclass
+class Step:
+    """One step of the forward selection: the effect added at it and the fit with every effect so far."""
+
+    effect: str
+    chi2_dof_before: float
+    chi2_dof_after: float
+    delta_bic: float
+    share: float  # of the base's excess chi^2 removed by the path up to this step
+    confirmation: Confirmation
+
+    def row(self) -> dict:
+        return {"step": None, "effect": self.effect, "chi2_dof_before": self.chi2_dof_before,
+                "chi2_dof_after": self.chi2_dof_after, "delta_bic": self.delta_bic,
+                "explained_pct": 100 * self.share, "estimate": _estimate_text(self.confirmation)}
+
+
+def _refit_significant(base: BaseFit, scores: Scores, o: Mapping, alpha_each: float, log=None
+                       ) -> dict[str, Confirmation]:
+    """Refit every candidate the score test finds significant (``confirm: all``), or the ``confirm`` best plus
+    any whose predicted drop is within ``confounded_bic`` of the best's (maybe confounded)."""
+    order = sorted(scores.scores, key=_by_score)
+    significant = [s for s in order if s.p_value < alpha_each]
+    if o["confirm"] == "all":
+        chosen = significant
+    else:
+        chosen = significant[: int(o["confirm"])]
+        if significant:
+            top = significant[0].statistic
+            chosen += [s for s in significant[len(chosen):] if top - s.statistic < o["confounded_bic"]]
+    confirmations = {}
+    for s in chosen:
+        cf = confirm(base, s, scores, int(o["max_iterations"]), starts=int(o["starts"]), widen=int(o["widen"]))
+        confirmations[s.candidate.name] = cf
+        if log:
+            widened = "; ".join(f"{p} range widened to [{new[0]:.4g}, {new[1]:.4g}]" for p, _, new in cf.widened)
+            log.info("refit of %s with %s from %d starts: chi^2 %.4g -> %.4g, Delta BIC %.3g (%.1f s)%s",
+                     base.variant.name, s.candidate.name, len(cf.start_chi2), scores.base_chi2, cf.chi2,
+                     cf.delta_bic, cf.seconds, f"; {widened}" if widened else "")
+    return confirmations
+
+
+def _fits_the_noise(cf: Confirmation, o: Mapping) -> bool:
+    return stats.chi2.sf(cf.chi2, cf.dof) >= o["alpha"] or cf.chi2 / cf.dof <= o["misfit_ratio"]
 
 
 def diagnose(base: BaseFit, candidates: Sequence[Candidate], options: Mapping | None = None,
              log=None) -> Diagnosis:
-    """Score every candidate, confirm the best by refitting, rank and give verdicts (module docstring)."""
+    """Score every candidate, refit every significant one, rank by the refits' Delta BIC and give verdicts
+    (module docstring); then forward selection: while the best confirmed effect leaves a discrepancy, add it,
+    score and refit the others at the extended fit, and stop when nothing significant is left (``max_effects``
+    at most). The path (each step's effect, chi^2/dof, Delta BIC) is in ``Diagnosis.path``."""
     o = DEFAULTS | dict(options or {})
     if not candidates:
         raise ValueError("no candidate effect to test (all are already in the variant, or none was listed)")
@@ -298,24 +456,38 @@ def diagnose(base: BaseFit, candidates: Sequence[Candidate], options: Mapping | 
         log.info("score tests of %d candidates in %.1f s: base chi^2/dof %.3g", len(candidates), scores.seconds,
                  scores.base_chi2 / scores.base_dof)
     alpha_each = o["alpha"] / len(candidates)
-    order = sorted(scores.scores, key=_by_score)
-    significant = [s for s in order if s.p_value < alpha_each]
-    chosen = significant[: int(o["confirm"])]
-    if significant:  # also refit any candidate whose predicted drop is as good as the best's: maybe confounded
-        top = significant[0].statistic
-        chosen += [s for s in significant[len(chosen):] if top - s.statistic < o["confounded_bic"]]
-    confirmations = {}
-    for s in chosen:
-        confirmations[s.candidate.name] = confirm(base, s, scores, int(o["max_iterations"]))
+    confirmations = _refit_significant(base, scores, o, alpha_each, log)
+    first = _conclude(base, scores, confirmations, o, alpha_each)
+    excess = _excess(scores)
+    path: list[Step] = []
+    best = first.best
+    current, remaining, before = base, list(candidates), scores.base_chi2 / scores.base_dof
+    while best is not None:
+        path.append(Step(best.candidate.name, before, best.chi2 / best.dof, best.delta_bic,
+                         (scores.base_chi2 - best.chi2) / excess, best))
+        remaining = [c for c in remaining if c.name != best.candidate.name]
+        if _fits_the_noise(best, o) or len(path) >= int(o["max_effects"]) or not remaining:
+            break
+        current = BaseFit(extend(current.variant, [best.candidate], best.ranges), best.fit.layout, best.fit.theta,
+                          current.data, current.harmonics)
+        step_scores = score_tests(current, remaining)
+        step_alpha = o["alpha"] / len(remaining)
+        refits = _refit_significant(current, step_scores, o, step_alpha, log)
+        confirmed = [cf for cf in refits.values() if _is_confirmed(cf, o, step_alpha)]
+        before = best.chi2 / best.dof
+        best = min(confirmed, key=lambda cf: cf.delta_bic) if confirmed else None
         if log:
-            cf = confirmations[s.candidate.name]
-            log.info("refit with %s: chi^2 %.4g -> %.4g, Delta BIC %.3g (%.1f s)", s.candidate.name,
-                     scores.base_chi2, cf.chi2, cf.delta_bic, cf.seconds)
-    return _conclude(base, scores, confirmations, o, alpha_each)
+            log.info("forward selection, step %d at %s: %s", len(path) + 1, current.variant.name,
+                     "nothing significant left" if best is None else f"best {best.candidate.name}")
+    first.path = path
+    _conclude_path(first, base, scores, o)
+    return first
 
 
 def _excess(scores: Scores) -> float:
-    return max(scores.base_chi2 - scores.base_dof, 1e-12)
+    """chi^2 - dof, floored at one standard deviation of chi^2(dof), sqrt(2 dof): shares of an excess within
+    the noise are not meaningful (a base at the noise floor would otherwise divide by ~0)."""
+    return max(scores.base_chi2 - scores.base_dof, np.sqrt(2.0 * scores.base_dof))
 
 
 def _is_confirmed(cf: Confirmation, o: Mapping, alpha_each: float) -> bool:
@@ -380,16 +552,65 @@ def _conclude(base: BaseFit, scores: Scores, confirmations: Mapping[str, Confirm
                "conclusion": conclusion, "score_seconds": scores.seconds,
                "recommended_variant": None if best is None else {
                    "name": f"{base.variant.name}_{best.candidate.name}",
-                   "spec": variant_spec(base.variant, best.candidate)},
+                   "spec": variant_spec(base.variant, best.candidate, best.ranges)},
                "refit_seconds": float(sum(cf.seconds for cf in confirmations.values()))}
-    return Diagnosis(table, conclusion, recommendation, summary, dict(confirmations))
+    return Diagnosis(table, conclusion, recommendation, summary, dict(confirmations), best)
+
+
+def _conclude_path(result: Diagnosis, base: BaseFit, scores: Scores, o: Mapping) -> None:
+    """The conclusion, verdict of the first effect and recommendation from the forward-selection path: "add"
+    only for effects that together explain the discrepancy; otherwise "unexplained", the path as evidence."""
+    path = result.path
+    result.summary["path"] = [dict(step.row(), step=i + 1, ranges={k: list(v) for k, v in
+                                                                   step.confirmation.ranges.items()})
+                              for i, step in enumerate(path)]
+    if not path:
+        return
+    final, share = path[-1].confirmation, path[-1].share
+    explains = _fits_the_noise(final, o) or share >= o["explained"]
+    names = [step.effect for step in path]
+    first = result.table.index[result.table["effect"] == names[0]][0]
+    base_ratio = scores.base_chi2 / scores.base_dof
+    estimates = "; ".join(f"{step.effect}: {_estimate_text(step.confirmation)}" for step in path)
+    if explains and len(path) == 1:
+        return  # _conclude's verdict and recommendation stand
+    if explains:
+        together = " and ".join(names)
+        result.table.loc[first, "verdict"] = (f"add, with {', '.join(names[1:])}: together they explain the "
+                                              f"discrepancy ({100 * share:.0f} % of the excess chi^2)")
+        result.conclusion = (f"add {together}: together they explain the discrepancy ({100 * share:.0f} % of the "
+                             f"excess chi^2); chi^2/dof {base_ratio:.3g} -> {final.chi2 / final.dof:.3g} "
+                             f"(forward selection, {len(path)} steps); {estimates}")
+        candidates = [step.confirmation.candidate for step in path]
+        ranges = {k: v for step in path for k, v in step.confirmation.ranges.items()}
+        name = "_".join([base.variant.name] + names)
+        spec = variant_spec(base.variant, candidates, ranges)
+        result.recommendation = (f"Add this variant under `variants:` in config/config.yaml, then run `snakemake "
+                                 f"--cores 2` (only the new variant is built) and compare in results/ledger.tsv:"
+                                 f"\n\n{variant_lines(name, spec)}\n")
+        result.summary["recommended_variant"] = {"name": name, "spec": spec}
+    else:
+        result.table.loc[first, "verdict"] = (f"explains only {100 * path[0].share:.0f} % of the excess chi^2: "
+                                              "part of an unexplained discrepancy")
+        result.conclusion = (f"unexplained discrepancy: the candidates that help most, {', then '.join(names)}, "
+                             f"remove only {100 * share:.0f} % of the excess chi^2 (chi^2/dof {base_ratio:.3g} -> "
+                             f"{final.chi2 / final.dof:.3g}), and nothing significant is left among the others: "
+                             f"the missing physics is not among the candidates (evidence: {estimates})")
+        result.recommendation = ""
+        result.summary["recommended_variant"] = None
+    result.summary["conclusion"] = result.conclusion
 
 
 def _estimate_text(cf: Confirmation) -> str:
+    widened = {name for name, _, _ in cf.widened}
+
     def one(r) -> str:
+        lo, hi = cf.ranges.get(r.parameter, (r.lower, r.upper))
+        note = f" (range widened to [{lo:.4g}, {hi:.4g}])" if r.parameter in widened else ""
         if r.at_bound:
-            return f"{r.parameter} = {r.value:.4g} {r.unit} (at its range edge: widen the range)"
-        return f"{r.parameter} = {r.value:.4g} [{r.ci_low:.4g}, {r.ci_high:.4g}] {r.unit}".rstrip()
+            return (f"{r.parameter} = {r.value:.4g} {r.unit} (at the edge of its range [{lo:.4g}, {hi:.4g}], the "
+                    "physical limit: the data want more of this effect than it can physically give)")
+        return f"{r.parameter} = {r.value:.4g} [{r.ci_low:.4g}, {r.ci_high:.4g}] {r.unit}".rstrip() + note
     return "; ".join(one(r) for r in cf.estimates.itertuples())
 
 
@@ -433,11 +654,15 @@ def refits_table(result: Diagnosis) -> pd.DataFrame:
     return table[["effect"] + [c for c in table if c != "effect"]]
 
 
-def variant_spec(base: Variant, candidate: Candidate) -> dict:
-    """The config entry (``variants:`` form) of ``base`` + ``candidate``, the candidate's parameters unknown."""
-    unknown = dict(base.unknown) | {p.name: p.bounds for p in candidate.parameters}
-    spec = {"description": f"{base.name} + {candidate.name}: {candidate.meaning}",
-            "effects": [e.name for e in base.model.effects] + [candidate.name],
+def variant_spec(base: Variant, candidate: Candidate | Sequence[Candidate],
+                 ranges: Mapping[str, tuple[float, float]] | None = None) -> dict:
+    """The config entry (``variants:`` form) of ``base`` + the candidate(s), their parameters unknown in their
+    ranges (``ranges``: those a refit widened)."""
+    added = [candidate] if isinstance(candidate, Candidate) else list(candidate)
+    ranges = dict(ranges or {})
+    unknown = dict(base.unknown) | {p.name: tuple(ranges.get(p.name, p.bounds)) for c in added for p in c.parameters}
+    spec = {"description": f"{base.name} + " + " + ".join(f"{c.name}: {c.meaning}" for c in added),
+            "effects": [e.name for e in base.model.effects] + [c.name for c in added],
             "unknown": {k: [float(lo), float(hi)] for k, (lo, hi) in unknown.items()}}
     if base.fixed:
         spec["fixed"] = {k: float(v) for k, v in base.fixed.items()}
@@ -486,7 +711,7 @@ def _recommend(base: BaseFit, scores: Scores, best: Confirmation | None, confoun
     new_name = f"{variant.name}_{name}"
     recommendation = (f"Add this variant under `variants:` in config/config.yaml, then run `snakemake --cores 2` "
                       f"(only the new variant is built) and compare in results/ledger.tsv:\n\n"
-                      f"{variant_lines(new_name, variant_spec(variant, best.candidate))}\n")
+                      f"{variant_lines(new_name, variant_spec(variant, best.candidate, best.ranges))}\n")
     return conclusion, recommendation
 
 
