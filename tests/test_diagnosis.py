@@ -242,3 +242,59 @@ def test_theta_from_nested_maps_the_shared_values_and_copies_the_runs():
         assert si[entry] == pytest.approx(value, abs=1e-9)
     missing = fit[fit["parameter"] != "phase"]  # phases neither in the fit nor the fallback: no start
     assert dg.theta_from_nested(missing, geometric, expansion, layout, fallback)[0] is None
+
+
+def test_no_effect_shares_stay_finite(slope_base):
+    """On data at the noise floor the predicted share of the excess chi^2 must not divide by ~0 (it printed
+    3.2e14 % once): the excess is floored at one standard deviation of chi^2(dof)."""
+    base = _base_fit(_data([], TRUTH, seed=3))
+    result = dg.diagnose(base, _candidates(["cross_coupled_stiffness", "expansion_k2"]))
+    drop = result.table["predicted_error_drop_pct"]
+    # S ~ chi^2(1) under "absent": a few units over sqrt(2 dof) ~ 7 gives tens of percent, never 1e14
+    assert np.isfinite(drop).all() and drop.max() < 1e3
+
+
+def test_an_estimate_beyond_the_range_is_found_by_widening_it():
+    """Lower bearing 30 % softer (dk_lo = -3000 N/m) than the candidate's range (+-2000) allows: the refit widens
+    the range towards -2000's side until the estimate is inside, and the truth lies in its interval."""
+    data = _data(["lower_bearing_compliance"], TRUTH | {"dk_lo": -3000.0}, seed=6)
+    base = _base_fit(data)
+    result = dg.diagnose(base, _candidates(["lower_bearing_compliance", "cross_coupled_stiffness"]))
+    assert result.table.loc[0, "effect"] == "lower_bearing_compliance"
+    assert result.conclusion.startswith("add lower_bearing_compliance")
+    cf = result.confirmations["lower_bearing_compliance"]
+    assert cf.widened and cf.widened[0][0] == "dk_lo" and cf.ranges["dk_lo"][0] < -2000.0
+    row = cf.estimates.set_index("parameter").loc["dk_lo"]
+    assert not row["at_bound"] and row["ci_low"] < -3000.0 < row["ci_high"]
+    assert "range widened" in result.table.loc[0, "estimate"]
+    # the recommended variant carries the widened range
+    assert result.summary["recommended_variant"]["spec"]["unknown"]["dk_lo"][0] < -2000.0
+
+
+def test_two_hidden_effects_are_both_found_by_forward_selection():
+    """The slope force and a 2X force hidden together: the path adds both and ends at the noise floor."""
+    data = _data(["slope_spring", "excitation_2x"], TRUTH | {"k_w": 324.2, "k_z": 301.1, "f2_c": 0.1,
+                                                             "f2_s": -0.05}, seed=7)
+    base = _base_fit(data)
+    result = dg.diagnose(base, _candidates(["slope_spring", "excitation_2x", "cross_coupled_stiffness"]))
+    path = result.path_table()
+    assert set(path["effect"]) == {"slope_spring", "excitation_2x"}
+    assert result.conclusion.startswith("add ") and "together they explain" in result.conclusion
+    final = result.path[-1].confirmation
+    assert final.chi2 / final.dof < 1 + 3 * np.sqrt(2 / final.dof)  # within 3 sigma of the noise floor
+    spec = result.summary["recommended_variant"]["spec"]
+    assert {"slope_spring", "excitation_2x"} <= set(spec["effects"])
+    Variant.from_spec(result.summary["recommended_variant"]["name"], spec)  # a valid config entry
+    assert "## Forward selection" in dg.markdown(result)
+
+
+def test_the_data_tell_which_law_the_2x_force_follows():
+    """A 2X force growing like Omega^2 (e2 = 3e-5 kg m: 0.08-0.24 N over 500-850 RPM): the Omega^2 law fits,
+    the constant-amplitude law is ranked below it by the refits' Delta BIC."""
+    data = _data(["excitation_2x_inertial"], TRUTH | {"e2_c": 3e-5, "e2_s": -1.5e-5}, seed=8)
+    base = _base_fit(data)
+    result = dg.diagnose(base, _candidates(["excitation_2x", "excitation_2x_inertial"]))
+    assert result.table.loc[0, "effect"] == "excitation_2x_inertial"
+    assert result.table.loc[0, "verdict"].startswith("add")
+    bic = result.table.set_index("effect")["delta_bic"]
+    assert bic["excitation_2x_inertial"] < bic["excitation_2x"] - 10  # "very strong" evidence between the laws

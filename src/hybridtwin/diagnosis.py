@@ -804,10 +804,19 @@ def markdown(result: Diagnosis, sparse: pd.DataFrame | None = None, sparse_name:
     recommendation = f"\n## What to do\n\n{result.recommendation}" if result.recommendation else ""
     if recommendation:
         recommendation = recommendation.replace("\n\n  ", "\n\n```yaml\n  ", 1) + "```\n"
+    path = ""
+    if result.path:
+        steps = ["| step | effect added | chi^2/dof before | after | Delta BIC | explained | estimate |",
+                 "|---|---|---|---|---|---|---|"]
+        steps += [f"| {r.step} | {r.effect} | {r.chi2_dof_before:.4g} | {r.chi2_dof_after:.4g} | {r.delta_bic:.1f} | "
+                  f"{r.explained_pct:.0f} % | {r.estimate} |" for r in result.path_table().itertuples()]
+        path = ("\n## Forward selection\n\nEach step adds the best confirmed effect, then scores and refits the "
+                "others at the extended fit; it stops when nothing significant is left.\n\n" + "\n".join(steps)
+                + "\n")
     return (f"# Diagnosis of variant {s['variant']}\n\n"
             f"{len(s['runs'])} fit runs, {s['n_data']} data; chi^2/dof {s['base_chi2_dof']:.3g} "
             f"(goodness-of-fit p = {s['base_gof_p_value']:.3g}); {len(s['candidates'])} candidates tested, "
-            f"{len(s['refitted'])} refitted.\n\n**{result.conclusion}**\n{recommendation}\n"
+            f"{len(s['refitted'])} refitted.\n\n**{result.conclusion}**\n{recommendation}{path}\n"
             "## Candidates\n\n" + "\n".join(rows) + "\n"
             + ("" if sparse is None else _sparse_markdown(sparse, sparse_name)))
 
