@@ -53,7 +53,10 @@ from scipy import optimize, stats
 from threadpoolctl import threadpool_limits
 
 from hybridtwin import diagnosis as dg
+from hybridtwin import forward as fwd
 from hybridtwin import identification as idn
+from hybridtwin import lm
+from hybridtwin import uncertainty as unc
 from hybridtwin.candidates import builtin_candidates
 from hybridtwin.variants import BUILTIN_VARIANTS, Variant
 
@@ -105,7 +108,7 @@ def truth_response(effect: str | None, values: dict[str, float], harmonics: int)
     centre = np.array([values[n] for n in names])
     out = []
     for run, rpm, mass in RUNS:
-        model = idn.SolverModel(truth, run, rpm, mass, names, centre - 1.0, centre + 1.0, harmonics)
+        model = fwd.SolverModel(truth, run, rpm, mass, names, centre - 1.0, centre + 1.0, harmonics)
         M = model.evaluate(np.zeros((1, len(names))), jacobian=False)[0][0]  # x = 0: the middle = the values
         if not np.isfinite(M).all():
             raise Unsolvable(f"no periodic solution at {run} ({rpm:g} RPM)")
@@ -131,14 +134,14 @@ def fit_base(data: list[idn.RunData], harmonics: int, seed: int) -> tuple[dg.Bas
     variant = base_variant()
     names = list(variant.unknown)
     lower, upper = (np.array(v, float) for v in zip(*variant.unknown.values()))
-    models = [idn.SolverModel(variant, d.run, d.rpm, d.eccentric_mass_g, names, lower, upper, harmonics)
+    models = [fwd.SolverModel(variant, d.run, d.rpm, d.eccentric_mass_g, names, lower, upper, harmonics)
               for d in data]
     layout = idn.Layout.build(names, lower, upper, [d.run for d in data], [])
     nominal = np.zeros(layout.n)  # phases 0: set from the 1X data by the protocol
     for i, (p, _) in enumerate(layout.entries()):
         if p != "phase":
             nominal[i] = float(layout.normalise(p, variant.model.parameters[p].nominal))
-    options = idn.ProtocolOptions(trials=3, monte_carlo=0, seed=seed, lm=idn.LMOptions(max_iterations=60))
+    options = idn.ProtocolOptions(trials=3, monte_carlo=0, seed=seed, lm=lm.LMOptions(max_iterations=60))
     fit = idn.identify(models, data, (), options, extra_starts=nominal[None])
     return dg.BaseFit(variant, fit.layout, fit.theta, fit.data, harmonics), fit
 
@@ -175,8 +178,8 @@ def naive_ranking(base: dg.BaseFit, candidates) -> list[tuple[str, float, float]
     for c in candidates:
         cols = [entries.index((p.name, "all")) for p in c.parameters]
         G = J[:, cols]
-        lower = np.where(theta[cols] <= -1.0 + idn.BOUND_TOLERANCE, 0.0, -np.inf)
-        upper = np.where(theta[cols] >= 1.0 - idn.BOUND_TOLERANCE, 0.0, np.inf)
+        lower = np.where(theta[cols] <= -1.0 + unc.BOUND_TOLERANCE, 0.0, -np.inf)
+        upper = np.where(theta[cols] >= 1.0 - unc.BOUND_TOLERANCE, 0.0, np.inf)
         b = optimize.lsq_linear(G, -r, bounds=(lower, upper), method="bvls").x if np.linalg.norm(G) else 0 * lower
         statistic = max(float(r @ r - np.sum((r + G @ b) ** 2)), 0.0)
         rows.append((c.name, statistic, float(stats.chi2.logsf(statistic, len(cols)))))

@@ -32,15 +32,18 @@ import pandas as pd
 import yaml
 from scipy.optimize import least_squares
 from threadpoolctl import threadpool_limits
+from workflow_run import timed_snakemake
 
+from hybridtwin import forward as fwd
 from hybridtwin import identification as idn
+from hybridtwin import lm
+from hybridtwin import polish as pol
 from hybridtwin.library import Library, build_library, relative_sensor_error
 from hybridtwin.pod import pod, to_features
 from hybridtwin.rig import RigSpec, generate, read_plan
 from hybridtwin.scenarios import default_n_scenarios, sample_scenarios
 from hybridtwin.sensor import observable, sensor_dofs
 from hybridtwin.variants import Variant
-from workflow_run import timed_snakemake
 
 ROOT = Path(__file__).resolve().parents[1]
 GEOMETRIC = ["centrifugal_softening", "structural_damping", "upper_housing", "lower_bearing", "unbalance",
@@ -88,7 +91,7 @@ def protocol_timing(work: Path, runs: list[str]) -> pd.DataFrame:
     rows = []
     for d, library in zip(data, libraries):
         wall, cpu = time.perf_counter(), time.process_time()
-        fit = idn.identify([idn.SensorSurrogate(library)], [d], options=idn.ProtocolOptions(seed=1),
+        fit = idn.identify([fwd.SensorSurrogate(library)], [d], options=idn.ProtocolOptions(seed=1),
                            model_error=errors)
         rows.append({"run": d.run, "lm_problems": fit.protocol.n_lm, "wall_s": time.perf_counter() - wall,
                      "cpu_s": time.process_time() - cpu, "mean_iterations": fit.protocol.trials.nit.mean(),
@@ -102,10 +105,10 @@ def protocol_timing(work: Path, runs: list[str]) -> pd.DataFrame:
 def scipy_comparison(problem: idn.ArrowProblem, X: np.ndarray, starts: np.ndarray) -> dict:
     """Batched LM vs least_squares (trf, bounds, exact Jacobian) from the same starts, same tolerances."""
     lower, upper = problem.layout.bounds()
-    options = idn.LMOptions(stall_chi2=0.0, ftol=1e-8, xtol=1e-8, gtol=1e-8, max_iterations=200)
+    options = lm.LMOptions(stall_chi2=0.0, ftol=1e-8, xtol=1e-8, gtol=1e-8, max_iterations=200)
     Xt = np.repeat(X[None], len(starts), axis=0)
     t0 = time.perf_counter()
-    batched = idn.levenberg_marquardt(problem, starts, Xt, options)
+    batched = lm.levenberg_marquardt(problem, starts, Xt, options)
     t_batched = time.perf_counter() - t0
 
     def fun(theta):
@@ -135,13 +138,13 @@ def scipy_benchmark(work: Path, runs: list[str], all_runs: list[str]) -> pd.Data
     rng = np.random.default_rng(7)
     data, libraries, errors = load(work, runs)
     for d, library in zip(data, libraries):
-        fit = idn.identify([idn.SensorSurrogate(library)], [d], options=idn.ProtocolOptions(trials=1, monte_carlo=0),
+        fit = idn.identify([fwd.SensorSurrogate(library)], [d], options=idn.ProtocolOptions(trials=1, monte_carlo=0),
                            model_error=errors)
         X = fit.X
         starts = fit.problem.initial_phases(idn.random_starts(fit.layout, 50, rng), np.repeat(X[None], 50, 0))
         rows.append({"problem": d.run, **scipy_comparison(fit.problem, X, starts)})
     data, libraries, errors = load(work, all_runs)
-    fit = idn.identify([idn.SensorSurrogate(lib) for lib in libraries], data, per_run=["q_x", "q_y"],
+    fit = idn.identify([fwd.SensorSurrogate(lib) for lib in libraries], data, per_run=["q_x", "q_y"],
                        options=idn.ProtocolOptions(trials=1, monte_carlo=0), model_error=errors)
     starts = fit.problem.initial_phases(idn.random_starts(fit.layout, 20, rng), np.repeat(fit.X[None], 20, 0))
     rows.append({"problem": f"joint ({len(all_runs)} runs, {fit.layout.n} unknowns)",
@@ -167,11 +170,11 @@ def alternative_fit(work: Path, runs: list[str], per_run: list[str], keyphasor: 
     data, libraries, errors = load(work, runs, keyphasor)
     variant = Variant.from_spec("geometric", {"effects": GEOMETRIC, "unknown": RANGES})
     start = time.perf_counter()
-    fit = idn.identify([idn.SensorSurrogate(lib) for lib in libraries], data, per_run=per_run,
+    fit = idn.identify([fwd.SensorSurrogate(lib) for lib in libraries], data, per_run=per_run,
                        options=idn.ProtocolOptions(monte_carlo=0), model_error=errors)
-    solver = [idn.SolverModel(variant, d.run, d.rpm, d.eccentric_mass_g, lib.parameters, lib.lower, lib.upper, 5)
+    solver = [fwd.SolverModel(variant, d.run, d.rpm, d.eccentric_mass_g, lib.parameters, lib.lower, lib.upper, 5)
               for d, lib in zip(data, libraries)]
-    return idn.polish(fit, solver), time.perf_counter() - start
+    return pol.polish(fit, solver), time.perf_counter() - start
 
 
 # --- 5. m_e as the sixth unknown -------------------------------------------------------------------------
@@ -181,7 +184,7 @@ def _solve_chunk(args) -> tuple[np.ndarray, np.ndarray]:
     spec, rpm, values = args
     with threadpool_limits(1):
         variant = Variant.from_spec("geometric_me", spec)
-        results = idn.run_up(variant, rpm, values, 5)
+        results = fwd.run_up(variant, rpm, values, 5)
     return np.stack([r.harmonics for r in results]), np.stack([r.success for r in results])
 
 
@@ -230,15 +233,15 @@ def me_joint(work: Path, runs: list[str]) -> tuple[idn.Identification, float]:
     libraries = me_libraries(work, runs)
     table = idn.read_harmonics(work / "results" / "data" / "harmonics.tsv")
     data = [idn.run_data(table, r) for r in runs]
-    models = [idn.SensorSurrogate(libraries[r]) for r in runs]
+    models = [fwd.SensorSurrogate(libraries[r]) for r in runs]
     errors = {r: libraries[r].info.get("test_median_error", 0.0) for r in runs}
     start = time.perf_counter()
     fit = idn.identify(models, data, per_run=["m_e"], options=idn.ProtocolOptions(monte_carlo=0), model_error=errors)
     variant = Variant.from_spec("geometric_me", {"effects": GEOMETRIC, "unknown": {**RANGES, "m_e": [0.0, 0.040]}})
     first = libraries[runs[0]]
-    solver = [idn.SolverModel(variant, d.run, d.rpm, d.eccentric_mass_g, first.parameters, first.lower, first.upper, 5)
+    solver = [fwd.SolverModel(variant, d.run, d.rpm, d.eccentric_mass_g, first.parameters, first.lower, first.upper, 5)
               for d in data]
-    return idn.polish(fit, solver), time.perf_counter() - start
+    return pol.polish(fit, solver), time.perf_counter() - start
 
 
 def me_fits(work: Path, runs: list[str]) -> pd.DataFrame:
@@ -250,7 +253,7 @@ def me_fits(work: Path, runs: list[str]) -> pd.DataFrame:
         library = libraries[run]
         error = {run: library.info.get("test_median_error", 0.0)}
         wall = time.perf_counter()
-        fit = idn.identify([idn.SensorSurrogate(library)], [d], options=idn.ProtocolOptions(seed=1),
+        fit = idn.identify([fwd.SensorSurrogate(library)], [d], options=idn.ProtocolOptions(seed=1),
                            model_error=error)
         values = fit.table().set_index("parameter")
         rows.append({"run": run, "rpm": d.rpm, "m_e_true_g": d.eccentric_mass_g,

@@ -13,8 +13,11 @@ import pandas as pd
 import yaml
 
 from hybridtwin import config as cfg
-from hybridtwin import diagnosis as dg
+from hybridtwin import forward as fwd
 from hybridtwin import identification as idn
+from hybridtwin import polish as pol
+from hybridtwin import validation as val
+from hybridtwin import variants
 from hybridtwin.library import Library
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
@@ -33,7 +36,7 @@ for path in smk.input.libraries:
         log.warning("run %s left out of the joint fit: %s", run.run, run.note)
         continue
     data.append(run)
-    models.append(idn.SensorSurrogate(library))
+    models.append(fwd.SensorSurrogate(library))
 if not data:
     raise ValueError("no usable fit run for the joint identification")
 errors = idn.model_errors(pd.read_csv(smk.input.validation, sep="\t"), [d.run for d in data], options["model_error"])
@@ -51,15 +54,15 @@ summary = {"library": fit.summary()}
 comparison = pd.DataFrame(columns=["parameter", "run", "unit", "library_value", "solver_value", "difference",
                                    "difference_rel", "difference_in_stderr", "stderr"])
 if options["polish"]["joint"]:
-    solver = [idn.SolverModel(variant, d.run, d.rpm, d.eccentric_mass_g, parameters, models[0].lower,
+    solver = [fwd.SolverModel(variant, d.run, d.rpm, d.eccentric_mass_g, parameters, models[0].lower,
                               models[0].upper, smk.config["harmonics"]) for d in data]
     start = time.perf_counter()
-    starts = idn.next_best_trials(fit)
+    starts = pol.next_best_trials(fit)
     labels = ["library optimum"] + [f"library trial {i + 2}" for i in range(len(starts))]
     if "refits" in smk.input.keys():  # this variant adds one effect to another: its diagnosis refit is a start
-        parent, extra = dg.parent_variant(smk.config["variants"], variant.name)
+        parent, extra = variants.parent_variant(smk.config["variants"], variant.name)
         refits = pd.read_csv(smk.input.refits, sep="\t", dtype={"run": str})
-        refit = dg.theta_from_table(refits[refits["effect"] == extra], layout)
+        refit = idn.theta_from_table(refits[refits["effect"] == extra], layout)
         log.info("polish also starts from %s's diagnosis refit with %s: %s", parent, extra,
                  "found" if refit is not None else "not there (not refitted)")
         if refit is not None:
@@ -69,7 +72,7 @@ if options["polish"]["joint"]:
     own = fit.table()  # entries a nested fit does not give
     for path in [nested] if isinstance(nested, str) else nested:  # the simpler variants this one contains
         parent = Path(path).parent.name
-        theta, mismatch = dg.theta_from_nested(pd.read_csv(path, sep="\t", dtype={"run": str}),
+        theta, mismatch = idn.theta_from_nested(pd.read_csv(path, sep="\t", dtype={"run": str}),
                                                cfg.variant(smk.config, parent), variant, layout, own)
         usable = theta is not None and mismatch < NESTED_MISMATCH
         log.info("%s's joint fit mapped onto %s's parameters: coefficient mismatch %.2g, %s", parent, variant.name,
@@ -78,9 +81,9 @@ if options["polish"]["joint"]:
         if usable:
             starts = np.vstack([starts, theta[None]])
             labels.append(f"{parent}'s joint fit")
-    exact = idn.polish(fit, solver, int(options["polish"]["max_iterations"]), starts)
+    exact = pol.polish(fit, solver, int(options["polish"]["max_iterations"]), starts)
     if np.isfinite(exact.loss):
-        comparison = idn.compare_polish(fit, exact)
+        comparison = pol.compare_polish(fit, exact)
         exact.protocol.monte_carlo = fit.protocol.monte_carlo  # the library's Monte Carlo spread, for reference
         summary["solver"] = exact.summary() | {"seconds": time.perf_counter() - start,
                                                "solves": int(sum(m.n_solves for m in solver)),
@@ -103,9 +106,9 @@ fit.history_table().to_csv(smk.output.history, sep="\t", index=False, float_form
 idn.write_fit(smk.output.fit, fit, [d.rpm for d in data])
 runs = pd.DataFrame({"run": [d.run for d in data], "rpm": [d.rpm for d in data],
                      "eccentric_mass_g": [d.eccentric_mass_g for d in data]})
-drift = idn.drift_table([per_run[r] for r in per_run if r in set(runs["run"])], runs)
+drift = val.drift_table([per_run[r] for r in per_run if r in set(runs["run"])], runs)
 drift.to_csv(smk.output.per_run, sep="\t", index=False, float_format="%.9g")
-idn.plot_per_run(drift, result, variant.name).savefig(smk.output.plot, dpi=120)
+val.plot_per_run(drift, result, variant.name).savefig(smk.output.plot, dpi=120)
 summary["final"] = fit.summary()
 with open(smk.output.summary, "w") as stream:
     yaml.safe_dump(summary, stream, sort_keys=False)

@@ -9,7 +9,9 @@ import time
 import pandas as pd
 
 from hybridtwin import config as cfg
+from hybridtwin import forward as fwd
 from hybridtwin import identification as idn
+from hybridtwin import polish as pol
 from hybridtwin.library import Library
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
@@ -31,17 +33,17 @@ if not data.usable:
 else:
     errors = idn.model_errors(pd.read_csv(smk.input.validation, sep="\t"), [run], options["model_error"])
     start = time.perf_counter()
-    fit = idn.identify([idn.SensorSurrogate(library)], [data], (), idn.protocol_options(options), errors,
+    fit = idn.identify([fwd.SensorSurrogate(library)], [data], (), idn.protocol_options(options), errors,
                        units=units)
     log.info("run %s: %d trials x (1 + %d Monte Carlo repeats) = %d LM problems in %.2f s; best loss %.4g "
              "(chi^2/dof %.3g, %s); %d of %d trials reached it", run, len(fit.protocol.trials.loss),
              len(fit.protocol.monte_carlo), fit.protocol.n_lm, time.perf_counter() - start, fit.loss,
              fit.chi2_dof, fit.message, fit.summary()["trials_at_best"], len(fit.protocol.trials.loss))
     if options["polish"]["runs"]:
-        solver = [idn.SolverModel(variant, run, data.rpm, data.eccentric_mass_g, library.parameters, library.lower,
+        solver = [fwd.SolverModel(variant, run, data.rpm, data.eccentric_mass_g, library.parameters, library.lower,
                                   library.upper, smk.config["harmonics"])]
-        exact = idn.polish(fit, solver, int(options["polish"]["max_iterations"]))
-        for row in idn.compare_polish(fit, exact).itertuples():
+        exact = pol.polish(fit, solver, int(options["polish"]["max_iterations"]))
+        for row in pol.compare_polish(fit, exact).itertuples():
             log.info("polish %s: library %.6g, solver %.6g (%.2g stderr)", row.parameter, row.library_value,
                      row.solver_value, row.difference_in_stderr)
         fit = exact

@@ -6,7 +6,9 @@ Only each run's phase (a nuisance) is aligned; per-run parameters come from thei
 import pandas as pd
 
 from hybridtwin import config as cfg
+from hybridtwin import forward as fwd
 from hybridtwin import identification as idn
+from hybridtwin import validation as val
 from hybridtwin.library import Library
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
@@ -25,14 +27,14 @@ for path in smk.input.libraries:
         rows.append({"run": data.run, "rpm": data.rpm, "eccentric_mass_g": data.eccentric_mass_g,
                      "model": "none", "note": data.note})
         continue
-    values = idn.validation_values(joint, data, options["validation_bow"], fitted_runs)
-    models = [("library", idn.SensorSurrogate(library), errors.get(data.run, 0.0))]
+    values = val.validation_values(joint, data, options["validation_bow"], fitted_runs)
+    models = [("library", fwd.SensorSurrogate(library), errors.get(data.run, 0.0))]
     if options["polish"]["joint"]:
-        models.append(("solver", idn.SolverModel(variant, data.run, data.rpm, data.eccentric_mass_g,
+        models.append(("solver", fwd.SolverModel(variant, data.run, data.rpm, data.eccentric_mass_g,
                                                  library.parameters, library.lower, library.upper,
                                                  smk.config["harmonics"]), 0.0))
     for name, model, error in models:
-        row = idn.predict_run(model, data, values, error)
+        row = val.predict_run(model, data, values, error)
         row.pop("fitted")
         row.update({"model": name, **{f"{p}_used": v for p, v in values.items()}, "note": "ok"})
         rows.append(row)

@@ -10,6 +10,7 @@ import pandas as pd
 import yaml
 
 from hybridtwin import config as cfg
+from hybridtwin import forward as fwd
 from hybridtwin import identification as idn
 from hybridtwin import report
 from hybridtwin.library import Library
@@ -37,10 +38,10 @@ for row in validation.to_dict("records"):
     library = Library.load(libraries[row["run"]])
     data = idn.run_data(table, row["run"], keyphasor=options["keyphasor"])
     if source == "solver":
-        model = idn.SolverModel(variant, data.run, data.rpm, data.eccentric_mass_g, library.parameters,
+        model = fwd.SolverModel(variant, data.run, data.rpm, data.eccentric_mass_g, library.parameters,
                                 library.lower, library.upper, smk.config["harmonics"])
     else:
-        model = idn.SensorSurrogate(library)
+        model = fwd.SensorSurrogate(library)
     error = errors.get(data.run, 0.0) if source == "library" else 0.0
     comparison = report.validation_comparison(model, data, report.used_values(row, library.parameters), error, source)
     comparisons.append(comparison)

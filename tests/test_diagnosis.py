@@ -11,7 +11,10 @@ import numpy as np
 import pytest
 
 from hybridtwin import diagnosis as dg
+from hybridtwin import forward as fwd
 from hybridtwin import identification as idn
+from hybridtwin import lm
+from hybridtwin import uncertainty as unc
 from hybridtwin.candidates import Candidate, builtin_candidates
 from hybridtwin.effects import Parameter, PolynomialBearing, Term
 from hybridtwin.variants import BUILTIN_VARIANTS, Variant
@@ -33,7 +36,7 @@ def _data(extra_effects: list[str], values: dict[str, float], seed: int) -> list
     x = np.zeros((1, len(names)))  # the middle of the (-1e9, 1e9) ranges is 0: shift to the values below
     out = []
     for run, rpm, mass in RUNS:
-        model = idn.SolverModel(truth, run, rpm, mass, names, np.array([values[n] for n in names]) - 1.0,
+        model = fwd.SolverModel(truth, run, rpm, mass, names, np.array([values[n] for n in names]) - 1.0,
                                 np.array([values[n] for n in names]) + 1.0, H)
         M = model.evaluate(x, jacobian=False)[0][0]
         assert np.isfinite(M).all()
@@ -46,11 +49,11 @@ def _base_fit(data: list[idn.RunData], spec: dict = GEOMETRIC) -> dg.BaseFit:
     """The variant fitted with the full solver (shared bow): random starts plus the nominal one."""
     variant = Variant.from_spec("geometric", spec)
     lower, upper = zip(*variant.unknown.values())
-    models = [idn.SolverModel(variant, d.run, d.rpm, d.eccentric_mass_g, list(variant.unknown), np.array(lower),
+    models = [fwd.SolverModel(variant, d.run, d.rpm, d.eccentric_mass_g, list(variant.unknown), np.array(lower),
                               np.array(upper), H) for d in data]
-    options = idn.ProtocolOptions(trials=3, monte_carlo=0, seed=2, lm=idn.LMOptions(max_iterations=60))
+    options = idn.ProtocolOptions(trials=3, monte_carlo=0, seed=2, lm=lm.LMOptions(max_iterations=60))
     fit = idn.identify(models, data, (), options)
-    assert fit.success or fit.status == idn.STALLED
+    assert fit.success or fit.status == lm.STALLED
     return dg.BaseFit(variant, fit.layout, fit.theta, fit.data, H)
 
 
@@ -84,7 +87,7 @@ def test_score_statistic_equals_the_linearised_chi2_drop(slope_base):
     entries = problem.layout.entries()
     base_cols = [i for i, (p, _) in enumerate(entries) if p not in ("k2", "k_xy")]
     # a base entry at a range edge is held, as in the score test
-    free = [i for i in base_cols if entries[i][0] == "phase" or abs(theta[i]) < 1 - idn.BOUND_TOLERANCE]
+    free = [i for i in base_cols if entries[i][0] == "phase" or abs(theta[i]) < 1 - unc.BOUND_TOLERANCE]
 
     def drop(cols):
         without = np.linalg.lstsq(J[:, free], -r, rcond=None)[0]
@@ -195,15 +198,15 @@ def test_sparse_route_reads_which_terms_an_l1_fit_kept():
 
 def test_parent_variant_is_the_one_extended_by_exactly_one_effect():
     base = ["centrifugal_softening", "unbalance", "geometric_spring"]
-    variants = {"geometric": {"effects": base, "unknown": {"k_b": [0, 1]}},
+    specs = {"geometric": {"effects": base, "unknown": {"k_b": [0, 1]}},
                 "geometric_slope": {"effects": base + ["slope_spring"], "unknown": {"k_b": [0, 1], "k_w": [0, 1]}},
                 "two_more": {"effects": base + ["slope_spring", "speed_damping"],
                              "unknown": {"k_b": [0, 1], "k_w": [0, 1], "zeta_v": [0, 1]}},
                 "other": {"effects": ["unbalance", "radial_spring", "slope_spring"], "unknown": {"k_b": [0, 1]}}}
-    assert dg.parent_variant(variants, "geometric_slope") == ("geometric", "slope_spring")
-    assert dg.parent_variant(variants, "two_more") == ("geometric_slope", "speed_damping")
-    assert dg.parent_variant(variants, "geometric") is None
-    assert dg.parent_variant(variants, "other") is None
+    assert variants.parent_variant(specs, "geometric_slope") == ("geometric", "slope_spring")
+    assert variants.parent_variant(specs, "two_more") == ("geometric_slope", "speed_damping")
+    assert variants.parent_variant(specs, "geometric") is None
+    assert variants.parent_variant(specs, "other") is None
 
 
 def test_theta_from_table_normalises_with_the_new_layout():
@@ -214,8 +217,8 @@ def test_theta_from_table_normalises_with_the_new_layout():
                            "parameter": ["k_b", "k_w", "phase", "k_b"], "run": ["all", "r1", "r1", "all"],
                            "value": [2750.0, 250.0, 0.3, 3000.0]})
     slope, other = (refits[refits["effect"] == e] for e in ("slope_spring", "other"))
-    np.testing.assert_allclose(dg.theta_from_table(slope, layout), [0.0, -0.5, 0.3])
-    assert dg.theta_from_table(other, layout) is None  # does not cover every entry
+    np.testing.assert_allclose(idn.theta_from_table(slope, layout), [0.0, -0.5, 0.3])
+    assert idn.theta_from_table(other, layout) is None  # does not cover every entry
 
 
 def test_theta_from_nested_maps_the_shared_values_and_copies_the_runs():
@@ -233,7 +236,7 @@ def test_theta_from_nested_maps_the_shared_values_and_copies_the_runs():
                         "run": ["all", "all", "r1", "r1", "r1", "r2", "r2", "r2"],
                         "value": [3000.0, 0.02, 0.002, 0.003, 0.1, 0.004, 0.005, -0.2]})
     fallback = pd.DataFrame({"parameter": ["k2"], "run": ["all"], "value": [123.0]})  # overridden by the map
-    theta, mismatch = dg.theta_from_nested(fit, geometric, expansion, layout, fallback)
+    theta, mismatch = idn.theta_from_nested(fit, geometric, expansion, layout, fallback)
     assert mismatch < 1e-12
     si = dict(zip(layout.entries(), layout.to_si(theta)))
     expected = {("k1", "all"): 3000.0, ("k2", "all"): 0.0, ("k3", "all"): 6000.0, ("k7", "all"): -12000.0,
@@ -241,7 +244,7 @@ def test_theta_from_nested_maps_the_shared_values_and_copies_the_runs():
     for entry, value in expected.items():
         assert si[entry] == pytest.approx(value, abs=1e-9)
     missing = fit[fit["parameter"] != "phase"]  # phases neither in the fit nor the fallback: no start
-    assert dg.theta_from_nested(missing, geometric, expansion, layout, fallback)[0] is None
+    assert idn.theta_from_nested(missing, geometric, expansion, layout, fallback)[0] is None
 
 
 def test_no_effect_shares_stay_finite(slope_base):

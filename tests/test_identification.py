@@ -24,7 +24,11 @@ import yaml
 import zarr
 from scipy.optimize import least_squares
 
+from hybridtwin import forward as fwd
 from hybridtwin import identification as idn
+from hybridtwin import lm
+from hybridtwin import polish as pol
+from hybridtwin import validation as val
 from hybridtwin.rig import RigSpec, generate, read_plan
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -101,7 +105,7 @@ def test_batched_lm_equals_scipy_least_squares_trial_by_trial():
     rng = np.random.default_rng(5)
     starts = problem.initial_phases(idn.random_starts(layout, 8, rng), np.repeat(problem_fit.X[None], 8, 0))
     X = np.repeat(problem_fit.X[None], len(starts), 0)
-    batched = idn.levenberg_marquardt(problem, starts, X, idn.LMOptions(stall_chi2=0.0, ftol=1e-12, xtol=1e-12))
+    batched = lm.levenberg_marquardt(problem, starts, X, lm.LMOptions(stall_chi2=0.0, ftol=1e-12, xtol=1e-12))
     lower, upper = layout.bounds()
     for t, start in enumerate(starts):
         def fun(theta):
@@ -158,9 +162,9 @@ def test_keyphasor_phase_prior_keeps_the_phase_information():
     exact = replace(toy_data(x_true, 0.0), phase_sigma=1e-4)
     values = dict(zip(ToyModel.parameters, ToyModel.lower + (np.array(x_true) + 1) / 2 * (ToyModel.upper
                                                                                          - ToyModel.lower)))
-    assert abs(idn.predict_run(ToyModel(), exact, values)["phase_rad"]) < 1e-12
+    assert abs(val.predict_run(ToyModel(), exact, values)["phase_rad"]) < 1e-12
     rotated = replace(exact, X=exact.X * np.exp(1j * np.arange(1, 3) * 1e-4)[:, None])
-    phi = idn.predict_run(ToyModel(), rotated, values)["phase_rad"]
+    phi = val.predict_run(ToyModel(), rotated, values)["phase_rad"]
     assert 0 < phi < 1e-4  # pulled towards the data's rotation, held back by the prior
 
 
@@ -175,7 +179,7 @@ def test_arrow_solve_equals_the_dense_normal_equations():
     damping = np.full((1, layout.n), 0.3)
     free = np.ones((1, layout.n), bool)
     free[0, 1] = False
-    delta = idn.arrow_solve(idn.Normal.assemble(ev, layout), damping, free)[0]
+    delta = lm.arrow_solve(lm.Normal.assemble(ev, layout), damping, free)[0]
     A = J.T @ J + np.diag(damping[0])
     keep = free[0]
     expected = np.zeros(layout.n)
@@ -228,8 +232,8 @@ def test_lm_reaches_a_bound_optimum_along_a_correlated_valley():
     fit = idn.identify([model], [data], options=FAST)
     problem, X = fit.problem, fit.X
     starts = np.array([[0.5, 0.5, 0.0, 0.0], [-0.9, 0.9, 0.5, 0.0], [0.0, -0.5, -0.5, 0.0]])
-    result = idn.levenberg_marquardt(problem, starts, np.repeat(X[None], 3, 0),
-                                     idn.LMOptions(stall_chi2=0.0, max_iterations=200, ftol=1e-12, xtol=1e-12))
+    result = lm.levenberg_marquardt(problem, starts, np.repeat(X[None], 3, 0),
+                                     lm.LMOptions(stall_chi2=0.0, max_iterations=200, ftol=1e-12, xtol=1e-12))
     # the same residuals r = (X - G x - m0) / sigma as a linear problem in x (the phase prior pins phi = 0)
     real = lambda z: np.concatenate([z.real.reshape(z.shape[0], -1), z.imag.reshape(z.shape[0], -1)], axis=1)
     G = real(model._complex(model.G.T)).T  # (8, 3), rows in the residuals' order
@@ -346,7 +350,7 @@ def test_batched_surrogate_equals_the_library(geometric_truth):
     x = np.random.default_rng(0).uniform(-1, 1, (7, len(library.parameters)))
     values = library.lower + (x + 1) / 2 * (library.upper - library.lower)
     reference, d_reference = library.sensor(values, jacobian=True)
-    M, dM = idn.SensorSurrogate(library).evaluate(x)
+    M, dM = fwd.SensorSurrogate(library).evaluate(x)
     scale = np.abs(reference).max()
     np.testing.assert_allclose(M, reference[:, 1:], atol=1e-12 * scale)
     np.testing.assert_allclose(dM, d_reference[:, 1:] * (library.upper - library.lower) / 2, atol=1e-12 * scale)
@@ -389,7 +393,7 @@ def test_solver_model_derivative_steps_back_when_the_forward_solve_fails():
     """Next to a fold the forward-shifted solve may have no solution: the derivative then uses a backward step
     (exact here for a linear response), never NaN."""
 
-    class Edge(idn.SolverModel):
+    class Edge(fwd.SolverModel):
         def _solve(self, x):
             M = np.stack([x[:, 0] + 2j * x[:, 1], 3.0 * x[:, 1] + 0j], axis=-1)[:, None, :]  # (N, 1, 2), linear
             return np.where((x[:, 0] > 0.5)[:, None, None], np.nan, M)
@@ -408,7 +412,7 @@ def test_next_best_trials_are_distinct_finite_and_ordered():
     loss = np.array([1.0, 2.0, 2.0 + 1e-9, np.nan, 3.0, 4.0])
     fit = SimpleNamespace(protocol=SimpleNamespace(trials=SimpleNamespace(x=x, loss=loss)), theta=x[0],
                           layout=SimpleNamespace(n=2))
-    starts = idn.next_best_trials(fit, n=2)
+    starts = pol.next_best_trials(fit, n=2)
     np.testing.assert_array_equal(starts, x[[1, 4]])  # the near-duplicate and the failed trial are skipped
 
 
@@ -418,6 +422,6 @@ def test_solver_model_answers_nan_for_a_nan_parameter_set():
 
     variant = builtin_variant("geometric")
     lower, upper = zip(*variant.unknown.values())
-    model = idn.SolverModel(variant, "r", 500.0, 25.9, list(variant.unknown), np.array(lower), np.array(upper), 2)
+    model = fwd.SolverModel(variant, "r", 500.0, 25.9, list(variant.unknown), np.array(lower), np.array(upper), 2)
     M = model._solve(np.array([[0.0] * 5, [np.nan] + [0.0] * 4]))
     assert np.isfinite(M[0]).all() and np.isnan(M[1]).all()

@@ -10,6 +10,7 @@ from scipy import stats
 
 from hybridtwin import identification as idn
 from hybridtwin import report
+from hybridtwin import validation as val
 
 H = 3
 RUNS = ["a", "b"]
@@ -132,7 +133,7 @@ def test_validation_run_is_scored_like_predict_validation():
     sigma = np.full((H, 2), 1e-6)
     data = idn.RunData("v", 700.0, 19.5, "validate", _rotate(M + R, 1.3), sigma)
     c = report.validation_comparison(_Fixed(M), data, {"k": 1.0}, 0.0, "library")
-    scored = idn.predict_run(_Fixed(M), data, {"k": 1.0})
+    scored = val.predict_run(_Fixed(M), data, {"k": 1.0})
     assert c.role == "validate" and c.dof == 4 * H - 1
     assert c.error_rel == pytest.approx(scored["error_rel"])
     assert c.chi2 == pytest.approx(scored["chi2_per_residual"] * 4 * H)

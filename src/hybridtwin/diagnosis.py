@@ -50,10 +50,13 @@ import pandas as pd
 from scipy import optimize, stats
 
 from .candidates import Candidate
-from .identification import (BOUND_TOLERANCE, ArrowProblem, Identification, Layout, LMOptions, ProtocolResult,
-                             RunData, SolverModel, conclude, levenberg_marquardt, units)
+from .forward import SolverModel
+from .identification import (ArrowProblem, Identification, Layout, ProtocolResult, RunData, conclude,
+                             theta_from_table, units)
+from .lm import LMOptions, levenberg_marquardt
 from .model import Model
-from .variants import Variant, embed
+from .uncertainty import BOUND_TOLERANCE
+from .variants import Variant
 
 Array = np.ndarray
 
@@ -334,7 +337,7 @@ def confirm(base: BaseFit, score: Score, scores: Scores, max_iterations: int = 4
     # stopping there saves the long crawl along flat valleys
     options = LMOptions(max_iterations=max_iterations, ftol=1e-6, xtol=1e-6, gtol=1e-8, stall_chi2=STALL_CHI2,
                         geodesic=True)
-    fit, start_chi2 = None, []
+    fit, start_chi2, wider, old = None, [], {}, {}
     for attempt in range(widen + 1):
         problem, theta0 = extended_problem(base, [c], ranges)
         layout = problem.layout
@@ -713,44 +716,6 @@ def _recommend(base: BaseFit, scores: Scores, best: Confirmation | None, confoun
                       f"(only the new variant is built) and compare in results/ledger.tsv:\n\n"
                       f"{variant_lines(new_name, variant_spec(variant, best.candidate, best.ranges))}\n")
     return conclusion, recommendation
-
-
-def parent_variant(variants: Mapping[str, Mapping], name: str) -> tuple[str, str] | None:
-    """The variant that ``name`` extends by exactly one effect (same other effects, its unknowns a subset),
-    i.e. the one whose diagnosis may have refitted it, and that effect; None when there is none."""
-    spec = variants[name]
-    effects = set(spec.get("effects", []))
-    for other, base in variants.items():
-        extra = effects - set(base.get("effects", []))
-        if (other != name and len(extra) == 1 and set(base.get("effects", [])) <= effects
-                and set(base.get("unknown", {})) <= set(spec.get("unknown", {}))):
-            return other, extra.pop()
-    return None
-
-
-def theta_from_table(table: pd.DataFrame, layout: Layout) -> Array | None:
-    """theta of ``layout`` from a parameter table (``Identification.table``: parameter, run, value [SI]),
-    values normalised with the layout's own ranges; None when an entry is missing or not finite."""
-    values = {(str(r.parameter), str(r.run)): float(r.value) for r in table.itertuples()}
-    if any(e not in values for e in layout.entries()):
-        return None
-    theta = np.array([values[(p, run)] if p == "phase" else float(layout.normalise(p, values[(p, run)]))
-                      for p, run in layout.entries()])
-    return np.clip(theta, *layout.bounds()) if np.isfinite(theta).all() else None
-
-
-def theta_from_nested(table: pd.DataFrame, parent: Variant, variant: Variant, layout: Layout,
-                      fallback: pd.DataFrame) -> tuple[Array | None, float]:
-    """A start for ``variant`` from the joint fit (parameter table) of a variant nested in it: the shared values
-    mapped onto ``variant``'s unknowns (``hybridtwin.variants.embed``), the per-run entries (bow, phases) copied
-    run by run, and any entry neither gives taken from ``fallback`` (a table of ``variant``'s own fit). The
-    theta (None when an entry is still missing) and the mapping's coefficient mismatch (0: exact)."""
-    shared = table[table["run"] == "all"]
-    values, mismatch = embed(parent, variant, dict(zip(shared["parameter"], shared["value"].astype(float))))
-    mapped = pd.DataFrame({"parameter": list(values), "run": "all", "value": list(values.values())})
-    columns = ["parameter", "run", "value"]
-    rows = pd.concat([fallback[columns], table.loc[table["run"] != "all", columns], mapped])
-    return theta_from_table(rows.drop_duplicates(["parameter", "run"], keep="last"), layout), mismatch
 
 
 def settings(config: Mapping) -> dict:

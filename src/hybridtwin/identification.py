@@ -36,22 +36,9 @@ the number of real residuals. How the paper's loss is made precise here:
   as a residual rho = sqrt(lambda n_r) s / (s^2 + eps^2)^(1/4), so the same
   problem goes to scipy.optimize.least_squares unchanged.
 
-Optimiser: Levenberg-Marquardt batched over trials (``levenberg_marquardt``):
-every trial (random start, Monte Carlo repeat) advances in the same numpy
-operations, with its own damping factor mu (Nielsen's update), Marquardt's
-scaling diag(J^T J), and trials that have converged are masked out. Bounds
-[-1, 1] are handled by projection with an active set (no transform, so the
-Jacobian at the optimum is the model's): a parameter on a bound whose gradient
-points outwards is held fixed; if the coupled damped Gauss-Newton step still
-pushes a bound parameter out, it is held too and the step solved again; a
-step that would leave the box is shortened along its direction to end on
-the box (projecting it entry by entry would turn it, and in a correlated
-valley it would then no longer descend), and an entry ending within ``SNAP``
-of a bound lands on it (no creeping in ever shorter steps).
-Stopping: scipy's ftol/xtol/gtol, plus a stall rule (chi^2 fell by less than
-0.01 over 5 iterations: points along a flat valley are statistically
-equivalent, and per-run problems are such valleys). Optional geodesic
-acceleration (Transtrum & Sethna) is used by the full-solver polish.
+
+Optimiser: Levenberg-Marquardt batched over trials, with bounds by an active
+set (``hybridtwin.lm``).
 
 Runs are joined in one block-arrow problem: shared physical parameters
 (k_b, zeta_s, ...), and per run a block of local parameters (q_x, q_y by
@@ -67,13 +54,10 @@ Geometric model, 0.1 for the Expansion model. The estimate reported is the
 best trial on the measured data; the Monte Carlo repeats give the paper's
 average and a distribution that checks the linearised uncertainty.
 
-Uncertainty and identifiability (``analyse_uncertainty``): covariance
-s^2 V S^-2 V^T from the SVD of the weighted Jacobian of the free parameters,
-s^2 = max(1, chi^2 / dof); parameters at a bound are held fixed (their covariance is
-not valid, and the others' include their uncertainty, computed as if free); correlation matrix;
-collinearity index (Brun et al. 2001) of the unit-normalised sensitivities of
-the physical parameters with the phases projected out; flags for
-non-identifiable parameters and estimates at a range edge ("revise the range").
+
+Uncertainty and identifiability: ``hybridtwin.uncertainty``. The response
+models (library or full solver): ``hybridtwin.forward``. Validation runs and
+per-run drift: ``hybridtwin.validation``.
 """
 
 from __future__ import annotations
@@ -81,40 +65,21 @@ from __future__ import annotations
 import math
 import time
 import warnings
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Protocol
 
 import numpy as np
 import pandas as pd
 
-from .library import Library
-from .pod import feature_index
-from .scenarios import intermediate_speeds
+from .forward import HarmonicModel, SolverModel
+from .lm import STATUS_MESSAGES, Evaluation, LMOptions, LMResult, _batches, levenberg_marquardt
+from .uncertainty import Uncertainty, analyse_uncertainty, student_t
+from .variants import Variant, embed
 
 Array = np.ndarray
 
 CHANNELS = ("x", "y")
-#: status codes of a trial (scipy.optimize.least_squares' meanings)
-RUNNING, NONFINITE, MAX_ITERATIONS, GTOL, FTOL, XTOL, STALLED = -1, -2, 0, 1, 2, 3, 4
-STATUS_MESSAGES = {
-    NONFINITE: "no response at the start (the model failed there)",
-    MAX_ITERATIONS: "the maximum number of iterations was reached",
-    GTOL: "gtol termination: the projected gradient of the loss is below gtol",
-    FTOL: "ftol termination: the relative reduction of the loss is below ftol",
-    XTOL: "xtol termination: the step is below xtol",
-    STALLED: "stall termination: chi^2 fell by less than stall_chi2 over the last stall_window iterations "
-             "(a flat valley: the points along it are statistically equivalent)",
-}
-#: an LM step ending this close to a bound (normalised units; the range is 2 wide) lands on it
-SNAP = 1e-3
-#: an estimate within this distance of a range edge (0.1 % of the range) is "at the bound"
-BOUND_TOLERANCE = 2e-3
-#: collinearity index above which a parameter set is poorly identifiable (Brun et al. 2001: 10-15)
-COLLINEARITY_LIMIT = 15.0
-#: singular values below this fraction of the largest are treated as zero (non-identifiable directions)
-RCOND = 1e-12
 
 
 class IdentificationWarning(UserWarning):
@@ -211,59 +176,6 @@ def model_errors(validation: pd.DataFrame | None, runs: Sequence[str], column: s
         out[run] = 0.0 if not np.isfinite(value) else float(value) / 100.0
     return out
 
-
-# --- the response models ----------------------------------------------------------------
-
-
-class HarmonicModel(Protocol):
-    """A run's sensor harmonics h = 1..H as a function of its parameters normalised to [-1, 1]."""
-
-    parameters: list[str]
-    lower: Array
-    upper: Array
-    H: int
-
-    def evaluate(self, x: Array, jacobian: bool = True) -> tuple[Array, Array | None]:
-        """x (N, d) -> M (N, H, 2) complex [m] and dM/dx (N, H, 2, d)."""
-
-
-class SensorSurrogate:
-    """A library's sensor harmonics h = 1..H and exact derivatives, evaluated for many trials at once.
-
-    Same numbers as ``Library.sensor`` (the sPGD of eq. 6-7 on the POD basis,
-    projected on the sensor DOFs once): y = (prod_j F_j(x_j)) A_s with
-    A_s = amplitudes Phi_sensor^T, evaluated by ``SparsePGD.evaluate``, here in
-    normalised coordinates and without the mean (h = 0).
-    """
-
-    def __init__(self, library: Library, harmonics: int | None = None):
-        H_lib = library.n_harmonics - 1
-        self.H = H_lib if harmonics is None else min(int(harmonics), H_lib)
-        if self.H < 1:
-            raise ValueError(f"library {library.run} has no harmonic h >= 1")
-        h = np.arange(1, self.H + 1)
-        rows = [feature_index(h, dof, library.n_harmonics, library.n_dof, imaginary)
-                for imaginary in (False, True) for dof in library.sensor_dofs]
-        sensor_modes = library.modes[np.concatenate(rows)]  # (4H, m): Re x, Re y, Im x, Im y
-        self.model = library.model.projected(sensor_modes.T)  # outputs Re x, Re y, Im x, Im y (4H)
-        self.parameters = list(library.parameters)
-        self.lower, self.upper = np.asarray(library.lower, float), np.asarray(library.upper, float)
-        self.run = library.run
-
-    def evaluate(self, x: Array, jacobian: bool = True) -> tuple[Array, Array | None]:
-        """M (N, H, 2) complex and dM/dx (N, H, 2, d) at normalised x (N, d) in [-1, 1]."""
-        x = np.clip(np.atleast_2d(x), -1.0, 1.0)
-        y, J = self.model.evaluate(x, jacobian=jacobian)
-        if not jacobian:
-            return self._complex(y), None
-        N, d = x.shape
-        out = self._complex(J.reshape(d * N, -1)).reshape(d, N, self.H, 2)
-        return self._complex(y), np.moveaxis(out, 0, -1)
-
-    def _complex(self, features: Array) -> Array:
-        """(N, 4H) [Re x, Re y, Im x, Im y] -> (N, H, 2) complex."""
-        parts = features.reshape(features.shape[0], 2, 2, self.H)  # (N, Re/Im, channel, h)
-        return np.swapaxes(parts[:, 0] + 1j * parts[:, 1], 1, 2)
 
 
 # --- the problem: parameters, residuals, block-arrow Jacobian ---------------------------
@@ -422,31 +334,7 @@ def wrap(phase: Array | float) -> Array:
     return np.pi - np.mod(np.pi - np.asarray(phase, float), 2.0 * np.pi)
 
 
-@dataclass
-class Evaluation:
-    """Residuals and block-arrow Jacobian of N trials.
 
-    r: (N, R, m) data residuals (Re then Im of (X - e^{ih phi} M) / s), rho: (N, n)
-    sparsity residuals (eq. 11, one per entry of theta, 0 for phases) plus, for
-    the phases of keyphasor runs, their prior phi / phase_sigma;
-    Js: (N, R, m, d_s) d r / d shared, Jl: (N, R, m, k) d r / d run block,
-    jd: (N, n) d rho / d theta (diagonal).
-    """
-
-    r: Array
-    rho: Array
-    Js: Array | None = None
-    Jl: Array | None = None
-    jd: Array | None = None
-
-    @property
-    def chi2(self) -> Array:
-        return np.einsum("nrm,nrm->n", self.r, self.r)
-
-    @property
-    def objective(self) -> Array:
-        """||r||^2 + ||rho||^2 (twice scipy's cost)."""
-        return self.chi2 + np.einsum("ni,ni->n", self.rho, self.rho)
 
 
 class ArrowProblem:
@@ -558,294 +446,6 @@ def _real(z: Array) -> Array:
     return np.concatenate([flat.real, flat.imag], axis=1)
 
 
-# --- the block-arrow normal equations ---------------------------------------------------
-
-
-@dataclass
-class Normal:
-    """J^T J as [[A, B_1..B_R], [B_r^T, C_r]] and g = J^T r, for N trials."""
-
-    A: Array  # (N, d_s, d_s)
-    B: Array  # (N, R, d_s, k)
-    C: Array  # (N, R, k, k)
-    gs: Array  # (N, d_s)
-    gl: Array  # (N, R, k)
-
-    @classmethod
-    def assemble(cls, ev: Evaluation, layout: Layout) -> "Normal":
-        N, R = ev.r.shape[:2]
-        ds, k = layout.n_shared, layout.n_block
-        jd = ev.jd.reshape(N, -1)
-        # batched matrix products: einsum's path search cost more than these small contractions
-        Js_t, Jl_t = np.swapaxes(ev.Js, -1, -2), np.swapaxes(ev.Jl, -1, -2)  # (N, R, ., m)
-        A = (Js_t @ ev.Js).sum(axis=1)
-        B = Js_t @ ev.Jl
-        C = Jl_t @ ev.Jl
-        gs = (Js_t @ ev.r[..., None])[..., 0].sum(axis=1) + jd[:, :ds] * ev.rho[:, :ds]
-        gl = (Jl_t @ ev.r[..., None])[..., 0] + (jd[:, ds:] * ev.rho[:, ds:]).reshape(N, R, k)
-        A[:, np.arange(ds), np.arange(ds)] += jd[:, :ds] ** 2
-        C[:, :, np.arange(k), np.arange(k)] += (jd[:, ds:] ** 2).reshape(N, R, k)
-        return cls(A, B, C, gs, gl)
-
-    def gradient(self) -> Array:
-        """g = J^T r flattened as theta (N, n)."""
-        return np.concatenate([self.gs, self.gl.reshape(self.gl.shape[0], -1)], axis=1)
-
-    def diagonal(self) -> Array:
-        """diag(J^T J) (N, n)."""
-        ds = self.A.shape[1]
-        a = self.A[:, np.arange(ds), np.arange(ds)]
-        k = self.C.shape[-1]
-        c = self.C[:, :, np.arange(k), np.arange(k)].reshape(self.C.shape[0], -1)
-        return np.concatenate([a, c], axis=1)
-
-
-def arrow_solve(normal: Normal, damping: Array, free: Array, gs: Array | None = None, gl: Array | None = None
-                ) -> Array:
-    """Solve (J^T J + diag(damping)) delta = -g over the free entries (delta = 0 elsewhere), Schur complement.
-
-    g = (gs, gl), by default the normal equations' gradient J^T r.
-
-    damping, free: (N, n). C_r^-1 per run, S = A - sum_r B_r C_r^-1 B_r^T,
-    delta_s = S^-1 (-g_s + sum_r B_r C_r^-1 g_r), delta_r = C_r^-1 (-g_r - B_r^T delta_s).
-    """
-    N, ds = normal.gs.shape
-    R, k = normal.gl.shape[1:]
-    fs, fl = free[:, :ds].astype(float), free[:, ds:].reshape(N, R, k).astype(float)
-    ds_idx, k_idx = np.arange(ds), np.arange(k)
-    A = normal.A * fs[:, :, None] * fs[:, None, :]
-    A[:, ds_idx, ds_idx] += damping[:, :ds] * fs + (1.0 - fs)
-    C = normal.C * fl[..., :, None] * fl[..., None, :]
-    C[:, :, k_idx, k_idx] += damping[:, ds:].reshape(N, R, k) * fl + (1.0 - fl)
-    B = normal.B * fs[:, None, :, None] * fl[:, :, None, :]
-    gs = -(normal.gs if gs is None else gs) * fs
-    gl = -(normal.gl if gl is None else gl) * fl
-    C_inv = np.linalg.inv(C)
-    if ds == 0:
-        return np.einsum("nrij,nrj->nri", C_inv, gl).reshape(N, -1)
-    W = np.einsum("nrij,nrjk->nrik", B, C_inv)  # B_r C_r^-1 (N, R, ds, k)
-    S = A - np.einsum("nrik,nrjk->nij", W, B)
-    delta_s = np.linalg.solve(S, (gs - np.einsum("nrik,nrk->ni", W, gl))[..., None])[..., 0]
-    delta_l = np.einsum("nrij,nrj->nri", C_inv, gl - np.einsum("nrji,nj->nri", B, delta_s))
-    return np.concatenate([delta_s, delta_l.reshape(N, -1)], axis=1)
-
-
-def _jvp(ev: Evaluation, delta: Array, layout: Layout) -> tuple[Array, Array]:
-    """J delta: the data part (N, R, m) and the sparsity part (N, n)."""
-    ds = layout.n_shared
-    N, R = ev.r.shape[:2]
-    dl = delta[:, ds:].reshape(N, R, layout.n_block)
-    return (np.einsum("nrmi,ni->nrm", ev.Js, delta[:, :ds]) + np.einsum("nrmi,nri->nrm", ev.Jl, dl),
-            ev.jd * delta)
-
-
-def _jtv(ev: Evaluation, v: Array, v_rho: Array, layout: Layout) -> tuple[Array, Array]:
-    """J^T v as (shared (N, d_s), blocks (N, R, k))."""
-    N, R = ev.r.shape[:2]
-    ds = layout.n_shared
-    gs = np.einsum("nrmi,nrm->ni", ev.Js, v) + ev.jd[:, :ds] * v_rho[:, :ds]
-    gl = np.einsum("nrmi,nrm->nri", ev.Jl, v) + (ev.jd[:, ds:] * v_rho[:, ds:]).reshape(N, R, layout.n_block)
-    return gs, gl
-
-
-def _linearised(ev: Evaluation, delta: Array, layout: Layout) -> Array:
-    """||r + J delta||^2 + ||rho + jd delta||^2 (the Gauss-Newton model of the objective) (N,)."""
-    jr, jrho = _jvp(ev, delta, layout)
-    r, rho = ev.r + jr, ev.rho + jrho
-    return np.einsum("nrm,nrm->n", r, r) + np.einsum("ni,ni->n", rho, rho)
-
-
-def _geodesic(problem: "ArrowProblem", ev: Evaluation, normal: Normal, theta: Array, delta: Array, X: Array,
-              damping: Array, free: Array, h: float = 0.1) -> Array:
-    """Geodesic acceleration (Transtrum & Sethna 2012): a = -(J^T J + D)^-1 J^T r_vv, r_vv the second
-    directional derivative of the residuals along delta by finite differences (one extra evaluation)."""
-    lower, upper = problem.layout.bounds()
-    probe = problem.evaluate(np.clip(theta + h * delta, lower, upper), X, jacobian=False)
-    jr, jrho = _jvp(ev, delta, problem.layout)
-    rvv = (2.0 / h) * ((probe.r - ev.r) / h - jr)
-    rvv_rho = (2.0 / h) * ((probe.rho - ev.rho) / h - jrho)
-    gs, gl = _jtv(ev, rvv, rvv_rho, problem.layout)
-    return arrow_solve(normal, damping, free, gs, gl)
-
-
-# --- Levenberg-Marquardt, batched over trials -------------------------------------------
-
-
-@dataclass(frozen=True)
-class LMOptions:
-    """Stopping rules (scipy.optimize.least_squares' meanings) and the damping start."""
-
-    max_iterations: int = 100
-    ftol: float = 1e-8
-    xtol: float = 1e-8
-    gtol: float = 1e-8
-    initial_damping: float = 1e-3
-    stall_chi2: float = 1e-2  # stop when chi^2 fell by less than this over stall_window iterations (0: never)
-    stall_window: int = 5
-    geodesic: bool = False  # geodesic acceleration (faster along curved valleys)
-    geodesic_ratio: float = 0.75  # acceleration used when 2 |a| / |delta| <= this
-    snap: float = SNAP  # a step ending this close to a bound lands on it (normalised units)
-    batch: int = 10000  # trials advanced together (memory bound)
-
-
-@dataclass
-class LMResult:
-    """Per trial: x (T, n) theta at the end, cost (T,) = 0.5 (||r||^2 + ||rho||^2) as in scipy,
-    loss (T,) = the paper's loss (eq. 9), status (T,) (0 max iterations, 1 gtol, 2 ftol, 3 xtol),
-    nfev, nit (T,), active_mask (T, n) (-1 lower, 1 upper bound, 0 free), history (T, max_iter + 1)
-    loss after each iteration (NaN once stopped), seconds spent."""
-
-    x: Array
-    cost: Array
-    loss: Array
-    status: Array
-    nfev: Array
-    nit: Array
-    active_mask: Array
-    history: Array
-    seconds: float = 0.0
-
-    @property
-    def message(self) -> list[str]:
-        return [STATUS_MESSAGES.get(int(s), "running") for s in self.status]
-
-    @property
-    def success(self) -> Array:
-        return self.status > 0
-
-    def take(self, index: Array) -> "LMResult":
-        return LMResult(self.x[index], self.cost[index], self.loss[index], self.status[index], self.nfev[index],
-                        self.nit[index], self.active_mask[index], self.history[index], self.seconds)
-
-    @staticmethod
-    def concatenate(parts: Sequence["LMResult"]) -> "LMResult":
-        return LMResult(*(np.concatenate([getattr(p, f) for p in parts]) for f in
-                          ("x", "cost", "loss", "status", "nfev", "nit", "active_mask", "history")),
-                        sum(p.seconds for p in parts))
-
-
-def levenberg_marquardt(problem: ArrowProblem, theta0: Array, X: Array, options: LMOptions = LMOptions()
-                        ) -> LMResult:
-    """Minimise ||r||^2 + ||rho||^2 (eq. 9-11) from every start theta0 (T, n), trial t on data X[t] (T, R, H, 2).
-
-    Batched projected Levenberg-Marquardt (module docstring), in batches of ``options.batch`` trials.
-    """
-    parts = [_lm_batch(problem, theta0[s], X[s], options)
-             for s in _batches(theta0.shape[0], options.batch)]
-    return LMResult.concatenate(parts)
-
-
-def _batches(n: int, size: int) -> list[slice]:
-    return [slice(i, min(i + size, n)) for i in range(0, n, max(int(size), 1))]
-
-
-def _lm_batch(problem: ArrowProblem, theta0: Array, X: Array, options: LMOptions) -> LMResult:
-    start = time.perf_counter()
-    layout = problem.layout
-    lower, upper = layout.bounds()
-    T, n = theta0.shape
-    theta = np.clip(np.array(theta0, float), lower, upper)
-    ev = problem.evaluate(theta, X)
-    F = ev.objective
-    mu = np.full(T, options.initial_damping)
-    nu = np.full(T, 2.0)
-    status = np.where(np.isfinite(F), RUNNING, NONFINITE)
-    nfev, nit = np.ones(T, int), np.zeros(T, int)
-    history = np.full((T, options.max_iterations + 1), np.nan)
-    history[:, 0] = F / problem.n_data
-    grad_scale = 2.0 / problem.n_data
-    for iteration in range(options.max_iterations):
-        act = np.flatnonzero(status == RUNNING)
-        if act.size == 0:
-            break
-        sub = _take(ev, act)
-        normal = Normal.assemble(sub, layout)
-        g = normal.gradient()
-        th = theta[act]
-        free = ~(((th <= lower) & (g > 0)) | ((th >= upper) & (g < 0)))
-        done = grad_scale * np.abs(g * free).max(1) <= options.gtol
-        diag = normal.diagonal()
-        floor = 1e-12 * np.maximum(diag.max(1, keepdims=True), 1e-300)
-        damping = mu[act, None] * np.maximum(diag, floor)
-        delta = arrow_solve(normal, damping, free)
-        leaving = ((th <= lower) & (delta < 0)) | ((th >= upper) & (delta > 0))
-        if leaving.any():  # the coupled step pushes an entry out of the box: hold it and solve again
-            again = np.flatnonzero(leaving.any(1))
-            free[again] &= ~leaving[again]
-            delta[again] = arrow_solve(_rows(normal, again), damping[again], free[again])
-        if options.geodesic:
-            acceleration = _geodesic(problem, sub, normal, th, delta, X[act], damping, free)
-            nfev[act] += 1
-            usable = (2 * np.linalg.norm(acceleration, axis=1)
-                      <= options.geodesic_ratio * np.linalg.norm(delta, axis=1))
-            delta = delta + 0.5 * acceleration * usable[:, None]
-        new = _snap(th + _truncate(th, delta, lower, upper), delta, lower, upper, options.snap)
-        delta = new - th
-        predicted = F[act] - _linearised(sub, delta, layout)
-        trial = problem.evaluate(new, X[act])
-        nfev[act] += 1
-        nit[act] += 1
-        F_new = trial.objective
-        actual = F[act] - F_new
-        accept = np.isfinite(F_new) & (actual > 0) & ~done
-        ratio = np.where(predicted > 0, actual / np.where(predicted > 0, predicted, 1.0), 0.0)
-        # Nielsen's damping update
-        mu[act] = np.where(accept, mu[act] * np.maximum(1 / 3, 1 - (2 * ratio - 1) ** 3), mu[act] * nu[act])
-        nu[act] = np.where(accept, 2.0, nu[act] * 2.0)
-        small_step = np.linalg.norm(delta, axis=1) <= options.xtol * (options.xtol + np.linalg.norm(th, axis=1))
-        small_gain = accept & (actual <= options.ftol * F[act])
-        keep = act[accept]
-        theta[keep] = new[accept]
-        F[keep] = F_new[accept]
-        _put(ev, keep, _take(trial, np.flatnonzero(accept)))
-        new_status = np.full(act.size, RUNNING)
-        new_status[small_step | (mu[act] > 1e20)] = XTOL
-        new_status[small_gain] = FTOL
-        new_status[done] = GTOL
-        history[act, iteration + 1] = F[act] / problem.n_data
-        if options.stall_chi2 > 0 and iteration + 1 >= options.stall_window:
-            gain = (history[act, iteration + 1 - options.stall_window] - history[act, iteration + 1]) * problem.n_data
-            # only on an accepted step: rejected ones (the damping growing) are not a flat valley
-            new_status[(new_status == RUNNING) & accept & (gain < options.stall_chi2)] = STALLED
-        status[act] = new_status
-    status[status == RUNNING] = MAX_ITERATIONS
-    active = np.where(theta <= lower, -1, np.where(theta >= upper, 1, 0))
-    return LMResult(theta, 0.5 * F, F / problem.n_data, status, nfev, nit, active, history,
-                    time.perf_counter() - start)
-
-
-def _rows(normal: Normal, index: Array) -> Normal:
-    return Normal(*(getattr(normal, f)[index] for f in ("A", "B", "C", "gs", "gl")))
-
-
-def _truncate(theta: Array, delta: Array, lower: Array, upper: Array) -> Array:
-    """The step shortened along its own direction to end inside the box (N, n).
-
-    Projecting entry by entry instead would change the step's direction: with correlated parameters
-    (a flat valley) the projected step no longer lowers the Gauss-Newton model, is rejected, and
-    the trial creeps. Along the direction ||r + J t delta||^2 falls for all t in [0, 1].
-    """
-    with np.errstate(divide="ignore", invalid="ignore"):
-        room = np.where(delta < 0, (lower - theta) / delta, np.where(delta > 0, (upper - theta) / delta, np.inf))
-    return delta * np.clip(room.min(axis=1, initial=np.inf), 0.0, 1.0)[:, None]
-
-
-def _snap(theta: Array, delta: Array, lower: Array, upper: Array, margin: float) -> Array:
-    """Project into the box; an entry moving towards a bound and ending within ``margin`` of it lands on it
-    (then the active set holds it there), so trials do not creep towards a bound in ever shorter steps."""
-    theta = np.where((delta > 0) & (theta > upper - margin), upper, theta)
-    theta = np.where((delta < 0) & (theta < lower + margin), lower, theta)
-    return np.clip(theta, lower, upper)
-
-
-def _take(ev: Evaluation, index: Array) -> Evaluation:
-    return Evaluation(*(None if a is None else a[index] for a in (ev.r, ev.rho, ev.Js, ev.Jl, ev.jd)))
-
-
-def _put(ev: Evaluation, index: Array, values: Evaluation) -> None:
-    for name in ("r", "rho", "Js", "Jl", "jd"):
-        getattr(ev, name)[index] = getattr(values, name)
-
 
 # --- the paper's protocol: tau trials, n_MC Monte Carlo repeats -------------------------
 
@@ -931,146 +531,6 @@ def _initial_phases(problem: ArrowProblem, theta0: Array, data: Array, n_extra: 
     out[:, phase] = np.where(keep[:, phase], theta0[:, phase], aligned[:, phase])
     return out
 
-
-# --- uncertainty and identifiability ----------------------------------------------------
-
-
-@dataclass
-class Uncertainty:
-    """Linearised uncertainty at the optimum (entries of theta; SI through ``scale``).
-
-    covariance (n, n) [SI^2], NaN for entries held at a bound; chi2, dof,
-    chi2_dof = chi^2 / dof (the residual noise the covariance is scaled by);
-    singular_values of the weighted Jacobian of the free entries;
-    collinearity_index of the physical free entries (phases projected out);
-    vif: variance inflation of each physical entry; identifiable, at_bound flags;
-    notes: sentences for the log and the summary.
-    """
-
-    covariance: Array
-    stderr: Array
-    correlation: Array
-    chi2: float
-    dof: int
-    singular_values: Array
-    collinearity_index: float
-    vif: Array
-    at_bound: Array
-    identifiable: Array
-    null_loading: Array
-    notes: list[str] = field(default_factory=list)
-
-    @property
-    def chi2_dof(self) -> float:
-        return self.chi2 / self.dof if self.dof > 0 else float("nan")
-
-
-def analyse_uncertainty(J: Array, r: Array, theta: Array, layout: Layout, scale_by_residual: bool = True,
-                        rcond: float = RCOND) -> Uncertainty:
-    """Covariance from the SVD of the weighted Jacobian J (m, n) at theta, scaled by chi^2/dof (module docstring).
-
-    The scale is max(1, chi^2/dof) (Birge ratio): residuals above the stated
-    noise widen the intervals; below it (chance, dof finite) they never shrink
-    them under what the measured sigmas allow.
-    J is d r / d theta (normalised parameters, phases in rad), so the SVD
-    compares dimensionless directions; the covariance is converted to SI after.
-    Entries at a bound have no valid interval of their own; the covariance is
-    computed with them as if free, so the others' intervals include their
-    uncertainty rather than being conditional on the edge values (said in
-    ``notes``). Directions with a
-    singular value below rcond * the largest are numerically null: left out of
-    the pseudo-inverse, and the entries loading on them flagged. A parameter is
-    identifiable when it is free, not on a null direction, and its 95 %
-    interval is narrower than its range.
-    """
-    n = layout.n
-    scale = layout.scale()
-    lo, hi = layout.bounds()
-    undefined = ~np.isfinite(J).all(0)  # a sensitivity the model could not give (no solution either side)
-    J = np.where(undefined, 0.0, J)
-    at_bound = (theta <= lo + BOUND_TOLERANCE) | (theta >= hi - BOUND_TOLERANCE)
-    free = ~at_bound
-    chi2 = float(r @ r)
-    dof = int(J.shape[0] - free.sum())
-    s2 = max(chi2 / dof, 1.0) if (scale_by_residual and dof > 0) else 1.0
-    # all entries, those at a bound as if free: the free ones' intervals then include how little the data fix
-    # the bound ones (conservative), instead of being conditional on the edge values
-    U, S, Vt = np.linalg.svd(J, full_matrices=False)
-    keep = S > rcond * (S[0] if S.size else 1.0)
-    inverse = np.where(keep, 1.0 / np.where(keep, S, 1.0) ** 2, 0.0)
-    covariance = s2 * (Vt.T * inverse) @ Vt * np.outer(scale, scale)
-    covariance[at_bound, :] = np.nan  # an interval around an estimate pinned at a range edge is not valid
-    covariance[:, at_bound] = np.nan
-    stderr = np.sqrt(np.diag(covariance).clip(min=0))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        correlation = covariance / np.outer(stderr, stderr)
-    null = (Vt[~keep] ** 2).sum(0) if (~keep).any() else np.zeros(n)
-    gamma, vif = _collinearity(J, free, layout)
-    width = np.where(layout.is_phase, np.inf, 2.0 * scale)  # the range width [SI]
-    identifiable = free & (null < 0.1) & (2 * 1.96 * stderr < width) & np.isfinite(stderr)
-    notes = _uncertainty_notes(layout, at_bound, identifiable, gamma, chi2, dof)
-    if undefined.any():
-        names = [p if run == "all" else f"{p}[{run}]" for (p, run), u in zip(layout.entries(), undefined) if u]
-        notes.append(f"no sensitivity for {', '.join(names)} (the model has no solution next to the estimate): "
-                     "treated as not identifiable")
-    return Uncertainty(covariance, stderr, correlation, chi2, dof, S, gamma, vif, at_bound, identifiable, null,
-                       notes)
-
-
-def _collinearity(J: Array, free: Array, layout: Layout) -> tuple[float, Array]:
-    """Brun's collinearity index of the free physical entries, phases projected out, and their VIFs."""
-    phys = free & ~layout.is_phase
-    vif = np.full(layout.n, np.nan)
-    if not phys.any():
-        return float("nan"), vif
-    S = J[:, phys]
-    phases = J[:, free & layout.is_phase]
-    if phases.size:
-        Q, _ = np.linalg.qr(phases)
-        S = S - Q @ (Q.T @ S)
-    norms = np.linalg.norm(S, axis=0)
-    if (norms <= 0).any():
-        vif[phys] = np.where(norms > 0, np.nan, np.inf)
-        return float("inf"), vif
-    Sn = S / norms
-    sv = np.linalg.svd(Sn, compute_uv=False)
-    gamma = float(1.0 / sv[-1]) if sv[-1] > 0 else float("inf")
-    try:
-        vif[phys] = np.diag(np.linalg.inv(Sn.T @ Sn))
-    except np.linalg.LinAlgError:
-        vif[phys] = np.inf
-    return gamma, vif
-
-
-def _uncertainty_notes(layout: Layout, at_bound: Array, identifiable: Array, gamma: float, chi2: float,
-                       dof: int) -> list[str]:
-    notes = []
-    names = [p if run == "all" else f"{p}[{run}]" for p, run in layout.entries()]
-    bound = [n for n, b, ph in zip(names, at_bound, layout.is_phase) if b and not ph]
-    if bound:
-        caveat = (" (the parameters are poorly identifiable together here, so an edge estimate may only mean "
-                  "that the data do not determine it)" if np.isfinite(gamma) and gamma > COLLINEARITY_LIMIT else "")
-        notes.append(f"estimate at a range edge for {', '.join(bound)}: revise the range (widen it and rebuild "
-                     "the library); their own intervals are not valid there, and the others' include their "
-                     f"uncertainty (computed as if they were free){caveat}")
-    weak = [n for n, ok, b, ph in zip(names, identifiable, at_bound, layout.is_phase) if not ok and not b and not ph]
-    if weak:
-        notes.append(f"not identifiable from these data: {', '.join(weak)} (null direction of the Jacobian or "
-                     "95 % interval wider than the range)")
-    if np.isfinite(gamma) and gamma > COLLINEARITY_LIMIT:
-        notes.append(f"collinearity index {gamma:.1f} > {COLLINEARITY_LIMIT:g}: the physical parameters are "
-                     "poorly identifiable together (their effects on the response nearly compensate)")
-    if dof > 0 and chi2 / dof > 4.0:
-        notes.append(f"chi^2/dof = {chi2 / dof:.3g}: the residuals exceed the stated noise (model or library "
-                     "error); the covariance is scaled up by it")
-    return notes
-
-
-def student_t(confidence: float, dof: int) -> float:
-    """Two-sided quantile of Student's t (the normal one for dof > 1000)."""
-    from scipy.stats import t
-
-    return float(t.ppf(0.5 + 0.5 * confidence, max(dof, 1)))
 
 
 # --- results ----------------------------------------------------------------------------
@@ -1231,287 +691,30 @@ def conclude(problem: ArrowProblem, protocol: ProtocolResult, data: Sequence[Run
                           "solver" if any(isinstance(m, SolverModel) for m in problem.models) else "library")
 
 
-# --- validation runs: predicted, never fitted -------------------------------------------
+
+def theta_from_table(table: pd.DataFrame, layout: Layout) -> Array | None:
+    """theta of ``layout`` from a parameter table (``Identification.table``: parameter, run, value [SI]),
+    values normalised with the layout's own ranges; None when an entry is missing or not finite."""
+    values = {(str(r.parameter), str(r.run)): float(r.value) for r in table.itertuples()}
+    if any(e not in values for e in layout.entries()):
+        return None
+    theta = np.array([values[(p, run)] if p == "phase" else float(layout.normalise(p, values[(p, run)]))
+                      for p, run in layout.entries()])
+    return np.clip(theta, *layout.bounds()) if np.isfinite(theta).all() else None
 
 
-def bow_law(table: pd.DataFrame, parameter: str, law: str = "law"
-            ) -> tuple[Array, Callable[[Array, Array], Array]]:
-    """A per-run parameter as a function of speed and unbalance, from its per-run estimates.
-
-    law "law": weighted least squares of q = c0 + c1 Omega^2 + c2 Omega^2 m_e (the
-    first-order form of the paper's eq. 35-37: bow grows with speed, and with the
-    unbalance when there is one); "mean": the weighted mean. Needs rows with
-    rpm, eccentric_mass_g, value, stderr. Returns (coefficients, predict(rpm, mass_g)).
-    """
-    omega2 = (np.asarray(table["rpm"], float) * 2 * np.pi / 60) ** 2
-    mass = np.asarray(table["eccentric_mass_g"], float) * 1e-3
-    stderr = np.asarray(table["stderr"], float)
-    w = 1.0 / np.where(np.isfinite(stderr) & (stderr > 0), stderr, np.nanmax(np.append(stderr, 1.0))) ** 2
-    y = np.asarray(table["value"], float)
-    if law == "law" and len(y) >= 4:
-        A = np.column_stack([np.ones_like(omega2), omega2, omega2 * mass])
-        coef = np.linalg.lstsq(A * np.sqrt(w)[:, None], y * np.sqrt(w), rcond=None)[0]
-
-        def predict(rpm: Array, mass_g: Array) -> Array:
-            o2 = (np.asarray(rpm, float) * 2 * np.pi / 60) ** 2
-            return coef[0] + coef[1] * o2 + coef[2] * o2 * np.asarray(mass_g, float) * 1e-3
-        return coef, predict
-    mean = float((w * y).sum() / w.sum())
-    return np.array([mean]), lambda rpm, mass_g: np.full(np.shape(rpm), mean)
-
-
-def _with_dc(z: Array, fill: float = 0.0) -> Array:
-    """(H, 2) h = 1..H -> (2, H+1) with an h = 0 column (``fit_phase``'s layout; h = 0 is ignored there)."""
-    return np.vstack([np.full((1, 2), fill, z.dtype), z]).T
-
-
-def keyphasor_phase(X: Array, M: Array, sigma: Array, phase_sigma: float, iterations: int = 3) -> float:
-    """The phase [rad] of a record with absolute phases: phi minimising
-    sum |X - e^{ih phi} M|^2 / s^2 + (phi / phase_sigma)^2 (the fit's prior), by Gauss-Newton from 0."""
-    h = np.arange(1, X.shape[0] + 1)[:, None]
-    phi = 0.0
-    for _ in range(iterations):
-        rotated = np.exp(1j * h * phi) * M
-        r, d = (X - rotated) / sigma, 1j * h * rotated / sigma  # residual and its -d/dphi
-        phi += float(((np.conj(d) * r).real.sum() - phi / phase_sigma**2) / ((np.abs(d) ** 2).sum()
-                                                                          + 1.0 / phase_sigma**2))
-    return phi
-
-
-def predict_run(model: HarmonicModel, data: RunData, values: Mapping[str, float], model_error: float = 0.0
-                ) -> dict:
-    """A run predicted with given parameter values [SI]: only its phase (a nuisance) is aligned (within its
-    prior when it is absolute: ``keyphasor_phase``).
-
-    Returns error_rel (relative L2 error of the signals' h >= 1 part, Parseval),
-    chi2_per_residual (with the measured sigmas and the library error), the
-    phase, 1X amplitudes measured and predicted, and the predicted harmonics.
-    """
-    from .preprocessing import fit_phase
-
-    H = min(data.H, model.H)
-    x = np.array([2 * (values[p] - lo) / (hi - lo) - 1 for p, lo, hi in zip(model.parameters, model.lower,
-                                                                             model.upper)])
-    outside = [p for p, v in zip(model.parameters, x) if abs(v) > 1 + 1e-9]
-    M = model.evaluate(np.clip(x, -1, 1)[None], jacobian=False)[0][0, :H]  # (H, 2)
-    X, sigma = data.X[:H], total_sigma(data, model_error)[:H]
-    if math.isfinite(data.phase_sigma):
-        phi = keyphasor_phase(X, M, sigma, data.phase_sigma)
-    else:
-        phi = fit_phase(_with_dc(X), _with_dc(M), _with_dc(sigma, fill=1.0))
-    aligned = M * np.exp(1j * np.arange(1, H + 1) * phi)[:, None]
-    error = np.sqrt((np.abs(X - aligned) ** 2).sum() / (np.abs(X) ** 2).sum())
-    residual = (X - aligned) / sigma
-    return {"run": data.run, "rpm": data.rpm, "eccentric_mass_g": data.eccentric_mass_g,
-            "error_rel": float(error), "chi2_per_residual": float((np.abs(residual) ** 2).sum() / (4 * H)),
-            "phase_rad": float(wrap(phi)), "x1_amp_measured_m": abs(X[0, 0]), "x1_amp_predicted_m": abs(M[0, 0]),
-            "y1_amp_measured_m": abs(X[0, 1]), "y1_amp_predicted_m": abs(M[0, 1]),
-            "outside_range": ",".join(outside), "fitted": aligned}
-
-
-# --- the full solver as a model (polish) ------------------------------------------------
-
-
-def run_up(variant, rpm: Sequence[float], values: Mapping[str, Array | float], harmonics: int,
-           start_rpm: float = 300.0, step_rpm: float = 50.0) -> list:
-    """Steady states of S parameter sets at each of ``rpm``, reached by one run-up from ``start_rpm``.
-
-    values: parameter values [SI], scalars or (S,) arrays, m_e included (unlike
-    ``scenarios.solve_runs``, which sets m_e from the run plan, an unknown m_e
-    keeps each set's own value). Steps between speeds are at most ``step_rpm``
-    (the offline stage's run-up). Returns the ``SteadyState`` at each of ``rpm``.
-    """
-    from .solver import solve_sweep
-
-    base = variant.values(values)
-    S = max(np.size(v) for v in base.values())
-    arrays = {k: np.broadcast_to(np.asarray(v, float), (S,)) for k, v in base.items()}
-    targets = np.asarray(rpm, float)
-    points = np.unique(np.append(targets, min(start_rpm, targets.min())))
-    grid = intermediate_speeds(points, step_rpm)
-    rest = variant.model.at_rest(arrays)  # the speed-independent stages, once for the whole run-up
-    sweep = solve_sweep(lambda speed, rows: variant.model.system_at(rest.rows(rows), speed),
-                        grid, S, harmonics=harmonics, direction="up")
-    by_rpm = dict(zip(sweep.rpm, sweep.results))
-    return [by_rpm[r] for r in targets]
-
-
-class SolverModel:
-    """A run's sensor harmonics from the full harmonic-balance solver (run-up to the run's speed).
-
-    Same interface as ``SensorSurrogate``: evaluate(x (N, d)) -> M, dM/dx, the
-    derivative by forward differences (step ``step`` in normalised units), all
-    N (1 + d) parameter sets solved in one batched run-up (``run_up``). m_e is
-    the run's eccentric mass unless it is one of the parameters.
-    """
-
-    def __init__(self, variant, run: str, rpm: float, eccentric_mass_g: float, parameters: Sequence[str],
-                 lower: Array, upper: Array, harmonics: int, step: float = 1e-5):
-        self.variant, self.run = variant, run
-        self.rpm, self.eccentric_mass_g = float(rpm), float(eccentric_mass_g)
-        self.parameters = list(parameters)
-        self.lower, self.upper = np.asarray(lower, float), np.asarray(upper, float)
-        self.harmonics = int(harmonics)
-        self.H = self.harmonics
-        self.step = float(step)
-        self.n_solves = 0
-
-    def _solve(self, x: Array) -> Array:
-        """Sensor harmonics (N, H, 2) at normalised x (N, d); NaN where there is no solution (or x is NaN)."""
-        finite = np.isfinite(x).all(axis=1)
-        if not finite.all():
-            M = np.full((x.shape[0], self.harmonics, 2), np.nan + 0j)
-            if finite.any():
-                M[finite] = self._solve(x[finite])
-            return M
-        from .sensor import sensor_harmonics
-
-        values = {"m_e": self.eccentric_mass_g * 1e-3}
-        values |= {p: self.lower[j] + 0.5 * (x[:, j] + 1) * (self.upper[j] - self.lower[j])
-                   for j, p in enumerate(self.parameters)}
-        result = run_up(self.variant, [self.rpm], values, self.harmonics)[0]
-        self.n_solves += x.shape[0]
-        U, V = sensor_harmonics(result.harmonics, self.variant.model.shaft)  # (N, H+1) each
-        M = np.stack([U[:, 1:], V[:, 1:]], axis=-1)
-        M[~result.success] = np.nan
-        return M
-
-    def evaluate(self, x: Array, jacobian: bool = True) -> tuple[Array, Array | None]:
-        x = np.atleast_2d(x)
-        N, d = x.shape
-        if not jacobian:
-            return self._solve(x), None
-        steps = np.where(x + self.step <= 1.0, self.step, -self.step)  # (N, d), backwards at the upper bound
-        shifted = np.repeat(x[:, None, :], d, axis=1)
-        shifted[:, np.arange(d), np.arange(d)] += steps
-        M_all = self._solve(np.concatenate([x, shifted.reshape(N * d, d)]))
-        M = M_all[:N]
-        M_shifted = M_all[N:].reshape(N, d, *M.shape[1:])
-        # a shifted solve that fails (next to a fold, say) while the point itself solves: step the other way
-        failed = ~np.isfinite(M_shifted).all(axis=(2, 3)) & np.isfinite(M).all(axis=(1, 2))[:, None]
-        if failed.any():
-            n, j = np.nonzero(failed)
-            steps[n, j] = -steps[n, j]
-            retry = x[n].copy()
-            retry[np.arange(n.size), j] += steps[n, j]
-            M_shifted[n, j] = self._solve(retry)
-        dM = (M_shifted - M[:, None]) / steps[:, :, None, None]
-        return M, np.moveaxis(dM, 1, -1)
-
-
-def polish(fit: Identification, solver_models: Sequence[HarmonicModel], max_iterations: int = 60,
-           starts: Array | None = None) -> Identification:
-    """Refine a library optimum with the full solver (no surrogate error), the result and its uncertainty.
-
-    LM from fit.theta (and any extra ``starts``, all advanced in the same batched
-    solves), on the same data weighted by the measured sigmas only (the solver
-    has no library error to allow for). The uncertainty is recomputed from the
-    solver's Jacobian (forward differences).
-    """
-    sigma = np.stack([d.sigma[: fit.X.shape[1]] for d in fit.data])
-    exact = ArrowProblem(solver_models, fit.layout, sigma, fit.problem.sparsity, fit.problem.l1_epsilon)
-    theta0 = fit.theta[None] if starts is None else np.vstack([fit.theta[None], starts])
-    options = LMOptions(max_iterations=max_iterations, ftol=1e-8, xtol=1e-8, gtol=1e-10, stall_chi2=1e-3,
-                        geodesic=True)  # one extra solve per iteration, 2-3x fewer iterations in the valleys
-    result = levenberg_marquardt(exact, theta0, np.repeat(fit.X[None], len(theta0), axis=0), options)
-    best = int(np.argmin(np.where(np.isfinite(result.loss), result.loss, np.inf)))  # a start may not solve
-    protocol = ProtocolResult(result, best, np.zeros((0, fit.layout.n)), np.zeros(0), result.seconds, len(theta0))
-    return conclude(exact, protocol, fit.data, fit.X, fit.confidence, fit.units)
-
-
-def next_best_trials(fit: Identification, n: int = 4, distinct: float = 1e-3) -> Array:
-    """Extra polish starts: the protocol's next-best trials on the measured data (distinct from the best by
-    more than ``distinct`` in normalised units), so that the polish survives a best trial where the full
-    solver has no solution."""
-    trials = fit.protocol.trials
-    order = np.argsort(np.where(np.isfinite(trials.loss), trials.loss, np.inf))
-    chosen: list[Array] = []
-    for i in order[1:]:
-        if not np.isfinite(trials.loss[i]) or len(chosen) == n:
-            break
-        if all(np.abs(trials.x[i] - c).max() > distinct for c in chosen + [fit.theta]):
-            chosen.append(trials.x[i])
-    return np.array(chosen).reshape(-1, fit.layout.n)
-
-
-def compare_polish(library_fit: Identification, polished: Identification) -> pd.DataFrame:
-    """Library optimum vs full-solver optimum per entry: difference in SI, relative, and in standard errors."""
-    a, b = library_fit.table(), polished.table()
-    out = a[["parameter", "run", "unit"]].copy()
-    out["library_value"], out["solver_value"] = a["value"], b["value"]
-    out["difference"] = b["value"] - a["value"]
-    out["difference_rel"] = out["difference"] / b["value"].abs().where(b["value"] != 0)
-    out["difference_in_stderr"] = out["difference"] / b["stderr"]
-    out["stderr"] = b["stderr"]
-    return out
-
-
-# --- per-run drift and plots ------------------------------------------------------------
-
-
-def drift_table(per_run: Sequence[pd.DataFrame], runs: pd.DataFrame) -> pd.DataFrame:
-    """The per-run fits side by side (one row per run and parameter) with speed and unbalance.
-
-    A physical constant that drifts with speed means the model misses something
-    (the per-run fits' diagnostic); ``spread_in_stderr``: |value - weighted mean| / stderr.
-    """
-    rows = []
-    for table in per_run:
-        rows.append(table[table["kind"] != "nuisance"])
-    if not rows:
-        return pd.DataFrame()
-    out = pd.concat(rows, ignore_index=True)
-    out = out.merge(runs[["run", "rpm", "eccentric_mass_g"]], on="run", how="left", suffixes=("", "_sheet"))
-    for p, group in out.groupby("parameter"):
-        w = 1.0 / group["stderr"].where(group["stderr"] > 0) ** 2
-        mean = (w * group["value"]).sum() / w.sum() if w.notna().any() else group["value"].mean()
-        out.loc[group.index, "weighted_mean"] = mean
-        out.loc[group.index, "spread_in_stderr"] = (group["value"] - mean).abs() / group["stderr"]
-    return out
-
-
-def plot_per_run(drift: pd.DataFrame, joint: pd.DataFrame | None,
-                 title: str) -> "matplotlib.figure.Figure":  # noqa: F821
-    """Per-run estimates vs speed (the paper's Fig. 9) with their intervals, and the joint values.
-
-    The axes span each parameter's range (an interval wider than the range is cut at it); open markers
-    are estimates the uncertainty analysis calls not identifiable, crosses estimates at a range edge.
-    """
-    from .plots import plt
-
-    names = list(dict.fromkeys(drift["parameter"])) if len(drift) else []
-    fig, axes = plt.subplots(1, max(len(names), 1), figsize=(3.2 * max(len(names), 1), 3.4), squeeze=False)
-    for ax, p in zip(axes[0], names):
-        group = drift[drift["parameter"] == p]
-        lo, hi = float(group["lower"].iloc[0]), float(group["upper"].iloc[0])
-        for colour, (mass, sub) in enumerate(group.groupby("eccentric_mass_g")):
-            low, high = sub["ci_low"].clip(lo, hi), sub["ci_high"].clip(lo, hi)
-            err = np.nan_to_num(np.vstack([sub["value"] - low, high - sub["value"]]).clip(min=0))
-            ok = sub["identifiable"].astype(bool).to_numpy()
-            edge = sub["at_bound"].astype(bool).to_numpy()
-            ax.errorbar(sub["rpm"], sub["value"], yerr=err, fmt="none", color=f"C{colour}", capsize=2, lw=0.8)
-            ax.plot(sub["rpm"][ok], sub["value"][ok], "o", ms=4, color=f"C{colour}", label=f"{mass:g} g")
-            ax.plot(sub["rpm"][~ok & ~edge], sub["value"][~ok & ~edge], "o", ms=4, mfc="none", color=f"C{colour}")
-            ax.plot(sub["rpm"][edge], sub["value"][edge], "x", ms=5, color=f"C{colour}")
-        if joint is not None:
-            shared = joint[(joint["parameter"] == p) & (joint["run"] == "all")]
-            for row in shared.itertuples():
-                ax.axhline(row.value, color="k", lw=1, label="joint")
-                ax.axhspan(max(row.ci_low, lo), min(row.ci_high, hi), color="k", alpha=0.1)
-            local = joint[(joint["parameter"] == p) & (joint["run"] != "all")].merge(
-                drift[["run", "rpm"]].drop_duplicates(), on="run")
-            if len(local):
-                ax.plot(local["rpm"], local["value"], "k+", label="joint")
-        pad = 0.05 * (hi - lo)
-        ax.set_ylim(lo - pad, hi + pad)
-        ax.set_title(p)
-        ax.set_xlabel("speed [RPM]")
-        ax.grid(alpha=0.3)
-    axes[0][0].legend(fontsize=7)
-    fig.suptitle(f"variant {title}: per-run estimates (95 % intervals; open: not identifiable, x: at a range "
-                 "edge) and the joint fit", fontsize=9)
-    fig.tight_layout()
-    return fig
+def theta_from_nested(table: pd.DataFrame, parent: Variant, variant: Variant, layout: Layout,
+                      fallback: pd.DataFrame) -> tuple[Array | None, float]:
+    """A start for ``variant`` from the joint fit (parameter table) of a variant nested in it: the shared values
+    mapped onto ``variant``'s unknowns (``hybridtwin.variants.embed``), the per-run entries (bow, phases) copied
+    run by run, and any entry neither gives taken from ``fallback`` (a table of ``variant``'s own fit). The
+    theta (None when an entry is still missing) and the mapping's coefficient mismatch (0: exact)."""
+    shared = table[table["run"] == "all"]
+    values, mismatch = embed(parent, variant, dict(zip(shared["parameter"], shared["value"].astype(float))))
+    mapped = pd.DataFrame({"parameter": list(values), "run": "all", "value": list(values.values())})
+    columns = ["parameter", "run", "value"]
+    rows = pd.concat([fallback[columns], table.loc[table["run"] != "all", columns], mapped])
+    return theta_from_table(rows.drop_duplicates(["parameter", "run"], keep="last"), layout), mismatch
 
 
 def write_fit(path: str | Path, fit: Identification, rpm: Sequence[float], cycles: int = 2, n_time: int = 200) -> None:
@@ -1641,22 +844,3 @@ def excluded_table(data: RunData, parameters: Sequence[str], units_: Mapping[str
              "identifiable": False, "note": data.note} for p in list(parameters) + ["phase"]]
     rows[-1].update(kind="nuisance", unit="rad")
     return pd.DataFrame(rows)
-
-
-def validation_values(joint: pd.DataFrame, run: RunData, law: str = "law", runs: pd.DataFrame | None = None
-                      ) -> dict[str, float]:
-    """Parameter values [SI] to predict a validation run with: the shared estimates, and each per-run
-    parameter from its law over the fitted runs (``bow_law``); m_e from the sheet when it is per run."""
-    physical = joint[joint["kind"] != "nuisance"]
-    values = {r.parameter: float(r.value) for r in physical.itertuples() if r.run == "all"}
-    local = physical[physical["run"] != "all"]
-    if runs is not None and len(local):
-        local = local.drop(columns=[c for c in ("rpm", "eccentric_mass_g") if c in local]).merge(
-            runs[["run", "rpm", "eccentric_mass_g"]], on="run", how="left")
-    for p, group in local.groupby("parameter", sort=False):
-        if p == "m_e" and np.isfinite(run.eccentric_mass_g):
-            values[p] = run.eccentric_mass_g * 1e-3
-            continue
-        _, predict = bow_law(group, p, law)
-        values[p] = float(predict(run.rpm, run.eccentric_mass_g))
-    return values

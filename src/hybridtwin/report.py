@@ -52,11 +52,12 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+from matplotlib.colors import LogNorm
 from scipy import stats
 
-from matplotlib.colors import LogNorm
-
+from . import forward as fwd
 from . import identification as idn
+from . import validation as val
 from .plots import plt
 
 Array = np.ndarray
@@ -157,11 +158,11 @@ def used_values(row: Mapping, parameters: Sequence[str]) -> dict[str, float]:
     return {p: float(row[f"{p}_used"]) for p in parameters}
 
 
-def validation_comparison(model: idn.HarmonicModel, data: idn.RunData, values: Mapping[str, float],
+def validation_comparison(model: fwd.HarmonicModel, data: idn.RunData, values: Mapping[str, float],
                           model_error: float, source: str) -> RunComparison:
     """A validation run predicted as the predict_validation rule does (``identification.predict_run``:
     joint values, only the phase aligned), in the model's frame."""
-    row = idn.predict_run(model, data, values, model_error)
+    row = val.predict_run(model, data, values, model_error)
     H = row["fitted"].shape[0]
     phase = row["phase_rad"]
     return RunComparison(data.run, "validate", data.rpm, data.eccentric_mass_g, to_model_frame(data.X[:H], phase),

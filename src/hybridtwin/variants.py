@@ -275,3 +275,16 @@ def load_effects_files(paths: Sequence[str | Path]) -> dict[str, Effect]:
         except (OSError, ValueError, RuntimeError) as err:
             raise EffectsFileError(str(err)) from None
     return effects
+
+
+def parent_variant(variants: Mapping[str, Mapping], name: str) -> tuple[str, str] | None:
+    """The variant that ``name`` extends by exactly one effect (same other effects, its unknowns a subset),
+    i.e. the one whose diagnosis may have refitted it, and that effect; None when there is none."""
+    spec = variants[name]
+    effects = set(spec.get("effects", []))
+    for other, base in variants.items():
+        extra = effects - set(base.get("effects", []))
+        if (other != name and len(extra) == 1 and set(base.get("effects", [])) <= effects
+                and set(base.get("unknown", {})) <= set(spec.get("unknown", {}))):
+            return other, extra.pop()
+    return None

@@ -5,9 +5,9 @@ import pandas as pd
 from snakemake.utils import validate
 
 from hybridtwin.config import offline, offline_for, run_plan, variant as config_variant
-from hybridtwin.diagnosis import parent_variant, settings as diagnosis_settings
+from hybridtwin.diagnosis import settings as diagnosis_settings
 from hybridtwin.identification import settings as identification_settings
-from hybridtwin.variants import nested_parents
+from hybridtwin.variants import nested_parents, parent_variant
 
 
 validate(config, "../schemas/config.schema.yaml")

@@ -1,0 +1,181 @@
+"""Validation runs (predicted, never fitted) and the per-run drift of the estimates.
+
+A validation run is predicted with the joint fit's shared values and each
+per-run parameter (the bow) from its law over the fitted runs (``bow_law``);
+only its phase, a nuisance, is aligned. The per-run fits side by side
+(``drift_table``, ``plot_per_run``, the paper's Fig. 9) show a physical
+constant drifting with speed: the sign of a missing effect.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+
+from .forward import HarmonicModel
+from .identification import RunData, total_sigma, wrap
+
+Array = np.ndarray
+
+def bow_law(table: pd.DataFrame, parameter: str, law: str = "law"
+            ) -> tuple[Array, Callable[[Array, Array], Array]]:
+    """A per-run parameter as a function of speed and unbalance, from its per-run estimates.
+
+    law "law": weighted least squares of q = c0 + c1 Omega^2 + c2 Omega^2 m_e (the
+    first-order form of the paper's eq. 35-37: bow grows with speed, and with the
+    unbalance when there is one); "mean": the weighted mean. Needs rows with
+    rpm, eccentric_mass_g, value, stderr. Returns (coefficients, predict(rpm, mass_g)).
+    """
+    omega2 = (np.asarray(table["rpm"], float) * 2 * np.pi / 60) ** 2
+    mass = np.asarray(table["eccentric_mass_g"], float) * 1e-3
+    stderr = np.asarray(table["stderr"], float)
+    w = 1.0 / np.where(np.isfinite(stderr) & (stderr > 0), stderr, np.nanmax(np.append(stderr, 1.0))) ** 2
+    y = np.asarray(table["value"], float)
+    if law == "law" and len(y) >= 4:
+        A = np.column_stack([np.ones_like(omega2), omega2, omega2 * mass])
+        coef = np.linalg.lstsq(A * np.sqrt(w)[:, None], y * np.sqrt(w), rcond=None)[0]
+
+        def predict(rpm: Array, mass_g: Array) -> Array:
+            o2 = (np.asarray(rpm, float) * 2 * np.pi / 60) ** 2
+            return coef[0] + coef[1] * o2 + coef[2] * o2 * np.asarray(mass_g, float) * 1e-3
+        return coef, predict
+    mean = float((w * y).sum() / w.sum())
+    return np.array([mean]), lambda rpm, mass_g: np.full(np.shape(rpm), mean)
+
+
+def _with_dc(z: Array, fill: float = 0.0) -> Array:
+    """(H, 2) h = 1..H -> (2, H+1) with an h = 0 column (``fit_phase``'s layout; h = 0 is ignored there)."""
+    return np.vstack([np.full((1, 2), fill, z.dtype), z]).T
+
+
+def keyphasor_phase(X: Array, M: Array, sigma: Array, phase_sigma: float, iterations: int = 3) -> float:
+    """The phase [rad] of a record with absolute phases: phi minimising
+    sum |X - e^{ih phi} M|^2 / s^2 + (phi / phase_sigma)^2 (the fit's prior), by Gauss-Newton from 0."""
+    h = np.arange(1, X.shape[0] + 1)[:, None]
+    phi = 0.0
+    for _ in range(iterations):
+        rotated = np.exp(1j * h * phi) * M
+        r, d = (X - rotated) / sigma, 1j * h * rotated / sigma  # residual and its -d/dphi
+        phi += float(((np.conj(d) * r).real.sum() - phi / phase_sigma**2) / ((np.abs(d) ** 2).sum()
+                                                                          + 1.0 / phase_sigma**2))
+    return phi
+
+
+def predict_run(model: HarmonicModel, data: RunData, values: Mapping[str, float], model_error: float = 0.0
+                ) -> dict:
+    """A run predicted with given parameter values [SI]: only its phase (a nuisance) is aligned (within its
+    prior when it is absolute: ``keyphasor_phase``).
+
+    Returns error_rel (relative L2 error of the signals' h >= 1 part, Parseval),
+    chi2_per_residual (with the measured sigmas and the library error), the
+    phase, 1X amplitudes measured and predicted, and the predicted harmonics.
+    """
+    from .preprocessing import fit_phase
+
+    H = min(data.H, model.H)
+    x = np.array([2 * (values[p] - lo) / (hi - lo) - 1 for p, lo, hi in zip(model.parameters, model.lower,
+                                                                             model.upper)])
+    outside = [p for p, v in zip(model.parameters, x) if abs(v) > 1 + 1e-9]
+    M = model.evaluate(np.clip(x, -1, 1)[None], jacobian=False)[0][0, :H]  # (H, 2)
+    X, sigma = data.X[:H], total_sigma(data, model_error)[:H]
+    if math.isfinite(data.phase_sigma):
+        phi = keyphasor_phase(X, M, sigma, data.phase_sigma)
+    else:
+        phi = fit_phase(_with_dc(X), _with_dc(M), _with_dc(sigma, fill=1.0))
+    aligned = M * np.exp(1j * np.arange(1, H + 1) * phi)[:, None]
+    error = np.sqrt((np.abs(X - aligned) ** 2).sum() / (np.abs(X) ** 2).sum())
+    residual = (X - aligned) / sigma
+    return {"run": data.run, "rpm": data.rpm, "eccentric_mass_g": data.eccentric_mass_g,
+            "error_rel": float(error), "chi2_per_residual": float((np.abs(residual) ** 2).sum() / (4 * H)),
+            "phase_rad": float(wrap(phi)), "x1_amp_measured_m": abs(X[0, 0]), "x1_amp_predicted_m": abs(M[0, 0]),
+            "y1_amp_measured_m": abs(X[0, 1]), "y1_amp_predicted_m": abs(M[0, 1]),
+            "outside_range": ",".join(outside), "fitted": aligned}
+
+
+
+def drift_table(per_run: Sequence[pd.DataFrame], runs: pd.DataFrame) -> pd.DataFrame:
+    """The per-run fits side by side (one row per run and parameter) with speed and unbalance.
+
+    A physical constant that drifts with speed means the model misses something
+    (the per-run fits' diagnostic); ``spread_in_stderr``: |value - weighted mean| / stderr.
+    """
+    rows = []
+    for table in per_run:
+        rows.append(table[table["kind"] != "nuisance"])
+    if not rows:
+        return pd.DataFrame()
+    out = pd.concat(rows, ignore_index=True)
+    out = out.merge(runs[["run", "rpm", "eccentric_mass_g"]], on="run", how="left", suffixes=("", "_sheet"))
+    for p, group in out.groupby("parameter"):
+        w = 1.0 / group["stderr"].where(group["stderr"] > 0) ** 2
+        mean = (w * group["value"]).sum() / w.sum() if w.notna().any() else group["value"].mean()
+        out.loc[group.index, "weighted_mean"] = mean
+        out.loc[group.index, "spread_in_stderr"] = (group["value"] - mean).abs() / group["stderr"]
+    return out
+
+
+def plot_per_run(drift: pd.DataFrame, joint: pd.DataFrame | None,
+                 title: str) -> "matplotlib.figure.Figure":  # noqa: F821
+    """Per-run estimates vs speed (the paper's Fig. 9) with their intervals, and the joint values.
+
+    The axes span each parameter's range (an interval wider than the range is cut at it); open markers
+    are estimates the uncertainty analysis calls not identifiable, crosses estimates at a range edge.
+    """
+    from .plots import plt
+
+    names = list(dict.fromkeys(drift["parameter"])) if len(drift) else []
+    fig, axes = plt.subplots(1, max(len(names), 1), figsize=(3.2 * max(len(names), 1), 3.4), squeeze=False)
+    for ax, p in zip(axes[0], names):
+        group = drift[drift["parameter"] == p]
+        lo, hi = float(group["lower"].iloc[0]), float(group["upper"].iloc[0])
+        for colour, (mass, sub) in enumerate(group.groupby("eccentric_mass_g")):
+            low, high = sub["ci_low"].clip(lo, hi), sub["ci_high"].clip(lo, hi)
+            err = np.nan_to_num(np.vstack([sub["value"] - low, high - sub["value"]]).clip(min=0))
+            ok = sub["identifiable"].astype(bool).to_numpy()
+            edge = sub["at_bound"].astype(bool).to_numpy()
+            ax.errorbar(sub["rpm"], sub["value"], yerr=err, fmt="none", color=f"C{colour}", capsize=2, lw=0.8)
+            ax.plot(sub["rpm"][ok], sub["value"][ok], "o", ms=4, color=f"C{colour}", label=f"{mass:g} g")
+            ax.plot(sub["rpm"][~ok & ~edge], sub["value"][~ok & ~edge], "o", ms=4, mfc="none", color=f"C{colour}")
+            ax.plot(sub["rpm"][edge], sub["value"][edge], "x", ms=5, color=f"C{colour}")
+        if joint is not None:
+            shared = joint[(joint["parameter"] == p) & (joint["run"] == "all")]
+            for row in shared.itertuples():
+                ax.axhline(row.value, color="k", lw=1, label="joint")
+                ax.axhspan(max(row.ci_low, lo), min(row.ci_high, hi), color="k", alpha=0.1)
+            local = joint[(joint["parameter"] == p) & (joint["run"] != "all")].merge(
+                drift[["run", "rpm"]].drop_duplicates(), on="run")
+            if len(local):
+                ax.plot(local["rpm"], local["value"], "k+", label="joint")
+        pad = 0.05 * (hi - lo)
+        ax.set_ylim(lo - pad, hi + pad)
+        ax.set_title(p)
+        ax.set_xlabel("speed [RPM]")
+        ax.grid(alpha=0.3)
+    axes[0][0].legend(fontsize=7)
+    fig.suptitle(f"variant {title}: per-run estimates (95 % intervals; open: not identifiable, x: at a range "
+                 "edge) and the joint fit", fontsize=9)
+    fig.tight_layout()
+    return fig
+
+
+
+def validation_values(joint: pd.DataFrame, run: RunData, law: str = "law", runs: pd.DataFrame | None = None
+                      ) -> dict[str, float]:
+    """Parameter values [SI] to predict a validation run with: the shared estimates, and each per-run
+    parameter from its law over the fitted runs (``bow_law``); m_e from the sheet when it is per run."""
+    physical = joint[joint["kind"] != "nuisance"]
+    values = {r.parameter: float(r.value) for r in physical.itertuples() if r.run == "all"}
+    local = physical[physical["run"] != "all"]
+    if runs is not None and len(local):
+        local = local.drop(columns=[c for c in ("rpm", "eccentric_mass_g") if c in local]).merge(
+            runs[["run", "rpm", "eccentric_mass_g"]], on="run", how="left")
+    for p, group in local.groupby("parameter", sort=False):
+        if p == "m_e" and np.isfinite(run.eccentric_mass_g):
+            values[p] = run.eccentric_mass_g * 1e-3
+            continue
+        _, predict = bow_law(group, p, law)
+        values[p] = float(predict(run.rpm, run.eccentric_mass_g))
+    return values
