@@ -78,13 +78,15 @@ class SensorSurrogate:
 
 
 def run_up(variant, rpm: Sequence[float], values: Mapping[str, Array | float], harmonics: int,
-           start_rpm: float = 300.0, step_rpm: float = 50.0) -> list:
+           start_rpm: float = 300.0, step_rpm: float = 50.0, jumps: bool = False) -> list:
     """Steady states of S parameter sets at each of ``rpm``, reached by one run-up from ``start_rpm``.
 
     values: parameter values [SI], scalars or (S,) arrays, m_e included (unlike
     ``scenarios.solve_runs``, which sets m_e from the run plan, an unknown m_e
     keeps each set's own value). Steps between speeds are at most ``step_rpm``
-    (the offline stage's run-up). Returns the ``SteadyState`` at each of ``rpm``.
+    (the offline stage's run-up). Returns the ``SteadyState`` at each of ``rpm``;
+    with ``jumps``, also (S,) flags: True for a set whose run-up jumped between
+    branches at any step up to the highest of ``rpm`` (a fold crossed on the way).
     """
     from .solver import solve_sweep
 
@@ -98,20 +100,52 @@ def run_up(variant, rpm: Sequence[float], values: Mapping[str, Array | float], h
     sweep = solve_sweep(lambda speed, rows: variant.model.system_at(rest.rows(rows), speed),
                         grid, S, harmonics=harmonics, direction="up")
     by_rpm = dict(zip(sweep.rpm, sweep.results))
-    return [by_rpm[r] for r in targets]
+    states = [by_rpm[r] for r in targets]
+    if not jumps:
+        return states
+    jumped = np.zeros(S, bool)
+    for speed, result in zip(sweep.rpm, sweep.results):
+        if speed <= targets.max():
+            jumped |= np.array(["jump" in str(b) for b in result.branch])
+    return states, jumped
+
+
+#: a warm start is kept when Newton's solution lies within this fraction of the predicted change of the
+#: condensed state (plus ``WARM_FLOOR`` of its size) from the predictor: a solution farther away means the
+#: continuation in the parameters left the branch the run-up reaches (a fold in between)
+WARM_TOLERANCE = 0.25
+WARM_FLOOR = 1e-3
+#: steady states kept for warm starts per model (a few LM trials' worth of iterates)
+CACHE_SIZE = 256
+#: the assembly's central-difference step of the analytic sensitivities, as a fraction of each range
+#: (``solver.sensitivity``: exact for parameters entering linearly; smaller steps meet round-off)
+SENSITIVITY_STEP = 1e-4
 
 
 class SolverModel:
-    """A run's sensor harmonics from the full harmonic-balance solver (run-up to the run's speed).
+    """A run's sensor harmonics from the full harmonic-balance solver.
 
-    Same interface as ``SensorSurrogate``: evaluate(x (N, d)) -> M, dM/dx, the
-    derivative by forward differences (step ``step`` in normalised units), all
-    N (1 + d) parameter sets solved in one batched run-up (``run_up``). m_e is
-    the run's eccentric mass unless it is one of the parameters.
+    Same interface as ``SensorSurrogate``: evaluate(x (N, d)) -> M (N, H, 2), dM/dx (N, H, 2, d).
+    The response at a parameter set is the steady state a run-up from 300 RPM reaches (the rig's
+    history, ``run_up``). Two things make repeated evaluations (an LM's iterates) cheap:
+
+    - warm starts (``warm``): a set close to one solved before continues from it, Newton started at
+      the first-order predictor x_old + dx/dp (p - p_old) (the condensed state's sensitivity), no
+      run-up. The continued solution is kept only if Newton converges within ``WARM_TOLERANCE`` of
+      the predicted change and the earlier set's run-up never jumped between branches; otherwise
+      (a fold in between, a lost branch) the set is solved by a run-up as before;
+    - analytic sensitivities (``analytic``): dM/dp of the converged steady state by the implicit
+      function theorem (``solver.sensitivity``), one linear solve per set for all parameters,
+      instead of d forward-difference solves (``analytic=False``: forward differences of step
+      ``step`` in normalised units, the former method).
+
+    m_e is the run's eccentric mass unless it is one of the parameters. Counters: ``n_solves``
+    sets solved, ``n_warm`` of them by a warm start, ``n_run_ups`` by a run-up.
     """
 
     def __init__(self, variant, run: str, rpm: float, eccentric_mass_g: float, parameters: Sequence[str],
-                 lower: Array, upper: Array, harmonics: int, step: float = 1e-5):
+                 lower: Array, upper: Array, harmonics: int, step: float = 1e-5, *, warm: bool = True,
+                 analytic: bool = True, cache_size: int = CACHE_SIZE):
         self.variant, self.run = variant, run
         self.rpm, self.eccentric_mass_g = float(rpm), float(eccentric_mass_g)
         self.parameters = list(parameters)
@@ -119,30 +153,137 @@ class SolverModel:
         self.harmonics = int(harmonics)
         self.H = self.harmonics
         self.step = float(step)
-        self.n_solves = 0
+        self.warm, self.analytic, self.cache_size = bool(warm), bool(analytic), int(cache_size)
+        self.n_solves = self.n_warm = self.n_run_ups = 0
+        d = len(self.parameters)
+        self._x = np.zeros((0, d))  # cached normalised points, their condensed states and derivatives
+        self._state = None
+        self._dstate = None
 
-    def _solve(self, x: Array) -> Array:
-        """Sensor harmonics (N, H, 2) at normalised x (N, d); NaN where there is no solution (or x is NaN)."""
-        finite = np.isfinite(x).all(axis=1)
-        if not finite.all():
-            M = np.full((x.shape[0], self.harmonics, 2), np.nan + 0j)
-            if finite.any():
-                M[finite] = self._solve(x[finite])
-            return M
+    # --- parameter values and systems -------------------------------------------------------
+
+    @property
+    def half_range(self) -> Array:
+        """dp/dx [SI per normalised unit] of each parameter."""
+        return 0.5 * (self.upper - self.lower)
+
+    def _values(self, x: Array) -> dict[str, Array]:
+        """Complete parameter values [SI], each (N,), at normalised x (N, d)."""
+        values = {"m_e": self.eccentric_mass_g * 1e-3}
+        values |= {p: self.lower[j] + (x[:, j] + 1) * self.half_range[j] for j, p in enumerate(self.parameters)}
+        base = self.variant.values(values)
+        return {k: np.broadcast_to(np.asarray(v, float), (x.shape[0],)).copy() for k, v in base.items()}
+
+    def _system(self, values: Mapping[str, Array]):
+        S = max(np.size(v) for v in values.values())
+        rest = self.variant.model.at_rest(values, S)
+        return self.variant.model.system_at(rest, np.full(S, self.rpm))
+
+    # --- solves -------------------------------------------------------------------------------
+
+    def _steady(self, x: Array):
+        """The run-up steady states at x (N, d) (all finite): warm where allowed, else by a run-up."""
+        from .solver import SteadyState, solve
+
+        N = x.shape[0]
+        values = self._values(x)
+        parts, order = [], []
+        cold = np.arange(N)
+        if self.warm and len(self._x):
+            distance = np.abs(x[:, None, :] - self._x[None]).max(-1)  # (N, cache)
+            nearest = distance.argmin(1)
+            old = self._state[nearest]
+            change = np.einsum("npcj,np->ncj", self._dstate[nearest], (x - self._x[nearest]) * self.half_range)
+            predicted = old + change
+            result = solve(self._system(values), self.harmonics, initial=predicted, stall_window=8)
+            gap = np.linalg.norm((result.state - predicted).reshape(N, -1), axis=1)
+            allowed = (WARM_TOLERANCE * np.linalg.norm(change.reshape(N, -1), axis=1)
+                       + WARM_FLOOR * np.linalg.norm(old.reshape(N, -1), axis=1))
+            kept = np.flatnonzero(result.success & (gap <= allowed))
+            if kept.size:
+                parts.append(_rows(result, kept))
+                order.append(kept)
+                self.n_warm += kept.size
+            cold = np.setdiff1d(cold, kept)
+        jumped = np.zeros(N, bool)
+        if cold.size:
+            states, jump = run_up(self.variant, [self.rpm], {k: v[cold] for k, v in values.items()},
+                                  self.harmonics, jumps=True)
+            parts.append(states[0])
+            order.append(cold)
+            jumped[cold] = jump
+            self.n_run_ups += cold.size
+        self.n_solves += N
+        result = SteadyState.concatenate(parts, np.argsort(np.concatenate(order)))
+        return result, values, jumped
+
+    def _remember(self, x: Array, result, dstate: Array, jumped: Array) -> None:
+        """Cache the converged sets whose run-up never jumped (warm starts continue only on that branch)."""
+        keep = result.success & ~jumped & np.isfinite(dstate).reshape(len(x), -1).all(1)
+        if not keep.any():
+            return
+        if self._state is None:
+            self._state, self._dstate = result.state[keep], dstate[keep]
+        else:
+            self._state = np.concatenate([self._state, result.state[keep]])[-self.cache_size:]
+            self._dstate = np.concatenate([self._dstate, dstate[keep]])[-self.cache_size:]
+        self._x = np.concatenate([self._x, x[keep]])[-self.cache_size:]
+
+    def _sensor(self, harmonics: Array) -> Array:
+        """Sensor harmonics h = 1..H (..., H, 2) from full harmonics (..., H+1, n)."""
         from .sensor import sensor_harmonics
 
-        values = {"m_e": self.eccentric_mass_g * 1e-3}
-        values |= {p: self.lower[j] + 0.5 * (x[:, j] + 1) * (self.upper[j] - self.lower[j])
-                   for j, p in enumerate(self.parameters)}
-        result = run_up(self.variant, [self.rpm], values, self.harmonics)[0]
+        U, V = sensor_harmonics(harmonics, self.variant.model.shaft)
+        return np.stack([U[..., 1:], V[..., 1:]], axis=-1)
+
+    def _exact(self, x: Array, jacobian: bool) -> tuple[Array, Array | None]:
+        """M and (with ``jacobian``) dM/dx by the implicit function theorem at finite x (N, d)."""
+        from .solver import sensitivity
+
+        result, values, jumped = self._steady(x)
+        M = self._sensor(result.harmonics)
+        M[~result.success] = np.nan
+        d = len(self.parameters)
+        if not (jacobian or self.warm):
+            return M, None
+        steps = SENSITIVITY_STEP * (self.upper - self.lower)
+        dQ, dstate = sensitivity(self._system, values, self.parameters, result, steps, condensed=True)
+        if self.warm:
+            self._remember(x, result, dstate, jumped)
+        if not jacobian:
+            return M, None
+        dM = self._sensor(dQ) * self.half_range[None, :, None, None]  # (N, d, H, 2), per normalised unit
+        return M, np.moveaxis(dM, 1, -1) if d else np.zeros(M.shape + (0,))
+
+    def _solve(self, x: Array) -> Array:
+        """Sensor harmonics (N, H, 2) at normalised x (N, d) by the run-up alone (the differences' path)."""
+        result = run_up(self.variant, [self.rpm], self._values(x), self.harmonics)[0]
         self.n_solves += x.shape[0]
-        U, V = sensor_harmonics(result.harmonics, self.variant.model.shaft)  # (N, H+1) each
-        M = np.stack([U[:, 1:], V[:, 1:]], axis=-1)
+        self.n_run_ups += x.shape[0]
+        M = self._sensor(result.harmonics)
         M[~result.success] = np.nan
         return M
 
     def evaluate(self, x: Array, jacobian: bool = True) -> tuple[Array, Array | None]:
-        x = np.atleast_2d(x)
+        """M (N, H, 2) complex [m] and dM/dx (N, H, 2, d) at normalised x (N, d); NaN where there is no
+        steady state (or x is NaN)."""
+        x = np.atleast_2d(np.asarray(x, float))
+        N, d = x.shape
+        M = np.full((N, self.harmonics, 2), np.nan + 0j)
+        dM = np.full((N, self.harmonics, 2, d), np.nan + 0j) if jacobian else None
+        finite = np.flatnonzero(np.isfinite(x).all(axis=1))
+        if finite.size == 0:
+            return M, dM
+        if self.analytic:
+            M[finite], J = self._exact(x[finite], jacobian)
+        else:
+            M[finite], J = self._differences(x[finite], jacobian)
+        if jacobian:
+            dM[finite] = J
+        return M, dM
+
+    def _differences(self, x: Array, jacobian: bool) -> tuple[Array, Array | None]:
+        """Forward differences of run-up solves (the method before the analytic sensitivities)."""
         N, d = x.shape
         if not jacobian:
             return self._solve(x), None
@@ -162,3 +303,11 @@ class SolverModel:
             M_shifted[n, j] = self._solve(retry)
         dM = (M_shifted - M[:, None]) / steps[:, :, None, None]
         return M, np.moveaxis(dM, 1, -1)
+
+
+def _rows(result, index: Array):
+    """The scenarios ``index`` of a SteadyState."""
+    from .solver import SteadyState
+
+    fields = ("harmonics", "Omega", "success", "status", "message", "iterations", "residual", "branch", "state")
+    return SteadyState(**{f: getattr(result, f)[index] for f in fields}, n_time=result.n_time)
