@@ -5,6 +5,7 @@ unbalance at 3 mm: X_1 = m_e e Omega^2 / (k - m Omega^2 + i c Omega), Y_1 = -i X
 13 runs at 500-1100 RPM, H = 3, sigma = 1e-6 m per real and imaginary part, a fixed seed.
 """
 
+import re
 from dataclasses import fields
 
 import numpy as np
@@ -88,9 +89,16 @@ def test_whirl_direction_from_time_signals():
     assert fp.whirl == ["", "forward", "backward", "mixed"]
     assert fp.forward[1] > 0.97 and fp.forward[2] < 0.03 and 0.35 < fp.forward[3] < 0.65
     assert "whirls forward" in fp.summary()
+    # a weak forward residual (1.5 sigma per channel): the noise's equal forward and backward energy
+    # (E[w |F|^2] = E[w |B|^2] = 1 per run) is removed before the share, else it reads ~0.76, "mixed"
+    weak = np.zeros_like(E)
+    weak[:, 1, 0] = 1.5 * SIGMA * np.exp(1j * np.arange(R))
+    weak[:, 1, 1] = -1j * weak[:, 1, 0]
+    fp3 = fingerprint(M + weak + _noise(9), M, SIGMA, RPM, MASS)
+    assert fp3.significant[1] and fp3.whirl[1] == "forward" and fp3.forward[1] > 0.85  # 0.84-1.0 at seeds 9, 11-15
     # the residual alone, backward at the dominant harmonic
     E2 = E.copy()
-    E2[:, 1] = np.conj(E2[:, 1]) * 0  # drop 1X: 2X (backward) dominates
+    E2[:, 1] = 0  # drop 1X: 2X (backward) dominates
     fp2 = fingerprint(M + E2 + _noise(3), M, SIGMA, RPM, MASS)
     assert fp2.dominant == 2 and "whirls backward" in fp2.summary()
 
@@ -107,6 +115,7 @@ def test_phase_against_the_response(c, kind, sense):
         assert fp.in_phase[1] > 0.98
     assert fp.coefficient[1] == pytest.approx(c, abs=2e-3)
     assert fp.coherence[1] > 0.99
+    assert fp.unmodelled_runs[1] == 0 and fp.unmodelled_share[1] == 0  # the model's 1X is well above the noise
     assert fp.response_slope[1] == pytest.approx(1.0, abs=0.02)  # E = c M: |E| proportional to |M|
     # |E| ~ |M| peaks at the resonance: the half-power band 900-950 RPM (2 of 13 runs) holds most of it
     assert fp.resonance_rpm == 900 and fp.band_rpm == (900, 950)
@@ -118,28 +127,27 @@ def test_phase_against_the_response(c, kind, sense):
 
 def test_growth_like_omega_squared_across_two_masses():
     """(d) |E| = m_e Omega^2 x const at 2X, 30 g at low speed and 10 g at high speed: the per-mass intercepts
-    keep the masses from posing as speed (a pooled fit gives ~0.3 here), slope 2.
+    keep the masses from posing as speed (a pooled fit of the noiseless amplitudes gives 0.19 here), slope 2.
 
-    Tolerance: |E|/sigma is 6-30 per channel, so log|E| scatters by ~0.03-0.12 per run; with 15 runs over a
-    log-speed span of 0.8 the slope's standard error is ~0.05 (the reported one is checked below): 0.25 is
-    five standard errors, a fixed seed, and far from the pooled 0.3 or a constant law's 0.
+    Tolerance: |E| / sigma is 8-13 per channel, so log|E| scatters by ~0.05-0.09 per run; the log-speed spread
+    within each mass (0.38-0.53 wide) gives a slope standard error of ~0.1 (reported, checked below; seeds 5-14
+    gave 1.74-2.11). 0.35 is ~3.5 standard errors at a fixed seed, still far from the pooled 0.19 or 0 or 1.
     """
     rpm = np.r_[np.arange(500.0, 851.0, 50.0), np.arange(750.0, 1101.0, 50.0)]
     mass = np.r_[np.full(8, 30.0), np.full(8, 10.0)]
     omega = 2 * np.pi * rpm / 60
     M = _model(rpm)
     E = _noise(5, M.shape)
-    amplitude = mass * 1e-9 * omega ** 2  # 30 g at 500 RPM: 8e-6 m; 10 g at 1100 RPM: 1.3e-5 m
+    amplitude = mass * 1e-10 * omega ** 2  # 30 g at 500 RPM: 8.2e-6 m; 10 g at 1100 RPM: 1.3e-5 m
     E[:, 2, 0] += amplitude * np.exp(0.4j)
     E[:, 2, 1] += -1j * amplitude * np.exp(0.4j)
     fp = fingerprint(M + E, M, SIGMA, rpm, mass)
     assert fp.growth_runs[2] == len(rpm)
-    assert fp.speed_slope[2] == pytest.approx(2.0, abs=0.25)
+    assert fp.speed_slope[2] == pytest.approx(2.0, abs=0.35)
     assert 0 < fp.speed_slope_se[2] < 0.15 and abs(fp.speed_slope[2] - 2) < 4 * fp.speed_slope_se[2]
     pooled = np.polyfit(np.log(omega), np.log(amplitude), 1)[0]
     assert pooled < 1  # the test case does discriminate the two fits
-    assert "grows like Omega^2.0" in fp.summary() or "grows like Omega^1.9" in fp.summary() \
-        or "grows like Omega^2.1" in fp.summary()
+    assert re.search(r"grows like Omega\^(1\.[7-9]|2\.[0-3])", fp.summary())
     assert np.isnan(fp.speed_slope[1]) and fp.growth_runs[1] < 3  # no significant residual at 1X
 
 
@@ -159,17 +167,22 @@ def test_table_round_trip():
     E[:, 1] += 0.1j * M[:, 1]
     fp = fingerprint(M + E, M, np.where(np.arange(H + 1)[:, None] == 3, np.inf, SIGMA), RPM, MASS,
                      runs=[f"r{v:.0f}" for v in RPM])
-    back = Fingerprint.from_table(fp.table())
-    for f in fields(Fingerprint):
-        a, b = getattr(fp, f.name), getattr(back, f.name)
-        if isinstance(a, np.ndarray):
-            assert a.dtype.kind == np.asarray(b).dtype.kind, f.name
-            np.testing.assert_array_equal(a, b, err_msg=f.name)
-        else:
-            assert type(a) is type(b) and (a == b or (a != a and b != b)) or np.array_equal(a, b, equal_nan=True), \
-                f.name
-    assert back.summary() == fp.summary()
     assert np.isnan(fp.forward[3])  # 3X unused (sigma = inf): nothing to say about its whirl
+    rng = np.random.default_rng(10)  # and 12 harmonics (keys "10", "11" sort after "9"), runs named 10, 9, 8
+    many = 1e-5 * (rng.standard_normal((3, 12, 2)) + 1j * rng.standard_normal((3, 12, 2)))
+    other = fingerprint(many, many + _noise(11, many.shape), SIGMA, [900.0, 800.0, 700.0], [10.0, 10.0, 20.0],
+                        runs=["10", "9", "8"])
+    for case in (fp, other):
+        back = Fingerprint.from_table(case.table())
+        for f in fields(Fingerprint):
+            a, b = getattr(case, f.name), getattr(back, f.name)
+            assert type(a) is type(b), f.name
+            if isinstance(a, list):
+                assert a == b, f.name
+            else:
+                assert np.asarray(a).dtype == np.asarray(b).dtype, f.name
+                np.testing.assert_array_equal(a, b, err_msg=f.name)  # NaNs compare equal
+        assert back.summary() == case.summary()
 
 
 @pytest.mark.parametrize("change, message", [

@@ -39,7 +39,7 @@ sit at one node only, so the residual cannot locate it.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
@@ -75,7 +75,7 @@ class Fingerprint:
     response_slope: Array  # (H+1,) t of |E| ~ |M|^t
     response_slope_se: Array
     growth_runs: Array  # (H+1,) int, runs in the slope fits (significant residual)
-    unmodelled_share: Array  # (H+1,) share of chi2 at runs where the model is within the noise
+    unmodelled_share: Array  # (H+1,) share of chi2 at runs where the model is within the noise, E is not
     unmodelled_runs: Array  # (H+1,) int, those runs
     resonance_rpm: float  # speed of the model's 1X peak; NaN when the peak is at the edge of the range
     band_rpm: tuple  # (lo, hi) speed range of the half-power band
@@ -114,7 +114,7 @@ class Fingerprint:
         return pd.DataFrame(rows, columns=["scope", "key", "quantity", "value"])
 
     @classmethod
-    def from_table(cls, table: pd.DataFrame) -> "Fingerprint":
+    def from_table(cls, table: pd.DataFrame) -> Fingerprint:
         """The exact inverse of ``table()``."""
         scalar = table[table["scope"] == "all"].set_index("quantity")["value"]
         runs = table[table["scope"] == "run"]
@@ -125,8 +125,7 @@ class Fingerprint:
         harm = harm.loc[sorted(harm.index, key=int)]
         col = {q: harm[q].to_numpy(float) for q in _HARMONIC}
         kw = {q: col[q] for q in _HARMONIC if not q.startswith("coefficient")}
-        for q in ("significant",):
-            kw[q] = col[q].astype(bool)
+        kw["significant"] = col["significant"].astype(bool)
         for q in ("growth_runs", "unmodelled_runs"):
             kw[q] = col[q].astype(int)
         return cls(runs=names, rpm=run["rpm"].to_numpy(float), eccentric_mass_g=run["eccentric_mass_g"].to_numpy(float),
