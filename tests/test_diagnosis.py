@@ -15,6 +15,7 @@ from hybridtwin import forward as fwd
 from hybridtwin import identification as idn
 from hybridtwin import lm
 from hybridtwin import uncertainty as unc
+from hybridtwin import variants
 from hybridtwin.candidates import Candidate, builtin_candidates
 from hybridtwin.effects import Parameter, PolynomialBearing, Term
 from hybridtwin.variants import BUILTIN_VARIANTS, Variant

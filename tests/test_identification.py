@@ -390,15 +390,15 @@ def test_joint_fit_recovers_the_geometric_truth(geometric_truth):
 
 
 def test_solver_model_derivative_steps_back_when_the_forward_solve_fails():
-    """Next to a fold the forward-shifted solve may have no solution: the derivative then uses a backward step
-    (exact here for a linear response), never NaN."""
+    """The forward-difference path (analytic=False): next to a fold the forward-shifted solve may have no
+    solution; the derivative then uses a backward step (exact here for a linear response), never NaN."""
 
     class Edge(fwd.SolverModel):
         def _solve(self, x):
             M = np.stack([x[:, 0] + 2j * x[:, 1], 3.0 * x[:, 1] + 0j], axis=-1)[:, None, :]  # (N, 1, 2), linear
             return np.where((x[:, 0] > 0.5)[:, None, None], np.nan, M)
 
-    model = Edge(None, "r", 500.0, 0.0, ["a", "b"], np.zeros(2), np.ones(2), 1)
+    model = Edge(None, "r", 500.0, 0.0, ["a", "b"], np.zeros(2), np.ones(2), 1, analytic=False, warm=False)
     M, dM = model.evaluate(np.array([[0.5 - 1e-7, 0.2]]))
     assert np.isfinite(dM).all()
     np.testing.assert_allclose(dM[0, 0, 0], [1.0, 2j], atol=1e-9)  # d/dx0 and d/dx1 of the x channel
@@ -423,5 +423,8 @@ def test_solver_model_answers_nan_for_a_nan_parameter_set():
     variant = builtin_variant("geometric")
     lower, upper = zip(*variant.unknown.values())
     model = fwd.SolverModel(variant, "r", 500.0, 25.9, list(variant.unknown), np.array(lower), np.array(upper), 2)
-    M = model._solve(np.array([[0.0] * 5, [np.nan] + [0.0] * 4]))
-    assert np.isfinite(M[0]).all() and np.isnan(M[1]).all()
+    x = np.array([[0.0] * 5, [np.nan] + [0.0] * 4])
+    for jacobian in (False, True):
+        M, dM = model.evaluate(x, jacobian=jacobian)
+        assert np.isfinite(M[0]).all() and np.isnan(M[1]).all()
+    assert np.isfinite(dM[0]).all() and np.isnan(dM[1]).all()
