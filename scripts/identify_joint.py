@@ -81,15 +81,20 @@ if options["polish"]["joint"]:
         if usable:
             starts = np.vstack([starts, theta[None]])
             labels.append(f"{parent}'s joint fit")
-    exact = pol.polish(fit, solver, int(options["polish"]["max_iterations"]), starts)
+    exact = pol.polish(fit, solver, int(options["polish"]["max_iterations"]), starts, labels, seed=int(options["seed"]))
     if np.isfinite(exact.loss):
         comparison = pol.compare_polish(fit, exact)
         exact.protocol.monte_carlo = fit.protocol.monte_carlo  # the library's Monte Carlo spread, for reference
         summary["solver"] = exact.summary() | {"seconds": time.perf_counter() - start,
                                                "solves": int(sum(m.n_solves for m in solver)),
-                                               "starts": labels, "best_start": labels[exact.protocol.best]}
+                                               "starts": exact.starts["start"].tolist(),
+                                               "best_start": exact.starts["start"][exact.protocol.best]}
+        for row in exact.starts.itertuples():
+            log.info("polish start %-40s solver chi^2 %.6g -> %.6g (chi^2/dof %.4g, %d iterations)%s", row.start,
+                     row.chi2_start, row.chi2, row.chi2_dof, row.iterations, " <- selected" if row.selected else "")
         log.info("polished with the full solver in %.1f s from %d starts, the best from %s: loss %.4g -> %.4g, "
-                 "chi^2/dof %.3g (%s)", time.perf_counter() - start, len(labels), labels[exact.protocol.best],
+                 "chi^2/dof %.3g (%s)", time.perf_counter() - start, len(exact.starts),
+                 exact.starts["start"][exact.protocol.best],
                  fit.loss, exact.loss, exact.chi2_dof, exact.message)
         fit = exact
     else:
@@ -101,6 +106,9 @@ if options["polish"]["joint"]:
 result = fit.table()
 result.to_csv(smk.output.table, sep="\t", index=False, float_format="%.9g")
 comparison.to_csv(smk.output.polish, sep="\t", index=False, float_format="%.9g")
+starts_table = fit.starts if fit.starts is not None else pd.DataFrame(
+    columns=["start", "chi2_start", "chi2", "chi2_dof", "iterations", "status", "selected"])
+starts_table.to_csv(smk.output.polish_starts, sep="\t", index=False, float_format="%.9g")
 fit.correlation_table().to_csv(smk.output.correlation, sep="\t", float_format="%.6g")
 fit.history_table().to_csv(smk.output.history, sep="\t", index=False, float_format="%.9g")
 idn.write_fit(smk.output.fit, fit, [d.rpm for d in data])

@@ -559,6 +559,7 @@ class Identification:
     X: Array  # (R, H, 2) measured harmonics used
     units: dict[str, str] = field(default_factory=dict)
     source: str = "library"  # the response model: "library" (sPGD) or "solver" (full harmonic balance)
+    starts: pd.DataFrame | None = None  # a polish's starts: start, chi2_start, chi2, chi2_dof, iterations, status
 
     @property
     def success(self) -> bool:

@@ -16,29 +16,74 @@ import pandas as pd
 
 from .forward import HarmonicModel
 from .identification import ArrowProblem, Identification, ProtocolResult, conclude
-from .lm import LMOptions, levenberg_marquardt
+from .lm import LMOptions, LMResult, levenberg_marquardt
 
 Array = np.ndarray
 
 
+#: a polished chi^2/dof above this (and above the library's own) calls for random starts across the box
+MISFIT = 4.0
+#: random starts added then (a seeded Latin hypercube of the shared parameters)
+RANDOM_STARTS = 6
+
+
 def polish(fit: Identification, solver_models: Sequence[HarmonicModel], max_iterations: int = 60,
-           starts: Array | None = None) -> Identification:
+           starts: Array | None = None, labels: Sequence[str] | None = None, random_starts: int = RANDOM_STARTS,
+           misfit: float = MISFIT, seed: int = 0) -> Identification:
     """Refine a library optimum with the full solver (no surrogate error), the result and its uncertainty.
 
-    LM from fit.theta (and any extra ``starts``, all advanced in the same batched
-    solves), on the same data weighted by the measured sigmas only (the solver
-    has no library error to allow for). The uncertainty is recomputed from the
-    solver's Jacobian (forward differences).
+    LM from fit.theta and every extra start (``starts``, named by ``labels``), all advanced in the same
+    batched solves, on the same data weighted by the measured sigmas only (the solver has no library
+    error to allow for). Every start is scored with the solver (its chi^2 before and after, in
+    ``result.starts``). When the best chi^2/dof still exceeds ``misfit`` (and the library's own), the
+    library optimum may sit in a basin of the surrogate that the solver does not share: ``random_starts``
+    more, a seeded Latin hypercube across the box for the shared parameters (the per-run ones and the
+    phases from the best so far), are polished too. The result is the best end point of all: never worse
+    than the best start, since each LM run only accepts steps that lower its chi^2. The uncertainty is
+    recomputed from the solver's exact Jacobian.
     """
     sigma = np.stack([d.sigma[: fit.X.shape[1]] for d in fit.data])
     exact = ArrowProblem(solver_models, fit.layout, sigma, fit.problem.sparsity, fit.problem.l1_epsilon)
     theta0 = fit.theta[None] if starts is None else np.vstack([fit.theta[None], starts])
+    names = ["library optimum"] + [f"start {i + 2}" for i in range(len(theta0) - 1)]
+    if labels is not None:
+        names = list(labels)[: len(theta0)] + names[len(labels):]
     options = LMOptions(max_iterations=max_iterations, ftol=1e-8, xtol=1e-8, gtol=1e-10, stall_chi2=1e-3,
                         geodesic=True)  # one extra solve per iteration, 2-3x fewer iterations in the valleys
-    result = levenberg_marquardt(exact, theta0, np.repeat(fit.X[None], len(theta0), axis=0), options)
+    result = _run(exact, theta0, fit.X, options)
+    dof = max(exact.n_data - fit.layout.n, 1)
+    best_chi2 = np.nanmin(np.where(np.isfinite(result.loss), result.loss, np.nan)) * exact.n_data \
+        if np.isfinite(result.loss).any() else np.inf
+    if random_starts > 0 and best_chi2 / dof > max(misfit, fit.chi2_dof):
+        best = result.x[int(np.nanargmin(np.where(np.isfinite(result.loss), result.loss, np.inf)))] \
+            if np.isfinite(result.loss).any() else fit.theta
+        extra = _hypercube(fit.layout, best, random_starts, seed)
+        result = LMResult.concatenate([result, _run(exact, extra, fit.X, options)])
+        names += [f"random start {i + 1}" for i in range(random_starts)]
     best = int(np.argmin(np.where(np.isfinite(result.loss), result.loss, np.inf)))  # a start may not solve
-    protocol = ProtocolResult(result, best, np.zeros((0, fit.layout.n)), np.zeros(0), result.seconds, len(theta0))
-    return conclude(exact, protocol, fit.data, fit.X, fit.confidence, fit.units)
+    protocol = ProtocolResult(result, best, np.zeros((0, fit.layout.n)), np.zeros(0), result.seconds, len(names))
+    polished = conclude(exact, protocol, fit.data, fit.X, fit.confidence, fit.units)
+    polished.starts = pd.DataFrame({
+        "start": names, "chi2_start": result.history[:, 0] * exact.n_data, "chi2": result.loss * exact.n_data,
+        "chi2_dof": result.loss * exact.n_data / dof, "iterations": result.nit, "status": result.status,
+        "selected": np.arange(len(names)) == best})
+    return polished
+
+
+def _run(problem: ArrowProblem, theta0: Array, X: Array, options: LMOptions) -> LMResult:
+    return levenberg_marquardt(problem, theta0, np.repeat(X[None], len(theta0), axis=0), options)
+
+
+def _hypercube(layout, centre: Array, n: int, seed: int) -> Array:
+    """n starts: the shared physical entries on a seeded Latin hypercube of [-0.9, 0.9], the others
+    (per-run parameters, phases) as in ``centre``."""
+    from scipy.stats import qmc
+
+    out = np.repeat(centre[None], n, axis=0)
+    shared = np.flatnonzero([run == "all" and p != "phase" for p, run in layout.entries()])
+    if shared.size:
+        out[:, shared] = 0.9 * (2.0 * qmc.LatinHypercube(d=shared.size, seed=seed).random(n) - 1.0)
+    return out
 
 
 def next_best_trials(fit: Identification, n: int = 4, distinct: float = 1e-3) -> Array:

@@ -50,6 +50,7 @@ rule identify_joint:
         ),
         library_table="results/{variant}/identification/library_parameters.tsv",
         polish="results/{variant}/identification/polish.tsv",
+        polish_starts="results/{variant}/identification/polish_starts.tsv",
         correlation="results/{variant}/identification/correlation.tsv",
         history="results/{variant}/identification/history.tsv",
         summary="results/{variant}/identification/summary.yaml",
