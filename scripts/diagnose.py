@@ -5,6 +5,7 @@ import yaml
 
 from hybridtwin import config as cfg
 from hybridtwin import diagnosis as dg
+from hybridtwin import diagnosis_report as dgr
 from hybridtwin import identification as idn
 from hybridtwin.candidates import candidates_for
 
@@ -26,13 +27,15 @@ result = dg.diagnose(base, candidates, options, log)
 result.table.to_csv(smk.output.table, sep="\t", index=False, float_format="%.6g")
 sparse, sparse_name = None, options["sparse_variant"]
 if "sparse" in smk.input.keys():
-    sparse = dg.sparse_route(pd.read_csv(smk.input.sparse, sep="\t", dtype={"run": str}),
+    sparse = dgr.sparse_route(pd.read_csv(smk.input.sparse, sep="\t", dtype={"run": str}),
                              cfg.variant(smk.config, sparse_name))
-    result.summary["sparse_route"] = {"variant": sparse_name, "active": sparse.loc[sparse["active"], "parameter"].tolist()}
+    result.summary["sparse_route"] = {"variant": sparse_name,
+                                      "active": sparse.loc[sparse["active"], "parameter"].tolist()}
 with open(smk.output.recommendation, "w") as stream:
-    stream.write(dg.markdown(result, sparse, sparse_name))
+    stream.write(dgr.markdown(result, sparse, sparse_name))
+result.fingerprint.table().to_csv(smk.output.fingerprint, sep="\t", index=False, float_format="%.9g")
 dg.refits_table(result).to_csv(smk.output.refits, sep="\t", index=False, float_format="%.12g")
 with open(smk.output.summary, "w") as stream:
     yaml.safe_dump(result.summary, stream, sort_keys=False)
-dg.plot(result).savefig(smk.output.plot, dpi=120)
+dgr.plot(result).savefig(smk.output.plot, dpi=120)
 log.info("%s", result.conclusion)

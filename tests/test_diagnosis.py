@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from hybridtwin import diagnosis as dg
+from hybridtwin import diagnosis_report as dgr
 from hybridtwin import forward as fwd
 from hybridtwin import identification as idn
 from hybridtwin import lm
@@ -116,9 +117,9 @@ def test_hidden_slope_force_is_ranked_first_and_confirmed(slope_base):
     recommended = result.summary["recommended_variant"]
     assert recommended["spec"]["effects"][-1] == table.loc[0, "effect"]
     assert Variant.from_spec(recommended["name"], recommended["spec"]).unknown_names[-1] in table.loc[0, "parameters"]
-    markdown = dg.markdown(result)
+    markdown = dgr.markdown(result)
     assert result.conclusion in markdown and "| rank |" in markdown
-    dg.plot(result)
+    dgr.plot(result)
 
 
 def test_estimate_of_the_linear_slope_term_matches_the_truth(slope_base):
@@ -160,6 +161,11 @@ def test_unexplained_discrepancy_when_no_candidate_fits():
     assert result.summary["misfit"]
     assert result.conclusion.startswith("unexplained discrepancy")
     assert not any(v.startswith("add: explains the discrepancy") for v in result.table["verdict"])
+    # the residual's fingerprint tells the user where the missing physics sits: 3X, which the model lacks
+    fp = result.fingerprint
+    assert fp.dominant == 3 and fp.harmonic_share[3] > 0.9
+    assert "What the residual looks like" in result.conclusion and "3X" in result.summary["fingerprint"]
+    assert "3X" in dgr.markdown(result)
 
 
 def test_nested_subspaces():
@@ -191,7 +197,7 @@ def test_sparse_route_reads_which_terms_an_l1_fit_kept():
         "kind": ["shared", "shared", "shared", "per_run", "nuisance"], "unit": ["N/m", "N", "N", "m", "rad"],
         "value": [5460.0, 399.0, -1000.0 + 1e-9, 0.003, 0.1], "ci_low": [5397.0, -5.0, np.nan, 0.002, 0.0],
         "ci_high": [5523.0, 800.0, np.nan, 0.004, 0.2], "at_bound": [False, False, True, False, False]})
-    route = dg.sparse_route(table, variant).set_index("parameter")
+    route = dgr.sparse_route(table, variant).set_index("parameter")
     assert list(route.index) == ["k3", "k4", "k6"]  # q_x cannot be switched off, phases are nuisances
     assert route.loc["k3", "active"] and not route.loc["k4", "active"] and route.loc["k6", "active"]
     assert route.loc["k4", "effect"] == "expansion_k4"
@@ -289,7 +295,7 @@ def test_two_hidden_effects_are_both_found_by_forward_selection():
     spec = result.summary["recommended_variant"]["spec"]
     assert {"slope_spring", "excitation_2x"} <= set(spec["effects"])
     Variant.from_spec(result.summary["recommended_variant"]["name"], spec)  # a valid config entry
-    assert "## Forward selection" in dg.markdown(result)
+    assert "## Forward selection" in dgr.markdown(result)
 
 
 def test_the_data_tell_which_law_the_2x_force_follows():

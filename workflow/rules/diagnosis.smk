@@ -21,6 +21,7 @@ rule diagnose:
         ),
         summary="results/{variant}/diagnosis.yaml",
         refits="results/{variant}/diagnosis_refits.tsv",
+        fingerprint="results/{variant}/diagnosis_fingerprint.tsv",
         plot=report(
             "results/{variant}/diagnosis.png",
             caption="../report/diagnosis_plot.rst",
