@@ -11,11 +11,24 @@ the Geometric model lacks) with parameter values. For every run of a plan
    (uniform in [0, 2 pi) when the phase origin is random), a DC offset per
    channel (uniform in +-offset_mm) and a noise level per channel (uniform in
    the noise_mm range);
-2. solves the truth's periodic steady state at the true speed by run-up
-   (``solve_sweep`` per eccentric mass, from start_rpm, steps <= step_rpm) and
-   again by run-down from rundown_margin_rpm above the mass's highest speed:
-   the two must agree, else the steady state is not unique and the run's
-   response depends on the rig's history (reported, column ``unique``);
+2. solves the truth's periodic steady state of eq. 29 at the true speed by
+   run-up and again by run-down from rundown_margin_rpm above the mass's
+   highest speed: the two must agree, else the steady state is not unique and
+   the run's response depends on the rig's history (reported, column
+   ``unique``). ``integrator`` says how:
+
+   - "hb" (default): harmonic balance, ``solve_sweep`` per eccentric mass from
+     start_rpm in steps <= step_rpm;
+   - "time": time integration (``hybridtwin.transient.run_up_harmonics``,
+     Radau, no harmonic-balance code), per eccentric mass through the runs'
+     true speeds only (start_rpm, step_rpm unused): the run-up starts from
+     rest at the lowest speed, the run-down from rest at the highest speed +
+     rundown_margin_rpm, each next speed from the previous one's settled
+     state; at each speed period after period until the sensor harmonics
+     (DFT of a period) of successive periods agree to TIME_SETTLE_TOLERANCE
+     of the largest; the last period's give X_h, Y_h. Data independent of the
+     solver the identification uses, to test the diagnosis on. Cost: ~80 s of
+     CPU for the bundled 22-run plan (50 speeds settled), against ~2 s by "hb";
 3. evaluates the sensor response x(t) = Re(sum_h X_h exp(i h Omega (t + t0)))
    at the sampling instants, t0 = angle / Omega, adds the offsets and white
    Gaussian noise, clips at +-sensor_range_mm if asked (a saturated laser
@@ -49,6 +62,7 @@ from .measurements import DataError, read_runs
 from .model import rpm_to_rad_s
 from .sensor import sensor_dofs
 from .solver import solve_sweep
+from .transient import NotSettledError, SettledPeriod, run_up_harmonics
 from .variants import EffectsFileError, Variant, load_effects_files
 
 Array = np.ndarray
@@ -64,6 +78,17 @@ DEFAULT_TRUTH: dict = {
 }
 #: run-up and run-down harmonics agreeing to this relative difference are the same steady state
 UNIQUE_TOLERANCE = 1e-6
+#: how the truth's steady states are computed (RigSpec.integrator; module docstring, step 2)
+INTEGRATORS = ("hb", "time")
+#: "time": settled when the sensor harmonics of successive periods differ by less than this fraction of the
+#: largest, integrated with atol = TIME_ATOL_RELATIVE x the amplitude (hybridtwin.transient.settle, where the
+#: measurements behind both are). The harmonics are then within ~5.5 x the last change of the orbit (the residual
+#: transient) plus ~1e-7 (integration error): measured <= 2e-6 of the largest against harmonic balance.
+TIME_SETTLE_TOLERANCE = 1e-6
+TIME_ATOL_RELATIVE = 3e-6
+#: "time": run-up and run-down agreeing to this relative difference are the same steady state; each is within
+#: ~1e-5 of the periodic orbit (above), distinct branches differ by 1e-2 or more (0.5 in tests/test_rig.py)
+TIME_UNIQUE_TOLERANCE = 1e-3
 #: a record is "inside the range" when |response + offset| + this many noise sigmas stays below the range
 RANGE_SIGMAS = 4.0
 
@@ -175,13 +200,18 @@ class RigSpec:
     start_rpm: float = 300.0  # run-up start
     step_rpm: float = 25.0  # largest continuation step
     rundown_margin_rpm: float = 200.0  # run-down starts this far above a mass's highest speed
+    integrator: str = "hb"  # steady states by harmonic balance ("hb") or time integration ("time")
+
+    def __post_init__(self) -> None:
+        if self.integrator not in INTEGRATORS:
+            raise RigError(f"rig: integrator must be one of {list(INTEGRATORS)}, got {self.integrator!r}")
 
     @classmethod
     def from_mapping(cls, spec: Mapping | None, effects: Mapping[str, Effect] | None = None) -> "RigSpec":
         """From the config form: {truth: {...}, imperfections: {...}, seed, harmonics, ...} (plan ignored)."""
         spec = dict(spec or {})
         known = {"truth", "imperfections", "seed", "harmonics", "start_rpm", "step_rpm", "rundown_margin_rpm",
-                 "plan", "effects_files"}
+                 "integrator", "plan", "effects_files"}
         stray = sorted(set(spec) - known)
         if stray:
             raise RigError(f"rig: unknown key(s) {stray} (known: {sorted(known)})")
@@ -190,12 +220,14 @@ class RigSpec:
         if int(options.get("harmonics", 1)) < 1:
             raise RigError(f"rig: harmonics must be >= 1, got {options['harmonics']}")
         return cls(Truth.from_spec(spec.get("truth"), effects), Imperfections.from_mapping(spec.get("imperfections")),
-                   **{k: (int(v) if k in ("seed", "harmonics") else float(v)) for k, v in options.items()})
+                   **{k: (int(v) if k in ("seed", "harmonics") else float(v)) for k, v in options.items()},
+                   **({"integrator": spec["integrator"]} if "integrator" in spec else {}))
 
     def to_mapping(self) -> dict:
         return {"seed": self.seed, "harmonics": self.harmonics, "start_rpm": self.start_rpm,
                 "step_rpm": self.step_rpm, "rundown_margin_rpm": self.rundown_margin_rpm,
-                "truth": self.truth.to_mapping(), "imperfections": self.imperfections.to_mapping()}
+                "integrator": self.integrator, "truth": self.truth.to_mapping(),
+                "imperfections": self.imperfections.to_mapping()}
 
 
 # --- the steps --------------------------------------------------------------------------
@@ -228,7 +260,8 @@ def draw_conditions(plan: pd.DataFrame, imperfections: Imperfections, seed: int)
 @dataclass
 class TruthResponse:
     """Sensor harmonics of the truth at each run's true speed: X, Y (R, H+1) complex [m], by run-up,
-    and the run-down's X_down, Y_down for the uniqueness check; success/branch/message per run."""
+    and the run-down's X_down, Y_down for the uniqueness check (agreeing to ``unique_tolerance``, relative);
+    success/branch/message per run."""
 
     X: Array
     Y: Array
@@ -237,6 +270,7 @@ class TruthResponse:
     success: Array
     branch: Array
     message: Array
+    unique_tolerance: float = UNIQUE_TOLERANCE
 
     @property
     def difference_rel(self) -> Array:
@@ -247,12 +281,20 @@ class TruthResponse:
 
     @property
     def unique(self) -> Array:
-        return self.difference_rel < UNIQUE_TOLERANCE
+        return self.difference_rel < self.unique_tolerance
 
 
 def solve_truth(truth: Truth, runs: pd.DataFrame, harmonics: int = 7, start_rpm: float = 300.0,
-                step_rpm: float = 25.0, rundown_margin_rpm: float = 200.0) -> TruthResponse:
-    """Truth's sensor harmonics at each row's (rpm_true, eccentric_mass_g), run-up and run-down per mass."""
+                step_rpm: float = 25.0, rundown_margin_rpm: float = 200.0, integrator: str = "hb") -> TruthResponse:
+    """Truth's sensor harmonics at each row's (rpm_true, eccentric_mass_g), run-up and run-down per mass.
+
+    The periodic steady states of eq. 29 by harmonic balance (``integrator`` "hb": ``solve_sweep`` from
+    start_rpm in steps <= step_rpm) or by time integration ("time": ``_solve_truth_time``).
+    """
+    if integrator == "time":
+        return _solve_truth_time(truth, runs, harmonics, rundown_margin_rpm)
+    if integrator != "hb":
+        raise RigError(f"rig: integrator must be one of {list(INTEGRATORS)}, got {integrator!r}")
     R = len(runs)
     out = TruthResponse(*(np.full((R, harmonics + 1), np.nan + 0j) for _ in range(4)), np.zeros(R, bool),
                         np.empty(R, object), np.empty(R, object))
@@ -273,6 +315,55 @@ def solve_truth(truth: Truth, runs: pd.DataFrame, harmonics: int = 7, start_rpm:
             out.message[pos] = str(res_up.message[0]) if res_down.success[0] else (
                 f"{res_up.message[0]}; run-down: {res_down.message[0]}")
     return out
+
+
+def _solve_truth_time(truth: Truth, runs: pd.DataFrame, harmonics: int, rundown_margin_rpm: float) -> TruthResponse:
+    """``solve_truth`` by time integration of eq. 29 (hybridtwin.transient, no harmonic-balance code).
+
+    Per eccentric mass, a run-up through the runs' distinct true speeds from rest at the lowest, and a
+    run-down from rest at the highest + ``rundown_margin_rpm`` down through them (``run_up_harmonics``
+    with TIME_SETTLE_TOLERANCE, TIME_ATOL_RELATIVE); X, Y [m] are the DFT of the last settled period at the
+    sensor DOFs. Up and down agreeing to TIME_UNIQUE_TOLERANCE is a unique steady state. A speed that does
+    not settle fails (``success`` False, the reason in ``message``), and so do the speeds after it.
+    """
+    R = len(runs)
+    out = TruthResponse(*(np.full((R, harmonics + 1), np.nan + 0j) for _ in range(4)), np.zeros(R, bool),
+                        np.empty(R, object), np.empty(R, object), unique_tolerance=TIME_UNIQUE_TOLERANCE)
+    dofs = sensor_dofs(truth.variant.model.shaft)
+    for mass_g, group in runs.groupby("eccentric_mass_g", sort=True):
+        values = truth.variant.values({**truth.values, "m_e": float(mass_g) * 1e-3})
+        speeds = np.unique(group["rpm_true"].to_numpy(float))
+        up = _time_sweep(truth.variant, values, speeds, harmonics, dofs)
+        down = _time_sweep(truth.variant, values, np.append(speeds.max() + rundown_margin_rpm, speeds[::-1]),
+                           harmonics, dofs)
+        positions = np.flatnonzero(runs.index.isin(group.index))
+        for pos, speed in zip(positions, group["rpm_true"].to_numpy(float)):
+            res_up, res_down = up[speed], down[speed]
+            out.branch[pos] = "time run-up"
+            if isinstance(res_up, SettledPeriod):
+                out.X[pos], out.Y[pos] = res_up.harmonics[:, 0], res_up.harmonics[:, 1]
+                out.success[pos] = True
+                out.message[pos] = (f"settled after {res_up.n_periods} periods (last change "
+                                    f"{res_up.change:.1e} of the largest harmonic)")
+            else:
+                out.message[pos] = f"time run-up: {res_up}"
+            if isinstance(res_down, SettledPeriod):
+                out.X_down[pos], out.Y_down[pos] = res_down.harmonics[:, 0], res_down.harmonics[:, 1]
+            else:
+                out.message[pos] += f"; time run-down: {res_down}"
+    return out
+
+
+def _time_sweep(variant: Variant, values: Mapping[str, Array], speeds: Array, harmonics: int,
+                dofs: list[int]) -> dict:
+    """{rpm: SettledPeriod, or the reason it failed} along a time run-up or run-down through ``speeds``."""
+    systems = [variant.model.system(values, rpm) for rpm in speeds]  # the assembly solve_sweep uses (_sweep)
+    try:
+        results: list = run_up_harmonics(systems, dofs, harmonics, tolerance=TIME_SETTLE_TOLERANCE,
+                                         atol_relative=TIME_ATOL_RELATIVE)
+    except NotSettledError as err:
+        results = err.settled + [str(err)] * (len(speeds) - len(err.settled))
+    return dict(zip(speeds, results))
 
 
 def synthesise(X: Array, Y: Array, rpm_true: float, conditions: Mapping[str, float], imperfections: Imperfections,
@@ -331,7 +422,8 @@ def generate(plan: pd.DataFrame, spec: RigSpec, out_dir: str | Path) -> pd.DataF
     out_dir = Path(out_dir)
     conditions = draw_conditions(plan, spec.imperfections, spec.seed)
     runs = plan.reset_index(drop=True).join(conditions.drop(columns="run"))
-    response = solve_truth(spec.truth, runs, spec.harmonics, spec.start_rpm, spec.step_rpm, spec.rundown_margin_rpm)
+    response = solve_truth(spec.truth, runs, spec.harmonics, spec.start_rpm, spec.step_rpm, spec.rundown_margin_rpm,
+                           spec.integrator)
     failed = ~response.success
     if failed.any():
         detail = "; ".join(f"{r} ({m})" for r, m in zip(runs["run"][failed], response.message[failed]))
@@ -447,10 +539,11 @@ def add_rig_command(sub) -> None:
         "rig", help="virtual rig: write measured-format records from a truth model with hidden effects",
         description="Generate a data set (runs.tsv, records/*.csv, and the answer key truth.tsv, truth.yaml) "
                     "for a run plan from a truth model: steady state by run-up at each run's true speed (checked "
-                    "against a run-down), then sampling, random phase origin, DC offsets, Gaussian noise, "
-                    "optional keyphasor and clipping. Seeded and reproducible. Defaults: the paper's final model "
-                    "(Geometric + slope spring, Table 5) with the bundled data's bow, 4 s at 2 kHz, 0.1 % speed "
-                    "error, 0.05 mm noise, +-0.5 mm offsets, no keyphasor, clipping at +-14 mm.")
+                    "against a run-down; harmonic balance or, with --integrator time, time integration), then "
+                    "sampling, random phase origin, DC offsets, Gaussian noise, optional keyphasor and clipping. "
+                    "Seeded and reproducible. Defaults: the paper's final model (Geometric + slope spring, Table 5) "
+                    "with the bundled data's bow, 4 s at 2 kHz, 0.1 % speed error, 0.05 mm noise, +-0.5 mm "
+                    "offsets, no keyphasor, clipping at +-14 mm.")
     parser.add_argument("--plan", type=Path, default=None,
                         help="run plan TSV (run, rpm, eccentric_mass_g[, role]); a runs sheet works too "
                              "(default: the spec's plan)")
@@ -464,6 +557,10 @@ def add_rig_command(sub) -> None:
     parser.add_argument("--effects-file", type=Path, action="append", default=[],
                         help="Python file defining extra Effect instances for the truth (repeatable)")
     parser.add_argument("--harmonics", type=int, default=None, help="harmonics 0..H of the truth (default 7)")
+    parser.add_argument("--integrator", choices=INTEGRATORS, default=None,
+                        help="steady states by harmonic balance (hb, default) or by time integration (time: "
+                             "independent of the solver the identification uses; ~80 s instead of ~2 s for the "
+                             "bundled 22 runs)")
     group = parser.add_argument_group("imperfections (override the spec)")
     group.add_argument("--duration-s", type=float, default=None, help="record length [s] (default 4)")
     group.add_argument("--sample-rate-hz", type=float, default=None, help="sampling rate [Hz] (default 2000)")
@@ -539,4 +636,5 @@ def _override(spec: RigSpec, args) -> RigSpec:
     return RigSpec(truth, Imperfections.from_mapping(imperfections),
                    spec.seed if args.seed is None else args.seed,
                    spec.harmonics if args.harmonics is None else args.harmonics,
-                   spec.start_rpm, spec.step_rpm, spec.rundown_margin_rpm)
+                   spec.start_rpm, spec.step_rpm, spec.rundown_margin_rpm,
+                   spec.integrator if args.integrator is None else args.integrator)
