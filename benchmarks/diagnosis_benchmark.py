@@ -37,6 +37,7 @@ the recommended effect(s) chi^2/dof should be within 1.1x of it. No timed assert
 from __future__ import annotations
 
 import argparse
+import logging
 import sys
 import tempfile
 import time
@@ -60,6 +61,7 @@ from hybridtwin.rig import RigSpec, generate, read_plan
 from hybridtwin.variants import Variant
 
 ROOT = Path(__file__).resolve().parents[1]
+log = logging.getLogger("diagnosis_benchmark")
 TRUTH = {"k_b": 2411.3, "zeta_s": 0.024, "zeta_bup": 0.016, "q_x": 0.002, "q_y": 0.0015}
 
 #: an effect outside the candidate set: isotropic cubic stiffness at mid-span, F = -c_r (u^2 + v^2) (u, v)
@@ -170,6 +172,7 @@ def main() -> int:
     unknown = sorted(set(cases) - set(CASES))
     if unknown:
         parser.error(f"unknown case(s) {unknown}; known: {', '.join(CASES)}")
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s", stream=sys.stderr)
     config = yaml.safe_load((ROOT / "config/config.yaml").read_text())
     options = dg.settings(config)
     rows = []
@@ -182,7 +185,9 @@ def main() -> int:
             variant = base.variant
             candidates = candidates_for([e.name for e in variant.model.effects])
             start = time.perf_counter()
-            result = dg.diagnose(base, candidates, options)
+            log.info("[%s] base fit %.0f s: chi^2/dof %.4g; polish starts:\n%s", case, fit_s, fit.chi2_dof,
+                     fit.starts.to_string(index=False))
+            result = dg.diagnose(base, candidates, options, log)
             diagnose_s = time.perf_counter() - start
         top, correct = judge(case, result)
         after = result.path[-1].chi2_dof_after if result.path else result.summary["base_chi2_dof"]

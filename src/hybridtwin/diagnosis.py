@@ -68,6 +68,9 @@ DEFAULTS: dict = {
     # confounded_bic of the best)
     "starts": 4,  # points across a candidate's range a refit starts from, besides zero and the linear estimate
     "widen": 4,  # times a refit may widen a candidate's range (x3 towards the edge its estimate sits at)
+    "thorough": 3,  # candidates, the best by a quick refit's Delta BIC, refitted again from every start with
+    # range widening (the quick refit: beta = 0 and the linear estimate, no widening, quick_iterations)
+    "quick_iterations": 20,
     "max_effects": 3,  # effects the forward selection adds at most
     "alpha": 0.01,  # family-wise false-alarm rate (Bonferroni over the candidates)
     "explained": 0.9,  # share of the excess chi^2 an effect must remove to "explain the discrepancy"
@@ -421,7 +424,12 @@ class Step:
 def _refit_significant(base: BaseFit, scores: Scores, o: Mapping, alpha_each: float, log=None
                        ) -> dict[str, Confirmation]:
     """Refit every candidate the score test finds significant (``confirm: all``), or the ``confirm`` best plus
-    any whose predicted drop is within ``confounded_bic`` of the best's (maybe confounded)."""
+    any whose predicted drop is within ``confounded_bic`` of the best's (maybe confounded).
+
+    Two passes: a quick refit of each (from beta = 0 and the linear estimate, ``quick_iterations``, ranges as
+    given) ranks them by Delta BIC; the ``thorough`` best, and any within ``confounded_bic`` of the best, are
+    refitted again from every start (``starts`` across the range) with range widening (``widen``), and that
+    refit replaces the quick one. The ranking is by refit, never by the score statistic alone."""
     order = sorted(scores.scores, key=_by_score)
     significant = [s for s in order if s.p_value < alpha_each]
     if o["confirm"] == "all":
@@ -431,15 +439,25 @@ def _refit_significant(base: BaseFit, scores: Scores, o: Mapping, alpha_each: fl
         if significant:
             top = significant[0].statistic
             chosen += [s for s in significant[len(chosen):] if top - s.statistic < o["confounded_bic"]]
+    quick = {s.candidate.name: confirm(base, s, scores, int(o["quick_iterations"]), starts=0, widen=0)
+             for s in chosen}
+    ranked = sorted(chosen, key=lambda s: quick[s.candidate.name].delta_bic)
+    best_bic = quick[ranked[0].candidate.name].delta_bic if ranked else 0.0
+    deep = {s.candidate.name for i, s in enumerate(ranked) if i < int(o["thorough"])
+            or quick[s.candidate.name].delta_bic - best_bic < o["confounded_bic"]}
     confirmations = {}
-    for s in chosen:
-        cf = confirm(base, s, scores, int(o["max_iterations"]), starts=int(o["starts"]), widen=int(o["widen"]))
-        confirmations[s.candidate.name] = cf
+    for s in ranked:
+        name = s.candidate.name
+        cf = quick[name]
+        if name in deep:
+            cf = confirm(base, s, scores, int(o["max_iterations"]), starts=int(o["starts"]), widen=int(o["widen"]))
+            cf.seconds += quick[name].seconds
+        confirmations[name] = cf
         if log:
             widened = "; ".join(f"{p} range widened to [{new[0]:.4g}, {new[1]:.4g}]" for p, _, new in cf.widened)
-            log.info("refit of %s with %s from %d starts: chi^2 %.4g -> %.4g, Delta BIC %.3g (%.1f s)%s",
-                     base.variant.name, s.candidate.name, len(cf.start_chi2), scores.base_chi2, cf.chi2,
-                     cf.delta_bic, cf.seconds, f"; {widened}" if widened else "")
+            log.info("%s refit of %s with %s from %d starts: chi^2 %.4g -> %.4g, Delta BIC %.3g (%.1f s)%s",
+                     "thorough" if name in deep else "quick", base.variant.name, name, len(cf.start_chi2),
+                     scores.base_chi2, cf.chi2, cf.delta_bic, cf.seconds, f"; {widened}" if widened else "")
     return confirmations
 
 

@@ -244,14 +244,12 @@ class SolverModel:
         M = self._sensor(result.harmonics)
         M[~result.success] = np.nan
         d = len(self.parameters)
-        if not (jacobian or self.warm):
+        if not jacobian:  # no sensitivities: nothing to cache either (a warm start needs the predictor's slope)
             return M, None
         steps = SENSITIVITY_STEP * (self.upper - self.lower)
         dQ, dstate = sensitivity(self._system, values, self.parameters, result, steps, condensed=True)
         if self.warm:
             self._remember(x, result, dstate, jumped)
-        if not jacobian:
-            return M, None
         dM = self._sensor(dQ) * self.half_range[None, :, None, None]  # (N, d, H, 2), per normalised unit
         return M, np.moveaxis(dM, 1, -1) if d else np.zeros(M.shape + (0,))
 
