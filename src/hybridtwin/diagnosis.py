@@ -70,7 +70,7 @@ DEFAULTS: dict = {
     "widen": 4,  # times a refit may widen a candidate's range (x3 towards the edge its estimate sits at)
     "thorough": 3,  # candidates, the best by a quick refit's Delta BIC, refitted again from every start with
     # range widening (the quick refit: beta = 0 and the linear estimate, no widening, quick_iterations)
-    "quick_iterations": 20,
+    "quick_iterations": 12,
     "max_effects": 3,  # effects the forward selection adds at most
     "alpha": 0.01,  # family-wise false-alarm rate (Bonferroni over the candidates)
     "explained": 0.9,  # share of the excess chi^2 an effect must remove to "explain the discrepancy"
@@ -269,16 +269,17 @@ class Confirmation:
         return self.estimates.loc[edge, "parameter"].tolist()
 
 
-def _refit_starts(theta0: Array, cols: list[int], step: Array, n_points: int, seed: int) -> Array:
+def _refit_starts(theta0: Array, cols: list[int], step: Array, n_points: int, seed: int, quick: bool = False
+                  ) -> Array:
     """Starts of a refit: beta = 0; the score's linear estimate, damped into the range, and a third of it (the
     linear estimate overshoots when the response bends, e.g. a cubic term); and ``n_points`` points across the
     candidate's range (a seeded Latin hypercube in [-0.7, 0.7], normalised): fits with several new parameters
     have local minima (one term at its edge compensating another), and where the base is far from the
-    truth the linear estimate can point the wrong way."""
+    truth the linear estimate can point the wrong way. ``quick``: beta = 0 and the linear estimate only."""
     starts = [theta0]
     if step is not None and np.any(step):
         step = step * min(1.0, 1.0 / max(np.abs(step).max(), 1e-12))
-        for scale in (1.0, 1.0 / 3.0):
+        for scale in (1.0,) if quick else (1.0, 1.0 / 3.0):
             start = theta0.copy()
             start[cols] = np.clip(theta0[cols] + scale * step, -1.0, 1.0)
             starts.append(start)
@@ -326,7 +327,7 @@ def _theta_in(layout: Layout, fit: Identification) -> Array:
 
 
 def confirm(base: BaseFit, score: Score, scores: Scores, max_iterations: int = 40,
-            confidence: float = 0.95, starts: int = 4, widen: int = 4) -> Confirmation:
+            confidence: float = 0.95, starts: int = 4, widen: int = 4, quick: bool = False) -> Confirmation:
     """Refit with ``score.candidate`` added (full solver), from several starts (``_refit_starts``), its range
     widened while its estimate sits at an edge (``_widened``, at most ``widen`` times).
 
@@ -347,7 +348,7 @@ def confirm(base: BaseFit, score: Score, scores: Scores, max_iterations: int = 4
         layout = problem.layout
         cols = [layout.entries().index((p.name, "all")) for p in c.parameters]
         if fit is None:
-            theta = _refit_starts(theta0, cols, score.step, starts, zlib.crc32(c.name.encode()))
+            theta = _refit_starts(theta0, cols, score.step, starts, zlib.crc32(c.name.encode()), quick)
         else:  # widened: from the previous optimum, and halfway from it to the new edge
             previous = _theta_in(layout, fit)
             further = previous.copy()
@@ -357,9 +358,10 @@ def confirm(base: BaseFit, score: Score, scores: Scores, max_iterations: int = 4
                     further[j] = 0.5 * (previous[j] + edge)
             theta = np.vstack([previous, further])
         X = np.repeat(base.X[None], len(theta), axis=0)
-        if fit is None:
-            start_chi2 = problem.evaluate(theta, X, jacobian=False).chi2.tolist()
+        first_refit = fit is None
         result = levenberg_marquardt(problem, theta, X, options)
+        if first_refit:  # the objective at each start (LM's first evaluation): chi^2 plus any phase prior
+            start_chi2 = (result.history[:, 0] * problem.n_data).tolist()
         best = int(np.nanargmin(np.where(np.isfinite(result.loss), result.loss, np.inf)))
         protocol = ProtocolResult(result, best, np.zeros((0, layout.n)), np.zeros(0), result.seconds, len(theta))
         fit = conclude(problem, protocol, base.data, base.X, confidence, units(problem.models[0].variant))
@@ -439,7 +441,7 @@ def _refit_significant(base: BaseFit, scores: Scores, o: Mapping, alpha_each: fl
         if significant:
             top = significant[0].statistic
             chosen += [s for s in significant[len(chosen):] if top - s.statistic < o["confounded_bic"]]
-    quick = {s.candidate.name: confirm(base, s, scores, int(o["quick_iterations"]), starts=0, widen=0)
+    quick = {s.candidate.name: confirm(base, s, scores, int(o["quick_iterations"]), starts=0, widen=0, quick=True)
              for s in chosen}
     ranked = sorted(chosen, key=lambda s: quick[s.candidate.name].delta_bic)
     best_bic = quick[ranked[0].candidate.name].delta_bic if ranked else 0.0

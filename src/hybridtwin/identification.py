@@ -72,7 +72,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .forward import HarmonicModel, SolverModel
+from .forward import HarmonicModel, SolverModel, evaluate_runs
 from .lm import STATUS_MESSAGES, Evaluation, LMOptions, LMResult, _batches, levenberg_marquardt
 from .uncertainty import Uncertainty, analyse_uncertainty, student_t
 from .variants import Variant, embed
@@ -373,6 +373,16 @@ class ArrowProblem:
         M = rotation * M[:, : self.H]
         return M, (None if dM is None else rotation[..., None] * dM[:, : self.H]), rotation
 
+    def responses(self, theta: Array, jacobian: bool) -> list[tuple[Array, Array | None]]:
+        """Every run's ``model_response`` (M, dM) at theta (N, n), the models evaluated together where they can
+        be batched across runs (``forward.evaluate_runs``)."""
+        xs, phis = zip(*(self.layout.run_parameters(theta, k) for k in range(self.layout.n_runs)))
+        out = []
+        for k, (M, dM) in enumerate(evaluate_runs(self.models, xs, jacobian)):
+            rotation = np.exp(1j * np.outer(phis[k], self.h))[:, :, None]  # (N, H, 1)
+            out.append((rotation * M[:, : self.H], None if dM is None else rotation[..., None] * dM[:, : self.H]))
+        return out
+
     def evaluate(self, theta: Array, X: Array, jacobian: bool = True) -> Evaluation:
         """Residuals (and Jacobian) at theta (N, n) for data X (N, R, H, 2) complex."""
         N, R, L = theta.shape[0], self.layout.n_runs, self.layout
@@ -380,8 +390,9 @@ class ArrowProblem:
         r = np.empty((N, R, m))
         Js = np.empty((N, R, m, L.n_shared)) if jacobian else None
         Jl = np.empty((N, R, m, L.n_block)) if jacobian else None
+        responses = self.responses(theta, jacobian)
         for k in range(R):
-            M, dM, _ = self.model_response(theta, k, jacobian)
+            M, dM = responses[k]
             r[:, k] = _real((X[:, k] - M) / self.sigma[k])
             if jacobian:
                 dM = -dM / self.sigma[k][None, :, :, None]
