@@ -305,9 +305,6 @@ class SolverModel:
             rest = first.variant.model.at_rest(v, n)
             return first.variant.model.system_at(rest, np.tile(speeds, n // speeds.size))
 
-        def build(v: Mapping[str, Array]):
-            return build_at(v, rpm)
-
         # warm starts of every run in one solve, for the sets with a cached neighbour
         predicted, old, change = (np.full((S,) + _state_shape(models), np.nan) for _ in range(3))
         has_cache = np.zeros(S, bool)
@@ -351,8 +348,14 @@ class SolverModel:
         M_all = first._sensor(result.harmonics)
         M_all[~result.success] = np.nan
         if jacobian:
+            # the sensitivity drops failed sets from the values it assembles: build at the speeds of the others
+            ok = np.flatnonzero(result.success)
             steps = SENSITIVITY_STEP * (first.upper - first.lower)
-            dQ, dstate = sensitivity(build, values, first.parameters, result, steps, condensed=True)
+            dQ_ok, dstate_ok = sensitivity(lambda v: build_at(v, rpm[ok]), {k_: v[ok] for k_, v in values.items()},
+                                           first.parameters, _rows(result, ok), steps, condensed=True)
+            dQ = np.full((S,) + dQ_ok.shape[1:], np.nan + 0j)
+            dstate = np.full((S,) + dstate_ok.shape[1:], np.nan)
+            dQ[ok], dstate[ok] = dQ_ok, dstate_ok
             dM_all = np.moveaxis(first._sensor(dQ) * first.half_range[None, :, None, None], 1, -1)
         out = []
         for k, (m, x, r) in enumerate(zip(models, xs, rows)):
