@@ -54,7 +54,7 @@ from .fingerprint import Fingerprint, fingerprint
 from .forward import SolverModel
 from .identification import (ArrowProblem, Identification, Layout, ProtocolResult, RunData, conclude,
                              theta_from_table, units)
-from .lm import LMOptions, levenberg_marquardt
+from .lm import MAX_ITERATIONS, STALLED, LMOptions, LMResult, levenberg_marquardt
 from .model import Model
 from .uncertainty import BOUND_TOLERANCE
 from .variants import Variant
@@ -84,6 +84,11 @@ DEFAULTS: dict = {
 
 #: a refit stops when chi^2 fell by less than this over 3 iterations (well below the verdicts' thresholds)
 STALL_CHI2 = 0.5
+#: a thorough refit whose best start stopped (max_iterations, or the stall rule in a long valley) goes on from
+#: there, with the damping reset, this many times more while it gains: a refit stopped early leaves chi^2 that
+#: the next forward-selection step wrongly credits to any effect with extra freedom (measured: cross-coupled
+#: stiffness alone stopped at chi^2 644, and any second effect then "explained" the rest down to 318)
+CONTINUATIONS = 3
 
 
 @dataclass
@@ -363,7 +368,15 @@ def confirm(base: BaseFit, score: Score, scores: Scores, max_iterations: int = 4
         if first_refit:  # the objective at each start (LM's first evaluation): chi^2 plus any phase prior
             start_chi2 = (result.history[:, 0] * problem.n_data).tolist()
         best = int(np.nanargmin(np.where(np.isfinite(result.loss), result.loss, np.inf)))
-        protocol = ProtocolResult(result, best, np.zeros((0, layout.n)), np.zeros(0), result.seconds, len(theta))
+        for _ in range(0 if quick else CONTINUATIONS):  # the best start stopped while descending: let it go on
+            if result.status[best] not in (MAX_ITERATIONS, STALLED):
+                break
+            before = result.loss[best]
+            result = LMResult.concatenate([result, levenberg_marquardt(problem, result.x[[best]], X[:1], options)])
+            best = int(np.nanargmin(np.where(np.isfinite(result.loss), result.loss, np.inf)))
+            if (before - result.loss[best]) * problem.n_data < STALL_CHI2:
+                break
+        protocol = ProtocolResult(result, best, np.zeros((0, layout.n)), np.zeros(0), result.seconds, len(result.x))
         fit = conclude(problem, protocol, base.data, base.X, confidence, units(problem.models[0].variant))
         table = fit.table()
         estimates = table[table["parameter"].isin(list(ranges)) & (table["run"] == "all")]
