@@ -3,7 +3,7 @@
     python benchmarks/spgd_smoothness_study.py [--rpm 350] [--mass-g 25.9] [--fit] [--n 1000]
 
 The bow force is m_el q Phi_1 Omega^2 (eq. 30) with Phi_1 "scaled so that its entry of largest magnitude is
-+1" (shared/varm-model.md). Which node holds that entry changes with k_b (node 4 below about 2775 N/m, node 5
++1" (docs/model.md). Which node holds that entry changes with k_b (node 4 below about 2775 N/m, node 5
 above, for the default shaft): the scaling max |Phi_1| has a kink there, and so does every response to the bow,
 as a function of k_b. A polynomial (Chebyshev) factor converges only algebraically across a kink, a local
 kernel (the GP's Matern) does not care. The study shows it three ways:

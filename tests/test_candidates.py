@@ -1,6 +1,6 @@
 """Candidate effects (issue 6) against references built here, independently of the package.
 
-The references: system matrices written out by hand from varm-model.md (point masses, supports,
+The references: system matrices written out by hand from docs/model.md (point masses, supports,
 dampers, forcing), scipy's symmetric eigensolver for omega_1, direct complex solves of
 (K - (h Omega)^2 M + i h Omega C) U = F, and the one-plane (Jeffcott-like) reduction of a
 forward or backward whirl, in which cross-coupling turns into a direct damping or stiffness.
@@ -26,7 +26,7 @@ RPM = np.array([450.0, 800.0])
 NEW = ["upper_bearing_anisotropy", "cross_coupled_stiffness", "cross_coupled_damping", "moment_stiffness",
        "lower_bearing_compliance", "excitation_2x", "excitation_3x", "speed_damping"]
 
-# the known values of varm-model.md (Table 1 and the nominal supports), written out again
+# the known values of docs/model.md (Table 1 and the nominal supports), written out again
 M_BUP, M_BLO, K_LO, ZETA_BLO, R_ME = 0.056, 0.176, 1e4, 0.05, 0.040
 K3 = 2 * 2411.3  # a linear upper bearing (expansion_k3 alone): the whole model is linear
 LINEAR = dict(k3=K3, zeta_s=0.024, zeta_bup=0.016, q_x=0.0, q_y=0.0, m_e=0.0148)

@@ -32,7 +32,7 @@ def test_simulate_prints_sensor_harmonics_csv(capsys):
     # y lagging x by about 90 degrees (forcing sin = cos delayed by a quarter turn)
     assert abs(np.angle(U1)) < np.pi / 4
     assert np.angle(V1 / U1) == pytest.approx(-np.pi / 2, abs=np.pi / 8)
-    # a millimetre-scale 1X response (varm-model.md: sensors range +-14 mm) with a much smaller 3X
+    # a millimetre-scale 1X response (docs/model.md: sensors range +-14 mm) with a much smaller 3X
     assert 1e-4 < abs(U1) < 14e-3
     assert abs(complex(table.u_re_m[3], table.u_im_m[3])) < 0.05 * abs(U1)
     assert "converged" in err and "branch direct" in err

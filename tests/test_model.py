@@ -1,4 +1,4 @@
-"""The assembled VARM model against the definitions of shared/varm-model.md.
+"""The assembled VARM model against the definitions of docs/model.md.
 
 References are computed here independently of the package (scipy's generalized
 eigensolver, the exact four-spring geometry, the formulas written out again).
@@ -28,7 +28,7 @@ def _x_plane(variant, values):
 
 
 def test_first_natural_frequency_matches_scipy_and_spec(geometric):
-    # varm-model.md: f_1 about 21.6 Hz at k_b = 2331.5 N/m (with the 14.8 g run's m_e);
+    # docs/model.md: f_1 about 21.6 Hz at k_b = 2331.5 N/m (with the 14.8 g run's m_e);
     # 21.3-23.9 Hz over the k_b range (bare rotor, m_e = 0).
     for k_b, m_e, expected_hz in ((2331.5, 0.0148, 21.6), (2000.0, 0.0, 21.3), (3500.0, 0.0, 23.9)):
         ctx, K, M = _x_plane(geometric, {"k_b": k_b, "m_e": m_e})
@@ -323,7 +323,7 @@ def _bearing_forces(variant, values, q):
      {"k1": 2411.3, "k2": 0.0, "k3": 2 * 2411.3, "k4": 324.2, "k5": 0.0, "k6": 301.1, "k7": 0.0}),
 ])
 def test_simpler_models_embed_exactly_in_the_expansion_model(parent, values, expected):
-    """shared/varm-model.md: the Geometric model is the Expansion model at k1 = k_b, k3 = 2 k_b, k7 = -4 k_b
+    """docs/model.md: the Geometric model is the Expansion model at k1 = k_b, k3 = 2 k_b, k7 = -4 k_b
     (eq. 22-24); the Final one (eq. 38-39) at k1 = k_b, k3 = 2 k_b, k4 = k_w, k6 = k_z. The mapped values
     must also give the same stiffness matrix and nonlinear bearing force as the simpler model's effects."""
     from hybridtwin.variants import contains, embed

@@ -134,7 +134,7 @@ def test_dof_naming():
     assert indices == list(range(shaft.n_dof))  # a bijection onto 0..43
     np.testing.assert_array_equal(shaft.translational("x"), [shaft.dof(f"u{i}") for i in range(11)])
     np.testing.assert_array_equal(shaft.translational("y"), [shaft.dof(f"v{i}") for i in range(11)])
-    assert shaft.node_at(0.425) == 5  # the unbalance node of varm-model.md
+    assert shaft.node_at(0.425) == 5  # the unbalance node of docs/model.md
     assert shaft.node_at(0.085) == 1  # the sensor node
     for bad in ("w1", "u11", "u", "du-1", "U1"):
         with pytest.raises(ValueError):

@@ -545,7 +545,7 @@ def test_harmonic_truncation_converges():
     # ... and the changes shrink as H grows (spectral convergence of a smooth orbit).
     assert np.all(np.diff(change_1x) < 0), change_1x
     assert np.all(np.diff(change_3x) < 0), change_3x
-    # At 700 RPM the response is nearly pure 1X (varm-model.md: 3X/1X ~ 1e-4 .. 1e-2).
+    # At 700 RPM the response is nearly pure 1X (docs/model.md: 3X/1X ~ 1e-4 .. 1e-2).
     assert 1e-5 < amplitude[7][1] / amplitude[7][0] < 1e-2
 
 

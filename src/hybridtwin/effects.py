@@ -1,4 +1,4 @@
-"""Physical effects: the building blocks of a model (shared/varm-model.md).
+"""Physical effects: the building blocks of a model (docs/model.md).
 
 An effect is a self-describing object: a ``name``, a one-line physical
 ``meaning``, its ``parameters`` (name, unit, range, nominal value) and its

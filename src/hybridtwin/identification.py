@@ -19,7 +19,7 @@ the number of real residuals. How the paper's loss is made precise here:
 - Nuisances. Without a keyphasor the time origin of each record is arbitrary:
   a per-run phase phi rotates harmonic h by exp(i h phi) and is estimated with
   the parameters (it is never a physical result). With a keyphasor the phases
-  are absolute (the unbalance on +x at the mark, measurement-format.md), known
+  are absolute (the unbalance on +x at the mark, docs/measurement-format.md), known
   to within the mark's timing uncertainty sigma_t: one common rotation of the
   record, h Omega delta_t. The run's phase is then kept, with a Gaussian prior
   phi ~ N(0, (Omega sigma_t)^2) (a residual phi / (Omega sigma_t) in the least

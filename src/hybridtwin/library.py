@@ -304,7 +304,7 @@ def mode_scaling_kinks(variant: Variant, parameters: list[str], lower: Array, up
                        n_probe: int = 512) -> tuple[int, Array] | None:
     """Where the bow force's mode scaling changes node inside the box, if one parameter alone decides it.
 
-    Phi_1 is scaled so that its entry of largest magnitude is +1 (``../shared/varm-model.md``, eq. 30); where
+    Phi_1 is scaled so that its entry of largest magnitude is +1 (``docs/model.md``, eq. 30); where
     that entry moves to another node, every response to the bow has a kink (Geometric: k_b = 2753 N/m;
     ``benchmarks/spgd_smoothness_study.py``), across which polynomial factors converge slowly. The node is
     computed at ``n_probe`` points of the box (seeded, uniform; a property of the model and the box, not of

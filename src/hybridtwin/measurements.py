@@ -1,4 +1,4 @@
-"""Measured runs: read and check the runs sheet and the records (shared/measurement-format.md).
+"""Measured runs: read and check the runs sheet and the records (docs/measurement-format.md).
 
 A data set is a runs sheet (TSV, one row per run: run, rpm, eccentric_mass_g,
 path, role; extra columns carried through) and one record (CSV) per run:
@@ -128,7 +128,7 @@ class Saturation:
 
 
 def read_runs(path: str | Path, check_files: bool = True, require_path: bool = True) -> pd.DataFrame:
-    """Read and validate a runs sheet (measurement-format.md, "The runs sheet").
+    """Read and validate a runs sheet (docs/measurement-format.md, "The runs sheet").
 
     Returns the sheet with ``rpm`` and ``eccentric_mass_g`` as floats (NaN where
     the mass is unknown), ``role`` filled with "fit" where empty or absent, and
@@ -222,7 +222,7 @@ def check_coverage(runs: pd.DataFrame, rpm_range: Sequence[float] | None = None,
 
 
 def read_record(path: str | Path) -> Record:
-    """Read and validate one record (measurement-format.md, "A record").
+    """Read and validate one record (docs/measurement-format.md, "A record").
 
     Checks: the file exists and parses; a time_s column and one x and one y
     displacement column with a known unit (x_mm/y_mm or x_m/y_m); every cell

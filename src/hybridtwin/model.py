@@ -1,4 +1,4 @@
-"""A model = the FE shaft + a composition of physical effects (shared/varm-model.md).
+"""A model = the FE shaft + a composition of physical effects (docs/model.md).
 
 ``Model.system(params, rpm)`` assembles, for S scenarios at once, the second-order
 system that the steady-state solver works on (eq. 29)::

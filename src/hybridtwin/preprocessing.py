@@ -16,7 +16,7 @@ it with a steady-state model (u(t) = Re(sum_h U_h exp(i h Omega t)), 0-peak):
    unknown: harmonics are referred to a revolution boundary near the middle
    of the analysed span (``phase_reference`` = "arbitrary"), where the phase
    is least affected by the speed's uncertainty. With a keyphasor the origin
-   is the mark (the unbalance on +x, measurement-format.md): the marks' times
+   is the mark (the unbalance on +x, docs/measurement-format.md): the marks' times
    are fitted as t_k = t_c + k T_kp, and the origin is the fitted mark nearest
    the middle ("keyphasor"). A mark lands on the sample nearest to the event
    (the virtual rig does so), so its time error is the rounding

@@ -1,7 +1,7 @@
 """Virtual rig: measured-format records from a "truth" model with hidden effects.
 
-The rig plays the part of the paper's test bench (shared/varm-model.md,
-"Steady state and sensor"; shared/measurement-format.md). A truth is a model
+The rig plays the part of the paper's test bench (docs/model.md,
+"The rig and its measured runs"; docs/measurement-format.md). A truth is a model
 variant (any list of effects, e.g. the Geometric model plus the slope force
 the Geometric model lacks) with parameter values. For every run of a plan
 (run, rpm, eccentric_mass_g, role) the rig

@@ -1,4 +1,4 @@
-"""Euler-Bernoulli finite-element shaft of the VARM (shared/varm-model.md, "Geometry").
+"""Euler-Bernoulli finite-element shaft of the VARM (docs/model.md, "Shaft").
 
 Degrees of freedom (44 for n = 10 elements). Per node i, per bending plane, a
 deflection and a slope (theta = dw/dz). Global ordering::
@@ -25,7 +25,7 @@ class Shaft:
     """Uniform Euler-Bernoulli shaft, z pointing down from the upper bearing (z = 0).
 
     Defaults are the paper's Table 1 (SI units). ``I`` uses Table 1's value,
-    ten times pi r^4 / 4 (see varm-model.md, note 1).
+    ten times pi r^4 / 4 (see docs/model.md, the note on I).
     """
 
     L: float = 0.850  # shaft length [m]
@@ -91,7 +91,7 @@ class Shaft:
         """Element stiffness and consistent mass matrices, DOFs [w1, theta1, w2, theta2].
 
         K_e = EI/h^3 [...] and M_e = m h / 420 [...] (cubic Hermite shape functions,
-        varm-model.md "Element matrices").
+        docs/model.md, "Discretisation").
         """
         h, EI, m = self.h, self.E * self.I, self.m
         K_e = EI / h**3 * np.array(
