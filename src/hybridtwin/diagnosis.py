@@ -56,6 +56,7 @@ from .identification import (ArrowProblem, Identification, Layout, ProtocolResul
                              theta_from_table, units)
 from .lm import MAX_ITERATIONS, STALLED, LMOptions, LMResult, levenberg_marquardt
 from .model import Model
+from .polish import hypercube_starts
 from .uncertainty import BOUND_TOLERANCE
 from .variants import Variant
 
@@ -324,6 +325,27 @@ def _widened(ranges: Mapping[str, tuple[float, float]], estimates: pd.DataFrame,
     return out
 
 
+#: chi^2 a refit across the far ranges (``_far_ranges``) must gain to replace the refit in the default range
+FAR_GAIN = 10.0
+#: chi^2/dof of a refit above which its far side is looked at even without a widening
+FAR_MISFIT = 1.5
+
+
+def _far_ranges(ranges: Mapping[str, tuple[float, float]], candidate: Candidate, factor: float = 3.0
+                ) -> dict[str, tuple[float, float]]:
+    """Each of the candidate's ranges widened ``factor`` times on both sides, within its physical limits
+    (without limits: unchanged): where the base fit is far from the truth (a resonance moved), the estimate
+    in the default range can sit at the edge opposite to the truth, and widening towards it never finds it."""
+    out = dict(ranges)
+    for par in candidate.parameters:
+        if par.limits is None:
+            continue
+        lo, hi = ranges[par.name]
+        width = hi - lo
+        out[par.name] = (max(lo - (factor - 1) * width, par.limits[0]), min(hi + (factor - 1) * width, par.limits[1]))
+    return out
+
+
 def _theta_in(layout: Layout, fit: Identification) -> Array:
     """A fit's estimate (SI) as theta of another layout with the same entries (other ranges)."""
     values = dict(zip(fit.layout.entries(), fit.x))
@@ -386,6 +408,34 @@ def confirm(base: BaseFit, score: Score, scores: Scores, max_iterations: int = 4
         widened += [(name, ranges[name], new) for name, new in wider.items()]
         old = dict(ranges)
         ranges |= wider
+    # the far side: a truth beyond the range on the side the base fit did not lean to; looked for when the refit
+    # needed a wider range, or does not fit to the noise (a refit that explains everything needs no other basin)
+    if not quick and widen > 0 and (widened or fit.chi2_dof > FAR_MISFIT):
+        far = _far_ranges(ranges, c)
+        if far != ranges:
+            problem_f, theta0_f = extended_problem(base, [c], far)
+            layout_f = problem_f.layout
+            cols = [layout_f.entries().index((p.name, "all")) for p in c.parameters]
+            here = _theta_in(layout_f, fit)
+            X1 = base.X[None]
+            # across the far ranges for the candidate alone, and across the whole box (a base fit far from the
+            # truth leaves the base's own parameters in another basin: the polish's Latin hypercube)
+            theta = np.vstack([here, _refit_starts(theta0_f, cols, None, max(starts, 2),
+                                                   zlib.crc32(c.name.encode()) + 1)[1:],
+                               problem_f.initial_phases(hypercube_starts(layout_f, here, max(starts, 2),
+                                                                         zlib.crc32(c.name.encode()) + 2),
+                                                        np.repeat(X1, max(starts, 2), axis=0))])
+            X = np.repeat(base.X[None], len(theta), axis=0)
+            result = levenberg_marquardt(problem_f, theta, X, options)
+            best = int(np.nanargmin(np.where(np.isfinite(result.loss), result.loss, np.inf)))
+            if (fit.uncertainty.chi2 - result.loss[best] * problem_f.n_data) > FAR_GAIN:
+                protocol = ProtocolResult(result, best, np.zeros((0, layout_f.n)), np.zeros(0), result.seconds,
+                                          len(theta))
+                fit = conclude(problem_f, protocol, base.data, base.X, confidence, units(problem_f.models[0].variant))
+                widened += [(name, ranges[name], far[name]) for name in far if far[name] != ranges[name]]
+                ranges = far
+                table = fit.table()
+                estimates = table[table["parameter"].isin(list(ranges)) & (table["run"] == "all")]
     chi2 = float(fit.uncertainty.chi2)
     k, n = len(ranges), scores.n_data
     lr = scores.base_chi2 - chi2
@@ -623,7 +673,9 @@ def _conclude_path(result: Diagnosis, base: BaseFit, scores: Scores, o: Mapping)
     if not path:
         return
     final, share = path[-1].confirmation, path[-1].share
-    explains = _fits_the_noise(final, o) or share >= o["explained"]
+    # "add" only for effects that bring the fit to the noise: a large share of a huge excess can leave a misfit
+    # many times the noise (an effect outside the candidates, half-mimicked by several of them)
+    explains = _fits_the_noise(final, o)
     names = [step.effect for step in path]
     first = result.table.index[result.table["effect"] == names[0]][0]
     base_ratio = scores.base_chi2 / scores.base_dof

@@ -57,7 +57,7 @@ def polish(fit: Identification, solver_models: Sequence[HarmonicModel], max_iter
     if random_starts > 0 and best_chi2 / dof > max(misfit, fit.chi2_dof):
         best = result.x[int(np.nanargmin(np.where(np.isfinite(result.loss), result.loss, np.inf)))] \
             if np.isfinite(result.loss).any() else fit.theta
-        extra = _hypercube(fit.layout, best, random_starts, seed)
+        extra = hypercube_starts(fit.layout, best, random_starts, seed)
         result = LMResult.concatenate([result, _run(exact, extra, fit.X, options)])
         names += [f"random start {i + 1}" for i in range(random_starts)]
     best = int(np.argmin(np.where(np.isfinite(result.loss), result.loss, np.inf)))  # a start may not solve
@@ -74,7 +74,7 @@ def _run(problem: ArrowProblem, theta0: Array, X: Array, options: LMOptions) -> 
     return levenberg_marquardt(problem, theta0, np.repeat(X[None], len(theta0), axis=0), options)
 
 
-def _hypercube(layout, centre: Array, n: int, seed: int) -> Array:
+def hypercube_starts(layout, centre: Array, n: int, seed: int) -> Array:
     """n starts: the shared physical entries on a seeded Latin hypercube of [-0.9, 0.9], the others
     (per-run parameters, phases) as in ``centre``."""
     from scipy.stats import qmc
