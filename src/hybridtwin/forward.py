@@ -174,48 +174,7 @@ class SolverModel:
         base = self.variant.values(values)
         return {k: np.broadcast_to(np.asarray(v, float), (x.shape[0],)).copy() for k, v in base.items()}
 
-    def _system(self, values: Mapping[str, Array]):
-        S = max(np.size(v) for v in values.values())
-        rest = self.variant.model.at_rest(values, S)
-        return self.variant.model.system_at(rest, np.full(S, self.rpm))
-
     # --- solves -------------------------------------------------------------------------------
-
-    def _steady(self, x: Array):
-        """The run-up steady states at x (N, d) (all finite): warm where allowed, else by a run-up."""
-        from .solver import SteadyState, solve
-
-        N = x.shape[0]
-        values = self._values(x)
-        parts, order = [], []
-        cold = np.arange(N)
-        if self.warm and len(self._x):
-            distance = np.abs(x[:, None, :] - self._x[None]).max(-1)  # (N, cache)
-            nearest = distance.argmin(1)
-            old = self._state[nearest]
-            change = np.einsum("npcj,np->ncj", self._dstate[nearest], (x - self._x[nearest]) * self.half_range)
-            predicted = old + change
-            result = solve(self._system(values), self.harmonics, initial=predicted, stall_window=8)
-            gap = np.linalg.norm((result.state - predicted).reshape(N, -1), axis=1)
-            allowed = (WARM_TOLERANCE * np.linalg.norm(change.reshape(N, -1), axis=1)
-                       + WARM_FLOOR * np.linalg.norm(old.reshape(N, -1), axis=1))
-            kept = np.flatnonzero(result.success & (gap <= allowed))
-            if kept.size:
-                parts.append(_rows(result, kept))
-                order.append(kept)
-                self.n_warm += kept.size
-            cold = np.setdiff1d(cold, kept)
-        jumped = np.zeros(N, bool)
-        if cold.size:
-            states, jump = run_up(self.variant, [self.rpm], {k: v[cold] for k, v in values.items()},
-                                  self.harmonics, jumps=True)
-            parts.append(states[0])
-            order.append(cold)
-            jumped[cold] = jump
-            self.n_run_ups += cold.size
-        self.n_solves += N
-        result = SteadyState.concatenate(parts, np.argsort(np.concatenate(order)))
-        return result, values, jumped
 
     def _remember(self, x: Array, result, dstate: Array, jumped: Array) -> None:
         """Cache the converged sets whose run-up never jumped (warm starts continue only on that branch)."""
@@ -236,23 +195,6 @@ class SolverModel:
         U, V = sensor_harmonics(harmonics, self.variant.model.shaft)
         return np.stack([U[..., 1:], V[..., 1:]], axis=-1)
 
-    def _exact(self, x: Array, jacobian: bool) -> tuple[Array, Array | None]:
-        """M and (with ``jacobian``) dM/dx by the implicit function theorem at finite x (N, d)."""
-        from .solver import sensitivity
-
-        result, values, jumped = self._steady(x)
-        M = self._sensor(result.harmonics)
-        M[~result.success] = np.nan
-        d = len(self.parameters)
-        if not jacobian:  # no sensitivities: nothing to cache either (a warm start needs the predictor's slope)
-            return M, None
-        steps = SENSITIVITY_STEP * (self.upper - self.lower)
-        dQ, dstate = sensitivity(self._system, values, self.parameters, result, steps, condensed=True)
-        if self.warm:
-            self._remember(x, result, dstate, jumped)
-        dM = self._sensor(dQ) * self.half_range[None, :, None, None]  # (N, d, H, 2), per normalised unit
-        return M, np.moveaxis(dM, 1, -1) if d else np.zeros(M.shape + (0,))
-
     def _solve(self, x: Array) -> Array:
         """Sensor harmonics (N, H, 2) at normalised x (N, d) by the run-up alone (the differences' path)."""
         result = run_up(self.variant, [self.rpm], self._values(x), self.harmonics)[0]
@@ -272,10 +214,9 @@ class SolverModel:
         finite = np.flatnonzero(np.isfinite(x).all(axis=1))
         if finite.size == 0:
             return M, dM
-        if self.analytic:
-            M[finite], J = self._exact(x[finite], jacobian)
-        else:
-            M[finite], J = self._differences(x[finite], jacobian)
+        if self.analytic:  # the batched path with one run: warm starts and exact sensitivities
+            return SolverModel.evaluate_together([self], [x], jacobian)[0]
+        M[finite], J = self._differences(x[finite], jacobian)
         if jacobian:
             dM[finite] = J
         return M, dM
@@ -328,7 +269,7 @@ class SolverModel:
             good = result.success & (gap <= allowed)
             kept[where[good]] = True
             if good.any():
-                parts.append(_rows(result, np.flatnonzero(good)))
+                parts.append(SteadyState.concatenate([result], np.flatnonzero(good)))
                 order.append(where[good])
         jumped = np.zeros(S, bool)
         for k, m in enumerate(models):
@@ -342,8 +283,9 @@ class SolverModel:
                 order.append(offsets[k] + cold)
                 jumped[offsets[k] + cold] = jump
                 m.n_run_ups += cold.size
-        if not parts:
-            return [m.evaluate(x, jacobian) for m, x in zip(models, xs)]
+        if not parts:  # no finite parameter set at all
+            return [(np.full((x.shape[0], H, 2), np.nan + 0j),
+                     np.full((x.shape[0], H, 2, d), np.nan + 0j) if jacobian else None) for x in xs]
         result = SteadyState.concatenate(parts, np.argsort(np.concatenate(order)))
         M_all = first._sensor(result.harmonics)
         M_all[~result.success] = np.nan
@@ -352,7 +294,8 @@ class SolverModel:
             ok = np.flatnonzero(result.success)
             steps = SENSITIVITY_STEP * (first.upper - first.lower)
             dQ_ok, dstate_ok = sensitivity(lambda v: build_at(v, rpm[ok]), {k_: v[ok] for k_, v in values.items()},
-                                           first.parameters, _rows(result, ok), steps, condensed=True)
+                                           first.parameters, SteadyState.concatenate([result], ok), steps,
+                                           condensed=True)
             dQ = np.full((S,) + dQ_ok.shape[1:], np.nan + 0j)
             dstate = np.full((S,) + dstate_ok.shape[1:], np.nan)
             dQ[ok], dstate[ok] = dQ_ok, dstate_ok
@@ -367,7 +310,8 @@ class SolverModel:
                 dM = np.full((x.shape[0], H, 2, d), np.nan + 0j)
                 dM[r] = dM_all[sl]
                 if m.warm and r.size:
-                    m._remember(x[r], _rows(result, np.arange(offsets[k], offsets[k + 1])), dstate[sl], jumped[sl])
+                    own = SteadyState.concatenate([result], np.arange(offsets[k], offsets[k + 1]))
+                    m._remember(x[r], own, dstate[sl], jumped[sl])
             out.append((M, dM))
         return out
 
@@ -418,14 +362,6 @@ def evaluate_runs(models: Sequence[HarmonicModel], xs: Sequence[Array], jacobian
                                                                    [xs[k] for k in batched], jacobian)):
             out[k] = value
     return out
-
-
-def _rows(result, index: Array):
-    """The scenarios ``index`` of a SteadyState."""
-    from .solver import SteadyState
-
-    fields = ("harmonics", "Omega", "success", "status", "message", "iterations", "residual", "branch", "state")
-    return SteadyState(**{f: getattr(result, f)[index] for f in fields}, n_time=result.n_time)
 
 
 def _state_shape(models: Sequence["SolverModel"]) -> tuple[int, ...]:
