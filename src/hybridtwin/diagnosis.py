@@ -331,6 +331,21 @@ FAR_GAIN = 10.0
 FAR_MISFIT = 1.5
 
 
+def _best(result: LMResult) -> int:
+    """The trial with the lowest loss (a start with no solution has a NaN one)."""
+    return int(np.nanargmin(np.where(np.isfinite(result.loss), result.loss, np.inf)))
+
+
+def _concluded(problem: ArrowProblem, result: LMResult, best: int, base: BaseFit, confidence: float,
+               ranges: Mapping[str, tuple[float, float]]) -> tuple[Identification, pd.DataFrame]:
+    """A refit's result object at its best trial, and the estimates of the parameters in ``ranges``."""
+    protocol = ProtocolResult(result, best, np.zeros((0, problem.layout.n)), np.zeros(0), result.seconds,
+                              len(result.x))
+    fit = conclude(problem, protocol, base.data, base.X, confidence, units(problem.models[0].variant))
+    table = fit.table()
+    return fit, table[table["parameter"].isin(list(ranges)) & (table["run"] == "all")]
+
+
 def _far_ranges(ranges: Mapping[str, tuple[float, float]], candidate: Candidate, factor: float = 3.0
                 ) -> dict[str, tuple[float, float]]:
     """Each of the candidate's ranges widened ``factor`` times on both sides, within its physical limits
@@ -389,19 +404,16 @@ def confirm(base: BaseFit, score: Score, scores: Scores, max_iterations: int = 4
         result = levenberg_marquardt(problem, theta, X, options)
         if first_refit:  # the objective at each start (LM's first evaluation): chi^2 plus any phase prior
             start_chi2 = (result.history[:, 0] * problem.n_data).tolist()
-        best = int(np.nanargmin(np.where(np.isfinite(result.loss), result.loss, np.inf)))
+        best = _best(result)
         for _ in range(0 if quick else CONTINUATIONS):  # the best start stopped while descending: let it go on
             if result.status[best] not in (MAX_ITERATIONS, STALLED):
                 break
             before = result.loss[best]
             result = LMResult.concatenate([result, levenberg_marquardt(problem, result.x[[best]], X[:1], options)])
-            best = int(np.nanargmin(np.where(np.isfinite(result.loss), result.loss, np.inf)))
+            best = _best(result)
             if (before - result.loss[best]) * problem.n_data < STALL_CHI2:
                 break
-        protocol = ProtocolResult(result, best, np.zeros((0, layout.n)), np.zeros(0), result.seconds, len(result.x))
-        fit = conclude(problem, protocol, base.data, base.X, confidence, units(problem.models[0].variant))
-        table = fit.table()
-        estimates = table[table["parameter"].isin(list(ranges)) & (table["run"] == "all")]
+        fit, estimates = _concluded(problem, result, best, base, confidence, ranges)
         wider = _widened(ranges, estimates, c)
         if not wider or attempt == widen:
             break
@@ -417,25 +429,20 @@ def confirm(base: BaseFit, score: Score, scores: Scores, max_iterations: int = 4
             layout_f = problem_f.layout
             cols = [layout_f.entries().index((p.name, "all")) for p in c.parameters]
             here = _theta_in(layout_f, fit)
-            X1 = base.X[None]
             # across the far ranges for the candidate alone, and across the whole box (a base fit far from the
             # truth leaves the base's own parameters in another basin: the polish's Latin hypercube)
             theta = np.vstack([here, _refit_starts(theta0_f, cols, None, max(starts, 2),
                                                    zlib.crc32(c.name.encode()) + 1)[1:],
                                problem_f.initial_phases(hypercube_starts(layout_f, here, max(starts, 2),
                                                                          zlib.crc32(c.name.encode()) + 2),
-                                                        np.repeat(X1, max(starts, 2), axis=0))])
+                                                        np.repeat(base.X[None], max(starts, 2), axis=0))])
             X = np.repeat(base.X[None], len(theta), axis=0)
             result = levenberg_marquardt(problem_f, theta, X, options)
-            best = int(np.nanargmin(np.where(np.isfinite(result.loss), result.loss, np.inf)))
+            best = _best(result)
             if (fit.uncertainty.chi2 - result.loss[best] * problem_f.n_data) > FAR_GAIN:
-                protocol = ProtocolResult(result, best, np.zeros((0, layout_f.n)), np.zeros(0), result.seconds,
-                                          len(theta))
-                fit = conclude(problem_f, protocol, base.data, base.X, confidence, units(problem_f.models[0].variant))
                 widened += [(name, ranges[name], far[name]) for name in far if far[name] != ranges[name]]
                 ranges = far
-                table = fit.table()
-                estimates = table[table["parameter"].isin(list(ranges)) & (table["run"] == "all")]
+                fit, estimates = _concluded(problem_f, result, best, base, confidence, ranges)
     chi2 = float(fit.uncertainty.chi2)
     k, n = len(ranges), scores.n_data
     lr = scores.base_chi2 - chi2
