@@ -10,6 +10,17 @@ min_version("9.0")
 configfile: "config/config.yaml"
 
 
+# the whole config checked before any job is planned: the schema, then every name in it (variants,
+# parameters, effects, candidates); each problem one line naming its file and line, key and allowed values
+from hybridtwin.config import check_or_exit
+
+check_or_exit(config, f"{workflow.basedir}/workflow/schemas/config.schema.yaml",
+              ["config/config.yaml", *workflow.overwrite_configfiles], workflow.config_settings.config)
+
+
+report: "workflow/report/workflow.rst"  # the report's first page: the answer first (results/summary.rst)
+
+
 include: "workflow/rules/common.smk"
 include: "workflow/rules/whitebox.smk"
 include: "workflow/rules/scenarios.smk"
@@ -42,4 +53,5 @@ rule all:
         expand("results/{variant}/report/{name}", variant=VARIANTS, name=REPORT_FILES),
         "results/ledger.tsv",
         "results/ledger.png",
+        "results/summary.tsv",
     default_target: True

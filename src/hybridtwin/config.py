@@ -1,19 +1,33 @@
-"""Reading the workflow configuration (config/config.yaml) into package objects."""
+"""Reading the workflow configuration (config/config.yaml) into package objects, and checking it.
+
+``check`` (called once by the Snakefile, before any job is planned) validates the configuration
+against workflow/schemas/config.schema.yaml and cross-checks every name in it: variants named under
+``offline``/``identification``/``diagnosis``, parameters (``per_run``), effects and candidates, effects
+files, ranges. Each problem is one line naming the file (and line) the value comes from, the key, the
+bad value and the allowed names (``ConfigError``).
+"""
 
 from __future__ import annotations
 
+import difflib
 import logging
-from collections.abc import Mapping, Sequence
+import sys
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from functools import cache
 from pathlib import Path
 
 import pandas as pd
+import yaml
 from threadpoolctl import threadpool_limits
 
 from .effects import Effect
 from .scenarios import default_n_scenarios
-from .variants import Variant, load_effects_files
+from .variants import EffectsFileError, Variant, load_effects_files
 
 CONFIG_DIR = Path("config")
+CONFIG_FILE = CONFIG_DIR / "config.yaml"
+SCHEMA_FILE = Path("workflow") / "schemas" / "config.schema.yaml"
 
 
 def user_effects(config: Mapping, config_dir: Path = CONFIG_DIR) -> dict[str, Effect]:
@@ -101,3 +115,271 @@ def rule_logger(log_path: str, name: str) -> logging.Logger:
     logging.basicConfig(filename=log_path, level=logging.INFO, force=True,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     return logging.getLogger(name)
+
+
+# --- checking a configuration before any job runs ---------------------------------------------------
+
+
+class ConfigError(ValueError):
+    """A bad configuration: one line per problem, '<file>, line <n>: <key>: <problem> (<allowed values>)'."""
+
+    def __init__(self, problems: Sequence[str]):
+        self.problems = list(problems)
+        super().__init__("\n".join(self.problems))
+
+
+@dataclass
+class Sources:
+    """Where a merged configuration's values come from: config files in increasing precedence (the
+    workflow's config/config.yaml, then each ``--configfile``), then ``--config KEY=VALUE`` (highest)."""
+
+    files: Sequence[str | Path] = (CONFIG_FILE,)
+    command_line: Mapping = field(default_factory=dict)
+
+    def locate(self, path: Sequence[str | int]) -> str:
+        """The file and line that set the value at ``path`` (the source of highest precedence that has it);
+        for a key no source sets (a missing key), the nearest enclosing key that one does."""
+        path = tuple(path)
+        if path and path[0] in self.command_line:
+            return f"--config {path[0]}=..."
+        for depth in range(len(path), 0, -1):
+            for file in reversed(list(self.files)):
+                line = _line_of(str(file), path[:depth])
+                if line is not None:
+                    return f"{file}, line {line}"
+        return str(self.files[0]) if self.files else "config"
+
+
+def check(config: Mapping, schema: str | Path = SCHEMA_FILE, files: Sequence[str | Path] = (CONFIG_FILE,),
+          command_line: Mapping | None = None, config_dir: str | Path = CONFIG_DIR) -> None:
+    """Validate ``config`` against the JSON schema, then cross-check every name in it; ``ConfigError`` lists
+    each problem on one line (file and line from ``files``/``command_line``, see ``Sources``).
+
+    The names checked: every variant's effects (built in or from ``effects_files``) and its unknown/fixed
+    parameters; the variants named in ``offline.n_scenarios``, ``offline.spgd_variants``,
+    ``identification.sparsity`` and ``diagnosis.sparse_variant``; ``identification.per_run`` (each must be
+    an unknown of some variant, else that parameter would silently be shared); ``diagnosis.candidates``;
+    the effects files and the runs sheet exist; coverage ranges are ranges; every ``rig`` entry builds.
+    """
+    sources = Sources([_relative(f) for f in files], dict(command_line or {}))
+    schema_data = yaml.safe_load(Path(schema).read_text())
+    problems = list(_schema_problems(config, schema_data))
+    try:
+        names = list(_name_problems(config, Path(config_dir)))
+    except (TypeError, AttributeError, KeyError, ValueError):
+        if not problems:  # a malformed section the schema let through would be a bug of the schema
+            raise
+        names = []  # a section of the wrong type, already reported by the schema
+    # a section the schema found wrong (e.g. variants.final) is reported once, by the schema
+    wrong = {path[:2] for path, _, _ in problems}
+    problems += [p for p in names if not any(p[0][:len(w)] == w for w in wrong)]
+    if problems:
+        raise ConfigError([f"{sources.locate(path)}: {key or 'top level'}: {message}"
+                           for path, key, message in problems])
+
+
+def check_or_exit(config: Mapping, schema: str | Path = SCHEMA_FILE, files: Sequence[str | Path] = (CONFIG_FILE,),
+                  command_line: Mapping | None = None, config_dir: str | Path = CONFIG_DIR) -> None:
+    """``check`` for the Snakefile: on a bad config, exit with one line per problem and no traceback."""
+    try:
+        check(config, schema, files, command_line, config_dir)
+    except ConfigError as err:
+        sys.exit("\n".join(f"config error: {problem}" for problem in err.problems))
+
+
+Problem = tuple[tuple, str, str]  # (path of the bad value, key as shown, what is wrong)
+
+
+def _relative(file: str | Path) -> Path:
+    """A file as the user names it: relative to the working directory when inside it."""
+    try:
+        return Path(file).absolute().relative_to(Path.cwd())
+    except ValueError:
+        return Path(file)
+
+
+def _key(path: Iterable[str | int]) -> str:
+    return ".".join(str(p) for p in path if not isinstance(p, int))
+
+
+def _short(value, width: int = 60) -> str:
+    text = repr(value)
+    return text if len(text) <= width else text[:width - 3] + "..."
+
+
+def _allowed(name: str, names: Iterable[str], what: str) -> str:
+    names = sorted(map(str, names))
+    close = difflib.get_close_matches(str(name), names, n=1)
+    hint = f"did you mean {close[0]!r}? " if close else ""
+    return f"({hint}{what}: {', '.join(names) if names else 'none'})"
+
+
+@cache
+def _compose(text: str):
+    try:
+        return yaml.compose(text)
+    except yaml.YAMLError:
+        return None
+
+
+def _line_of(file: str, path: tuple) -> int | None:
+    """1-based line of the key (or list item) at ``path`` in a YAML file; None if the file does not set it."""
+    try:
+        node = _compose(Path(file).read_text())
+    except OSError:
+        return None
+    line = None
+    for key in path:
+        if isinstance(node, yaml.MappingNode):
+            match = [(k, v) for k, v in node.value if str(k.value) == str(key)]
+            if not match:
+                return None
+            line, node = match[-1][0].start_mark.line + 1, match[-1][1]
+        elif isinstance(node, yaml.SequenceNode) and isinstance(key, int) and key < len(node.value):
+            node = node.value[key]
+            line = node.start_mark.line + 1
+        else:
+            return None
+    return line
+
+
+def _expects(schema: Mapping) -> str:
+    """What a schema accepts, in a few words (for the alternatives of a oneOf)."""
+    if "enum" in schema:
+        return "one of " + ", ".join("null" if v is None else str(v) for v in schema["enum"])
+    kind = schema.get("type", "value")
+    words = ["/".join(kind) if isinstance(kind, list) else {"null": "null", "array": "a list"}.get(kind, kind)]
+    for key, symbol in (("minimum", ">="), ("exclusiveMinimum", ">"), ("maximum", "<="), ("exclusiveMaximum", "<")):
+        if key in schema:
+            words.append(f"{symbol} {schema[key]}")
+    if isinstance(schema.get("items"), Mapping):
+        words.append(f"of {_expects(schema['items'])}")
+    if isinstance(schema.get("additionalProperties"), Mapping):
+        words = ["a mapping of name:", _expects(schema["additionalProperties"])]
+    return " ".join(words)
+
+
+def _schema_problems(config: Mapping, schema: Mapping) -> Iterable[Problem]:
+    from jsonschema import validators
+    from jsonschema.exceptions import best_match
+
+    validator = validators.validator_for(schema)(schema)
+    errors = sorted(validator.iter_errors(dict(config)), key=lambda e: [str(p) for p in e.absolute_path])
+    for error in errors:
+        if error.context:  # oneOf/anyOf: a deeper error of the closest alternative, or what each one expects
+            deeper = best_match([error])
+            if len(deeper.absolute_path) <= len(error.absolute_path):
+                path = tuple(error.absolute_path)
+                yield path, _key(path), f"{_short(error.instance)} is none of: " \
+                                        f"{'; '.join(_expects(option) for option in error.validator_value)}"
+                continue
+            error = deeper
+        path = tuple(error.absolute_path)
+        value, kind = error.instance, error.validator
+        if kind == "additionalProperties" and isinstance(value, Mapping):
+            known = list(error.schema.get("properties", {}))
+            for extra in sorted(set(value) - set(known), key=str):
+                yield path + (extra,), _key(path), f"unknown key {extra!r} {_allowed(extra, known, 'allowed')}"
+        elif kind == "required" and isinstance(value, Mapping):
+            for missing in [k for k in error.validator_value if k not in value]:
+                yield path, _key(path), f"missing key {missing!r}"
+        elif kind == "enum":
+            yield path, _key(path), f"{_short(value)} is not allowed (allowed: " \
+                                    f"{', '.join('null' if v is None else str(v) for v in error.validator_value)})"
+        elif kind == "type":
+            yield path, _key(path), f"{_short(value)} is not of type {error.validator_value}"
+        else:
+            yield path, _key(path), error.message if len(error.message) < 200 else error.message[:197] + "..."
+
+
+def _name_problems(config: Mapping, config_dir: Path) -> Iterable[Problem]:
+    from .candidates import candidates_for
+    from .effects import builtin_effects
+    from .rig import RigSpec
+
+    runs = config.get("runs")
+    if runs is not None and not Path(runs).is_file():
+        yield ("runs",), "runs", f"runs sheet {str(runs)!r} does not exist (paths are relative to the project root)"
+
+    user: dict[str, Effect] = {}
+    for i, path in enumerate(config.get("effects_files") or []):
+        try:
+            user |= load_effects_files([config_dir / path])
+        except EffectsFileError as err:
+            yield ("effects_files", i), "effects_files", f"{err} (paths are relative to {config_dir}/)"
+
+    variants = dict(config.get("variants") or {})
+    registry = builtin_effects() | user
+    for name, spec in variants.items():
+        where = ("variants", name)
+        bad = False
+        parameters = set()
+        for i, effect in enumerate(spec.get("effects") or []):
+            if effect in registry:
+                parameters |= {p.name for p in registry[effect].parameters}
+            else:
+                bad = True
+                yield where + ("effects", i), _key(where + ("effects",)), \
+                    f"no effect named {effect!r} {_allowed(effect, registry, 'effects')}"
+        for kind in ("unknown", "fixed") if not bad else ():  # parameters only once the effects are known
+            for parameter in spec.get(kind) or {}:
+                if parameter not in parameters:
+                    bad = True
+                    yield where + (kind, parameter), _key(where + (kind,)), \
+                        f"{parameter!r} is a parameter of none of the variant's effects " \
+                        f"{_allowed(parameter, parameters, 'parameters')}"
+        if not bad:
+            try:
+                Variant.from_spec(name, spec, user)
+            except ValueError as err:
+                yield where, _key(where), str(err)
+
+    def variant_names(path: tuple, names: Iterable[str]) -> Iterable[Problem]:
+        for key in names:
+            if key not in variants:
+                yield path + (key,), _key(path), f"no variant named {key!r} {_allowed(key, variants, 'variants')}"
+
+    offline_ = config.get("offline") or {}
+    yield from variant_names(("offline", "n_scenarios"), offline_.get("n_scenarios") or {})
+    yield from variant_names(("offline", "spgd_variants"), offline_.get("spgd_variants") or {})
+
+    identification = config.get("identification") or {}
+    if isinstance(identification.get("sparsity"), Mapping):
+        yield from variant_names(("identification", "sparsity"), identification["sparsity"])
+    unknowns = {p for spec in variants.values() for p in (spec.get("unknown") or {})}
+    for i, parameter in enumerate(identification.get("per_run") or []):
+        if parameter not in unknowns:
+            yield ("identification", "per_run", i), "identification.per_run", \
+                f"{parameter!r} is an unknown of no variant, so nothing would be estimated per run " \
+                f"{_allowed(parameter, unknowns, 'unknown parameters')}"
+
+    diagnosis = config.get("diagnosis") or {}
+    available = [c.name for c in candidates_for([])] + list(user)  # built in, then from effects_files
+    for i, candidate in enumerate(diagnosis.get("candidates") or []):
+        if candidate not in available:
+            yield ("diagnosis", "candidates", i), "diagnosis.candidates", \
+                f"no candidate effect named {candidate!r} " \
+                f"{_allowed(candidate, available, 'candidates, built in or from effects_files')}"
+            continue
+        try:
+            candidates_for([], [candidate], user)
+        except ValueError as err:  # a user effect that cannot be a candidate
+            yield ("diagnosis", "candidates", i), "diagnosis.candidates", str(err)
+    sparse = diagnosis.get("sparse_variant")
+    if sparse is not None and sparse not in variants:
+        yield ("diagnosis", "sparse_variant"), "diagnosis.sparse_variant", \
+            f"no variant named {sparse!r} {_allowed(sparse, list(variants) + ['null (none)'], 'variants')}"
+
+    coverage = config.get("coverage") or {}
+    for key, smallest in (("rpm", "0 <"), ("eccentric_mass_g", "0 <=")):
+        if key in coverage:
+            lo, hi = coverage[key]
+            if not (lo < hi and (lo > 0 if key == "rpm" else lo >= 0)):
+                yield ("coverage", key), f"coverage.{key}", f"[{lo:g}, {hi:g}] is not a range [low, high] " \
+                                                             f"with {smallest} low < high"
+
+    for name, spec in (config.get("rig") or {}).items():
+        try:
+            RigSpec.from_mapping(spec, user)
+        except ValueError as err:
+            yield ("rig", name), f"rig.{name}", str(err)
