@@ -18,6 +18,9 @@ check_or_exit(config, f"{workflow.basedir}/workflow/schemas/config.schema.yaml",
               ["config/config.yaml", *workflow.overwrite_configfiles], workflow.config_settings.config)
 
 
+report: "workflow/report/workflow.rst"  # the report's first page: the answer first (results/summary.rst)
+
+
 include: "workflow/rules/common.smk"
 include: "workflow/rules/whitebox.smk"
 include: "workflow/rules/scenarios.smk"
@@ -50,4 +53,5 @@ rule all:
         expand("results/{variant}/report/{name}", variant=VARIANTS, name=REPORT_FILES),
         "results/ledger.tsv",
         "results/ledger.png",
+        "results/summary.tsv",
     default_target: True

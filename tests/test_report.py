@@ -1,17 +1,27 @@
 """The report stage (hybridtwin.report): the numbers the figures and the ledger show, on synthetic fits with known
-harmonics, and that every figure is written. Seconds, no solver."""
+harmonics, and that every figure is written (seconds, no solver); the report's first page (hybridtwin.summary) on
+known tables; and `snakemake --report report.html` on a small run of the workflow (about a minute)."""
 
+import html as htmllib
+import json
+import re
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 import pandas as pd
 import pytest
+import yaml
 from scipy import stats
 
 from hybridtwin import identification as idn
-from hybridtwin import report
+from hybridtwin import report, summary
 from hybridtwin import validation as val
 
+ROOT = Path(__file__).resolve().parents[1]
 H = 3
 RUNS = ["a", "b"]
 RPM = [500.0, 800.0]
@@ -267,3 +277,186 @@ def test_two_fit_runs_and_no_validation_run(synthetic, tmp_path):
     for i, figure in enumerate(figures):
         figure.savefig(tmp_path / f"{i}.png", dpi=30)
         report.plt.close(figure)
+
+
+# --- the report's first page (hybridtwin.summary) ---------------------------------------------------------
+
+
+def _errors(chi2_dof: dict[str, float], beyond: set[str], validation: tuple[str, ...] = ("v",)) -> pd.DataFrame:
+    """An error table (report.ERROR_COLUMNS) with the given per-run chi^2/dof, 10 dof each."""
+    runs = list(chi2_dof)
+    return pd.DataFrame({"run": runs, "rpm": [400.0 + 100 * i for i in range(len(runs))],
+                         "eccentric_mass_g": 14.8,
+                         "role": ["validate" if r in validation else "fit" for r in runs], "source": "solver",
+                         "chi2": [10 * chi2_dof[r] for r in runs], "dof": 10.0, "chi2_dof": list(chi2_dof.values()),
+                         "p_value": 0.5, "beyond_noise": [r in beyond for r in runs], "error_pct": 1.0,
+                         "signal_m": 1e-3})
+
+
+BASE_EFFECTS = ["unbalance", "shaft_bow", "geometric_spring"]
+
+
+@pytest.fixture
+def three_variants():
+    """A loop in progress: 'base' misses an effect, 'base_slope' (already in the config) fits, 'other' is
+    recommended a variant nobody declared yet."""
+    errors = {"base": _errors({"a": 1.1, "b": 40.0, "c": 300.0, "v": 80.0}, beyond={"b", "c", "v"}),
+              "base_slope": _errors({"a": 0.9, "b": 1.2, "c": 1.0, "v": 1.1}, beyond=set()),
+              "other": _errors({"a": 1.0, "b": 5.0, "c": 1.3, "v": 2.0}, beyond={"b"})}
+    summaries = {"base": {"n_data": 36, "dof": 30, "chi2": 30 * 114.0},
+                 "base_slope": {"n_data": 36, "dof": 28, "chi2": 28 * 1.03},
+                 "other": {"n_data": 36, "dof": 29, "chi2": 29 * 2.4}}
+    ledger = report.ledger_table([report.ledger_row(name, "", summaries[name], errors[name]) for name in errors])
+    diagnoses = {"base": {"conclusion": "add slope_spring: it explains the discrepancy",
+                          "recommended_variant": {"name": "base_slope_spring",
+                                                  "spec": {"effects": BASE_EFFECTS + ["slope_spring"]}}},
+                 "base_slope": {"conclusion": "no missing effect", "recommended_variant": None},
+                 "other": {"conclusion": "add excitation_3x: it explains the discrepancy",
+                           "recommended_variant": {"name": "other_excitation_3x",
+                                                   "spec": {"effects": BASE_EFFECTS + ["excitation_3x"]}}}}
+    variants = {"base": {"effects": BASE_EFFECTS}, "base_slope": {"effects": BASE_EFFECTS[::-1] + ["slope_spring"]},
+                "other": {"effects": BASE_EFFECTS + ["moment_stiffness"]}}
+    return SimpleNamespace(errors=errors, ledger=ledger, table=summary.summary_table(ledger, errors, diagnoses,
+                                                                                     variants))
+
+
+def test_summary_table_counts_failures_and_finds_a_recommendation_already_declared(three_variants):
+    table = three_variants.table.set_index("variant")
+    assert list(table.index) == ["base", "base_slope", "other"]  # config order, as the ledger
+    assert list(three_variants.table.columns) == summary.SUMMARY_COLUMNS
+    assert table.loc["base", "chi2_dof"] == pytest.approx(114.0)
+    assert (table.loc["base", "fit_runs"], table.loc["base", "fit_runs_beyond_noise"]) == (3, 2)
+    assert (table.loc["base", "validation_runs"], table.loc["base", "validation_runs_beyond_noise"]) == (1, 1)
+    assert (table.loc["base", "worst_run"], table.loc["base", "worst_run_chi2_dof"]) == ("c", 300.0)
+    # chi^2 = 1.03 x 28 dof is well inside the noise; 114 x 30 is not (p of chi^2(dof) from scipy)
+    assert table.loc["base_slope", "p_value"] == pytest.approx(stats.chi2.sf(28 * 1.03, 28))
+    assert table.loc["base", "p_value"] < 1e-100
+    # the same effects in another order are the same variant; a different set is not declared yet
+    assert table.loc["base", "recommended_in_config"] == "base_slope"
+    assert table.loc["other", "recommended_variant"] == "other_excitation_3x"
+    assert table.loc["other", "recommended_in_config"] == ""
+    assert table.loc["base_slope", "recommended_variant"] == ""
+    assert summary.best_variant(three_variants.table)["variant"] == "base_slope"  # lowest BIC
+
+
+def _links(html: str) -> list[str]:
+    return re.findall(r"javascript:app\.showResultInfo\('([^']*)'\)", html)
+
+
+def test_first_page_is_valid_rst_that_links_every_failing_run_to_its_figure(three_variants):
+    from docutils.core import publish_parts
+
+    page = summary.landing_rst(three_variants.table, three_variants.errors)
+    # halt at a warning: a malformed table, an unescaped markup character or a broken link would raise here
+    html = publish_parts(page, writer="html", settings_overrides={"halt_level": 2})["html_body"]
+    text = re.sub(r"<[^>]+>", "", html)
+    assert "(lowest BIC): base_slope, chi^2/dof 1.03" in text and "within the noise" in text
+    links = _links(html)
+    # every run beyond the noise, and only those, is linked to its per-run figure where the failures are listed
+    failures = html[html.index("Where each variant fails"):]
+    for variant, errors in three_variants.errors.items():
+        for r in errors.itertuples():
+            linked = summary.run_figure(variant, r.run) in _links(failures)
+            assert linked == r.beyond_noise, (variant, r.run)
+    assert "every run within the noise" in re.sub(r"<[^>]+>", "", failures).split("base_slope")[1]
+    # worst runs first: c (300) before v (80) before b (40)
+    base = [link.rsplit("/", 1)[1] for link in _links(failures) if "/base/report/runs/" in link]
+    assert base == ["c.png", "v.png", "b.png"]
+    # recommendations: the declared one by name, the undeclared one by the diagnosis.md holding its lines
+    assert "Already in the config as base_slope" in text
+    assert "results/other/diagnosis.md" in links
+    assert {"results/ledger.tsv", "results/summary.png"} <= set(links)
+
+
+def test_first_page_links_only_the_worst_runs_of_a_variant_failing_everywhere():
+    chi2_dof = {f"r{i}": 10.0 + i for i in range(9)}
+    errors = {"bad": _errors(chi2_dof, beyond=set(chi2_dof), validation=())}
+    ledger = report.ledger_table([report.ledger_row("bad", "", {"n_data": 90, "dof": 80, "chi2": 1200.0},
+                                                    errors["bad"])])
+    table = summary.summary_table(ledger, errors, {}, {"bad": {"effects": []}})
+    page = summary.landing_rst(table, errors)
+    runs = [link.rsplit("/", 1)[1] for link in _links(page) if "/report/runs/" in link]
+    assert runs[1:] == ["r8.png", "r7.png", "r6.png", "r5.png", "r4.png"]  # the worst run of the ledger, then 5
+    assert "9 of 9 runs" in page and "and 4 more" in page and "beyond the noise (p = " in page
+
+
+def test_summary_figure_shows_each_runs_error_per_variant(three_variants, tmp_path):
+    figure = summary.plot_summary(three_variants.ledger, three_variants.errors)
+    ax, ax_runs = figure.axes[:2]
+    fit_line = ax.get_lines()[0]
+    assert np.allclose(fit_line.get_ydata(), three_variants.ledger["chi2_dof"])
+    cells = {(round(t.get_position()[1]), round(t.get_position()[0])): t for t in ax_runs.texts}
+    order = summary.run_order(three_variants.errors)["run"].tolist()
+    assert order[-1] == "v"  # validation runs last
+    for j, (variant, errors) in enumerate(three_variants.errors.items()):
+        for r in errors.itertuples():
+            cell = cells[(order.index(r.run), j)]
+            assert float(cell.get_text()) == pytest.approx(r.chi2_dof, rel=0.05)  # two significant digits
+            assert (cell.get_fontweight() == "bold") == r.beyond_noise
+    figure.savefig(tmp_path / "summary.png", dpi=30)
+    assert (tmp_path / "summary.png").stat().st_size > 1000
+
+
+def test_the_main_install_carries_what_the_report_command_needs():
+    """`snakemake --report` needs pygments, which only the test extras pulled in (pytest requires it)."""
+    pyproject = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    required = {re.split(r"[<>=!~ ;\[]", spec, maxsplit=1)[0].lower() for spec in pyproject["project"]["dependencies"]}
+    assert {"snakemake", "pygments"} <= required
+
+
+# --- `snakemake --report report.html` on a small run -----------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def reported(tmp_path_factory):
+    """The loop's first step on four high-speed runs (Geometric misses the slope force: test_loop.py): the
+    report before the summary is made, then after the whole workflow."""
+    from test_loop import LOOP
+    from test_loop import RUNS as LOOP_RUNS
+    from test_workflow import _copy_workflow, _snakemake
+
+    work = _copy_workflow(tmp_path_factory.mktemp("reported"), LOOP_RUNS, yaml.safe_dump(LOOP, sort_keys=False))
+    early = _snakemake(work, "results/geometric/diagnosis.tsv", "results/ledger.tsv")
+    assert early.returncode == 0, early.stdout[-3000:] + early.stderr[-3000:]
+    runs = {}
+    for name in ("early", "final"):
+        if name == "final":
+            done = _snakemake(work)
+            assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+        command = subprocess.run([sys.executable, "-m", "snakemake", "--report", f"{name}.html"], cwd=work,
+                                 capture_output=True, text=True, check=False)
+        assert command.returncode == 0, command.stdout[-3000:] + command.stderr[-3000:]
+        runs[name] = (work / f"{name}.html").read_text()
+    return work, runs
+
+
+def _embedded(html: str, name: str):
+    """A JSON value the report's page defines as ``var name = ...;``."""
+    return json.loads(re.search(rf"var {name} = (.*);\n", html).group(1))
+
+
+def test_report_opens_on_the_ledger_the_recommendation_and_the_failing_runs(reported):
+    work, pages = reported
+    html = pages["final"]
+    first, results = _embedded(html, "workflow_desc"), _embedded(html, "results")
+    text = htmllib.unescape(re.sub(r"<[^>]+>", "", first))
+    assert "System Message" not in first  # docutils reports its problems inside the page
+    ledger = pd.read_csv(work / "results" / "ledger.tsv", sep="\t").set_index("variant")
+    diagnosis = yaml.safe_load((work / "results" / "geometric" / "diagnosis.yaml").read_text())
+    assert f"chi^2/dof {ledger.loc['geometric', 'chi2_dof']:.3g}" in text
+    assert re.sub(r"\s+", " ", diagnosis["conclusion"]) in re.sub(r"\s+", " ", text)
+    assert diagnosis["recommended_variant"]["name"] in text
+    # every link of the first page opens a file of the report; the worst run's figure among them
+    links = _links(first)
+    assert links and set(links) <= set(results), sorted(set(links) - set(results))
+    errors = pd.read_csv(work / "results" / "geometric" / "report" / "errors.tsv", sep="\t")
+    worst = errors.loc[errors["chi2_dof"].idxmax(), "run"]
+    assert f"results/geometric/report/runs/{worst}.png" in links
+    assert {"results/summary.png", "results/summary.tsv"} <= set(results)
+
+
+def test_report_made_before_the_end_says_so_instead_of_failing(reported):
+    _, pages = reported
+    first = _embedded(pages["early"], "workflow_desc")
+    assert "is not there yet" in first and "System Message" not in first
+    assert "results/summary.png" not in _embedded(pages["early"], "results")

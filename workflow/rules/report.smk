@@ -149,3 +149,29 @@ rule ledger:
         "../envs/hybridtwin.yaml"
     script:
         "../../scripts/ledger.py"
+
+
+rule report_summary:
+    """The report's first page, the answer first: the ledger, each diagnosis's recommendation and where each variant
+    fails, linked to the per-run figures (results/summary.rst, included by workflow/report/workflow.rst)."""
+    input:
+        ledger="results/ledger.tsv",
+        errors=expand("results/{variant}/report/errors.tsv", variant=VARIANTS),
+        validation_errors=expand("results/{variant}/report/validation_errors.tsv", variant=VARIANTS),
+        diagnoses=expand("results/{variant}/diagnosis.yaml", variant=VARIANTS),
+        figures=expand("results/{variant}/report/runs", variant=VARIANTS),  # what the page links to
+    output:
+        table=report("results/summary.tsv", caption="../report/summary_table.rst", category="Summary"),
+        plot=report("results/summary.png", caption="../report/summary_plot.rst", category="Summary"),
+        page="results/summary.rst",
+    params:
+        variants=VARIANTS,
+        specs={name: {"effects": list(spec.get("effects", []))} for name, spec in config["variants"].items()},
+    log:
+        "logs/report_summary.log",
+    benchmark:
+        "results/benchmarks/report_summary.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
+    script:
+        "../../scripts/report_summary.py"

@@ -1,0 +1,28 @@
+"""Rule report_summary: the report's first page, the answer first (results/summary.{tsv,png,rst}; thin wrapper)."""
+
+import pandas as pd
+import yaml
+
+from hybridtwin import config as cfg
+from hybridtwin import summary
+
+smk = snakemake  # noqa: F821 (injected by Snakemake)
+log = cfg.rule_logger(smk.log[0], "report_summary")
+ledger = pd.read_csv(smk.input.ledger, sep="\t", dtype={"variant": str})
+errors, diagnoses = {}, {}
+for variant, fit_path, validation_path, diagnosis_path in zip(smk.params.variants, smk.input.errors,
+                                                               smk.input.validation_errors, smk.input.diagnoses):
+    errors[variant] = pd.concat([pd.read_csv(path, sep="\t", dtype={"run": str})
+                                 for path in (fit_path, validation_path)], ignore_index=True)
+    with open(diagnosis_path) as stream:
+        diagnoses[variant] = yaml.safe_load(stream)
+table = summary.summary_table(ledger, errors, diagnoses, smk.params.specs)
+table.to_csv(smk.output.table, sep="\t", index=False, float_format="%.6g")
+figure = summary.plot_summary(ledger, errors)
+png = summary.png_bytes(figure)
+with open(smk.output.plot, "wb") as stream:
+    stream.write(png)
+with open(smk.output.page, "w") as stream:
+    stream.write(summary.landing_rst(table, errors))
+best = summary.best_variant(table)
+log.info("best variant %s (chi^2/dof %.4g); %s", best["variant"], best["chi2_dof"], best["conclusion"])
