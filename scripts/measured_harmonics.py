@@ -1,6 +1,7 @@
 """Rule measured_harmonics: concatenate the per-run preprocessing tables (thin wrapper)."""
 
 import logging
+import sys
 
 import pandas as pd
 
@@ -9,5 +10,8 @@ from hybridtwin.preprocessing import write_tsv
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 logging.basicConfig(filename=smk.log[0], level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s")
 table = pd.concat([pd.read_csv(path, sep="\t", dtype={"run": str}) for path in smk.input.runs], ignore_index=True)
-logging.getLogger("measured_harmonics").info("%d runs, %d usable", len(table), int(table["usable"].sum()))
+usable = table["usable"].astype(bool)
+logging.getLogger("measured_harmonics").info("%d runs, %d usable", len(table), int(usable.sum()))
+for row in table[~usable].itertuples():
+    print(f"measured_harmonics: run {row.run} is kept out of the fit: {row.note}", file=sys.stderr)
 write_tsv(table, smk.output.table)

@@ -1,7 +1,13 @@
-"""Rule preprocess: one run's harmonics table and two-cycle waveforms (thin wrapper)."""
+"""Rule preprocess: one run's harmonics table and two-cycle waveforms (thin wrapper).
+
+A flagged run (usable False: flat, clipped, noise only, backward whirl, spikes) is written with its note and
+said on the console; identify_run / identify_joint / identify_validation then leave it out.
+"""
 
 import logging
+import sys
 
+from hybridtwin.measurements import DataError
 from hybridtwin.preprocessing import preprocess_run, write_tsv
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
@@ -9,10 +15,16 @@ logging.basicConfig(filename=smk.log[0], level=logging.INFO, format="%(asctime)s
 logging.captureWarnings(True)
 log = logging.getLogger("preprocess")
 
-table, waves = preprocess_run(smk.params.row, smk.params.harmonics)
+try:
+    table, waves = preprocess_run(smk.params.row, smk.params.harmonics, smk.params.sensor_range_mm * 1e-3)
+except DataError as err:  # check_data has passed the record: only a record changed since fails here
+    log.error("%s", err)
+    sys.exit(f"preprocess: error: {err}")
 row = table.iloc[0]
 log.info("%s: %.3f RPM (nominal %g), %d revolutions, noise %.4f / %.4f mm, phase %s: %s", row["run"],
          row["rpm_true"], row["rpm"], row["n_revolutions"], 1e3 * row["noise_x_m"], 1e3 * row["noise_y_m"],
          row["phase_reference"], row["note"])
+if not row["usable"]:
+    print(f"preprocess: run {row['run']} is kept out of the fit: {row['note']}", file=sys.stderr)
 write_tsv(table, smk.output.harmonics)
 write_tsv(waves, smk.output.waveforms)

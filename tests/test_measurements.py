@@ -52,7 +52,7 @@ def dataset(tmp_path):
     write_record(tmp_path / "records" / "a.csv")
     write_record(tmp_path / "records" / "b.csv", rpm=700.0, seed=1)
     sheet = write_sheet(tmp_path, "run|rpm|eccentric_mass_g|path|role|operator\n"
-                                  "a|600|14.8|records/a.csv|fit|ann\nb|700||records/b.csv|validate|bob\n")
+                                  "a|600|14.8|records/a.csv|fit|ann\nb|700|7.6|records/b.csv|validate|bob\n")
     return sheet
 
 
@@ -63,12 +63,23 @@ def test_valid_sheet_is_read_with_records_resolved_and_extra_columns_kept(datase
     runs = read_runs(dataset)
     assert runs["run"].tolist() == ["a", "b"]
     assert runs["rpm"].tolist() == [600.0, 700.0]
-    assert runs["eccentric_mass_g"].iloc[0] == 14.8 and np.isnan(runs["eccentric_mass_g"].iloc[1])  # unknown mass
+    assert runs["eccentric_mass_g"].tolist() == [14.8, 7.6]
     assert runs["role"].tolist() == ["fit", "validate"]
     assert runs["operator"].tolist() == ["ann", "bob"]  # extra columns carried through
     assert Path(runs["record"].iloc[0]) == dataset.parent / "records" / "a.csv"  # relative to the sheet's folder
     entry = sheet_entry(dataset, "b")
-    assert entry["eccentric_mass_g"] is None and entry["rpm"] == 700.0
+    assert entry["eccentric_mass_g"] == 7.6 and entry["rpm"] == 700.0
+
+
+def test_unknown_mass_is_nan_for_the_library_but_an_error_for_the_workflow(dataset):
+    dataset.write_text(dataset.read_text().replace("|7.6|".replace("|", "\t"), "\t\t"))
+    assert np.isnan(read_runs(dataset)["eccentric_mass_g"].iloc[1])  # the library reader: unknown
+    with pytest.raises(DataError, match=r"column eccentric_mass_g: missing value \(empty or NaN; the libraries are "
+                                        r"built per speed and eccentric mass: write 0 for no added mass\) on 1 "
+                                        r"line\(s\): line 3"):
+        read_runs(dataset, require_mass=True)  # what check-data and the workflow read
+    with pytest.raises(DataError, match="line 3"):
+        sheet_entry(dataset, "b")
 
 
 def test_sheet_with_misnamed_column(tmp_path):
@@ -117,7 +128,9 @@ def test_speeds_and_masses_outside_the_covered_ranges(dataset):
     assert str(dataset) in message
     assert "line 3, run 'b': speed 700 RPM is outside the covered range [350, 650] RPM" in message
     assert "line 2, run 'a': eccentric mass 14.8 g is outside the covered range [0, 10] g" in message
-    assert "line 3, run 'b': eccentric mass unknown" in message  # unknown mass cannot be shown covered
+    runs.loc[1, "eccentric_mass_g"] = np.nan
+    with pytest.raises(DataError, match="line 3, run 'b': eccentric mass unknown"):  # cannot be shown covered
+        check_coverage(runs, mass_range_g=(0, 10))
 
 
 def test_check_data_cli_exit_status_and_coverage(dataset, capsys):
@@ -173,11 +186,13 @@ def test_record_with_nan_or_empty_cell(tmp_path, cell):
         read_record(path)
 
 
-def test_record_with_blank_line_keeps_line_numbers(tmp_path):
+def test_record_with_blank_lines_skips_them_and_keeps_line_numbers(tmp_path):
     path = write_record(tmp_path / "r.csv")
     lines = path.read_text().splitlines()
-    path.write_text("\n".join(lines[:9] + [""] + lines[9:]) + "\n")  # blank line 10
-    with pytest.raises(DataError, match=r"column time_s: missing value \(empty or NaN\) on 1 line\(s\): line 10"):
+    path.write_text("\n".join(lines[:9] + ["", " , ,"] + lines[9:]) + "\n\n\n")  # blank lines 10, 11 and at the end
+    assert read_record(path).n_samples == 4000  # a blank line carries no sample: nothing is lost
+    edit_line(path, 57, 2, "abc")  # file line 57 is sample 54 (lines 10 and 11 are blank)
+    with pytest.raises(DataError, match=r"column y_mm: not a number on 1 line\(s\): line 57 \('abc'\)"):
         read_record(path)
 
 

@@ -95,13 +95,15 @@ def run_plan(config: Mapping, measured: str | Path | None = None) -> pd.DataFram
     With ``measured`` (the preprocessed table, results/data/harmonics.tsv) each run's
     rpm is the true speed refined from its record (rpm_true) instead of the nominal one.
     """
-    sheet = pd.read_csv(config["runs"], sep="\t", dtype={"run": str})
+    from .measurements import read_runs  # the one reader of runs sheets (check-data's): every problem named
+
+    sheet = read_runs(config["runs"], require_mass=True)
     if measured is not None:
         speeds = pd.read_csv(measured, sep="\t", dtype={"run": str}).set_index("run")["rpm_true"]
         missing = sorted(set(sheet["run"]) - set(speeds.index))
         if missing:
             raise ValueError(f"{measured} has no refined speed for run(s) {missing}")
-        sheet["rpm"] = sheet["run"].map(speeds).to_numpy(float)
+        sheet["rpm"] = sheet["run"].map(speeds).fillna(sheet["rpm"]).to_numpy(float)  # flat: not refined
     unknown_mass = sheet.loc[sheet["eccentric_mass_g"].isna(), "run"].tolist()
     if unknown_mass:
         raise ValueError(f"{config['runs']}: run(s) {unknown_mass} have no eccentric_mass_g; the offline "

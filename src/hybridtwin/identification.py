@@ -781,10 +781,10 @@ DEFAULTS: dict = {
 
 
 def runs_with_role(sheet: str | Path, role: str) -> list[str]:
-    """Runs of a runs sheet with this role (no role column: every run is a fit run)."""
-    table = pd.read_csv(sheet, sep="\t", dtype={"run": str})
-    roles = table["role"].fillna("fit") if "role" in table else pd.Series("fit", index=table.index)
-    return table.loc[roles == role, "run"].tolist()
+    """Runs of a runs sheet with this role (no role column: every run is a fit run), read as check-data reads it."""
+    from .measurements import runs_with_role as read_role  # the one reader of runs sheets
+
+    return read_role(sheet, role)
 
 
 def settings(config: Mapping, variant: str) -> dict:

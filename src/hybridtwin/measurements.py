@@ -1,17 +1,27 @@
-"""Measured runs: read and check the runs sheet and the records (docs/measurement-format.md).
+"""Measured runs: read and check the runs sheet and the records (docs/measurement-format.md, docs/data-checks.md).
 
 A data set is a runs sheet (TSV, one row per run: run, rpm, eccentric_mass_g,
-path, role; extra columns carried through) and one record (CSV) per run:
-time_s, x_mm, y_mm (or x_m, y_m) and an optional keyphasor column.
+path, role; optional sensor_range_mm, sensor_resolution_mm; extra columns
+carried through) and one record (CSV) per run: time_s, x_mm, y_mm (or x_m,
+y_m) and an optional keyphasor column.
 
-Every check names the file, the line (the header is line 1, the first data row
-line 2) or the column, and the problem. Problems that make a file unusable
-raise ``DataError`` (all problems of a file at once, not just the first).
-Problems that leave a run readable but suspicious (a flat channel, a clipped
-channel: the laser micrometer saturates and writes flat tops at a constant
-value) are returned as ``Saturation`` findings and also emitted as a
-``DataWarning``, so the caller flags or excludes the run and says so; nothing
-is dropped silently.
+Both files go through one text reader (``read_text_table``), so every reader of
+a sheet (``hybridtwin check-data``, the workflow at parse time, every script)
+treats a file the same way: UTF-8 with or without a byte-order mark (UTF-16
+with a BOM too), CRLF or LF line ends, blank lines (also at the end) skipped
+with line numbers kept, cells and headers stripped of white space and of one
+pair of enclosing double quotes, known column names matched case-insensitively.
+Everything else that is ambiguous is an error, never a guess: a file that is
+not text or not UTF-8, the wrong separator, a line with more or fewer cells
+than the header, a decimal comma, a unit inside a number, a duplicated column.
+
+Every check names the file, the line (the header is line 1) and the column,
+and the problem. Problems that make a file unusable raise ``DataError`` (all
+problems of a file at once, not just the first). Problems that leave a run
+readable but not fit for a fit (a flat or clipped channel, see also
+``hybridtwin.plausibility``) are returned as findings and also emitted as a
+``DataWarning``, so the caller flags the run and says so; nothing is dropped
+silently.
 
 Inside, everything is SI: ``read_record`` converts millimetres to metres.
 """
@@ -32,11 +42,20 @@ Array = np.ndarray
 
 SHEET_COLUMNS = ("run", "rpm", "eccentric_mass_g", "path", "role")
 REQUIRED_SHEET_COLUMNS = ("run", "rpm", "eccentric_mass_g", "path")  # role defaults to "fit"
+#: optional per-run facts of the displacement sensor (empty cell: the configured or built-in default)
+SENSOR_COLUMNS = ("sensor_range_mm", "sensor_resolution_mm")
 ROLES = ("fit", "validate")
 RUN_ID = re.compile(r"^[A-Za-z0-9_-]+$")
 UNITS = {"mm": 1e-3, "m": 1.0}  # displacement column suffix -> metres per unit
 _CHANNEL = re.compile(r"^([xy])_(.+)$")
+RECORD_COLUMNS = ("time_s", "keyphasor")
 
+#: the paper's lasers: +-14 mm measuring range (sensor_range_mm) ...
+SENSOR_RANGE_MM = 14.0
+#: ... and the smallest displacement step they resolve (sensor_resolution_mm)
+SENSOR_RESOLUTION_MM = 1e-3
+#: an eccentric mass below this [g] (but above 0) looks like kilograms written in the grams column
+KG_LOOKING_MASS_G = 0.1
 #: fewest whole revolutions a record must hold (at its nominal speed) to be analysed
 MIN_REVOLUTIONS = 5
 #: a time step deviating from the median step by more than this fraction is "non-uniform"
@@ -45,9 +64,14 @@ UNIFORM_TOLERANCE = 0.01
 GAP_FACTOR = 1.5
 #: saturation: at least this many consecutive samples at a channel's extreme value form a flat top
 FLAT_TOP_SAMPLES = 3
-#: ... and at least this many samples sit at that extreme value in all
+#: ... and at least this many samples sit at that extreme value (or on the sensor's rail) in all
 SATURATED_SAMPLES = 5
+#: the rail: samples within max(RAIL_RESOLUTIONS resolutions, RAIL_FRACTION of the range) of +-range
+RAIL_RESOLUTIONS = 10.0
+RAIL_FRACTION = 0.002
 _MAX_LISTED = 8  # problems listed per category before "... and N more"
+_MISSING_WORDS = ("nan", "na", "n/a", "null", "none")
+_NUMBER_WITH_UNIT = r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?\s*[A-Za-z%]+"
 
 
 class DataError(ValueError):
@@ -55,7 +79,32 @@ class DataError(ValueError):
 
 
 class DataWarning(UserWarning):
-    """A run that is kept but flagged (flat or clipped signal); the message says what and why."""
+    """A run that is kept but flagged (not used in a fit); the message says what and why."""
+
+
+@dataclass(frozen=True)
+class Sensor:
+    """What the displacement sensor can report: +-range_m and the smallest step resolution_m [m]."""
+
+    range_m: float = SENSOR_RANGE_MM * 1e-3
+    resolution_m: float = SENSOR_RESOLUTION_MM * 1e-3
+
+    @property
+    def rail_band_m(self) -> float:
+        """Samples within this of +-range are on the rail (saturated), beyond range + band impossible."""
+        return max(RAIL_RESOLUTIONS * self.resolution_m, RAIL_FRACTION * self.range_m)
+
+    @classmethod
+    def for_run(cls, row, range_m: float | None = None, resolution_m: float | None = None) -> Sensor:
+        """The sensor of one runs-sheet row: its sensor_* cells, else the given defaults, else the built-in."""
+        def value(column: str, default: float | None, builtin: float) -> float:
+            cell = row.get(column) if hasattr(row, "get") else None
+            if cell is not None and not pd.isna(cell):
+                return float(cell) * 1e-3
+            return float(default) if default is not None else builtin
+
+        return cls(value("sensor_range_mm", range_m, cls.range_m),
+                   value("sensor_resolution_mm", resolution_m, cls.resolution_m))
 
 
 @dataclass(frozen=True)
@@ -63,7 +112,9 @@ class Record:
     """One run's record in SI units.
 
     time_s, x_m, y_m: (N,) arrays; keyphasor: (N,) bool or None when the file
-    has no keyphasor column; unit: the displacement unit of the file ("mm" or "m").
+    has no keyphasor column; unit: the displacement unit of the file ("mm",
+    "m", or "mm/m" when x and y differ); lines: (N,) the file line of each
+    sample (None for a record made in memory: line = index + 2).
     """
 
     path: Path
@@ -72,6 +123,7 @@ class Record:
     y_m: Array
     keyphasor: Array | None
     unit: str
+    lines: Array | None = None
 
     @property
     def n_samples(self) -> int:
@@ -95,13 +147,24 @@ class Record:
         """The displacement channel "x" or "y" [m]."""
         return {"x": self.x_m, "y": self.y_m}[name]
 
+    def channel_unit(self, name: str) -> str:
+        """The unit of channel "x" or "y" in the file ("mm" or "m")."""
+        units = self.unit.split("/")
+        return units[0] if len(units) == 1 or name == "x" else units[1]
+
+    def line(self, index) -> Array:
+        """File line number(s) of sample index(es)."""
+        index = np.asarray(index)
+        return self.lines[index] if self.lines is not None else index + 2
+
 
 @dataclass(frozen=True)
 class Saturation:
     """A flat or clipped channel of a record.
 
-    kind: "flat" (the whole channel is constant: no signal) or "clipped" (flat
-    tops at the channel's extreme value: the sensor saturated there).
+    kind: "flat" (the whole channel is constant, within the sensor's resolution:
+    no signal) or "clipped" (flat tops at the channel's extreme value, or
+    samples on the sensor's rail: the sensor saturated there).
     level_m: the constant / clipping value; n_samples: samples at that value;
     n_flat_tops: separate runs of >= FLAT_TOP_SAMPLES consecutive samples there.
     """
@@ -117,93 +180,231 @@ class Saturation:
     def describe(self) -> str:
         if self.kind == "flat":
             return (f"{self.path}: channel {self.channel} is flat (constant {self.level_m * 1e3:.4f} mm over all "
-                    f"{self.total_samples} samples): no signal, the sensor is dead or disconnected")
+                    f"{self.total_samples} samples): no signal, the sensor is dead or disconnected; the run is "
+                    "kept out of the fit")
         share = 100.0 * self.n_samples / self.total_samples
         return (f"{self.path}: channel {self.channel} is clipped at {self.level_m * 1e3:+.4f} mm: {self.n_samples} "
                 f"samples ({share:.1f} %) in {self.n_flat_tops} flat top(s); the sensor saturated, so the "
-                "harmonics of this run are biased")
+                "harmonics of this run are biased; the run is kept out of the fit")
+
+    @property
+    def short(self) -> str:
+        if self.kind == "flat":
+            return f"{self.channel} flat"
+        return f"{self.channel} clipped at {self.level_m * 1e3:+.3f} mm ({self.n_samples} samples)"
+
+
+# --- one text reader for sheets and records ----------------------------------------------
+
+
+def read_text_table(path: str | Path, sep: str, known: Sequence[str] | None = None) -> tuple[pd.DataFrame, Array]:
+    """A delimited text file as (cells as stripped strings, file line number of each row).
+
+    The conventions of the module docstring: encoding, line ends, blank lines,
+    white space, quotes; header names in ``known`` (None: all) matched
+    case-insensitively and returned in lower case. Raises ``DataError`` for a
+    missing, empty, binary or non-UTF-8 file, the wrong separator, duplicated
+    or unnamed columns and lines whose number of cells differs from the header's.
+    """
+    path = Path(path)
+    kind = "TSV (tab-separated)" if sep == "\t" else "CSV (comma-separated)"
+    if path.is_dir():
+        raise DataError(f"{path}: is a folder, not a file")
+    if not path.is_file():
+        raise DataError(f"{path}: file does not exist")
+    lines = _decode(path, path.read_bytes()).replace("\r\n", "\n").replace("\r", "\n").split("\n")
+    rows = [(n, [_clean(c) for c in text.split(sep)]) for n, text in enumerate(lines, start=1)]
+    rows = [(n, cells) for n, cells in rows if any(cells)]  # blank lines (also "\t\t", ",,") carry nothing
+    if not rows:
+        raise DataError(f"{path}: file is empty (no header row)")
+    (header_line, header), body = rows[0], rows[1:]
+    if len(header) == 1:
+        used = next((name for s, name in ((",", "commas"), (";", "semicolons"), ("\t", "tabs"), ("|", "bars"))
+                     if s != sep and s in lines[header_line - 1]), "spaces" if " " in header[0] else None)
+        found = f"its columns are separated by {used}" if used else "it has a single column"
+        raise DataError(f"{path}: line {header_line} (header): not {kind}: {found}; save it as {kind}")
+    lowered = {c.lower() for c in known} if known is not None else None
+    header = [h.lower() if lowered is None or h.lower() in lowered else h for h in header]
+    problems = []
+    for name in sorted({h for h in header if h and header.count(h) > 1}):
+        where = [i + 1 for i, h in enumerate(header) if h == name]
+        problems.append(f"line {header_line} (header): column {name!r} appears {len(where)} times "
+                        f"(columns {', '.join(map(str, where))})")
+    wrong = [(n, len(cells)) for n, cells in body
+             if len(cells) < len(header) or (len(cells) > len(header) and any(cells[len(header):]))]
+    if wrong:
+        hint = "a decimal comma? use a point: 0.25" if sep == "," else "a missing tab, or spaces instead of a tab?"
+        problems += _listed(f"not {len(header)} cells as in the header ({hint})", [n for n, _ in wrong],
+                            [f"{k} cells" for _, k in wrong])
+    cells = [c[:len(header)] for _, c in body]
+    for i, name in enumerate(header):
+        if not name and any(row[i] for row in cells if len(row) > i):
+            problems.append(f"line {header_line} (header): column {i + 1} has no name but holds values")
+    if problems:
+        raise DataError(_format(path, problems))
+    keep = [i for i, name in enumerate(header) if name]  # an unnamed, empty column: trailing separators
+    table = pd.DataFrame([[row[i] for i in keep] for row in cells], columns=[header[i] for i in keep], dtype=str)
+    return table, np.array([n for n, _ in body], dtype=int)
+
+
+def _decode(path: Path, raw: bytes) -> str:
+    if raw.startswith((b"\xff\xfe", b"\xfe\xff")):
+        try:
+            return raw.decode("utf-16")
+        except UnicodeDecodeError:
+            raise DataError(f"{path}: starts as UTF-16 text but does not decode as UTF-16; save it as UTF-8") from None
+    if raw.startswith(b"\xef\xbb\xbf"):
+        raw = raw[3:]  # the UTF-8 byte-order mark some spreadsheets write
+    if raw.startswith(b"PK\x03\x04"):
+        raise DataError(f"{path}: is a zip archive (an Excel or OpenDocument workbook?), not a text file; export it "
+                        "as text (tab-separated for a runs sheet, comma-separated for a record)")
+    if b"\x00" in raw:
+        line = raw[:raw.index(b"\x00")].count(b"\n") + 1
+        raise DataError(f"{path}: line {line}: binary content (NUL bytes), not a text file")
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as err:
+        line = raw[:err.start].count(b"\n") + 1
+        raise DataError(f"{path}: line {line}: byte 0x{raw[err.start]:02x} is not UTF-8 text (Latin-1 or "
+                        "Windows-1252?); save the file as UTF-8") from None
+
+
+def _clean(cell: str) -> str:
+    cell = cell.strip()
+    if len(cell) >= 2 and cell[0] == cell[-1] == '"':
+        cell = cell[1:-1].strip()
+    return cell
 
 
 # --- the runs sheet ---------------------------------------------------------------------
 
 
-def read_runs(path: str | Path, check_files: bool = True, require_path: bool = True) -> pd.DataFrame:
-    """Read and validate a runs sheet (docs/measurement-format.md, "The runs sheet").
+def read_runs(path: str | Path, check_files: bool = True, require_path: bool = True,
+              require_mass: bool = False) -> pd.DataFrame:
+    """Read and validate a runs sheet (docs/measurement-format.md, "The runs sheet"; docs/data-checks.md).
 
     Returns the sheet with ``rpm`` and ``eccentric_mass_g`` as floats (NaN where
-    the mass is unknown), ``role`` filled with "fit" where empty or absent, and
-    an added column ``record`` with each record's path resolved against the
-    sheet's folder. Extra columns are kept. Raises ``DataError`` listing every
-    problem: missing columns, bad or duplicate run ids, non-numeric or
-    out-of-range speeds and masses, unknown roles, empty paths and (with
-    ``check_files``) records that do not exist. With ``require_path`` False the
+    the mass is unknown), ``role`` lower-case and "fit" where empty or absent,
+    the sensor_* columns (if any) as floats, and an added column ``record``
+    with each record's path resolved against the sheet's folder. Extra columns
+    are kept. ``attrs["lines"]`` holds each row's line in the file.
+
+    Raises ``DataError`` listing every problem: missing or duplicated columns,
+    bad or duplicate run ids (also differing only in case), non-numeric,
+    non-finite or out-of-range speeds and masses (negative, or a mass that
+    looks like kilograms), unknown roles, bad sensor facts, empty or shared
+    record paths and (with ``check_files``) records that do not exist. With
+    ``require_mass`` an empty mass is an error (the workflow and check-data: the
+    libraries are built per speed and mass). With ``require_path`` False the
     sheet may be a bare run plan without a path column (the virtual rig's input).
     """
     path = Path(path)
-    table = _read_text_table(path, sep="\t")
+    table, line = read_text_table(path, "\t", SHEET_COLUMNS + SENSOR_COLUMNS)
     required = REQUIRED_SHEET_COLUMNS if require_path else REQUIRED_SHEET_COLUMNS[:3]
-    _require_columns(path, table.columns, required, SHEET_COLUMNS,
+    _require_columns(path, table.columns, required, SHEET_COLUMNS + SENSOR_COLUMNS,
                      "a runs sheet needs the columns run, rpm, eccentric_mass_g, path (and optionally role)")
     if "path" not in table:
         table["path"] = ""
     if table.empty:
         raise DataError(f"{path}: the runs sheet has no runs (only a header)")
     problems: list[str] = []
-    line = np.arange(len(table)) + 2
-    runs = table["run"].str.strip()
-    bad_id = ~runs.str.fullmatch(RUN_ID.pattern)
-    problems += [f"line {n}, column run: {v!r} is not a valid run id (letters, digits, '-', '_')"
-                 for n, v in zip(line[bad_id], table["run"][bad_id])]
-    for run_id, lines in _duplicates(runs, line):
+    runs = table["run"]
+    problems += _listed("column run: empty (every run needs an id)", line[(runs == "").to_numpy()],
+                        ["''"] * int((runs == "").sum()))
+    bad_id = ~runs.str.fullmatch(RUN_ID.pattern) & (runs != "")
+    problems += [f"line {n}, column run: {v!r} is not a valid run id (letters, digits, '-', '_' only: it becomes "
+                 "a file name)" for n, v in zip(line[bad_id], runs[bad_id])]
+    for run_id, lines in _duplicates(runs[runs != ""], line[(runs != "").to_numpy()]):
         problems.append(f"lines {', '.join(map(str, lines))}, column run: duplicate run id {run_id!r}")
-    rpm, rpm_problems = _numeric_column(table["rpm"], "rpm", line, allow_empty=False)
-    problems += rpm_problems
+    for key, lines in _duplicates(runs[runs != ""].str.lower(), line[(runs != "").to_numpy()]):
+        ids = sorted({runs.iloc[i] for i in np.flatnonzero(runs.str.lower() == key)})
+        if len(ids) > 1:
+            problems.append(f"lines {', '.join(map(str, lines))}, column run: run ids {ids} differ only in case "
+                            "(their files clash on case-insensitive file systems)")
+    rpm, found = _numeric_column(table["rpm"], "rpm", line, allow_empty=False)
+    problems += found
     problems += [f"line {n}, column rpm: {v:g} is not a positive speed" for n, v in zip(line, rpm) if v <= 0]
-    mass, mass_problems = _numeric_column(table["eccentric_mass_g"], "eccentric_mass_g", line, allow_empty=True)
-    problems += mass_problems
+    mass, found = _numeric_column(table["eccentric_mass_g"], "eccentric_mass_g", line, allow_empty=not require_mass,
+                                  empty_hint="the libraries are built per speed and eccentric mass: write 0 "
+                                             "for no added mass")
+    problems += found
     problems += [f"line {n}, column eccentric_mass_g: {v:g} g is negative" for n, v in zip(line, mass) if v < 0]
-    role = table["role"].str.strip() if "role" in table else pd.Series("", index=table.index)
+    problems += [f"line {n}, column eccentric_mass_g: {v:g} g looks like kilograms ({v * 1e3:g} g?); the column "
+                 "is in grams" for n, v in zip(line, mass) if 0 < v < KG_LOOKING_MASS_G]
+    role = table["role"].str.lower() if "role" in table else pd.Series("", index=table.index)
     role = role.where(role != "", "fit")
     bad_role = ~role.isin(ROLES)
-    problems += [f"line {n}, column role: {v!r} is not a role (use {' or '.join(ROLES)})"
-                 for n, v in zip(line[bad_role], role[bad_role])]
-    rel = table["path"].str.strip()
+    for n, v in zip(line[bad_role], table["role"][bad_role] if "role" in table else []):
+        close = difflib.get_close_matches(v.lower(), ROLES, n=1, cutoff=0.5)
+        hint = f" (did you mean {close[0]!r}?)" if close else ""
+        problems.append(f"line {n}, column role: {v!r} is not a role: use {' or '.join(ROLES)}{hint}")
+    sensors = {}
+    for column in SENSOR_COLUMNS:
+        if column in table:
+            sensors[column], found = _numeric_column(table[column], column, line, allow_empty=True)
+            problems += found + [f"line {n}, column {column}: {v:g} mm is not positive"
+                                 for n, v in zip(line, sensors[column]) if v <= 0]
+    rel = table["path"]
     if require_path:
         problems += [f"line {n}, column path: empty (the record of run {r!r} is not given)"
                      for n, r, p in zip(line, runs, rel) if not p]
+        for shared, lines in _duplicates(rel[rel != ""], line[(rel != "").to_numpy()]):
+            problems.append(f"lines {', '.join(map(str, lines))}, column path: runs "
+                            f"{runs[rel == shared].tolist()} share the record {shared!r}")
     record = [path.parent / p if p else None for p in rel]
     if check_files:
-        problems += [f"line {n}, column path: record {p!r} of run {r!r} does not exist (looked for {f})"
-                     for n, r, p, f in zip(line, runs, rel, record) if p and not f.is_file()]
+        for n, r, p, f in zip(line, runs, rel, record):
+            if p and f.is_dir():
+                problems.append(f"line {n}, column path: {p!r} of run {r!r} is a folder, not a record ({f})")
+            elif p and not f.is_file():
+                problems.append(f"line {n}, column path: record {p!r} of run {r!r} does not exist (looked for {f})")
     if problems:
         raise DataError(_format(path, problems))
     out = table.copy()
     out["run"], out["rpm"], out["eccentric_mass_g"], out["path"], out["role"] = runs, rpm, mass, rel, role
+    for column, values in sensors.items():
+        out[column] = values
     out["record"] = [str(f) if f is not None else "" for f in record]
+    out.attrs.update(lines=line.tolist(), source=str(path))
     return out
 
 
 def sheet_entry(sheet: str | Path, run: str) -> dict:
-    """One run's row of a runs sheet as a plain dict (``record`` resolved, NaN -> None), or ``DataError``."""
-    runs = read_runs(sheet)
+    """One run's row of a runs sheet (read as the workflow does) as a plain dict (``record`` resolved,
+    NaN -> None), or ``DataError``."""
+    runs = read_runs(sheet, require_mass=True)
     rows = runs[runs["run"] == run]
     if rows.empty:
         raise DataError(f"{sheet}: no run {run!r} (runs: {', '.join(runs['run'])})")
     return {k: (None if pd.isna(v) else (v.item() if hasattr(v, "item") else v)) for k, v in rows.iloc[0].items()}
 
 
+def runs_with_role(sheet: str | Path, role: str) -> list[str]:
+    """Runs of a runs sheet with this role, read as check-data reads it (no role column: every run fits)."""
+    runs = read_runs(sheet, require_mass=True)
+    return runs.loc[runs["role"] == role, "run"].tolist()
+
+
 def check_coverage(runs: pd.DataFrame, rpm_range: Sequence[float] | None = None,
-                   mass_range_g: Sequence[float] | None = None, source: str | Path = "runs sheet") -> None:
+                   mass_range_g: Sequence[float] | None = None, source: str | Path = "runs sheet",
+                   range_names: tuple[str, str] = ("rpm range", "eccentric mass range")) -> None:
     """Raise ``DataError`` for runs whose speed or eccentric mass lies outside the covered ranges.
 
     rpm_range, mass_range_g: [low, high] that the configured model libraries
-    cover (inclusive); None skips that check. A run with an unknown mass (NaN)
-    is reported too when a mass range is given: it cannot be shown to be covered.
+    cover (inclusive); None skips that check. A range given high first is an
+    error of the setting (named by ``range_names``), not of the data. A run with
+    an unknown mass (NaN) is reported too when a mass range is given: it cannot
+    be shown to be covered.
     """
+    checks = (("rpm", rpm_range, "RPM", "speed", range_names[0]),
+              ("eccentric_mass_g", mass_range_g, "g", "eccentric mass", range_names[1]))
+    for _, bounds, unit, _, name in checks:
+        if bounds is not None and (len(bounds) != 2 or not float(bounds[0]) <= float(bounds[1])):
+            raise DataError(f"{name}: {list(bounds)} {unit} is not [low, high] with low <= high (a setting, not "
+                            "the data: swap the two values)")
     problems = []
-    line = np.arange(len(runs)) + 2
-    checks = (("rpm", rpm_range, "RPM", "speed"), ("eccentric_mass_g", mass_range_g, "g", "eccentric mass"))
-    for column, bounds, unit, what in checks:
+    line = runs.attrs.get("lines", list(np.arange(len(runs)) + 2))
+    for column, bounds, unit, what, _ in checks:
         if bounds is None:
             continue
         lo, hi = (float(b) for b in bounds)
@@ -224,17 +425,18 @@ def check_coverage(runs: pd.DataFrame, rpm_range: Sequence[float] | None = None,
 def read_record(path: str | Path) -> Record:
     """Read and validate one record (docs/measurement-format.md, "A record").
 
-    Checks: the file exists and parses; a time_s column and one x and one y
-    displacement column with a known unit (x_mm/y_mm or x_m/y_m); every cell
-    numeric and present (no NaN, no empty cell); time strictly increasing and
-    uniform (no gaps: a step > 1.5 median steps; no jitter beyond 1 %); a
-    keyphasor column, if any, holding only 0 and 1 with at least one mark.
-    Raises ``DataError`` naming the file, lines and columns.
+    Checks: the file exists and parses (``read_text_table``); a time_s column
+    and one x and one y displacement column with a known unit (x_mm/y_mm or
+    x_m/y_m); every cell numeric and present (no NaN, no empty cell, no decimal
+    comma); time strictly increasing and uniform (no gaps: a step > 1.5 median
+    steps; no jitter beyond 1 %); a keyphasor column, if any, holding only 0
+    and 1 with at least one mark. Raises ``DataError`` naming the file, lines
+    and columns. Plausibility of the values (units, range, speed) is
+    ``hybridtwin.plausibility``'s.
     """
     path = Path(path)
-    table = _read_text_table(path, sep=",")
+    table, line = read_text_table(path, ",")
     time_col, x_col, y_col, unit = _record_columns(path, table.columns)
-    line = np.arange(len(table)) + 2
     if len(table) < 3:
         raise DataError(f"{path}: only {len(table)} sample(s); a record needs many revolutions of samples")
     problems: list[str] = []
@@ -253,7 +455,7 @@ def read_record(path: str | Path) -> Record:
     if problems:
         raise DataError(_format(path, problems))
     scale_x, scale_y = UNITS[_CHANNEL.match(x_col).group(2)], UNITS[_CHANNEL.match(y_col).group(2)]
-    return Record(path, time_s, values[x_col] * scale_x, values[y_col] * scale_y, keyphasor, unit)
+    return Record(path, time_s, values[x_col] * scale_x, values[y_col] * scale_y, keyphasor, unit, line)
 
 
 def check_length(record: Record, rpm: float, min_revolutions: float = MIN_REVOLUTIONS) -> None:
@@ -279,49 +481,47 @@ def check_sampling(record: Record, rpm: float, harmonics: int) -> None:
             f"revolution at {rpm:g} RPM, too few to resolve {harmonics}X (need > {2 * harmonics + 1})")
 
 
-def detect_saturation(record: Record, sensor_range_m: float | None = None) -> list[Saturation]:
+def detect_saturation(record: Record, sensor_range_m: float | None = None,
+                      resolution_m: float | None = None) -> list[Saturation]:
     """Flat and clipped channels of a record, each also emitted as a ``DataWarning``.
 
-    Flat: the whole channel is one constant value. Clipped (flat tops): at
-    either extreme of a channel, at least SATURATED_SAMPLES samples equal to
-    that extreme (within 1e-7 of the channel's range) including at least one
-    run of FLAT_TOP_SAMPLES consecutive ones; noise makes an unsaturated peak
-    practically never repeat its exact value. With ``sensor_range_m`` any sample
-    at or beyond +-range also counts as clipped.
+    Flat: the whole channel spans no more than the sensor's resolution (exactly
+    constant when no resolution is given). Clipped, at either extreme of a
+    channel: at least SATURATED_SAMPLES samples equal to that extreme (within
+    1e-7 of the channel's span) including at least one run of FLAT_TOP_SAMPLES
+    consecutive ones (noise makes an unsaturated peak practically never repeat
+    its exact value); or, with ``sensor_range_m``, at least SATURATED_SAMPLES
+    samples on the rail, within ``Sensor.rail_band_m`` of +-range: a saturated
+    laser whose output still carries a little noise.
     """
+    sensor = Sensor(sensor_range_m or SENSOR_RANGE_MM * 1e-3, resolution_m or 0.0)
     found = []
     for name in ("x", "y"):
         values = record.channel(name)
         spread = float(np.ptp(values))
-        if spread <= 1e-12 * max(1.0, float(np.abs(values).max())):
-            found.append(Saturation(record.path, name, "flat", float(values[0]), values.size, 1, values.size))
+        if spread <= max(1e-12 * max(1.0, float(np.abs(values).max())), resolution_m or 0.0):
+            found.append(Saturation(record.path, name, "flat", float(np.median(values)), values.size, 1,
+                                    values.size))
             continue
         tol = 1e-7 * spread
-        for extreme in (float(values.max()), float(values.min())):
+        for sign, extreme in ((1.0, float(values.max())), (-1.0, float(values.min()))):
             at = np.abs(values - extreme) <= tol
-            beyond = sensor_range_m is not None and abs(extreme) >= sensor_range_m - tol
             tops = _flat_tops(at)
-            if beyond or (at.sum() >= SATURATED_SAMPLES and tops > 0):
+            if at.sum() >= SATURATED_SAMPLES and tops > 0:
                 found.append(Saturation(record.path, name, "clipped", extreme, int(at.sum()), tops, values.size))
+                continue
+            if sensor_range_m is None:
+                continue
+            rail = sign * values >= sensor.range_m - sensor.rail_band_m
+            if rail.sum() >= SATURATED_SAMPLES or (rail.any() and abs(extreme) >= sensor.range_m):
+                found.append(Saturation(record.path, name, "clipped", float(np.median(values[rail])),
+                                        int(rail.sum()), _flat_tops(rail), values.size))
     for item in found:
         warnings.warn(item.describe(), DataWarning, stacklevel=2)
     return found
 
 
 # --- helpers ----------------------------------------------------------------------------
-
-
-def _read_text_table(path: Path, sep: str) -> pd.DataFrame:
-    """All cells as stripped strings ('' where empty), blank lines kept so line numbers hold."""
-    if not path.is_file():
-        raise DataError(f"{path}: file does not exist")
-    try:
-        table = pd.read_csv(path, sep=sep, dtype=str, keep_default_na=False, skip_blank_lines=False)
-    except pd.errors.EmptyDataError:
-        raise DataError(f"{path}: file is empty (no header row)") from None
-    except (pd.errors.ParserError, UnicodeDecodeError) as err:
-        raise DataError(f"{path}: cannot be parsed as {'TSV' if sep == chr(9) else 'CSV'}: {err}") from None
-    return table.fillna("")
 
 
 def _require_columns(path: Path, have: Sequence[str], required: Sequence[str], known: Sequence[str],
@@ -331,18 +531,14 @@ def _require_columns(path: Path, have: Sequence[str], required: Sequence[str], k
         hints = []
         for column in missing:
             close = difflib.get_close_matches(column, [h for h in have if h not in known], n=1, cutoff=0.5)
-            close = close or [h for h in have if h.strip().lower() == column]
-            if close:
-                hints.append(f"{column!r} (found {close[0]!r}: misnamed?)")
-            else:
-                hints.append(repr(column))
+            hints.append(f"{column!r} (found {close[0]!r}: misnamed?)" if close else repr(column))
         raise DataError(f"{path}: line 1 (header): missing column(s) {', '.join(hints)}; {what}; "
                         f"the header has {list(have)}")
 
 
 def _record_columns(path: Path, columns: Sequence[str]) -> tuple[str, str, str, str]:
     """(time column, x column, y column, unit) of a record header, or DataError."""
-    _require_columns(path, columns, ("time_s",), ("time_s", "keyphasor"),
+    _require_columns(path, columns, ("time_s",), RECORD_COLUMNS,
                      "a record needs time_s, x_mm and y_mm (or x_m and y_m), optionally keyphasor")
     problems, chosen = [], {}
     for axis in ("x", "y"):
@@ -356,11 +552,11 @@ def _record_columns(path: Path, columns: Sequence[str]) -> tuple[str, str, str, 
             problems.append(f"columns {[c for c, _ in known]}: more than one {axis} displacement column")
         elif not known:
             close = difflib.get_close_matches(f"{axis}_mm", list(columns), n=1, cutoff=0.5)
-            hint = f" (found {close[0]!r}: misnamed?)" if close and close[0] not in ("time_s", "keyphasor") else ""
+            hint = f" (found {close[0]!r}: misnamed?)" if close and close[0] not in RECORD_COLUMNS else ""
             problems.append(f"missing column {axis}_mm (or {axis}_m){hint}")
         else:
             chosen[axis] = known[0]
-    extra = [c for c in columns if c not in ("time_s", "keyphasor") and not _CHANNEL.match(c)]
+    extra = [c for c in columns if c not in RECORD_COLUMNS and not _CHANNEL.match(c)]
     if extra:
         problems.append(f"unexpected column(s) {extra} (a record has time_s, x_mm, y_mm or x_m, y_m, keyphasor)")
     if problems:
@@ -369,27 +565,34 @@ def _record_columns(path: Path, columns: Sequence[str]) -> tuple[str, str, str, 
     return "time_s", x_col, y_col, x_unit if x_unit == y_unit else f"{x_unit}/{y_unit}"
 
 
-def _numeric_column(cells: pd.Series, column: str, line: Array, allow_empty: bool) -> tuple[Array, list[str]]:
-    """Parse a column of strings as floats; problems name line and column."""
-    text = cells.str.strip()
+def _numeric_column(cells: pd.Series, column: str, line: Array, allow_empty: bool,
+                    empty_hint: str = "") -> tuple[Array, list[str]]:
+    """Parse a column of stripped strings as floats; problems name line and column."""
+    text = cells.astype(str)
     values = pd.to_numeric(text, errors="coerce").to_numpy(float)
     empty = (text == "").to_numpy()
-    missing_word = text.str.lower().isin(("nan", "na", "n/a", "null", "none")).to_numpy()
-    problems = []
-    bad = np.isnan(values) & ~empty & ~missing_word
+    missing_word = text.str.lower().isin(_MISSING_WORDS).to_numpy()
+    comma = text.str.contains(",", regex=False).to_numpy()
+    with_unit = text.str.fullmatch(_NUMBER_WITH_UNIT).to_numpy(bool) & ~missing_word
+    other = np.isnan(values) & ~empty & ~missing_word & ~comma & ~with_unit
     raw = text.to_numpy()
     gaps = (empty | missing_word) if not allow_empty else missing_word
-    for mask, what in ((bad, "not a number"), (gaps, "missing value (empty or NaN)"), (np.isinf(values), "not finite")):
+    hint = f"; {empty_hint}" if empty_hint else ""
+    problems = []
+    for mask, what in ((comma, "decimal comma or thousands separator (write 25.9, or 1000)"),
+                       (with_unit, "a unit inside the number (write the number only: the unit is in the column "
+                                   "name)"),
+                       (other, "not a number"), (gaps, f"missing value (empty or NaN{hint})"),
+                       (np.isinf(values), "not finite")):
         problems += _listed(f"column {column}: {what}", line[mask], [repr(v) for v in raw[mask]])
     return values, problems
 
 
 def _keyphasor(cells: pd.Series, line: Array) -> tuple[Array | None, list[str]]:
-    text = cells.str.strip()
-    ok = text.isin(("0", "1")).to_numpy()
+    ok = cells.isin(("0", "1")).to_numpy()
     if not ok.all():
-        return None, _listed("column keyphasor: not 0 or 1", line[~ok], [repr(v) for v in text.to_numpy()[~ok]])
-    marks = (text == "1").to_numpy()
+        return None, _listed("column keyphasor: not 0 or 1", line[~ok], [repr(v) for v in cells.to_numpy()[~ok]])
+    marks = (cells == "1").to_numpy()
     if not marks.any():
         return None, ["column keyphasor: no mark (no 1) in the whole record; drop the column if there is no "
                       "keyphasor"]
@@ -423,11 +626,11 @@ def _listed(problem: str, lines: Array, details: Sequence[str]) -> list[str]:
     return [f"{problem} on {len(lines)} line(s): {shown}{more}"]
 
 
-def _duplicates(runs: pd.Series, line: Array) -> list[tuple[str, list[int]]]:
+def _duplicates(values: pd.Series, line: Array) -> list[tuple[str, list[int]]]:
     out = []
-    for run_id, group in pd.Series(line, index=runs.to_numpy()).groupby(level=0, sort=False):
+    for value, group in pd.Series(line, index=values.to_numpy()).groupby(level=0, sort=False):
         if len(group) > 1:
-            out.append((str(run_id), group.tolist()))
+            out.append((str(value), group.tolist()))
     return out
 
 

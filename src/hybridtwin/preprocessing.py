@@ -52,6 +52,7 @@ absolute phases are physical and can be compared directly.
 
 from __future__ import annotations
 
+import argparse
 import sys
 import warnings
 from collections.abc import Mapping
@@ -63,14 +64,15 @@ import pandas as pd
 from scipy.optimize import minimize_scalar
 
 from .measurements import (
-    MIN_REVOLUTIONS, DataError, DataWarning, Record, Saturation, check_coverage, check_length, check_sampling,
-    detect_saturation, read_record, read_runs,
+    MIN_REVOLUTIONS, SENSOR_RANGE_MM, SENSOR_RESOLUTION_MM, DataError, DataWarning, Record, Saturation, Sensor,
+    check_coverage, check_length, check_sampling, detect_saturation, read_record, read_runs,
 )
+from .plausibility import SPEED_TOLERANCE, Flag, check_magnitudes, check_speed, response_flags
 
 Array = np.ndarray
 CHANNELS = ("x", "y")
-#: the true speed is sought within this fraction of the nominal speed
-SPEED_SEARCH = 0.02
+#: the true speed is sought within this fraction of the nominal speed (beyond it: plausibility.check_speed's error)
+SPEED_SEARCH = SPEED_TOLERANCE
 
 
 @dataclass(frozen=True)
@@ -134,11 +136,16 @@ class OrderAnalysis:
 
 @dataclass
 class RunAnalysis:
-    """Everything the preprocessing learns about one run."""
+    """Everything the preprocessing learns about one run.
+
+    findings: what keeps the run out of the fit (``Saturation``: flat or
+    clipped channels; ``plausibility.Flag``: noise only, backward whirl,
+    spikes), each already warned about (``DataWarning``).
+    """
 
     record: Record
     rpm_nominal: float
-    findings: list[Saturation] = field(default_factory=list)
+    findings: list[Saturation | Flag] = field(default_factory=list)
     speed: SpeedEstimate | None = None
     origin: PhaseOrigin | None = None
     orders: OrderAnalysis | None = None
@@ -153,17 +160,18 @@ class RunAnalysis:
 
     @property
     def usable(self) -> bool:
-        """Fit for comparison with a model: analysed, and no channel flat or clipped."""
-        return self.orders is not None and not self.flat and not self.saturated
+        """Fit for comparison with a model: analysed, and nothing found against it."""
+        return self.orders is not None and not self.findings
 
     @property
     def note(self) -> str:
+        """"ok", or "excluded..." with the findings in a few words (the run is kept out of the fit)."""
         if self.flat:
-            return "excluded: " + "; ".join(f"{f.channel} flat" for f in self.findings if f.kind == "flat")
+            return "excluded: " + "; ".join(f.short for f in self.findings if f.kind == "flat")
         if self.saturated:
-            return "excluded (saturated, harmonics biased): " + "; ".join(
-                f"{f.channel} clipped at {f.level_m * 1e3:+.3f} mm ({f.n_samples} samples)"
-                for f in self.findings if f.kind == "clipped")
+            return "excluded (saturated, harmonics biased): " + "; ".join(f.short for f in self.findings)
+        if self.findings:
+            return "excluded: " + "; ".join(f.short for f in self.findings)
         return "ok"
 
 
@@ -344,21 +352,35 @@ def _to_real(X: Array) -> Array:
 
 
 def analyse_record(record: Record, rpm_nominal: float, harmonics: int = 5, sensor_range_m: float | None = None,
-                   min_revolutions: float = MIN_REVOLUTIONS) -> RunAnalysis:
-    """Checks (length, sampling, flat/clipped) and steps 1-3 for one record.
+                   min_revolutions: float = MIN_REVOLUTIONS, sensor_resolution_m: float | None = None) -> RunAnalysis:
+    """Checks and steps 1-3 for one record (docs/data-checks.md).
 
-    A record with a flat channel is returned unanalysed (``usable`` False); a
-    clipped one is analysed but not ``usable``; both are warned about
-    (``DataWarning``). Format problems raise ``DataError``.
+    Errors (``DataError``): too short or too coarsely sampled, values the
+    sensor cannot have written (units, offsets beyond its range), a record
+    turning at another speed than ``rpm_nominal`` (``hybridtwin.plausibility``).
+    Flags (``findings``, each warned about as a ``DataWarning``; the run is not
+    ``usable``): a flat channel (returned unanalysed), a clipped one (flat tops
+    or the noisy rail of the sensor's range), a channel of noise only, a
+    backward 1X whirl, spikes. The sensor: +-``sensor_range_m`` (default 14 mm)
+    and ``sensor_resolution_m`` (default 1 um).
     """
+    sensor = Sensor(SENSOR_RANGE_MM * 1e-3 if sensor_range_m is None else sensor_range_m,
+                    SENSOR_RESOLUTION_MM * 1e-3 if sensor_resolution_m is None else sensor_resolution_m)
+    check_magnitudes(record, sensor)
+    check_speed(record, rpm_nominal)  # first: a wrong rpm is named as such, not as a record too short
     check_length(record, rpm_nominal, min_revolutions)
     check_sampling(record, rpm_nominal * (1 + SPEED_SEARCH), harmonics)
-    analysis = RunAnalysis(record, rpm_nominal, detect_saturation(record, sensor_range_m))
+    analysis = RunAnalysis(record, rpm_nominal, detect_saturation(record, sensor.range_m, sensor.resolution_m))
     if analysis.flat:
         return analysis
     analysis.speed = refine_speed(record, rpm_nominal, harmonics)
     analysis.origin = phase_origin(record, analysis.speed)
     analysis.orders = order_analysis(record, analysis.speed, analysis.origin, harmonics)
+    orders = analysis.orders
+    A = design_matrix(record.time_s - analysis.origin.time_s, analysis.speed.omega, orders.H)
+    residual = np.column_stack([record.x_m, record.y_m]) - A @ _to_real(orders.harmonics).T
+    clipped = tuple(f.channel for f in analysis.findings if f.kind == "clipped")
+    analysis.findings += response_flags(record, orders.harmonics, orders.sigma, residual, skip=clipped)
     return analysis
 
 
@@ -391,6 +413,7 @@ def run_row(analysis: RunAnalysis, harmonics: int, complex_parts: bool = True) -
             row[f"{name}{h}_sigma_m"] = orders.sigma[i, h] if orders else nan
     row["flat"], row["saturated"], row["usable"], row["note"] = (
         analysis.flat, analysis.saturated, analysis.usable, analysis.note)
+    row["flags"] = ",".join(dict.fromkeys(f.kind for f in analysis.findings))
     return row
 
 
@@ -417,34 +440,42 @@ def waveforms(analysis: RunAnalysis, cycles: int = 2) -> pd.DataFrame:
                          "x_raw_m": raw[:, 0], "y_raw_m": raw[:, 1]})
 
 
-def preprocess_run(sheet_row: Mapping, harmonics: int = 5,
-                   sensor_range_m: float | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """One runs-sheet row (with its resolved ``record`` path) -> (one-row tidy table, waveforms)."""
+def preprocess_run(sheet_row: Mapping, harmonics: int = 5, sensor_range_m: float | None = None,
+                   sensor_resolution_m: float | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """One runs-sheet row (with its resolved ``record`` path) -> (one-row tidy table, waveforms).
+
+    The sensor: the row's sensor_range_mm / sensor_resolution_mm, else the
+    given defaults [m], else the built-in ones (``measurements.Sensor``).
+    """
+    sensor = Sensor.for_run(sheet_row, sensor_range_m, sensor_resolution_m)
     record = read_record(sheet_row["record"])
-    analysis = analyse_record(record, float(sheet_row["rpm"]), harmonics, sensor_range_m)
+    analysis = analyse_record(record, float(sheet_row["rpm"]), harmonics, sensor.range_m,
+                              sensor_resolution_m=sensor.resolution_m)
     row = {k: v for k, v in sheet_row.items() if k != "record"} | run_row(analysis, harmonics)
     return pd.DataFrame([row]), waveforms(analysis)
 
 
 def summarise_runs(runs: pd.DataFrame, harmonics: int = 5, sensor_range_m: float | None = None,
-                   min_revolutions: float = MIN_REVOLUTIONS) -> tuple[pd.DataFrame, dict[str, str]]:
+                   min_revolutions: float = MIN_REVOLUTIONS, sensor_resolution_m: float | None = None
+                   ) -> tuple[pd.DataFrame, dict[str, str]]:
     """check-data: every run of a validated sheet analysed; (summary table, {run: error message}).
 
     The summary has the sheet's columns, then the per-run figures of
     ``run_row`` without the complex parts (amplitudes and uncertainties only)
     and ``status`` ("ok", "excluded: ...", or "invalid: <error>"). Runs whose
     record is invalid keep their row (status invalid) and their error is
-    returned, so nothing is dropped silently.
+    returned, so nothing is dropped silently. The sensor as in ``preprocess_run``.
     """
     rows, errors = [], {}
     for _, sheet_row in runs.iterrows():
         base = {k: v for k, v in sheet_row.items() if k != "record"}
+        sensor = Sensor.for_run(sheet_row, sensor_range_m, sensor_resolution_m)
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("always", DataWarning)  # every flagged run is reported, not just the first
                 record = read_record(sheet_row["record"])
-                analysis = analyse_record(record, float(sheet_row["rpm"]), harmonics, sensor_range_m,
-                                          min_revolutions)
+                analysis = analyse_record(record, float(sheet_row["rpm"]), harmonics, sensor.range_m,
+                                          min_revolutions, sensor.resolution_m)
             rows.append(base | run_row(analysis, harmonics, complex_parts=False) | {"status": analysis.note})
         except DataError as err:
             errors[str(sheet_row["run"])] = str(err)
@@ -509,15 +540,18 @@ def write_tsv(table: pd.DataFrame, path: str | Path) -> None:
 
 def check_data(sheet: str | Path, harmonics: int = 5, rpm_range: tuple[float, float] | None = None,
                mass_range_g: tuple[float, float] | None = None, sensor_range_m: float | None = None,
-               min_revolutions: float = MIN_REVOLUTIONS) -> tuple[pd.DataFrame, dict[str, str]]:
+               min_revolutions: float = MIN_REVOLUTIONS, sensor_resolution_m: float | None = None,
+               range_names: tuple[str, str] = ("--rpm-range", "--mass-range-g")
+               ) -> tuple[pd.DataFrame, dict[str, str]]:
     """Validate a runs sheet and every record; (summary table, {run: error}).
 
-    The sheet itself must be valid (``read_runs`` and ``check_coverage`` raise
-    ``DataError``); record problems are collected per run (see ``summarise_runs``).
+    The sheet is read as the workflow reads it (``read_runs`` with every mass
+    required) and must be valid, like its coverage (``check_coverage``): both
+    raise ``DataError``; record problems are collected per run (``summarise_runs``).
     """
-    runs = read_runs(sheet)
-    check_coverage(runs, rpm_range, mass_range_g, sheet)
-    return summarise_runs(runs, harmonics, sensor_range_m, min_revolutions)
+    runs = read_runs(sheet, require_mass=True)
+    check_coverage(runs, rpm_range, mass_range_g, sheet, range_names)
+    return summarise_runs(runs, harmonics, sensor_range_m, min_revolutions, sensor_resolution_m)
 
 
 def format_summary(summary: pd.DataFrame, harmonics: int) -> str:
@@ -560,12 +594,27 @@ def add_check_data_command(sub) -> None:
                         help="speeds the model libraries cover [RPM]; runs outside are an error")
     parser.add_argument("--mass-range-g", type=float, nargs=2, metavar=("LOW", "HIGH"), default=None,
                         help="eccentric masses the model libraries cover [g]; runs outside are an error")
-    parser.add_argument("--sensor-range-mm", type=float, default=None,
-                        help="sensor range [mm]: samples at or beyond +-range count as clipped (default: detect "
-                             "flat tops only)")
+    parser.add_argument("--sensor-range-mm", type=_positive_mm, default=None,
+                        help=f"sensor range [mm]: samples near +-range are clipped, beyond it impossible (default: "
+                             f"the sheet's sensor_range_mm column, else {SENSOR_RANGE_MM:g})")
+    parser.add_argument("--sensor-resolution-mm", type=_positive_mm, default=None,
+                        help=f"sensor resolution [mm] (default: the sheet's sensor_resolution_mm column, else "
+                             f"{SENSOR_RESOLUTION_MM:g})")
     parser.add_argument("--output", type=Path, default=None, help="also write the full summary (SI units) as TSV")
-    parser.add_argument("--strict", action="store_true", help="exit 1 also when a run is flagged (flat or clipped)")
+    parser.add_argument("--strict", action="store_true",
+                        help="exit 1 also when a run is flagged (kept out of the fit: flat, clipped, noise only, "
+                             "backward whirl, spikes)")
     parser.set_defaults(handler=check_data_command)
+
+
+def _positive_mm(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not (np.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a positive number of mm, got {text}")
+    return value
 
 
 def check_data_command(args) -> int:
@@ -573,23 +622,28 @@ def check_data_command(args) -> int:
     if args.harmonics < 1:
         print(f"hybridtwin check-data: error: --harmonics must be >= 1, got {args.harmonics}", file=sys.stderr)
         return 2
-    sensor_range = None if args.sensor_range_mm is None else args.sensor_range_mm * 1e-3
+    mm = {k: None if v is None else v * 1e-3 for k, v in (("range", args.sensor_range_mm),
+                                                          ("resolution", args.sensor_resolution_mm))}
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", DataWarning)
         try:
-            summary, errors = check_data(args.runs, args.harmonics, args.rpm_range, args.mass_range_g, sensor_range,
-                                         args.min_revolutions)
+            summary, errors = check_data(args.runs, args.harmonics, args.rpm_range, args.mass_range_g, mm["range"],
+                                         args.min_revolutions, mm["resolution"])
         except DataError as err:
             print(f"hybridtwin check-data: error: {err}", file=sys.stderr)
             return 1
     print(format_summary(summary, args.harmonics))
     if args.output:
-        write_tsv(summary, args.output)
+        try:
+            write_tsv(summary, args.output)
+        except OSError as err:
+            print(f"hybridtwin check-data: error: cannot write {args.output}: {err.strerror}", file=sys.stderr)
+            return 1
     for warning in caught:
         print(f"hybridtwin check-data: warning: {warning.message}", file=sys.stderr)
     for run, message in errors.items():
         print(f"hybridtwin check-data: error: run {run}: {message}", file=sys.stderr)
     flagged = (~summary["usable"].astype(bool)).sum() - len(errors)
-    print(f"# {len(summary)} run(s): {len(summary) - len(errors) - flagged} ok, {flagged} flagged (not usable), "
-          f"{len(errors)} invalid", file=sys.stderr)
+    print(f"# {len(summary)} run(s): {len(summary) - len(errors) - flagged} ok, {flagged} flagged (kept out of the "
+          f"fit), {len(errors)} invalid", file=sys.stderr)
     return 1 if errors or (args.strict and flagged) else 0

@@ -1,4 +1,5 @@
 # Shared helpers: config validation, the runs sheet, the variants, the offline options.
+import sys
 from functools import cache
 
 import pandas as pd
@@ -7,6 +8,7 @@ from snakemake.utils import validate
 from hybridtwin.config import offline, offline_for, run_plan, variant as config_variant
 from hybridtwin.diagnosis import settings as diagnosis_settings
 from hybridtwin.identification import settings as identification_settings
+from hybridtwin.measurements import DataError, read_runs
 from hybridtwin.variants import nested_parents, parent_variant
 
 
@@ -16,7 +18,14 @@ VARIANTS = list(config["variants"])
 OFFLINE = offline(config)
 CHUNKS = [f"{i:03d}" for i in range(OFFLINE["chunks"])]
 ENRICHMENT_CHUNKS = [f"{i:03d}" for i in range(OFFLINE["enrichment"]["chunks"] if OFFLINE["enrichment"]["n_scenarios"] else 0)]
-RUNS = list(run_plan(config)["run"])
+# The runs sheet, read at parse time by the reader check-data uses (hybridtwin.measurements.read_runs, also behind
+# run_plan, runs_with_role and sheet_entry): white space, case, BOM, CRLF handled one way; any problem (a missing
+# column, an unknown role, an empty mass, a missing record...) stops here in one message naming file, line, column.
+try:
+    SHEET = read_runs(config["runs"], require_mass=True)
+    RUNS = list(run_plan(config)["run"])
+except DataError as err:
+    sys.exit(f"error: {err}")
 # the offline options each job uses: a job reruns only when one of its own options changes
 OFFLINE_USED = {
     "sample_scenarios": ("seed", "n_scenarios", "n_test", "validation_fraction"),

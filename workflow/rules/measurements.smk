@@ -18,6 +18,7 @@ rule check_data:
     params:
         harmonics=config["harmonics"],
         coverage=config.get("coverage", {}),
+        sensor_range_mm=OFFLINE["sensor_range_mm"],  # the lasers' range (a sheet's sensor_range_mm column overrides)
     log:
         "logs/data/check_data.log",
     benchmark:
@@ -41,6 +42,7 @@ rule preprocess:
     params:
         row=lambda wildcards: sheet_entry(RUNS_SHEET, wildcards.run),
         harmonics=config["harmonics"],
+        sensor_range_mm=OFFLINE["sensor_range_mm"],
     log:
         "logs/data/preprocess/{run}.log",
     benchmark:
