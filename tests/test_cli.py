@@ -318,3 +318,12 @@ def test_version_and_help_name_every_command(capsys):
         assert description and len(description) > 40, action.dest
         assert action.dest in parser.description
     assert {"simulate", "effects", "variants", "check-data", "rig"} <= set(commands.choices)
+
+
+def test_the_package_leaves_the_matplotlib_backend_to_the_caller():
+    """No matplotlib.use at import: a script's own choice stands (and without a display matplotlib picks Agg)."""
+    code = ("import matplotlib; matplotlib.use('svg'); import hybridtwin.plots, hybridtwin.report, "
+            "hybridtwin.diagnosis_report as d, hybridtwin.validation; print(matplotlib.get_backend())")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "svg"

@@ -78,9 +78,6 @@ def markdown(result: Diagnosis, sparse: pd.DataFrame | None = None, sparse_name:
 
 def plot(result: Diagnosis):
     """Score statistics with the significance threshold; chi^2/dof before and after each refitted effect."""
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     t = result.table.iloc[::-1]

@@ -2,12 +2,9 @@
 
 from __future__ import annotations
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
+import matplotlib.pyplot as plt  # no backend forced: Agg by itself without a display, or the caller's choice
+import numpy as np
+import pandas as pd
 
 
 def plot_sweep(table: pd.DataFrame, title: str) -> plt.Figure:
