@@ -241,13 +241,14 @@ class UpperHousing(Effect):
         Parameter("m_bup", "kg", (0.03, 0.09), 0.056, "upper bearing and housing mass"),
         Parameter("zeta_bup", "1", (0.0, 0.05), 0.0215, "upper bearing damping ratio"),
     )
+    node = 0  # where it acts (Machine.place puts a copy at another named node)
 
     def mass(self, ctx: Context) -> Array:
-        return _isotropic_point(ctx, 0, ctx.p.m_bup)
+        return _isotropic_point(ctx, self.node, ctx.p.m_bup)
 
     def damping(self, ctx: Context) -> Array:
         out = ctx.zeros()
-        for i in _node_pair(ctx, 0):
+        for i in _node_pair(ctx, self.node):
             k_up = np.maximum(ctx.K_support[:, i, i], 0.0)
             out[:, i, i] = 2.0 * ctx.p.zeta_bup * np.sqrt(k_up * ctx.p.m_bup)
         return out
@@ -264,15 +265,17 @@ class LowerBearing(Effect):
         Parameter("zeta_blo", "1", (0.0, 0.2), 0.05, "lower bearing damping ratio, c_blo = 2 zeta_blo sqrt(k m_blo)"),
     )
 
+    node: int | None = None  # where it acts, None: the last node (Machine.place puts a copy at a named node)
+
     def mass(self, ctx: Context) -> Array:
-        return _isotropic_point(ctx, ctx.shaft.n, ctx.p.m_blo)
+        return _isotropic_point(ctx, ctx.shaft.n if self.node is None else self.node, ctx.p.m_blo)
 
     def stiffness(self, ctx: Context) -> Array:
-        return _isotropic_point(ctx, ctx.shaft.n, ctx.p.k)
+        return _isotropic_point(ctx, ctx.shaft.n if self.node is None else self.node, ctx.p.k)
 
     def damping(self, ctx: Context) -> Array:
         c_blo = 2.0 * ctx.p.zeta_blo * np.sqrt(ctx.p.k * ctx.p.m_blo)
-        return _isotropic_point(ctx, ctx.shaft.n, c_blo)
+        return _isotropic_point(ctx, ctx.shaft.n if self.node is None else self.node, c_blo)
 
 
 def _unbalance_nodes(ctx: Context) -> Array:

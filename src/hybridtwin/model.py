@@ -20,6 +20,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .effects import Array, Context, Effect, Parameter, Params, PolynomialBearing
+from .machine import Machine, default_machine
 from .shaft import Shaft
 
 
@@ -115,10 +116,14 @@ def _general_mode(K: Array, M: Array) -> tuple[Array, Array]:
 
 
 class Model:
-    """The FE shaft plus a list of effects, e.g. the Geometric VARM model."""
+    """The FE structure plus a list of effects, e.g. the Geometric VARM model.
 
-    def __init__(self, effects: Sequence[Effect], shaft: Shaft | None = None):
-        self.shaft = shaft or Shaft()
+    ``shaft``: the structure the effects act on, a ``Machine`` (default: the VARM, ``Machine.varm()``) or a
+    uniform ``Shaft``.
+    """
+
+    def __init__(self, effects: Sequence[Effect], shaft: Machine | Shaft | None = None):
+        self.shaft = shaft or default_machine()
         self.effects = list(effects)
         names = [e.name for e in self.effects]
         duplicates = sorted({n for n in names if names.count(n) > 1})
@@ -234,3 +239,37 @@ def _collect_parameters(effects: Sequence[Effect]) -> dict[str, Parameter]:
             out.setdefault(par.name, par)
             owner.setdefault(par.name, effect.name)
     return out
+
+
+def campbell(model: Model, values: Mapping[str, Array | float], rpm: Array | Sequence[float],
+             n_modes: int = 8) -> "pd.DataFrame":
+    """Whirl frequencies of the model's linear part at each speed: the Campbell diagram's data.
+
+    At each speed the eigenvalues lambda = -zeta w + i w_d of M q'' + C q' + K q = 0 (``Model.system``:
+    speed terms, damping and gyroscopic coupling included; a polynomial bearing's degree-1 terms, i.e. the
+    linearisation about q = 0), the ``n_modes`` lowest w_d > 0. ``values``: one parameter set (scalars).
+    Whirl from the mode's x-plane entries U (u, du) and y-plane entries V (v, dv): whirl_index =
+    -2 sum Im(conj(U) V) / sum(|U|^2 + |V|^2), +1 a circular forward whirl (turning with the shaft,
+    V = -i U), -1 backward, 0 planar. Columns: rpm, mode (0 = lowest), frequency_hz, damping_ratio, whirl ("forward" or "backward"),
+    whirl_index.
+    """
+    import pandas as pd
+
+    rpm = np.atleast_1d(np.asarray(rpm, dtype=float))
+    system = model.system({k: np.asarray(v, dtype=float) for k, v in values.items()}, rpm)
+    n = system.n_dof
+    x, y = np.arange(n // 2), np.arange(n // 2, n)
+    rows = []
+    for s in range(system.n_scenarios):
+        Minv = np.linalg.inv(system.M[s])
+        A = np.block([[np.zeros((n, n)), np.eye(n)], [-Minv @ system.K[s], -Minv @ system.C[s]]])
+        lam, vec = np.linalg.eig(A)
+        scale = np.abs(lam).max()
+        keep = np.flatnonzero(lam.imag > 1e-9 * scale)  # oscillating modes; rigid-body and overdamped ones out
+        keep = keep[np.argsort(lam.imag[keep])][:n_modes]
+        for mode, j in enumerate(keep):
+            U, V = vec[x, j], vec[y, j]
+            index = -2.0 * np.sum(np.imag(np.conj(U) * V)) / np.sum(np.abs(U) ** 2 + np.abs(V) ** 2)
+            rows.append((rpm[s], mode, lam[j].imag / (2 * np.pi), -lam[j].real / abs(lam[j]),
+                         "forward" if index >= 0 else "backward", index))
+    return pd.DataFrame(rows, columns=["rpm", "mode", "frequency_hz", "damping_ratio", "whirl", "whirl_index"])

@@ -93,24 +93,7 @@ class Shaft:
         K_e = EI/h^3 [...] and M_e = m h / 420 [...] (cubic Hermite shape functions,
         docs/model.md, "Discretisation").
         """
-        h, EI, m = self.h, self.E * self.I, self.m
-        K_e = EI / h**3 * np.array(
-            [
-                [12, 6 * h, -12, 6 * h],
-                [6 * h, 4 * h * h, -6 * h, 2 * h * h],
-                [-12, -6 * h, 12, -6 * h],
-                [6 * h, 2 * h * h, -6 * h, 4 * h * h],
-            ]
-        )
-        M_e = m * h / 420 * np.array(
-            [
-                [156, 22 * h, 54, -13 * h],
-                [22 * h, 4 * h * h, 13 * h, -3 * h * h],
-                [54, 13 * h, 156, -22 * h],
-                [-13 * h, -3 * h * h, -22 * h, 4 * h * h],
-            ]
-        )
-        return K_e, M_e
+        return beam_element(self.h, self.E * self.I, self.m)
 
     def plane_matrices(self) -> tuple[np.ndarray, np.ndarray]:
         """Assembled stiffness and mass of one bending plane (2(n+1) square), free ends."""
@@ -128,3 +111,41 @@ class Shaft:
         K_p, M_p = self.plane_matrices()
         zero = np.zeros_like(K_p)
         return np.block([[K_p, zero], [zero, K_p]]), np.block([[M_p, zero], [zero, M_p]])
+
+
+def beam_element(h: float, EI: float, m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Euler-Bernoulli element of length ``h``, bending stiffness ``EI`` [N m^2] and mass per unit length
+    ``m`` [kg/m]: stiffness K_e = EI/h^3 [...] and consistent mass M_e = m h / 420 [...], DOFs
+    [w1, theta1, w2, theta2] of one plane (cubic Hermite shape functions, docs/model.md)."""
+    K_e = EI / h**3 * np.array(
+        [
+            [12, 6 * h, -12, 6 * h],
+            [6 * h, 4 * h * h, -6 * h, 2 * h * h],
+            [-12, -6 * h, 12, -6 * h],
+            [6 * h, 2 * h * h, -6 * h, 4 * h * h],
+        ]
+    )
+    M_e = m * h / 420 * np.array(
+        [
+            [156, 22 * h, 54, -13 * h],
+            [22 * h, 4 * h * h, 13 * h, -3 * h * h],
+            [54, 13 * h, 156, -22 * h],
+            [-13 * h, -3 * h * h, -22 * h, 4 * h * h],
+        ]
+    )
+    return K_e, M_e
+
+
+def slope_element(h: float, inertia: float) -> np.ndarray:
+    """integral of inertia * N'^T N' dz over an element of length ``h`` (N the cubic Hermite shape functions),
+    DOFs [w1, theta1, w2, theta2]: the consistent rotary-inertia matrix for ``inertia`` = rho I [kg m] (the
+    section's diametral inertia per unit length) and the gyroscopic block for rho I_p = 2 rho I:
+    inertia / (30 h) [[36, 3h, -36, 3h], [3h, 4h^2, -3h, -h^2], [-36, -3h, 36, -3h], [3h, -h^2, -3h, 4h^2]]."""
+    return inertia / (30 * h) * np.array(
+        [
+            [36, 3 * h, -36, 3 * h],
+            [3 * h, 4 * h * h, -3 * h, -h * h],
+            [-36, -3 * h, 36, -3 * h],
+            [3 * h, -h * h, -3 * h, 4 * h * h],
+        ]
+    )

@@ -1,0 +1,523 @@
+"""Your own machine: the rotor (shaft segments, rigid disks) and where its bearings, unbalance planes and
+sensors are (docs/model.md, "Describing your machine").
+
+A ``Machine`` is both the description and its finite-element discretisation: it has the interface of
+``Shaft`` (``n``, ``dof``, ``translational``, ``node_at``, ``matrices``, ...), so a ``Model`` built on it
+assembles its shaft, disks and (optionally) the sections' rotary inertia as the structure's M and K, and the
+effects act on its DOFs. Nodes are numbered along the shaft from 0 at z = 0, each segment contributing
+``n_elements`` equal elements; DOF names and ordering are those of ``Shaft`` (``u3``, ``dv7``, x plane
+first).
+
+Bearings, unbalance planes and sensors are named nodes. The effects that act there are placed by name:
+``machine.place(effect, "drive_end")`` or, by name in a variant's effect list, ``"linear_bearing@drive_end"``,
+``"lower_bearing@drive_end"``, ``"unbalance@disk"``, ... (``Machine.effects``). Gyroscopic coupling is the
+effect ``gyroscopic`` (Omega G in the damping, from the disks' polar inertia and the shaft's distributed one);
+the VARM's variants leave it out, as the paper does.
+
+``Machine.varm()`` is the bundled default, the paper's rig: one uniform segment with Table 1's I and m,
+bearings ``upper`` (node 0) and ``lower`` (node 10), the unbalance plane ``eccentric_mass`` (node 5),
+sensors ``x`` and ``y`` at node 1. A model built on it is bit for bit the one built on ``Shaft()``.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+
+from .effects import Context, Effect, Parameter, Unbalance, builtin_effects
+from .shaft import Shaft, beam_element, slope_element
+
+Array = np.ndarray
+
+
+@dataclass(frozen=True)
+class ShaftSegment:
+    """A uniform piece of the shaft: ``n_elements`` equal beam elements.
+
+    length, d_out, d_in [m], E [Pa], rho [kg/m^3]. The bending stiffness uses I = pi (d_out^4 - d_in^4) / 64
+    and the mass per unit length rho A, unless ``I`` [m^4] or ``m`` [kg/m] give them directly (the VARM's
+    Table 1 values). The sections' rotary and polar inertia always come from the diameters and rho.
+    """
+
+    length: float
+    d_out: float
+    E: float
+    rho: float
+    d_in: float = 0.0
+    n_elements: int = 1
+    I: float | None = None
+    m: float | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("length", "d_out", "E", "rho"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and value > 0):
+                raise ValueError(f"shaft segment: {name} must be a positive number, got {value!r}")
+        if not 0.0 <= self.d_in < self.d_out:
+            raise ValueError(f"shaft segment: d_in must be in [0, d_out = {self.d_out}), got {self.d_in!r}")
+        if isinstance(self.n_elements, bool) or int(self.n_elements) != self.n_elements or self.n_elements < 1:
+            raise ValueError(f"shaft segment: n_elements must be a positive integer, got {self.n_elements!r}")
+        for name in ("I", "m"):
+            value = getattr(self, name)
+            if value is not None and not value > 0:
+                raise ValueError(f"shaft segment: {name} must be positive when given, got {value!r}")
+
+    @property
+    def area(self) -> float:
+        """Cross-section area pi (d_out^2 - d_in^2) / 4 [m^2]."""
+        return np.pi * (self.d_out**2 - self.d_in**2) / 4
+
+    @property
+    def section_I(self) -> float:
+        """Second moment of area of the annulus, pi (d_out^4 - d_in^4) / 64 [m^4]."""
+        return np.pi * (self.d_out**4 - self.d_in**4) / 64
+
+    @property
+    def bending_I(self) -> float:
+        """The I of the bending stiffness: ``I`` when given, else ``section_I`` [m^4]."""
+        return self.section_I if self.I is None else self.I
+
+    @property
+    def mass_per_length(self) -> float:
+        """``m`` when given, else rho A [kg/m]."""
+        return self.rho * self.area if self.m is None else self.m
+
+    @property
+    def h(self) -> float:
+        """Element length [m]."""
+        return self.length / self.n_elements
+
+
+@dataclass(frozen=True)
+class Disk:
+    """A rigid disk at a node: mass [kg], polar I_p and transverse (diametral) I_d inertia [kg m^2]."""
+
+    node: int
+    mass: float
+    I_p: float = 0.0
+    I_d: float = 0.0
+    name: str = ""
+
+
+@dataclass(frozen=True)
+class Bearing:
+    """A named bearing position. ``k`` [N/m], ``c`` [N s/m]: nominal isotropic coefficients of the effect
+    ``linear_bearing@<name>`` (offered only when ``k`` is given)."""
+
+    name: str
+    node: int
+    k: float | None = None
+    c: float = 0.0
+
+
+@dataclass(frozen=True)
+class UnbalancePlane:
+    """A named plane (node) where an eccentric mass can be fixed."""
+
+    name: str
+    node: int
+
+
+@dataclass(frozen=True)
+class Sensor:
+    """A displacement probe: ``name`` (its channel), ``node``, ``direction`` "x" or "y"."""
+
+    name: str
+    node: int
+    direction: str
+
+    def __post_init__(self) -> None:
+        if self.direction not in ("x", "y"):
+            raise ValueError(f"sensor {self.name!r}: direction must be 'x' or 'y', got {self.direction!r}")
+
+
+def _tuple(items: Iterable, kind: type) -> tuple:
+    out = tuple(items)
+    for item in out:
+        if not isinstance(item, kind):
+            raise TypeError(f"expected {kind.__name__} objects, got {type(item).__name__}")
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class Machine:
+    """A rotor described by segments and disks, with named bearings, unbalance planes and sensors.
+
+    ``rotary_inertia``: add the sections' rotary inertia rho I (a Rayleigh beam); off for the VARM, whose
+    model leaves it out (docs/model.md, "Shaft").
+    """
+
+    name: str
+    segments: Sequence[ShaftSegment]
+    disks: Sequence[Disk] = ()
+    bearings: Sequence[Bearing] = ()
+    unbalance_planes: Sequence[UnbalancePlane] = ()
+    sensors: Sequence[Sensor] = ()
+    rotary_inertia: bool = False
+    _names: dict[str, int] = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        where = f"machine {self.name!r}"
+        for attr, kind in (("segments", ShaftSegment), ("disks", Disk), ("bearings", Bearing),
+                           ("unbalance_planes", UnbalancePlane), ("sensors", Sensor)):
+            try:
+                object.__setattr__(self, attr, _tuple(getattr(self, attr), kind))
+            except TypeError as err:
+                raise ValueError(f"{where}: {attr}: {err}") from None
+        if not self.segments:
+            raise ValueError(f"{where}: the shaft needs at least one segment")
+        n_nodes = sum(s.n_elements for s in self.segments) + 1
+        names: dict[str, int] = {}
+        for kind, items in (("disk", self.disks), ("bearing", self.bearings),
+                            ("unbalance plane", self.unbalance_planes), ("sensor", self.sensors)):
+            for item in items:
+                label = f"{kind} {item.name!r}" if item.name else kind
+                if isinstance(item.node, bool) or int(item.node) != item.node or not 0 <= item.node < n_nodes:
+                    raise ValueError(f"{where}: {label} at node {item.node!r}, but the nodes are 0..{n_nodes - 1}")
+                if kind == "disk":
+                    continue
+                if not item.name or not str(item.name).isidentifier():
+                    raise ValueError(f"{where}: {kind} name {item.name!r} must be a non-empty identifier")
+                if item.name in names:
+                    raise ValueError(f"{where}: the name {item.name!r} is used twice")
+                names[item.name] = int(item.node)
+        for disk in self.disks:
+            if not (disk.mass >= 0 and disk.I_p >= 0 and disk.I_d >= 0):
+                raise ValueError(f"{where}: disk at node {disk.node}: mass, I_p and I_d must be >= 0")
+        for bearing in self.bearings:
+            if bearing.k is not None and not (bearing.k >= 0 and bearing.c >= 0):
+                raise ValueError(f"{where}: bearing {bearing.name!r}: k and c must be >= 0")
+        object.__setattr__(self, "_names", names)
+
+    # --- the bundled default -------------------------------------------------------------------------
+
+    @classmethod
+    def varm(cls) -> "Machine":
+        """The paper's Vertical Axis Rotating Machine (Table 1, docs/model.md).
+
+        One bronze segment of 0.85 m in 10 elements, d = 2 r = 6.35 mm, with Table 1's I = 79.81e-11 m^4 and
+        m = 0.35 kg/m given directly (see the note on I); rho = m / A makes the sections' rotary and polar
+        inertia consistent with that m (neither is used by the paper's model). No disk: the bearing housings
+        and the eccentric mass are the effects' point masses.
+        """
+        shaft = Shaft()
+        d = 2 * 0.003175
+        rho = shaft.m / (np.pi * d**2 / 4)
+        return cls(
+            name="varm",
+            segments=(ShaftSegment(length=shaft.L, d_out=d, E=shaft.E, rho=rho, n_elements=shaft.n, I=shaft.I,
+                                   m=shaft.m),),
+            bearings=(Bearing("upper", 0), Bearing("lower", shaft.n)),
+            unbalance_planes=(UnbalancePlane("eccentric_mass", shaft.node_at(0.425)),),
+            sensors=(Sensor("x", 1, "x"), Sensor("y", 1, "y")),
+        )
+
+    # --- discretisation: the interface of Shaft ------------------------------------------------------
+
+    @cached_property
+    def _segment_of_element(self) -> np.ndarray:
+        return np.repeat(np.arange(len(self.segments)), [s.n_elements for s in self.segments])
+
+    @property
+    def n(self) -> int:
+        """Number of beam elements."""
+        return int(sum(s.n_elements for s in self.segments))
+
+    @property
+    def n_nodes(self) -> int:
+        return self.n + 1
+
+    @property
+    def n_plane(self) -> int:
+        """DOFs per bending plane, 2 (n + 1)."""
+        return 2 * self.n_nodes
+
+    @property
+    def n_dof(self) -> int:
+        """All DOFs, 4 (n + 1)."""
+        return 2 * self.n_plane
+
+    @property
+    def L(self) -> float:
+        """Shaft length [m], the sum of the segments' lengths."""
+        return float(sum(s.length for s in self.segments))
+
+    @cached_property
+    def z(self) -> np.ndarray:
+        """Node positions [m]: each segment's nodes at its start + i h."""
+        parts, start = [np.zeros(1)], 0.0
+        for segment in self.segments:
+            local = np.arange(1, segment.n_elements + 1) * segment.h
+            parts.append(start + local)
+            start = start + segment.length
+        return np.concatenate(parts)
+
+    @property
+    def element_lengths(self) -> np.ndarray:
+        """Length of each element [m], (n,)."""
+        return np.array([self.segments[s].h for s in self._segment_of_element])
+
+    def node_at(self, z: float) -> int:
+        """Index of the node nearest to axial position ``z`` [m]."""
+        if not 0.0 <= z <= self.L * (1 + 1e-12):
+            raise ValueError(f"machine {self.name!r}: position z = {z} m lies outside the shaft [0, {self.L}] m")
+        return int(np.argmin(np.abs(self.z - z)))
+
+    dof = Shaft.dof
+    translational = Shaft.translational
+
+    @cached_property
+    def _plane(self) -> tuple[np.ndarray, np.ndarray]:
+        K = np.zeros((self.n_plane, self.n_plane))
+        M = np.zeros_like(K)
+        for e, s in enumerate(self._segment_of_element):
+            segment = self.segments[s]
+            K_e, M_e = beam_element(segment.h, segment.E * segment.bending_I, segment.mass_per_length)
+            sl = slice(2 * e, 2 * e + 4)
+            K[sl, sl] += K_e
+            M[sl, sl] += M_e
+            if self.rotary_inertia:
+                M[sl, sl] += slope_element(segment.h, segment.rho * segment.section_I)
+        for disk in self.disks:
+            M[2 * disk.node, 2 * disk.node] += disk.mass
+            M[2 * disk.node + 1, 2 * disk.node + 1] += disk.I_d
+        K.flags.writeable = M.flags.writeable = False
+        return K, M
+
+    def plane_matrices(self) -> tuple[np.ndarray, np.ndarray]:
+        """Stiffness and mass of one bending plane (2(n+1) square), free ends: shaft elements, the sections'
+        rotary inertia (with ``rotary_inertia``), the disks' mass and transverse inertia."""
+        K, M = self._plane
+        return K.copy(), M.copy()
+
+    def matrices(self) -> tuple[np.ndarray, np.ndarray]:
+        """Stiffness and mass of both planes (uncoupled blocks), n_dof square."""
+        K_p, M_p = self.plane_matrices()
+        zero = np.zeros_like(K_p)
+        return np.block([[K_p, zero], [zero, K_p]]), np.block([[M_p, zero], [zero, M_p]])
+
+    @cached_property
+    def _gyroscopic(self) -> np.ndarray:
+        R = np.zeros((self.n_plane, self.n_plane))
+        for e, s in enumerate(self._segment_of_element):
+            segment = self.segments[s]
+            sl = slice(2 * e, 2 * e + 4)
+            R[sl, sl] += slope_element(segment.h, 2.0 * segment.rho * segment.section_I)  # rho I_p = 2 rho I
+        for disk in self.disks:
+            R[2 * disk.node + 1, 2 * disk.node + 1] += disk.I_p
+        zero = np.zeros_like(R)
+        G = np.block([[zero, R], [-R, zero]])
+        G.flags.writeable = False
+        return G
+
+    def gyroscopic_matrix(self) -> np.ndarray:
+        """G of the gyroscopic force -Omega G q' (n_dof square, skew-symmetric), Omega about +z (the shaft
+        turning from +x towards +y): G[du_i, dv_j] = +R_ij, G[dv_i, du_j] = -R_ij, R the polar inertia
+        distributed over the slopes (shaft: rho I_p N'^T N' per element; disk: I_p on its node's slope).
+        Derivation: docs/model.md, "Describing your machine"."""
+        return self._gyroscopic.copy()
+
+    # --- names ---------------------------------------------------------------------------------------
+
+    def node(self, name: str) -> int:
+        """The node of a named bearing, unbalance plane or sensor."""
+        try:
+            return self._names[name]
+        except KeyError:
+            raise ValueError(f"machine {self.name!r} has no bearing, unbalance plane or sensor named {name!r} "
+                             f"(names: {sorted(self._names)})") from None
+
+    def sensor_dofs(self) -> list[int]:
+        """Global DOF index of each sensor, in the order of ``sensors``."""
+        return [self.dof(f"{'u' if s.direction == 'x' else 'v'}{s.node}") for s in self.sensors]
+
+    @property
+    def sensor_planes(self) -> list[int]:
+        """The nodes that carry sensors, in order of first appearance."""
+        return list(dict.fromkeys(s.node for s in self.sensors))
+
+    @property
+    def sensor_node(self) -> int:
+        """The node of the machine's x, y probe pair, where there is exactly one plane of them (the form the
+        measurement format and the workflow read today); a one-line error otherwise."""
+        planes = self.sensor_planes
+        if len(planes) != 1 or sorted(s.direction for s in self.sensors) != ["x", "y"]:
+            raise ValueError(f"machine {self.name!r}: sensors {[(s.name, s.node, s.direction) for s in self.sensors]}"
+                             " are not one x and one y probe at one node; records of several sensor planes are "
+                             "not read yet (issue 24)")
+        return planes[0]
+
+    # --- effects at named places ---------------------------------------------------------------------
+
+    def place(self, effect: Effect, at: str, name: str | None = None) -> Effect:
+        """A copy of ``effect`` acting at the node named ``at``, named ``name`` (default ``effect@at``).
+
+        Works for effects that act at one node they declare (``node``): the polynomial bearings
+        (geometric, radial and slope springs, expansion terms), the harmonic excitations, upper_housing,
+        lower_bearing, and this module's linear_bearing and plane unbalance.
+        """
+        node = self.node(at)
+        name = name or f"{effect.name}@{at}"
+        if not hasattr(effect, "node"):
+            raise ValueError(f"effect {effect.name!r} acts at a fixed place and cannot be placed at {at!r}")
+        if isinstance(effect, LinearBearing):
+            return dataclasses.replace(effect, node=node, name=name, bearing=at)
+        if dataclasses.is_dataclass(effect):
+            return dataclasses.replace(effect, node=node, name=name)
+        placed = copy.copy(effect)
+        placed.node, placed.name = node, name
+        return placed
+
+    def effects(self) -> dict[str, Effect]:
+        """The effects this machine adds to the built-in ones, by name (for a variant's effect list):
+        ``gyroscopic``; ``linear_bearing@<bearing>`` for each bearing with nominal coefficients; every
+        placeable built-in effect at every bearing, ``<effect>@<bearing>``; ``unbalance@<plane>`` for each
+        unbalance plane (the run's eccentric mass m_e at that plane)."""
+        out: dict[str, Effect] = {"gyroscopic": Gyroscopic()}
+        placeable = [e for e in builtin_effects().values() if hasattr(e, "node")]
+        for bearing in self.bearings:
+            if bearing.k is not None:
+                out[f"linear_bearing@{bearing.name}"] = LinearBearing(
+                    name=f"linear_bearing@{bearing.name}", bearing=bearing.name, node=bearing.node,
+                    k=bearing.k, c=bearing.c)
+            for effect in placeable:
+                placed = self.place(effect, bearing.name)
+                out[placed.name] = placed
+        for plane in self.unbalance_planes:
+            out[f"unbalance@{plane.name}"] = PlaneUnbalance(name=f"unbalance@{plane.name}", node=plane.node)
+        return out
+
+    def model(self, effects: Sequence[Effect]):
+        """A ``Model`` of ``effects`` on this machine."""
+        from .model import Model
+
+        return Model(effects, self)
+
+    def describe(self) -> str:
+        """Multi-line summary: segments, disks, named nodes."""
+        lines = [f"machine {self.name}: {self.n} elements, {self.n_nodes} nodes, L = {self.L:g} m"]
+        node = 0
+        for i, s in enumerate(self.segments):
+            lines.append(f"  segment {i}: nodes {node}..{node + s.n_elements}, length {s.length:g} m, "
+                         f"d_out {s.d_out:g} m, d_in {s.d_in:g} m, E {s.E:g} Pa, rho {s.rho:g} kg/m^3"
+                         + (f", I {s.I:g} m^4" if s.I is not None else "")
+                         + (f", m {s.m:g} kg/m" if s.m is not None else ""))
+            node += s.n_elements
+        for d in self.disks:
+            lines.append(f"  disk {d.name or ''} at node {d.node}: mass {d.mass:g} kg, I_p {d.I_p:g}, "
+                         f"I_d {d.I_d:g} kg m^2")
+        for b in self.bearings:
+            lines.append(f"  bearing {b.name} at node {b.node}"
+                         + (f": k {b.k:g} N/m, c {b.c:g} N s/m" if b.k is not None else ""))
+        for p in self.unbalance_planes:
+            lines.append(f"  unbalance plane {p.name} at node {p.node}")
+        for s in self.sensors:
+            lines.append(f"  sensor {s.name} at node {s.node}, direction {s.direction}")
+        return "\n".join(lines)
+
+
+# --- effects of a described machine ---------------------------------------------------------------------
+
+
+def _structure(ctx: Context, what: str):
+    if not isinstance(ctx.shaft, Machine):
+        raise ValueError(f"effect {what!r} needs a Machine (its polar inertia or named places), "
+                         f"the model is built on a {type(ctx.shaft).__name__}")
+    return ctx.shaft
+
+
+class Gyroscopic(Effect):
+    """Gyroscopic coupling Omega G q' (G from ``Machine.gyroscopic_matrix``): disks and shaft sections."""
+
+    name = "gyroscopic"
+    meaning = ("gyroscopic coupling of the spinning disks and shaft sections, Omega G in the damping "
+               "(off in the paper's VARM model)")
+
+    def damping(self, ctx: Context) -> Array:
+        G = _structure(ctx, self.name).gyroscopic_matrix()
+        return ctx.Omega[:, None, None] * G[None]
+
+
+@dataclass(eq=False)
+class LinearBearing(Effect):
+    """An isotropic linear bearing at a node: spring k and damper c on both translational DOFs.
+
+    Parameters ``k_<bearing>`` [N/m] and ``c_<bearing>`` [N s/m], nominal the machine's values, default
+    range a factor 2 either side (k, c never negative).
+    """
+
+    name: str = "linear_bearing"
+    bearing: str = ""
+    node: int = 0
+    k: float = 0.0
+    c: float = 0.0
+    meaning: str = field(init=False)
+    parameters: tuple[Parameter, ...] = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.meaning = f"linear isotropic bearing {self.bearing or self.node}: spring k and damper c at node {self.node}"
+        suffix = self.bearing or str(self.node)
+        self._k, self._c = f"k_{suffix}", f"c_{suffix}"
+        self.parameters = (
+            Parameter(self._k, "N/m", (0.5 * self.k, 2.0 * self.k), self.k, f"stiffness of bearing {suffix}",
+                      (0.0, np.inf)),
+            Parameter(self._c, "N s/m", (0.5 * self.c, 2.0 * self.c), self.c, f"damping of bearing {suffix}",
+                      (0.0, np.inf)),
+        )
+
+    def _point(self, ctx: Context, value: Array) -> Array:
+        out = ctx.zeros()
+        for i in (ctx.dof(f"u{self.node}"), ctx.dof(f"v{self.node}")):
+            out[:, i, i] = value
+        return out
+
+    def stiffness(self, ctx: Context) -> Array:
+        return self._point(ctx, ctx.p[self._k])
+
+    def damping(self, ctx: Context) -> Array:
+        return self._point(ctx, ctx.p[self._c])
+
+
+_M_E, _R_ME = Unbalance.parameters[0], Unbalance.parameters[1]
+
+
+@dataclass(eq=False)
+class PlaneUnbalance(Effect):
+    """The eccentric mass m_e at radius r_me fixed at a node (an unbalance plane): its point mass and the
+    rotating force m_e r_me Omega^2, F_1 = m_e r_me Omega^2 in x and -i m_e r_me Omega^2 in y (as
+    ``Unbalance``, whose parameters m_e and r_me it shares, with the node instead of z_me)."""
+
+    name: str = "unbalance_plane"
+    node: int = 0
+    meaning: str = field(init=False)
+    parameters: tuple[Parameter, ...] = (_M_E, _R_ME)
+
+    def __post_init__(self) -> None:
+        self.meaning = (f"eccentric mass at node {self.node}: its point mass and the rotating force "
+                        "m_e r_me Omega^2 (eq. 14-15)")
+
+    def mass(self, ctx: Context) -> Array:
+        out = ctx.zeros()
+        for i in (ctx.dof(f"u{self.node}"), ctx.dof(f"v{self.node}")):
+            out[:, i, i] = ctx.p.m_e
+        return out
+
+    def forcing(self, ctx: Context) -> dict[int, Array]:
+        f = ctx.zero_vector()
+        amplitude = ctx.p.m_e * ctx.p.r_me * ctx.Omega**2
+        f[:, ctx.dof(f"u{self.node}")] = amplitude
+        f[:, ctx.dof(f"v{self.node}")] = -1j * amplitude
+        return {1: f}
+
+
+def default_machine() -> Machine:
+    """The bundled default machine, the VARM."""
+    return _VARM
+
+
+_VARM = Machine.varm()

@@ -1,0 +1,287 @@
+"""The machine description (src/hybridtwin/machine.py): the VARM as the bundled default machine, bit for bit
+the model built on the uniform ``Shaft``; stepped shafts, disks, rotary and polar inertia against closed-form
+integrals; effects placed at named nodes; sensors; the Campbell data.
+
+The independent check of a stepped rotor with disks and gyroscopic coupling against ROSS is tests/test_ross.py.
+"""
+
+import numpy as np
+import pytest
+import scipy.linalg
+
+from hybridtwin.effects import Unbalance, builtin_effects, candidate_effects
+from hybridtwin.machine import Bearing, Disk, Machine, Sensor, ShaftSegment, UnbalancePlane
+from hybridtwin.model import Model, campbell
+from hybridtwin.sensor import sensor_dofs
+from hybridtwin.shaft import Shaft
+from hybridtwin.solver import solve
+from hybridtwin.variants import BUILTIN_VARIANTS, Variant, builtin_variant
+
+STEEL = dict(E=211e9, rho=7810.0)
+
+
+def _stepped(rotary_inertia=False):
+    """A stepped shaft (three sections, one hollow), two disks, two bearings inside the span."""
+    return Machine(
+        "stepped",
+        [ShaftSegment(0.2, 0.04, n_elements=4, **STEEL), ShaftSegment(0.5, 0.05, d_in=0.02, n_elements=10, **STEEL),
+         ShaftSegment(0.3, 0.035, n_elements=3, **STEEL)],
+        disks=[Disk(8, 15.3, 0.12, 0.062, "d1"), Disk(16, 7.4, 0.037, 0.019, "d2")],
+        bearings=[Bearing("a", 2, k=2e7, c=800.0), Bearing("b", 13, k=1e7, c=500.0)],
+        unbalance_planes=[UnbalancePlane("d1", 8)],
+        sensors=[Sensor("x1", 8, "x"), Sensor("y1", 8, "y"), Sensor("x2", 16, "x")],
+        rotary_inertia=rotary_inertia,
+    )
+
+
+# --- the VARM, bit for bit ------------------------------------------------------------------------
+
+
+def test_varm_structure_is_the_uniform_shaft_bit_for_bit():
+    varm, shaft = Machine.varm(), Shaft()
+    for a, b in zip(varm.matrices(), shaft.matrices()):
+        assert np.array_equal(a, b)
+    assert (varm.n, varm.n_dof, varm.L) == (shaft.n, shaft.n_dof, shaft.L)
+    assert np.array_equal(varm.z, shaft.z)
+    for name in ("u0", "dv10", "v3", "du7"):
+        assert varm.dof(name) == shaft.dof(name)
+    z = np.random.default_rng(0).uniform(0, shaft.L, 2000)  # random: no exact mid-point ties
+    assert [varm.node_at(v) for v in z] == [shaft.node_at(v) for v in z]
+    assert (varm.node("upper"), varm.node("lower"), varm.node("eccentric_mass")) == (0, 10, 5)
+    assert varm.sensor_node == 1 and sensor_dofs(varm) == sensor_dofs(shaft) == [2, 24]
+
+
+def _systems_equal(a, b):
+    for name in ("M", "C", "K", "Omega"):
+        assert np.array_equal(getattr(a, name), getattr(b, name)), name
+    assert sorted(a.forcing) == sorted(b.forcing)
+    for h in a.forcing:
+        assert np.array_equal(a.forcing[h], b.forcing[h])
+    assert [f.name for f in a.forces] == [f.name for f in b.forces]
+
+
+@pytest.mark.parametrize("name", sorted(BUILTIN_VARIANTS))
+def test_varm_models_are_bit_for_bit_those_of_the_shaft(name):
+    """Every paper variant plus every candidate effect (non-zero), three scenarios at three speeds: the same
+    matrices, forcing and nonlinear forces, and the same steady state, on Shaft(), Machine.varm() and the
+    default structure."""
+    spec = dict(BUILTIN_VARIANTS[name])
+    spec["effects"] = spec["effects"] + [e.name for e in candidate_effects()]
+    on_shaft = Variant.from_spec(name, spec, shaft=Shaft())
+    on_machine = Variant.from_spec(name, spec, shaft=Machine.varm())
+    by_default = Variant.from_spec(name, spec)
+    assert isinstance(by_default.model.shaft, Machine)
+    rng = np.random.default_rng(1)
+    overrides = {k: rng.uniform(*on_shaft.model.parameters[k].bounds, 3) for k in on_shaft.unknown}
+    overrides |= {"m_e": np.array([0.0148, 0.0259, 0.0]), "dk_up": 100.0, "k_xy": 20.0, "c_xy": 0.5,
+                  "k_rot": 30.0, "dk_lo": -300.0, "f2_c": 0.05, "f3_s": -0.02, "e2_c": 4e-6, "zeta_v": 0.01}
+    rpm = np.array([400.0, 650.0, 800.0])
+    reference = on_shaft.system(rpm, overrides)
+    for other in (on_machine, by_default):
+        _systems_equal(reference, other.system(rpm, overrides))
+    expected = solve(reference, 5)
+    for other in (on_machine, by_default):
+        result = other.solve(rpm, overrides, harmonics=5)
+        assert np.array_equal(result.harmonics, expected.harmonics)
+        assert np.array_equal(result.status, expected.status)
+
+
+def test_unbalance_plane_is_the_z_me_unbalance_on_the_varm():
+    varm = Machine.varm()
+    base = [e for e in builtin_variant("geometric").model.effects if e.name != "unbalance"]
+    plane = Model(base + [varm.effects()["unbalance@eccentric_mass"]], varm)
+    z_me = Model(base + [Unbalance()], varm)
+    values = {k: p.nominal for k, p in z_me.parameters.items()} | {"m_e": 0.0259}
+    _systems_equal(z_me.system(values, [500.0, 900.0]), plane.system(values, [500.0, 900.0]))
+
+
+# --- stepped shaft, disks, rotary and polar inertia -----------------------------------------------
+
+
+def test_segments_of_one_section_assemble_as_the_uniform_shaft():
+    shaft = Shaft(L=1.2, n=12, E=200e9, I=3e-8, m=4.0)
+    split = Machine("split", [ShaftSegment(0.3, 0.03, 200e9, 7800.0, n_elements=3, I=3e-8, m=4.0),
+                              ShaftSegment(0.9, 0.03, 200e9, 7800.0, n_elements=9, I=3e-8, m=4.0)])
+    K, M = split.matrices()
+    K0, M0 = shaft.matrices()
+    # element lengths 0.3/3 and 0.9/9 are both 0.1 but can differ in the last bit: round-off only
+    np.testing.assert_allclose(K, K0, rtol=1e-12, atol=1e-12 * np.abs(K0).max())
+    np.testing.assert_allclose(M, M0, rtol=1e-12, atol=1e-12 * np.abs(M0).max())
+
+
+def _rigid(machine, kind):
+    """Rigid-body motion of the x plane: translation (u = 1) or tilt about z = 0 (u = z, du = 1)."""
+    t = np.zeros(machine.n_plane)
+    if kind == "translation":
+        t[0::2] = 1.0
+    else:
+        t[0::2], t[1::2] = machine.z, 1.0
+    return t
+
+
+@pytest.mark.parametrize("rotary_inertia", [False, True])
+def test_mass_matrix_carries_the_rotor_mass_and_inertia(rotary_inertia):
+    """Cubic Hermite elements represent rigid motion exactly, so t^T M t is the rotor's kinetic-energy
+    integral written out here in closed form: sum of rho A L + disk masses (translation), and
+    sum of rho A (b^3 - a^3) / 3 + m_d z_d^2 + I_d (+ rho I L with rotary inertia) for the tilt."""
+    machine = _stepped(rotary_inertia)
+    _, M = machine.plane_matrices()
+    starts = np.cumsum([0.0] + [s.length for s in machine.segments])
+    mass = sum(STEEL["rho"] * np.pi * (s.d_out**2 - s.d_in**2) / 4 * s.length for s in machine.segments)
+    mass += sum(d.mass for d in machine.disks)
+    t = _rigid(machine, "translation")
+    assert t @ M @ t == pytest.approx(mass, rel=1e-12)
+    tilt = sum(STEEL["rho"] * np.pi * (s.d_out**2 - s.d_in**2) / 4 * (b**3 - a**3) / 3
+               for s, a, b in zip(machine.segments, starts[:-1], starts[1:]))
+    tilt += sum(d.mass * machine.z[d.node] ** 2 + d.I_d for d in machine.disks)
+    if rotary_inertia:
+        tilt += sum(STEEL["rho"] * np.pi * (s.d_out**4 - s.d_in**4) / 64 * s.length for s in machine.segments)
+    t = _rigid(machine, "tilt")
+    assert t @ M @ t == pytest.approx(tilt, rel=1e-12)
+
+
+def test_stiffness_uses_the_section_of_each_segment():
+    """A cantilever clamped at node 0 under a tip load P: tip deflection P sum of the segments' flexibility
+    integrals int (L - z)^2 / (E I(z)) dz (beam theory; cubic elements are exact for point loads)."""
+    machine = _stepped()
+    K, _ = machine.plane_matrices()
+    free = np.arange(2, machine.n_plane)
+    f = np.zeros(machine.n_plane)
+    f[-2] = 1.0
+    q = np.linalg.solve(K[np.ix_(free, free)], f[free])
+    L = machine.L
+    starts = np.cumsum([0.0] + [s.length for s in machine.segments])
+    expected = sum(((L - a) ** 3 - (L - b) ** 3) / 3 / (s.E * np.pi * (s.d_out**4 - s.d_in**4) / 64)
+                   for s, a, b in zip(machine.segments, starts[:-1], starts[1:]))
+    assert q[-2] == pytest.approx(expected, rel=1e-10)
+
+
+def test_gyroscopic_matrix_is_the_polar_inertia_coupling_the_slopes():
+    """G is skew-symmetric; between rigid tilts of the x and y planes it holds the rotor's polar inertia,
+    sum of rho I_p L + disk I_p, with G[du, dv] > 0 (Omega about +z; docs/model.md)."""
+    machine = _stepped()
+    G = machine.gyroscopic_matrix()
+    assert np.array_equal(G, -G.T)
+    n = machine.n_plane
+    tilt = _rigid(machine, "tilt")
+    polar = sum(STEEL["rho"] * np.pi * (s.d_out**4 - s.d_in**4) / 32 * s.length for s in machine.segments)
+    polar += sum(d.I_p for d in machine.disks)
+    assert tilt @ G[:n, n:] @ tilt == pytest.approx(polar, rel=1e-12)
+    assert G[machine.dof("du8"), machine.dof("dv8")] > 0.12  # the disk's 0.12 plus the shaft's share
+
+
+def test_gyroscopic_stiffening_of_a_spinning_disk():
+    """A rigid disk held only by a rotational spring k_t on its tilt (the shaft's other DOFs made
+    negligible): I_d w^2 -+ I_p Omega w - k_t = 0, so the forward whirl rises and the backward falls with
+    speed, w = (+-I_p Omega + sqrt(I_p^2 Omega^2 + 4 I_d k_t)) / (2 I_d)."""
+    I_p, I_d, k_t = 0.2, 0.1, 4.0e4
+    # a 10 mm stub of 1 mm diameter, E = 1 kPa: its bending stiffness (4 EI/h = 2e-8 N m) and inertia
+    # (1e-11 of the disk's) are negligible; its far node is clamped by stiff springs
+    machine = Machine("disk", [ShaftSegment(0.01, 1e-3, 1e3, 7800.0)], disks=[Disk(0, 1.0, I_p, I_d)])
+
+    from hybridtwin.effects import Effect, Parameter
+
+    class Holder(Effect):
+        name, meaning = "holder", "translation held, tilt on a spring k_t"
+        parameters = (Parameter("k_t", "N m/rad", (0.0, 1e5), k_t, "tilt spring"),)
+
+        def stiffness(self, ctx):
+            out = ctx.zeros()
+            for dof, value in (("u0", 1e12), ("v0", 1e12), ("u1", 1e12), ("v1", 1e12), ("du1", 1e12),
+                               ("dv1", 1e12), ("du0", k_t), ("dv0", k_t)):
+                out[:, ctx.dof(dof), ctx.dof(dof)] = value
+            return out
+
+    model = Model([Holder(), machine.effects()["gyroscopic"]], machine)
+    table = campbell(model, {"k_t": k_t}, [3000.0], n_modes=2)
+    Omega = 3000.0 * 2 * np.pi / 60
+    root = np.sqrt(I_p**2 * Omega**2 + 4 * I_d * k_t)
+    forward, backward = (I_p * Omega + root) / (2 * I_d), (-I_p * Omega + root) / (2 * I_d)
+    got = table.set_index("whirl")["frequency_hz"] * 2 * np.pi
+    # the stub's share is below 1e-8: 1e-7 relative
+    assert got["forward"] == pytest.approx(forward, rel=1e-7)
+    assert got["backward"] == pytest.approx(backward, rel=1e-7)
+
+
+# --- names, placement, sensors, validation ----------------------------------------------------------
+
+
+def test_effects_are_placed_at_named_bearings():
+    machine = _stepped()
+    effects = machine.effects()
+    assert {"gyroscopic", "linear_bearing@a", "linear_bearing@b", "lower_bearing@b", "geometric_spring@a",
+            "unbalance@d1"} <= set(effects)
+    lower = effects["lower_bearing@b"]
+    assert lower.node == 13 and builtin_effects()["lower_bearing"].node is None  # the built-in is untouched
+    spring = effects["geometric_spring@a"]
+    assert spring.dofs == ("u2", "v2")
+    model = Model([effects["linear_bearing@a"], effects["linear_bearing@b"], lower], machine)
+    values = {k: p.nominal for k, p in model.parameters.items()}
+    K = model.system(values, 0.0).K[0] - machine.matrices()[0]
+    expected = np.zeros_like(K)
+    for dof, k in (("u2", 2e7), ("v2", 2e7), ("u13", 1e7 + 1e4), ("v13", 1e7 + 1e4)):
+        expected[machine.dof(dof), machine.dof(dof)] = k
+    np.testing.assert_array_equal(K, expected)
+    with pytest.raises(ValueError, match="cannot be placed"):
+        machine.place(candidate_effects()[0], "a")
+    with pytest.raises(ValueError, match="no bearing, unbalance plane or sensor named 'c'"):
+        machine.node("c")
+
+
+def test_sensors_by_name_node_and_direction():
+    machine = _stepped()
+    assert machine.sensor_dofs() == [machine.dof("u8"), machine.dof("v8"), machine.dof("u16")]
+    assert machine.sensor_planes == [8, 16]
+    with pytest.raises(ValueError, match="several sensor planes"):
+        machine.sensor_node
+    one_plane = Machine("p", machine.segments, sensors=[Sensor("a", 3, "x"), Sensor("b", 3, "y")])
+    assert sensor_dofs(one_plane) == [one_plane.dof("u3"), one_plane.dof("v3")]
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(disks=[Disk(40, 1.0)]), "disk at node 40, but the nodes are 0..17"),
+    (dict(bearings=[Bearing("a", 1), Bearing("a", 3)]), "the name 'a' is used twice"),
+    (dict(bearings=[Bearing("a b", 1)]), "must be a non-empty identifier"),
+    (dict(bearings=[Bearing("a", 1, k=-1.0)]), "k and c must be >= 0"),
+    (dict(segments=[]), "at least one segment"),
+])
+def test_invalid_machines_are_refused_in_one_line(kwargs, message):
+    spec = dict(name="bad", segments=_stepped().segments) | kwargs
+    with pytest.raises(ValueError, match=message) as err:
+        Machine(**spec)
+    assert "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(length=-1.0), "length must be a positive number"),
+    (dict(d_in=0.05), "d_in must be in"),
+    (dict(n_elements=0), "n_elements must be a positive integer"),
+    (dict(I=0.0), "I must be positive"),
+])
+def test_invalid_segments_are_refused(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        ShaftSegment(**(dict(length=0.1, d_out=0.04, **STEEL) | kwargs))
+    with pytest.raises(ValueError, match="direction must be 'x' or 'y'"):
+        Sensor("s", 1, "z")
+
+
+# --- Campbell data --------------------------------------------------------------------------------
+
+
+def test_campbell_at_rest_is_the_first_mode_of_the_undamped_varm():
+    """Without damping the lowest whirl frequency at rest is omega_1 of docs/model.md (scipy's eigh on the
+    x-plane pencil); the x and y planes give it twice."""
+    variant = builtin_variant("geometric")
+    values = variant.values({"zeta_s": 0.0, "zeta_bup": 0.0, "zeta_blo": 0.0, "m_e": 0.0148})
+    ctx = variant.model.context(values, 0.0)
+    n = variant.model.shaft.n_plane
+    omega_1 = np.sqrt(scipy.linalg.eigh(ctx.K[0, :n, :n], ctx.M[0, :n, :n], eigvals_only=True)[0])
+    table = campbell(variant.model, {k: float(v) for k, v in values.items()}, [0.0, 600.0], n_modes=4)
+    at_rest = table[table.rpm == 0.0]
+    # state-space eig against eigh of the same pencil: round-off (1e-9 relative)
+    np.testing.assert_allclose(at_rest.frequency_hz.iloc[:2], omega_1 / (2 * np.pi), rtol=1e-9)
+    np.testing.assert_allclose(at_rest.damping_ratio.iloc[:2], 0.0, atol=1e-9)
+    spinning = table[table.rpm == 600.0]
+    # the VARM's centrifugal term -Omega^2 M softens: the lowest frequency falls with speed
+    assert spinning.frequency_hz.iloc[0] < at_rest.frequency_hz.iloc[0]
+    assert list(table.columns) == ["rpm", "mode", "frequency_hz", "damping_ratio", "whirl", "whirl_index"]
