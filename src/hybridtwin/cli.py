@@ -247,7 +247,7 @@ def _common(parser: argparse.ArgumentParser, variant: bool = True, default_varia
                             else "the variant to describe (default: list them all)")
         parser.add_argument("--add-effect", action="append", default=[], metavar="NAME",
                             help="add this effect (built in or from --effects-file) to the variant (repeatable); "
-                                 "its parameters keep their nominal values unless --set")
+                                 "its parameters keep their nominal values (simulate: unless --set)")
     parser.add_argument("--config", type=Path, default=None,
                         help="YAML with 'variants:' (and 'effects_files:'), default ./config/config.yaml when "
                              "it exists, else the built-in variants")
