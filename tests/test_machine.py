@@ -239,7 +239,8 @@ def test_sensors_by_name_node_and_direction():
 
 
 @pytest.mark.parametrize("kwargs, message", [
-    (dict(disks=[Disk(40, 1.0)]), "disk at node 40, but the nodes are 0..17"),
+    (dict(disks=[Disk(40, 1.0)]), "disk at node 40: nodes are the integers 0..17"),
+    (dict(sensors=[Sensor("s", 2.0, "x")]), "sensor 's' at node 2.0: nodes are the integers 0..17"),
     (dict(bearings=[Bearing("a", 1), Bearing("a", 3)]), "the name 'a' is used twice"),
     (dict(bearings=[Bearing("a b", 1)]), "must be a non-empty identifier"),
     (dict(bearings=[Bearing("a", 1, k=-1.0)]), "k and c must be >= 0"),
@@ -285,3 +286,133 @@ def test_campbell_at_rest_is_the_first_mode_of_the_undamped_varm():
     # the VARM's centrifugal term -Omega^2 M softens: the lowest frequency falls with speed
     assert spinning.frequency_hz.iloc[0] < at_rest.frequency_hz.iloc[0]
     assert list(table.columns) == ["rpm", "mode", "frequency_hz", "damping_ratio", "whirl", "whirl_index"]
+
+
+# --- the machine: section of the config -----------------------------------------------------------
+
+MACHINE_YAML = """\
+machine:
+  name: stepped
+  segments:
+    - {length: 0.2, d_out: 0.04, E: 2.11e+11, rho: 7810, n_elements: 4}
+    - {length: 0.5, d_out: 0.05, d_in: 0.02, E: 2.11e+11, rho: 7810, n_elements: 10}
+    - {length: 0.3, d_out: 0.035, E: 2.11e+11, rho: 7810, n_elements: 3}
+  disks:
+    - {node: 8, mass: 15.3, I_p: 0.12, I_d: 0.062, name: d1}
+    - {node: 16, mass: 7.4, I_p: 0.037, I_d: 0.019, name: d2}
+  bearings: {a: {node: 2, k: 2.0e+7, c: 800}, b: {node: 13, k: 1.0e+7, c: 500}}
+  unbalance_planes: {d1: 8}
+  sensors: {x1: {node: 8, direction: x}, y1: {node: 8, direction: y}}
+variants:
+  linear:
+    effects: [linear_bearing@a, linear_bearing@b, gyroscopic, unbalance@d1]
+    unknown: {k_a: [1.0e+7, 4.0e+7], c_b: [100, 1000]}
+"""
+
+
+@pytest.fixture
+def project(tmp_path, monkeypatch):
+    """A project folder (cwd) with the bundled config and runs sheet."""
+    from pathlib import Path
+    import shutil
+
+    root = Path(__file__).resolve().parents[1]
+    (tmp_path / "config").mkdir()
+    shutil.copy(root / "config" / "config.yaml", tmp_path / "config" / "config.yaml")
+    (tmp_path / "data" / "default").mkdir(parents=True)
+    shutil.copy(root / "data" / "default" / "runs.tsv", tmp_path / "data" / "default" / "runs.tsv")
+    monkeypatch.chdir(tmp_path)
+    return tmp_path, root / "workflow" / "schemas" / "config.schema.yaml"
+
+
+def _config(project, overlay: str):
+    """The bundled config with ``overlay``'s top-level keys and variants added; the ConfigError lines or []."""
+    import yaml
+
+    from hybridtwin.config import ConfigError, check
+
+    folder, schema = project
+    config = yaml.safe_load((folder / "config" / "config.yaml").read_text())
+    extra = yaml.safe_load(overlay)
+    config |= {k: v for k, v in extra.items() if k != "variants"}
+    config["variants"] |= extra.get("variants", {})
+    (folder / "config" / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False))
+    try:
+        check(config, schema, [folder / "config" / "config.yaml"])
+    except ConfigError as err:
+        return config, err.problems
+    return config, []
+
+
+def test_config_machine_builds_the_same_model_as_the_python_api(project):
+    from hybridtwin import config as cfg
+
+    config, problems = _config(project, MACHINE_YAML)
+    assert problems == []
+    variant = cfg.variant(config, "linear")
+    rotor = variant.model.shaft
+    reference = _stepped()
+    assert isinstance(rotor, Machine) and rotor.n == reference.n == 17
+    assert [b.node for b in rotor.bearings] == [2, 13] and rotor.sensor_node == 8
+    fx = reference.effects()
+    model = Model([fx["linear_bearing@a"], fx["linear_bearing@b"], fx["gyroscopic"], fx["unbalance@d1"]], reference)
+    values = variant.values({"m_e": 0.002})
+    _systems_equal(model.system(values, [1000.0, 3000.0]), variant.system([1000.0, 3000.0], {"m_e": 0.002}))
+
+
+def test_config_without_machine_is_the_varm(project):
+    from hybridtwin import config as cfg
+
+    config, problems = _config(project, "{}")
+    assert problems == [] and "machine" not in config
+    variant = cfg.variant(config, "geometric")
+    _systems_equal(variant.system([500.0, 900.0], {"m_e": 0.0148}),
+                   builtin_variant("geometric", Shaft()).system([500.0, 900.0], {"m_e": 0.0148}))
+
+
+@pytest.mark.parametrize("edit, expected", [
+    (("segments", 0, "E"), "machine.segments: missing key 'E'"),
+    (("disks", 0, "node", 40), "machine: machine 'stepped': disk 'd1' at node 40: nodes are the integers 0..17"),
+    (("sensors", "x1", "node", 16), "machine.sensors: machine 'stepped': sensors"),
+    (("bearings", "a", "nodes", 2), "machine.bearings.a: unknown key 'nodes' (did you mean 'node'?"),
+])
+def test_bad_machine_sections_are_one_line_each(project, edit, expected):
+    import yaml
+
+    spec = yaml.safe_load(MACHINE_YAML)
+    target = spec["machine"]
+    *path, key = edit[:-1] if len(edit) == 4 else edit
+    for step in path:
+        target = target[step]
+    if len(edit) == 4:
+        target[key] = edit[-1]
+    else:
+        del target[key]
+    _, problems = _config(project, yaml.safe_dump(spec))
+    assert problems, "the bad section passed"
+    assert any(expected in p for p in problems), problems
+    assert all("config.yaml, line" in p and "\n" not in p for p in problems)
+
+
+@pytest.mark.parametrize("spec, message", [
+    ({"segments": [{"length": 0.1, "d_out": 0.01, "E": "2e11", "rho": 7800}]},
+     "machine.segments[0].E: must be a number, got '2e11'"),
+    ({"segments": [{"length": 0.1, "d_out": 0.01, "E": 2e11, "rho": 7800, "n_elements": 2.5}]},
+     "machine.segments[0]: shaft segment: n_elements must be a positive integer, got 2.5"),
+    ({"segments": {"length": 0.1}}, "machine.segments: must be a list"),
+    ({"segments": [], "shaft": 1}, "machine: unknown key(s) ['shaft']"),
+    ({"segments": [{"length": 0.1, "d_out": 0.01, "E": 2e11, "rho": 7800}], "sensors": {"s": {"node": 1}}},
+     "machine.sensors.s: missing key(s) ['direction']"),
+])
+def test_machine_from_mapping_names_the_bad_key(spec, message):
+    """The Python path (without the schema) says where in the section the problem is, in one line."""
+    from hybridtwin.machine import MachineSpecError
+
+    with pytest.raises(MachineSpecError) as err:
+        Machine.from_mapping(spec)
+    assert str(err.value).startswith(message) and "\n" not in str(err.value)
+
+
+def test_machine_from_mapping_of_nothing_is_the_varm():
+    for a, b in zip(Machine.from_mapping(None).matrices(), Shaft().matrices()):
+        assert np.array_equal(a, b)

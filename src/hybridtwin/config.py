@@ -22,6 +22,7 @@ import yaml
 from threadpoolctl import threadpool_limits
 
 from .effects import Effect
+from .machine import Machine, MachineSpecError
 from .scenarios import default_n_scenarios
 from .variants import EffectsFileError, Variant, load_effects_files
 
@@ -35,11 +36,18 @@ def user_effects(config: Mapping, config_dir: Path = CONFIG_DIR) -> dict[str, Ef
     return load_effects_files([config_dir / path for path in config.get("effects_files") or []])
 
 
+def machine(config: Mapping) -> Machine:
+    """The rotor of the ``machine:`` section (hybridtwin.machine; absent: the VARM)."""
+    return Machine.from_mapping(config.get("machine"))
+
+
 def variant(config: Mapping, name: str, config_dir: Path = CONFIG_DIR) -> Variant:
-    """The variant ``name`` declared under ``variants:``."""
+    """The variant ``name`` declared under ``variants:``, built on the config's machine."""
     if name not in config["variants"]:
         raise KeyError(f"variant {name!r} is not declared in the config (declared: {sorted(config['variants'])})")
-    return Variant.from_spec(name, config["variants"][name], user_effects(config, config_dir))
+    rotor = machine(config)
+    return Variant.from_spec(name, config["variants"][name], user_effects(config, config_dir) | rotor.effects(),
+                             shaft=rotor)
 
 
 def offline(config: Mapping) -> dict:
@@ -310,8 +318,18 @@ def _name_problems(config: Mapping, config_dir: Path) -> Iterable[Problem]:
         except EffectsFileError as err:
             yield ("effects_files", i), "effects_files", f"{err} (paths are relative to {config_dir}/)"
 
+    rotor, machine_ok = Machine.varm(), False
+    try:
+        rotor = Machine.from_mapping(config.get("machine"))
+        rotor.sensor_node  # the workflow reads one x and one y probe at one node
+        machine_ok = True
+    except MachineSpecError as err:
+        yield ("machine",) + err.path, _key(("machine",) + err.path), err.message
+    except ValueError as err:
+        yield ("machine", "sensors"), "machine.sensors", str(err)
+    placed = user | rotor.effects()  # effects at the machine's named nodes, e.g. linear_bearing@drive_end
     variants = dict(config.get("variants") or {})
-    registry = builtin_effects() | user
+    registry = builtin_effects() | placed
     for name, spec in variants.items():
         where = ("variants", name)
         bad = False
@@ -321,6 +339,8 @@ def _name_problems(config: Mapping, config_dir: Path) -> Iterable[Problem]:
                 parameters |= {p.name for p in registry[effect].parameters}
             else:
                 bad = True
+                if not machine_ok and "@" in str(effect):
+                    continue  # placed at a name of the machine, whose own problem is reported
                 yield where + ("effects", i), _key(where + ("effects",)), \
                     f"no effect named {effect!r} {_allowed(effect, registry, 'effects')}"
         for kind in ("unknown", "fixed") if not bad else ():  # parameters only once the effects are known
@@ -332,7 +352,7 @@ def _name_problems(config: Mapping, config_dir: Path) -> Iterable[Problem]:
                         f"{_allowed(parameter, parameters, 'parameters')}"
         if not bad:
             try:
-                Variant.from_spec(name, spec, user)
+                Variant.from_spec(name, spec, placed, shaft=rotor)
             except ValueError as err:
                 yield where, _key(where), str(err)
 

@@ -60,7 +60,8 @@ class ShaftSegment:
                 raise ValueError(f"shaft segment: {name} must be a positive number, got {value!r}")
         if not 0.0 <= self.d_in < self.d_out:
             raise ValueError(f"shaft segment: d_in must be in [0, d_out = {self.d_out}), got {self.d_in!r}")
-        if isinstance(self.n_elements, bool) or int(self.n_elements) != self.n_elements or self.n_elements < 1:
+        if isinstance(self.n_elements, bool) or not isinstance(self.n_elements, (int, np.integer)) \
+                or self.n_elements < 1:
             raise ValueError(f"shaft segment: n_elements must be a positive integer, got {self.n_elements!r}")
         for name in ("I", "m"):
             value = getattr(self, name)
@@ -177,8 +178,9 @@ class Machine:
                             ("unbalance plane", self.unbalance_planes), ("sensor", self.sensors)):
             for item in items:
                 label = f"{kind} {item.name!r}" if item.name else kind
-                if isinstance(item.node, bool) or int(item.node) != item.node or not 0 <= item.node < n_nodes:
-                    raise ValueError(f"{where}: {label} at node {item.node!r}, but the nodes are 0..{n_nodes - 1}")
+                if isinstance(item.node, bool) or not isinstance(item.node, (int, np.integer)) \
+                        or not 0 <= item.node < n_nodes:
+                    raise ValueError(f"{where}: {label} at node {item.node!r}: nodes are the integers 0..{n_nodes - 1}")
                 if kind == "disk":
                     continue
                 if not item.name or not str(item.name).isidentifier():
@@ -216,6 +218,44 @@ class Machine:
             unbalance_planes=(UnbalancePlane("eccentric_mass", shaft.node_at(0.425)),),
             sensors=(Sensor("x", 1, "x"), Sensor("y", 1, "y")),
         )
+
+    @classmethod
+    def from_mapping(cls, spec: Mapping | None) -> "Machine":
+        """A machine from its config form (``machine:`` in config/config.yaml; None: the VARM)::
+
+            name: test_rig
+            segments:                       # along z, from node 0
+              - {length: 0.2, d_out: 0.04, E: 2.11e+11, rho: 7810, n_elements: 4}   # d_in, I, m optional
+            disks: [{node: 8, mass: 15.3, I_p: 0.12, I_d: 0.062, name: impeller}]
+            bearings: {drive_end: {node: 2, k: 2.0e+7, c: 800}, free_end: {node: 16}}
+            unbalance_planes: {impeller: 8}
+            sensors: {x1: {node: 8, direction: x}, y1: {node: 8, direction: y}}
+            rotary_inertia: false
+
+        A problem raises ``MachineSpecError`` (one line; ``path``: where in the section).
+        """
+        if spec is None:
+            return cls.varm()
+        if not isinstance(spec, Mapping):
+            raise MachineSpecError((), f"must be a mapping, got {spec!r}")
+        _known(spec, (), {"name", "segments", "disks", "bearings", "unbalance_planes", "sensors", "rotary_inertia"})
+        segments = [_build(ShaftSegment, item, ("segments", i), {"length", "d_out", "E", "rho"},
+                           {"d_in", "n_elements", "I", "m"}) for i, item in enumerate(_sequence(spec, "segments"))]
+        disks = [_build(Disk, item, ("disks", i), {"node", "mass"}, {"I_p", "I_d", "name"})
+                 for i, item in enumerate(_sequence(spec, "disks"))]
+        bearings = [_build(Bearing, {"name": name, **_mapping(item, ("bearings", name))}, ("bearings", name),
+                           {"name", "node"}, {"k", "c"}) for name, item in _mapping(spec.get("bearings"),
+                                                                                    ("bearings",)).items()]
+        planes = [_build(UnbalancePlane, {"name": name, "node": node}, ("unbalance_planes", name), {"name", "node"},
+                         set()) for name, node in _mapping(spec.get("unbalance_planes"), ("unbalance_planes",)).items()]
+        sensors = [_build(Sensor, {"name": name, **_mapping(item, ("sensors", name))}, ("sensors", name),
+                          {"name", "node", "direction"}, set())
+                   for name, item in _mapping(spec.get("sensors"), ("sensors",)).items()]
+        try:
+            return cls(str(spec.get("name", "machine")), segments, disks, bearings, planes, sensors,
+                       bool(spec.get("rotary_inertia", False)))
+        except ValueError as err:
+            raise MachineSpecError((), str(err)) from None
 
     # --- discretisation: the interface of Shaft ------------------------------------------------------
 
@@ -419,6 +459,53 @@ class Machine:
         for s in self.sensors:
             lines.append(f"  sensor {s.name} at node {s.node}, direction {s.direction}")
         return "\n".join(lines)
+
+
+class MachineSpecError(ValueError):
+    """A bad ``machine:`` section: ``path`` (keys inside the section) and a one-line message."""
+
+    def __init__(self, path: tuple, message: str):
+        self.path, self.message = tuple(path), message
+        where = "machine" + "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in self.path)
+        super().__init__(f"{where}: {message}")
+
+
+def _mapping(value, path: tuple) -> Mapping:
+    if value is None:
+        return {}
+    if not isinstance(value, Mapping):
+        raise MachineSpecError(path, f"must be a mapping, got {value!r}")
+    return value
+
+
+def _sequence(spec: Mapping, key: str) -> list:
+    value = spec.get(key)
+    if value is None:
+        return []
+    if isinstance(value, (str, bytes, Mapping)) or not isinstance(value, Sequence):
+        raise MachineSpecError((key,), f"must be a list, got {value!r}")
+    return list(value)
+
+
+def _known(spec: Mapping, path: tuple, allowed: set[str]) -> None:
+    stray = sorted(set(map(str, spec)) - allowed)
+    if stray:
+        raise MachineSpecError(path, f"unknown key(s) {stray} (allowed: {', '.join(sorted(allowed))})")
+
+
+def _build(kind: type, item, path: tuple, required: set[str], optional: set[str]):
+    item = _mapping(item, path)
+    _known(item, path, required | optional)
+    missing = sorted(required - set(item))
+    if missing:
+        raise MachineSpecError(path, f"missing key(s) {missing}")
+    for key, value in item.items():
+        if key not in ("name", "direction") and (isinstance(value, bool) or not isinstance(value, (int, float))):
+            raise MachineSpecError(path + (key,), f"must be a number, got {value!r}")
+    try:
+        return kind(**item)
+    except ValueError as err:
+        raise MachineSpecError(path, str(err)) from None
 
 
 # --- effects of a described machine ---------------------------------------------------------------------
