@@ -416,3 +416,93 @@ def test_machine_from_mapping_names_the_bad_key(spec, message):
 def test_machine_from_mapping_of_nothing_is_the_varm():
     for a, b in zip(Machine.from_mapping(None).matrices(), Shaft().matrices()):
         assert np.array_equal(a, b)
+
+
+# --- Campbell diagram (machine_plots) ----------------------------------------------------------------
+
+
+def _spinning_disk(I_p, I_d, k_t):
+    """The rigid disk on a tilt spring of test_gyroscopic_stiffening_of_a_spinning_disk, as a model."""
+    from hybridtwin.effects import Effect, Parameter
+
+    machine = Machine("disk", [ShaftSegment(0.01, 1e-3, 1e3, 7800.0)], disks=[Disk(0, 1.0, I_p, I_d)])
+
+    class Holder(Effect):
+        name, meaning = "holder", "translation held, tilt on a spring k_t"
+        parameters = (Parameter("k_t", "N m/rad", (0.0, 1e5), k_t, "tilt spring"),)
+
+        def stiffness(self, ctx):
+            out = ctx.zeros()
+            for dof, value in (("u0", 1e12), ("v0", 1e12), ("u1", 1e12), ("v1", 1e12), ("du1", 1e12),
+                               ("dv1", 1e12), ("du0", k_t), ("dv0", k_t)):
+                out[:, ctx.dof(dof), ctx.dof(dof)] = value
+            return out
+
+    return Model([Holder(), machine.effects()["gyroscopic"]], machine)
+
+
+def test_critical_speeds_of_a_spinning_disk():
+    """The 1X line crosses I_d w^2 -+ I_p w Omega = k_t at w = Omega: forward at sqrt(k_t / (I_d - I_p)),
+    backward at sqrt(k_t / (I_d + I_p))."""
+    from hybridtwin.machine_plots import critical_speeds
+
+    I_p, I_d, k_t = 0.05, 0.1, 4.0e4
+    rpm = np.linspace(0.0, 12000.0, 401)
+    table = campbell(_spinning_disk(I_p, I_d, k_t), {"k_t": k_t}, rpm, n_modes=2)
+    crossings = critical_speeds(table, 1).set_index("whirl")["rpm"]
+    to_rpm = 60 / (2 * np.pi)
+    # linear interpolation over 30 RPM steps of smooth branches: error ~ 1e-6 relative, 1e-4 asserted
+    assert crossings["forward"] == pytest.approx(np.sqrt(k_t / (I_d - I_p)) * to_rpm, rel=1e-4)
+    assert crossings["backward"] == pytest.approx(np.sqrt(k_t / (I_d + I_p)) * to_rpm, rel=1e-4)
+
+
+def test_campbell_figure_of_the_varm(tmp_path):
+    """Undamped, the VARM's centrifugal term gives w^2 = w_1^2 - Omega^2 (K - Omega^2 M against M), so the
+    first mode meets 1X at Omega = w_1 / sqrt(2) (docs/model.md, 'Behaviour to expect'); the figure draws the
+    table's branches, the 1X-3X lines and each run speed."""
+    import matplotlib
+
+    from hybridtwin.machine_plots import campbell_figure
+
+    variant = builtin_variant("geometric")
+    values = {k: float(v) for k, v in variant.values({"zeta_s": 0.0, "zeta_bup": 0.0, "zeta_blo": 0.0}).items()}
+    runs = [350.0, 500.0, 650.0, 800.0, 950.0]
+    fig = campbell_figure(variant.model, values, np.linspace(0.0, 1200.0, 121), run_rpm=runs, n_modes=4)
+    ctx = variant.model.context(variant.values(values), 0.0)
+    expected = ctx.omega_1[0] / np.sqrt(2) * 60 / (2 * np.pi)
+    first = fig.critical[fig.critical.branch == 0]
+    assert len(first) == 2  # forward and backward branches coincide without gyroscopic coupling
+    # 10 RPM steps along sqrt(w_1^2 - Omega^2): interpolation error < 1e-4 relative
+    np.testing.assert_allclose(first.rpm, expected, rtol=1e-4)
+    ax = fig.axes[0]
+    lines = {line.get_gid(): line for line in ax.get_lines()}
+    forward = fig.campbell[(fig.campbell.whirl == "forward") & (fig.campbell.branch == 0)].sort_values("rpm")
+    np.testing.assert_array_equal(lines["forward:0"].get_ydata(), forward.frequency_hz)
+    for h in (1, 2, 3):
+        x, y = lines[f"{h}X"].get_data()
+        np.testing.assert_allclose(y, h * np.asarray(x) / 60.0)
+    assert sorted(float(lines[f"run:{r:g}"].get_xdata()[0]) for r in runs) == runs
+    fig.savefig(tmp_path / "campbell.png")
+    assert (tmp_path / "campbell.png").stat().st_size > 10_000
+    matplotlib.pyplot.close(fig)
+
+
+def test_campbell_figure_of_a_stepped_rotor_separates_forward_and_backward():
+    from hybridtwin.machine_plots import campbell_figure
+
+    machine = _stepped()
+    fx = machine.effects()
+    model = Model([fx["linear_bearing@a"], fx["linear_bearing@b"], fx["gyroscopic"]], machine)
+    values = {k: p.nominal for k, p in model.parameters.items()}
+    fig = campbell_figure(model, values, np.linspace(0.0, 20000.0, 41), run_rpm=[3000.0], n_modes=6)
+    table = fig.campbell
+    # the branches of the 6 lowest modes at rest, 3 per whirl sense, each followed over all 41 speeds (the
+    # third forward one rises past higher backward modes: computed with twice the modes, never cut off)
+    assert table.groupby(["whirl", "branch"]).size().to_dict() == {(w, b): 41 for w in ("backward", "forward")
+                                                                     for b in range(3)}
+    low = table[table.branch == 0].pivot(index="rpm", columns="whirl", values="frequency_hz")
+    assert (low["forward"].iloc[1:] > low["backward"].iloc[1:]).all()  # split by the disks' gyroscopic moments
+    assert low["forward"].is_monotonic_increasing and low["backward"].is_monotonic_decreasing
+    import matplotlib
+
+    matplotlib.pyplot.close(fig)

@@ -18,6 +18,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+import scipy.linalg
 
 from .effects import Array, Context, Effect, Parameter, Params, PolynomialBearing
 from .machine import Machine, default_machine
@@ -266,10 +267,32 @@ def campbell(model: Model, values: Mapping[str, Array | float], rpm: Array | Seq
         lam, vec = np.linalg.eig(A)
         scale = np.abs(lam).max()
         keep = np.flatnonzero(lam.imag > 1e-9 * scale)  # oscillating modes; rigid-body and overdamped ones out
-        keep = keep[np.argsort(lam.imag[keep])][:n_modes]
-        for mode, j in enumerate(keep):
-            U, V = vec[x, j], vec[y, j]
+        keep = keep[np.argsort(lam.imag[keep])][:n_modes + 1]
+        q = _circular(lam[keep], vec[:n, keep])
+        for mode, j in enumerate(keep[:n_modes]):
+            U, V = q[x, mode], q[y, mode]
             index = -2.0 * np.sum(np.imag(np.conj(U) * V)) / np.sum(np.abs(U) ** 2 + np.abs(V) ** 2)
             rows.append((rpm[s], mode, lam[j].imag / (2 * np.pi), -lam[j].real / abs(lam[j]),
                          "forward" if index >= 0 else "backward", index))
     return pd.DataFrame(rows, columns=["rpm", "mode", "frequency_hz", "damping_ratio", "whirl", "whirl_index"])
+
+
+def _circular(lam: Array, q: Array) -> Array:
+    """The modes ``q`` (n, m) with each degenerate pair (equal eigenvalues to 1e-7, e.g. the two planes of an
+    isotropic rotor without gyroscopic coupling, where the eigensolver returns any basis) replaced by its
+    forward and backward circular combinations: the extreme vectors of the whirl form
+    -2 Im(conj(U) V) = q^H B q, B = [[0, i], [-i, 0]] over the planes, in the pair's span."""
+    q = q.copy()
+    n = q.shape[0] // 2
+    j = 0
+    while j < len(lam) - 1:
+        if abs(lam[j + 1] - lam[j]) <= 1e-7 * abs(lam[j]):
+            span = q[:, j:j + 2]
+            B = np.zeros((2 * n, 2 * n), complex)
+            B[:n, n:], B[n:, :n] = 1j * np.eye(n), -1j * np.eye(n)
+            _, c = scipy.linalg.eigh(span.conj().T @ B @ span, span.conj().T @ span)
+            q[:, j:j + 2] = span @ c[:, ::-1]  # forward (largest whirl index) first
+            j += 2
+        else:
+            j += 1
+    return q
