@@ -18,9 +18,10 @@ checks that its numbers can be what the sensor measured on this machine:
   judged; a record without one is left to the 1X significance below.
 - **Response** (``response_flags``, flags that keep the run out of the fit):
   the 1X of each channel significant against its own uncertainty
-  (|X_1| / sigma_1 >= SIGNIFICANCE; for noise alone |X_1| / sigma_1 is
-  Rayleigh-distributed and exceeds 5 with probability exp(-12.5) = 4e-6): a
-  channel of noise only (an unplugged or misaimed sensor) fails it; the 1X
+  (|X_1| / sigma_1 >= SIGNIFICANCE; for noise alone, sigma_1 from the scatter
+  of K revolutions, |X_1|^2 / sigma_1^2 = 2 F(2, 2K - 2): above 5^2 with
+  probability (1 + 25 / (2K - 2))^-(K - 1), 7e-5 for K = 20, exp(-12.5) = 4e-6
+  as K grows): a channel of noise only (an unplugged or misaimed sensor) fails it; the 1X
   orbit whirls forward, as the unbalance response of this machine does (the
   shaft turns from +x towards +y): a backward orbit means x and y swapped or
   one channel's sign reversed; no single spikes: a sample further than
