@@ -210,7 +210,8 @@ def _headline(summary: pd.DataFrame) -> str:
     p = float(best["p_value"])
     fits = (f"within the noise (p = {p:.2g})" if p >= ALPHA
             else f"beyond the noise (p = {p:.2g}): the model still misses something")
-    text = (f"**Best of the {len(summary)} variants** (lowest BIC): **{_text(best['variant'])}**, chi^2/dof "
+    which = f"Best of the {len(summary)} variants** (lowest BIC)" if len(summary) > 1 else "The only variant**"
+    text = (f"**{which}: **{_text(best['variant'])}**, chi^2/dof "
             f"{_number(best['chi2_dof'])} on its {int(best['fit_runs'])} fit runs (1 = the noise floor), {fits}")
     if best["validation_runs"]:
         n = int(best["validation_runs"])
@@ -235,8 +236,8 @@ def _recommendation(r) -> str:
         return line
     if r.recommended_in_config:
         return line + f". Already in the config as **{_text(r.recommended_in_config)}**."
-    return line + ". The lines to paste under ``variants:``: " + result_link(
-        "diagnosis.md", f"results/{r.variant}/diagnosis.md") + "."
+    return (line + f". Variant **{_text(r.recommended_variant)}**: the lines to paste under ``variants:`` are in "
+            + result_link("diagnosis.md", f"results/{r.variant}/diagnosis.md") + ".")
 
 
 def _failures(variant: str, table: pd.DataFrame) -> str:
