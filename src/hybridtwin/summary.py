@@ -184,7 +184,13 @@ def _text(value: str) -> str:
 
 
 def _number(value: float) -> str:
-    return "-" if not np.isfinite(_finite(value)) else f"{float(value):.3g}"
+    """Three significant digits, whole numbers from 1000 on, 'none' for a missing value."""
+    value = _finite(value)
+    return "none" if not np.isfinite(value) else f"{value:.0f}" if abs(value) >= 1000 else f"{value:.3g}"
+
+
+def _p_value(p: float) -> str:
+    return f"p = {p:.2g}" if p >= 1e-15 else "p < 1e-15"
 
 
 def result_link(label: str, path: str) -> str:
@@ -208,8 +214,8 @@ def _list_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
 def _headline(summary: pd.DataFrame) -> str:
     best = best_variant(summary)
     p = float(best["p_value"])
-    fits = (f"within the noise (p = {p:.2g})" if p >= ALPHA
-            else f"beyond the noise (p = {p:.2g}): the model still misses something")
+    fits = (f"within the noise ({_p_value(p)})" if p >= ALPHA
+            else f"beyond the noise ({_p_value(p)}): the model still misses something")
     which = f"Best of the {len(summary)} variants** (lowest BIC)" if len(summary) > 1 else "The only variant**"
     text = (f"**{which}: **{_text(best['variant'])}**, chi^2/dof "
             f"{_number(best['chi2_dof'])} on its {int(best['fit_runs'])} fit runs (1 = the noise floor), {fits}")
@@ -224,7 +230,7 @@ def _ledger_rows(summary: pd.DataFrame) -> list[list[str]]:
     rows = []
     for r in summary.itertuples():
         worst = (result_link(f"{r.worst_run} ({_number(r.worst_run_chi2_dof)})", run_figure(r.variant, r.worst_run))
-                 if r.worst_run else "-")
+                 if r.worst_run else "none")
         rows.append([_text(r.variant), _number(r.chi2_dof), _number(r.validation_chi2_dof),
                      f"{float(r.delta_bic):.0f}", worst])
     return rows
