@@ -57,6 +57,7 @@ from hybridtwin.candidates import candidates_for
 from hybridtwin.effects import Parameter, PolynomialBearing, Term
 from hybridtwin.measurements import read_runs
 from hybridtwin.preprocessing import preprocess_run
+from hybridtwin.protocol import ProtocolOptions
 from hybridtwin.rig import RigSpec, generate, read_plan
 from hybridtwin.variants import Variant
 
@@ -126,7 +127,7 @@ def base_fit(data: list, config: dict, trials: int, seed: int, harmonics: int) -
     models = [fwd.SolverModel(variant, d.run, d.rpm, d.eccentric_mass_g, names, lower, upper, harmonics)
               for d in data]
     per_run = config["identification"]["per_run"]
-    options = idn.ProtocolOptions(trials=trials, monte_carlo=0, seed=seed, lm=lm.LMOptions(max_iterations=60))
+    options = ProtocolOptions(trials=trials, monte_carlo=0, seed=seed, lm=lm.LMOptions(max_iterations=60))
     fit = idn.identify(models, data, per_run, options)
     fit = pol.polish(fit, models, seed=seed)  # the polish's rule: random starts where the misfit is large
     return dg.BaseFit(variant, fit.layout, fit.theta, fit.data, harmonics), fit

@@ -58,6 +58,7 @@ from hybridtwin import identification as idn
 from hybridtwin import lm
 from hybridtwin import uncertainty as unc
 from hybridtwin.candidates import builtin_candidates
+from hybridtwin.protocol import ProtocolOptions
 from hybridtwin.variants import BUILTIN_VARIANTS, Variant
 
 SIGMA = 8e-7  # m per real/imaginary part, the bundled records' (results/data/harmonics.tsv: 6-10e-7)
@@ -141,7 +142,7 @@ def fit_base(data: list[idn.RunData], harmonics: int, seed: int) -> tuple[dg.Bas
     for i, (p, _) in enumerate(layout.entries()):
         if p != "phase":
             nominal[i] = float(layout.normalise(p, variant.model.parameters[p].nominal))
-    options = idn.ProtocolOptions(trials=3, monte_carlo=0, seed=seed, lm=lm.LMOptions(max_iterations=60))
+    options = ProtocolOptions(trials=3, monte_carlo=0, seed=seed, lm=lm.LMOptions(max_iterations=60))
     fit = idn.identify(models, data, (), options, extra_starts=nominal[None])
     return dg.BaseFit(variant, fit.layout, fit.theta, fit.data, harmonics), fit
 

@@ -40,6 +40,7 @@ from hybridtwin import lm
 from hybridtwin import polish as pol
 from hybridtwin.library import Library, build_library, relative_sensor_error
 from hybridtwin.pod import pod, to_features
+from hybridtwin.protocol import ProtocolOptions, random_starts
 from hybridtwin.rig import RigSpec, generate, read_plan
 from hybridtwin.scenarios import default_n_scenarios, sample_scenarios
 from hybridtwin.sensor import observable, sensor_dofs
@@ -91,7 +92,7 @@ def protocol_timing(work: Path, runs: list[str]) -> pd.DataFrame:
     rows = []
     for d, library in zip(data, libraries):
         wall, cpu = time.perf_counter(), time.process_time()
-        fit = idn.identify([fwd.SensorSurrogate(library)], [d], options=idn.ProtocolOptions(seed=1),
+        fit = idn.identify([fwd.SensorSurrogate(library)], [d], options=ProtocolOptions(seed=1),
                            model_error=errors)
         rows.append({"run": d.run, "lm_problems": fit.protocol.n_lm, "wall_s": time.perf_counter() - wall,
                      "cpu_s": time.process_time() - cpu, "mean_iterations": fit.protocol.trials.nit.mean(),
@@ -138,15 +139,15 @@ def scipy_benchmark(work: Path, runs: list[str], all_runs: list[str]) -> pd.Data
     rng = np.random.default_rng(7)
     data, libraries, errors = load(work, runs)
     for d, library in zip(data, libraries):
-        fit = idn.identify([fwd.SensorSurrogate(library)], [d], options=idn.ProtocolOptions(trials=1, monte_carlo=0),
+        fit = idn.identify([fwd.SensorSurrogate(library)], [d], options=ProtocolOptions(trials=1, monte_carlo=0),
                            model_error=errors)
         X = fit.X
-        starts = fit.problem.initial_phases(idn.random_starts(fit.layout, 50, rng), np.repeat(X[None], 50, 0))
+        starts = fit.problem.initial_phases(random_starts(fit.layout, 50, rng), np.repeat(X[None], 50, 0))
         rows.append({"problem": d.run, **scipy_comparison(fit.problem, X, starts)})
     data, libraries, errors = load(work, all_runs)
     fit = idn.identify([fwd.SensorSurrogate(lib) for lib in libraries], data, per_run=["q_x", "q_y"],
-                       options=idn.ProtocolOptions(trials=1, monte_carlo=0), model_error=errors)
-    starts = fit.problem.initial_phases(idn.random_starts(fit.layout, 20, rng), np.repeat(fit.X[None], 20, 0))
+                       options=ProtocolOptions(trials=1, monte_carlo=0), model_error=errors)
+    starts = fit.problem.initial_phases(random_starts(fit.layout, 20, rng), np.repeat(fit.X[None], 20, 0))
     rows.append({"problem": f"joint ({len(all_runs)} runs, {fit.layout.n} unknowns)",
                  **scipy_comparison(fit.problem, fit.X, starts)})
     return pd.DataFrame(rows)
@@ -171,7 +172,7 @@ def alternative_fit(work: Path, runs: list[str], per_run: list[str], keyphasor: 
     variant = Variant.from_spec("geometric", {"effects": GEOMETRIC, "unknown": RANGES})
     start = time.perf_counter()
     fit = idn.identify([fwd.SensorSurrogate(lib) for lib in libraries], data, per_run=per_run,
-                       options=idn.ProtocolOptions(monte_carlo=0), model_error=errors)
+                       options=ProtocolOptions(monte_carlo=0), model_error=errors)
     solver = [fwd.SolverModel(variant, d.run, d.rpm, d.eccentric_mass_g, lib.parameters, lib.lower, lib.upper, 5)
               for d, lib in zip(data, libraries)]
     return pol.polish(fit, solver), time.perf_counter() - start
@@ -236,7 +237,7 @@ def me_joint(work: Path, runs: list[str]) -> tuple[idn.Identification, float]:
     models = [fwd.SensorSurrogate(libraries[r]) for r in runs]
     errors = {r: libraries[r].info.get("test_median_error", 0.0) for r in runs}
     start = time.perf_counter()
-    fit = idn.identify(models, data, per_run=["m_e"], options=idn.ProtocolOptions(monte_carlo=0), model_error=errors)
+    fit = idn.identify(models, data, per_run=["m_e"], options=ProtocolOptions(monte_carlo=0), model_error=errors)
     variant = Variant.from_spec("geometric_me", {"effects": GEOMETRIC, "unknown": {**RANGES, "m_e": [0.0, 0.040]}})
     first = libraries[runs[0]]
     solver = [fwd.SolverModel(variant, d.run, d.rpm, d.eccentric_mass_g, first.parameters, first.lower, first.upper, 5)
@@ -253,7 +254,7 @@ def me_fits(work: Path, runs: list[str]) -> pd.DataFrame:
         library = libraries[run]
         error = {run: library.info.get("test_median_error", 0.0)}
         wall = time.perf_counter()
-        fit = idn.identify([fwd.SensorSurrogate(library)], [d], options=idn.ProtocolOptions(seed=1),
+        fit = idn.identify([fwd.SensorSurrogate(library)], [d], options=ProtocolOptions(seed=1),
                            model_error=error)
         values = fit.table().set_index("parameter")
         rows.append({"run": run, "rpm": d.rpm, "m_e_true_g": d.eccentric_mass_g,
@@ -286,10 +287,9 @@ def main() -> None:
     if not args.reuse:
         print(f"   done in {timed_snakemake(work, TARGETS):.0f} s")
     runs = fit_runs(work)
-    bench = pd.concat([pd.read_csv(p, sep="\t").assign(run=p.stem.removeprefix("identify_run_"))
-                       for p in sorted((work / "results" / "benchmarks" / "geometric").glob("identify_run_*.tsv"))])
-    print(f"   workflow rule identify_run (tau = 50, n_MC = 1000, 2 jobs in parallel): median "
-          f"{bench['s'].median():.1f} s, max {bench['s'].max():.1f} s per run (incl. start-up and outputs)")
+    bench = pd.read_csv(work / "results" / "benchmarks" / "geometric" / "identify_run.tsv", sep="\t")
+    print(f"   workflow rule identify_run (tau = 50, n_MC = 1000, every fit run in one job): {bench['s'].iloc[0]:.1f} s, "
+          f"{bench['s'].iloc[0] / len(runs):.2f} s per run (incl. start-up and outputs)")
     with threadpool_limits(1):
         picked = [runs[i] for i in np.linspace(0, len(runs) - 1, args.timing_runs).round().astype(int)]
         print("\n2. protocol per run, in-process, one BLAS thread (50 trials x (1 + 1000) repeats)")

@@ -19,6 +19,7 @@ from hybridtwin import uncertainty as unc
 from hybridtwin import variants
 from hybridtwin.candidates import Candidate, builtin_candidates
 from hybridtwin.effects import Parameter, PolynomialBearing, Term
+from hybridtwin.protocol import ProtocolOptions
 from hybridtwin.variants import BUILTIN_VARIANTS, Variant
 
 H = 3
@@ -53,7 +54,7 @@ def _base_fit(data: list[idn.RunData], spec: dict = GEOMETRIC) -> dg.BaseFit:
     lower, upper = zip(*variant.unknown.values())
     models = [fwd.SolverModel(variant, d.run, d.rpm, d.eccentric_mass_g, list(variant.unknown), np.array(lower),
                               np.array(upper), H) for d in data]
-    options = idn.ProtocolOptions(trials=3, monte_carlo=0, seed=2, lm=lm.LMOptions(max_iterations=60))
+    options = ProtocolOptions(trials=3, monte_carlo=0, seed=2, lm=lm.LMOptions(max_iterations=60))
     fit = idn.identify(models, data, (), options)
     assert fit.success or fit.status == lm.STALLED
     return dg.BaseFit(variant, fit.layout, fit.theta, fit.data, H)

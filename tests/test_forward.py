@@ -88,6 +88,7 @@ def test_an_lm_fit_with_warm_starts_ends_where_the_cold_one_does():
     (chi^2/dof 4312 against 3697)."""
     from hybridtwin import identification as idn
     from hybridtwin import lm
+    from hybridtwin.protocol import ProtocolOptions
     from hybridtwin.variants import Variant
 
     truth = Variant.from_spec("truth", {"effects": [e.name for e in GEOMETRIC.model.effects] + ["lower_bearing_compliance"],
@@ -101,7 +102,7 @@ def test_an_lm_fit_with_warm_starts_ends_where_the_cold_one_does():
         M = model.evaluate(np.zeros((1, len(values))), jacobian=False)[0][0]
         noise = 8e-7 * (rng.standard_normal(M.shape) + 1j * rng.standard_normal(M.shape))
         data.append(idn.RunData(f"r{rpm:g}", rpm, mass, "fit", M + noise, np.full(M.shape, 8e-7)))
-    options = idn.ProtocolOptions(trials=3, monte_carlo=0, seed=2, lm=lm.LMOptions(max_iterations=60))
+    options = ProtocolOptions(trials=3, monte_carlo=0, seed=2, lm=lm.LMOptions(max_iterations=60))
     fits = []
     with threadpool_limits(1):
         for warm in (True, False):

@@ -14,6 +14,7 @@ import numpy as np
 
 from hybridtwin import identification as idn
 from hybridtwin import polish as pol
+from hybridtwin.protocol import ProtocolOptions
 
 TRUTH = 0.8
 SCALE = 1e-3  # [m]
@@ -44,7 +45,7 @@ def _library_fit():
     X = Toy().evaluate(np.array([[TRUTH]]))[0][0]  # (1, 2): noise-free data at the truth
     # a keyphasor with a tight prior keeps the phase (a nuisance here) at 0
     data = idn.RunData("r", 800.0, 14.8, "fit", X, np.full((1, 2), SIGMA), phase_sigma=1e-9)
-    options = idn.ProtocolOptions(trials=5, monte_carlo=0, seed=3)
+    options = ProtocolOptions(trials=5, monte_carlo=0, seed=3)
     return idn.identify([Toy(shift=SHIFT)], [data], (), options)
 
 
@@ -89,6 +90,6 @@ def test_a_large_misfit_brings_random_starts_that_find_the_solver_basin():
 def test_no_random_starts_when_the_fit_is_good():
     X = Toy().evaluate(np.array([[TRUTH]]))[0][0]
     data = idn.RunData("r", 800.0, 14.8, "fit", X, np.full((1, 2), SIGMA), phase_sigma=1e-9)
-    fit = idn.identify([Toy()], [data], (), idn.ProtocolOptions(trials=5, monte_carlo=0, seed=3))
+    fit = idn.identify([Toy()], [data], (), ProtocolOptions(trials=5, monte_carlo=0, seed=3))
     polished = pol.polish(fit, [Toy()], random_starts=6)
     assert len(polished.starts) == 1  # the library optimum already explains the data

@@ -52,11 +52,12 @@ from scipy import optimize, stats
 from .candidates import Candidate
 from .fingerprint import Fingerprint, fingerprint
 from .forward import SolverModel
-from .identification import (ArrowProblem, Identification, Layout, ProtocolResult, RunData, conclude,
-                             theta_from_table, units)
+from .identification import (ArrowProblem, Identification, Layout, RunData, conclude, theta_from_table,
+                             units)
 from .lm import MAX_ITERATIONS, STALLED, LMOptions, LMResult, levenberg_marquardt
 from .model import Model
 from .polish import hypercube_starts
+from .protocol import ProtocolResult
 from .uncertainty import BOUND_TOLERANCE
 from .variants import Variant
 

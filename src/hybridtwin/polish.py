@@ -15,8 +15,9 @@ import numpy as np
 import pandas as pd
 
 from .forward import HarmonicModel
-from .identification import ArrowProblem, Identification, ProtocolResult, conclude
+from .identification import ArrowProblem, Identification, conclude
 from .lm import LMOptions, LMResult, levenberg_marquardt
+from .protocol import ProtocolResult
 
 Array = np.ndarray
 

@@ -10,22 +10,24 @@ VALIDATION_RUNS = runs_with_role(config["runs"], "validate")
 
 
 rule identify_run:
-    """One fit run: tau random trials x (1 + n_MC) Monte Carlo repeats of batched LM on its library."""
+    """Every fit run alone: tau random trials x (1 + n_MC) Monte Carlo repeats of batched LM on its library.
+    One job for all runs of a variant: a run's fit takes about a second, less than a job's start-up."""
     input:
-        library="results/{variant}/library/{run}.zarr",
+        libraries=expand("results/{{variant}}/library/{run}.zarr", run=FIT_RUNS),
         harmonics="results/data/harmonics.tsv",
         validation="results/{variant}/library_validation.tsv",
     output:
-        parameters="results/{variant}/runs/{run}/parameters.tsv",
-        history="results/{variant}/runs/{run}/history.tsv",
-        fit=directory("results/{variant}/runs/{run}/fit.zarr"),
+        parameters=expand("results/{{variant}}/runs/{run}/parameters.tsv", run=FIT_RUNS),
+        history=expand("results/{{variant}}/runs/{run}/history.tsv", run=FIT_RUNS),
+        fit=[directory(path) for path in expand("results/{{variant}}/runs/{run}/fit.zarr", run=FIT_RUNS)],
     params:
+        runs=FIT_RUNS,
         spec=lambda wildcards: config["variants"][wildcards.variant],
         options=lambda wildcards: rule_settings(config, wildcards.variant, "run"),
     log:
-        "logs/{variant}/identify_run_{run}.log",
+        "logs/{variant}/identify_run.log",
     benchmark:
-        "results/benchmarks/{variant}/identify_run_{run}.tsv"
+        "results/benchmarks/{variant}/identify_run.tsv"
     conda:
         "../envs/hybridtwin.yaml"
     script:
