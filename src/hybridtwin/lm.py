@@ -248,13 +248,16 @@ class LMResult:
                         sum(p.seconds for p in parts))
 
 
-def levenberg_marquardt(problem, theta0: Array, X: Array, options: LMOptions = LMOptions()
-                        ) -> LMResult:
+def levenberg_marquardt(problem, theta0: Array, X: Array, options: LMOptions = LMOptions(),
+                        fixed: Array | None = None) -> LMResult:
     """Minimise ||r||^2 + ||rho||^2 (eq. 9-11) from every start theta0 (T, n), trial t on data X[t] (T, R, H, 2).
 
     Batched projected Levenberg-Marquardt (module docstring), in batches of ``options.batch`` trials.
+    ``fixed`` (T, n) or (n,) bool: entries held at their start (a profile: the others are fitted with these
+    given, e.g. a new parameter on a grid across its range).
     """
-    parts = [_lm_batch(problem, theta0[s], X[s], options)
+    fixed = np.zeros(theta0.shape, bool) if fixed is None else np.broadcast_to(np.asarray(fixed, bool), theta0.shape)
+    parts = [_lm_batch(problem, theta0[s], X[s], options, fixed[s])
              for s in _batches(theta0.shape[0], options.batch)]
     return LMResult.concatenate(parts)
 
@@ -263,7 +266,7 @@ def _batches(n: int, size: int) -> list[slice]:
     return [slice(i, min(i + size, n)) for i in range(0, n, max(int(size), 1))]
 
 
-def _lm_batch(problem, theta0: Array, X: Array, options: LMOptions) -> LMResult:
+def _lm_batch(problem, theta0: Array, X: Array, options: LMOptions, fixed: Array) -> LMResult:
     start = time.perf_counter()
     layout = problem.layout
     lower, upper = layout.bounds()
@@ -286,7 +289,7 @@ def _lm_batch(problem, theta0: Array, X: Array, options: LMOptions) -> LMResult:
         normal = Normal.assemble(sub, layout)
         g = normal.gradient()
         th = theta[act]
-        free = ~(((th <= lower) & (g > 0)) | ((th >= upper) & (g < 0)))
+        free = ~(((th <= lower) & (g > 0)) | ((th >= upper) & (g < 0)) | fixed[act])
         done = grad_scale * np.abs(g * free).max(1) <= options.gtol
         diag = normal.diagonal()
         floor = 1e-12 * np.maximum(diag.max(1, keepdims=True), 1e-300)
