@@ -496,7 +496,11 @@ def _truth_table(runs: pd.DataFrame, response: TruthResponse, spec: RigSpec) -> 
 
 def _warn(truth: pd.DataFrame, imperfections: Imperfections) -> None:
     for row in truth.itertuples():
-        if not row.unique:
+        if not row.unique and not np.isfinite(row.updown_difference_rel):
+            warnings.warn(f"run {row.run}: uniqueness of the steady state at {row.rpm_true:.2f} RPM not checked, "
+                          f"the run-down found no steady state ({row.message}); the record follows the run-up "
+                          "branch", RigWarning, stacklevel=3)
+        elif not row.unique:
             warnings.warn(f"run {row.run}: the steady state at {row.rpm_true:.2f} RPM is not unique (run-up and "
                           f"run-down differ by {row.updown_difference_rel:.1e} relative); the record follows the "
                           "run-up branch", RigWarning, stacklevel=3)
