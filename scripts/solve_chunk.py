@@ -21,8 +21,8 @@ log.info("chunk %d: scenarios %d..%d (%d) at %d runs, H = %d", chunk, mine["scen
 start = time.perf_counter()
 solutions = solve_runs(variant, runs, {k: mine[k].to_numpy() for k in variant.unknown_names}, smk.params.harmonics)
 elapsed = time.perf_counter() - start
-for run, ok in zip(solutions.runs, solutions.success):
-    log.info("run %s: %d of %d converged", run, ok.sum(), ok.size)
+for run, ok, stable in zip(solutions.runs, solutions.success, solutions.stable):
+    log.info("run %s: %d of %d converged, %d of them unstable", run, ok.sum(), ok.size, (ok & ~stable).sum())
 log.info("solved in %.1f s (%.2f ms per scenario and run)", elapsed, 1e3 * elapsed / solutions.success.size)
 write_chunk(smk.output[0], variant.name, mine, variant.unknown_names, solutions)
 log.info("wrote %s, its manifest.sha256 last (gather_snapshots verifies it)", smk.output[0])

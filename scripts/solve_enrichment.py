@@ -21,9 +21,9 @@ log.info("enrichment chunk %d: %d scenarios at eccentric masses %s g, H = %d", c
 start = time.perf_counter()
 solutions = solve_enrichment(variant, runs, mine, smk.params.harmonics)
 log.info("solved in %.1f s", time.perf_counter() - start)
-for run, ok, mass in zip(solutions.runs, solutions.success, solutions.eccentric_mass_g):
+for run, ok, stable, mass in zip(solutions.runs, solutions.success, solutions.stable, solutions.eccentric_mass_g):
     targeted = int((mine["eccentric_mass_g"] == mass).sum())
     if targeted:
-        log.info("run %s: %d of %d converged", run, ok.sum(), targeted)
+        log.info("run %s: %d of %d converged, %d of them unstable", run, ok.sum(), targeted, (ok & ~stable).sum())
 write_chunk(smk.output[0], variant.name, mine, variant.unknown_names, solutions, design="enrichment")
 log.info("wrote %s, its manifest.sha256 last (gather_snapshots verifies it)", smk.output[0])

@@ -15,5 +15,8 @@ for row in table.itertuples():
 failed = table[~table["success"]]
 if len(failed):
     log.warning("%d run(s) without a periodic solution: %s", len(failed), ", ".join(failed["run"]))
+unstable = table[table["success"] & ~table["stable"]]
+if len(unstable):
+    log.warning("%d run(s) whose periodic solution is unstable: %s", len(unstable), ", ".join(unstable["run"]))
 table.to_csv(smk.output.table, sep="\t", index=False, float_format="%.9e")
 plot_sweep(table, variant.name).savefig(smk.output.plot, dpi=120)

@@ -287,6 +287,10 @@ def simulate(args: argparse.Namespace) -> int:
     if result is None:
         print(f"hybridtwin simulate: failed at {args.rpm:g} RPM: {'; '.join(failures)}", file=sys.stderr)
         return 1
+    if not result.stable[0]:  # solved but unstable (hybridtwin.floquet): not a state the machine stays in
+        print(f"hybridtwin simulate: unstable at {args.rpm:g} RPM, branch {result.branch[0]}: {result.message[0]}",
+              file=sys.stderr)
+        return 1
     where = "" if source is None else f" ({source})"
     print(f"# {variant.name}{where} at {args.rpm:g} RPM, branch {result.branch[0]}: {result.message[0]}",
           file=sys.stderr)

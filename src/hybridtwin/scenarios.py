@@ -22,7 +22,7 @@ import pandas as pd
 
 from .effects import Array
 from .sensor import sensor_harmonics
-from .solver import SteadyState, solve_sweep
+from .solver import SteadyState, flag_unstable, floquet_radius, solve_sweep
 from .variants import Variant
 
 SPLITS = ("train", "validation", "test")
@@ -64,7 +64,12 @@ def sample_scenarios(variant: Variant, n: int, seed: int, validation_fraction: f
 
 @dataclass
 class RunSolutions:
-    """Steady states of S scenarios at each run: harmonics (R, S, H+1, n) and per-point status."""
+    """Steady states of S scenarios at each run: harmonics (R, S, H+1, n) and per-point status.
+
+    success: the harmonic-balance solve converged; floquet_radius: the largest |Floquet multiplier|
+    of a converged point (NaN where none); ``stable``: converged with every multiplier inside the
+    unit circle. An unstable point keeps its harmonics, and its message starts with "unstable".
+    """
 
     runs: list[str]
     rpm: list[float]  # the speed each run was solved at
@@ -73,6 +78,16 @@ class RunSolutions:
     success: Array  # (R, S)
     message: Array  # (R, S) object
     branch: Array  # (R, S) object
+    floquet_radius: Array | None = None  # (R, S)
+
+    def __post_init__(self) -> None:
+        if self.floquet_radius is None:
+            self.floquet_radius = np.full(self.success.shape, np.nan)
+
+    @property
+    def stable(self) -> Array:
+        """(R, S) converged and stable."""
+        return self.success & (np.nan_to_num(self.floquet_radius, nan=np.inf) < 1.0)
 
 
 def solve_runs(variant: Variant, runs: pd.DataFrame, values: Mapping[str, Array | float],
@@ -85,6 +100,8 @@ def solve_runs(variant: Variant, runs: pd.DataFrame, values: Mapping[str, Array 
     exceeds ``step_rpm`` (solved for continuation only). The run-ups of all the
     masses are one batched sweep with per-scenario speeds (``solve_sweep``): each
     Newton call serves every mass, and each result is that of a run-up of its own.
+    The stability of each point is assessed at the runs' speeds only (``assess_stability``),
+    not at the intermediate ones.
     """
     for column in ("run", "rpm", "eccentric_mass_g"):
         if column not in runs:
@@ -109,11 +126,22 @@ def solve_runs(variant: Variant, runs: pd.DataFrame, values: Mapping[str, Array 
     def build(rpm: Array, rows: Array):
         return variant.model.system_at(rest.rows(rows), rpm)
 
-    sweep = solve_sweep(build, speeds, len(groups) * S, harmonics=harmonics, direction="up")
+    sweep = solve_sweep(build, speeds, len(groups) * S, harmonics=harmonics, direction="up", stability=False)
+    stored: list[tuple[int, int, int]] = []  # (run position, sweep step, mass group)
     for g, ((_, group), ramp) in enumerate(zip(groups, ramps)):
         for position, rpm in zip(np.flatnonzero(runs.index.isin(group.index)), group["rpm"].to_numpy(float)):
-            step = int(np.flatnonzero(ramp == rpm)[0])
-            _store(out, position, sweep.results[step], slice(g * S, (g + 1) * S))
+            stored.append((position, int(np.flatnonzero(ramp == rpm)[0]), g))
+    # the converged points at a run's speed, assessed in one batch across steps and masses
+    points = sorted({(step, column) for _, step, g in stored for column in range(g * S, (g + 1) * S)
+                     if sweep.results[step].success[column]})
+    if points:
+        step, column = np.array(points).T
+        harmonics_at = np.stack([sweep.results[s].harmonics[c] for s, c in points])
+        radius = floquet_radius(build(speeds[step, column], column), harmonics_at)
+        for s in np.unique(step):
+            flag_unstable(sweep.results[s], column[step == s], radius[step == s])
+    for position, step, g in stored:
+        _store(out, position, sweep.results[step], slice(g * S, (g + 1) * S))
     return out
 
 
@@ -131,6 +159,7 @@ def _store(out: RunSolutions, position: int, result: SteadyState, rows: slice) -
     out.success[position] = result.success[rows]
     out.message[position] = result.message[rows]
     out.branch[position] = result.branch[rows]
+    out.floquet_radius[position] = result.floquet_radius[rows]
 
 
 #: message of an enrichment scenario at a run it was not solved for (it targets other runs); not a failure
@@ -204,7 +233,7 @@ def solve_enrichment(variant: Variant, runs: pd.DataFrame, table: pd.DataFrame, 
         out.message[np.ix_(np.flatnonzero(masses != mass), cols)] = f"{NOT_SOLVED} {mass:g} g"
         part = solve_runs(variant, runs.iloc[at], {k: group[k].to_numpy(float) for k in variant.unknown_names},
                           harmonics)
-        for name in ("harmonics", "success", "message", "branch"):
+        for name in ("harmonics", "success", "message", "branch", "floquet_radius"):
             getattr(out, name)[np.ix_(at, cols)] = getattr(part, name)
     return out
 
@@ -214,7 +243,7 @@ def solve_operating_points(variant: Variant, points: pd.DataFrame, overrides: Ma
     """One parameter set over a run plan: ``points`` plus sensor harmonics and status per run.
 
     Adds, per harmonic h (1..H), columns U{h}_re_m, U{h}_im_m, V{h}_re_m,
-    V{h}_im_m (sensor node, 0-peak), and success, branch, message.
+    V{h}_im_m (sensor node, 0-peak), and success, stable, floquet_radius, branch, message.
     """
     solutions = solve_runs(variant, points, overrides or {}, harmonics, **options)
     out = points.copy()
@@ -224,6 +253,8 @@ def solve_operating_points(variant: Variant, points: pd.DataFrame, overrides: Ma
             out[f"{name}_re_m"] = values.real
             out[f"{name}_im_m"] = values.imag
     out["success"] = solutions.success[:, 0]
+    out["stable"] = solutions.stable[:, 0]
+    out["floquet_radius"] = solutions.floquet_radius[:, 0]
     out["branch"] = solutions.branch[:, 0]
     out["message"] = solutions.message[:, 0]
     return out

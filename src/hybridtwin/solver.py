@@ -14,6 +14,9 @@ the response is sought as q(t) = Re(sum_{h=0..H} Q_h e^{i h Omega t}).
 3. Newton on r(x) = x - a - H G(x) = 0 with backtracking, batched over
    scenarios with a per-scenario convergence mask; or the paper's fixed-point
    iteration x <- (1 - beta) x + beta (a + H G(x)), falling back to Newton.
+4. Stability of each converged solution: its Floquet multipliers (``floquet``).
+   A solution with a multiplier |mu| >= 1 is flagged unstable (``SteadyState.stable``
+   False, its message says so): the machine would not stay on it.
 
 Amplitudes are 0-peak; t = 0 when the unbalance points to +x.
 """
@@ -25,6 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import floquet
 from .effects import Array
 from .model import System
 
@@ -49,7 +53,12 @@ class SteadyState:
     harmonics: (S, H+1, n) complex Q_h with q(t) = Re(sum_h Q_h exp(i h Omega t));
     NaN for scenarios that failed. ``message`` says why, ``branch`` how the
     solution was reached ("direct": from the linear response; "run-up" /
-    "run-down": continued from the previous speed of a sweep).
+    "run-down": continued from the previous speed of a sweep). ``success``: the
+    harmonic-balance equations are solved; ``floquet_radius``: the largest |Floquet
+    multiplier| of a converged solution (NaN: failed, or its stability not assessed);
+    ``stable``: converged and assessed stable (radius < 1). An unstable solution keeps
+    success (it solves the equations, and continuation may go on from it) but its
+    message starts with "unstable".
     """
 
     harmonics: Array
@@ -62,6 +71,16 @@ class SteadyState:
     branch: Array
     state: Array  # (S, c, 2H+1) condensed real Fourier coefficients, for continuation
     n_time: int
+    floquet_radius: Array | None = None  # (S,) largest |Floquet multiplier|; NaN where not assessed
+
+    def __post_init__(self) -> None:
+        if self.floquet_radius is None:
+            self.floquet_radius = np.full(self.Omega.shape, np.nan)
+
+    @property
+    def stable(self) -> Array:
+        """(S,) converged and asymptotically stable (every Floquet multiplier inside the unit circle)."""
+        return self.success & (np.nan_to_num(self.floquet_radius, nan=np.inf) < 1.0)
 
     @property
     def n_scenarios(self) -> int:
@@ -85,7 +104,8 @@ class SteadyState:
     @staticmethod
     def concatenate(parts: Sequence["SteadyState"], order: Array | None = None) -> "SteadyState":
         """Stack results of disjoint scenario sets; ``order`` permutes the result."""
-        fields = ("harmonics", "Omega", "success", "status", "message", "iterations", "residual", "branch", "state")
+        fields = ("harmonics", "Omega", "success", "status", "message", "iterations", "residual", "branch", "state",
+                  "floquet_radius")
         stacked = {f: np.concatenate([getattr(p, f) for p in parts]) for f in fields}
         if order is not None:
             stacked = {f: v[order] for f, v in stacked.items()}
@@ -271,6 +291,7 @@ def solve(
     fixed_point_iter: int = 300,
     branch: str = "direct",
     stall_window: int | None = None,
+    stability: bool = True,
 ) -> SteadyState:
     """Periodic steady state of every scenario of ``system`` (harmonics 0..H).
 
@@ -281,7 +302,9 @@ def solve(
     stall_window: give a scenario up when its residual has not halved over this
     many Newton iterations (None: never; near folds Newton may need long damped
     progress before it converges, so continuation steps use a longer window
-    than fresh starts).
+    than fresh starts). stability: assess each converged solution's stability
+    (``assess_stability``; False leaves ``floquet_radius`` NaN, e.g. for the
+    intermediate steps of a sweep).
     """
     if method not in ("newton", "fixed-point"):
         raise ValueError(f"method must be 'newton' or 'fixed-point', got {method!r}")
@@ -319,10 +342,48 @@ def solve(
     messages = np.array([_message(s, it, r) + n for s, it, r, n in zip(status, iterations, residual, notes)],
                         dtype=object)
     messages[invalid] = system.problems[invalid]
-    return SteadyState(
+    result = SteadyState(
         harmonics=Q, Omega=system.Omega.copy(), success=success, status=status, message=messages,
         iterations=iterations, residual=residual, branch=np.full(S, branch, dtype=object), state=x, n_time=prob.N,
     )
+    if stability:
+        assess_stability(system, result)
+    return result
+
+
+def assess_stability(system: System, result: SteadyState, rows: Array | None = None) -> None:
+    """The stability of the converged solutions among ``rows`` of ``result`` (default all), in place.
+
+    system: the scenarios ``rows`` of ``result``, in that order (as ``solve`` was given them).
+    Sets ``floquet_radius`` (``floquet_radius``) and, for an unstable solution (radius >= 1),
+    a message that says so (``flag_unstable``).
+    """
+    rows = np.arange(result.n_scenarios) if rows is None else np.asarray(rows)
+    if len(rows) != system.n_scenarios:
+        raise ValueError(f"assess_stability: {len(rows)} rows for a system of {system.n_scenarios} scenarios")
+    ok = np.flatnonzero(result.success[rows])
+    if ok.size:
+        flag_unstable(result, rows[ok], floquet_radius(system.subset(ok), result.harmonics[rows[ok]]))
+
+
+def floquet_radius(system: System, harmonics: Array) -> Array:
+    """The largest |Floquet multiplier| of each periodic solution ``harmonics`` (S, H+1, n) of ``system``
+    (``floquet.spectral_radius``; a linear system's exactly, from the eigenvalues of its first-order
+    form), in blocks of ``_BLOCK`` scenarios (any mix of speeds)."""
+    if system.n_scenarios == 0:
+        return np.zeros(0)
+    options = {} if system.forces else {"cutoff_factor": None}  # linear: the 2n multipliers exp(lambda T) exactly
+    blocks = np.array_split(np.arange(system.n_scenarios), max(1, -(-system.n_scenarios // _BLOCK)))
+    return np.concatenate([floquet.spectral_radius(system.subset(b), harmonics[b], **options) for b in blocks])
+
+
+def flag_unstable(result: SteadyState, rows: Array, radius: Array) -> None:
+    """Store the radius of converged scenarios ``rows`` of ``result``; the unstable ones' message says so."""
+    result.floquet_radius[rows] = radius
+    for i, r in zip(rows[radius >= 1.0], radius[radius >= 1.0]):
+        result.message[i] = (f"unstable periodic solution: largest Floquet multiplier |mu| = {r:.4g} >= 1 (a small "
+                             f"deviation grows by that factor per period; harmonic-balance residual "
+                             f"{result.residual[i]:.1e} after {result.iterations[i]} Newton iterations)")
 
 
 def _message(status: int, iterations: int, residual: float) -> str:
@@ -440,6 +501,7 @@ def solve_sweep(
     *,
     direction: str = "up",
     max_refine: int = 3,
+    stability: bool = True,
     **options,
 ) -> Sweep:
     """Solve a speed sweep by continuation (run-up or run-down) for S scenarios.
@@ -459,11 +521,16 @@ def solve_sweep(
     different sweeps (e.g. one run-up per eccentric mass) are then solved in lockstep: every
     batched Newton call, step halving and jump serves all of them at once. Each scenario's
     result is the same as in a sweep of its own (the solver treats scenarios independently).
+
+    stability: assess the stability of every step's converged solutions (``assess_stability``:
+    the continuation itself goes on from unstable ones too); False leaves it to the caller
+    (e.g. ``scenarios.solve_runs``, which assesses the run speeds only).
     """
     if direction not in ("up", "down"):
         raise ValueError(f"direction must be 'up' or 'down', got {direction!r}")
     speeds = _sweep_speeds(rpm, n_scenarios, direction)
     label = "run-up" if direction == "up" else "run-down"
+    options = {**options, "stability": False}  # assessed once per step, below
     results: list[SteadyState] = []
     previous: SteadyState | None = None
     previous_rpm = np.full(n_scenarios, np.nan)
@@ -488,6 +555,10 @@ def solve_sweep(
         if ended.size:
             parts.append(_ended(previous, ended))
         res = SteadyState.concatenate(parts, np.argsort(np.concatenate([cont, fresh, ended])))
+        if stability:
+            converged = np.flatnonzero(active & res.success)
+            if converged.size:
+                assess_stability(build(speed[converged], converged), res, converged)
         results.append(res)
         previous, previous_rpm = res, np.where(active, speed, previous_rpm)
     return Sweep(speeds[:, 0] if np.ndim(rpm) == 1 else speeds, results, direction)
@@ -530,7 +601,7 @@ def _ended(previous: SteadyState, rows: Array) -> SteadyState:
     """Scenarios ``rows`` at a step after their sweep's last speed: unsolved, with the reason."""
     out = SteadyState.concatenate([previous], rows)
     out.harmonics[:], out.state[:], out.residual[:] = np.nan, np.nan, np.nan
-    out.success[:], out.status[:], out.iterations[:] = False, INVALID, 0
+    out.success[:], out.status[:], out.iterations[:], out.floquet_radius[:] = False, INVALID, 0, np.nan
     out.message[:] = "no speed at this step: the scenario's sweep has ended"
     return out
 
@@ -566,7 +637,8 @@ def _jump(build, rpm_from: Array, rpm_to: Array, x_last, rows, label, options) -
 
 def _replace(target: SteadyState, where: Array, source: SteadyState) -> None:
     """target[where] = source, field by field."""
-    for f in ("harmonics", "success", "status", "message", "iterations", "residual", "branch", "state"):
+    for f in ("harmonics", "success", "status", "message", "iterations", "residual", "branch", "state",
+              "floquet_radius"):
         getattr(target, f)[where] = getattr(source, f)
 
 
