@@ -11,7 +11,8 @@ import sys
 import pandas as pd
 
 from hybridtwin import config as cfg
-from hybridtwin.snapshots import CorruptStoreError, gather
+from hybridtwin.snapshots import gather
+from hybridtwin.stores import CorruptStoreError
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "gather_snapshots")
@@ -31,7 +32,12 @@ except CorruptStoreError as error:
     sys.exit(message)
 failures = snapshots.failures()
 failures.to_csv(smk.output.failures, sep="\t", index=False)
-log.info("%d scenarios (%d from the enrichment) x %d runs gathered; %d failed solves", snapshots.success.shape[1],
-         int((snapshots.design == "enrichment").sum()), len(snapshots.runs), len(failures))
-for run, count in failures["run"].value_counts().items():
+unstable = failures["message"].str.startswith("unstable")
+log.info("%d scenarios (%d from the enrichment) x %d runs gathered; %d failed solves, %d unstable steady states "
+         "(left out downstream)", snapshots.success.shape[1], int((snapshots.design == "enrichment").sum()),
+         len(snapshots.runs), int((~unstable).sum()), int(unstable.sum()))
+for run, count in failures.loc[~unstable, "run"].value_counts().items():
     log.warning("run %s: %d scenarios without a periodic solution (see %s)", run, count, smk.output.failures)
+for run, count in failures.loc[unstable, "run"].value_counts().items():
+    log.warning("run %s: %d scenarios whose periodic solution is unstable, left out (see %s)", run, count,
+                smk.output.failures)

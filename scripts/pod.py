@@ -13,3 +13,7 @@ table.to_csv(smk.output.table, sep="\t", index=False, float_format="%.6g")
 for row in table.itertuples():
     log.info("run %s: %d snapshots, m_d = %d, sigma_2/sigma_1 = %.3g", row.run, row.n_snapshots, row.n_modes,
              row.sigma2_over_sigma1)
+    if row.n_unstable:
+        log.warning("run %s: %d scenarios with an unstable steady state left out", row.run, row.n_unstable)
+print(f"pod: {int(table['n_unstable'].sum())} unstable (run, scenario) steady states left out of the POD "
+      f"({', '.join(f'{r.run}: {r.n_unstable}' for r in table.itertuples() if r.n_unstable) or 'none'})")

@@ -22,7 +22,7 @@ scenarios = pd.read_csv(smk.input.scenarios, sep="\t")
 snaps = read_chunks(smk.input.chunks, scenarios)
 runs = pd.DataFrame({"run": snaps.runs, "eccentric_mass_g": snaps.eccentric_mass_g})
 shaft = variant.model.shaft
-seen = observable(snaps.harmonics, shaft, 1e-3 * options["sensor_range_mm"]) & snaps.success
+seen = observable(snaps.harmonics, shaft, 1e-3 * options["sensor_range_mm"]) & snaps.steady  # unstable: not seen
 table, summary = sample_enrichment(variant, snaps.values, snaps.split, seen, runs, int(scenarios["scenario"].max()) + 1,
                                    enrichment["n_scenarios"], enrichment["observable_below"], options["seed"],
                                    options["validation_fraction"])

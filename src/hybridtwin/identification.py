@@ -668,6 +668,9 @@ def write_fit(path: str | Path, fit: Identification, rpm: Sequence[float], cycle
                         "channels": list(CHANNELS), "chi2_dof": float(fit.chi2_dof),
                         "values": {k: float(v) for k, v in fit.values().items()},
                         "layout": "arrays (run, harmonic, channel); waves (run, time, channel); angle = Omega t"})
+    from .stores import write_manifest  # the store's checksums, last: readers verify them (hybridtwin.stores)
+
+    write_manifest(path)
 
 
 def warn_notes(notes: Sequence[str], where: str) -> None:

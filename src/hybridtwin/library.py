@@ -25,6 +25,7 @@ from .pod import POD, feature_index, from_features, load_pod, pod, to_features
 from .sensor import observable, sensor_dofs
 from .shaft import Shaft
 from .spgd import PiecewiseSPGD, SparsePGD, fit_piecewise, fit_spgd, model_from_arrays, piece_index, relative_error
+from .stores import open_verified, write_manifest
 from .variants import Variant
 
 #: the extra sPGD dimensions of a global library, after the unknowns (SI/boundary units: RPM, g)
@@ -117,7 +118,7 @@ class Library:
         return from_features(self.model.predict(self.normalise(values)) @ self.modes.T, self.n_harmonics, self.n_dof)
 
     def save(self, path: str | Path) -> None:
-        """Write as a zarr v3 group."""
+        """Write as a zarr v3 group, its checksum manifest last (``hybridtwin.stores``)."""
         group = zarr.open_group(str(path), mode="w")
         arrays = {"modes": self.modes, "singular_values": self.singular_values, "lower": self.lower,
                   "upper": self.upper, **self.model.to_arrays()}
@@ -126,13 +127,16 @@ class Library:
         group.attrs.update({"run": self.run, "parameters": self.parameters, "n_harmonics": self.n_harmonics,
                             "n_dof": self.n_dof, "sensor_dofs": self.sensor_dofs,
                             "info": json.loads(json.dumps(self.info, default=float))})
+        write_manifest(path)
 
     @classmethod
     def load(cls, path: str | Path) -> "Library":
-        group = zarr.open_group(str(path), mode="r")
+        """Read a library store, verified against its manifest first (``stores.CorruptStoreError``)."""
+        group = open_verified(path, "library store")
         attrs = dict(group.attrs)
-        with warnings.catch_warnings():  # Snakemake marks a directory output with this file: not a zarr member
-            warnings.filterwarnings("ignore", message=r"Object at \.snakemake_timestamp is not recognized")
+        with warnings.catch_warnings():  # Snakemake's directory marker and the manifest are not zarr members
+            warnings.filterwarnings("ignore", message=r"Object at (\.snakemake_timestamp|manifest\.sha256) is not "
+                                    "recognized")
             names = list(group.array_keys())
         model = model_from_arrays({name: group[name][:] for name in names})
         return cls(attrs["run"], list(attrs["parameters"]), group["lower"][:], group["upper"][:], group["modes"][:],
@@ -194,7 +198,7 @@ def build_global_library(snaps: snapshots.Snapshots, fit_runs: Sequence[str], lo
     x_unknown = 2.0 * (snaps.values - lower) / (upper - lower) - 1.0
     X, F, split = [], [], []
     for r in fit_rows:
-        usable = snaps.success[r] & observable(snaps.harmonics[r], shaft, sensor_range_m)
+        usable = snaps.steady[r] & observable(snaps.harmonics[r], shaft, sensor_range_m)
         x_point = 2.0 * (point[r] - op_lower) / (op_upper - op_lower) - 1.0
         X.append(np.hstack([x_unknown[usable], np.broadcast_to(x_point, (usable.sum(), 2))]))
         F.append(to_features(snaps.harmonics[r][usable]))
@@ -400,7 +404,7 @@ def validate_libraries(libraries: list[Library], snapshots_path: str, runs: pd.D
     for library in libraries:
         r = snaps.run_index(library.run)
         test = snaps.split == "test"
-        usable = test & snaps.success[r] & observable(snaps.harmonics[r], shaft, sensor_range_m)
+        usable = test & snaps.steady[r] & observable(snaps.harmonics[r], shaft, sensor_range_m)
         reference = snaps.harmonics[r][usable][:, :, library.sensor_dofs]
         predicted = library.sensor(snaps.values[usable])
         error = relative_sensor_error(predicted, reference)
@@ -414,6 +418,7 @@ def validate_libraries(libraries: list[Library], snapshots_path: str, runs: pd.D
                      **_error_stats(error),
                      "p95_error_of_median_response_pct": 100 * float(np.percentile(typical, 95)) if size.size else np.nan,
                      "n_failed": int((test & ~snaps.success[r]).sum()),
+                     "n_unstable": int((test & snaps.success[r] & ~snaps.stable[r]).sum()),
                      "observable_fraction": float(usable.sum() / max(test.sum(), 1)),
                      "n_modes": library.n_modes, "n_terms": library.model.n_terms,
                      "spgd_degree": library.info.get("spgd_degree", np.nan)})
@@ -423,7 +428,8 @@ def validate_libraries(libraries: list[Library], snapshots_path: str, runs: pd.D
     error = np.concatenate(pooled)
     rows.append({"run": "all runs", "rpm": np.nan, "eccentric_mass_g": np.nan, **_error_stats(error),
                  "p95_error_of_median_response_pct": np.nan,
-                 "n_failed": sum(r["n_failed"] for r in rows), "observable_fraction": np.nan,
+                 "n_failed": sum(r["n_failed"] for r in rows), "n_unstable": sum(r["n_unstable"] for r in rows),
+                 "observable_fraction": np.nan,
                  "n_modes": np.nan, "n_terms": np.nan, "spgd_degree": np.nan})
     return pd.DataFrame(rows), pd.concat(parity, ignore_index=True)
 

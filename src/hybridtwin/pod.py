@@ -20,6 +20,7 @@ from . import snapshots
 from .effects import Array
 from .sensor import observable
 from .shaft import Shaft
+from .stores import open_verified, write_manifest
 
 
 def to_features(harmonics: Array) -> Array:
@@ -81,19 +82,21 @@ def pod(features: Array, energy_tolerance: float = 1e-10, max_modes: int | None 
 
 def pod_of_runs(snapshots_path: str, out_path: str, shaft: Shaft, sensor_range_m: float,
                 energy_tolerance: float) -> pd.DataFrame:
-    """POD per run of the observable (converged, inside the sensor range) training snapshots.
+    """POD per run of the observable (converged, stable, inside the sensor range) training snapshots.
 
-    Writes a zarr v3 group per run (modes, singular_values, usable mask) and
-    returns the summary table: training snapshots (of which from the enrichment),
-    the observable share of the first design (the box's share a rig can measure
-    at that run), failed solves, m_d and the singular value ratios.
+    Writes a zarr v3 group per run (modes, singular_values, usable mask), the store's
+    manifest last (``hybridtwin.stores``), and returns the summary table: training
+    snapshots (of which from the enrichment), the observable share of the first design
+    (the box's share a rig can measure at that run), failed solves, unstable steady
+    states (converged, left out: the machine would not stay on them), m_d and the
+    singular value ratios.
     """
     snaps = snapshots.load(snapshots_path)
     store = zarr.open_group(out_path, mode="w")
     rows = []
     first_design, solved = snaps.design == "hypercube", snaps.solved
     for r, run in enumerate(snaps.runs):
-        usable = snaps.success[r] & observable(snaps.harmonics[r], shaft, sensor_range_m)
+        usable = snaps.steady[r] & observable(snaps.harmonics[r], shaft, sensor_range_m)
         train = usable & (snaps.split == "train")
         basis = pod(to_features(snaps.harmonics[r][train]), energy_tolerance)
         group = store.create_group(run)
@@ -104,13 +107,18 @@ def pod_of_runs(snapshots_path: str, out_path: str, shaft: Shaft, sensor_range_m
         ratios = np.pad(basis.ratios, (0, 3))
         rows.append({"run": run, "n_snapshots": int(train.sum()), "n_enriched": int((train & ~first_design).sum()),
                      "observable_fraction": float(usable[first_design].mean()),
-                     "n_failed": int((~snaps.success[r] & solved[r]).sum()), "n_modes": basis.n_modes,
+                     "n_failed": int((~snaps.success[r] & solved[r]).sum()),
+                     "n_unstable": int((snaps.success[r] & ~snaps.stable[r]).sum()), "n_modes": basis.n_modes,
                      "sigma2_over_sigma1": ratios[1], "sigma3_over_sigma1": ratios[2],
                      "sigma4_over_sigma1": ratios[3]})
+    write_manifest(out_path)
     return pd.DataFrame(rows)
 
 
 def load_pod(path: str, run: str) -> tuple[POD, Array]:
-    """One run's POD basis and its usable-scenario mask."""
-    group = zarr.open_group(path, mode="r")[run]
+    """One run's POD basis and its usable-scenario mask (the store verified against its manifest first)."""
+    group = open_verified(path, "POD store")
+    if run not in group:
+        raise KeyError(f"run {run!r} is not in the POD store {path}")
+    group = group[run]
     return POD(group["modes"][:], group["singular_values"][:], group.attrs["energy_tolerance"]), group["usable"][:]

@@ -138,9 +138,9 @@ def fit_comparisons(fit_path: str | Path, parameters: pd.DataFrame, summary: Map
     summary: the final block of summary.yaml (n_data, dof); harmonics: the
     preprocessed table (for the eccentric masses).
     """
-    import zarr
+    from .stores import open_verified
 
-    group = zarr.open_group(str(fit_path), mode="r")
+    group = open_verified(fit_path, "fit store")
     measured = group["measured_re_m"][:] + 1j * group["measured_im_m"][:]
     model = group["fitted_re_m"][:] + 1j * group["fitted_im_m"][:]
     sigma = group["sigma_m"][:]

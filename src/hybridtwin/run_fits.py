@@ -77,7 +77,10 @@ def write_run_fit(result: RunFit, parameters: str, history: str, fit: str) -> No
         return
     import zarr
 
+    from .stores import write_manifest
+
     zarr.open_group(fit, mode="w").attrs.update({"runs": [result.run], "note": result.data.note})
+    write_manifest(fit)  # its checksums, as every store's (hybridtwin.stores)
 
 
 def excluded_table(data: idn.RunData, parameters: Sequence[str], units: Mapping[str, str]) -> pd.DataFrame:

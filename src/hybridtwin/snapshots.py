@@ -6,7 +6,11 @@ group; ``gather`` checks that the chunks hold exactly the sampled scenarios
 
     snapshots.zarr/
       harmonics   (R, S, H+1, n) complex128   Q_h of every DOF, NaN where failed
-      success     (R, S) bool
+      success     (R, S) bool                 the harmonic-balance solve converged
+      stable      (R, S) bool                 converged and stable (every Floquet multiplier inside the unit
+                                              circle, ``hybridtwin.floquet``); unstable points keep their
+                                              harmonics, their message says "unstable ..."
+      floquet_radius (R, S) float64           the largest |Floquet multiplier| (NaN where not converged)
       message     (R, S) str                  the solver's reason, per run and scenario
       branch      (R, S) str                  direct / run-up / run-up, jump between ...
       scenario    (S,) int64,  split (S,) str,  parameters (S, d) float64 [SI]
@@ -16,18 +20,18 @@ group; ``gather`` checks that the chunks hold exactly the sampled scenarios
       attrs: variant, runs, rpm and eccentric_mass_g of each run (as solved), parameter names
       manifest.sha256                         sha256 of every other file (``sha256sum -c`` format)
 
-Integrity: zarr reads a missing chunk file as the array's fill value (zeros here), so a
-store that lost a file on the way (a node's disk, a partial copy, an interrupted write)
-would give plausible-looking zeros. Every store written here ends with a manifest of its
+Integrity (``hybridtwin.stores``): every store written here ends with a manifest of its
 files' checksums, written last (a store without one is incomplete); ``gather`` verifies
 each chunk store against it and reports every bad one by name (``CorruptStoreError``), and
 ``load`` verifies the gathered store.
+
+Downstream, a point is used only where it is ``steady`` (converged and stable): the POD,
+the libraries and the enrichment's sampling leave the unstable ones out and count them;
+``failures`` lists them with the failed solves.
 """
 
 from __future__ import annotations
 
-import hashlib
-import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -38,71 +42,15 @@ import zarr
 
 from .effects import Array
 from .scenarios import NOT_SOLVED, RunSolutions
+from .stores import CorruptStoreError, check_store, verify_store, write_manifest
 
 
-MANIFEST = "manifest.sha256"
-# files a store may hold besides the manifested ones (Snakemake marks its directory outputs with this one)
-_UNLISTED = {MANIFEST, ".snakemake_timestamp"}
+#: the gathered store's arrays with one row per run, chunked one run per chunk
+PER_RUN = ("harmonics", "success", "stable", "floquet_radius", "message", "branch")
 
 
-class CorruptStoreError(ValueError):
-    """Stores whose files do not match their manifest; ``problems`` maps each store to what is wrong."""
-
-    def __init__(self, problems: dict[str, list[str]], what: str = "store"):
-        self.problems = problems
-        lines = [f"{path}: {'; '.join(found[:5])}{' ...' if len(found) > 5 else ''}"
-                 for path, found in problems.items()]
-        super().__init__(f"corrupt or incomplete {what}(s), not read (a missing zarr chunk would read as zeros):\n  "
-                         + "\n  ".join(lines))
-
-
-def _sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as file:
-        for block in iter(lambda: file.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
-
-
-def _store_files(root: Path) -> list[Path]:
-    return sorted(p for p in root.rglob("*") if p.is_file() and p.name not in _UNLISTED)
-
-
-def write_manifest(path: str | Path) -> None:
-    """Checksum every file of the store into ``manifest.sha256`` (atomically, as the store's last file)."""
-    root = Path(path)
-    lines = [f"{_sha256(f)}  {f.relative_to(root).as_posix()}\n" for f in _store_files(root)]
-    partial = root / f".{MANIFEST}.partial"
-    partial.write_text("".join(lines))
-    os.replace(partial, root / MANIFEST)
-
-
-def verify_store(path: str | Path, require_manifest: bool = True) -> list[str]:
-    """What is wrong with a store against its manifest: missing, changed or unlisted files ([] if intact).
-
-    Without a manifest the store is reported incomplete, or (``require_manifest=False``, stores
-    written before manifests existed) accepted unchecked.
-    """
-    root = Path(path)
-    if not root.is_dir():
-        return ["store missing"]
-    manifest = root / MANIFEST
-    if not manifest.is_file():
-        return ["no manifest.sha256 (incomplete: its job did not finish writing it)"] if require_manifest else []
-    listed = {}
-    for line in manifest.read_text().splitlines():
-        digest, _, name = line.partition("  ")
-        listed[name] = digest
-    problems = []
-    for name, digest in listed.items():
-        file = root / name
-        if not file.is_file():
-            problems.append(f"missing {name}")
-        elif _sha256(file) != digest:
-            problems.append(f"changed {name}")
-    problems += [f"unlisted {name}" for name in sorted({f.relative_to(root).as_posix() for f in _store_files(root)}
-                                                       - set(listed))]
-    return problems
+class StaleStoreError(ValueError):
+    """A snapshot store written before the stability check (no ``stable`` array): rebuild it."""
 
 
 @dataclass
@@ -121,11 +69,18 @@ class Snapshots:
     success: Array
     message: Array
     branch: Array
+    stable: Array  # (R, S) converged and stable
+    floquet_radius: Array  # (R, S)
     design: Array | None = None  # (S,) hypercube / enrichment; None: all hypercube (stores from before it)
 
     def __post_init__(self) -> None:
         if self.design is None:
             self.design = np.full(self.scenario.shape, "hypercube", dtype=object)
+
+    @property
+    def steady(self) -> Array:
+        """(R, S): a steady state the machine can be in, converged and stable (what downstream stages use)."""
+        return self.success & self.stable
 
     @property
     def solved(self) -> Array:
@@ -138,8 +93,9 @@ class Snapshots:
         return self.runs.index(run)
 
     def failures(self) -> pd.DataFrame:
-        """Every failed (run, scenario) with its reason (not the runs an enrichment scenario was not meant for)."""
-        r, s = np.nonzero(~self.success & self.solved)
+        """Every (run, scenario) without a steady state, failed or unstable, with its reason (not the runs an
+        enrichment scenario was not meant for)."""
+        r, s = np.nonzero(~self.steady & self.solved)
         return pd.DataFrame({"run": np.asarray(self.runs)[r], "scenario": self.scenario[s],
                              "split": self.split[s], "message": self.message[r, s]})
 
@@ -156,6 +112,8 @@ def write_chunk(path: str | Path, variant: str, scenarios: pd.DataFrame, paramet
     _write(group, "parameters", scenarios[list(parameters)].to_numpy(float))
     _write(group, "harmonics", solutions.harmonics)
     _write(group, "success", solutions.success)
+    _write(group, "stable", solutions.stable)
+    _write(group, "floquet_radius", solutions.floquet_radius)
     _write(group, "message", solutions.message.astype(str))
     _write(group, "branch", solutions.branch.astype(str))
     write_manifest(path)
@@ -188,7 +146,8 @@ def read_chunks(chunk_paths: Sequence[str | Path], expected: pd.DataFrame) -> Sn
 
     Every chunk store is first verified against its manifest: a missing, changed or unlisted
     file, or no manifest at all, raises ``CorruptStoreError`` naming each bad chunk (all of
-    them, so one rerun rebuilds them all).
+    them, so one rerun rebuilds them all); a chunk store from before the stability check
+    raises ``StaleStoreError``.
     """
     if not chunk_paths:
         raise ValueError("no chunk stores to gather")
@@ -196,6 +155,8 @@ def read_chunks(chunk_paths: Sequence[str | Path], expected: pd.DataFrame) -> Sn
     if bad:
         raise CorruptStoreError(bad, "chunk store")
     parts = [zarr.open_group(str(p), mode="r") for p in chunk_paths]
+    for path, g in zip(chunk_paths, parts):
+        _require_stability(g, path)
     scenario = np.concatenate([g["scenario"][:] for g in parts])
     wanted = expected["scenario"].to_numpy(np.int64)
     missing = np.setdiff1d(wanted, scenario)
@@ -213,7 +174,8 @@ def read_chunks(chunk_paths: Sequence[str | Path], expected: pd.DataFrame) -> Sn
             raise ValueError(f"chunk store {path} was solved for another run plan ({other} vs {plan})")
     order = np.argsort(scenario)
     stack = {name: np.concatenate([g[name][:] for g in parts], axis=axis)
-             for name, axis in (("harmonics", 1), ("success", 1), ("parameters", 0))}
+             for name, axis in (("harmonics", 1), ("success", 1), ("stable", 1), ("floquet_radius", 1),
+                                ("parameters", 0))}
     stack |= {name: np.concatenate([_text(g[name][:]) for g in parts], axis=axis)
               for name, axis in (("message", 1), ("branch", 1), ("split", 0))}
     # chunk stores from before the enrichment have no design array: all hypercube
@@ -224,8 +186,25 @@ def read_chunks(chunk_paths: Sequence[str | Path], expected: pd.DataFrame) -> Sn
         eccentric_mass_g=list(plan["eccentric_mass_g"]), parameters=list(parts[0].attrs["parameters"]),
         scenario=scenario[order], split=stack["split"][order], values=stack["parameters"][order],
         harmonics=stack["harmonics"][:, order], success=stack["success"][:, order],
-        message=stack["message"][:, order], branch=stack["branch"][:, order], design=stack["design"][order],
+        message=stack["message"][:, order], branch=stack["branch"][:, order], stable=stack["stable"][:, order],
+        floquet_radius=stack["floquet_radius"][:, order], design=stack["design"][order],
     )
+
+
+def _run_files(r: int):
+    """The files ``load(path, run)`` reads: all but the other runs' chunks of the per-run arrays (``save``
+    chunks them one run per chunk: keys <array>/c/<run>/...)."""
+    def select(name: str) -> bool:
+        parts = name.split("/")
+        return not (len(parts) > 2 and parts[0] in PER_RUN and parts[1] == "c") or parts[2] == str(r)
+    return select
+
+
+def _require_stability(group: zarr.Group, path: str | Path) -> None:
+    """A store written before the stability check has no ``stable`` array: its unstable points cannot be told."""
+    if "stable" not in group:
+        raise StaleStoreError(f"{path}: no stability flags (written before the Floquet check of every steady "
+                              "state): delete it and run the workflow again to rebuild it")
 
 
 def save(snapshots: Snapshots, path: str | Path) -> None:
@@ -235,8 +214,11 @@ def save(snapshots: Snapshots, path: str | Path) -> None:
                         "eccentric_mass_g": snapshots.eccentric_mass_g, "parameters": snapshots.parameters})
     R, S = snapshots.success.shape
     _write(group, "harmonics", snapshots.harmonics, (1, S) + snapshots.harmonics.shape[2:])
-    for name in ("success", "message", "branch"):
-        _write(group, name, getattr(snapshots, name).astype(bool if name == "success" else str), (1, S))
+    for name in ("success", "stable"):
+        _write(group, name, getattr(snapshots, name).astype(bool), (1, S))
+    _write(group, "floquet_radius", snapshots.floquet_radius, (1, S))
+    for name in ("message", "branch"):
+        _write(group, name, getattr(snapshots, name).astype(str), (1, S))
     _write(group, "scenario", snapshots.scenario)
     _write(group, "split", snapshots.split.astype(str))
     _write(group, "design", snapshots.design.astype(str))
@@ -246,6 +228,7 @@ def save(snapshots: Snapshots, path: str | Path) -> None:
 
 def operating_point(path: str | Path, run: str) -> tuple[float, float]:
     """A run's speed as solved [RPM] and eccentric mass [g], from the store's attributes (no array is read)."""
+    check_store(path, "snapshot store", select=lambda name: name == "zarr.json")
     attrs = zarr.open_group(str(path), mode="r").attrs
     runs = list(attrs["runs"])
     if run not in runs:
@@ -256,23 +239,25 @@ def operating_point(path: str | Path, run: str) -> tuple[float, float]:
 def load(path: str | Path, run: str | None = None) -> Snapshots:
     """Read a gathered store, all runs or only ``run`` (reads that run's chunks only).
 
-    The store is verified against its manifest first (stores from before manifests are read unchecked).
+    The store is verified against its manifest first (``CorruptStoreError``; with ``run``, only the files
+    that are read: the other runs' chunks are not); a store from before the stability check raises
+    ``StaleStoreError``.
     """
-    problems = verify_store(path, require_manifest=False)
-    if problems:
-        raise CorruptStoreError({str(path): problems}, "snapshot store")
+    check_store(path, "snapshot store", select=lambda name: name == "zarr.json")
     group = zarr.open_group(str(path), mode="r")
     runs = list(group.attrs["runs"])
-    sel = slice(None)
+    sel, select = slice(None), None
     if run is not None:
         if run not in runs:
             raise KeyError(f"run {run!r} is not in {path} (runs: {runs})")
-        sel = slice(runs.index(run), runs.index(run) + 1)
+        sel, select = slice(runs.index(run), runs.index(run) + 1), _run_files(runs.index(run))
+    check_store(path, "snapshot store", select)
+    _require_stability(group, path)
     return Snapshots(
         variant=group.attrs["variant"], runs=runs[sel], rpm=list(group.attrs["rpm"])[sel],
         eccentric_mass_g=list(group.attrs["eccentric_mass_g"])[sel], parameters=list(group.attrs["parameters"]),
         scenario=group["scenario"][:], split=_text(group["split"][:]).astype(object), values=group["parameters"][:],
         harmonics=group["harmonics"][sel], success=group["success"][sel], message=_text(group["message"][sel]),
-        branch=_text(group["branch"][sel]),
+        branch=_text(group["branch"][sel]), stable=group["stable"][sel], floquet_radius=group["floquet_radius"][sel],
         design=_text(group["design"][:]).astype(object) if "design" in group else None,
     )
