@@ -120,7 +120,7 @@ def test_run_killed_while_building_libraries_resumes_to_identical_results(refere
     process = subprocess.Popen([*SNAKEMAKE, "--cores", "2", *TARGETS], cwd=work, stdout=subprocess.DEVNULL,
                                stderr=subprocess.DEVNULL, start_new_session=True)
     deadline = time.time() + 300
-    while not list((work / "logs" / "geometric").glob("spgd_library_*.log")) and time.time() < deadline:
+    while not list((work / "logs" / "geometric").glob("spgd_library*.log")) and time.time() < deadline:
         assert process.poll() is None, "the run ended before it could be killed"
         time.sleep(0.1)
     os.killpg(process.pid, signal.SIGKILL)  # a hard kill: the lock and incomplete outputs stay behind

@@ -10,8 +10,10 @@ SI units, batched, in microseconds per parameter set.
 from __future__ import annotations
 
 import json
+import multiprocessing
 import warnings
 from collections.abc import Mapping, Sequence
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -364,6 +366,48 @@ def build_run_library(variant: Variant, run: str, snapshots_path: str, pod_path:
                             lower, upper, sensor_dofs(variant.model.shaft), kinks, **spgd_options)
     library.info["sensor_range_m"] = sensor_range_m
     return library
+
+
+def build_run_libraries(config: Mapping, variant_name: str, runs: Sequence[str], snapshots_path: str,
+                        pod_path: str, outputs: Sequence[str], sensor_range_m: float, spgd_options: dict,
+                        pieces: str = "mode_scaling", workers: int = 1) -> list[dict]:
+    """``build_run_library`` for every run of ``runs``, each saved to its path in ``outputs``, on ``workers``
+    processes: the libraries of a variant in one workflow job (one job per run paid the start-up, the
+    snapshots' loading and the mode-scaling probe once per run, for a fit of a few seconds). The runs with the
+    most usable scenarios go first (the enrichment runs near the resonance fit several times longer than the
+    others: started last, one would run alone at the end). The variant is rebuilt in each process from
+    ``config`` (``hybridtwin.config.variant``; its effects do not pickle). The processes are forked (a spawned
+    one would run the calling Snakemake script again; zarr resets its I/O loop in a forked child). Returns the
+    libraries' ``info``, in the order of ``runs``."""
+    if len(outputs) != len(runs):
+        raise ValueError(f"{len(runs)} runs for {len(outputs)} library paths")
+    jobs = [(config, variant_name, run, snapshots_path, pod_path, path, sensor_range_m, spgd_options, pieces)
+            for run, path in zip(runs, outputs)]
+    size = [int(np.sum(load_pod(pod_path, run)[1])) for run in runs]
+    order = sorted(range(len(runs)), key=lambda i: -size[i])
+    if workers <= 1 or len(runs) == 1:
+        done = {i: _build_and_save(jobs[i]) for i in order}
+    else:
+        context = multiprocessing.get_context("fork")
+        with ProcessPoolExecutor(min(workers, len(runs)), mp_context=context) as pool:
+            futures = {i: pool.submit(_build_and_save, jobs[i]) for i in order}
+            done = {i: future.result() for i, future in futures.items()}
+    return [done[i] for i in range(len(runs))]
+
+
+def _build_and_save(job: tuple) -> dict:
+    """One run's library built and saved (a worker of ``build_run_libraries``, BLAS on one thread): its info
+    with n_modes and n_terms."""
+    from threadpoolctl import threadpool_limits
+
+    from .config import variant as config_variant
+
+    config, variant_name, run, snapshots_path, pod_path, path, sensor_range_m, spgd_options, pieces = job
+    with threadpool_limits(1):
+        library = build_run_library(config_variant(config, variant_name), run, snapshots_path, pod_path,
+                                    sensor_range_m, spgd_options, pieces)
+        library.save(path)
+    return {**library.info, "n_modes": library.n_modes, "n_terms": library.model.n_terms}
 
 
 def build_variant_global_library(variant: Variant, snapshots_path: str, runs: pd.DataFrame, sensor_range_m: float,

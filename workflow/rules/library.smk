@@ -22,17 +22,21 @@ rule spgd_global:
 
 
 rule spgd_library:
+    """The library of every run of a variant in one job, its runs fitted in parallel on the job's threads (a run's
+    fit takes seconds: one job per run paid the start-up and the snapshots' loading once per run)."""
     input:
         unpack(library_input),
     output:
-        directory("results/{variant}/library/{run}.zarr"),
+        [directory(path) for path in expand("results/{{variant}}/library/{run}.zarr", run=RUNS)],
     params:
+        runs=RUNS,
         spec=lambda wildcards: config["variants"][wildcards.variant],
         offline=lambda wildcards: offline_for(config, wildcards.variant, OFFLINE_USED["spgd_library"]),
+    threads: 2
     log:
-        "logs/{variant}/spgd_library_{run}.log",
+        "logs/{variant}/spgd_library.log",
     benchmark:
-        "results/benchmarks/{variant}/spgd_library_{run}.tsv"
+        "results/benchmarks/{variant}/spgd_library.tsv"
     conda:
         "../envs/hybridtwin.yaml"
     script:

@@ -1,0 +1,155 @@
+"""The main job's stage breakdown (issue 23): job-seconds per stage from Snakemake's per-job benchmark files,
+an earlier commit and this one side by side.
+
+Every rule writes results/benchmarks/{variant}/<rule>[_<run or chunk>].tsv (and results/benchmarks/data/... for
+the measured data): wall seconds ``s`` and a ``cpu_time`` that Snakemake samples (every 0.5 s for the first
+15 s of a job, then every 30 s: the CPU of a longer job's last stretch is missed, so it is shown as sampled).
+The stages:
+
+    sPGD library fits        spgd_library, spgd_global
+    per-run protocol         identify_run
+    joint fit + polish       identify_joint
+    harmonic-balance solves  solve_chunk, solve_enrichment
+    the rest                 everything else (sampling, POD, validation, the measured data, ...)
+
+Usage (from the repository root, in the project's environment):
+
+    # two folders where the workflow has run (e.g. git worktrees of the two commits)
+    python benchmarks/main_job_benchmark.py --old /tmp/base --new . --variant geometric
+
+    # the whole measurement: a worktree of each commit under WORKDIR, the workflow run in each (old first, then
+    # new, `nice`, `--cores 2`) on the Geometric variant's targets, then the table
+    python benchmarks/main_job_benchmark.py --run --old-commit COMMIT --workdir /tmp/mjb --variant geometric
+
+Timings on a shared machine are noisy: the load average before and after each run is printed; compare the
+two columns of one invocation, not figures taken at different times.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pandas as pd
+
+ROOT = Path(__file__).resolve().parents[1]
+STAGES = [
+    ("sPGD library fits", ("spgd_library", "spgd_global")),
+    ("per-run protocol", ("identify_run",)),
+    ("joint fit + polish", ("identify_joint",)),
+    ("harmonic-balance solves", ("solve_chunk", "solve_enrichment")),
+]
+REST = "the rest"
+
+
+def stage_of(path: Path) -> str:
+    """The stage of a benchmark file (its rule is the file name up to the run or chunk suffix)."""
+    name = path.stem
+    for stage, rules in STAGES:
+        if any(name == rule or name.startswith(rule + "_") for rule in rules):
+            return stage
+    return REST
+
+
+def jobs(results: Path, variant: str) -> pd.DataFrame:
+    """One row per job of ``variant`` and of the measured data: file, stage, s, cpu_time."""
+    folders = [results / "benchmarks" / variant, results / "benchmarks" / "data"]
+    files = sorted(p for folder in folders if folder.is_dir() for p in folder.rglob("*.tsv"))
+    if not files:
+        raise SystemExit(f"main_job_benchmark: no benchmark files under {results / 'benchmarks'} for {variant} "
+                         "(has the workflow run there?)")
+    rows = []
+    for path in files:
+        table = pd.read_csv(path, sep="\t")
+        rows.append({"file": str(path.relative_to(results)), "stage": stage_of(path),
+                     "s": float(table["s"].iloc[-1]),
+                     "cpu_time": pd.to_numeric(table.get("cpu_time", pd.Series([float("nan")])), errors="coerce")
+                     .iloc[-1]})
+    return pd.DataFrame(rows)
+
+
+def breakdown(results: Path, variant: str) -> pd.DataFrame:
+    """job-s, jobs and sampled CPU per stage, in the order of ``STAGES``, then the rest and the total."""
+    table = jobs(results, variant)
+    order = [stage for stage, _ in STAGES] + [REST]
+    grouped = table.groupby("stage").agg(job_s=("s", "sum"), jobs=("s", "size"), cpu_s=("cpu_time", "sum"))
+    grouped = grouped.reindex(order).fillna({"job_s": 0.0, "jobs": 0, "cpu_s": 0.0})
+    grouped.loc["total"] = grouped.sum()
+    return grouped
+
+
+def side_by_side(old: pd.DataFrame, new: pd.DataFrame) -> str:
+    """The markdown table: per stage, job-s (jobs) and sampled CPU of both, and new / old."""
+    lines = ["| stage | old job-s (jobs) | new job-s (jobs) | new / old | old CPU s* | new CPU s* |",
+             "|---|---|---|---|---|---|"]
+    for stage in old.index:
+        o, n = old.loc[stage], new.loc[stage]
+        ratio = n.job_s / o.job_s if o.job_s > 0 else float("nan")
+        lines.append(f"| {stage} | {o.job_s:.0f} ({o.jobs:.0f}) | {n.job_s:.0f} ({n.jobs:.0f}) | {ratio:.2f} | "
+                     f"{o.cpu_s:.0f} | {n.cpu_s:.0f} |")
+    lines.append("\n*CPU as Snakemake samples it (a job's CPU after its first 15 s is sampled every 30 s: a lower "
+                 "bound for long jobs).")
+    return "\n".join(lines)
+
+
+def load() -> str:
+    return " ".join(f"{v:.2f}" for v in os.getloadavg())
+
+
+def run_workflow(work: Path, variant: str) -> float:
+    """The variant's targets (libraries, their validation, the per-run and joint fits) from clean in ``work``
+    (its results/ and logs/ removed first), `nice -n 10 snakemake --cores 2`; the wall time [s]."""
+    for folder in ("results", "logs"):
+        subprocess.run(["rm", "-rf", str(work / folder)], check=True)
+    targets = [f"results/{variant}/library_validation.tsv", f"results/{variant}/parameters.tsv"]
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(work / "src")}
+    print(f"{work}: load average before {load()}", flush=True)
+    start = time.perf_counter()
+    run = subprocess.run(["nice", "-n", "10", sys.executable, "-m", "snakemake", "--cores", "2", *targets], cwd=work,
+                         env=env, capture_output=True, text=True)
+    if run.returncode:
+        raise SystemExit(run.stdout[-3000:] + run.stderr[-3000:])
+    wall = time.perf_counter() - start
+    print(f"{work}: {wall:.0f} s wall, load average after {load()}", flush=True)
+    return wall
+
+
+def worktree(workdir: Path, name: str, commit: str) -> Path:
+    path = workdir / name
+    if not path.exists():
+        subprocess.run(["git", "worktree", "add", "--detach", str(path), commit], cwd=ROOT, check=True,
+                       capture_output=True)
+    return path
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--old", type=Path, help="folder of the earlier commit's workflow run")
+    parser.add_argument("--new", type=Path, default=ROOT, help="folder of this commit's workflow run")
+    parser.add_argument("--variant", default="geometric")
+    parser.add_argument("--run", action="store_true", help="run the workflow in worktrees of both commits first")
+    parser.add_argument("--old-commit", help="with --run: the earlier commit")
+    parser.add_argument("--workdir", type=Path, default=Path("/tmp/main_job_benchmark"))
+    args = parser.parse_args()
+    if args.run:
+        if not args.old_commit:
+            parser.error("--run needs --old-commit")
+        args.workdir.mkdir(parents=True, exist_ok=True)
+        head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, check=True, capture_output=True,
+                              text=True).stdout.strip()
+        args.old, args.new = worktree(args.workdir, "old", args.old_commit), worktree(args.workdir, "new", head)
+        walls = {name: run_workflow(path, args.variant) for name, path in (("old", args.old), ("new", args.new))}
+        print(f"wall: old {walls['old']:.0f} s, new {walls['new']:.0f} s")
+    if args.old is None:
+        parser.error("give --old FOLDER (or --run --old-commit COMMIT)")
+    old, new = (breakdown(folder / "results", args.variant) for folder in (args.old, args.new))
+    print(f"\n{args.variant}: old {args.old}, new {args.new} (load average now {load()})\n")
+    print(side_by_side(old, new))
+
+
+if __name__ == "__main__":
+    main()
