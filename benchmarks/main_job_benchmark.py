@@ -21,6 +21,11 @@ Usage (from the repository root, in the project's environment):
     # new, `nice`, `--cores 2`) on the Geometric variant's targets, then the table
     python benchmarks/main_job_benchmark.py --run --old-commit COMMIT --workdir /tmp/mjb --variant geometric
 
+    # the per-run protocol in-process, the paper's literal repeats (monte_carlo_starts 0) against the workflow's
+    # (repeats from the trials' optima), on the libraries of a workflow run: CPU time, LM problems, the estimate
+    # and the Monte Carlo spread
+    python benchmarks/main_job_benchmark.py --protocol . --protocol-runs r350_m25p9 r700_m14p8 r950_m0p0
+
 Timings on a shared machine are noisy: the load average before and after each run is printed; compare the
 two columns of one invocation, not figures taken at different times.
 """
@@ -110,7 +115,7 @@ def run_workflow(work: Path, variant: str) -> float:
     print(f"{work}: load average before {load()}", flush=True)
     start = time.perf_counter()
     run = subprocess.run(["nice", "-n", "10", sys.executable, "-m", "snakemake", "--cores", "2", *targets], cwd=work,
-                         env=env, capture_output=True, text=True)
+                         env=env, capture_output=True, text=True, check=False)
     if run.returncode:
         raise SystemExit(run.stdout[-3000:] + run.stderr[-3000:])
     wall = time.perf_counter() - start
@@ -126,6 +131,48 @@ def worktree(workdir: Path, name: str, commit: str) -> Path:
     return path
 
 
+def protocol_comparison(folder: Path, variant_name: str, runs: list[str]) -> pd.DataFrame:
+    """Per run: the per-run protocol with the paper's literal repeats and with the workflow's setting, CPU
+    seconds, LM problems, whether the estimates are equal, the Monte Carlo std of each physical parameter
+    (optima / literal, median and range over the parameters) and the repeats' mean loss."""
+    from dataclasses import replace
+
+    import yaml
+    from threadpoolctl import threadpool_limits
+
+    from hybridtwin import forward as fwd
+    from hybridtwin import identification as idn
+    from hybridtwin.library import Library
+
+    config = yaml.safe_load((folder / "config" / "config.yaml").read_text())
+    options = idn.settings(config, variant_name)
+    harmonics = idn.read_harmonics(folder / "results" / "data" / "harmonics.tsv")
+    validation = pd.read_csv(folder / "results" / variant_name / "library_validation.tsv", sep="\t")
+    rows = []
+    for run in runs:
+        data = idn.run_data(harmonics, run, keyphasor=options["keyphasor"])
+        library = Library.load(folder / "results" / variant_name / "library" / f"{run}.zarr")
+        errors = idn.model_errors(validation, [run], options["model_error"])
+        fits, cpu = {}, {}
+        for name, k in (("literal", 0), ("optima", int(options["monte_carlo_starts"]))):
+            start = time.process_time()
+            with threadpool_limits(1):
+                fits[name] = idn.identify([fwd.SensorSurrogate(library)], [data], (),
+                                          replace(idn.protocol_options(options), monte_carlo_starts=k), errors)
+            cpu[name] = time.process_time() - start
+        tables = {name: fit.table().set_index("parameter") for name, fit in fits.items()}
+        physical = [p for p in tables["literal"].index if p != "phase"]
+        spread = tables["optima"].loc[physical, "mc_std"] / tables["literal"].loc[physical, "mc_std"]
+        rows.append({"run": run, "cpu_literal_s": cpu["literal"], "cpu_optima_s": cpu["optima"],
+                     "lm_literal": fits["literal"].protocol.n_lm, "lm_optima": fits["optima"].protocol.n_lm,
+                     "same_estimate": bool((fits["literal"].theta == fits["optima"].theta).all()),
+                     "mc_std_ratio_median": float(spread.median()), "mc_std_ratio_min": float(spread.min()),
+                     "mc_std_ratio_max": float(spread.max()),
+                     "mc_loss_literal": float(fits["literal"].protocol.monte_carlo_loss.mean()),
+                     "mc_loss_optima": float(fits["optima"].protocol.monte_carlo_loss.mean())})
+    return pd.DataFrame(rows)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--old", type=Path, help="folder of the earlier commit's workflow run")
@@ -134,7 +181,15 @@ def main() -> None:
     parser.add_argument("--run", action="store_true", help="run the workflow in worktrees of both commits first")
     parser.add_argument("--old-commit", help="with --run: the earlier commit")
     parser.add_argument("--workdir", type=Path, default=Path("/tmp/main_job_benchmark"))
+    parser.add_argument("--protocol", type=Path, help="folder of a workflow run: compare the per-run protocols")
+    parser.add_argument("--protocol-runs", nargs="+", default=["r350_m25p9", "r700_m14p8", "r950_m0p0"])
     args = parser.parse_args()
+    if args.protocol:
+        print(f"load average {load()}")
+        table = protocol_comparison(args.protocol, args.variant, args.protocol_runs)
+        print(table.round(3).to_string(index=False))
+        if args.old is None and not args.run:
+            return
     if args.run:
         if not args.old_commit:
             parser.error("--run needs --old-commit")
