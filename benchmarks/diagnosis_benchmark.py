@@ -2,6 +2,7 @@
 
     python benchmarks/diagnosis_benchmark.py [--cases none,slope_spring,...] [--integrator time] [--seed 1]
                                              [--trials 4] [--out results/benchmarks/diagnosis_benchmark.tsv]
+                                             [--data results/benchmarks/diagnosis_data]
 
 For each case the virtual rig (``hybridtwin.rig``) makes the bundled plan's 19 fit + 3 validation runs from a
 truth = the Geometric model (k_b 2411.3, zeta_s 0.024, zeta_bup 0.016, bow q_x 0.002, q_y 0.0015 shared) plus
@@ -53,6 +54,7 @@ from hybridtwin import forward as fwd
 from hybridtwin import identification as idn
 from hybridtwin import lm
 from hybridtwin import polish as pol
+from hybridtwin import score_test as st
 from hybridtwin.candidates import candidates_for
 from hybridtwin.effects import Parameter, PolynomialBearing, Term
 from hybridtwin.measurements import read_runs
@@ -109,8 +111,9 @@ def make_data(case: str, out: Path, integrator: str, seed: int, harmonics: int) 
                       "values": TRUTH | values},
             "imperfections": defaults["imperfections"]}
     start = time.perf_counter()
-    generate(read_plan(ROOT / "data/default/runs.tsv"), RigSpec.from_mapping(spec, {"midspan_cubic": MIDSPAN_CUBIC}),
-             out)
+    if not (out / "runs.tsv").is_file():  # records kept from an earlier run (--data) are reused
+        generate(read_plan(ROOT / "data/default/runs.tsv"),
+                 RigSpec.from_mapping(spec, {"midspan_cubic": MIDSPAN_CUBIC}), out)
     seconds = time.perf_counter() - start
     sheet = read_runs(out / "runs.tsv")
     table = pd.concat([preprocess_run(row, harmonics)[0] for _, row in sheet.iterrows()], ignore_index=True)
@@ -119,7 +122,7 @@ def make_data(case: str, out: Path, integrator: str, seed: int, harmonics: int) 
     return [d for d in data if d.usable], seconds
 
 
-def base_fit(data: list, config: dict, trials: int, seed: int, harmonics: int) -> tuple[dg.BaseFit, object]:
+def base_fit(data: list, config: dict, trials: int, seed: int, harmonics: int) -> tuple[st.BaseFit, object]:
     """The Geometric variant of the config fitted with the full solver (module docstring, step 1)."""
     variant = Variant.from_spec("geometric", config["variants"]["geometric"])
     names = list(variant.unknown)
@@ -130,7 +133,7 @@ def base_fit(data: list, config: dict, trials: int, seed: int, harmonics: int) -
     options = ProtocolOptions(trials=trials, monte_carlo=0, seed=seed, lm=lm.LMOptions(max_iterations=60))
     fit = idn.identify(models, data, per_run, options)
     fit = pol.polish(fit, models, seed=seed)  # the polish's rule: random starts where the misfit is large
-    return dg.BaseFit(variant, fit.layout, fit.theta, fit.data, harmonics), fit
+    return st.BaseFit(variant, fit.layout, fit.theta, fit.data, harmonics), fit
 
 
 def judge(case: str, result: dg.Diagnosis) -> tuple[str, bool]:
@@ -171,6 +174,9 @@ def main() -> int:
     parser.add_argument("--trials", type=int, default=4, help="random starts of the base fit")
     parser.add_argument("--harmonics", type=int, default=5)
     parser.add_argument("--out", default=str(ROOT / "results/benchmarks/diagnosis_benchmark.tsv"))
+    parser.add_argument("--data", default=None,
+                        help="keep each case's rig records in DATA/{integrator}-seed{seed}/{case} and reuse them when "
+                             "present (default: a temporary directory, made anew)")
     args = parser.parse_args()
     cases = [c.strip() for c in args.cases.split(",") if c.strip()]
     unknown = sorted(set(cases) - set(CASES))
@@ -182,30 +188,33 @@ def main() -> int:
     rows = []
     for case in cases:
         with tempfile.TemporaryDirectory() as tmp, threadpool_limits(1):
-            data, rig_s = make_data(case, Path(tmp), args.integrator, args.seed, args.harmonics)
+            where = Path(args.data) / f"{args.integrator}-seed{args.seed}" / case if args.data else Path(tmp)
+            where.mkdir(parents=True, exist_ok=True)
+            data, rig_s = make_data(case, where, args.integrator, args.seed, args.harmonics)
             start = time.perf_counter()
             base, fit = base_fit(data, config, args.trials, args.seed, args.harmonics)
             fit_s = time.perf_counter() - start
             variant = base.variant
             candidates = candidates_for([e.name for e in variant.model.effects])
-            start = time.perf_counter()
+            start, cpu = time.perf_counter(), time.process_time()
             log.info("[%s] base fit %.0f s: chi^2/dof %.4g; polish starts:\n%s", case, fit_s, fit.chi2_dof,
                      fit.starts.to_string(index=False))
             result = dg.diagnose(base, candidates, options, log)
-            diagnose_s = time.perf_counter() - start
+            diagnose_s, diagnose_cpu_s = time.perf_counter() - start, time.process_time() - cpu
         top, correct = judge(case, result)
         after = result.path[-1].chi2_dof_after if result.path else result.summary["base_chi2_dof"]
         rows.append({"case": case, "top1": top, "correct": correct, "visible": bool(result.summary["misfit"]),
                      "verdict": result.conclusion.split(":")[0], "chi2_dof_before": result.summary["base_chi2_dof"],
                      "chi2_dof_after": after, "path": " + ".join(s.effect for s in result.path),
                      "estimate_vs_truth": estimates(case, result), "rig_s": rig_s, "fit_s": fit_s,
-                     "diagnose_s": diagnose_s, "refits": len(result.summary["refitted"]),
+                     "diagnose_s": diagnose_s, "diagnose_cpu_s": diagnose_cpu_s, "refits": len(result.summary["refitted"]),
                      "fingerprint": result.summary.get("fingerprint", "") if not result.path else "",
                      "conclusion": result.conclusion})
         row = rows[-1]
         print(f"[{case}] top-1 {top} ({'correct' if correct else 'WRONG'}), {row['verdict']}; chi^2/dof "
               f"{row['chi2_dof_before']:.3g} -> {after:.3g}; {row['estimate_vs_truth']}; rig {rig_s:.0f} s, "
-              f"base fit {fit_s:.0f} s, diagnosis {diagnose_s:.0f} s ({row['refits']} refits)", flush=True)
+              f"base fit {fit_s:.0f} s, diagnosis {diagnose_s:.0f} s wall, {diagnose_cpu_s:.0f} s CPU "
+              f"({row['refits']} refits)", flush=True)
     table = pd.DataFrame(rows)
     floor = table.loc[table["case"] == "none", "chi2_dof_before"]
     if len(floor):
@@ -215,7 +224,8 @@ def main() -> int:
     pd.set_option("display.width", 250)
     pd.set_option("display.max_colwidth", 60)
     shown = [c for c in ["case", "top1", "correct", "verdict", "chi2_dof_before", "chi2_dof_after", "after_over_floor",
-                         "estimate_vs_truth", "rig_s", "fit_s", "diagnose_s"] if c in table]
+                         "estimate_vs_truth", "rig_s", "fit_s", "diagnose_s",
+                         "diagnose_cpu_s"] if c in table]
     print(table[shown].to_string(index=False, float_format=lambda v: f"{v:.3g}"))
     print(f"\ncorrect: {int(table['correct'].sum())} of {len(table)}; table written to {args.out}")
     return 0

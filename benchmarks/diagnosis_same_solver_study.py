@@ -30,7 +30,7 @@ Design (the choices and why):
   (its linear term k4 u'), expansion_k6 (its cubic term k6 u'^3)}; every other candidate is its own class.
   On "none": a false alarm is any "add" verdict or an "unexplained discrepancy" conclusion. A hidden effect
   concluded "no missing effect" is a missed detection, reported apart from a wrong identification.
-- Baseline: a naive ranking from the same Jacobian at the same base optimum (``diagnosis.extended_problem``)
+- Baseline: a naive ranking from the same Jacobian at the same base optimum (``score_test.extended_problem``)
   without projecting out the base parameters' sensitivities: statistic ||r||^2 - min_b ||r + G b||^2 with
   the raw G (for one parameter (g.r)^2 / ||g||^2, the raw correlation with the residual), the same sign
   constraints and the same ordering (chi^2(k) p-value) as the score test: only the projection differs.
@@ -56,6 +56,7 @@ from hybridtwin import diagnosis as dg
 from hybridtwin import forward as fwd
 from hybridtwin import identification as idn
 from hybridtwin import lm
+from hybridtwin import score_test as st
 from hybridtwin import uncertainty as unc
 from hybridtwin.candidates import builtin_candidates
 from hybridtwin.protocol import ProtocolOptions
@@ -130,7 +131,7 @@ def base_variant() -> Variant:
     return Variant.from_spec("geometric", GEOMETRIC)
 
 
-def fit_base(data: list[idn.RunData], harmonics: int, seed: int) -> tuple[dg.BaseFit, idn.Identification]:
+def fit_base(data: list[idn.RunData], harmonics: int, seed: int) -> tuple[st.BaseFit, idn.Identification]:
     """The Geometric variant fitted with the full solver, shared bow: 3 random starts + the nominal values."""
     variant = base_variant()
     names = list(variant.unknown)
@@ -144,20 +145,20 @@ def fit_base(data: list[idn.RunData], harmonics: int, seed: int) -> tuple[dg.Bas
             nominal[i] = float(layout.normalise(p, variant.model.parameters[p].nominal))
     options = ProtocolOptions(trials=3, monte_carlo=0, seed=seed, lm=lm.LMOptions(max_iterations=60))
     fit = idn.identify(models, data, (), options, extra_starts=nominal[None])
-    return dg.BaseFit(variant, fit.layout, fit.theta, fit.data, harmonics), fit
+    return st.BaseFit(variant, fit.layout, fit.theta, fit.data, harmonics), fit
 
 
-def truth_base(clean: list[np.ndarray], harmonics: int) -> dg.BaseFit:
+def truth_base(clean: list[np.ndarray], harmonics: int) -> st.BaseFit:
     """The base at the truth (no hidden effect, phases 0): where the first-order lam1 is computed."""
     variant = base_variant()
     lower, upper = zip(*variant.unknown.values())
     layout = idn.Layout.build(list(variant.unknown), lower, upper, [r[0] for r in RUNS], [])
     theta = np.array([0.0 if p == "phase" else float(layout.normalise(p, TRUTH[p])) for p, _ in layout.entries()])
     data = [idn.RunData(run, rpm, mass, "fit", M, np.full(M.shape, SIGMA)) for (run, rpm, mass), M in zip(RUNS, clean)]
-    return dg.BaseFit(variant, layout, theta, data, harmonics)
+    return st.BaseFit(variant, layout, theta, data, harmonics)
 
 
-def first_order_lambda(scores: dg.Scores, effect: str, values: dict[str, float]) -> float:
+def first_order_lambda(scores: st.Scores, effect: str, values: dict[str, float]) -> float:
     """||G_p delta||^2 at the truth: the excess chi^2 the hidden effect leaves to first order."""
     score = next(s for s in scores.scores if s.candidate.name == effect)
     delta = np.array([2.0 * values[p.name] / (p.bounds[1] - p.bounds[0]) for p in score.candidate.parameters])
@@ -167,10 +168,10 @@ def first_order_lambda(scores: dg.Scores, effect: str, values: dict[str, float])
 # --- the naive baseline ------------------------------------------------------------------------------------
 
 
-def naive_ranking(base: dg.BaseFit, candidates) -> list[tuple[str, float, float]]:
+def naive_ranking(base: st.BaseFit, candidates) -> list[tuple[str, float, float]]:
     """(name, statistic, p-value) by the raw correlation with the residual: the score test's algebra on the
     raw sensitivities G (the base's not projected out), same Jacobian, bounds and ordering."""
-    problem, theta = dg.extended_problem(base, candidates)
+    problem, theta = st.extended_problem(base, candidates)
     ev = problem.evaluate(theta[None], base.X[None], jacobian=True)
     r = ev.r[0].reshape(-1)
     J = problem.dense_jacobian(ev)
@@ -356,7 +357,7 @@ def main() -> None:
     with threadpool_limits(1):
         start = time.perf_counter()
         clean = {"none": truth_response(None, {}, H)}
-        truth_scores = dg.score_tests(truth_base(clean["none"], H), candidates)
+        truth_scores = st.score_tests(truth_base(clean["none"], H), candidates)
         plan = [("none", "none", {}, s, 0.0) for s in range(1, seeds["none"] + 1)]
         print(f"\ntruths (solved for all {len(RUNS)} runs?) and first-order lam1 = ||G_p delta||^2 at the truth:")
         for effect, strength, values in cases:

@@ -7,6 +7,7 @@ from hybridtwin import config as cfg
 from hybridtwin import diagnosis as dg
 from hybridtwin import diagnosis_report as dgr
 from hybridtwin import identification as idn
+from hybridtwin import score_test as st
 from hybridtwin.candidates import candidates_for
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
@@ -18,7 +19,7 @@ harmonics = idn.read_harmonics(smk.input.harmonics)
 runs = [r for r in dict.fromkeys(table["run"]) if r != "all"]
 keyphasor = idn.settings(smk.config, variant.name)["keyphasor"]  # as the identification used it
 data = [idn.run_data(harmonics, run, keyphasor=keyphasor) for run in runs]
-base = dg.BaseFit.from_table(variant, table, data, int(smk.params.harmonics))
+base = st.BaseFit.from_table(variant, table, data, int(smk.params.harmonics))
 candidates = candidates_for([e.name for e in variant.model.effects], options["candidates"],
                             cfg.user_effects(smk.config))
 log.info("diagnosing %s on %d fit runs: %d candidates (%s)", variant.name, len(data), len(candidates),

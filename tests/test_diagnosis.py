@@ -14,9 +14,10 @@ from hybridtwin import diagnosis as dg
 from hybridtwin import diagnosis_report as dgr
 from hybridtwin import forward as fwd
 from hybridtwin import identification as idn
-from hybridtwin import lm
+from hybridtwin import lm, variants
+from hybridtwin import refit as rf
+from hybridtwin import score_test as st
 from hybridtwin import uncertainty as unc
-from hybridtwin import variants
 from hybridtwin.candidates import Candidate, builtin_candidates
 from hybridtwin.effects import Parameter, PolynomialBearing, Term
 from hybridtwin.protocol import ProtocolOptions
@@ -48,7 +49,7 @@ def _data(extra_effects: list[str], values: dict[str, float], seed: int) -> list
     return out
 
 
-def _base_fit(data: list[idn.RunData], spec: dict = GEOMETRIC) -> dg.BaseFit:
+def _base_fit(data: list[idn.RunData], spec: dict = GEOMETRIC) -> st.BaseFit:
     """The variant fitted with the full solver (shared bow): random starts plus the nominal one."""
     variant = Variant.from_spec("geometric", spec)
     lower, upper = zip(*variant.unknown.values())
@@ -57,7 +58,7 @@ def _base_fit(data: list[idn.RunData], spec: dict = GEOMETRIC) -> dg.BaseFit:
     options = ProtocolOptions(trials=3, monte_carlo=0, seed=2, lm=lm.LMOptions(max_iterations=60))
     fit = idn.identify(models, data, (), options)
     assert fit.success or fit.status == lm.STALLED
-    return dg.BaseFit(variant, fit.layout, fit.theta, fit.data, H)
+    return st.BaseFit(variant, fit.layout, fit.theta, fit.data, H)
 
 
 CANDIDATES = ["slope_spring", "expansion_k4", "expansion_k2", "cross_coupled_stiffness", "speed_damping",
@@ -83,8 +84,8 @@ def test_score_statistic_equals_the_linearised_chi2_drop(slope_base):
     """S = ||r_p||^2 - min ||r_p + G_p b||^2 equals the drop of the full linearised least squares with the
     base entries and the candidate together (lstsq on [J, G] vs [J] alone: no projection), to rounding."""
     candidates = _candidates(["expansion_k2", "cross_coupled_stiffness"])  # two-signed ranges: no constraint
-    scores = dg.score_tests(slope_base, candidates)
-    problem, theta = dg.extended_problem(slope_base, candidates)
+    scores = st.score_tests(slope_base, candidates)
+    problem, theta = st.extended_problem(slope_base, candidates)
     ev = problem.evaluate(theta[None], slope_base.X[None], jacobian=True)
     r, J = ev.r[0].reshape(-1), problem.dense_jacobian(ev)
     entries = problem.layout.entries()
@@ -126,8 +127,8 @@ def test_hidden_slope_force_is_ranked_first_and_confirmed(slope_base):
 def test_estimate_of_the_linear_slope_term_matches_the_truth(slope_base):
     """k4 u' alone stands for k_w u' + k_z u'^3 with small slopes: k4 near k_w = 324.2 N (within 10 %: the
     cubic part, 301.1 (u')^3 with u' ~ 0.02, adds ~0.04 % of the linear force, the rest is noise)."""
-    scores = dg.score_tests(slope_base, _candidates(["expansion_k4"]))
-    cf = dg.confirm(slope_base, scores.scores[0], scores)
+    scores = st.score_tests(slope_base, _candidates(["expansion_k4"]))
+    cf = rf.confirm(slope_base, scores.scores[0], scores)
     k4 = cf.estimates.set_index("parameter").loc["k4"]
     assert k4["value"] == pytest.approx(324.2, rel=0.1)
     assert k4["ci_low"] > 0  # the interval excludes zero: the effect is there
@@ -172,10 +173,10 @@ def test_unexplained_discrepancy_when_no_candidate_fits():
 def test_nested_subspaces():
     rng = np.random.default_rng(0)
     b = rng.standard_normal((50, 2))
-    assert dg.nested(b[:, :1] * 3.0, b)
-    assert dg.nested(b @ np.array([[1.0], [2.0]]), b)
-    assert not dg.nested(rng.standard_normal((50, 1)), b)
-    assert not dg.nested(b, b[:, :1])
+    assert st.nested(b[:, :1] * 3.0, b)
+    assert st.nested(b @ np.array([[1.0], [2.0]]), b)
+    assert not st.nested(rng.standard_normal((50, 1)), b)
+    assert not st.nested(b, b[:, :1])
 
 
 def test_a_candidate_whose_range_excludes_zero_is_refused(slope_base):
@@ -183,7 +184,7 @@ def test_a_candidate_whose_range_excludes_zero_is_refused(slope_base):
     effect = replace(bad.effect, parameters=(Parameter("k2", "N/m", (10.0, 20.0), 15.0, "no zero"),
                                              bad.effect.parameters[1]))
     with pytest.raises(ValueError, match="excludes 0"):
-        dg.extend(slope_base.variant, [Candidate(effect, ("k2",))])
+        st.extend(slope_base.variant, [Candidate(effect, ("k2",))])
 
 
 def test_sparse_route_reads_which_terms_an_l1_fit_kept():
@@ -309,3 +310,21 @@ def test_the_data_tell_which_law_the_2x_force_follows():
     assert result.table.loc[0, "verdict"].startswith("add")
     bic = result.table.set_index("effect")["delta_bic"]
     assert bic["excitation_2x_inertial"] < bic["excitation_2x"] - 10  # "very strong" evidence between the laws
+
+
+def test_a_base_fit_in_another_basin_is_left_by_the_profile():
+    """Lower bearing 60 % softer (dk_lo = -6000 N/m): the base compensates with its own parameters, the refit
+    from the base optimum leans the wrong way (its widenings go towards stiffer) and stays at chi^2/dof ~1e6;
+    the profile (dk_lo held on a grid across the default range widened both ways, the rest fitted at each point,
+    then the best points freed) reaches the truth's basin."""
+    data = _data(["lower_bearing_compliance"], TRUTH | {"dk_lo": -6000.0}, seed=7)
+    base = _base_fit(data)
+    scores = st.score_tests(base, _candidates(["lower_bearing_compliance"]))
+    assert scores.base_chi2 / scores.base_dof > 1e4  # the premise: a base fit far from any valid linearisation
+    cf = rf.confirm(base, scores.scores[0], scores, starts=7)
+    assert cf.widened[0][2][1] > 2000.0  # the premise: the first widening went towards stiffer, away from the truth
+    # chi^2/dof of a right model is 1 +- sqrt(2/dof) ~ 0.3 here (4 runs, H = 3: ~40 dof): 2 is far from the
+    # 1e6 of the wrong basin and allows the noise
+    assert cf.chi2 / cf.dof < 2.0
+    row = cf.estimates.set_index("parameter").loc["dk_lo"]
+    assert row["ci_low"] < -6000.0 < row["ci_high"]

@@ -40,25 +40,17 @@ mistake surrogate error for physics.
 
 from __future__ import annotations
 
-import time
-import zlib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
-from scipy import optimize, stats
+from scipy import stats
 
 from .candidates import Candidate
 from .fingerprint import Fingerprint, fingerprint
-from .forward import SolverModel
-from .identification import (ArrowProblem, Identification, Layout, RunData, conclude, theta_from_table,
-                             units)
-from .lm import MAX_ITERATIONS, STALLED, LMOptions, LMResult, levenberg_marquardt
-from .model import Model
-from .polish import hypercube_starts
-from .protocol import ProtocolResult
-from .uncertainty import BOUND_TOLERANCE
+from .refit import Confirmation, confirm
+from .score_test import BaseFit, Scores, by_score, extend, nested, score_tests
 from .variants import Variant
 
 Array = np.ndarray
@@ -82,379 +74,6 @@ DEFAULTS: dict = {
     "max_iterations": 40,  # LM iterations of a confirmation refit
     "sparse_variant": "expansion",  # the paper's route, shown side by side: that variant's L1-sparse fit (or null)
 }
-
-
-#: a refit stops when chi^2 fell by less than this over 3 iterations (well below the verdicts' thresholds)
-STALL_CHI2 = 0.5
-#: a thorough refit whose best start stopped (max_iterations, or the stall rule in a long valley) goes on from
-#: there, with the damping reset, this many times more while it gains: a refit stopped early leaves chi^2 that
-#: the next forward-selection step wrongly credits to any effect with extra freedom (measured: cross-coupled
-#: stiffness alone stopped at chi^2 644, and any second effect then "explained" the rest down to 318)
-CONTINUATIONS = 3
-
-
-@dataclass
-class BaseFit:
-    """A variant's joint fit: layout, normalised optimum theta and the data it was fitted to."""
-
-    variant: Variant
-    layout: Layout
-    theta: Array
-    data: list[RunData]
-    harmonics: int
-
-    @property
-    def X(self) -> Array:
-        return np.stack([d.X[: self.harmonics] for d in self.data])
-
-    @property
-    def sigma(self) -> Array:
-        return np.stack([d.sigma[: self.harmonics] for d in self.data])
-
-    @classmethod
-    def from_table(cls, variant: Variant, table: pd.DataFrame, data: Sequence[RunData], harmonics: int
-                   ) -> "BaseFit":
-        """From a joint parameter table (``Identification.table``: parameter, run, normalised, value)."""
-        fitted = table[table["kind"] != "nuisance"]
-        per_run = sorted(set(fitted.loc[fitted["run"] != "all", "parameter"]), key=list(variant.unknown).index)
-        lower, upper = zip(*variant.unknown.values())
-        layout = Layout.for_data(list(variant.unknown), lower, upper, data, per_run)
-        theta = theta_from_table(table, layout)
-        if theta is None:
-            raise ValueError("the parameter table lacks an entry or has a non-finite estimate: the fit failed, "
-                             "nothing to diagnose")
-        return cls(variant, layout, theta, list(data), harmonics)
-
-
-def extend(variant: Variant, candidates: Sequence[Candidate], ranges: Mapping[str, tuple[float, float]] | None = None
-           ) -> Variant:
-    """The variant with the candidates' effects added and their tested parameters unknown (absent at 0), in their
-    ranges (``ranges`` overrides a parameter's default range, e.g. one widened by a refit)."""
-    ranges = dict(ranges or {})
-    for c in candidates:
-        for p in c.parameters:
-            lo, hi = ranges.get(p.name, p.bounds)
-            if not lo <= 0.0 <= hi:
-                raise ValueError(f"candidate {c.name}: the range [{lo:g}, {hi:g}] of {p.name} excludes 0 (absent)")
-            if p.name in variant.unknown or p.name in variant.fixed:
-                raise ValueError(f"candidate {c.name}: parameter {p.name} is already one of variant "
-                                 f"{variant.name!r}'s")
-    effects = variant.model.effects + [c.effect for c in candidates]
-    unknown = dict(variant.unknown) | {p.name: tuple(ranges.get(p.name, p.bounds)) for c in candidates
-                                       for p in c.parameters}
-    name = "+".join([variant.name] + [c.name for c in candidates])
-    return Variant(name, Model(effects, variant.model.shaft), unknown, dict(variant.fixed), variant.description)
-
-
-def extended_problem(base: BaseFit, candidates: Sequence[Candidate],
-                     ranges: Mapping[str, tuple[float, float]] | None = None) -> tuple[ArrowProblem, Array]:
-    """The joint problem of the base extended by ``candidates`` (full solver), and theta at beta = 0."""
-    ext = extend(base.variant, candidates, ranges)
-    lower, upper = zip(*ext.unknown.values())
-    layout = Layout.build(list(ext.unknown), lower, upper, base.layout.runs, base.layout.local,
-                          base.layout.phase_sigma)
-    models = [SolverModel(ext, d.run, d.rpm, d.eccentric_mass_g, layout.parameters, np.array(lower),
-                          np.array(upper), base.harmonics) for d in base.data]
-    known = dict(zip(base.layout.entries(), base.theta))
-    theta = np.array([known[e] if e in known else float(layout.normalise(e[0], 0.0)) for e in layout.entries()])
-    return ArrowProblem(models, layout, base.sigma), theta
-
-
-def _basis(J: Array) -> Array:
-    """Orthonormal basis of the column space of J (rank-revealing SVD)."""
-    if J.shape[1] == 0:
-        return np.zeros((J.shape[0], 0))
-    U, s, _ = np.linalg.svd(J, full_matrices=False)
-    return U[:, s > 1e-10 * s[0]] if s.size and s[0] > 0 else np.zeros((J.shape[0], 0))
-
-
-@dataclass
-class Score:
-    """One candidate's score test: statistic S, its p-value, the linear estimate b (normalised step) and the
-    projected sensitivities G_p (for nesting and confounding)."""
-
-    candidate: Candidate
-    statistic: float
-    p_value: float
-    log_p: float
-    step: Array
-    projected: Array
-    beyond_range: bool
-
-
-@dataclass
-class Scores:
-    base_chi2: float
-    base_dof: int
-    n_data: int
-    residual: Array  # r, weighted
-    projected_residual: Array  # r_p
-    scores: list[Score]
-    seconds: float
-
-
-def score_tests(base: BaseFit, candidates: Sequence[Candidate]) -> Scores:
-    """Score (LM) test of every candidate at the base optimum (module docstring, step 1), one batched solve."""
-    start = time.perf_counter()
-    problem, theta = extended_problem(base, candidates)
-    layout = problem.layout
-    ev = problem.evaluate(theta[None], base.X[None], jacobian=True)
-    prior_J, prior_r = problem.prior_rows(theta)  # keyphasor phases: their prior counts as data, as in the fit
-    r = np.concatenate([ev.r[0].reshape(-1), prior_r])
-    J = np.vstack([problem.dense_jacobian(ev), prior_J])
-    if not (np.isfinite(r).all() and np.isfinite(J).all()):
-        raise RuntimeError("the full solver failed at the base optimum (or next to it): no periodic solution "
-                           "to diagnose from")
-    entries = layout.entries()
-    tested = {p.name for c in candidates for p in c.parameters}
-    is_base = np.array([p not in tested for p, _ in entries])
-    free = is_base & (layout.is_phase | (np.abs(theta) < 1.0 - BOUND_TOLERANCE))
-    Q = _basis(J[:, free])
-    r_p = r - Q @ (Q.T @ r)
-    scores = []
-    for c in candidates:
-        cols = [entries.index((p.name, "all")) for p in c.parameters]
-        G = J[:, cols] - Q @ (Q.T @ J[:, cols])
-        at_zero_edge = theta[cols] <= -1.0 + BOUND_TOLERANCE  # 0 is the lower edge: only b >= 0 is physical
-        at_top_edge = theta[cols] >= 1.0 - BOUND_TOLERANCE
-        lower = np.where(at_zero_edge, 0.0, -np.inf)
-        upper = np.where(at_top_edge, 0.0, np.inf)
-        if np.linalg.norm(G) == 0:
-            step = np.zeros(len(cols))
-        else:
-            step = optimize.lsq_linear(G, -r_p, bounds=(lower, upper), method="bvls").x
-        statistic = float(r_p @ r_p - np.sum((r_p + G @ step) ** 2))
-        statistic = max(statistic, 0.0)
-        k = len(cols)
-        beyond = bool(np.any(np.abs(theta[cols] + step) > 1.0))
-        scores.append(Score(c, statistic, float(stats.chi2.sf(statistic, k)), float(stats.chi2.logsf(statistic, k)),
-                            step, G, beyond))
-    dof = r.size - int(free.sum())
-    return Scores(float(r @ r), dof, r.size, r, r_p, scores, time.perf_counter() - start)
-
-
-def _by_score(score: Score) -> tuple[float, float]:
-    """Ranking key: most significant first (log p-value, exact where p underflows), then the larger drop."""
-    return score.log_p, -score.statistic
-
-
-def nested(a: Array, b: Array, tolerance: float = 1e-3) -> bool:
-    """Whether span(a) lies within span(b): all principal angles between them are ~0."""
-    Qa, Qb = _basis(a), _basis(b)
-    if Qa.shape[1] == 0 or Qa.shape[1] > Qb.shape[1]:
-        return False
-    cosines = np.linalg.svd(Qa.T @ Qb, compute_uv=False)
-    return bool(cosines.min() > 1.0 - tolerance)
-
-
-@dataclass
-class Confirmation:
-    """A refit with one candidate added: chi^2, likelihood ratio, Delta BIC, the new parameters' intervals.
-
-    ranges: the candidate's parameter ranges the refit ended with; widened: (parameter, old range, new range)
-    of each widening (``refit``); start_chi2: the full solver's chi^2 at each start of the first refit.
-    """
-
-    candidate: Candidate
-    fit: Identification
-    chi2: float
-    dof: int
-    lr: float
-    lr_p_value: float
-    delta_bic: float
-    estimates: pd.DataFrame  # the candidate's rows of the refit's table
-    excludes_zero: bool
-    seconds: float
-    ranges: dict = field(default_factory=dict)
-    widened: list = field(default_factory=list)
-    start_chi2: list = field(default_factory=list)
-
-    @property
-    def at_limit(self) -> list[str]:
-        """Parameters whose estimate still sits at a range edge away from zero (the physical limit reached)."""
-        edge = self.estimates["at_bound"].astype(bool) & (self.estimates["value"].abs() > 0)
-        return self.estimates.loc[edge, "parameter"].tolist()
-
-
-def _refit_starts(theta0: Array, cols: list[int], step: Array, n_points: int, seed: int, quick: bool = False
-                  ) -> Array:
-    """Starts of a refit: beta = 0; the score's linear estimate, damped into the range, and a third of it (the
-    linear estimate overshoots when the response bends, e.g. a cubic term); and ``n_points`` points across the
-    candidate's range (a seeded Latin hypercube in [-0.7, 0.7], normalised): fits with several new parameters
-    have local minima (one term at its edge compensating another), and where the base is far from the
-    truth the linear estimate can point the wrong way. ``quick``: beta = 0 and the linear estimate only."""
-    starts = [theta0]
-    if step is not None and np.any(step):
-        step = step * min(1.0, 1.0 / max(np.abs(step).max(), 1e-12))
-        for scale in (1.0,) if quick else (1.0, 1.0 / 3.0):
-            start = theta0.copy()
-            start[cols] = np.clip(theta0[cols] + scale * step, -1.0, 1.0)
-            starts.append(start)
-    if n_points:
-        rng = np.random.default_rng(seed)
-        k = len(cols)
-        grid = (np.argsort(rng.random((k, n_points)), axis=1).T + rng.random((n_points, k))) / n_points
-        for point in 1.4 * grid - 0.7:
-            start = theta0.copy()
-            start[cols] = point
-            starts.append(start)
-    return np.array(starts)
-
-
-def _widened(ranges: Mapping[str, tuple[float, float]], estimates: pd.DataFrame, candidate: Candidate,
-             factor: float = 3.0) -> dict[str, tuple[float, float]]:
-    """The ranges of the candidate's parameters whose estimate sits at a range edge away from zero, widened
-    ``factor`` times towards that edge, up to the parameter's physical limits (``Parameter.limits``; without
-    them 100 times the default range, never across zero for a range with 0 as an edge). Unchanged ranges
-    (estimate inside, at zero, or at the limit already) are left out: an empty result means nothing to widen."""
-    by_name = {p.name: p for p in candidate.parameters}
-    out = {}
-    for r in estimates.itertuples():
-        if not (bool(r.at_bound) and abs(r.value) > 0):
-            continue
-        par = by_name[r.parameter]
-        lo, hi = ranges[r.parameter]
-        width = hi - lo
-        d_lo, d_hi = par.bounds
-        limit = par.limits or (d_lo - 100 * (d_hi - d_lo) if d_lo < 0 else d_lo,
-                               d_hi + 100 * (d_hi - d_lo) if d_hi > 0 else d_hi)
-        upper_edge = abs(r.value - hi) <= abs(r.value - lo)
-        new = (lo, min(hi + (factor - 1) * width, limit[1])) if upper_edge else (max(lo - (factor - 1) * width,
-                                                                                        limit[0]), hi)
-        if new != (lo, hi):
-            out[r.parameter] = new
-    return out
-
-
-#: chi^2 a refit across the far ranges (``_far_ranges``) must gain to replace the refit in the default range
-FAR_GAIN = 10.0
-#: chi^2/dof of a refit above which its far side is looked at even without a widening
-FAR_MISFIT = 1.5
-
-
-def _best(result: LMResult) -> int:
-    """The trial with the lowest loss (a start with no solution has a NaN one)."""
-    return int(np.nanargmin(np.where(np.isfinite(result.loss), result.loss, np.inf)))
-
-
-def _concluded(problem: ArrowProblem, result: LMResult, best: int, base: BaseFit, confidence: float,
-               ranges: Mapping[str, tuple[float, float]]) -> tuple[Identification, pd.DataFrame]:
-    """A refit's result object at its best trial, and the estimates of the parameters in ``ranges``."""
-    protocol = ProtocolResult(result, best, np.zeros((0, problem.layout.n)), np.zeros(0), result.seconds,
-                              len(result.x))
-    fit = conclude(problem, protocol, base.data, base.X, confidence, units(problem.models[0].variant))
-    table = fit.table()
-    return fit, table[table["parameter"].isin(list(ranges)) & (table["run"] == "all")]
-
-
-def _far_ranges(ranges: Mapping[str, tuple[float, float]], candidate: Candidate, factor: float = 3.0
-                ) -> dict[str, tuple[float, float]]:
-    """Each of the candidate's ranges widened ``factor`` times on both sides, within its physical limits
-    (without limits: unchanged): where the base fit is far from the truth (a resonance moved), the estimate
-    in the default range can sit at the edge opposite to the truth, and widening towards it never finds it."""
-    out = dict(ranges)
-    for par in candidate.parameters:
-        if par.limits is None:
-            continue
-        lo, hi = ranges[par.name]
-        width = hi - lo
-        out[par.name] = (max(lo - (factor - 1) * width, par.limits[0]), min(hi + (factor - 1) * width, par.limits[1]))
-    return out
-
-
-def _theta_in(layout: Layout, fit: Identification) -> Array:
-    """A fit's estimate (SI) as theta of another layout with the same entries (other ranges)."""
-    values = dict(zip(fit.layout.entries(), fit.x))
-    return np.array([values[e] if e[0] == "phase" else float(layout.normalise(e[0], values[e]))
-                     for e in layout.entries()])
-
-
-def confirm(base: BaseFit, score: Score, scores: Scores, max_iterations: int = 40,
-            confidence: float = 0.95, starts: int = 4, widen: int = 4, quick: bool = False) -> Confirmation:
-    """Refit with ``score.candidate`` added (full solver), from several starts (``_refit_starts``), its range
-    widened while its estimate sits at an edge (``_widened``, at most ``widen`` times).
-
-    The result is the best start's (lowest chi^2); the full solver's chi^2 at every start is kept
-    (``start_chi2``). After a widening the refit starts again from the previous optimum, so each widening can
-    only lower chi^2."""
-    start_time = time.perf_counter()
-    c = score.candidate
-    ranges = {p.name: tuple(p.bounds) for p in c.parameters}
-    widened: list = []
-    # the verdicts compare chi^2 drops against thresholds of 6-10: chi^2 to within ~0.5 is all they need, and
-    # stopping there saves the long crawl along flat valleys
-    options = LMOptions(max_iterations=max_iterations, ftol=1e-6, xtol=1e-6, gtol=1e-8, stall_chi2=STALL_CHI2,
-                        geodesic=True)
-    fit, start_chi2, wider, old = None, [], {}, {}
-    for attempt in range(widen + 1):
-        problem, theta0 = extended_problem(base, [c], ranges)
-        layout = problem.layout
-        cols = [layout.entries().index((p.name, "all")) for p in c.parameters]
-        if fit is None:
-            theta = _refit_starts(theta0, cols, score.step, starts, zlib.crc32(c.name.encode()), quick)
-        else:  # widened: from the previous optimum, and halfway from it to the new edge
-            previous = _theta_in(layout, fit)
-            further = previous.copy()
-            for j, p in zip(cols, c.parameters):
-                if p.name in wider:
-                    edge = 1.0 if wider[p.name][1] > old[p.name][1] else -1.0
-                    further[j] = 0.5 * (previous[j] + edge)
-            theta = np.vstack([previous, further])
-        X = np.repeat(base.X[None], len(theta), axis=0)
-        first_refit = fit is None
-        result = levenberg_marquardt(problem, theta, X, options)
-        if first_refit:  # the objective at each start (LM's first evaluation): chi^2 plus any phase prior
-            start_chi2 = (result.history[:, 0] * problem.n_data).tolist()
-        best = _best(result)
-        for _ in range(0 if quick else CONTINUATIONS):  # the best start stopped while descending: let it go on
-            if result.status[best] not in (MAX_ITERATIONS, STALLED):
-                break
-            before = result.loss[best]
-            result = LMResult.concatenate([result, levenberg_marquardt(problem, result.x[[best]], X[:1], options)])
-            best = _best(result)
-            if (before - result.loss[best]) * problem.n_data < STALL_CHI2:
-                break
-        fit, estimates = _concluded(problem, result, best, base, confidence, ranges)
-        wider = _widened(ranges, estimates, c)
-        if not wider or attempt == widen:
-            break
-        widened += [(name, ranges[name], new) for name, new in wider.items()]
-        old = dict(ranges)
-        ranges |= wider
-    # the far side: a truth beyond the range on the side the base fit did not lean to; looked for when the refit
-    # needed a wider range, or does not fit to the noise (a refit that explains everything needs no other basin)
-    if not quick and widen > 0 and (widened or fit.chi2_dof > FAR_MISFIT):
-        far = _far_ranges(ranges, c)
-        if far != ranges:
-            problem_f, theta0_f = extended_problem(base, [c], far)
-            layout_f = problem_f.layout
-            cols = [layout_f.entries().index((p.name, "all")) for p in c.parameters]
-            here = _theta_in(layout_f, fit)
-            # across the far ranges for the candidate alone, and across the whole box (a base fit far from the
-            # truth leaves the base's own parameters in another basin: the polish's Latin hypercube)
-            theta = np.vstack([here, _refit_starts(theta0_f, cols, None, max(starts, 2),
-                                                   zlib.crc32(c.name.encode()) + 1)[1:],
-                               problem_f.initial_phases(hypercube_starts(layout_f, here, max(starts, 2),
-                                                                         zlib.crc32(c.name.encode()) + 2),
-                                                        np.repeat(base.X[None], max(starts, 2), axis=0))])
-            X = np.repeat(base.X[None], len(theta), axis=0)
-            result = levenberg_marquardt(problem_f, theta, X, options)
-            best = _best(result)
-            if (fit.uncertainty.chi2 - result.loss[best] * problem_f.n_data) > FAR_GAIN:
-                widened += [(name, ranges[name], far[name]) for name in far if far[name] != ranges[name]]
-                ranges = far
-                fit, estimates = _concluded(problem_f, result, best, base, confidence, ranges)
-    chi2 = float(fit.uncertainty.chi2)
-    k, n = len(ranges), scores.n_data
-    lr = scores.base_chi2 - chi2
-    # zero is excluded by the interval, or by an estimate pinned at the range edge away from zero (the data want
-    # more of the effect than the physical limit allows: its interval is not valid there, the likelihood ratio is)
-    far_edge = estimates["at_bound"].astype(bool) & (estimates["value"].abs() > 0)
-    excludes = bool(((estimates["ci_low"] > 0) | (estimates["ci_high"] < 0) | far_edge).any())
-    return Confirmation(c, fit, chi2, int(fit.uncertainty.dof), float(lr),
-                        float(stats.chi2.sf(max(lr, 0.0), k)), float(-lr + k * np.log(n)), estimates, excludes,
-                        time.perf_counter() - start_time, {k_: tuple(map(float, v)) for k_, v in ranges.items()},
-                        widened, [float(v) for v in start_chi2])
 
 
 @dataclass
@@ -501,9 +120,9 @@ def _refit_significant(base: BaseFit, scores: Scores, o: Mapping, alpha_each: fl
 
     Two passes: a quick refit of each (from beta = 0 and the linear estimate, ``quick_iterations``, ranges as
     given) ranks them by Delta BIC; the ``thorough`` best, and any within ``confounded_bic`` of the best, are
-    refitted again from every start (``starts`` across the range) with range widening (``widen``), and that
-    refit replaces the quick one. The ranking is by refit, never by the score statistic alone."""
-    order = sorted(scores.scores, key=_by_score)
+    refitted again from every start (``starts`` across the range) with range widening (``widen``) and, until one
+    of them fits to the noise, the far side (``refit.confirm``'s profile), and that refit replaces the quick one. The ranking is by refit, never by the score statistic alone."""
+    order = sorted(scores.scores, key=by_score)
     significant = [s for s in order if s.p_value < alpha_each]
     if o["confirm"] == "all":
         chosen = significant
@@ -518,13 +137,15 @@ def _refit_significant(base: BaseFit, scores: Scores, o: Mapping, alpha_each: fl
     best_bic = quick[ranked[0].candidate.name].delta_bic if ranked else 0.0
     deep = {s.candidate.name for i, s in enumerate(ranked) if i < int(o["thorough"])
             or quick[s.candidate.name].delta_bic - best_bic < o["confounded_bic"]}
-    confirmations = {}
+    confirmations, fitted = {}, False
     for s in ranked:
         name = s.candidate.name
         cf = quick[name]
-        if name in deep:
-            cf = confirm(base, s, scores, int(o["max_iterations"]), starts=int(o["starts"]), widen=int(o["widen"]))
+        if name in deep:  # once a refit fits to the noise, the others need no far side (they can only tie)
+            cf = confirm(base, s, scores, int(o["max_iterations"]), starts=int(o["starts"]), widen=int(o["widen"]),
+                         far=not fitted)
             cf.seconds += quick[name].seconds
+            fitted = fitted or _fits_the_noise(cf, o)
         confirmations[name] = cf
         if log:
             widened = "; ".join(f"{p} range widened to [{new[0]:.4g}, {new[1]:.4g}]" for p, _, new in cf.widened)
@@ -735,7 +356,7 @@ def _table(scores: Scores, confirmations: Mapping[str, Confirmation], verdicts: 
     """One row per candidate: confirmed ones first (by Delta BIC), then by score p-value."""
     excess = _excess(scores)
     first = [cf.candidate.name for cf in confirmed]
-    rest = [s.candidate.name for s in sorted(scores.scores, key=_by_score)
+    rest = [s.candidate.name for s in sorted(scores.scores, key=by_score)
             if s.candidate.name not in first]
     by_name = {s.candidate.name: s for s in scores.scores}
     rows = []
