@@ -27,7 +27,7 @@ import pytest
 import zarr
 
 from hybridtwin import snapshots
-from hybridtwin.snapshots import MANIFEST, CorruptStoreError, verify_store, write_manifest
+from hybridtwin.stores import MANIFEST, CorruptStoreError, verify_store, write_manifest
 from workflow_helpers import RUNS, SMALL, SNAKEMAKE, compare_results, copy_workflow, snakemake
 
 GEOMETRIC_KB = "k_b: [2000, 3500], zeta_s: [0.01, 0.05], zeta_bup: [0.0, 0.05]"
@@ -84,18 +84,21 @@ def test_scenarios_without_a_solution_are_reported_excluded_and_the_run_goes_on(
     reasons = failures.set_index("scenario").loc[unstable, "message"]
     assert reasons.str.contains("unstable").all()
     # the store holds them as failures (NaN), never as zeros, and only them (besides the enrichment
-    # scenarios at the runs they were not meant for: NaN too, marked not solved, not failures)
+    # scenarios at the runs they were not meant for: NaN too, marked not solved, not failures); failures.tsv
+    # also lists the converged points that are unstable (harmonics kept, flagged, left out downstream)
     store = snapshots.load(results / "snapshots.zarr")
     success, harmonics, ids = store.success, store.harmonics, store.scenario
-    failed = {(RUNS[r], ids[s]) for r, s in zip(*np.nonzero(~success & store.solved))}
+    failed = {(RUNS[r], ids[s]) for r, s in zip(*np.nonzero(~store.steady & store.solved))}
     assert failed == set(zip(failures["run"], failures["scenario"]))
     assert np.isnan(harmonics[~success]).all() and np.isfinite(harmonics[success]).all()
+    unstable = failures["message"].str.startswith("unstable periodic solution")
+    assert unstable.sum() == (success & ~store.stable).sum()
     # excluded downstream: the library was built and scored on the converged scenarios only
     validation = pd.read_csv(results / "library_validation.tsv", sep="\t").set_index("run")
     test_ids = scenarios.index[scenarios["split"] == "test"]
     for run in RUNS:
         failed_tests = len(set(test_ids) & listed[run])
-        assert validation.loc[run, "n_failed"] == failed_tests > 0
+        assert validation.loc[run, "n_failed"] + validation.loc[run, "n_unstable"] == failed_tests > 0
         assert 0 < validation.loc[run, "n_test"] <= len(test_ids) - failed_tests
     # and the run went on to the identification
     parameters = pd.read_csv(results / "parameters.tsv", sep="\t")

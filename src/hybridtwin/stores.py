@@ -31,11 +31,15 @@ class CorruptStoreError(ValueError):
 
     def __init__(self, problems: dict[str, list[str]], what: str = "store"):
         self.problems = problems
-        parts = [f"{path}: {'; '.join(found[:_SHOWN])}" + (f" (and {len(found) - _SHOWN} more)" if len(found) > _SHOWN
-                                                           else "") for path, found in problems.items()]
-        super().__init__(f"corrupt or incomplete {what}{'s' if len(problems) > 1 else ''}, not read (a missing zarr "
-                         f"chunk would read as zeros, a damaged one as wrong numbers): " + " | ".join(parts)
-                         + " -- delete it and run the job that writes it again")
+        found = {path: "; ".join(bad[:_SHOWN]) + (f" (and {len(bad) - _SHOWN} more)" if len(bad) > _SHOWN else "")
+                 for path, bad in problems.items()}
+        if len(found) == 1:
+            (path, bad), = found.items()
+            head = f"corrupt or incomplete {what} {path}, not read: {bad}"
+        else:
+            head = f"corrupt or incomplete {what}s, not read: " + " | ".join(f"{p}: {b}" for p, b in found.items())
+        super().__init__(head + " (a missing zarr chunk would read as zeros, a damaged one as wrong numbers: "
+                         "delete the store and run the job that writes it again)")
 
 
 def _sha256(path: Path) -> str:
