@@ -270,8 +270,10 @@ class SparsePGD:
         d, n, nb = B.shape
         T = degrees.shape[0]
         mask = np.arange(nb)[None, None, :] <= degrees[:, :, None]  # (T, d, nb)
+        mask2 = mask[:, :, :, None] & mask[:, :, None, :]  # (T, d, nb, nb): a trial's active block
+        active = mask.sum(2)  # (T, d)
         moments_basis = np.stack([chebyshev_basis(B[j, :, min(1, nb - 1)], 2 * (nb - 1)) for j in range(d)])
-        plus, minus = _product_index(nb)
+        pairs = _moment_pairs(nb)  # moments (2 nb - 1) -> normal matrix (nb, nb) in one product
         _, s, vt = np.linalg.svd(R * np.sqrt(w)[:, None], full_matrices=False)
         a = np.repeat((s[0] * vt[0] / np.sqrt(w.sum()))[None], T, 0)
         c = np.zeros((T, d, nb))
@@ -280,34 +282,37 @@ class SparsePGD:
         previous_prod, previous_a = np.zeros((T, n)), np.zeros_like(a)
         running = np.ones(T, bool)
         diagonal = np.arange(nb)
+        g, gw, scratch = np.empty((T, n)), np.empty((T, n)), np.empty((T, n))  # reused (T, n) intermediates
         for _ in range(self.als_iterations):
             t_proj = a @ R.T  # the residual projected on each trial's output direction, (T, n)
             aa = np.einsum("tm,tm->t", a, a)
             suffix = _suffix_products(F)  # suffix[j] = F_{j+1} ... F_{d-1}; the prefix follows the updates
             prod = np.ones((T, n))
             for j in range(d):
-                g = prod * suffix[j]  # the product of the other factors
-                gw = g * w
+                np.multiply(prod, suffix[j], out=g)  # the product of the other factors
+                np.multiply(g, w, out=gw)
                 g *= gw
                 moments = g @ moments_basis[j]  # sum_n w g^2 T_e, (T, 2 nb - 1)
                 moments *= aa[:, None]
-                G = 0.5 * (moments[:, plus] + moments[:, minus])  # sum_n v_tn T_b T_c
-                rhs = ((gw * t_proj) @ B[j]) * mask[:, j]
-                G *= mask[:, j, :, None] & mask[:, j, None, :]
-                ridge = self.ridge * (np.trace(G, axis1=1, axis2=2) / mask[:, j].sum(1) + 1e-300)
+                G = (moments @ pairs).reshape(T, nb, nb)  # sum_n v_tn T_b T_c
+                rhs = (np.multiply(gw, t_proj, out=scratch) @ B[j]) * mask[:, j]
+                G *= mask2[:, j]
+                ridge = self.ridge * (np.trace(G, axis1=1, axis2=2) / active[:, j] + 1e-300)
                 G[:, diagonal, diagonal] += np.where(mask[:, j], ridge[:, None], 1.0)
                 cj = np.linalg.solve(G, rhs[..., None])[..., 0]
                 Fj = cj @ B[j].T
-                scale = np.abs(Fj).max(axis=1)
+                scale = np.maximum(Fj.max(axis=1), -Fj.min(axis=1))  # max |F_j|
                 scale[scale == 0] = 1.0
                 cj /= scale[:, None]
                 Fj /= scale[:, None]
                 if running.all():
                     c[:, j], F[:, j] = cj, Fj
+                    prod *= Fj
                 else:
                     c[running, j], F[running, j] = cj[running], Fj[running]
-                prod *= F[:, j]
-            a_new = ((w * prod) @ R) / (np.einsum("tn,tn->t", w * prod, prod) + 1e-300)[:, None]
+                    prod *= F[:, j]
+            np.multiply(prod, w, out=scratch)
+            a_new = (scratch @ R) / (np.einsum("tn,tn->t", scratch, prod) + 1e-300)[:, None]
             a[running] = a_new[running]
             running &= _term_change(prod, a, previous_prod, previous_a) > self.als_tol
             if not running.any():
@@ -647,6 +652,17 @@ def _product_index(nb: int) -> tuple[Array, Array]:
     """b + c and |b - c| for b, c < nb: T_b T_c = (T_{b+c} + T_{|b-c|}) / 2."""
     index = np.arange(nb)
     return index[:, None] + index[None, :], np.abs(index[:, None] - index[None, :])
+
+
+def _moment_pairs(nb: int) -> Array:
+    """P (2 nb - 1, nb^2) with (m P)[b nb + c] = (m[b + c] + m[|b - c|]) / 2 (T_b T_c = (T_{b+c} + T_{|b-c|}) / 2),
+    exact: each column adds two halves of moments (or one whole one, b = c = 0)."""
+    plus, minus = _product_index(nb)
+    pairs = np.zeros((2 * nb - 1, nb * nb))
+    columns = np.arange(nb * nb)
+    np.add.at(pairs, (plus.ravel(), columns), 0.5)
+    np.add.at(pairs, (minus.ravel(), columns), 0.5)
+    return pairs
 
 
 def _term_change(prod: Array, a: Array, previous_prod: Array, previous_a: Array) -> Array:
