@@ -132,7 +132,7 @@ def plot_summary(ledger: pd.DataFrame, errors: Mapping[str, pd.DataFrame]) -> pl
     for i, value in enumerate(ledger["chi2_dof"]):
         ax.annotate(f"{value:.3g}", (i, value), xytext=(6, 4), textcoords="offset points", fontsize=8)
     ax.set_yscale("log")
-    ax.set_xticks(position, variants, fontsize=8)
+    ax.set_xticks(position, variants, fontsize=8, rotation=20)
     ax.set_xlim(-0.5, len(variants) - 0.5)
     ax.set_ylabel("chi^2 / dof")
     ax.grid(alpha=0.3, which="both")
@@ -152,7 +152,7 @@ def plot_summary(ledger: pd.DataFrame, errors: Mapping[str, pd.DataFrame]) -> pl
     labels = [f"{'* ' if r.role != 'fit' else ''}{r.run}  ({r.rpm:.0f} RPM, {r.eccentric_mass_g:g} g)"
               for r in runs.itertuples()]
     ax_runs.set_yticks(np.arange(len(runs)), labels, fontsize=7)
-    ax_runs.set_xticks(position, variants, fontsize=8)
+    ax_runs.set_xticks(position, variants, fontsize=8, rotation=20, ha="left")
     ax_runs.xaxis.tick_top()
     fig.colorbar(image, ax=ax_runs, label="chi^2 / dof of the run", fraction=0.06, pad=0.02)
     ax_runs.set_xlabel(f"where each variant fails: chi^2/dof per run, bold beyond the noise (p < {ALPHA:g});\n"
@@ -175,7 +175,7 @@ def png_bytes(fig: plt.Figure, dpi: int = 100) -> bytes:
 # instead of section titles, at most MAX_RUN_LINKS runs per variant) and points to summary.png for the rest.
 
 #: the failing runs linked per variant on the first page (the worst; the error map shows them all)
-MAX_RUN_LINKS = 5
+MAX_RUN_LINKS = 3
 
 
 def _text(value: str) -> str:
@@ -236,14 +236,20 @@ def _ledger_rows(summary: pd.DataFrame) -> list[list[str]]:
     return rows
 
 
+def verdict(conclusion: str) -> str:
+    """A diagnosis's conclusion up to its first colon ("add expansion_k4", "no missing effect"): the evidence
+    that follows is in diagnosis.md, and the first page has to stay short."""
+    return conclusion.split(":", 1)[0].strip()
+
+
 def _recommendation(r) -> str:
-    line = f"**{_text(r.variant)}**: {_text(r.conclusion) or 'no diagnosis'}"
-    if not r.recommended_variant:
-        return line
-    if r.recommended_in_config:
-        return line + f". Already in the config as **{_text(r.recommended_in_config)}**."
-    return (line + f". Variant **{_text(r.recommended_variant)}**: the lines to paste under ``variants:`` are in "
-            + result_link("diagnosis.md", f"results/{r.variant}/diagnosis.md") + ".")
+    line = f"**{_text(r.variant)}**: {_text(verdict(r.conclusion)) or 'no diagnosis'}"
+    if r.recommended_variant and r.recommended_in_config:
+        return line + f" (in the config as **{_text(r.recommended_in_config)}**)"
+    if r.recommended_variant:
+        return (line + f" (variant {_text(r.recommended_variant)}: "
+                + result_link("diagnosis.md", f"results/{r.variant}/diagnosis.md") + ")")
+    return line
 
 
 def _failures(variant: str, table: pd.DataFrame) -> str:
@@ -264,10 +270,10 @@ def landing_rst(summary: pd.DataFrame, errors: Mapping[str, pd.DataFrame]) -> st
     workflow/report/workflow.rst; short, to fit a window (see above)."""
     return "\n\n".join([
         _headline(summary),
-        "**The ledger** (config order; chi^2/dof: 1 is the noise floor; Delta BIC: lower is better, above 10 is "
-        "strong evidence; every column in " + result_link("ledger.tsv", "results/ledger.tsv") + "):",
+        "**The ledger** (Delta BIC: lower is better, above 10 is strong evidence; all columns: "
+        + result_link("ledger.tsv", "results/ledger.tsv") + "):",
         _list_table(["variant", "chi^2/dof", "validation", "Delta BIC", "worst run"], _ledger_rows(summary)),
-        "**What the diagnosis recommends** (evidence in each variant's diagnosis.md):",
+        "**What the diagnosis recommends** (the evidence and the lines to paste are in each variant's diagnosis.md):",
         "\n".join(f"- {_recommendation(r)}" for r in summary.itertuples()),
         (f"**Where each variant fails**: runs beyond the noise (p < {ALPHA:g}), worst first, with their "
          "chi^2/dof; a link opens the run's figure:"),
