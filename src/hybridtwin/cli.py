@@ -58,30 +58,24 @@ def _version() -> str:
         return "unknown (not installed)"
 
 
-def _finite(name: str, text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"value of {name} is not a number: {text!r}") from None
-    if not np.isfinite(value):
-        raise argparse.ArgumentTypeError(f"value of {name} is not a finite number: {text!r}")
-    return value
 
 
 def _parameter(text: str) -> tuple[str, float]:
     name, sep, value = text.partition("=")
     if not sep or not name.strip():
         raise argparse.ArgumentTypeError(f"expected NAME=VALUE (e.g. k_b=2411.3), got {text!r}")
-    return name.strip(), _finite(name.strip(), value)
+    return name.strip(), _number(value, name.strip())
 
 
-def _number(text: str) -> float:
+def _number(text: str, name: str = "") -> float:
+    """A finite float, or an argparse error (naming the parameter ``name`` when given)."""
+    what = f"value of {name} is " if name else ""
     try:
         value = float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+        raise argparse.ArgumentTypeError(f"{what}not a number: {text!r}") from None
     if not np.isfinite(value):
-        raise argparse.ArgumentTypeError(f"not a finite number: {text!r}")
+        raise argparse.ArgumentTypeError(f"{what}not a finite number: {text!r}")
     return value
 
 

@@ -30,7 +30,7 @@ from functools import cached_property
 import numpy as np
 
 from .effects import Context, Effect, Parameter, Unbalance, builtin_effects
-from .shaft import Shaft, beam_element, slope_element
+from .shaft import DofCounts, Shaft, beam_element, slope_element
 
 Array = np.ndarray
 
@@ -146,7 +146,7 @@ def _tuple(items: Iterable, kind: type) -> tuple:
 
 
 @dataclass(frozen=True, eq=False)
-class Machine:
+class Machine(DofCounts):
     """A rotor described by segments and disks, with named bearings, unbalance planes and sensors.
 
     ``rotary_inertia``: add the sections' rotary inertia rho I (a Rayleigh beam); off for the VARM, whose
@@ -267,20 +267,6 @@ class Machine:
     def n(self) -> int:
         """Number of beam elements."""
         return int(sum(s.n_elements for s in self.segments))
-
-    @property
-    def n_nodes(self) -> int:
-        return self.n + 1
-
-    @property
-    def n_plane(self) -> int:
-        """DOFs per bending plane, 2 (n + 1)."""
-        return 2 * self.n_nodes
-
-    @property
-    def n_dof(self) -> int:
-        """All DOFs, 4 (n + 1)."""
-        return 2 * self.n_plane
 
     @property
     def L(self) -> float:

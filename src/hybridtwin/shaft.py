@@ -20,8 +20,29 @@ import numpy as np
 _DOF_NAME = re.compile(r"^(u|v|du|dv)(\d+)$")
 
 
+class DofCounts:
+    """Node and DOF counts of a beam mesh of ``n`` elements (u, v, their slopes at each node), shared by the
+    uniform ``Shaft`` and a ``machine.Machine`` of segments."""
+
+    n: int
+
+    @property
+    def n_nodes(self) -> int:
+        return self.n + 1
+
+    @property
+    def n_plane(self) -> int:
+        """DOFs per bending plane, 2 (n + 1)."""
+        return 2 * self.n_nodes
+
+    @property
+    def n_dof(self) -> int:
+        """All DOFs, 4 (n + 1) (44 for n = 10)."""
+        return 2 * self.n_plane
+
+
 @dataclass(frozen=True)
-class Shaft:
+class Shaft(DofCounts):
     """Uniform Euler-Bernoulli shaft, z pointing down from the upper bearing (z = 0).
 
     Defaults are the paper's Table 1 (SI units). ``I`` uses Table 1's value,
@@ -45,20 +66,6 @@ class Shaft:
     def h(self) -> float:
         """Element length L / n [m]."""
         return self.L / self.n
-
-    @property
-    def n_nodes(self) -> int:
-        return self.n + 1
-
-    @property
-    def n_plane(self) -> int:
-        """DOFs per bending plane, 2 (n + 1)."""
-        return 2 * self.n_nodes
-
-    @property
-    def n_dof(self) -> int:
-        """All DOFs, 4 (n + 1) (44 for n = 10)."""
-        return 2 * self.n_plane
 
     @property
     def z(self) -> np.ndarray:
