@@ -19,7 +19,7 @@ from hybridtwin import refit as rf
 from hybridtwin import score_test as st
 from hybridtwin import uncertainty as unc
 from hybridtwin.candidates import Candidate, builtin_candidates
-from hybridtwin.effects import Parameter, PolynomialBearing, Term
+from hybridtwin.effect_base import Parameter, PolynomialBearing, Term
 from hybridtwin.protocol import ProtocolOptions
 from hybridtwin.variants import BUILTIN_VARIANTS, Variant
 

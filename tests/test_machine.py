@@ -179,7 +179,7 @@ def test_gyroscopic_stiffening_of_a_spinning_disk():
     # (1e-11 of the disk's) are negligible; its far node is clamped by stiff springs
     machine = Machine("disk", [ShaftSegment(0.01, 1e-3, 1e3, 7800.0)], disks=[Disk(0, 1.0, I_p, I_d)])
 
-    from hybridtwin.effects import Effect, Parameter
+    from hybridtwin.effect_base import Effect, Parameter
 
     class Holder(Effect):
         name, meaning = "holder", "translation held, tilt on a spring k_t"
@@ -423,7 +423,7 @@ def test_machine_from_mapping_of_nothing_is_the_varm():
 
 def _spinning_disk(I_p, I_d, k_t):
     """The rigid disk on a tilt spring of test_gyroscopic_stiffening_of_a_spinning_disk, as a model."""
-    from hybridtwin.effects import Effect, Parameter
+    from hybridtwin.effect_base import Effect, Parameter
 
     machine = Machine("disk", [ShaftSegment(0.01, 1e-3, 1e3, 7800.0)], disks=[Disk(0, 1.0, I_p, I_d)])
 

@@ -1,6 +1,6 @@
 """hybridtwin: hybrid twins of rotating machines (VARM reference model, HMH solver, ...)."""
 
-from .effects import Context, Effect, Parameter, Params, PolynomialBearing, Term
+from .effect_base import Context, Effect, Parameter, Params, PolynomialBearing, Term
 from .model import LocalForce, Model, System, rpm_to_rad_s
 from .shaft import Shaft
 from .solver import SteadyState, Sweep, solve, solve_sweep

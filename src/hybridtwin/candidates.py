@@ -22,7 +22,8 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
-from .effects import Effect, Parameter, builtin_effects
+from .effect_base import Effect, Parameter
+from .effects import builtin_effects
 
 
 @dataclass(frozen=True)

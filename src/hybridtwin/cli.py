@@ -22,7 +22,8 @@ import numpy as np
 import pandas as pd
 import yaml
 
-from .effects import Effect, builtin_effects
+from .effect_base import Effect
+from .effects import builtin_effects
 from .sensor import harmonics_frame, sensor_harmonics, time_series_frame
 from .solver import SteadyState, solve, solve_sweep
 from .variants import BUILTIN_VARIANTS, EffectsFileError, Variant, load_effects_files

@@ -22,7 +22,7 @@ import pandas as pd
 import zarr
 
 from . import snapshots
-from .effects import Array
+from .effect_base import Array
 from .pod import POD, feature_index, from_features, load_pod, pod, to_features
 from .sensor import observable, sensor_dofs
 from .shaft import Shaft

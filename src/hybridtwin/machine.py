@@ -29,7 +29,8 @@ from functools import cached_property
 
 import numpy as np
 
-from .effects import Context, Effect, Parameter, Unbalance, builtin_effects
+from .effect_base import Context, Effect, Parameter
+from .effects import Unbalance, builtin_effects
 from .shaft import DofCounts, Shaft, beam_element, slope_element
 
 Array = np.ndarray

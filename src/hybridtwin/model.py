@@ -20,7 +20,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import scipy.linalg
 
-from .effects import Array, Context, Effect, Parameter, Params, PolynomialBearing
+from .effect_base import Array, Context, Effect, Parameter, Params, PolynomialBearing
 from .machine import Machine, default_machine
 from .shaft import Shaft
 

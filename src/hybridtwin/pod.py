@@ -17,7 +17,7 @@ import pandas as pd
 import zarr
 
 from . import snapshots
-from .effects import Array
+from .effect_base import Array
 from .sensor import observable
 from .shaft import Shaft
 from .stores import open_verified, write_manifest

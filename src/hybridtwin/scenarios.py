@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from .effects import Array
+from .effect_base import Array
 from .sensor import sensor_harmonics
 from .solver import SteadyState, flag_unstable, floquet_radius, solve_sweep
 from .variants import Variant

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from .effects import Array
+from .effect_base import Array
 from .shaft import Shaft
 from .solver import SteadyState
 

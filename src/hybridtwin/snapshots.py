@@ -40,7 +40,7 @@ import numpy as np
 import pandas as pd
 import zarr
 
-from .effects import Array
+from .effect_base import Array
 from .scenarios import NOT_SOLVED, RunSolutions
 from .stores import CorruptStoreError, check_store, verify_store, write_manifest
 

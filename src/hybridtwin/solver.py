@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import floquet
-from .effects import Array
+from .effect_base import Array
 from .model import System
 
 CONVERGED, MAX_ITER, SINGULAR, DIVERGED, LINEAR_SINGULAR, INVALID, STALLED = 0, 1, 2, 3, 4, 5, 6

@@ -52,7 +52,7 @@ from functools import partial
 import numpy as np
 from numpy.polynomial import chebyshev
 
-from .effects import Array
+from .effect_base import Array
 
 #: parameter sets per block in evaluate (K = 60, 1000 sets: 1.26 us per set in blocks of 256, 1.10 in 512, 1.05 in 1000)
 _CHUNK = 512

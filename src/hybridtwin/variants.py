@@ -24,7 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .effects import Array, Effect, Params, PolynomialBearing, builtin_effects
+from .effect_base import Array, Effect, Params, PolynomialBearing
+from .effects import builtin_effects
 from .model import Model, System
 from .shaft import Shaft
 from .solver import SteadyState, solve
