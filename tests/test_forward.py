@@ -3,7 +3,10 @@
 References, independent of what is checked:
 - cold starts: the same model with warm starts off solves every point by a run-up from 300 RPM,
   the branch the rig reaches (the definition of the model's response);
-- forward differences of those cold solves (``analytic=False``, the former method) for the Jacobian.
+- forward differences of those cold solves (``analytic=False``, the former method) for the Jacobian;
+- for the stability of a reported steady state: the solver's own run-up sweep (``solve_sweep``, 25 RPM
+  steps from 300 RPM, stability assessed at every step), a route to the state that shares nothing with the
+  model's warm starts.
 """
 
 from __future__ import annotations
@@ -12,7 +15,7 @@ import numpy as np
 import pytest
 from threadpoolctl import threadpool_limits
 
-from hybridtwin.forward import SolverModel
+from hybridtwin.forward import SolverModel, StabilityWarning, check_stability, floquet_radii
 from hybridtwin.variants import builtin_variant
 
 GEOMETRIC = builtin_variant("geometric")
@@ -111,3 +114,82 @@ def test_an_lm_fit_with_warm_starts_ends_where_the_cold_one_does():
             fits.append(idn.identify(models, data, (), options))
     # the same LM on the same responses: every trial ends at the same loss (the solves' tolerance 1e-10)
     np.testing.assert_allclose(fits[0].protocol.trials.loss, fits[1].protocol.trials.loss, rtol=1e-6)
+
+
+# the geometric machine lightly damped (zeta_s = 0.01, no upper-bearing damper), the bow and k_b nominal: its
+# run-up branch with 14.8 g loses stability just below its fold (|mu| = 2.28 at 866 RPM, tests/test_stability.py)
+LIGHT = {"k_b": 2331.5, "zeta_s": 0.01, "zeta_bup": 0.0, "q_x": 0.005, "q_y": 0.005}
+
+
+def _run_up_radius(variant, values, rpm, mass_g, harmonics=5):
+    """The reference: the Floquet radius of the solver's own run-up to ``rpm`` (stability assessed there)."""
+    from hybridtwin.solver import solve_sweep
+
+    full = variant.values({**values, "m_e": mass_g * 1e-3})
+    speeds = np.append(np.arange(300.0, rpm, 25.0), rpm)
+    sweep = solve_sweep(lambda s, rows: variant.model.system(full, s), speeds, 1, harmonics=harmonics)
+    return sweep.results[-1].floquet_radius[0]
+
+
+@pytest.mark.parametrize("rpm,mass_g,stable", [(700.0, 25.9, True), (860.0, 14.8, False), (866.0, 14.8, False)])
+def test_the_reported_state_carries_the_stability_of_the_run_up_it_stands_for(rpm, mass_g, stable):
+    x = np.array([[2 * (LIGHT[p] - lo) / (hi - lo) - 1 for p, lo, hi in zip(NAMES, LOWER, UPPER)], [np.nan] * 5])
+    warm, cold = _model(rpm, mass_g), _model(rpm, mass_g, warm=False)
+    with threadpool_limits(1):
+        warm.evaluate(x[:1])  # an LM's evaluation (no stability check), then the check of that point
+        radius_warm = warm.floquet_radius(x)
+        radius_cold = cold.floquet_radius(x)
+        reference = _run_up_radius(GEOMETRIC, LIGHT, rpm, mass_g)
+    assert warm.n_warm == 1  # the check re-solved the state the evaluation reported (warm start, same branch)
+    # the same steady state (converged to 1e-10 by either route) gives the same multipliers: measured ~1e-10
+    np.testing.assert_allclose([radius_warm[0], radius_cold[0]], reference, rtol=1e-6)
+    assert (reference < 1.0) == stable
+    assert np.isnan(radius_warm[1]) and np.isnan(radius_cold[1])  # no parameters, no state
+    # floquet_radii batches runs of one variant like evaluate_runs: the same numbers, None for no solver model
+    together = floquet_radii([_model(rpm, mass_g), _model(700.0, 25.9), object()], [x, x[:1], x])
+    np.testing.assert_allclose(together[0][0], reference, rtol=1e-6)
+    assert together[1][0] < 1.0 and together[2] is None
+
+
+def test_an_unstable_optimum_is_flagged_on_the_fit_and_never_reported_as_converged():
+    """A full-solver fit of two runs whose optimum has an unstable steady state at one of them (866 RPM, above):
+    the check names that run on the fit's message, in its notes and in a warning; the stable run is not named."""
+    from hybridtwin import identification as idn
+    from hybridtwin import lm
+    from hybridtwin.protocol import ProtocolOptions
+    from hybridtwin.variants import Variant
+
+    variant = Variant.from_spec("light", {"effects": [e.name for e in GEOMETRIC.model.effects],
+                                          "unknown": {"k_b": (2300.0, 2360.0), "zeta_s": (0.009, 0.011)},
+                                          "fixed": {"zeta_bup": 0.0}})
+    names = ["k_b", "zeta_s"]
+    lower, upper = variant.bounds(names)
+    truth = np.array([[2 * (LIGHT["k_b"] - 2300.0) / 60.0 - 1, 2 * (LIGHT["zeta_s"] - 0.009) / 0.002 - 1]])
+    rng = np.random.default_rng(3)
+    data, models = [], []
+    with threadpool_limits(1):
+        for rpm, mass in ((700.0, 25.9), (866.0, 14.8)):
+            model = SolverModel(variant, f"r{rpm:g}", rpm, mass, names, lower, upper, 3)
+            M = model.evaluate(truth, jacobian=False)[0][0]
+            noise = 1e-6 * (rng.standard_normal(M.shape) + 1j * rng.standard_normal(M.shape))
+            data.append(idn.RunData(f"r{rpm:g}", rpm, mass, "fit", M + noise, np.full(M.shape, 1e-6)))
+            models.append(SolverModel(variant, f"r{rpm:g}", rpm, mass, names, lower, upper, 3))
+        fit = idn.identify(models, data, (), ProtocolOptions(trials=2, monte_carlo=0, seed=1,
+                                                             lm=lm.LMOptions(max_iterations=40)))
+        before = fit.message
+        with pytest.warns(StabilityWarning, match=r"unstable steady state at run\(s\) r866 \(\|mu\| = 2\.\d+\)"):
+            check = check_stability(fit)
+        fitted = dict(zip(names, fit.x[:2]))
+        reference = [_run_up_radius(variant, fitted, rpm, mass, 3) for rpm, mass in ((700.0, 25.9), (866.0, 14.8))]
+    assert check.runs == ["r700", "r866"] and check.unstable_runs == ["r866"]
+    assert list(check.stable) == [True, False]
+    # the optimum's states, checked at the fitted parameters, against the run-up reference there: the same states
+    # to the solves' tolerance (1e-10), so the same multipliers (rtol 1e-6 leaves room; the radius at the truth,
+    # 0.0025 away in zeta_s, differs by 2e-3)
+    np.testing.assert_allclose(check.floquet_radius, reference, rtol=1e-6)
+    assert fit.message == f"unstable steady state at run(s) r866; {before}"
+    notes = [n for n in fit.uncertainty.notes if n.startswith("unstable steady state")]
+    assert len(notes) == 1 and "r866" in notes[0] and "r700" not in notes[0]
+    with pytest.warns(StabilityWarning):
+        check_stability(fit)  # checked again: flagged once, not twice
+    assert fit.message.count("unstable") == 1 and len(fit.uncertainty.notes) == len(set(fit.uncertainty.notes))

@@ -10,11 +10,20 @@ and dM/dx (N, H, 2, d), x the parameters normalised to [-1, 1]):
 
 Used by the identification, its full-solver polish, the validation
 predictions and the diagnosis.
+
+Stability: the LM iterations solve without the Floquet check (``stability=False``,
+30-40 % of a solve saved per evaluation); the steady states a fit reports are
+checked afterwards (``floquet_radii``, ``SolverModel.floquet_radius``;
+``check_stability`` for a fit's optimum: an unstable one is flagged on the fit
+and warned about, never reported as a plain converged fit).
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+import logging
+import warnings
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
@@ -142,6 +151,9 @@ class SolverModel:
 
     m_e is the run's eccentric mass unless it is one of the parameters. Counters: ``n_solves``
     sets solved, ``n_warm`` of them by a warm start, ``n_run_ups`` by a run-up.
+
+    ``evaluate`` does not assess stability (the LM needs the response only); ``floquet_radius(x)``
+    does, for the states ``evaluate`` reports at x (``check_stability``: a fit's optimum).
     """
 
     def __init__(self, variant, run: str, rpm: float, eccentric_mass_g: float, parameters: Sequence[str],
@@ -222,16 +234,65 @@ class SolverModel:
             dM[finite] = J
         return M, dM
 
+    def floquet_radius(self, x: Array) -> Array:
+        """The largest |Floquet multiplier| (N,) of the steady states ``evaluate(x)`` reports at normalised x
+        (N, d): the same states (warm start from the cache or run-up), each checked once (``floquet_radii``).
+        Below 1: stable; NaN where there is no steady state."""
+        return floquet_radii([self], [x])[0]
+
     @staticmethod
     def evaluate_together(models: Sequence["SolverModel"], xs: Sequence[Array], jacobian: bool = True
                           ) -> list[tuple[Array, Array | None]]:
         """``evaluate`` of several runs' models (one variant, same parameters, analytic) in one batched solve
         and one sensitivity call (``evaluate_runs``)."""
-        from .solver import SteadyState, sensitivity, solve
+        from .solver import SteadyState, sensitivity
 
         first = models[0]
         H, d = first.harmonics, len(first.parameters)
-        xs = [np.atleast_2d(np.asarray(x, float)) for x in xs]
+        batch = SolverModel._steady_states(models, xs)
+        if batch is None:  # no finite parameter set at all
+            return [(np.full((x.shape[0], H, 2), np.nan + 0j),
+                     np.full((x.shape[0], H, 2, d), np.nan + 0j) if jacobian else None) for x in _as_2d(xs)]
+        result, values, rpm, offsets = batch.result, batch.values, batch.rpm, batch.offsets
+        S = result.n_scenarios
+        M_all = first._sensor(result.harmonics)
+        M_all[~result.success] = np.nan
+        if jacobian:
+            # the sensitivity drops failed sets from the values it assembles: build at the speeds of the others
+            ok = np.flatnonzero(result.success)
+            steps = SENSITIVITY_STEP * (first.upper - first.lower)
+            dQ_ok, dstate_ok = sensitivity(lambda v: batch.build(v, rpm[ok]), {k_: v[ok] for k_, v in values.items()},
+                                           first.parameters, SteadyState.concatenate([result], ok), steps,
+                                           condensed=True)
+            dQ = np.full((S,) + dQ_ok.shape[1:], np.nan + 0j)
+            dstate = np.full((S,) + dstate_ok.shape[1:], np.nan)
+            dQ[ok], dstate[ok] = dQ_ok, dstate_ok
+            dM_all = np.moveaxis(first._sensor(dQ) * first.half_range[None, :, None, None], 1, -1)
+        out = []
+        for k, (m, x, r) in enumerate(zip(models, batch.xs, batch.rows)):
+            sl = slice(offsets[k], offsets[k + 1])
+            M = np.full((x.shape[0], H, 2), np.nan + 0j)
+            M[r] = M_all[sl]
+            dM = None
+            if jacobian:
+                dM = np.full((x.shape[0], H, 2, d), np.nan + 0j)
+                dM[r] = dM_all[sl]
+                if m.warm and r.size:
+                    own = SteadyState.concatenate([result], np.arange(offsets[k], offsets[k + 1]))
+                    m._remember(x[r], own, dstate[sl], batch.jumped[sl])
+            out.append((M, dM))
+        return out
+
+    @staticmethod
+    def _steady_states(models: Sequence["SolverModel"], xs: Sequence[Array]) -> "_Batch | None":
+        """The steady states ``evaluate_together`` reports at xs (each model's finite rows, stacked run after
+        run): warm starts where a cached neighbour allows, run-ups for the others; None if no row is finite.
+        Their stability is not assessed (``stability=False``: the LM iterations need the response only)."""
+        from .solver import SteadyState, solve
+
+        first = models[0]
+        H = first.harmonics
+        xs = _as_2d(xs)
         rows = [np.flatnonzero(np.isfinite(x).all(axis=1)) for x in xs]
         counts = [r.size for r in rows]
         offsets = np.concatenate([[0], np.cumsum(counts)])
@@ -284,37 +345,10 @@ class SolverModel:
                 order.append(offsets[k] + cold)
                 jumped[offsets[k] + cold] = jump
                 m.n_run_ups += cold.size
-        if not parts:  # no finite parameter set at all
-            return [(np.full((x.shape[0], H, 2), np.nan + 0j),
-                     np.full((x.shape[0], H, 2, d), np.nan + 0j) if jacobian else None) for x in xs]
+        if not parts:
+            return None
         result = SteadyState.concatenate(parts, np.argsort(np.concatenate(order)))
-        M_all = first._sensor(result.harmonics)
-        M_all[~result.success] = np.nan
-        if jacobian:
-            # the sensitivity drops failed sets from the values it assembles: build at the speeds of the others
-            ok = np.flatnonzero(result.success)
-            steps = SENSITIVITY_STEP * (first.upper - first.lower)
-            dQ_ok, dstate_ok = sensitivity(lambda v: build_at(v, rpm[ok]), {k_: v[ok] for k_, v in values.items()},
-                                           first.parameters, SteadyState.concatenate([result], ok), steps,
-                                           condensed=True)
-            dQ = np.full((S,) + dQ_ok.shape[1:], np.nan + 0j)
-            dstate = np.full((S,) + dstate_ok.shape[1:], np.nan)
-            dQ[ok], dstate[ok] = dQ_ok, dstate_ok
-            dM_all = np.moveaxis(first._sensor(dQ) * first.half_range[None, :, None, None], 1, -1)
-        out = []
-        for k, (m, x, r) in enumerate(zip(models, xs, rows)):
-            sl = slice(offsets[k], offsets[k + 1])
-            M = np.full((x.shape[0], H, 2), np.nan + 0j)
-            M[r] = M_all[sl]
-            dM = None
-            if jacobian:
-                dM = np.full((x.shape[0], H, 2, d), np.nan + 0j)
-                dM[r] = dM_all[sl]
-                if m.warm and r.size:
-                    own = SteadyState.concatenate([result], np.arange(offsets[k], offsets[k + 1]))
-                    m._remember(x[r], own, dstate[sl], jumped[sl])
-            out.append((M, dM))
-        return out
+        return _Batch(result, values, rpm, offsets, rows, xs, jumped, build_at)
 
     def _differences(self, x: Array, jacobian: bool) -> tuple[Array, Array | None]:
         """Forward differences of run-up solves (the method before the analytic sensitivities)."""
@@ -337,6 +371,123 @@ class SolverModel:
             M_shifted[n, j] = self._solve(retry)
         dM = (M_shifted - M[:, None]) / steps[:, :, None, None]
         return M, np.moveaxis(dM, 1, -1)
+
+
+class StabilityWarning(UserWarning):
+    """A fit whose reported steady state is unstable at some run (the machine would not stay on it)."""
+
+
+@dataclass
+class _Batch:
+    """Steady states of several runs' models solved together (``SolverModel._steady_states``)."""
+
+    result: object  # solver.SteadyState of every finite row, stacked run after run
+    values: dict[str, Array]  # complete parameter values [SI] of those rows
+    rpm: Array
+    offsets: Array  # run k's rows are offsets[k]:offsets[k + 1]
+    rows: list[Array]  # each run's finite rows of its x
+    xs: list[Array]
+    jumped: Array
+    build: Callable  # build(values, speeds) -> System
+
+
+def floquet_radii(models: Sequence[HarmonicModel], xs: Sequence[Array]) -> list[Array | None]:
+    """Each model's largest |Floquet multiplier| (N_k,) at normalised xs[k] (N_k, d), for the steady states its
+    ``evaluate`` reports there; None for a model without a steady state of its own (a library).
+
+    The LM iterations solve without the stability check (``stability=False``: 30-40 % of a solve saved per
+    evaluation); this is the check, for the points a fit reports: the steady states solved again as
+    ``evaluate`` does (a warm start from the cached state at the same point converges at once, on the same
+    branch) and one Floquet analysis of each (``solver.assess_stability``). Models of one variant with the
+    same parameters are solved together, as in ``evaluate_runs``.
+    """
+    from .solver import assess_stability
+
+    out: list[Array | None] = [None] * len(models)
+    groups: dict[tuple, list[int]] = {}
+    for k, model in enumerate(models):
+        if isinstance(model, SolverModel):
+            groups.setdefault((id(model.variant), tuple(model.parameters)), []).append(k)
+    for members in groups.values():
+        batch = SolverModel._steady_states([models[k] for k in members], [xs[k] for k in members])
+        if batch is None:
+            for k in members:
+                out[k] = np.full(np.atleast_2d(xs[k]).shape[0], np.nan)
+            continue
+        result = batch.result
+        ok = np.flatnonzero(result.success)
+        if ok.size:
+            assess_stability(batch.build({key: v[ok] for key, v in batch.values.items()}, batch.rpm[ok]), result, ok)
+        for j, k in enumerate(members):
+            radius = np.full(batch.xs[j].shape[0], np.nan)
+            radius[batch.rows[j]] = result.floquet_radius[batch.offsets[j]:batch.offsets[j + 1]]
+            out[k] = radius
+    return out
+
+
+@dataclass
+class StabilityCheck:
+    """The stability of the steady states a fit reports: per run, the largest |Floquet multiplier| at the
+    returned parameters (``floquet_radii``); NaN for a run without a steady state there, or whose model is a
+    library (no steady state of its own to check)."""
+
+    runs: list[str]
+    floquet_radius: Array  # (R,)
+
+    @property
+    def stable(self) -> Array:
+        """(R,) a steady state with every multiplier inside the unit circle."""
+        return np.nan_to_num(self.floquet_radius, nan=np.inf) < 1.0
+
+    @property
+    def unstable_runs(self) -> list[str]:
+        """Runs whose reported steady state is unstable (radius >= 1)."""
+        return [r for r, mu in zip(self.runs, self.floquet_radius) if np.isfinite(mu) and mu >= 1.0]
+
+    def note(self) -> str | None:
+        """One sentence for the fit's notes and the log when some run is unstable, else None."""
+        bad = [(r, mu) for r, mu in zip(self.runs, self.floquet_radius) if np.isfinite(mu) and mu >= 1.0]
+        if not bad:
+            return None
+        listed = ", ".join(f"{r} (|mu| = {mu:.4g})" for r, mu in bad)
+        return (f"unstable steady state at run(s) {listed}: at the fitted parameters the model's periodic "
+                "solution there has a Floquet multiplier outside the unit circle, a state the machine would "
+                "leave, so the fit does not describe a steady state the rig can hold")
+
+
+def check_stability(fit) -> StabilityCheck | None:
+    """The stability check of a full-solver fit's optimum (``fit``: ``identification.Identification``), made
+    visible on the fit when some run's steady state is unstable.
+
+    Each run's steady state at the returned parameters (``fit.theta``, the point ``identification.conclude``
+    evaluated) gets its Floquet radius (``floquet_radii``). When one is unstable, the fit is never left
+    looking like a plain converged one: its ``message`` starts with "unstable steady state at run(s) ...",
+    the same sentence joins ``fit.uncertainty.notes`` (the summary's notes; the per-run parameter table's
+    note column), and a ``StabilityWarning`` naming the runs is issued and logged (logger
+    ``hybridtwin.forward``: the rule's log). Returns None for a fit without any ``SolverModel`` (a library
+    fit: its surrogate has no steady state of its own), else the check.
+    """
+    models = fit.problem.models
+    if not any(isinstance(m, SolverModel) for m in models):
+        return None
+    theta = np.asarray(fit.theta, float)[None]
+    xs = [fit.layout.run_parameters(theta, k)[0] for k in range(fit.layout.n_runs)]
+    radii = floquet_radii(models, xs)
+    check = StabilityCheck(list(fit.layout.runs),
+                           np.array([np.nan if r is None else float(r[0]) for r in radii]))
+    note = check.note()
+    if note is not None:
+        if not fit.message.startswith("unstable steady state"):
+            fit.message = f"unstable steady state at run(s) {', '.join(check.unstable_runs)}; {fit.message}"
+        if note not in fit.uncertainty.notes:
+            fit.uncertainty.notes.append(note)
+        logging.getLogger(__name__).warning("%s", note)
+        warnings.warn(note, StabilityWarning, stacklevel=2)
+    return check
+
+
+def _as_2d(xs: Sequence[Array]) -> list[Array]:
+    return [np.atleast_2d(np.asarray(x, float)) for x in xs]
 
 
 def evaluate_runs(models: Sequence[HarmonicModel], xs: Sequence[Array], jacobian: bool = True
