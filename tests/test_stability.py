@@ -216,3 +216,59 @@ def test_simulate_never_reports_an_unstable_state_as_converged(capsys):
     assert "converged" not in line[0]
     assert cli.main(["simulate", "--rpm", "700"]) == 0
     assert "converged" in capsys.readouterr().err
+
+
+# --- a jump past a fold prefers a stable branch ------------------------------------------------------------------
+
+FINAL = Variant.from_spec("final", BUILTIN_VARIANTS["final"], {})
+# a stiffening upper bearing lightly damped, 25.9 g: three periodic solutions coexist at 965 RPM, 1X at u0 of
+# 59.6 mm (the run-up's, stable), 50.4 mm (|mu| = 1.12: the middle, unstable branch) and 21.3 mm (the run-down's,
+# stable); the run-up branch ends at a fold between 970 and 975 RPM
+BISTABLE = FINAL.values({"k_b": 2331.5, "zeta_s": 0.01, "zeta_bup": 0.0, "k_z": 1000.0, "k_w": 0.0,
+                         "q_x": 0.005, "q_y": 0.005, "m_e": 0.0259})
+
+
+def _bistable(rpm, rows):
+    return FINAL.model.system(BISTABLE, rpm)
+
+
+def test_a_jump_that_lands_on_an_unstable_branch_goes_on_to_a_stable_one(monkeypatch):
+    """With the sweeps' own starts every jump found lands on a stable branch first (the linear response
+    converges to the lower branch here), so the starts are reordered: the run-down's state at 960 RPM doubled
+    converges to the unstable middle branch at 965 RPM, the linear response to the stable lower one. The jump
+    reports the stable one, the solution the run-down reaches by continuation (the reference); with the
+    unstable start alone, the unstable landing is kept, flagged."""
+    import hybridtwin.solver as solver
+
+    down = solve_sweep(_bistable, np.arange(1000.0, 959.0, -5.0), 1, harmonics=5, direction="down")
+    at = dict(zip(down.rpm, down.results))
+    reference, x_last = at[965.0], at[960.0].state
+    assert reference.stable[0]
+    options = {"harmonics": 5, "stability": False}  # as solve_sweep passes them: the jump assesses regardless
+    monkeypatch.setattr(solver, "_JUMP_STARTS", (2.0,))
+    unstable = solver._jump(_bistable, np.array([960.0]), np.array([965.0]), x_last, np.arange(1), "run-up", options)
+    assert unstable.success[0] and not unstable.stable[0] and 1.05 < unstable.floquet_radius[0] < 1.2
+    assert unstable.message[0].startswith("unstable periodic solution")
+    monkeypatch.setattr(solver, "_JUMP_STARTS", (2.0, None))
+    jumped = solver._jump(_bistable, np.array([960.0]), np.array([965.0]), x_last, np.arange(1), "run-up", options)
+    assert jumped.stable[0] and jumped.branch[0] == "run-up, jump between 960 and 965 RPM"
+    # the same periodic solution as the run-down's, both converged to 1e-10: agreement to ~1e-9 of the amplitude
+    scale = np.abs(reference.harmonics[0]).max()
+    assert np.abs(jumped.harmonics[0] - reference.harmonics[0]).max() < 1e-8 * scale
+    assert np.abs(unstable.harmonics[0] - reference.harmonics[0]).max() > 0.1 * scale  # a different branch
+
+
+def test_a_run_up_across_the_fold_reports_the_stability_of_its_landing_without_a_sweep_check():
+    """The run-up past the fold (970 -> 975 RPM) jumps to the lower branch, the state the run-down reaches by
+    continuation (the reference); the landing's stability is assessed even in a sweep that skips the check
+    (the fits' run-ups), the continued steps are left unassessed there."""
+    speeds = np.arange(900.0, 991.0, 5.0)
+    unchecked = solve_sweep(_bistable, speeds, 1, harmonics=5, stability=False)
+    landed = [i for i, r in enumerate(unchecked.results) if "jump" in r.branch[0]]
+    assert [unchecked.rpm[i] for i in landed] == [975.0]
+    i = landed[0]
+    assert unchecked.results[i].stable[0] and 0.9 < unchecked.results[i].floquet_radius[0] < 1.0
+    assert np.isnan(unchecked.results[i - 1].floquet_radius[0]) and np.isnan(unchecked.results[i + 1].floquet_radius[0])
+    reference = solve_sweep(_bistable, np.arange(1000.0, 974.0, -5.0), 1, harmonics=5, direction="down").results[-1]
+    scale = np.abs(reference.harmonics[0]).max()
+    assert np.abs(unchecked.results[i].harmonics[0] - reference.harmonics[0]).max() < 1e-8 * scale  # as above

@@ -516,10 +516,10 @@ def solve_sweep(
     scenario that fails to continue is retried with the speed step halved up to
     ``max_refine`` times. If it still fails, its branch has ended at a fold and
     the machine would jump: the other branch is sought from several starting
-    points (the linear response, the last state scaled by 0.5 .. 5), and the
-    result's ``branch`` says "run-up, jump between A and B RPM". Nothing is
-    jumped silently, and a scenario for which no start converges is reported
-    failed with the reason.
+    points (the linear response, the last state scaled by 0.5 .. 5), preferring
+    a stable branch to an unstable one (``_jump``), and the result's ``branch``
+    says "run-up, jump between A and B RPM". Nothing is jumped silently, and a
+    scenario for which no start converges is reported failed with the reason.
 
     rpm: the speeds (n,), shared (sorted in the sweep's direction), or per scenario (n, S),
     column s the speeds of scenario s in sweep order, NaN-padded after its last. Scenarios of
@@ -560,8 +560,8 @@ def solve_sweep(
         if ended.size:
             parts.append(_ended(previous, ended))
         res = SteadyState.concatenate(parts, np.argsort(np.concatenate([cont, fresh, ended])))
-        if stability:
-            converged = np.flatnonzero(active & res.success)
+        if stability:  # (jumps assessed their own landings)
+            converged = np.flatnonzero(active & res.success & np.isnan(res.floquet_radius))
             if converged.size:
                 assess_stability(build(speed[converged], converged), res, converged)
         results.append(res)
@@ -615,23 +615,32 @@ _JUMP_STARTS = (None, 1.5, 2.0, 3.0, 5.0, 0.5)  # None: the linear response; a n
 
 
 def _jump(build, rpm_from: Array, rpm_to: Array, x_last, rows, label, options) -> SteadyState:
-    """Past a fold: look for the remaining branch at ``rpm_to`` (per row) from several starts."""
+    """Past a fold: look for the remaining branch at ``rpm_to`` (per row) from several starts.
+
+    Near the nonlinear resonance the response is multi-valued, and a start may land on an unstable branch
+    (the middle one between two folds), a state the machine leaves. So every landing's stability is assessed
+    (whatever the sweep's ``stability``: jumps are rare, and the check costs about one solve of the few rows
+    that jump), and the starts go on until each row has a stable one; an unstable landing is kept only when
+    no start reaches a stable branch (its message then says it is unstable).
+    """
     system = build(rpm_to, rows)
     branch = np.array([f"{label}, jump between {a:g} and {b:g} RPM" for a, b in zip(rpm_from, rpm_to)], object)
     best = None
     for scale in _JUMP_STARTS:
-        open_ = np.arange(len(rows)) if best is None else np.flatnonzero(~best.success)
+        open_ = np.arange(len(rows)) if best is None else np.flatnonzero(~best.stable)
         if open_.size == 0:
             break
         start = None if scale is None else scale * x_last[open_]
         if start is not None and start.size and np.isnan(start).any():
             continue
-        trial = solve(system.subset(open_), initial=start, stall_window=_STALL_WINDOW, **options)
+        trial = solve(system.subset(open_), initial=start, stall_window=_STALL_WINDOW,
+                      **{**options, "stability": True})
         trial.branch[:] = branch[open_]
         if best is None:
             best = trial
-        else:
-            _replace(best, open_, trial)
+        else:  # a stable landing, or a first landing at all, replaces what the earlier starts found
+            better = np.flatnonzero(trial.stable | (trial.success & ~best.success[open_]))
+            _replace(best, open_[better], SteadyState.concatenate([trial], better))
     failed = np.flatnonzero(~best.success)
     best.message[failed] = [
         f"no periodic solution found at {rpm_to[i]:g} RPM: the {label} branch ends at a fold after {rpm_from[i]:g} "
