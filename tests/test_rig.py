@@ -1,7 +1,8 @@
-"""The virtual rig: reproducible, honest about uniqueness and the sensor range, and the bundled data set is
-exactly what the configured truth generates."""
+"""The virtual rig: reproducible, honest about uniqueness, stability and the sensor range, and the bundled data
+set is exactly what the configured truth generates."""
 
 import filecmp
+import re
 import warnings
 from pathlib import Path
 
@@ -62,6 +63,7 @@ def test_records_and_answer_key(tmp_path):
     record = read_record(sheet["record"].iloc[0])
     assert record.n_samples == 3000 and record.sample_rate_hz == pytest.approx(2000.0) and record.keyphasor is None
     assert truth["unique"].all() and truth["inside_range"].all() and (truth["clipped_samples"] == 0).all()
+    assert truth["stable"].all() and truth["floquet_radius"].between(0.0, 1.0, inclusive="neither").all()
     assert truth["noise_x_m"].between(0.03e-3, 0.17e-3).all() and truth["offset_y_m"].abs().max() <= 0.4e-3
     assert (abs(truth["rpm_true"] / truth["rpm"] - 1) < 5e-3).all() and (truth["rpm_true"] != truth["rpm"]).all()
     key = yaml.safe_load((tmp_path / "truth.yaml").read_text())
@@ -88,9 +90,15 @@ def test_response_beyond_the_sensor_range_is_clipped_flagged_and_detected(tmp_pa
     truth_model = Truth.from_spec({"effects": DEFAULT_TRUTH["effects"],
                                    "values": {**DEFAULT_TRUTH["values"], "q_x": 0.005, "q_y": 0.005}})
     spec = RigSpec(truth_model, Imperfections(duration_s=1.0, speed_error=0.0), seed=1, harmonics=5)
-    with pytest.warns(RigWarning, match=r"run c: the response reaches 2\d\.\d+ mm .* \d+ sample\(s\) clipped"):
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", RigWarning)
         truth = generate(plan(("c", 975, 0.0)), spec, tmp_path)  # 0 g near the resonance: ~24 mm
+    messages = [str(w.message) for w in caught]
+    assert any(re.match(r"run c: the response reaches 2\d\.\d+ mm .* \d+ sample\(s\) clipped", m) for m in messages)
     assert not truth["inside_range"].iloc[0] and truth["clipped_samples"].iloc[0] > 100
+    # that large an orbit is also unstable (|mu| = 2.0): flagged as well, the record written all the same
+    assert not truth["stable"].iloc[0] and any(m.startswith("run c: the truth's steady state at 975.00 RPM is "
+                                                            "unstable") for m in messages)
     record = read_record(tmp_path / "records" / "c.csv")
     assert np.abs(record.x_m).max() == pytest.approx(14e-3, abs=1e-12)  # flat tops at the range
     with pytest.warns(DataWarning, match="is clipped at"):
@@ -110,6 +118,37 @@ def test_non_unique_steady_state_is_reported(tmp_path):
     messages = [str(w.message) for w in caught]
     assert any("not unique" in m and "follows the run-up branch" in m for m in messages)
     assert any("not clipped (clip off)" in m for m in messages)  # 19 mm, reported but left unclipped
+
+
+def test_an_unstable_steady_state_is_flagged_in_the_answer_key_and_on_the_console(tmp_path, capsys):
+    """The geometric machine lightly damped with 14.8 g: its run-up branch is unstable at 866 RPM (|mu| = 2.28,
+    checked by time integration in tests/test_stability.py); at 700 RPM it is stable. The record is written (the
+    harmonic-balance state exists) but the run is flagged: column stable, its radius, a warning naming the run."""
+    truth_model = Truth.from_spec({"effects": GEOMETRIC, "values": {"zeta_s": 0.01, "zeta_bup": 0.0}})
+    spec = RigSpec(truth_model, Imperfections(duration_s=0.5, speed_error=0.0, clip=False), seed=1, harmonics=5)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", RigWarning)
+        truth = generate(plan(("s", 700, 14.8), ("u", 866, 14.8)), spec, tmp_path)
+    assert truth["stable"].tolist() == [True, False]
+    assert truth["floquet_radius"].iloc[0] < 1.0 and 2.0 < truth["floquet_radius"].iloc[1] < 2.6
+    unstable = [str(w.message) for w in caught if "unstable" in str(w.message)]
+    assert len(unstable) == 1 and unstable[0].startswith("run u: the truth's steady state at 866.00 RPM is unstable")
+    assert "|mu| = 2." in unstable[0]
+    key = pd.read_csv(tmp_path / "truth.tsv", sep="\t")  # the answer key keeps the flag
+    assert key["stable"].tolist() == [True, False] and (key["floquet_radius"] > 0).all()
+    assert read_runs(tmp_path / "runs.tsv")["run"].tolist() == ["s", "u"]  # the sheet is the usual one
+    # the command line prints the flag per run and the warning on the console
+    (tmp_path / "plan.tsv").write_text("run\trpm\teccentric_mass_g\nu\t866\t14.8\n")
+    (tmp_path / "spec.yaml").write_text(yaml.safe_dump({"truth": {"effects": GEOMETRIC,
+                                                                  "values": {"zeta_s": 0.01, "zeta_bup": 0.0}},
+                                                        "imperfections": {"duration_s": 0.5, "speed_error": 0.0,
+                                                                          "clip": False}, "harmonics": 5}))
+    assert main(["rig", "--plan", str(tmp_path / "plan.tsv"), "--spec", str(tmp_path / "spec.yaml"),
+                 "--out", str(tmp_path / "cli")]) == 0
+    out, err = capsys.readouterr()
+    assert out.splitlines()[0].split()[:6] == ["run", "rpm", "eccentric_mass_g", "rpm_true", "unique", "stable"]
+    assert out.splitlines()[1].split()[5] == "False"
+    assert "hybridtwin rig: warning: run u: the truth's steady state at 866.00 RPM is unstable" in err
 
 
 @pytest.mark.parametrize("spec, message", [
@@ -165,6 +204,7 @@ def test_bundled_data_set_is_what_the_configured_truth_generates(tmp_path):
     # the data set's documented properties: the paper's 19 + 3 runs, unique steady states, inside +-14 mm
     assert len(truth) == 22 and (truth["role"] == "validate").sum() == 3
     assert truth["unique"].all() and truth["inside_range"].all() and (truth["clipped_samples"] == 0).all()
+    assert truth["stable"].all() and truth["floquet_radius"].max() < 0.82  # measured 0.56 - 0.81
     assert truth["updown_difference_rel"].max() < 1e-10
     assert 1e3 * truth[["peak_x_m", "peak_y_m"]].to_numpy().max() < 14 - 0.5 - 4 * 0.05  # range - offset - noise
     assert sum(p.stat().st_size for p in DEFAULT_DATA.rglob("*")) < 10e6  # small enough for git

@@ -15,7 +15,10 @@ the Geometric model lacks) with parameter values. For every run of a plan
    run-up and again by run-down from rundown_margin_rpm above the mass's
    highest speed: the two must agree, else the steady state is not unique and
    the run's response depends on the rig's history (reported, column
-   ``unique``). ``integrator`` says how:
+   ``unique``). The run-up's state must also be stable (its largest Floquet
+   multiplier inside the unit circle), else the machine would not stay on it
+   and the record shows a state no rig could hold (reported, columns
+   ``stable`` and ``floquet_radius``). ``integrator`` says how:
 
    - "hb" (default): harmonic balance, ``solve_sweep`` per eccentric mass from
      start_rpm in steps <= step_rpm;
@@ -28,7 +31,9 @@ the Geometric model lacks) with parameter values. For every run of a plan
      (DFT of a period) of successive periods agree to TIME_SETTLE_TOLERANCE
      of the largest; the last period's give X_h, Y_h. Data independent of the
      solver the identification uses, to test the diagnosis on. Cost: ~80 s of
-     CPU for the bundled 22-run plan (50 speeds settled), against ~2 s by "hb";
+     CPU for the bundled 22-run plan (50 speeds settled), against ~2 s by "hb".
+     A settled orbit is stable by construction (an unstable one is left, not
+     settled on): ``stable`` is True, ``floquet_radius`` not computed (NaN);
 3. evaluates the sensor response x(t) = Re(sum_h X_h exp(i h Omega (t + t0)))
    at the sampling instants, t0 = angle / Omega, adds the offsets and white
    Gaussian noise, clips at +-sensor_range_mm if asked (a saturated laser
@@ -36,7 +41,7 @@ the Geometric model lacks) with parameter values. For every run of a plan
    the unbalance points to +x (if asked);
 4. writes runs.tsv, records/{run}.csv, and the answer key truth.tsv (per run:
    true speed, phase origin, offsets, noise levels, truth harmonics in the
-   model's frame, run-up/run-down agreement, peak vs sensor range) and
+   model's frame, run-up/run-down agreement, stability, peak vs sensor range) and
    truth.yaml (truth, imperfections, seed), which an identification must not read.
 
 Each run's random stream is seeded from (seed, run id), so a run's record does
@@ -98,7 +103,7 @@ class RigError(ValueError):
 
 
 class RigWarning(UserWarning):
-    """A generated run whose steady state is not unique or which leaves the sensor range."""
+    """A generated run whose steady state is not unique or unstable, or which leaves the sensor range."""
 
 
 @dataclass(frozen=True)
@@ -261,7 +266,8 @@ def draw_conditions(plan: pd.DataFrame, imperfections: Imperfections, seed: int)
 class TruthResponse:
     """Sensor harmonics of the truth at each run's true speed: X, Y (R, H+1) complex [m], by run-up,
     and the run-down's X_down, Y_down for the uniqueness check (agreeing to ``unique_tolerance``, relative);
-    success/branch/message per run."""
+    success/branch/message per run; stable: the run-up's state is stable (harmonic balance: its largest
+    Floquet multiplier ``floquet_radius`` < 1; time integration: settled on, so stable, radius NaN)."""
 
     X: Array
     Y: Array
@@ -271,6 +277,13 @@ class TruthResponse:
     branch: Array
     message: Array
     unique_tolerance: float = UNIQUE_TOLERANCE
+    stable: Array | None = None  # (R,) bool
+    floquet_radius: Array | None = None  # (R,) NaN where not computed
+
+    def __post_init__(self) -> None:
+        R = len(self.success)
+        self.stable = np.zeros(R, bool) if self.stable is None else self.stable
+        self.floquet_radius = np.full(R, np.nan) if self.floquet_radius is None else self.floquet_radius
 
     @property
     def difference_rel(self) -> Array:
@@ -311,6 +324,7 @@ def solve_truth(truth: Truth, runs: pd.DataFrame, harmonics: int = 7, start_rpm:
             out.X[pos], out.Y[pos] = res_up.harmonics[0, :, dofs[0]], res_up.harmonics[0, :, dofs[1]]
             out.X_down[pos], out.Y_down[pos] = res_down.harmonics[0, :, dofs[0]], res_down.harmonics[0, :, dofs[1]]
             out.success[pos] = bool(res_up.success[0])
+            out.stable[pos], out.floquet_radius[pos] = bool(res_up.stable[0]), res_up.floquet_radius[0]
             out.branch[pos] = str(res_up.branch[0])
             out.message[pos] = str(res_up.message[0]) if res_down.success[0] else (
                 f"{res_up.message[0]}; run-down: {res_down.message[0]}")
@@ -342,7 +356,7 @@ def _solve_truth_time(truth: Truth, runs: pd.DataFrame, harmonics: int, rundown_
             out.branch[pos] = "time run-up"
             if isinstance(res_up, SettledPeriod):
                 out.X[pos], out.Y[pos] = res_up.harmonics[:, 0], res_up.harmonics[:, 1]
-                out.success[pos] = True
+                out.success[pos] = out.stable[pos] = True  # settled on: a stable orbit
                 out.message[pos] = (f"settled after {res_up.n_periods} periods (last change "
                                     f"{res_up.change:.1e} of the largest harmonic)")
             else:
@@ -416,8 +430,9 @@ def generate(plan: pd.DataFrame, spec: RigSpec, out_dir: str | Path) -> pd.DataF
 
     Raises ``RigError`` when the truth has no periodic steady state at some run
     (no record could honestly be written for it). Runs whose steady state is not
-    unique (run-up and run-down differ) or whose record leaves the sensor range
-    are kept and reported with a ``RigWarning`` and in truth.tsv.
+    unique (run-up and run-down differ) or unstable, or whose record leaves the
+    sensor range, are kept and reported with a ``RigWarning`` and in truth.tsv
+    (columns unique, stable, inside_range).
     """
     out_dir = Path(out_dir)
     conditions = draw_conditions(plan, spec.imperfections, spec.seed)
@@ -479,6 +494,7 @@ def _truth_table(runs: pd.DataFrame, response: TruthResponse, spec: RigSpec) -> 
             table[f"{name}{h}_im_m"] = Z[:, h].imag
     table["updown_difference_rel"] = response.difference_rel
     table["unique"] = response.unique
+    table["stable"], table["floquet_radius"] = response.stable, response.floquet_radius
     table["branch"], table["message"] = response.branch, response.message
     angle = np.linspace(0.0, 2.0 * np.pi, 721)
     rotation = np.exp(1j * np.outer(angle, np.arange(spec.harmonics + 1)))
@@ -504,6 +520,11 @@ def _warn(truth: pd.DataFrame, imperfections: Imperfections) -> None:
             warnings.warn(f"run {row.run}: the steady state at {row.rpm_true:.2f} RPM is not unique (run-up and "
                           f"run-down differ by {row.updown_difference_rel:.1e} relative); the record follows the "
                           "run-up branch", RigWarning, stacklevel=3)
+        if not row.stable:
+            warnings.warn(f"run {row.run}: the truth's steady state at {row.rpm_true:.2f} RPM is unstable (largest "
+                          f"Floquet multiplier |mu| = {row.floquet_radius:.4g} >= 1): the machine would not stay on "
+                          "it, so the record shows a state no rig could hold (truth.tsv, column stable)",
+                          RigWarning, stacklevel=3)
         if not row.inside_range:
             peak = max(row.peak_x_m, row.peak_y_m) * 1e3
             action = (f"{row.clipped_samples} sample(s) clipped" if imperfections.clip else "not clipped (clip off)")
@@ -601,7 +622,7 @@ def rig_command(args) -> int:
         return 1
     report = pd.DataFrame({
         "run": truth["run"], "rpm": truth["rpm"], "eccentric_mass_g": truth["eccentric_mass_g"],
-        "rpm_true": truth["rpm_true"].round(3), "unique": truth["unique"],
+        "rpm_true": truth["rpm_true"].round(3), "unique": truth["unique"], "stable": truth["stable"],
         "updown_diff_rel": truth["updown_difference_rel"].map(lambda v: f"{v:.1e}"),
         "peak_x_mm": (1e3 * truth["peak_x_m"]).round(3), "peak_y_mm": (1e3 * truth["peak_y_m"]).round(3),
         "inside_range": truth["inside_range"], "clipped_samples": truth["clipped_samples"],
