@@ -76,6 +76,11 @@ BAD = {
     "typo in a section": ("offline: {chunk: 3}\n", ["offline", "unknown key 'chunk'", "did you mean 'chunks'?"]),
     "per_run parameter": ("identification: {per_run: [q_x, q_z]}\n",
                           ["identification.per_run", "'q_z'", "unknown of no variant", "q_y"]),
+    "per_run parameter of no variant's unknowns": ("identification: {per_run: [zeta_blo]}\n",
+                                                  ["identification.per_run", "'zeta_blo'", "unknown of no variant"]),
+    "per_run as one name": ("identification: {per_run: q_x}\n", ["identification.per_run", "'q_x'", "array"]),
+    "sparse variant of another type": ("diagnosis: {sparse_variant: [final]}\n",
+                                       ["diagnosis.sparse_variant", "['final']", "string", "null"]),
     "n_scenarios variant": ("offline: {n_scenarios: {geometrc: 100}}\n",
                             ["offline.n_scenarios", "no variant named 'geometrc'", "did you mean 'geometric'?"]),
     "sparsity variant": ("identification: {sparsity: {expansoin: 0.1}}\n",
@@ -116,6 +121,16 @@ def test_each_bad_value_is_one_line_naming_file_line_key_and_value(project, name
     assert line.startswith("overlay.yaml, line 1: "), line  # every overlay above sets its value on line 1
     for word in words:
         assert word in line, (word, line)
+
+
+@pytest.mark.parametrize("overlay", [
+    "identification: {per_run: [k_w]}\n",  # an unknown of one variant (final) only: per run there
+    "identification: {per_run: []}\n",
+    "diagnosis: {sparse_variant: null}\n",
+    "diagnosis: {sparse_variant: geometric}\n",
+])
+def test_per_run_and_sparse_variant_accept_what_the_workflow_can_use(project, overlay):
+    assert _problems(overlay, project) == []
 
 
 def test_every_problem_is_reported_with_its_own_line(project):
