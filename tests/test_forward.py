@@ -193,3 +193,8 @@ def test_an_unstable_optimum_is_flagged_on_the_fit_and_never_reported_as_converg
     with pytest.warns(StabilityWarning):
         check_stability(fit)  # checked again: flagged once, not twice
     assert fit.message.count("unstable") == 1 and len(fit.uncertainty.notes) == len(set(fit.uncertainty.notes))
+    # nothing to check without solver models: a library fit, or a fit read back from its table (no problem)
+    from types import SimpleNamespace
+
+    assert check_stability(SimpleNamespace(problem=None)) is None
+    assert check_stability(SimpleNamespace(problem=SimpleNamespace(models=[object()]))) is None

@@ -465,9 +465,9 @@ def check_stability(fit) -> StabilityCheck | None:
     the same sentence joins ``fit.uncertainty.notes`` (the summary's notes; the per-run parameter table's
     note column), and a ``StabilityWarning`` naming the runs is issued and logged (logger
     ``hybridtwin.forward``: the rule's log). Returns None for a fit without any ``SolverModel`` (a library
-    fit: its surrogate has no steady state of its own), else the check.
+    fit: its surrogate has no steady state of its own; a fit read back from a table), else the check.
     """
-    models = fit.problem.models
+    models = [] if fit.problem is None else fit.problem.models  # a fit read back from its table has no models
     if not any(isinstance(m, SolverModel) for m in models):
         return None
     theta = np.asarray(fit.theta, float)[None]
