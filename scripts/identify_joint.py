@@ -19,6 +19,7 @@ from hybridtwin import polish as pol
 from hybridtwin import validation as val
 from hybridtwin import variants
 from hybridtwin.library import Library
+from hybridtwin.run_fits import start_from_runs
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 NESTED_MISMATCH = 1e-6  # a simpler variant's fit is a start when this variant reproduces it (round-off: ~1e-16)
@@ -27,7 +28,7 @@ variant = cfg.variant(smk.config, smk.wildcards.variant)
 options = idn.settings(smk.config, variant.name)
 units = idn.units(variant)
 table = idn.read_harmonics(smk.input.harmonics)
-per_run = {path.split("/")[-2]: pd.read_csv(path, sep="\t", dtype={"run": str}) for path in smk.input.per_run}
+per_run = {path.split("/")[-2]: idn.read_parameters(path) for path in smk.input.per_run}
 data, models = [], []
 for path in smk.input.libraries:
     library = Library.load(path)
@@ -42,14 +43,15 @@ if not data:
 errors = idn.model_errors(pd.read_csv(smk.input.validation, sep="\t"), [d.run for d in data], options["model_error"])
 parameters = models[0].parameters
 layout = idn.Layout.for_data(parameters, models[0].lower, models[0].upper, data, options["per_run"])
-start_theta = idn.start_from_runs(layout, {d.run: per_run[d.run] for d in data if d.run in per_run})
+start_theta = start_from_runs(layout, {d.run: idn.Identification.from_table(per_run[d.run]) for d in data
+                                       if d.run in per_run})
 start = time.perf_counter()
 fit = idn.identify(models, data, options["per_run"], idn.protocol_options(options, joint=True), errors,
                    extra_starts=start_theta, units=units)
 log.info("joint fit of %d runs (%d unknowns): %d LM problems in %.1f s, loss %.4g, chi^2/dof %.3g (%s)",
          len(data), layout.n, fit.protocol.n_lm, time.perf_counter() - start, fit.loss, fit.chi2_dof, fit.message)
 library_table = fit.table()
-library_table.to_csv(smk.output.library_table, sep="\t", index=False, float_format="%.9g")
+idn.write_parameters(library_table, smk.output.library_table)
 summary = {"library": fit.summary()}
 comparison = pd.DataFrame(columns=["parameter", "run", "unit", "library_value", "solver_value", "difference",
                                    "difference_rel", "difference_in_stderr", "stderr"])
@@ -61,7 +63,7 @@ if options["polish"]["joint"]:
     labels = ["library optimum"] + [f"library trial {i + 2}" for i in range(len(starts))]
     if "refits" in smk.input.keys():  # this variant adds one effect to another: its diagnosis refit is a start
         parent, extra = variants.parent_variant(smk.config["variants"], variant.name)
-        refits = pd.read_csv(smk.input.refits, sep="\t", dtype={"run": str})
+        refits = idn.read_parameters(smk.input.refits)
         refit = idn.theta_from_table(refits[refits["effect"] == extra], layout)
         log.info("polish also starts from %s's diagnosis refit with %s: %s", parent, extra,
                  "found" if refit is not None else "not there (not refitted)")
@@ -72,7 +74,7 @@ if options["polish"]["joint"]:
     own = fit.table()  # entries a nested fit does not give
     for path in [nested] if isinstance(nested, str) else nested:  # the simpler variants this one contains
         parent = Path(path).parent.name
-        theta, mismatch = idn.theta_from_nested(pd.read_csv(path, sep="\t", dtype={"run": str}),
+        theta, mismatch = idn.theta_from_nested(idn.read_parameters(path),
                                                cfg.variant(smk.config, parent), variant, layout, own)
         usable = theta is not None and mismatch < NESTED_MISMATCH
         log.info("%s's joint fit mapped onto %s's parameters: coefficient mismatch %.2g, %s", parent, variant.name,
@@ -104,7 +106,7 @@ if options["polish"]["joint"]:
         summary["solver"] = {"failed": note, "seconds": time.perf_counter() - start}
         log.warning("polish failed: %s", note)
 result = fit.table()
-result.to_csv(smk.output.table, sep="\t", index=False, float_format="%.9g")
+idn.write_parameters(result, smk.output.table)
 comparison.to_csv(smk.output.polish, sep="\t", index=False, float_format="%.9g")
 starts_table = fit.starts if fit.starts is not None else pd.DataFrame(
     columns=["start", "chi2_start", "chi2", "chi2_dof", "iterations", "status", "selected"])

@@ -20,7 +20,7 @@ log = cfg.rule_logger(smk.log[0], "report_harmonics")
 variant = cfg.variant(smk.config, smk.wildcards.variant)
 options = idn.settings(smk.config, variant.name)
 table = idn.read_harmonics(smk.input.harmonics)
-joint = pd.read_csv(smk.input.parameters, sep="\t", dtype={"run": str})
+joint = idn.read_parameters(smk.input.parameters)
 with open(smk.input.summary) as stream:
     summary = yaml.safe_load(stream)["final"]
 comparisons = report.fit_comparisons(smk.input.fit, joint, summary, table)

@@ -47,24 +47,17 @@ C_r per run and is solved by the Schur complement, so a joint fit of R runs
 costs R small solves, not one dense n x n one (``arrow_solve``). A per-run fit
 is the same problem with one run and every parameter "shared".
 
-The paper's protocol (``ProtocolOptions``): tau = 50 random trials, the
-lowest-loss trial kept; n_MC = 1000 Monte Carlo repeats on data re-sampled
-with the measured sigmas (X + sigma (N(0,1) + i N(0,1))); lambda = 0 for the
-Geometric model, 0.1 for the Expansion model. The estimate reported is the
-best trial on the measured data; the Monte Carlo repeats give the paper's
-average and a distribution that checks the linearised uncertainty.
-
-
-The protocol itself (where the repeats start, batched LM): ``hybridtwin.protocol``; the per-run
-stage: ``hybridtwin.run_fits``. Uncertainty and identifiability: ``hybridtwin.uncertainty``. The response
-models (library or full solver): ``hybridtwin.forward``. Validation runs and
-per-run drift: ``hybridtwin.validation``.
+The paper's protocol (``hybridtwin.protocol``): tau = 50 random trials, the lowest-loss trial kept as the
+estimate; n_MC Monte Carlo repeats on data re-sampled with the measured sigmas (a per-run fit's from the best
+distinct optima of its trials, ``monte_carlo_starts``); lambda = 0 for the Geometric model, 0.1 for the
+Expansion model. The per-run and joint stages: ``hybridtwin.run_fits``. Uncertainty and identifiability:
+``hybridtwin.uncertainty``. The response models (library or full solver): ``hybridtwin.forward``. Validation
+runs and per-run drift: ``hybridtwin.validation``.
 """
 
 from __future__ import annotations
 
 import math
-import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -81,10 +74,6 @@ from .variants import Variant, embed
 Array = np.ndarray
 
 CHANNELS = ("x", "y")
-
-
-class IdentificationWarning(UserWarning):
-    """An identification result a user must look at (estimate at a bound, non-identifiable parameter)."""
 
 
 # --- measured data ----------------------------------------------------------------------
@@ -176,7 +165,6 @@ def model_errors(validation: pd.DataFrame | None, runs: Sequence[str], column: s
         value = table[column].get(run, np.nan) if column in table else np.nan
         out[run] = 0.0 if not np.isfinite(value) else float(value) / 100.0
     return out
-
 
 
 # --- the problem: parameters, residuals, block-arrow Jacobian ---------------------------
@@ -335,9 +323,6 @@ def wrap(phase: Array | float) -> Array:
     return np.pi - np.mod(np.pi - np.asarray(phase, float), 2.0 * np.pi)
 
 
-
-
-
 class ArrowProblem:
     """The weighted least-squares problem of eq. 9-11 for R runs in the layout's block-arrow form."""
 
@@ -458,34 +443,47 @@ def _real(z: Array) -> Array:
     return np.concatenate([flat.real, flat.imag], axis=1)
 
 
-
 # --- results ----------------------------------------------------------------------------
+
+
+#: the columns of ``Identification.table`` (parameters.tsv), in order
+TABLE_COLUMNS = ("parameter", "run", "kind", "unit", "value", "normalised", "stderr", "ci_low", "ci_high", "at_bound",
+                 "identifiable", "lower", "upper", "mc_mean", "mc_std", "mc_ci_low", "mc_ci_high", "vif", "source")
+#: the per-entry statistics among them (``Identification.statistics``); at_bound and identifiable are flags
+STATISTICS = ("stderr", "ci_low", "ci_high", "at_bound", "identifiable", "mc_mean", "mc_std", "mc_ci_low",
+              "mc_ci_high", "vif")
+_FLAGS = ("at_bound", "identifiable")
 
 
 @dataclass
 class Identification:
     """An identification (one run or several jointly), scipy-like: x [SI] per entry of the layout,
     cost, fun (weighted data residuals), jac (d fun / d p, SI), status, message; plus the protocol,
-    the uncertainty and the tables."""
+    the uncertainty and the tables.
+
+    A result read back from its parameter table (``from_table``) holds what the table holds: the layout
+    (runs, shared and per-run parameters, ranges), x, theta, units, source and the per-entry statistics;
+    problem, protocol, fun, jac, uncertainty and X are None there."""
 
     layout: Layout
-    problem: ArrowProblem
-    protocol: ProtocolResult
+    problem: ArrowProblem | None
+    protocol: ProtocolResult | None
     x: Array
     theta: Array
     cost: float
     loss: float
-    fun: Array
-    jac: Array
+    fun: Array | None
+    jac: Array | None
     status: int
     message: str
-    uncertainty: Uncertainty
+    uncertainty: Uncertainty | None
     confidence: float
     data: list[RunData]
-    X: Array  # (R, H, 2) measured harmonics used
+    X: Array | None  # (R, H, 2) measured harmonics used
     units: dict[str, str] = field(default_factory=dict)
     source: str = "library"  # the response model: "library" (sPGD) or "solver" (full harmonic balance)
     starts: pd.DataFrame | None = None  # a polish's starts: start, chi2_start, chi2, chi2_dof, iterations, status
+    read_columns: dict[str, Array] | None = None  # ``statistics`` and ``ranges`` as ``from_table`` read them
 
     @property
     def success(self) -> bool:
@@ -493,7 +491,22 @@ class Identification:
 
     @property
     def chi2_dof(self) -> float:
-        return self.uncertainty.chi2_dof
+        return math.nan if self.uncertainty is None else self.uncertainty.chi2_dof
+
+    def _require_fit(self, what: str) -> None:
+        if self.problem is None:
+            raise ValueError(f"{what} needs the fit itself: this result was read from a parameter table "
+                             f"(Identification.from_table), which holds only the estimates and their statistics")
+
+    def entry(self, parameter: str, run: str | None = None) -> int:
+        """Where ``parameter`` sits in x and theta: the shared entry, or ``run``'s own (a per-run parameter, or
+        "phase"; ``run`` None: the first run)."""
+        run = self.layout.runs[0] if run is None else run
+        entries = self.layout.entries()
+        for key in ((parameter, run), (parameter, "all")):
+            if key in entries:
+                return entries.index(key)
+        raise KeyError(f"no entry {parameter!r} for run {run!r} (runs {list(self.layout.runs)})")
 
     def values(self, run: str | None = None) -> dict[str, float]:
         """Physical values [SI] of the shared parameters and of ``run``'s local ones (first run by default)."""
@@ -503,61 +516,120 @@ class Identification:
 
     def fitted(self, trial_theta: Array | None = None) -> Array:
         """The fitted harmonics in each record's frame (R, H, 2) complex [m]."""
+        self._require_fit("the fitted harmonics")
         theta = (self.theta if trial_theta is None else trial_theta)[None]
         return np.stack([self.problem.model_response(theta, k, False)[0][0] for k in range(self.layout.n_runs)])
 
-    def table(self) -> pd.DataFrame:
-        """parameter, run, kind, unit, value, normalised, stderr, ci_low, ci_high, at_bound, identifiable,
-        lower, upper, mc_mean, mc_std, mc_ci_low, mc_ci_high, vif (SI; one row per entry of theta)."""
+    def statistics(self) -> dict[str, Array]:
+        """Per entry of theta (``STATISTICS``): stderr, the interval x -+ t stderr at ``confidence`` (Student t),
+        at_bound, identifiable, the Monte Carlo repeats' mean, std and percentile interval (phases unwrapped
+        around the estimate; NaN without repeats) and the variance inflation factor vif."""
+        if self.read_columns is not None:
+            return {name: self.read_columns[name] for name in STATISTICS}
         u, L = self.uncertainty, self.layout
         t = student_t(self.confidence, u.dof)
-        mc = self.layout.to_si(self.protocol.monte_carlo) if len(self.protocol.monte_carlo) else None
+        mc = L.to_si(self.protocol.monte_carlo) if len(self.protocol.monte_carlo) else None
         alpha = 100 * (0.5 - 0.5 * self.confidence)
-        rows = []
-        bounds = {p: (lo, hi) for p, lo, hi in zip(L.parameters, L.lower, L.upper)}
+        out = {name: np.full(L.n, np.nan) for name in STATISTICS if name not in _FLAGS}
+        out["at_bound"] = np.asarray(u.at_bound, bool) & ~L.is_phase
+        out["identifiable"] = np.asarray(u.identifiable, bool)
+        for i, (p, _) in enumerate(L.entries()):
+            out["stderr"][i], out["vif"][i] = u.stderr[i], u.vif[i]
+            out["ci_low"][i], out["ci_high"][i] = self.x[i] - t * u.stderr[i], self.x[i] + t * u.stderr[i]
+            if mc is None:
+                continue
+            values = _unwrap_around(mc[:, i], self.x[i]) if p == "phase" else mc[:, i]
+            out["mc_mean"][i] = values.mean()
+            out["mc_std"][i] = values.std(ddof=1) if len(values) >= 2 else np.nan
+            out["mc_ci_low"][i] = np.percentile(values, alpha)
+            out["mc_ci_high"][i] = np.percentile(values, 100 - alpha)
+        return out
+
+    def ranges(self) -> tuple[Array, Array]:
+        """lower, upper of each entry of theta [SI]: its parameter's range, -pi and pi for a phase."""
+        if self.read_columns is not None:
+            return self.read_columns["lower"], self.read_columns["upper"]
+        L = self.layout
+        bounds = dict(zip(L.parameters, zip(L.lower, L.upper))) | {"phase": (-np.pi, np.pi)}
+        return tuple(np.array([bounds[p][k] for p, _ in L.entries()], float) for k in (0, 1))
+
+    def table(self) -> pd.DataFrame:
+        """The parameter table (parameters.tsv), one row per entry of theta, columns ``TABLE_COLUMNS`` (SI):
+        parameter, run ("all" for a shared one in a joint fit, the run itself in a per-run fit), kind ("shared",
+        "per_run", "physical" in a per-run fit, "nuisance" for the phases), unit, value, normalised, the
+        ``statistics``, lower, upper (the range), source. ``from_table`` reads it back."""
+        L, (lower, upper) = self.layout, self.ranges()
         single = L.n_runs == 1
-        for i, (p, run) in enumerate(L.entries()):
-            phase = p == "phase"
-            lo, hi = (-np.pi, np.pi) if phase else bounds[p]
-            values = None if mc is None else (_unwrap_around(mc[:, i], self.x[i]) if phase else mc[:, i])
-            rows.append({
-                "parameter": p, "run": L.runs[0] if single else run,
-                "kind": "nuisance" if phase else ("physical" if single else ("shared" if run == "all" else "per_run")),
-                "unit": "rad" if phase else self.units.get(p, ""), "value": self.x[i],
-                "normalised": np.nan if phase else self.theta[i],
-                "stderr": u.stderr[i], "ci_low": self.x[i] - t * u.stderr[i], "ci_high": self.x[i] + t * u.stderr[i],
-                "at_bound": bool(u.at_bound[i]) and not phase, "identifiable": bool(u.identifiable[i]),
-                "lower": lo, "upper": hi,
-                "mc_mean": np.nan if values is None else values.mean(),
-                "mc_std": np.nan if values is None or len(values) < 2 else values.std(ddof=1),
-                "mc_ci_low": np.nan if values is None else np.percentile(values, alpha),
-                "mc_ci_high": np.nan if values is None else np.percentile(values, 100 - alpha),
-                "vif": u.vif[i], "source": self.source,
-            })
-        return pd.DataFrame(rows)
+        parameters, runs = [p for p, _ in L.entries()], [r for _, r in L.entries()]
+        columns = {
+            "parameter": parameters, "run": [L.runs[0] if single else r for r in runs],
+            "kind": ["nuisance" if p == "phase" else "physical" if single else "shared" if r == "all" else "per_run"
+                     for p, r in L.entries()],
+            "unit": ["rad" if p == "phase" else self.units.get(p, "") for p in parameters],
+            "value": np.asarray(self.x, float), "normalised": np.where(L.is_phase, np.nan, self.theta),
+            **self.statistics(), "lower": lower, "upper": upper, "source": self.source,
+        }
+        return pd.DataFrame({name: columns[name] for name in TABLE_COLUMNS})
+
+    @classmethod
+    def from_table(cls, table: pd.DataFrame, parameters: Sequence[str] | None = None) -> Identification:
+        """The exact inverse of ``table()`` (``result.table()`` equals ``table``, values bit for bit), for what the
+        table holds: the layout (runs, shared and per-run parameters, ranges), x, theta, units, source and the
+        ``statistics``. Columns other than ``TABLE_COLUMNS`` (a per-run fit's note) are ignored.
+
+        parameters: the libraries' parameter order, which the table does not hold (default: the shared ones,
+        then the per-run ones); the phases' keyphasor priors are not held either (all taken as arbitrary)."""
+        missing = [c for c in TABLE_COLUMNS if c not in table]
+        if missing:
+            raise ValueError(f"not a parameter table (Identification.table): no column(s) {missing}")
+        rows = table.reset_index(drop=True)
+        names, kinds, runs = (rows[c].astype(str).tolist() for c in ("parameter", "kind", "run"))
+        phase = np.array([p == "phase" for p in names])
+        if [k == "nuisance" for k in kinds] != phase.tolist():
+            raise ValueError("parameter table: the rows of kind 'nuisance' must be exactly the phases")
+        fit_runs = list(dict.fromkeys(r for r, is_phase in zip(runs, phase) if is_phase))
+        single = set(kinds) <= {"physical", "nuisance"}
+        if single and len(fit_runs) != 1:
+            raise ValueError(f"parameter table: kind 'physical' is a per-run fit's, but it has the phases of runs "
+                             f"{fit_runs}")
+        local = [] if single else list(dict.fromkeys(p for p, k in zip(names, kinds) if k == "per_run"))
+        shared = list(dict.fromkeys(p for p, k in zip(names, kinds) if k in ("shared", "physical")))
+        order = list(parameters) if parameters is not None else shared + local
+        if sorted(order) != sorted(shared + local):
+            raise ValueError(f"parameter table: parameters {shared + local} are not the given order {order}")
+        first = {p: i for i, p in reversed(list(enumerate(names)))}
+        lower, upper = (rows[c].to_numpy(float) for c in ("lower", "upper"))
+        layout = Layout.build(order, [lower[first[p]] for p in order], [upper[first[p]] for p in order], fit_runs,
+                              local)
+        expected = [(p, fit_runs[0] if single else r) for p, r in layout.entries()]
+        if expected != list(zip(names, runs)):
+            raise ValueError("parameter table: its rows are not in the order Identification.table writes them "
+                             f"(expected {expected[:4]}..., got {list(zip(names, runs))[:4]}...)")
+        sources = set(rows["source"].astype(str))
+        if len(sources) != 1:
+            raise ValueError(f"parameter table: one source expected, got {sorted(sources)}")
+        x = rows["value"].to_numpy(float)
+        read = {c: rows[c].to_numpy(bool if c in _FLAGS else float) for c in STATISTICS + ("lower", "upper")}
+        units = {p: u for p, u, is_phase in zip(names, rows["unit"].tolist(), phase) if not is_phase}
+        return cls(layout, None, None, x, np.where(phase, x, rows["normalised"].to_numpy(float)), math.nan, math.nan,
+                   None, None, 0, "read from a parameter table", None, math.nan, [], None, units, sources.pop(),
+                   read_columns=read)
 
     def correlation_table(self) -> pd.DataFrame:
+        self._require_fit("the correlation table")
         names = [p if r == "all" else f"{p}[{r}]" for p, r in self.layout.entries()]
         return pd.DataFrame(self.uncertainty.correlation, index=names, columns=names)
 
     def history_table(self) -> pd.DataFrame:
         """Loss (eq. 9) of every trial on the measured data after each iteration (long format)."""
+        self._require_fit("the loss history")
         h = self.protocol.trials.history
         trial, iteration = np.nonzero(np.isfinite(h))
         return pd.DataFrame({"trial": trial, "iteration": iteration, "loss": h[trial, iteration],
                              "selected": trial == self.protocol.best})
 
-    def trials_table(self) -> pd.DataFrame:
-        """One row per trial on the measured data: final loss, status, iterations and parameters [SI]."""
-        tr = self.protocol.trials
-        si = self.layout.to_si(tr.x)
-        out = pd.DataFrame({"trial": np.arange(len(tr.loss)), "loss": tr.loss, "status": tr.status,
-                            "iterations": tr.nit, "selected": np.arange(len(tr.loss)) == self.protocol.best})
-        for i, (p, run) in enumerate(self.layout.entries()):
-            out[p if run == "all" or self.layout.n_runs == 1 else f"{p}[{run}]"] = si[:, i]
-        return out
-
     def summary(self) -> dict:
+        self._require_fit("the summary")
         u, tr = self.uncertainty, self.protocol.trials
         at_best = np.isclose(tr.loss, tr.loss[self.protocol.best], rtol=1e-6, atol=1e-12)
         return {"runs": list(self.layout.runs), "shared": list(self.layout.shared),
@@ -618,6 +690,23 @@ def conclude(problem: ArrowProblem, protocol: ProtocolResult, data: Sequence[Run
                           "solver" if any(isinstance(m, SolverModel) for m in problem.models) else "library")
 
 
+def write_parameters(table: pd.DataFrame, path: str | Path) -> None:
+    """A parameter table (``Identification.table``, parameters.tsv) as TSV, 9 significant digits."""
+    table.to_csv(path, sep="\t", index=False, float_format="%.9g")
+
+
+def read_parameters(path: str | Path) -> pd.DataFrame:
+    """A parameter table written by ``write_parameters``: names, runs and units as text (run "001" stays "001",
+    unit "1" a string, an empty unit ""), ``TABLE_COLUMNS``' numbers as floats; ``Identification.from_table``
+    reads the result. Other columns (a per-run fit's note, a refit's effect) come as pandas reads them."""
+    text = {"parameter", "run", "kind", "unit", "source", "note", "effect"}
+    header = pd.read_csv(path, sep="\t", nrows=0).columns
+    table = pd.read_csv(path, sep="\t", dtype={c: str for c in text}, keep_default_na=False,
+                        na_values={c: ["", "nan", "NaN", "NA"] for c in header if c not in text})
+    for column in set(TABLE_COLUMNS).difference(text, _FLAGS).intersection(header):
+        table[column] = table[column].astype(float)
+    return table
+
 
 def theta_from_table(table: pd.DataFrame, layout: Layout) -> Array | None:
     """theta of ``layout`` from a parameter table (``Identification.table``: parameter, run, value [SI]),
@@ -671,11 +760,6 @@ def write_fit(path: str | Path, fit: Identification, rpm: Sequence[float], cycle
     from .stores import write_manifest  # the store's checksums, last: readers verify them (hybridtwin.stores)
 
     write_manifest(path)
-
-
-def warn_notes(notes: Sequence[str], where: str) -> None:
-    for note in notes:
-        warnings.warn(f"{where}: {note}", IdentificationWarning, stacklevel=2)
 
 
 # --- workflow configuration -------------------------------------------------------------
@@ -751,23 +835,3 @@ def protocol_options(options: Mapping, joint: bool = False) -> ProtocolOptions:
 def units(variant) -> dict[str, str]:
     """Parameter units of a variant ("1" for dimensionless)."""
     return {name: p.unit for name, p in variant.model.parameters.items()}
-
-
-def start_from_runs(layout: Layout, per_run: Mapping[str, pd.DataFrame]) -> Array | None:
-    """A joint start from the per-run fits: shared entries at the median of the runs' estimates,
-    local ones and phases from each run's own fit (None when a run has no usable fit)."""
-    theta = np.zeros(layout.n)
-    for i, (p, run) in enumerate(layout.entries()):
-        if run == "all":
-            values = [t.loc[t["parameter"] == p, "normalised"].item() for t in per_run.values()]
-            values = [v for v in values if np.isfinite(v)]
-            if not values:
-                return None
-            theta[i] = float(np.median(values))
-            continue
-        table = per_run.get(run)
-        if table is None or not (table["parameter"] == p).any():
-            return None
-        column = "value" if p == "phase" else "normalised"
-        theta[i] = table.loc[table["parameter"] == p, column].item()
-    return theta if np.isfinite(theta).all() else None

@@ -9,7 +9,7 @@ results/{variant}/runs/{run}/parameters.tsv, history.tsv and fit.zarr.
 from __future__ import annotations
 
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -44,7 +44,7 @@ def fit_run(variant: Variant, options: Mapping, library: Library, data: idn.RunD
     run, units = data.run, idn.units(variant)
     if not data.usable:
         empty = pd.DataFrame(columns=["trial", "iteration", "loss", "selected"])
-        return RunFit(run, excluded_table(data, library.parameters, units), empty, None, data, [],
+        return RunFit(run, excluded_table(data, library, units), empty, None, data, [],
                       [f"run {run} is not usable ({data.note}): not fitted"])
     errors = idn.model_errors(validation, [run], options["model_error"])
     start = time.perf_counter()
@@ -70,7 +70,7 @@ def fit_run(variant: Variant, options: Mapping, library: Library, data: idn.RunD
 def write_run_fit(result: RunFit, parameters: str, history: str, fit: str) -> None:
     """A run's three files: parameters.tsv, history.tsv and fit.zarr (``identification.write_fit``; for a run
     that was not fitted, a group naming the reason)."""
-    result.parameters.to_csv(parameters, sep="\t", index=False, float_format="%.9g")
+    idn.write_parameters(result.parameters, parameters)
     result.history.to_csv(history, sep="\t", index=False, float_format="%.9g")
     if result.fit is not None:
         idn.write_fit(fit, result.fit, [result.data.rpm])
@@ -83,10 +83,33 @@ def write_run_fit(result: RunFit, parameters: str, history: str, fit: str) -> No
     write_manifest(fit)  # its checksums, as every store's (hybridtwin.stores)
 
 
-def excluded_table(data: idn.RunData, parameters: Sequence[str], units: Mapping[str, str]) -> pd.DataFrame:
-    """The parameter table of a run that cannot be fitted (not usable): NaN values and the reason."""
-    rows = [{"parameter": p, "run": data.run, "kind": "shared", "unit": units.get(p, ""), "value": np.nan,
-             "normalised": np.nan, "stderr": np.nan, "ci_low": np.nan, "ci_high": np.nan, "at_bound": False,
-             "identifiable": False, "note": data.note} for p in list(parameters) + ["phase"]]
-    rows[-1].update(kind="nuisance", unit="rad")
-    return pd.DataFrame(rows)
+def excluded_table(data: idn.RunData, library: Library, units: Mapping[str, str]) -> pd.DataFrame:
+    """The parameter table of a run that cannot be fitted (not usable): ``Identification.table``'s rows and
+    columns with NaN estimates, and the reason as its note."""
+    rows = [{"parameter": p, "run": data.run, "kind": "physical", "unit": units.get(p, ""), "value": np.nan,
+             "lower": float(lo), "upper": float(hi)} for p, lo, hi in zip(library.parameters, library.lower,
+                                                                          library.upper)]
+    rows.append({"parameter": "phase", "run": data.run, "kind": "nuisance", "unit": "rad", "value": np.nan,
+                 "lower": -np.pi, "upper": np.pi})
+    table = pd.DataFrame(rows).reindex(columns=list(idn.TABLE_COLUMNS))
+    table[["at_bound", "identifiable"]] = False
+    table["source"], table["note"] = "library", data.note
+    return table
+
+
+def start_from_runs(layout: idn.Layout, per_run: Mapping[str, idn.Identification]) -> np.ndarray | None:
+    """A joint start from the per-run fits (read back with ``Identification.from_table``): shared entries at
+    the median of the runs' estimates, local ones and phases from each run's own fit (None when a run has no
+    usable fit)."""
+    theta = np.zeros(layout.n)
+    for i, (p, run) in enumerate(layout.entries()):
+        if run == "all":
+            values = [v for v in (fit.theta[fit.entry(p)] for fit in per_run.values()) if np.isfinite(v)]
+            if not values:
+                return None
+            theta[i] = float(np.median(values))
+        elif run in per_run:
+            theta[i] = per_run[run].theta[per_run[run].entry(p, run)]
+        else:
+            return None
+    return theta if np.isfinite(theta).all() else None
