@@ -2,7 +2,8 @@
 (thin wrapper of hybridtwin.run_fits).
 
 Outputs per run: parameters.tsv (value, normalised, stderr, 95 % interval, at_bound, ...), history.tsv (loss of
-every trial after each iteration, on the measured data), fit.zarr (measured and fitted response).
+every trial after each iteration, on the measured data), fit.zarr (measured and fitted response). Reads only the
+rule's input, params and output.
 """
 
 import pandas as pd
@@ -14,14 +15,14 @@ from hybridtwin.run_fits import fit_run, write_run_fit
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "identify_run")
-variant = cfg.variant(smk.config, smk.wildcards.variant)
-options = idn.settings(smk.config, variant.name)
+variant = cfg.variant(smk.params.model, smk.wildcards.variant)  # its spec, the machine, the effects files
+options = smk.params.options
 harmonics = idn.read_harmonics(smk.input.harmonics)
 validation = pd.read_csv(smk.input.validation, sep="\t")
 outputs = zip(smk.params.runs, smk.input.libraries, smk.output.parameters, smk.output.history, smk.output.fit)
 for run, library, parameters, history, fit in outputs:
     data = idn.run_data(harmonics, run, keyphasor=options["keyphasor"])
-    result = fit_run(variant, options, Library.load(library), data, validation, smk.config["harmonics"])
+    result = fit_run(variant, options, Library.load(library), data, validation, int(smk.params.harmonics))
     write_run_fit(result, parameters, history, fit)
     for message in result.messages:
         log.info("%s", message)

@@ -1,6 +1,7 @@
 """Rule predict_validation: validation runs predicted with the joint parameters, never fitted (thin wrapper).
 
 Only each run's phase (a nuisance) is aligned; per-run parameters come from their law over the fitted runs.
+Reads only the rule's input, params and output.
 """
 
 import pandas as pd
@@ -13,8 +14,8 @@ from hybridtwin.library import Library
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "predict_validation")
-variant = cfg.variant(smk.config, smk.wildcards.variant)
-options = idn.settings(smk.config, variant.name)
+variant = cfg.variant(smk.params.model, smk.wildcards.variant)  # its spec, the machine, the effects files
+options = smk.params.options
 joint = idn.read_parameters(smk.input.parameters)
 table = idn.read_harmonics(smk.input.harmonics)
 errors = idn.model_errors(pd.read_csv(smk.input.validation, sep="\t"), list(table["run"]), options["model_error"])
@@ -29,10 +30,10 @@ for path in smk.input.libraries:
         continue
     values = val.validation_values(joint, data, options["validation_bow"], fitted_runs)
     models = [("library", fwd.SensorSurrogate(library), errors.get(data.run, 0.0))]
-    if options["polish"]["joint"]:
+    if options["solver"]:  # the joint fit was polished with the full solver: predict with it too
         models.append(("solver", fwd.SolverModel(variant, data.run, data.rpm, data.eccentric_mass_g,
                                                  library.parameters, library.lower, library.upper,
-                                                 smk.config["harmonics"]), 0.0))
+                                                 int(smk.params.harmonics)), 0.0))
     for name, model, error in models:
         row = val.predict_run(model, data, values, error)
         row.pop("fitted")

@@ -2,6 +2,7 @@
 
 Fit runs come from the joint fit's store; validation runs are predicted again exactly as predict_validation did
 (same model, same parameter values, only the phase aligned), since validation.tsv keeps only their scores.
+Reads only the rule's input, params and output.
 """
 
 from pathlib import Path
@@ -17,8 +18,8 @@ from hybridtwin.library import Library
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "report_harmonics")
-variant = cfg.variant(smk.config, smk.wildcards.variant)
-options = idn.settings(smk.config, variant.name)
+variant = cfg.variant(smk.params.model, smk.wildcards.variant)  # its spec, the machine, the effects files
+options = smk.params.options
 table = idn.read_harmonics(smk.input.harmonics)
 joint = idn.read_parameters(smk.input.parameters)
 with open(smk.input.summary) as stream:
@@ -39,7 +40,7 @@ for row in validation.to_dict("records"):
     data = idn.run_data(table, row["run"], keyphasor=options["keyphasor"])
     if source == "solver":
         model = fwd.SolverModel(variant, data.run, data.rpm, data.eccentric_mass_g, library.parameters,
-                                library.lower, library.upper, smk.config["harmonics"])
+                                library.lower, library.upper, int(smk.params.harmonics))
     else:
         model = fwd.SensorSurrogate(library)
     error = errors.get(data.run, 0.0) if source == "library" else 0.0

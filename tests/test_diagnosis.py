@@ -21,6 +21,7 @@ from hybridtwin import uncertainty as unc
 from hybridtwin.candidates import Candidate, builtin_candidates
 from hybridtwin.effect_base import Parameter, PolynomialBearing, Term
 from hybridtwin.protocol import ProtocolOptions
+from hybridtwin.run_fits import theta_from_nested
 from hybridtwin.variants import BUILTIN_VARIANTS, Variant
 
 H = 3
@@ -245,7 +246,7 @@ def test_theta_from_nested_maps_the_shared_values_and_copies_the_runs():
                         "run": ["all", "all", "r1", "r1", "r1", "r2", "r2", "r2"],
                         "value": [3000.0, 0.02, 0.002, 0.003, 0.1, 0.004, 0.005, -0.2]})
     fallback = pd.DataFrame({"parameter": ["k2"], "run": ["all"], "value": [123.0]})  # overridden by the map
-    theta, mismatch = idn.theta_from_nested(fit, geometric, expansion, layout, fallback)
+    theta, mismatch = theta_from_nested(fit, geometric, expansion, layout, fallback)
     assert mismatch < 1e-12
     si = dict(zip(layout.entries(), layout.to_si(theta)))
     expected = {("k1", "all"): 3000.0, ("k2", "all"): 0.0, ("k3", "all"): 6000.0, ("k7", "all"): -12000.0,
@@ -253,7 +254,7 @@ def test_theta_from_nested_maps_the_shared_values_and_copies_the_runs():
     for entry, value in expected.items():
         assert si[entry] == pytest.approx(value, abs=1e-9)
     missing = fit[fit["parameter"] != "phase"]  # phases neither in the fit nor the fallback: no start
-    assert idn.theta_from_nested(missing, geometric, expansion, layout, fallback)[0] is None
+    assert theta_from_nested(missing, geometric, expansion, layout, fallback)[0] is None
 
 
 def test_no_effect_shares_stay_finite(slope_base):

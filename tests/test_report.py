@@ -20,6 +20,7 @@ from scipy import stats
 from hybridtwin import identification as idn
 from hybridtwin import report, summary
 from hybridtwin import validation as val
+from hybridtwin.run_fits import write_fit
 
 ROOT = Path(__file__).resolve().parents[1]
 H = 3
@@ -52,14 +53,14 @@ def _rotate(Z: np.ndarray, phase: float) -> np.ndarray:
 
 @pytest.fixture
 def synthetic(tmp_path):
-    """A joint fit stored by identification.write_fit (duck-typed result), its parameters, summary and sheet."""
+    """A joint fit stored by run_fits.write_fit (duck-typed result), its parameters, summary and sheet."""
     M, R = _model(), _residual()
     fitted = np.stack([_rotate(M[k], PHASES[r]) for k, r in enumerate(RUNS)])
     measured = np.stack([_rotate(M[k] + R[k], PHASES[r]) for k, r in enumerate(RUNS)])
     sigma = np.full((2, H, 2), 1e-6)
     fit = SimpleNamespace(X=measured, fitted=lambda: fitted, problem=SimpleNamespace(sigma=sigma),
                           layout=SimpleNamespace(runs=tuple(RUNS)), chi2_dof=1.0, values=lambda: {"k": 1.0})
-    idn.write_fit(tmp_path / "fit.zarr", fit, RPM)
+    write_fit(tmp_path / "fit.zarr", fit, RPM)
     parameters = pd.DataFrame({"parameter": ["k"] + ["phase"] * 2, "run": ["all"] + RUNS,
                                "kind": ["shared", "nuisance", "nuisance"], "value": [1.0, *PHASES.values()],
                                "source": "solver"})

@@ -12,11 +12,10 @@ import pandas as pd
 import pytest
 import zarr
 
-from hybridtwin import identification as idn
 from hybridtwin import report, snapshots
 from hybridtwin.library import Library
 from hybridtwin.pod import load_pod, pod_of_runs
-from hybridtwin.run_fits import write_run_fit
+from hybridtwin.run_fits import write_fit, write_run_fit
 from hybridtwin.scenarios import RunSolutions
 from hybridtwin.shaft import Shaft
 from hybridtwin.spgd import SparsePGD
@@ -70,11 +69,11 @@ def _library(folder: Path) -> Path:
 
 
 def _fit(folder: Path) -> Path:
-    """identification.write_fit on a duck-typed joint fit of two runs (as tests/test_report.py)."""
+    """run_fits.write_fit on a duck-typed joint fit of two runs (as tests/test_report.py)."""
     X = 1e-3 * (RNG.standard_normal((2, H, 2)) + 1j * RNG.standard_normal((2, H, 2)))
     fit = SimpleNamespace(X=X, fitted=lambda: 0.9 * X, problem=SimpleNamespace(sigma=np.full((2, H, 2), 1e-6)),
                           layout=SimpleNamespace(runs=tuple(RUNS)), chi2_dof=1.0, values=lambda: {"k_b": 2400.0})
-    idn.write_fit(folder / "fit.zarr", fit, [500.0, 700.0])
+    write_fit(folder / "fit.zarr", fit, [500.0, 700.0])
     return folder / "fit.zarr"
 
 

@@ -69,7 +69,6 @@ from .forward import HarmonicModel, SolverModel, evaluate_runs
 from .lm import STATUS_MESSAGES, Evaluation, LMOptions
 from .protocol import ProtocolOptions, ProtocolResult, run_protocol
 from .uncertainty import Uncertainty, analyse_uncertainty, student_t
-from .variants import Variant, embed
 
 Array = np.ndarray
 
@@ -717,49 +716,6 @@ def theta_from_table(table: pd.DataFrame, layout: Layout) -> Array | None:
     theta = np.array([values[(p, run)] if p == "phase" else float(layout.normalise(p, values[(p, run)]))
                       for p, run in layout.entries()])
     return np.clip(theta, *layout.bounds()) if np.isfinite(theta).all() else None
-
-
-def theta_from_nested(table: pd.DataFrame, parent: Variant, variant: Variant, layout: Layout,
-                      fallback: pd.DataFrame) -> tuple[Array | None, float]:
-    """A start for ``variant`` from the joint fit (parameter table) of a variant nested in it: the shared values
-    mapped onto ``variant``'s unknowns (``hybridtwin.variants.embed``), the per-run entries (bow, phases) copied
-    run by run, and any entry neither gives taken from ``fallback`` (a table of ``variant``'s own fit). The
-    theta (None when an entry is still missing) and the mapping's coefficient mismatch (0: exact)."""
-    shared = table[table["run"] == "all"]
-    values, mismatch = embed(parent, variant, dict(zip(shared["parameter"], shared["value"].astype(float))))
-    mapped = pd.DataFrame({"parameter": list(values), "run": "all", "value": list(values.values())})
-    columns = ["parameter", "run", "value"]
-    rows = pd.concat([fallback[columns], table.loc[table["run"] != "all", columns], mapped])
-    return theta_from_table(rows.drop_duplicates(["parameter", "run"], keep="last"), layout), mismatch
-
-
-def write_fit(path: str | Path, fit: Identification, rpm: Sequence[float], cycles: int = 2, n_time: int = 200) -> None:
-    """The fitted response for plotting (zarr v3): per run, measured and fitted harmonics h = 1..H in the
-    record's frame, sigmas, and two revolutions of x, y (measured synchronous average and fitted)."""
-    import zarr
-
-    group = zarr.open_group(str(path), mode="w")
-    fitted = fit.fitted()
-    H = fit.X.shape[1]
-    angle = np.linspace(0, 2 * np.pi * cycles, n_time, endpoint=False)
-    wave = np.exp(1j * np.outer(angle, np.arange(1, H + 1)))  # (T, H)
-    arrays = {
-        "harmonic": np.arange(1, H + 1), "angle_rad": angle,
-        "measured_re_m": fit.X.real, "measured_im_m": fit.X.imag,
-        "fitted_re_m": fitted.real, "fitted_im_m": fitted.imag,
-        "sigma_m": fit.problem.sigma,
-        "measured_wave_m": np.einsum("th,rhc->rtc", wave, fit.X).real,
-        "fitted_wave_m": np.einsum("th,rhc->rtc", wave, fitted).real,
-    }
-    for name, data in arrays.items():
-        group.create_array(name, data=np.asarray(data, float))
-    group.attrs.update({"runs": list(fit.layout.runs), "rpm": [float(v) for v in rpm],
-                        "channels": list(CHANNELS), "chi2_dof": float(fit.chi2_dof),
-                        "values": {k: float(v) for k, v in fit.values().items()},
-                        "layout": "arrays (run, harmonic, channel); waves (run, time, channel); angle = Omega t"})
-    from .stores import write_manifest  # the store's checksums, last: readers verify them (hybridtwin.stores)
-
-    write_manifest(path)
 
 
 # --- workflow configuration -------------------------------------------------------------

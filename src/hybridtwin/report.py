@@ -132,7 +132,7 @@ def to_model_frame(X: Array, phase_rad: float) -> Array:
 
 def fit_comparisons(fit_path: str | Path, parameters: pd.DataFrame, summary: Mapping,
                     harmonics: pd.DataFrame) -> list[RunComparison]:
-    """The fit runs of a joint fit (``identification.write_fit``'s store), in the model's frame.
+    """The fit runs of a joint fit (``run_fits.write_fit``'s store), in the model's frame.
 
     parameters: the joint table (parameters.tsv, for the phases and the source);
     summary: the final block of summary.yaml (n_data, dof); harmonics: the

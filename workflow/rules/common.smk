@@ -1,6 +1,7 @@
 # Shared helpers: config validation, the runs sheet, the variants, the offline options.
 import sys
 from functools import cache
+from pathlib import Path
 
 import pandas as pd
 from snakemake.utils import validate
@@ -74,6 +75,26 @@ def nested_fits_input(wildcards):
         return {}
     parents = nested_variants(wildcards.variant)
     return {"nested": [f"results/{name}/parameters.tsv" for name in parents]} if parents else {}
+
+
+def variant_model(wildcards, nested=()):
+    """What building the variant takes (hybridtwin.config.variant on this part of the config): its spec, and those
+    of the ``nested`` variants, the machine and the effects files."""
+    names = [wildcards.variant, *nested]
+    return {"variants": {name: config["variants"][name] for name in names}, "machine": config.get("machine"),
+            "effects_files": list(config.get("effects_files") or [])}
+
+
+def joint_model(wildcards):
+    """variant_model with the variants whose joint fits start this one's polish (its nested_fits_input)."""
+    nested = nested_fits_input(wildcards).get("nested", [])
+    return variant_model(wildcards, [Path(path).parent.name for path in nested])
+
+
+def joint_parent(wildcards):
+    """The variant this one extends by one effect, and that effect (as parent_refits_input), or None."""
+    parent = parent_variant(config["variants"], wildcards.variant)
+    return list(parent) if parent else None
 
 
 def gather_input(wildcards):

@@ -1,6 +1,8 @@
 # Grey box (issue 5): the variant's unknowns identified from the measured harmonics on the libraries
 # (paper sec. 2.3, eq. 9-11): per fit run by the paper's protocol, then all fit runs jointly (shared
 # physical parameters, per-run bow), polished with the full solver; validation runs only predicted.
+# The scripts read only their input, params and output: what a job uses of the config is in its params (a
+# change reruns only the jobs that use it).
 from hybridtwin.identification import runs_with_role
 from hybridtwin.identification import rule_settings
 
@@ -22,8 +24,9 @@ rule identify_run:
         fit=[directory(path) for path in expand("results/{{variant}}/runs/{run}/fit.zarr", run=FIT_RUNS)],
     params:
         runs=FIT_RUNS,
-        spec=lambda wildcards: config["variants"][wildcards.variant],
+        model=variant_model,
         options=lambda wildcards: rule_settings(config, wildcards.variant, "run"),
+        harmonics=config["harmonics"],
     log:
         "logs/{variant}/identify_run.log",
     benchmark:
@@ -65,7 +68,8 @@ rule identify_joint:
         ),
         fit=directory("results/{variant}/identification/fit.zarr"),
     params:
-        spec=lambda wildcards: config["variants"][wildcards.variant],
+        model=joint_model,
+        parent=joint_parent,
         options=lambda wildcards: rule_settings(config, wildcards.variant, "joint"),
         harmonics=config["harmonics"],
     log:
@@ -93,7 +97,7 @@ rule predict_validation:
             subcategory="{variant}",
         ),
     params:
-        spec=lambda wildcards: config["variants"][wildcards.variant],
+        model=variant_model,
         options=lambda wildcards: rule_settings(config, wildcards.variant, "validation"),
         harmonics=config["harmonics"],
     log:

@@ -20,7 +20,7 @@ rule report_harmonics:
     output:
         table="results/{variant}/report/harmonics.tsv",
     params:
-        spec=lambda wildcards: config["variants"][wildcards.variant],
+        model=variant_model,
         options=lambda wildcards: rule_settings(config, wildcards.variant, "validation"),
         harmonics=config["harmonics"],
     log:
