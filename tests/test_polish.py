@@ -93,3 +93,29 @@ def test_no_random_starts_when_the_fit_is_good():
     fit = idn.identify([Toy()], [data], (), ProtocolOptions(trials=5, monte_carlo=0, seed=3))
     polished = pol.polish(fit, [Toy()], random_starts=6)
     assert len(polished.starts) == 1  # the library optimum already explains the data
+
+
+def test_polish_starts_add_the_parents_refit_with_the_added_effect_only():
+    """run_fits.polish_starts after the library optimum: the next-best trials, then the parent variant's diagnosis
+    refit with the effect this variant adds (its row of diagnosis_refits.tsv, normalised with this fit's ranges),
+    never another effect's refit; a parent that did not refit the effect adds nothing and says so."""
+    import pandas as pd
+
+    from hybridtwin.run_fits import polish_starts
+
+    fit = _library_fit()
+    refits = pd.DataFrame({"effect": ["other", "speed_damping", "speed_damping"], "parameter": ["a", "a", "phase"],
+                           "run": ["all", "all", "r"], "value": [-0.7, 0.5, 0.1]})
+    messages = []
+    starts, labels = polish_starts(fit, None, ("base", "speed_damping", refits), (), messages)
+    trials = pol.next_best_trials(fit)
+    np.testing.assert_array_equal(starts[:-1], trials)
+    np.testing.assert_allclose(starts[-1], [0.5, 0.1], rtol=0, atol=1e-15)  # a in [-1, 1]: normalised = SI
+    assert labels == ["library optimum"] + [f"library trial {i + 2}" for i in range(len(trials))] \
+        + ["base's diagnosis refit with speed_damping"]
+    assert messages == ["polish also starts from base's diagnosis refit with speed_damping: found"]
+    messages = []
+    starts, labels = polish_starts(fit, None, ("base", "moment_stiffness", refits), (), messages)
+    assert len(starts) == len(trials) and len(labels) == len(trials) + 1
+    assert messages == ["polish also starts from base's diagnosis refit with moment_stiffness: not there "
+                        "(not refitted)"]
