@@ -329,3 +329,36 @@ def test_a_base_fit_in_another_basin_is_left_by_the_profile():
     assert cf.chi2 / cf.dof < 2.0
     row = cf.estimates.set_index("parameter").loc["dk_lo"]
     assert row["ci_low"] < -6000.0 < row["ci_high"]
+
+
+def test_the_path_stops_when_no_quick_refit_comes_near_the_noise():
+    """The forward selection's stop rule (diagnosis._out_of_reach): with chi^2 1000 on 100 dof, the drop to
+    chi^2/dof = misfit_ratio (1.2) is 880; a best quick refit removing 50 (x REACH = 500 < 880) stops the path and
+    names that candidate, one removing 100 (x 10 = 1000) lets it go on, and no refit at all never stops it."""
+    from types import SimpleNamespace
+
+    scores = SimpleNamespace(base_chi2=1000.0, base_dof=100)
+    o = dg.DEFAULTS
+    assert dg.REACH == 10.0
+    stop = dg._out_of_reach(scores, {"a": SimpleNamespace(chi2=990.0), "b": SimpleNamespace(chi2=950.0)}, o)
+    assert stop.startswith("the best remaining candidate, b, removes 50 of chi^2 1000") and "880" in stop
+    assert dg._out_of_reach(scores, {"b": SimpleNamespace(chi2=900.0)}, o) == ""
+    assert dg._out_of_reach(scores, {}, o) == ""
+
+
+def test_a_refit_whose_optimum_is_unstable_is_never_confirmed():
+    """A refit with a huge likelihood ratio is confirmed, unless its optimum's steady state is unstable at some run
+    (Floquet check, refit.confirm): then it is not, whatever its chi^2; not checked (None) or stable ([]) pass."""
+    from types import SimpleNamespace
+
+    o = dg.DEFAULTS
+    cf = SimpleNamespace(lr_p_value=1e-30, delta_bic=-1e4, unstable_runs=None)
+    assert dg._is_confirmed(cf, o, 1e-3)
+    assert dg._is_confirmed(replace_ns(cf, unstable_runs=[]), o, 1e-3)
+    assert not dg._is_confirmed(replace_ns(cf, unstable_runs=["r1000_m0p0"]), o, 1e-3)
+
+
+def replace_ns(ns, **changes):
+    from types import SimpleNamespace
+
+    return SimpleNamespace(**(vars(ns) | changes))

@@ -193,6 +193,13 @@ def test_an_unstable_optimum_is_flagged_on_the_fit_and_never_reported_as_converg
     with pytest.warns(StabilityWarning):
         check_stability(fit)  # checked again: flagged once, not twice
     assert fit.message.count("unstable") == 1 and len(fit.uncertainty.notes) == len(set(fit.uncertainty.notes))
+    # the full-solver polish, which every joint fit of the workflow and every per-run polish ends with, checks its
+    # own optimum the same way: the same run named, the stable one not
+    from hybridtwin.polish import polish
+
+    with threadpool_limits(1), pytest.warns(StabilityWarning, match=r"run\(s\) r866 \("):
+        polished = polish(fit, models, random_starts=0)
+    assert polished.message.startswith("unstable steady state at run(s) r866;") and "r700" not in polished.message
     # nothing to check without solver models: a library fit, or a fit read back from its table (no problem)
     from types import SimpleNamespace
 

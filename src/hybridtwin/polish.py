@@ -14,7 +14,7 @@ from collections.abc import Sequence
 import numpy as np
 import pandas as pd
 
-from .forward import HarmonicModel
+from .forward import HarmonicModel, check_stability
 from .identification import ArrowProblem, Identification, conclude
 from .lm import LMOptions, LMResult, levenberg_marquardt
 from .protocol import ProtocolResult
@@ -41,7 +41,8 @@ def polish(fit: Identification, solver_models: Sequence[HarmonicModel], max_iter
     more, a seeded Latin hypercube across the box for the shared parameters (the per-run ones and the
     phases from the best so far), are polished too. The result is the best end point of all: never worse
     than the best start, since each LM run only accepts steps that lower its chi^2. The uncertainty is
-    recomputed from the solver's exact Jacobian.
+    recomputed from the solver's exact Jacobian, and the stability of every run's steady state at the result
+    is checked (``forward.check_stability``: an unstable one is named in the message and notes).
     """
     sigma = np.stack([d.sigma[: fit.X.shape[1]] for d in fit.data])
     exact = ArrowProblem(solver_models, fit.layout, sigma, fit.problem.sparsity, fit.problem.l1_epsilon)
@@ -68,6 +69,9 @@ def polish(fit: Identification, solver_models: Sequence[HarmonicModel], max_iter
         "start": names, "chi2_start": result.history[:, 0] * exact.n_data, "chi2": result.loss * exact.n_data,
         "chi2_dof": result.loss * exact.n_data / dof, "iterations": result.nit, "status": result.status,
         "selected": np.arange(len(names)) == best})
+    # the LM iterations solve without the stability check (30-40 % cheaper); the optimum reported is checked: an
+    # unstable steady state at some run says so in the fit's message and notes, and warns (forward.check_stability)
+    check_stability(polished)
     return polished
 
 

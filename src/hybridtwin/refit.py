@@ -19,6 +19,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
+from . import forward as fwd
 from .candidates import Candidate
 from .identification import ArrowProblem, Identification, Layout, conclude, units
 from .lm import MAX_ITERATIONS, STALLED, LMOptions, LMResult, levenberg_marquardt
@@ -57,6 +58,7 @@ class Confirmation:
     ranges: dict = field(default_factory=dict)
     widened: list = field(default_factory=list)
     start_chi2: list = field(default_factory=list)
+    unstable_runs: list | None = None  # runs whose steady state at the optimum is unstable (None: not checked)
 
     @property
     def at_limit(self) -> list[str]:
@@ -213,12 +215,12 @@ def _profile(problem: ArrowProblem, theta0: Array, here: Array, cols: list[int],
 
 
 def confirm(base: BaseFit, score: Score, scores: Scores, max_iterations: int = 40,
-            confidence: float = 0.95, starts: int = 4, widen: int = 4, quick: bool = False, far: bool = True
-            ) -> Confirmation:
+            confidence: float = 0.95, starts: int = 4, widen: int = 4, quick: bool = False, far: bool = True,
+            far_misfit: bool = True) -> Confirmation:
     """Refit with ``score.candidate`` added (full solver), from several starts (``_refit_starts``), its range
     widened while its estimate sits at an edge (``_widened``, at most ``widen`` times); then, with ``far`` and
-    when the refit needed a wider range or still misfits (chi^2/dof > FAR_MISFIT), a profile across the default
-    ranges widened both ways (``_profile``), kept when it gains more than FAR_GAIN.
+    when the refit needed a wider range or (with ``far_misfit``) still misfits (chi^2/dof > FAR_MISFIT), a profile
+    across the default ranges widened both ways (``_profile``), kept when it gains more than FAR_GAIN.
 
     The result is the best start's (lowest chi^2); the full solver's chi^2 at every start is kept
     (``start_chi2``). After a widening the refit starts again from the previous optimum, so each widening can
@@ -264,7 +266,7 @@ def confirm(base: BaseFit, score: Score, scores: Scores, max_iterations: int = 4
     # the far side: a truth beyond the range on the side the base fit did not lean to, or a base fit whose own
     # parameters sit in another basin; looked for when the refit needed a wider range or does not fit to the noise
     # (a refit that explains everything needs no other basin)
-    if far and not quick and widen > 0 and (widened or fit.chi2_dof > FAR_MISFIT):
+    if far and not quick and widen > 0 and (widened or (far_misfit and fit.chi2_dof > FAR_MISFIT)):
         # profiled across the default ranges widened both ways (within the limits): the refit's own widenings
         # follow where it leaned, which can be the wrong side; the bounds cover both
         around = _far_ranges({p.name: tuple(p.bounds) for p in c.parameters}, c)
@@ -278,6 +280,9 @@ def confirm(base: BaseFit, score: Score, scores: Scores, max_iterations: int = 4
             widened += [(name, ranges[name], far[name]) for name in far if far[name] != ranges[name]]
             ranges = far
             fit, estimates = _concluded(problem_f, result, best, base, confidence, ranges)
+    # the records are steady states the machine stayed in: an optimum whose state is unstable at some run (a
+    # Floquet multiplier outside the unit circle) cannot be the machine, whatever its chi^2 (forward.check_stability)
+    check = None if quick else fwd.check_stability(fit)
     chi2 = float(fit.uncertainty.chi2)
     k, n = len(ranges), scores.n_data
     lr = scores.base_chi2 - chi2
@@ -288,4 +293,4 @@ def confirm(base: BaseFit, score: Score, scores: Scores, max_iterations: int = 4
     return Confirmation(c, fit, chi2, int(fit.uncertainty.dof), float(lr),
                         float(stats.chi2.sf(max(lr, 0.0), k)), float(-lr + k * np.log(n)), estimates, excludes,
                         time.perf_counter() - start_time, {k_: tuple(map(float, v)) for k_, v in ranges.items()},
-                        widened, [float(v) for v in start_chi2])
+                        widened, [float(v) for v in start_chi2], None if check is None else check.unstable_runs)
