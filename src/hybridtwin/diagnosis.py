@@ -138,14 +138,18 @@ def _refit_significant(base: BaseFit, scores: Scores, o: Mapping, alpha_each: fl
 
     Two passes: a quick refit of each (from beta = 0 and the linear estimate, ``quick_iterations``, ranges as
     given) ranks them by Delta BIC; the ``thorough`` best, and any within ``confounded_bic`` of the best, are
-    refitted again from every start (``starts`` across the range) with range widening (``widen``) and, until one
+    refitted again (only those within ``confounded_bic`` when the best quick refit fits to the noise already)
+    from every start (``starts`` across the range) with range widening (``widen``) and, until one
     of them fits to the noise, the far side (``refit.confirm``'s profile: for a refit that needed a wider range,
     or for the best-ranked one when it still misfits), and that
     refit replaces the quick one. The ranking is by refit, never by the score statistic alone."""
     chosen, quick = quick_refits or _quick_refits(base, scores, o, alpha_each)
     ranked = sorted(chosen, key=lambda s: quick[s.candidate.name].delta_bic)
     best_bic = quick[ranked[0].candidate.name].delta_bic if ranked else 0.0
-    deep = {s.candidate.name for i, s in enumerate(ranked) if i < int(o["thorough"])
+    # when the best quick refit fits to the noise already, no other refit can do much better: only those that
+    # may tie with it (within confounded_bic) are refitted thoroughly, not the ``thorough`` best regardless
+    settled = bool(ranked) and _fits_the_noise(quick[ranked[0].candidate.name], o)
+    deep = {s.candidate.name for i, s in enumerate(ranked) if (i < int(o["thorough"]) and not settled)
             or quick[s.candidate.name].delta_bic - best_bic < o["confounded_bic"]}
     confirmations, fitted = {}, False
     for s in ranked:
