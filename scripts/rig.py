@@ -1,8 +1,9 @@
-"""Rule rig: generate a virtual-rig data set from a config rig entry (thin wrapper)."""
+"""Rule rig: generate a virtual-rig data set from a config rig entry on the config's machine (thin wrapper)."""
 
 import logging
 from pathlib import Path
 
+from hybridtwin.machine import Machine
 from hybridtwin.rig import RigSpec, generate, read_plan
 from hybridtwin.variants import load_effects_file
 
@@ -14,7 +15,9 @@ log = logging.getLogger("rig")
 effects = {}
 for path in smk.params.effects_files:
     effects |= load_effects_file(path)
-spec = RigSpec.from_mapping(smk.params.spec, effects)
+machine = Machine.from_mapping(smk.params.machine)  # the config's machine: section (None: the VARM)
+spec = RigSpec.from_mapping(smk.params.spec, effects, machine)
+log.info("truth on machine %s", machine.name)
 plan = read_plan(smk.input.plan)
 truth = generate(plan, spec, Path(smk.output.sheet).parent)
 for row in truth.itertuples():

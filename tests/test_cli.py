@@ -327,3 +327,81 @@ def test_the_package_leaves_the_matplotlib_backend_to_the_caller():
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip() == "svg"
+
+
+# --- simulate on the config's machine ------------------------------------------------------------------------
+
+
+def test_simulate_builds_the_variant_on_the_configs_machine(capsys, tmp_path):
+    """The stepped rotor with disks of tests/example_machines.py as the config's machine: simulate prints its
+    linear unbalance response at the probes (node 8), solved by hand from its matrices (no model, no harmonic
+    balance), with the --set values."""
+    from example_machines import SENSOR_NODE, STEPPED_YAML, linear_response, stepped_machine
+
+    (tmp_path / "config.yaml").write_text(STEPPED_YAML)
+    machine = stepped_machine()
+    for rpm in (2000.0, 3900.0, 6000.0):  # below, between and above the first critical speeds (3793, 4064 RPM)
+        code, out, err = _run(capsys, "--config", str(tmp_path / "config.yaml"), "--variant", "linear", "--rpm",
+                              f"{rpm:g}", "--eccentric-mass-g", "20", "--set", "k_a=3e7", "--harmonics", "2")
+        assert code == 0, err
+        table = pd.read_csv(io.StringIO(out))
+        X = linear_response(machine, rpm, 0.020, k={"a": 3e7})
+        expected = X[[machine.dof(f"u{SENSOR_NODE}"), machine.dof(f"v{SENSOR_NODE}")]]
+        got = [complex(table.u_re_m[1], table.u_im_m[1]), complex(table.v_re_m[1], table.v_im_m[1])]
+        # linear system: the harmonic balance is exact to round-off; %.9e printing bounds it at 1e-9 relative
+        np.testing.assert_allclose(got, expected, rtol=2e-9)
+
+
+def test_simulate_on_a_longer_varm_shaft(capsys, tmp_path):
+    """The VARM's own description in the config (Machine.varm().to_mapping()) prints byte for byte what a config
+    without machine: prints; the same machine with a longer shaft gives another response, the one the Python API's model
+    on that machine gives."""
+    from hybridtwin.machine import Machine
+    from hybridtwin.solver import solve
+    from hybridtwin.variants import builtin_variant
+
+    from hybridtwin.variants import BUILTIN_VARIANTS
+
+    args = [*PAPER_ARGS, "--variant", "geometric", "--harmonics", "3"]
+    plain = {"variants": {"geometric": BUILTIN_VARIANTS["geometric"]}}
+    (tmp_path / "plain.yaml").write_text(yaml.safe_dump(_plain(plain)))
+    default = _run(capsys, "--config", str(tmp_path / "plain.yaml"), *args)
+    varm = plain | {"machine": Machine.varm().to_mapping()}
+    (tmp_path / "varm.yaml").write_text(yaml.safe_dump(_plain(varm)))
+    same = _run(capsys, "--config", str(tmp_path / "varm.yaml"), *args)
+    assert default[0] == same[0] == 0 and default[1] == same[1]
+    longer = Machine.varm().to_mapping()
+    longer["segments"][0]["length"] = 0.95
+    (tmp_path / "longer.yaml").write_text(yaml.safe_dump(_plain(varm | {"machine": longer})))
+    code, out, err = _run(capsys, "--config", str(tmp_path / "longer.yaml"), *args)
+    assert code == 0, err
+    table, before = pd.read_csv(io.StringIO(out)), pd.read_csv(io.StringIO(default[1]))
+    assert abs(table.u_re_m[1] - before.u_re_m[1]) > 0.01 * abs(before.u_re_m[1])
+    machine = Machine.from_mapping(longer)
+    assert machine.L == pytest.approx(0.95) and machine.n == 10
+    variant = builtin_variant("geometric", machine)
+    values = {"m_e": 0.0148, "k_b": 2411.3, "zeta_s": 0.024, "zeta_bup": 0.016, "q_x": 0.004, "q_y": 0.006}
+    result = solve(variant.system(700.0, values), harmonics=3)
+    U = result.harmonics[0, :, machine.dof("u1")]
+    # the same solver on a model built through the Python API: %.9e printing, 1e-8 relative
+    np.testing.assert_allclose(table.u_re_m + 1j * table.u_im_m, U, rtol=1e-8, atol=1e-8 * abs(U).max())
+
+
+def test_simulate_refuses_probes_at_two_planes(capsys, tmp_path):
+    from example_machines import STEPPED_YAML
+
+    config = yaml.safe_load(STEPPED_YAML)
+    config["machine"]["sensors"]["x2"] = {"node": 16, "direction": "x"}
+    (tmp_path / "config.yaml").write_text(yaml.safe_dump(config))
+    code, out, err = _run(capsys, "--config", str(tmp_path / "config.yaml"), "--variant", "linear", "--rpm", "2000")
+    assert code == 2 and out == "" and len(err.strip().splitlines()) == 1
+    assert "config.yaml: machine 'stepped': sensors" in err and "not one x and one y probe" in err
+
+
+def _plain(value):
+    """Tuples as lists, for yaml.safe_dump."""
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    return value

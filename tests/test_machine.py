@@ -506,3 +506,39 @@ def test_campbell_figure_of_a_stepped_rotor_separates_forward_and_backward():
     import matplotlib
 
     matplotlib.pyplot.close(fig)
+
+
+# --- the config form back (to_mapping), and the rig's truth on the config's machine -------------------------
+
+
+@pytest.mark.parametrize("machine", [Machine.varm(), _stepped(), _stepped(rotary_inertia=True)],
+                         ids=["varm", "stepped", "stepped_rayleigh"])
+def test_to_mapping_rebuilds_the_same_machine(machine):
+    import yaml
+
+    mapping = yaml.safe_load(yaml.safe_dump(machine.to_mapping(), sort_keys=False))  # through YAML text
+    again = Machine.from_mapping(mapping)
+    for a, b in zip(again.matrices(), machine.matrices()):
+        assert np.array_equal(a, b)
+    assert np.array_equal(again.gyroscopic_matrix(), machine.gyroscopic_matrix())
+    assert (again.disks, again.bearings, again.unbalance_planes, again.sensors) == \
+        (machine.disks, machine.bearings, machine.unbalance_planes, machine.sensors)
+    assert again.is_varm == machine.is_varm == (machine.name == "varm")
+
+
+def test_a_changed_varm_is_not_the_varm():
+    mapping = Machine.varm().to_mapping()
+    assert Machine.from_mapping(mapping).is_varm
+    mapping["segments"][0]["length"] = 0.9
+    assert not Machine.from_mapping(mapping).is_varm
+
+
+def test_config_rig_truth_uses_the_machines_places(project):
+    """A rig entry's truth is checked on the config's machine (as the rig rule builds it): its placed effects
+    pass, a bearing the machine does not have is one line naming the entry."""
+    rig = ("rig:\n  stepped:\n    truth: {effects: [linear_bearing@a, linear_bearing@b, gyroscopic, unbalance@d1], "
+           "values: {k_a: 2.5e+7}}\n")
+    _, problems = _config(project, MACHINE_YAML + rig)
+    assert problems == []
+    _, problems = _config(project, MACHINE_YAML + rig.replace("linear_bearing@b,", "linear_bearing@c,"))
+    assert len(problems) == 1 and "rig.stepped" in problems[0] and "'linear_bearing@c'" in problems[0]

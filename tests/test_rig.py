@@ -12,6 +12,7 @@ import pytest
 import yaml
 
 from hybridtwin.cli import main
+from hybridtwin.machine import Machine
 from hybridtwin.measurements import DataWarning, detect_saturation, read_record, read_runs
 from hybridtwin.rig import (
     DEFAULT_TRUTH, Imperfections, RigError, RigSpec, RigWarning, Truth, generate, read_plan,
@@ -208,3 +209,104 @@ def test_bundled_data_set_is_what_the_configured_truth_generates(tmp_path):
     assert truth["updown_difference_rel"].max() < 1e-10
     assert 1e3 * truth[["peak_x_m", "peak_y_m"]].to_numpy().max() < 14 - 0.5 - 4 * 0.05  # range - offset - noise
     assert sum(p.stat().st_size for p in DEFAULT_DATA.rglob("*")) < 10e6  # small enough for git
+
+
+# --- the rig on the config's machine ------------------------------------------------------------------------
+
+
+def _machine_rig(tmp_path, config: dict, truth: dict, plan_rows, name: str) -> int:
+    """``hybridtwin rig --config`` with ``config`` and a short spec of ``truth``: its exit status."""
+    (tmp_path / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False))
+    (tmp_path / "spec.yaml").write_text(yaml.safe_dump({"seed": 2, "harmonics": 3, "truth": truth,
+                                                        "imperfections": {"duration_s": 0.2}}, sort_keys=False))
+    plan_rows.to_csv(tmp_path / "plan.tsv", sep="\t", index=False)
+    code = main(["rig", "--config", str(tmp_path / "config.yaml"), "--spec", str(tmp_path / "spec.yaml"),
+                 "--plan", str(tmp_path / "plan.tsv"), "--out", str(tmp_path / name)])
+    return code
+
+
+def test_rig_builds_the_truth_on_the_configs_machine(tmp_path, capsys):
+    """The stepped rotor with disks of tests/example_machines.py, given as the config's machine: the answer key's
+    sensor harmonics are its linear unbalance response at the probes (node 8), solved by hand from its matrices
+    (no model, no harmonic balance), at each run's true speed and mass, and the answer key records the machine."""
+    from example_machines import SENSOR_NODE, linear_response, stepped_config, stepped_machine
+
+    runs = plan(("slow", 2000, 20.0), ("near", 3500, 10.0), ("fast", 5000, 5.0))
+    truth = {"effects": ["linear_bearing@a", "linear_bearing@b", "gyroscopic", "unbalance@d1"],
+             "values": {"k_a": 2.5e7, "c_b": 700.0}}
+    config = stepped_config()
+    assert _machine_rig(tmp_path, config, truth, runs, "out") == 0, capsys.readouterr().err
+    table = pd.read_csv(tmp_path / "out" / "truth.tsv", sep="\t")
+    machine = stepped_machine()
+    for row in table.itertuples():
+        X = linear_response(machine, row.rpm_true, row.eccentric_mass_g * 1e-3, k={"a": 2.5e7}, c={"b": 700.0})
+        expected = X[[machine.dof(f"u{SENSOR_NODE}"), machine.dof(f"v{SENSOR_NODE}")]]
+        got = np.array([complex(row.x1_re_m, row.x1_im_m), complex(row.y1_re_m, row.y1_im_m)])
+        # harmonic balance of a linear system: one Newton step, exact to round-off (1e-9 relative asserted)
+        np.testing.assert_allclose(got, expected, rtol=1e-9)
+        assert abs(complex(row.x2_re_m, row.x2_im_m)) < 1e-12 * abs(expected[0])  # linear: 1X only
+    key = yaml.safe_load((tmp_path / "out" / "truth.yaml").read_text())
+    assert key["machine"] == machine.to_mapping() == Machine.from_mapping(config["machine"]).to_mapping()
+    assert key["truth"]["effects"] == truth["effects"]
+
+
+def test_rig_on_the_default_machine_is_unchanged(tmp_path, capsys):
+    """A config without machine: (the VARM) gives the files the rig gives without any config, byte for byte, and
+    an answer key without a machine entry; a longer VARM shaft in the config gives another response."""
+    runs = plan(("a", 600, 14.8), ("b", 800, 14.8))
+    truth = {k: DEFAULT_TRUTH[k] for k in ("effects", "values")}
+    assert _machine_rig(tmp_path, {"harmonics": 5}, truth, runs, "config") == 0, capsys.readouterr().err
+    spec = RigSpec.from_mapping({"seed": 2, "harmonics": 3, "truth": truth, "imperfections": {"duration_s": 0.2}})
+    generate(runs, spec, tmp_path / "library")
+    for name in files(tmp_path / "library"):
+        assert filecmp.cmp(tmp_path / "config" / name, tmp_path / "library" / name, shallow=False), name
+    assert "machine" not in yaml.safe_load((tmp_path / "config" / "truth.yaml").read_text())
+    longer = Machine.varm().to_mapping()
+    longer["segments"][0]["length"] = 0.95
+    assert _machine_rig(tmp_path, {"machine": longer}, truth, runs, "longer") == 0, capsys.readouterr().err
+    base, other = (pd.read_csv(tmp_path / name / "truth.tsv", sep="\t") for name in ("config", "longer"))
+    assert (np.abs(other["x1_re_m"] - base["x1_re_m"]) > 1e-3 * np.abs(base["x1_re_m"])).all()
+
+
+def test_rig_refuses_a_machine_it_cannot_record(tmp_path, capsys):
+    """Without the truth's effects (the default truth is the VARM's) or with probes at two planes: one line."""
+    from example_machines import stepped_config, stepped_machine
+
+    with pytest.raises(RigError, match="truth: machine 'stepped' needs the truth's effects"):
+        Truth.from_spec({"values": {}}, machine=stepped_machine())
+    config = stepped_config()
+    config["machine"]["sensors"]["x2"] = {"node": 16, "direction": "x"}
+    code = _machine_rig(tmp_path, config, {"effects": ["linear_bearing@a", "linear_bearing@b"]},
+                        plan(("a", 1000, 1.0)), "out")
+    err = capsys.readouterr().err
+    assert code == 1 and "not one x and one y probe at one node" in err and len(err.strip().splitlines()) == 1
+
+
+def test_rig_rule_script_passes_the_machine(tmp_path):
+    """scripts/rig.py (the rig rule) builds the truth on params.machine: the records equal the command's."""
+    import logging
+    import runpy
+    from types import SimpleNamespace
+
+    from example_machines import stepped_config
+
+    config = stepped_config()
+    entry = {"seed": 2, "harmonics": 3, "imperfections": {"duration_s": 0.2},
+             "truth": {"effects": ["linear_bearing@a", "linear_bearing@b", "gyroscopic", "unbalance@d1"]}}
+    runs = plan(("a", 2500, 12.0))
+    runs.to_csv(tmp_path / "plan.tsv", sep="\t", index=False)
+    out = tmp_path / "rule"
+    out.mkdir()
+    fake = SimpleNamespace(params=SimpleNamespace(spec=entry, machine=config["machine"], effects_files=[]),
+                           input=SimpleNamespace(plan=str(tmp_path / "plan.tsv")),
+                           output=SimpleNamespace(sheet=str(out / "runs.tsv")), log=[str(tmp_path / "rig.log")])
+    try:
+        runpy.run_path(str(ROOT / "scripts" / "rig.py"), init_globals={"snakemake": fake})
+    finally:
+        logging.captureWarnings(False)
+    (tmp_path / "config.yaml").write_text(yaml.safe_dump(config))
+    (tmp_path / "spec.yaml").write_text(yaml.safe_dump(entry))
+    assert main(["rig", "--config", str(tmp_path / "config.yaml"), "--spec", str(tmp_path / "spec.yaml"),
+                 "--plan", str(tmp_path / "plan.tsv"), "--out", str(tmp_path / "command")]) == 0
+    assert filecmp.cmp(out / "records" / "a.csv", tmp_path / "command" / "records" / "a.csv", shallow=False)
+    assert yaml.safe_load((out / "truth.yaml").read_text())["machine"]["name"] == "stepped"

@@ -24,6 +24,7 @@ import yaml
 
 from .effect_base import Effect
 from .effects import builtin_effects
+from .machine import Machine, MachineSpecError, default_machine
 from .sensor import harmonics_frame, sensor_harmonics, time_series_frame
 from .solver import SteadyState, solve, solve_sweep
 from .variants import BUILTIN_VARIANTS, EffectsFileError, Variant, load_effects_files
@@ -114,40 +115,64 @@ def _config_file(config: Path | None) -> Path | None:
     return PROJECT_CONFIG if PROJECT_CONFIG.is_file() else None
 
 
-def load_catalog(config: Path | None, effects_files: Sequence[Path]) -> tuple[dict[str, Mapping], dict[str, Effect]]:
-    """Variant specs and user effects: from a config file (``variants:``, ``effects_files:``; the built-in
-    variants when it declares none) and effect files."""
+def read_config(config: Path) -> Mapping:
+    """The mapping of a config file, or a one-line UsageError naming it."""
+    if not config.is_file():
+        raise UsageError(f"config file {config} does not exist")
+    try:
+        data = yaml.safe_load(config.read_text()) or {}
+    except yaml.YAMLError as err:
+        raise UsageError(f"config file {config} is not valid YAML: {' '.join(str(err).split())}") from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise UsageError(f"config file {config} cannot be read: {err}") from None
+    if not isinstance(data, Mapping):
+        raise UsageError(f"config file {config}: expected a mapping of keys (variants:, effects_files:, ...)")
+    return data
+
+
+def config_machine(config: Path | None, data: Mapping | None = None) -> Machine:
+    """The rotor of a config file's ``machine:`` section (hybridtwin.config.machine; none: the VARM)."""
+    if config is None:
+        return default_machine()
+    data = read_config(config) if data is None else data
+    try:
+        return Machine.from_mapping(data.get("machine"))
+    except MachineSpecError as err:
+        raise UsageError(f"config file {config}: {err}") from None
+
+
+def load_catalog(config: Path | None, effects_files: Sequence[Path]
+                 ) -> tuple[dict[str, Mapping], dict[str, Effect], Machine]:
+    """Variant specs, user effects and the machine: from a config file (``variants:``, ``effects_files:``,
+    ``machine:``; the built-in variants when it declares none, the VARM when it has no machine) and effect
+    files."""
     specs: dict[str, Mapping] = dict(BUILTIN_VARIANTS)
     files = list(effects_files)
+    machine = default_machine()
     if config is not None:
-        if not config.is_file():
-            raise UsageError(f"config file {config} does not exist")
-        try:
-            data = yaml.safe_load(config.read_text()) or {}
-        except yaml.YAMLError as err:
-            raise UsageError(f"config file {config} is not valid YAML: {' '.join(str(err).split())}") from None
-        except (OSError, UnicodeDecodeError) as err:
-            raise UsageError(f"config file {config} cannot be read: {err}") from None
-        if not isinstance(data, Mapping):
-            raise UsageError(f"config file {config}: expected a mapping of keys (variants:, effects_files:, ...)")
+        data = read_config(config)
         specs = dict(data.get("variants") or specs)
         files += [config.parent / f for f in data.get("effects_files") or []]
+        machine = config_machine(config, data)
     try:
         user = load_effects_files(files)
     except EffectsFileError as err:
         raise UsageError(str(err)) from None
-    return specs, user
+    return specs, user, machine
 
 
 def build_variant(name: str, specs: Mapping[str, Mapping], user: Mapping[str, Effect], source: Path | None,
-                  add: Sequence[str] = ()) -> Variant:
-    """Variant ``name`` of ``specs``, with the effects ``add`` (built in or from effect files) added."""
+                  add: Sequence[str] = (), machine: Machine | None = None) -> Variant:
+    """Variant ``name`` of ``specs`` built on ``machine`` (default the VARM), with the effects ``add`` (built in,
+    from effect files or placed on the machine, e.g. ``linear_bearing@drive_end``) added."""
     if name not in specs:
         raise UsageError(f"unknown variant {name!r} (available: {', '.join(sorted(specs))}"
                          f"{'' if source is None else f' in {source}'})")
+    machine = default_machine() if machine is None else machine
+    user = dict(user) | machine.effects()  # as hybridtwin.config.variant
     spec = dict(specs[name])
     if add:
-        registry = builtin_effects() | dict(user)
+        registry = builtin_effects() | user
         present = list(spec.get("effects", []))
         for effect in add:
             if effect not in registry:
@@ -157,15 +182,15 @@ def build_variant(name: str, specs: Mapping[str, Mapping], user: Mapping[str, Ef
             present.append(effect)
         spec["effects"] = present
     try:
-        return Variant.from_spec(name if not add else "+".join([name, *add]), spec, user)
+        return Variant.from_spec(name if not add else "+".join([name, *add]), spec, user, shaft=machine)
     except ValueError as err:
         raise UsageError(f"{source or 'built-in variants'}: {err}") from None
 
 
 def load_variants(config: Path | None, effects_files: Sequence[Path]) -> tuple[dict[str, Variant], dict[str, Effect]]:
-    """Every variant and the user effects (``load_catalog``, variants built)."""
-    specs, user = load_catalog(config, effects_files)
-    return {name: build_variant(name, specs, user, config) for name in specs}, user
+    """Every variant (built on the config's machine) and the user effects (``load_catalog``)."""
+    specs, user, machine = load_catalog(config, effects_files)
+    return {name: build_variant(name, specs, user, config, machine=machine) for name in specs}, user
 
 
 # --- the parser -----------------------------------------------------------------------------------
@@ -182,9 +207,10 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, title="commands", metavar="COMMAND")
 
     sim = sub.add_parser(
-        "simulate", help="periodic steady state at one operating point; sensor (node 1) harmonics as CSV",
-        description="Solve the periodic steady state at one operating point and print the sensor-node "
-                    "harmonics as CSV: harmonic,u_re_m,u_im_m,v_re_m,v_im_m with "
+        "simulate", help="periodic steady state at one operating point; sensor harmonics as CSV",
+        description="Solve the periodic steady state at one operating point of the config's machine (its "
+                    "'machine:' section; the VARM without one) and print the harmonics at its x, y probes "
+                    "(node 1 on the VARM) as CSV: harmonic,u_re_m,u_im_m,v_re_m,v_im_m with "
                     "u(t) = Re(sum_h U_h exp(i h Omega t)), t = 0 when the unbalance points to +x "
                     "(--polar: 0-peak amplitude [um] and phase [deg] instead). When the direct solve fails, "
                     f"the point is reached by continuation by itself: a run-up from {RUN_UP_FROM_RPM:g} RPM, else "
@@ -244,8 +270,8 @@ def _common(parser: argparse.ArgumentParser, variant: bool = True, default_varia
                             help="add this effect (built in or from --effects-file) to the variant (repeatable); "
                                  "its parameters keep their nominal values (simulate: unless --set)")
     parser.add_argument("--config", type=Path, default=None,
-                        help="YAML with 'variants:' (and 'effects_files:'), default ./config/config.yaml when "
-                             "it exists, else the built-in variants")
+                        help="YAML with 'variants:' (and 'effects_files:', 'machine:'), default "
+                             "./config/config.yaml when it exists, else the built-in variants on the VARM")
     parser.add_argument("--effects-file", type=Path, action="append", default=[],
                         help="Python file defining extra Effect instances (repeatable)")
 
@@ -255,8 +281,12 @@ def _common(parser: argparse.ArgumentParser, variant: bool = True, default_varia
 
 def simulate(args: argparse.Namespace) -> int:
     source = _config_file(args.config)
-    specs, user = load_catalog(source, args.effects_file)
-    variant = build_variant(args.variant, specs, user, source, args.add_effect)
+    specs, user, machine = load_catalog(source, args.effects_file)
+    variant = build_variant(args.variant, specs, user, source, args.add_effect, machine)
+    try:
+        machine.sensor_node  # the output is one x, y probe pair
+    except ValueError as err:
+        raise UsageError(f"{source}: {err}") from None
     values = dict(args.values)
     if args.eccentric_mass_g is not None:
         if "m_e" in values:
@@ -428,7 +458,7 @@ def _warn_defaults_and_ranges(variant: Variant, given: dict[str, float]) -> None
 
 
 def list_effects(args: argparse.Namespace) -> int:
-    _, user = load_catalog(_config_file(args.config), args.effects_file)
+    _, user, _ = load_catalog(_config_file(args.config), args.effects_file)
     for effect in (builtin_effects() | user).values():
         print(effect.describe(), end="\n\n")
     return 0
@@ -436,15 +466,15 @@ def list_effects(args: argparse.Namespace) -> int:
 
 def describe_variants(args: argparse.Namespace) -> int:
     source = _config_file(args.config)
-    specs, user = load_catalog(source, args.effects_file)
+    specs, user, machine = load_catalog(source, args.effects_file)
     if args.variant is not None:
-        print(build_variant(args.variant, specs, user, source, args.add_effect).describe())
+        print(build_variant(args.variant, specs, user, source, args.add_effect, machine).describe())
         return 0
     if args.add_effect:
         raise UsageError("--add-effect needs --variant (the variant to add the effect to)")
     print(f"# variants of {source or 'the package (built in)'}; `hybridtwin variants --variant NAME` for details")
     for name in specs:
-        variant = build_variant(name, specs, user, source)
+        variant = build_variant(name, specs, user, source, machine=machine)
         unknown = ", ".join(f"{k} [{lo:g}, {hi:g}]" for k, (lo, hi) in variant.unknown.items())
         print(f"{name}: {variant.description}\n  effects: {', '.join(e.name for e in variant.model.effects)}\n"
               f"  unknown: {unknown or 'none'}")

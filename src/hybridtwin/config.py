@@ -400,8 +400,8 @@ def _name_problems(config: Mapping, config_dir: Path) -> Iterable[Problem]:
                 yield ("coverage", key), f"coverage.{key}", f"[{lo:g}, {hi:g}] is not a range [low, high] " \
                                                              f"with {smallest} low < high"
 
-    for name, spec in (config.get("rig") or {}).items():
+    for name, spec in (config.get("rig") or {}).items() if machine_ok else ():  # a bad machine: reported above
         try:
-            RigSpec.from_mapping(spec, user)
+            RigSpec.from_mapping(spec, user, rotor)  # the truth on the config's machine, as the rig rule builds it
         except ValueError as err:
             yield ("rig", name), f"rig.{name}", str(err)

@@ -425,6 +425,37 @@ class Machine(DofCounts):
 
         return Model(effects, self)
 
+    def to_mapping(self) -> dict:
+        """The config form of this machine (``from_mapping``'s input, plain numbers and strings, ready for
+        YAML): ``Machine.from_mapping(m.to_mapping())`` builds the same machine. Optional keys at their
+        defaults are left out."""
+        segments = []
+        for s in self.segments:
+            item = {"length": float(s.length), "d_out": float(s.d_out), "E": float(s.E), "rho": float(s.rho)}
+            item |= {"d_in": float(s.d_in)} if s.d_in else {}
+            item["n_elements"] = int(s.n_elements)
+            item |= {k: float(getattr(s, k)) for k in ("I", "m") if getattr(s, k) is not None}
+            segments.append(item)
+        out = {"name": self.name, "segments": segments}
+        if self.disks:
+            out["disks"] = [{"node": int(d.node), "mass": float(d.mass), "I_p": float(d.I_p), "I_d": float(d.I_d)}
+                            | ({"name": d.name} if d.name else {}) for d in self.disks]
+        if self.bearings:
+            out["bearings"] = {b.name: {"node": int(b.node)} | ({"k": float(b.k)} if b.k is not None else {})
+                               | ({"c": float(b.c)} if b.k is not None or b.c else {}) for b in self.bearings}
+        if self.unbalance_planes:
+            out["unbalance_planes"] = {p.name: int(p.node) for p in self.unbalance_planes}
+        if self.sensors:
+            out["sensors"] = {s.name: {"node": int(s.node), "direction": s.direction} for s in self.sensors}
+        if self.rotary_inertia:
+            out["rotary_inertia"] = True
+        return out
+
+    @property
+    def is_varm(self) -> bool:
+        """Whether this is the bundled default machine, the VARM (the same description as ``Machine.varm()``)."""
+        return self is _VARM or self.to_mapping() == _VARM.to_mapping()
+
     def describe(self) -> str:
         """Multi-line summary: segments, disks, named nodes."""
         lines = [f"machine {self.name}: {self.n} elements, {self.n_nodes} nodes, L = {self.L:g} m"]

@@ -3,7 +3,9 @@
 The rig plays the part of the paper's test bench (docs/model.md,
 "The rig and its measured runs"; docs/measurement-format.md). A truth is a model
 variant (any list of effects, e.g. the Geometric model plus the slope force
-the Geometric model lacks) with parameter values. For every run of a plan
+the Geometric model lacks) with parameter values, built on a machine (the
+config's ``machine:`` section, hybridtwin.machine; the VARM by default), whose
+x and y probes the records hold. For every run of a plan
 (run, rpm, eccentric_mass_g, role) the rig
 
 1. draws the run's conditions from a seeded generator: the true speed
@@ -63,6 +65,7 @@ import pandas as pd
 import yaml
 
 from .effects import Effect
+from .machine import Machine, default_machine
 from .measurements import DataError, read_runs
 from .model import rpm_to_rad_s
 from .sensor import sensor_dofs
@@ -160,24 +163,45 @@ class Imperfections:
 
 @dataclass
 class Truth:
-    """The model behind the rig: a variant (its effects are the truth's physics) and parameter values [SI]."""
+    """The model behind the rig: a variant (its effects are the truth's physics, its model's structure the
+    machine) and parameter values [SI]."""
 
     variant: Variant
     values: dict[str, float] = field(default_factory=dict)
 
+    @property
+    def machine(self) -> Machine:
+        """The machine the truth is built on (the VARM unless the spec named another)."""
+        return self.variant.model.shaft
+
     @classmethod
-    def from_spec(cls, spec: Mapping | None = None, effects: Mapping[str, Effect] | None = None) -> "Truth":
-        """From {description, effects: [...], values: {name: value}}; missing keys take DEFAULT_TRUTH's."""
+    def from_spec(cls, spec: Mapping | None = None, effects: Mapping[str, Effect] | None = None,
+                  machine: Machine | None = None) -> "Truth":
+        """From {description, effects: [...], values: {name: value}}; missing keys take DEFAULT_TRUTH's.
+
+        ``machine``: the rotor (hybridtwin.machine; default the VARM); the effects may be its placed ones
+        (``linear_bearing@drive_end``, ``unbalance@impeller``, ``gyroscopic``, ...). DEFAULT_TRUTH is the
+        VARM's: on another machine the effects must be given, and missing values are the nominal ones.
+        """
+        machine = default_machine() if machine is None else machine
         spec = dict(spec or {})
         stray = sorted(set(spec) - {"description", "effects", "values"})
         if stray:
             raise RigError(f"truth: unknown key(s) {stray} (expected description, effects, values)")
+        if "effects" not in spec and not machine.is_varm:
+            raise RigError(f"truth: machine {machine.name!r} needs the truth's effects (the default truth, "
+                           f"{DEFAULT_TRUTH['description']}, is the VARM's)")
+        try:
+            machine.sensor_node  # the records hold one x and one y probe at one node
+        except ValueError as err:
+            raise RigError(f"truth: {err}") from None
         effect_names = spec.get("effects", DEFAULT_TRUTH["effects"])
-        values = {k: float(v) for k, v in dict(spec.get("values", DEFAULT_TRUTH["values"])).items()}
+        default_values = DEFAULT_TRUTH["values"] if machine.is_varm else {}
+        values = {k: float(v) for k, v in dict(spec.get("values", default_values)).items()}
         description = spec.get("description", DEFAULT_TRUTH["description"] if "effects" not in spec else "")
         try:
             variant = Variant.from_spec("truth", {"effects": list(effect_names), "description": description},
-                                        effects)
+                                        dict(effects or {}) | machine.effects(), shaft=machine)
             variant.values(values)
         except ValueError as err:
             raise RigError(f"truth: {err}") from None
@@ -212,8 +236,10 @@ class RigSpec:
             raise RigError(f"rig: integrator must be one of {list(INTEGRATORS)}, got {self.integrator!r}")
 
     @classmethod
-    def from_mapping(cls, spec: Mapping | None, effects: Mapping[str, Effect] | None = None) -> "RigSpec":
-        """From the config form: {truth: {...}, imperfections: {...}, seed, harmonics, ...} (plan ignored)."""
+    def from_mapping(cls, spec: Mapping | None, effects: Mapping[str, Effect] | None = None,
+                     machine: Machine | None = None) -> "RigSpec":
+        """From the config form: {truth: {...}, imperfections: {...}, seed, harmonics, ...} (plan ignored); the
+        truth built on ``machine`` (the config's ``machine:`` section; default the VARM)."""
         spec = dict(spec or {})
         known = {"truth", "imperfections", "seed", "harmonics", "start_rpm", "step_rpm", "rundown_margin_rpm",
                  "integrator", "plan", "effects_files"}
@@ -224,15 +250,19 @@ class RigSpec:
                    if k in spec}
         if int(options.get("harmonics", 1)) < 1:
             raise RigError(f"rig: harmonics must be >= 1, got {options['harmonics']}")
-        return cls(Truth.from_spec(spec.get("truth"), effects), Imperfections.from_mapping(spec.get("imperfections")),
+        return cls(Truth.from_spec(spec.get("truth"), effects, machine),
+                   Imperfections.from_mapping(spec.get("imperfections")),
                    **{k: (int(v) if k in ("seed", "harmonics") else float(v)) for k, v in options.items()},
                    **({"integrator": spec["integrator"]} if "integrator" in spec else {}))
 
     def to_mapping(self) -> dict:
+        """The answer key's form (truth.yaml); ``machine`` (its config form) only when it is not the VARM."""
+        machine = self.truth.machine
+        other = isinstance(machine, Machine) and not machine.is_varm  # a plain Shaft is the VARM's structure
         return {"seed": self.seed, "harmonics": self.harmonics, "start_rpm": self.start_rpm,
                 "step_rpm": self.step_rpm, "rundown_margin_rpm": self.rundown_margin_rpm,
-                "integrator": self.integrator, "truth": self.truth.to_mapping(),
-                "imperfections": self.imperfections.to_mapping()}
+                "integrator": self.integrator, **({"machine": machine.to_mapping()} if other else {}),
+                "truth": self.truth.to_mapping(), "imperfections": self.imperfections.to_mapping()}
 
 
 # --- the steps --------------------------------------------------------------------------
@@ -536,8 +566,10 @@ def _warn(truth: pd.DataFrame, imperfections: Imperfections) -> None:
 # --- command line -----------------------------------------------------------------------
 
 
-def load_spec(path: Path | None, effects_files: list[Path] | None = None) -> tuple[RigSpec, Path | None]:
-    """A rig spec from YAML (the config's rig entry form; effects_files and plan relative to the file)."""
+def load_spec(path: Path | None, effects_files: list[Path] | None = None, machine: Machine | None = None,
+              effects: Mapping[str, Effect] | None = None) -> tuple[RigSpec, Path | None]:
+    """A rig spec from YAML (the config's rig entry form; effects_files and plan relative to the file), its
+    truth built on ``machine`` (default the VARM) with ``effects`` (e.g. a config's) besides the files'."""
     mapping, base = {}, None
     if path is not None:
         if not path.is_file():
@@ -551,11 +583,11 @@ def load_spec(path: Path | None, effects_files: list[Path] | None = None) -> tup
         base = path.parent
     files = [base / f for f in mapping.pop("effects_files", []) or []] + list(effects_files or [])
     try:
-        effects = load_effects_files(files)
+        effects = dict(effects or {}) | load_effects_files(files)
     except EffectsFileError as err:
         raise RigError(str(err)) from None
     plan = mapping.get("plan")
-    return RigSpec.from_mapping(mapping, effects), (base / plan if plan and base else None)
+    return RigSpec.from_mapping(mapping, effects, machine), (base / plan if plan and base else None)
 
 
 def add_rig_command(sub) -> None:
@@ -566,9 +598,10 @@ def add_rig_command(sub) -> None:
                     "for a run plan from a truth model: steady state by run-up at each run's true speed (checked "
                     "against a run-down; harmonic balance or, with --integrator time, time integration), then "
                     "sampling, random phase origin, DC offsets, Gaussian noise, optional keyphasor and clipping. "
-                    "Seeded and reproducible. Defaults: the paper's final model (Geometric + slope spring, Table 5) "
-                    "with the bundled data's bow, 4 s at 2 kHz, 0.1 % speed error, 0.05 mm noise, +-0.5 mm "
-                    "offsets, no keyphasor, clipping at +-14 mm.")
+                    "Seeded and reproducible. The truth is built on the config's machine (its 'machine:' section; the "
+                    "VARM without one) and its probes give the records' x and y. Defaults: the paper's final model "
+                    "(Geometric + slope spring, Table 5) with the bundled data's bow, 4 s at 2 kHz, 0.1 % speed "
+                    "error, 0.05 mm noise, +-0.5 mm offsets, no keyphasor, clipping at +-14 mm.")
     parser.add_argument("--plan", type=Path, default=None,
                         help="run plan TSV (run, rpm, eccentric_mass_g[, role]); a runs sheet works too "
                              "(default: the spec's plan)")
@@ -581,6 +614,9 @@ def add_rig_command(sub) -> None:
                         help="truth parameter value in SI units (repeatable), e.g. --set q_x=0.003")
     parser.add_argument("--effects-file", type=Path, action="append", default=[],
                         help="Python file defining extra Effect instances for the truth (repeatable)")
+    parser.add_argument("--config", type=Path, default=None,
+                        help="workflow config whose 'machine:' the truth is built on (and whose 'effects_files:' "
+                             "it may use); default ./config/config.yaml when it exists, else the VARM")
     parser.add_argument("--harmonics", type=int, default=None, help="harmonics 0..H of the truth (default 7)")
     parser.add_argument("--integrator", choices=INTEGRATORS, default=None,
                         help="steady states by harmonic balance (hb, default) or by time integration (time: "
@@ -607,8 +643,11 @@ def add_rig_command(sub) -> None:
 
 def rig_command(args) -> int:
     """``hybridtwin rig``: generate, print a per-run report; 0 ok, 1 on an unusable spec or plan."""
+    from .cli import _config_file, load_catalog  # the config read as `simulate` reads it (UsageError: exit 2)
+
+    _, config_effects, machine = load_catalog(_config_file(args.config), [])
     try:
-        spec, spec_plan = load_spec(args.spec, args.effects_file)
+        spec, spec_plan = load_spec(args.spec, args.effects_file, machine, config_effects)
         spec = _override(spec, args)
         plan_path = args.plan or spec_plan
         if plan_path is None:
@@ -648,7 +687,7 @@ def _override(spec: RigSpec, args) -> RigSpec:
             raise RigError(f"--set expects NAME=VALUE, got {text!r}")
     truth = Truth.from_spec({"effects": [e.name for e in spec.truth.variant.model.effects], "values": values,
                              "description": spec.truth.variant.description},
-                            {e.name: e for e in spec.truth.variant.model.effects})
+                            {e.name: e for e in spec.truth.variant.model.effects}, spec.truth.machine)
     names = {"duration_s": "duration_s", "sample_rate_hz": "sample_rate_hz", "speed_error": "speed_error",
              "offset_mm": "offset_mm", "keyphasor": "keyphasor", "random_phase": "random_phase", "clip": "clip",
              "sensor_range_mm": "sensor_range_mm", "unit": "unit"}

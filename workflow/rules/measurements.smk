@@ -70,7 +70,8 @@ rule measured_harmonics:
 
 
 rule rig:
-    """Virtual rig: a data set (runs.tsv, records/, answer key truth.tsv/.yaml) from config rig: {name}."""
+    """Virtual rig: a data set (runs.tsv, records/, answer key truth.tsv/.yaml) from config rig: {name}, on the
+    config's machine."""
     input:
         plan=lambda wildcards: config["rig"][wildcards.name].get("plan", "data/default/runs.tsv"),
     wildcard_constraints:
@@ -82,6 +83,7 @@ rule rig:
         key="results/rig/{name}/truth.yaml",
     params:
         spec=lambda wildcards: config["rig"][wildcards.name],
+        machine=config.get("machine"),  # the rotor the truth is built on (None: the VARM); a change reruns the rig
         effects_files=[str(Path("config") / f) for f in config.get("effects_files", [])],
     log:
         "logs/rig/{name}.log",
