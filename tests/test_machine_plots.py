@@ -176,3 +176,77 @@ def test_operating_deflection_of_the_varm_at_the_probes_is_the_sensor_output():
         row = operating_deflection(result, variant.model.shaft, harmonic=h).query("node == 1").iloc[0]
         np.testing.assert_allclose([row.x_amplitude_m, row.x_phase_rad, row.y_amplitude_m, row.y_phase_rad],
                                    [abs(U[0, h]), np.angle(U[0, h]), abs(V[0, h]), np.angle(V[0, h])], rtol=1e-15)
+
+
+# --- the report's machine figures (scripts/report_machine.py, rule report_machine) ---------------------------
+
+
+def _parameter_table(rows):
+    """A parameters.tsv (Identification.table's columns) holding only the rows (parameter, run, kind, value)."""
+    import pandas as pd
+
+    from hybridtwin import identification as idn
+
+    table = pd.DataFrame([dict(zip(("parameter", "run", "kind", "value"), row)) for row in rows])
+    for column in idn.TABLE_COLUMNS:
+        if column not in table:
+            table[column] = "" if column in ("unit", "source") else np.nan
+    return table[list(idn.TABLE_COLUMNS)]
+
+
+@pytest.mark.parametrize("machine", ["varm", "stepped"])
+def test_report_machine_script_draws_the_fitted_model(tmp_path, machine):
+    """The rule's script: the Campbell table is ``campbell`` of the variant on the config's machine at the table's
+    estimates (a per-run parameter's median, the runs' median mass) over 0..1.25 x the fastest run; the mode
+    shapes' log lists the undamped modes at the runs' median speed; both figures written."""
+    import logging
+    import runpy
+    from pathlib import Path
+    from types import SimpleNamespace
+
+    import pandas as pd
+
+    from example_machines import stepped_config
+    from hybridtwin import config as cfg
+    from hybridtwin import identification as idn
+    from hybridtwin.machine_plots import branches, report_speeds
+    from hybridtwin.model import campbell
+    from hybridtwin.variants import BUILTIN_VARIANTS
+
+    if machine == "varm":
+        model = {"variants": {"geometric": BUILTIN_VARIANTS["geometric"]}, "machine": None, "effects_files": []}
+        name, runs = "geometric", {"run": ["a", "b", "c"], "rpm": [400.0, 650.0, 900.0],
+                                   "eccentric_mass_g": [14.8, 25.9, 14.8]}
+        rows = [("k_b", "all", "shared", 2600.0), ("zeta_s", "a", "per_run", 0.02), ("zeta_s", "b", "per_run", 0.03),
+                ("zeta_s", "c", "per_run", 0.05), ("phase", "a", "nuisance", 1.0)]
+        expected = {"k_b": 2600.0, "zeta_s": 0.03, "m_e": 0.0148}
+    else:
+        config = stepped_config()
+        model = {"variants": config["variants"], "machine": config["machine"], "effects_files": []}
+        name, runs = "linear", {"run": ["a", "b"], "rpm": [2000.0, 3000.0], "eccentric_mass_g": [10.0, 30.0]}
+        rows = [("k_a", "all", "shared", 3.0e7), ("c_b", "all", "shared", 300.0), ("phase", "a", "nuisance", 0.1)]
+        expected = {"k_a": 3.0e7, "c_b": 300.0, "m_e": 0.020}
+    idn.write_parameters(_parameter_table(rows), tmp_path / "parameters.tsv")
+    out = {"campbell": tmp_path / "campbell.png", "table": tmp_path / "campbell.tsv", "modes": tmp_path / "modes.png"}
+    fake = SimpleNamespace(input=SimpleNamespace(parameters=str(tmp_path / "parameters.tsv")),
+                           output=SimpleNamespace(**{k: str(v) for k, v in out.items()}),
+                           params=SimpleNamespace(model=model, runs=runs), wildcards=SimpleNamespace(variant=name),
+                           log=[str(tmp_path / "report_machine.log")])
+    try:
+        runpy.run_path(str(Path(__file__).resolve().parents[1] / "scripts" / "report_machine.py"),
+                       init_globals={"snakemake": fake})
+    finally:
+        logging.captureWarnings(False)
+    variant = cfg.variant(model, name)
+    values = {k: float(v) for k, v in variant.values(expected).items()}
+    reference = branches(campbell(variant.model, values, report_speeds(runs["rpm"]), 12))
+    table = pd.read_csv(out["table"], sep="\t")
+    assert table.rpm.max() == pytest.approx(1.25 * max(runs["rpm"]))
+    merged = table.merge(reference, on=["rpm", "mode"], suffixes=("", "_reference"))
+    assert len(merged) == len(table) > 0
+    np.testing.assert_allclose(merged.frequency_hz, merged.frequency_hz_reference, rtol=1e-8)  # %.9g written
+    modes = undamped_modes(variant.model, values, float(np.median(runs["rpm"])), 8)
+    log = (tmp_path / "report_machine.log").read_text()
+    assert f"mode 1 at {np.median(runs['rpm']):g} RPM: {modes.frequency_hz[0]:.4g} Hz" in log
+    for path in (out["campbell"], out["modes"]):
+        assert path.stat().st_size > 10_000

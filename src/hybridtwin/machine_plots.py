@@ -334,3 +334,20 @@ def ods_figure(runs: Sequence[tuple[str, SteadyState]], shaft,
     fig.tight_layout()
     fig.ods = tables
     return fig
+
+
+# --- the report's machine figures -------------------------------------------------------------------------
+
+
+def fitted_values(table: pd.DataFrame) -> dict[str, float]:
+    """The parameter values of a parameter table (parameters.tsv, ``Identification.table``): each shared (or a
+    per-run fit's physical) parameter's estimate, each per-run parameter's median over the runs; the phases
+    left out."""
+    rows = table[table["kind"].astype(str) != "nuisance"]
+    return {str(name): float(np.median(group["value"].to_numpy(float)))
+            for name, group in rows.groupby("parameter", sort=False)}
+
+
+def report_speeds(run_rpm: Sequence[float], n_speeds: int = 121, margin: float = 1.25) -> np.ndarray:
+    """The Campbell diagram's speeds [RPM]: 0 to ``margin`` times the fastest run, ``n_speeds`` of them."""
+    return np.linspace(0.0, margin * float(np.max(run_rpm)), n_speeds)

@@ -1,10 +1,10 @@
 # Compare and see where it fails (issue 6): per variant, the joint fit's runs and the validation runs against the
-# measurements (per-run figures, Bode and polar plots, error map, drift of the per-run estimates), and the ledger
-# of all variants. Everything reads the identification outputs; only the validation predictions are recomputed.
+# measurements (per-run figures, Bode and polar plots, error map, drift of the per-run estimates), the machine's
+# Campbell diagram and mode shapes (issue 24), and the ledger of all variants. Everything reads the identification outputs; only the validation predictions are recomputed.
 
 
 REPORT_FILES = ["harmonics.tsv", "runs", "errors.tsv", "validation_errors.tsv", "bode.png", "polar.png",
-                "error_map.png", "drift.tsv", "drift.png"]
+                "error_map.png", "drift.tsv", "drift.png", "campbell.png", "campbell.tsv", "mode_shapes.png"]
 
 
 rule report_harmonics:
@@ -99,6 +99,38 @@ rule report_overview:
         "../envs/hybridtwin.yaml"
     script:
         "../../scripts/report_overview.py"
+
+
+rule report_machine:
+    """The machine the variant runs on: Campbell diagram of the fitted model with the run speeds, and its mode
+    shapes (hybridtwin.machine_plots)."""
+    input:
+        parameters="results/{variant}/parameters.tsv",
+    output:
+        campbell=report(
+            "results/{variant}/report/campbell.png",
+            caption="../report/report_campbell.rst",
+            category="Machine",
+            subcategory="{variant}",
+        ),
+        table="results/{variant}/report/campbell.tsv",
+        modes=report(
+            "results/{variant}/report/mode_shapes.png",
+            caption="../report/report_mode_shapes.rst",
+            category="Machine",
+            subcategory="{variant}",
+        ),
+    params:
+        model=variant_model,
+        runs=lambda wildcards: run_plan(config)[["run", "rpm", "eccentric_mass_g"]].to_dict("list"),  # marked
+    log:
+        "logs/{variant}/report_machine.log",
+    benchmark:
+        "results/benchmarks/{variant}/report_machine.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
+    script:
+        "../../scripts/report_machine.py"
 
 
 rule report_drift:

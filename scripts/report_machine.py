@@ -1,0 +1,40 @@
+"""Rule report_machine: the Campbell diagram (run speeds marked) and the mode shapes of a variant's fitted model on
+the config's machine (thin wrapper; hybridtwin.machine_plots). Reads only the rule's input, params and output.
+
+The model's values: the joint fit's estimates, each per-run parameter's median over the runs, the eccentric mass
+the runs' median; the mode shapes at the runs' median speed.
+"""
+
+import numpy as np
+import pandas as pd
+
+from hybridtwin import config as cfg
+from hybridtwin import identification as idn
+from hybridtwin import machine_plots as mp
+
+smk = snakemake  # noqa: F821 (injected by Snakemake)
+log = cfg.rule_logger(smk.log[0], "report_machine")
+variant = cfg.variant(smk.params.model, smk.wildcards.variant)  # its spec, the machine, the effects files
+runs = pd.DataFrame(smk.params.runs)
+mass_g = float(runs["eccentric_mass_g"].median())
+values = variant.values(mp.fitted_values(idn.read_parameters(smk.input.parameters)) | {"m_e": 1e-3 * mass_g})
+values = {name: float(value) for name, value in values.items()}
+machine = getattr(variant.model.shaft, "name", "shaft")
+speeds = mp.report_speeds(runs["rpm"])
+figure = mp.campbell_figure(variant.model, values, speeds, run_rpm=runs["rpm"], n_modes=6,
+                            title=f"Campbell diagram, {smk.wildcards.variant} on {machine} (eccentric mass "
+                                  f"{mass_g:g} g)")
+figure.campbell.to_csv(smk.output.table, sep="\t", index=False, float_format="%.9g")
+figure.savefig(smk.output.campbell, dpi=100)
+for row in figure.critical.itertuples():
+    log.info("critical speed (1X crossing): %.1f RPM, %s whirl, branch %d", row.rpm, row.whirl, row.branch)
+mp.plt.close(figure)
+rpm = float(np.median(runs["rpm"]))
+figure = mp.mode_shape_figure(variant.model, values, rpm, n_modes=4,
+                              title=f"Undamped mode shapes at {rpm:g} RPM (the runs' median speed), "
+                                    f"{smk.wildcards.variant} on {machine}")
+figure.savefig(smk.output.modes, dpi=100)
+for row in figure.modes.itertuples():
+    log.info("mode %d at %g RPM: %.4g Hz, %s", row.mode + 1, rpm, row.frequency_hz,
+             "x and y planes alike" if row.pair else f"{row.whirl} whirl")
+mp.plt.close(figure)
