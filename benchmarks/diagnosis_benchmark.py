@@ -105,14 +105,16 @@ CASES: dict[str, tuple[list[str], dict, list[str] | str]] = {
 }
 
 
-def make_data(case: str, out: Path, integrator: str, seed: int, harmonics: int) -> tuple[list, float]:
-    """The case's rig records (time-integrated, every nuisance) preprocessed into RunData of the fit runs."""
+def make_data(case: str, out: Path, integrator: str, seed: int, harmonics: int, nuisances: dict | None = None
+              ) -> tuple[list, float]:
+    """The case's rig records (time-integrated, every nuisance unless ``nuisances`` overrides some of the rig's
+    imperfections) preprocessed into RunData of the fit runs."""
     effects, values, _ = CASES[case]
     defaults = yaml.safe_load((ROOT / "data/default/truth.yaml").read_text())
     spec = {"seed": seed, "harmonics": 7, "integrator": integrator,
             "truth": {"description": case, "effects": defaults["truth"]["effects"][:-1] + effects,
                       "values": TRUTH | values},
-            "imperfections": defaults["imperfections"]}
+            "imperfections": defaults["imperfections"] | dict(nuisances or {})}
     start = time.perf_counter()
     if not (out / "runs.tsv").is_file():  # records kept from an earlier run (--data) are reused
         generate(read_plan(ROOT / "data/default/runs.tsv"),
@@ -181,24 +183,41 @@ def main() -> int:
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--trials", type=int, default=4, help="random starts of the base fit")
     parser.add_argument("--harmonics", type=int, default=5)
+    parser.add_argument("--nuisance", action="append", default=[], metavar="KEY=VALUE",
+                        help="override one of the rig's imperfections (data/default/truth.yaml), e.g. keyphasor=true "
+                             "or speed_error=0; repeatable")
+    parser.add_argument("--per-run", default=None,
+                        help="comma-separated parameters the base fit estimates per run, or 'none' for all shared "
+                             "(default: the config's identification: per_run, the bow q_x, q_y)")
     parser.add_argument("--out", default=str(ROOT / "results/benchmarks/diagnosis_benchmark.tsv"))
     parser.add_argument("--data", default=None,
-                        help="keep each case's rig records in DATA/{integrator}-seed{seed}/{case} and reuse them when "
+                        help="keep each case's rig records in DATA/{integrator}-seed{seed}[-KEY=VALUE...]/{case} and "
+                             "reuse them when "
                              "present (default: a temporary directory, made anew)")
     args = parser.parse_args()
     cases = [c.strip() for c in args.cases.split(",") if c.strip()]
+    nuisances = {}
+    for item in args.nuisance:
+        key, sep, value = item.partition("=")
+        if not sep:
+            parser.error(f"--nuisance {item!r}: expected KEY=VALUE")
+        nuisances[key.strip()] = yaml.safe_load(value)
+    tag = "".join(f"-{k}={v}" for k, v in sorted(nuisances.items()))
     unknown = sorted(set(cases) - set(CASES))
     if unknown:
         parser.error(f"unknown case(s) {unknown}; known: {', '.join(CASES)}")
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s", stream=sys.stderr)
     config = yaml.safe_load((ROOT / "config/config.yaml").read_text())
+    if args.per_run is not None:
+        config["identification"]["per_run"] = [] if args.per_run == "none" else \
+            [p.strip() for p in args.per_run.split(",") if p.strip()]
     options = dg.settings(config)
     rows = []
     for case in cases:
         with tempfile.TemporaryDirectory() as tmp, threadpool_limits(1):
-            where = Path(args.data) / f"{args.integrator}-seed{args.seed}" / case if args.data else Path(tmp)
+            where = Path(args.data) / f"{args.integrator}-seed{args.seed}{tag}" / case if args.data else Path(tmp)
             where.mkdir(parents=True, exist_ok=True)
-            data, rig_s = make_data(case, where, args.integrator, args.seed, args.harmonics)
+            data, rig_s = make_data(case, where, args.integrator, args.seed, args.harmonics, nuisances)
             start = time.perf_counter()
             base, fit = base_fit(data, config, args.trials, args.seed, args.harmonics)
             fit_s = time.perf_counter() - start

@@ -362,3 +362,34 @@ def replace_ns(ns, **changes):
     from types import SimpleNamespace
 
     return SimpleNamespace(**(vars(ns) | changes))
+
+
+def test_backward_elimination_drops_a_stand_in_made_redundant_by_a_later_effect(slope_base):
+    """A path that took a stand-in first: cross-coupled stiffness (absent from the truth, which hides the slope
+    force) refitted at the base, then expansion_k4 (the slope force's linear term) at base + stand-in, which
+    fits to the noise. Backward elimination refits base + expansion_k4 from the final optimum: the stand-in is
+    not needed (its removal costs less than the confirmation threshold), so it is dropped, and the path's last
+    row is the refit without it, still at the noise (3 sigma of chi^2(dof)) with k4 where the full path had it."""
+    scores = st.score_tests(slope_base, _candidates(["cross_coupled_stiffness", "expansion_k4"]))
+    by_name = {s.candidate.name: s for s in scores.scores}
+    stand_in = rf.confirm(slope_base, by_name["cross_coupled_stiffness"], scores, starts=0, widen=0, far=False)
+    extended = st.BaseFit(st.extend(slope_base.variant, [stand_in.candidate], stand_in.ranges), stand_in.fit.layout,
+                          stand_in.fit.theta, slope_base.data, slope_base.harmonics)
+    step_scores = st.score_tests(extended, _candidates(["expansion_k4"]))
+    k4 = rf.confirm(extended, step_scores.scores[0], step_scores, starts=0, widen=0, far=False)
+    assert k4.chi2 / k4.dof < 1 + 3 * np.sqrt(2 / k4.dof)
+    path = [dg.Step("cross_coupled_stiffness", 0.0, stand_in.chi2 / stand_in.dof, stand_in.delta_bic, 0.0, stand_in),
+            dg.Step("expansion_k4", 0.0, k4.chi2 / k4.dof, k4.delta_bic, 0.0, k4)]
+    result = dg.Diagnosis(dg._table(scores, {}, {s.candidate.name: "" for s in scores.scores}, []), "", "")
+    kept = dg._backward(slope_base, path, scores, dg.DEFAULTS, result)
+    assert [step.effect for step in kept] == ["expansion_k4"]
+    final = kept[-1].confirmation
+    assert final.chi2 / final.dof < 1 + 3 * np.sqrt(2 / final.dof)
+    assert set(final.fit.layout.parameters) == set(slope_base.layout.parameters) | {"k4"}  # no k_xy left
+    eliminated = result.summary["eliminated"]
+    assert [e["effect"] for e in eliminated] == ["cross_coupled_stiffness"] and eliminated[0]["delta_bic"] > -10
+    verdict = result.table.set_index("effect").loc["cross_coupled_stiffness", "verdict"]
+    assert verdict.startswith("dropped by backward elimination: not needed once expansion_k4 is in")
+    k4_full = k4.estimates.set_index("parameter").loc["k4"]
+    k4_kept = final.estimates.set_index("parameter").loc["k4"]
+    assert abs(k4_kept.value - k4_full.value) < 2 * (k4_full.ci_high - k4_full.ci_low) / 3.92 + 1e-9

@@ -49,7 +49,7 @@ from scipy import stats
 
 from .candidates import Candidate
 from .fingerprint import Fingerprint, fingerprint
-from .refit import Confirmation, confirm
+from .refit import Confirmation, confirm, without
 from .score_test import BaseFit, Scores, by_score, extend, nested, score_tests
 from .variants import Variant
 
@@ -248,6 +248,7 @@ def diagnose(base: BaseFit, candidates: Sequence[Candidate], options: Mapping | 
         if log:
             log.info("forward selection, step %d at %s: %s", len(path) + 1, current.variant.name,
                      "nothing significant left" if best is None else f"best {best.candidate.name}")
+    path = _backward(base, path, scores, o, first, log)
     first.path = path
     _conclude_path(first, base, scores, o)
     first.fingerprint = residual_fingerprint(base, path[-1].confirmation.fit.fun if path else scores.residual)
@@ -256,6 +257,54 @@ def diagnose(base: BaseFit, candidates: Sequence[Candidate], options: Mapping | 
         first.conclusion += f". What the residual looks like: {first.fingerprint.summary()}"
         first.summary["conclusion"] = first.conclusion
     return first
+
+
+def _backward(base: BaseFit, path: list[Step], scores: Scores, o: Mapping, result: Diagnosis, log=None
+              ) -> list[Step]:
+    """Backward elimination after the forward selection: an effect added early can be made redundant by a later
+    one (a base far from the truth takes a stand-in first: speed damping before the softer lower bearing that
+    explains everything). Each earlier effect of the path is dropped in turn and the rest refitted from the final
+    optimum (``refit.without``); the one whose removal costs least is dropped when keeping it is not confirmed
+    (likelihood ratio not significant or Delta BIC above ``bic_threshold``), and so on. The last step stays (it
+    was confirmed with all the others in). The dropped effects, with their figures, are in
+    ``summary["eliminated"]`` and the table's verdicts; the path's earlier rows stay as the forward selection
+    took them, its last row is the refit without the dropped effects."""
+    n = scores.n_data
+    while len(path) >= 2:
+        final = path[-1].confirmation
+        ranges = {k: v for step in path for k, v in step.confirmation.ranges.items()}
+        trials = []
+        for i in range(len(path) - 1):
+            kept = [step.confirmation.candidate for j, step in enumerate(path) if j != i]
+            # the likelihood ratio of the refit's last effect is taken against the fit before the path's last step
+            # (the base for a path of two; for longer paths that fit still holds the dropped effect: approximate)
+            previous = scores.base_chi2 if len(path) == 2 else path[-2].confirmation.chi2
+            cf = without(base, kept, ranges, final.fit, previous, n, int(o["max_iterations"]))
+            trials.append((cf.chi2 - final.chi2, i, cf))
+        lr, i, cf = min(trials, key=lambda t: t[0])
+        k = len(path[i].confirmation.candidate.parameters)
+        keep = stats.chi2.sf(max(lr, 0.0), k) < o["alpha"] / len(scores.scores) and -lr + k * np.log(n) < \
+            o["bic_threshold"] and not final.unstable_runs
+        if log:
+            log.info("backward elimination: without %s chi^2 %.4g vs %.4g with it (Delta BIC of keeping it %.3g): %s",
+                     path[i].effect, cf.chi2, final.chi2, -lr + k * np.log(n), "kept" if keep else "dropped")
+        if keep:
+            break
+        dropped = path[i].effect
+        others = [step.effect for j, step in enumerate(path) if j != i]
+        result.summary.setdefault("eliminated", []).append(
+            {"effect": dropped, "chi2_without": cf.chi2, "chi2_with": final.chi2, "delta_bic": -lr + k * np.log(n)})
+        rows = result.table.index[result.table["effect"] == dropped]
+        result.table.loc[rows, "verdict"] = (f"dropped by backward elimination: not needed once {', '.join(others)} "
+                                             f"{'is' if len(others) == 1 else 'are'} in (removing it changes chi^2 "
+                                             f"by {lr:.3g}, Delta BIC of keeping it {-lr + k * np.log(n):.3g})")
+        path = [step for j, step in enumerate(path) if j != i]
+        before = path[-2].confirmation.chi2 if len(path) > 1 else scores.base_chi2
+        dof = path[-2].confirmation.dof if len(path) > 1 else scores.base_dof
+        k_last = len(cf.candidate.parameters)
+        path[-1] = Step(path[-1].effect, before / dof, cf.chi2 / cf.dof, -(before - cf.chi2) + k_last * np.log(n),
+                        (scores.base_chi2 - cf.chi2) / _excess(scores), cf)
+    return path
 
 
 def residual_fingerprint(base: BaseFit, r: Array) -> Fingerprint:
@@ -368,15 +417,23 @@ def _conclude_path(result: Diagnosis, base: BaseFit, scores: Scores, o: Mapping)
     first = result.table.index[result.table["effect"] == names[0]][0]
     base_ratio = scores.base_chi2 / scores.base_dof
     estimates = "; ".join(f"{step.effect}: {_estimate_text(step.confirmation)}" for step in path)
-    if explains and len(path) == 1:
+    eliminated = [e["effect"] for e in result.summary.get("eliminated", [])]
+    if explains and len(path) == 1 and not eliminated:
         return  # _conclude's verdict and recommendation stand
+    dropped = (f"; {', '.join(eliminated)} dropped by backward elimination (not needed once "
+               f"{' and '.join(names)} {'is' if len(names) == 1 else 'are'} in)") if eliminated else ""
     if explains:
         together = " and ".join(names)
-        result.table.loc[first, "verdict"] = (f"add, with {', '.join(names[1:])}: together they explain the "
-                                              f"discrepancy ({100 * share:.0f} % of the excess chi^2)")
-        result.conclusion = (f"add {together}: together they explain the discrepancy ({100 * share:.0f} % of the "
-                             f"excess chi^2); chi^2/dof {base_ratio:.3g} -> {final.chi2 / final.dof:.3g} "
-                             f"(forward selection, {len(path)} steps); {estimates}")
+        if len(path) == 1:
+            result.table.loc[first, "verdict"] = "add: explains the discrepancy"
+            head = f"add {together}: it explains the discrepancy"
+        else:
+            result.table.loc[first, "verdict"] = (f"add, with {', '.join(names[1:])}: together they explain the "
+                                                  f"discrepancy ({100 * share:.0f} % of the excess chi^2)")
+            head = f"add {together}: together they explain the discrepancy"
+        result.conclusion = (f"{head} ({100 * share:.0f} % of the excess chi^2); chi^2/dof {base_ratio:.3g} -> "
+                             f"{final.chi2 / final.dof:.3g} (forward selection, {len(path) + len(eliminated)} steps"
+                             f"{dropped}); {estimates}")
         candidates = [step.confirmation.candidate for step in path]
         ranges = {k: v for step in path for k, v in step.confirmation.ranges.items()}
         name = "_".join([base.variant.name] + names)
@@ -389,10 +446,13 @@ def _conclude_path(result: Diagnosis, base: BaseFit, scores: Scores, o: Mapping)
         left = result.summary.get("path_stopped") or "nothing significant is left among the others"
         result.table.loc[first, "verdict"] = (f"explains only {100 * path[0].share:.0f} % of the excess chi^2: "
                                               "part of an unexplained discrepancy")
-        result.conclusion = (f"unexplained discrepancy: the candidates that help most, {', then '.join(names)}, "
-                             f"remove only {100 * share:.0f} % of the excess chi^2 (chi^2/dof {base_ratio:.3g} -> "
-                             f"{final.chi2 / final.dof:.3g}), and {left}: the missing physics is not among the "
-                             f"candidates (evidence: {estimates})")
+        helps = (f"the candidate that helps most, {names[0]}, removes" if len(names) == 1 else
+                 f"the candidates that help most, {', then '.join(names)}, remove")
+        leave = "leaves" if len(names) == 1 else "leave"
+        result.conclusion = (f"unexplained discrepancy: {helps} {100 * share:.0f} % of the excess chi^2 but {leave} "
+                             f"chi^2/dof {final.chi2 / final.dof:.3g} (from {base_ratio:.3g}; the noise gives about "
+                             f"1), and {left}: the missing physics is not among the candidates (evidence: "
+                             f"{estimates})")
         result.recommendation = ""
         result.summary["recommended_variant"] = None
     result.summary["conclusion"] = result.conclusion

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import time
 import zlib
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -294,3 +294,36 @@ def confirm(base: BaseFit, score: Score, scores: Scores, max_iterations: int = 4
                         float(stats.chi2.sf(max(lr, 0.0), k)), float(-lr + k * np.log(n)), estimates, excludes,
                         time.perf_counter() - start_time, {k_: tuple(map(float, v)) for k_, v in ranges.items()},
                         widened, [float(v) for v in start_chi2], None if check is None else check.unstable_runs)
+
+
+def without(base: BaseFit, kept: Sequence[Candidate], ranges: Mapping[str, tuple[float, float]],
+            start: Identification, before_chi2: float, n_data: int, max_iterations: int = 40,
+            confidence: float = 0.95) -> Confirmation:
+    """The base with only the ``kept`` candidates (a forward-selection path with one effect dropped: the
+    diagnosis's backward elimination), fitted from a fuller fit's optimum ``start`` (its values of the kept
+    entries; the dropped effect's parameters simply absent, i.e. zero), continued while it gains.
+
+    Returned as the Confirmation of the last kept candidate, its likelihood ratio against ``before_chi2`` (the
+    fit without it); the stability of the optimum is checked as in ``confirm``."""
+    start_time = time.perf_counter()
+    kept_ranges = {p.name: tuple(ranges[p.name]) for c in kept for p in c.parameters}
+    problem, _ = extended_problem(base, kept, kept_ranges)
+    theta = _theta_in(problem.layout, start)[None]
+    X = base.X[None]
+    options = LMOptions(max_iterations=max_iterations, ftol=1e-6, xtol=1e-6, gtol=1e-8, stall_chi2=STALL_CHI2,
+                        geodesic=True)
+    result = _continued(problem, levenberg_marquardt(problem, theta, X, options), X, options)
+    last = kept[-1]
+    own = {p.name: kept_ranges[p.name] for p in last.parameters}
+    fit, estimates = _concluded(problem, result, _best(result), base, confidence, own)
+    check = fwd.check_stability(fit)
+    chi2 = float(fit.uncertainty.chi2)
+    k = len(own)
+    lr = before_chi2 - chi2
+    far_edge = estimates["at_bound"].astype(bool) & (estimates["value"].abs() > 0)
+    excludes = bool(((estimates["ci_low"] > 0) | (estimates["ci_high"] < 0) | far_edge).any())
+    return Confirmation(last, fit, chi2, int(fit.uncertainty.dof), float(lr),
+                        float(stats.chi2.sf(max(lr, 0.0), k)), float(-lr + k * np.log(n_data)), estimates, excludes,
+                        time.perf_counter() - start_time, {k_: tuple(map(float, v)) for k_, v in own.items()}, [],
+                        [float(result.history[0, 0] * problem.n_data)],
+                        None if check is None else check.unstable_runs)
