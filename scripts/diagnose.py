@@ -1,4 +1,5 @@
-"""Rule diagnose: score tests of the candidate effects at the joint fit, refits of the best (thin wrapper)."""
+"""Rule diagnose: score tests of the candidate effects at the joint fit, refits of the best (thin wrapper). Reads only
+the rule's input, params and output."""
 
 import pandas as pd
 import yaml
@@ -12,16 +13,17 @@ from hybridtwin.candidates import candidates_for
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "diagnose")
-variant = cfg.variant(smk.config, smk.wildcards.variant)
+model = smk.params.model  # the variant's spec (and the sparse variant's), the machine, the effects files
+variant = cfg.variant(model, smk.wildcards.variant)
 options = smk.params.options
 table = pd.read_csv(smk.input.parameters, sep="\t", dtype={"run": str})
 harmonics = idn.read_harmonics(smk.input.harmonics)
 runs = [r for r in dict.fromkeys(table["run"]) if r != "all"]
-keyphasor = idn.settings(smk.config, variant.name)["keyphasor"]  # as the identification used it
+keyphasor = smk.params.keyphasor  # as the identification used it (identification: keyphasor)
 data = [idn.run_data(harmonics, run, keyphasor=keyphasor) for run in runs]
 base = st.BaseFit.from_table(variant, table, data, int(smk.params.harmonics))
 candidates = candidates_for([e.name for e in variant.model.effects], options["candidates"],
-                            cfg.user_effects(smk.config))
+                            cfg.user_effects(model))
 log.info("diagnosing %s on %d fit runs: %d candidates (%s)", variant.name, len(data), len(candidates),
          ", ".join(c.name for c in candidates))
 result = dg.diagnose(base, candidates, options, log)
@@ -29,7 +31,7 @@ result.table.to_csv(smk.output.table, sep="\t", index=False, float_format="%.6g"
 sparse, sparse_name = None, options["sparse_variant"]
 if "sparse" in smk.input.keys():
     sparse = dgr.sparse_route(pd.read_csv(smk.input.sparse, sep="\t", dtype={"run": str}),
-                             cfg.variant(smk.config, sparse_name))
+                             cfg.variant(model, sparse_name))
     result.summary["sparse_route"] = {"variant": sparse_name,
                                       "active": sparse.loc[sparse["active"], "parameter"].tolist()}
 with open(smk.output.recommendation, "w") as stream:

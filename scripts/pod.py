@@ -1,11 +1,12 @@
-"""Rule pod: per run, the POD of the observable training snapshots (thin wrapper)."""
+"""Rule pod: per run, the POD of the observable training snapshots (thin wrapper). Reads only the rule's input,
+params and output."""
 
 from hybridtwin import config as cfg
 from hybridtwin.pod import pod_of_runs
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "pod")
-variant = cfg.variant(smk.config, smk.wildcards.variant)
+variant = cfg.variant(smk.params.model, smk.wildcards.variant)  # its spec, the machine, the effects files
 options = smk.params.offline
 table = pod_of_runs(smk.input[0], smk.output.store, variant.model.shaft, options["sensor_range_mm"] * 1e-3,
                     options["pod_energy_tolerance"])

@@ -3,7 +3,7 @@
 Reads the first design's chunk stores (verified against their manifests), finds the runs
 where fewer than offline.enrichment.observable_below of the fitting scenarios are observable,
 and samples offline.enrichment.n_scenarios more per eccentric mass of such runs
-(hybridtwin.scenarios.sample_enrichment).
+(hybridtwin.scenarios.sample_enrichment). Reads only the rule's input, params and output.
 """
 
 import pandas as pd
@@ -17,7 +17,7 @@ smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "sample_enrichment")
 options = smk.params.offline
 enrichment = options["enrichment"]
-variant = cfg.variant(smk.config, smk.wildcards.variant)
+variant = cfg.variant(smk.params.model, smk.wildcards.variant)  # its spec, the machine, the effects files
 scenarios = pd.read_csv(smk.input.scenarios, sep="\t")
 snaps = read_chunks(smk.input.chunks, scenarios)
 runs = pd.DataFrame({"run": snaps.runs, "eccentric_mass_g": snaps.eccentric_mass_g})

@@ -1,4 +1,5 @@
-"""Rule solve_chunk: one slice of the scenarios solved at every run by run-up (thin wrapper)."""
+"""Rule solve_chunk: one slice of the scenarios solved at every run by run-up (thin wrapper). Reads only the rule's
+input, params and output."""
 
 import time
 
@@ -11,11 +12,11 @@ from hybridtwin.snapshots import write_chunk
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "solve_chunk")
-variant = cfg.variant(smk.config, smk.wildcards.variant)
+variant = cfg.variant(smk.params.model, smk.wildcards.variant)  # its spec, the machine, the effects files
 scenarios = pd.read_csv(smk.input.scenarios, sep="\t")
 chunk = int(smk.wildcards.chunk)
 mine = scenarios.iloc[np.array_split(np.arange(len(scenarios)), smk.params.n_chunks)[chunk]]
-runs = cfg.run_plan(smk.config, smk.input.speeds if smk.params.measured else None)
+runs = cfg.run_plan(smk.input.runs, smk.input.speeds if smk.params.measured else None)
 log.info("chunk %d: scenarios %d..%d (%d) at %d runs, H = %d", chunk, mine["scenario"].min(),
          mine["scenario"].max(), len(mine), len(runs), smk.params.harmonics)
 start = time.perf_counter()

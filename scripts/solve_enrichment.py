@@ -1,4 +1,5 @@
-"""Rule solve_enrichment: one slice of the enrichment scenarios solved at their eccentric mass's runs (thin wrapper)."""
+"""Rule solve_enrichment: one slice of the enrichment scenarios solved at their eccentric mass's runs (thin wrapper).
+Reads only the rule's input, params and output."""
 
 import time
 
@@ -11,11 +12,11 @@ from hybridtwin.snapshots import write_chunk
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "solve_enrichment")
-variant = cfg.variant(smk.config, smk.wildcards.variant)
+variant = cfg.variant(smk.params.model, smk.wildcards.variant)  # its spec, the machine, the effects files
 table = pd.read_csv(smk.input.scenarios, sep="\t")
 chunk = int(smk.wildcards.chunk)
 mine = table.iloc[np.array_split(np.arange(len(table)), smk.params.n_chunks)[chunk]].reset_index(drop=True)
-runs = cfg.run_plan(smk.config, smk.input.speeds if smk.params.measured else None)
+runs = cfg.run_plan(smk.input.runs, smk.input.speeds if smk.params.measured else None)
 log.info("enrichment chunk %d: %d scenarios at eccentric masses %s g, H = %d", chunk, len(mine),
          sorted(mine["eccentric_mass_g"].unique().tolist()), smk.params.harmonics)
 start = time.perf_counter()

@@ -1,13 +1,14 @@
-"""Rule spgd_global: one sPGD library over the unknowns and the operating point, for every run (thin wrapper)."""
+"""Rule spgd_global: one sPGD library over the unknowns and the operating point, for every run (thin wrapper).
+Reads only the rule's input, params and output."""
 
 from hybridtwin import config as cfg
 from hybridtwin.library import build_variant_global_library, pieces_note
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "spgd_global")
-variant = cfg.variant(smk.config, smk.wildcards.variant)
+variant = cfg.variant(smk.params.model, smk.wildcards.variant)  # its spec, the machine, the effects files
 options = smk.params.offline
-library = build_variant_global_library(variant, smk.input.snapshots, cfg.run_plan(smk.config),
+library = build_variant_global_library(variant, smk.input.snapshots, cfg.run_plan(smk.input.runs),
                                        options["sensor_range_mm"] * 1e-3, options["pod_energy_tolerance"],
                                        options["spgd"], options["pieces"])
 library.save(smk.output[0])

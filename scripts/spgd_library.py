@@ -1,5 +1,6 @@
 """Rule spgd_library: the sPGD library of every run of a variant, fitted on each run's own snapshots on the job's
-threads (processes), or sliced from the global library (offline.scope) (thin wrapper)."""
+threads (processes), or sliced from the global library (offline.scope) (thin wrapper). Reads only the rule's input,
+params and output."""
 
 from hybridtwin import config as cfg
 from hybridtwin.library import build_run_libraries, global_run_library, pieces_note
@@ -14,7 +15,7 @@ if options["scope"] == "global":
         log.info("run %s: the global library at %s (%d POD modes, %d sPGD terms)", run,
                  library.info["operating_point"], library.n_modes, library.model.n_terms)
 else:
-    infos = build_run_libraries(smk.config, smk.wildcards.variant, smk.params.runs, smk.input.snapshots,
+    infos = build_run_libraries(smk.params.model, smk.wildcards.variant, smk.params.runs, smk.input.snapshots,
                                 smk.input.pod, list(smk.output), options["sensor_range_mm"] * 1e-3, options["spgd"],
                                 options["pieces"], workers=smk.threads)
     for run, info in zip(smk.params.runs, infos):

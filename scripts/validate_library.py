@@ -1,4 +1,5 @@
-"""Rule validate_library: libraries vs the full solver on the test scenarios (thin wrapper)."""
+"""Rule validate_library: libraries vs the full solver on the test scenarios (thin wrapper). Reads only the rule's
+input, params and output."""
 
 from hybridtwin import config as cfg
 from hybridtwin.library import Library, validate_libraries
@@ -6,9 +7,9 @@ from hybridtwin.plots import plot_parity
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "validate_library")
-variant = cfg.variant(smk.config, smk.wildcards.variant)
+variant = cfg.variant(smk.params.model, smk.wildcards.variant)  # its spec, the machine, the effects files
 libraries = [Library.load(path) for path in smk.input.libraries]
-table, parity = validate_libraries(libraries, smk.input.snapshots, cfg.run_plan(smk.config),
+table, parity = validate_libraries(libraries, smk.input.snapshots, cfg.run_plan(smk.input.runs),
                                    variant.model.shaft, smk.params.offline["sensor_range_mm"] * 1e-3)
 table.to_csv(smk.output.table, sep="\t", index=False, float_format="%.6g")
 plot_parity(parity, variant.name).savefig(smk.output.plot, dpi=120)

@@ -1,4 +1,5 @@
-"""Rule whitebox_sweep: one variant's sensor response over the run plan (thin wrapper)."""
+"""Rule whitebox_sweep: one variant's sensor response over the run plan (thin wrapper). Reads only the rule's input,
+params and output."""
 
 from hybridtwin import config as cfg
 from hybridtwin.plots import plot_sweep
@@ -6,8 +7,8 @@ from hybridtwin.scenarios import solve_operating_points
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "whitebox_sweep")
-variant = cfg.variant(smk.config, smk.wildcards.variant)
-points = cfg.run_plan(smk.config)
+variant = cfg.variant(smk.params.model, smk.wildcards.variant)  # its spec, the machine, the effects files
+points = cfg.run_plan(smk.input.points)
 log.info("variant %s: %d runs, H = %d", variant.name, len(points), smk.params.harmonics)
 table = solve_operating_points(variant, points, harmonics=smk.params.harmonics)
 for row in table.itertuples():

@@ -175,6 +175,32 @@ def test_one_variants_spgd_options_rerun_only_its_libraries(workdir):
     assert "offline.spgd_variants" in typo.stdout + typo.stderr and "fianl" in typo.stdout + typo.stderr
 
 
+def test_scripts_read_only_their_input_params_and_output():
+    """Snakemake reruns a job when its params change, never when a part of the config its script reads does:
+    every script gets what it uses of the config as params (or input), none reads snakemake.config."""
+    readers = [path.name for path in sorted((ROOT / "scripts").glob("*.py"))
+               if "smk.config" in path.read_text() or "snakemake.config" in path.read_text()]
+    assert readers == []
+
+
+def test_changing_the_machine_reruns_the_white_box(workdir):
+    """The machine is in every model-building job's params (common.smk variant_model): another shaft
+    stiffness plans the white-box sweep, the scenarios, their solves and the libraries again, for every variant."""
+    (workdir / "machine.yaml").write_text(
+        "machine:\n"
+        "  segments: [{length: 0.85, d_out: 0.00635, E: 1.2e+11, rho: 11051.741351783916, n_elements: 10,\n"
+        "              I: 7.981e-10, m: 0.35}]\n"
+        "  bearings: {upper: {node: 0}, lower: {node: 10}}\n"
+        "  unbalance_planes: {eccentric_mass: 5}\n"
+        "  sensors: {x: {node: 1, direction: x}, y: {node: 1, direction: y}}\n")
+    plan = _snakemake(workdir, "--dry-run", config="machine.yaml")
+    assert plan.returncode == 0, plan.stdout[-2000:] + plan.stderr[-2000:]
+    outputs = [line for line in (plan.stdout + plan.stderr).splitlines() if line.strip().startswith("output:")]
+    for variant in ("geometric", "final"):
+        for path in ("whitebox/sweep.tsv", "scenarios.tsv", "chunks/000.zarr", "pod.zarr", "library/", "diagnosis.tsv"):
+            assert any(f"results/{variant}/{path}" in line for line in outputs), (variant, path)
+
+
 NESTED = """
 variants:
   expansion:

@@ -97,15 +97,17 @@ def n_scenarios(config: Mapping, variant_: Variant) -> int:
     return int(offline(config)["n_scenarios"].get(variant_.name, default_n_scenarios(len(variant_.unknown))))
 
 
-def run_plan(config: Mapping, measured: str | Path | None = None) -> pd.DataFrame:
+def run_plan(source: Mapping | str | Path, measured: str | Path | None = None) -> pd.DataFrame:
     """The runs the libraries are built for: run, rpm, eccentric_mass_g, role (from the runs sheet).
 
-    With ``measured`` (the preprocessed table, results/data/harmonics.tsv) each run's
+    ``source`` is the runs sheet's path, or a config naming it under ``runs:`` (a workflow script passes the
+    sheet it has as input). With ``measured`` (the preprocessed table, results/data/harmonics.tsv) each run's
     rpm is the true speed refined from its record (rpm_true) instead of the nominal one.
     """
     from .measurements import read_runs  # the one reader of runs sheets (check-data's): every problem named
 
-    sheet = read_runs(config["runs"], require_mass=True)
+    path = source["runs"] if isinstance(source, Mapping) else source
+    sheet = read_runs(path, require_mass=True)
     if measured is not None:
         speeds = pd.read_csv(measured, sep="\t", dtype={"run": str}).set_index("run")["rpm_true"]
         missing = sorted(set(sheet["run"]) - set(speeds.index))
@@ -114,7 +116,7 @@ def run_plan(config: Mapping, measured: str | Path | None = None) -> pd.DataFram
         sheet["rpm"] = sheet["run"].map(speeds).fillna(sheet["rpm"]).to_numpy(float)  # flat: not refined
     unknown_mass = sheet.loc[sheet["eccentric_mass_g"].isna(), "run"].tolist()
     if unknown_mass:
-        raise ValueError(f"{config['runs']}: run(s) {unknown_mass} have no eccentric_mass_g; the offline "
+        raise ValueError(f"{path}: run(s) {unknown_mass} have no eccentric_mass_g; the offline "
                          "libraries are built per (rpm, eccentric mass) and need it")
     return sheet[["run", "rpm", "eccentric_mass_g"] + (["role"] if "role" in sheet else [])]
 

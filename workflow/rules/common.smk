@@ -91,6 +91,13 @@ def joint_model(wildcards):
     return variant_model(wildcards, [Path(path).parent.name for path in nested])
 
 
+def diagnosis_model(wildcards):
+    """variant_model with the L1-sparse variant the diagnosis shows side by side, when it is an input
+    (sparse_route_input)."""
+    sparse = [diagnosis_settings(config)["sparse_variant"]] if sparse_route_input(wildcards) else []
+    return variant_model(wildcards, sparse)
+
+
 def joint_parent(wildcards):
     """The variant this one extends by one effect, and that effect (as parent_refits_input), or None."""
     parent = parent_variant(config["variants"], wildcards.variant)

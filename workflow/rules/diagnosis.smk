@@ -1,5 +1,6 @@
 # Diagnosis (issue 6): which candidate effect is the variant missing? Score tests at the joint fit with the
 # full solver's sensitivities, the best confirmed by refitting, ranked with verdicts and a recommendation.
+# The script reads only its input, params and output (a config change reruns the jobs whose params it changes).
 rule diagnose:
     """Score test of every candidate effect at the variant's joint fit, refits of the best, verdicts."""
     input:
@@ -29,7 +30,8 @@ rule diagnose:
             subcategory="{variant}",
         ),
     params:
-        spec=lambda wildcards: config["variants"][wildcards.variant],
+        model=diagnosis_model,
+        keyphasor=lambda wildcards: identification_settings(config, wildcards.variant)["keyphasor"],
         options=diagnosis_settings(config),
         harmonics=config["harmonics"],
     log:

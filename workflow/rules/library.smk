@@ -9,7 +9,7 @@ rule spgd_global:
     output:
         directory("results/{variant}/library_global.zarr"),
     params:
-        spec=lambda wildcards: config["variants"][wildcards.variant],
+        model=variant_model,
         offline=lambda wildcards: offline_for(config, wildcards.variant, OFFLINE_USED["spgd_global"]),
     log:
         "logs/{variant}/spgd_global.log",
@@ -30,7 +30,7 @@ rule spgd_library:
         [directory(path) for path in expand("results/{{variant}}/library/{run}.zarr", run=RUNS)],
     params:
         runs=RUNS,
-        spec=lambda wildcards: config["variants"][wildcards.variant],
+        model=variant_model,
         offline=lambda wildcards: offline_for(config, wildcards.variant, OFFLINE_USED["spgd_library"]),
     threads: 2
     log:
@@ -63,7 +63,7 @@ rule validate_library:
             subcategory="{variant}",
         ),
     params:
-        spec=lambda wildcards: config["variants"][wildcards.variant],
+        model=variant_model,
         offline=lambda wildcards: offline_for(config, wildcards.variant, OFFLINE_USED["validate_library"]),
     log:
         "logs/{variant}/validate_library.log",

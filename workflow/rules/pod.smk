@@ -13,7 +13,7 @@ rule pod:
             subcategory="{variant}",
         ),
     params:
-        spec=lambda wildcards: config["variants"][wildcards.variant],
+        model=variant_model,
         offline=lambda wildcards: offline_for(config, wildcards.variant, OFFLINE_USED["pod"]),
     log:
         "logs/{variant}/pod.log",

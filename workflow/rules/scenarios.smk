@@ -8,7 +8,7 @@ rule sample_scenarios:
     output:
         "results/{variant}/scenarios.tsv",
     params:
-        spec=lambda wildcards: config["variants"][wildcards.variant],
+        model=variant_model,
         offline=lambda wildcards: offline_for(config, wildcards.variant, OFFLINE_USED["sample_scenarios"]),
     log:
         "logs/{variant}/sample_scenarios.log",
@@ -29,7 +29,7 @@ rule solve_chunk:
     output:
         directory("results/{variant}/chunks/{chunk}.zarr"),
     params:
-        spec=lambda wildcards: config["variants"][wildcards.variant],
+        model=variant_model,
         measured=OFFLINE["speed"] == "measured",
         n_chunks=OFFLINE["chunks"],
         harmonics=config["harmonics"],
@@ -61,7 +61,7 @@ rule sample_enrichment:
             subcategory="{variant}",
         ),
     params:
-        spec=lambda wildcards: config["variants"][wildcards.variant],
+        model=variant_model,
         offline=lambda wildcards: offline_for(config, wildcards.variant, OFFLINE_USED["sample_enrichment"]),
     log:
         "logs/{variant}/sample_enrichment.log",
@@ -82,7 +82,7 @@ rule solve_enrichment:
     output:
         directory("results/{variant}/enrichment/{chunk}.zarr"),
     params:
-        spec=lambda wildcards: config["variants"][wildcards.variant],
+        model=variant_model,
         measured=OFFLINE["speed"] == "measured",
         n_chunks=OFFLINE["enrichment"]["chunks"],
         harmonics=config["harmonics"],

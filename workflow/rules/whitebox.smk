@@ -14,7 +14,7 @@ rule whitebox_sweep:
             subcategory="{variant}",
         ),
     params:
-        spec=lambda wildcards: config["variants"][wildcards.variant],
+        model=variant_model,
         harmonics=config["harmonics"],
     log:
         "logs/{variant}/whitebox_sweep.log",
