@@ -2,6 +2,7 @@
 then every name in it; each problem is one line naming the file and line, the key, the bad value and the
 allowed names. The bundled config and the overlays the tests use still pass."""
 
+import copy
 import shutil
 import subprocess
 import sys
@@ -36,6 +37,14 @@ def _merged(*files: Path, command_line: dict | None = None) -> dict:
     for file in files:
         update_config(config, yaml.safe_load(Path(file).read_text()) or {})
     update_config(config, dict(command_line or {}))
+    return config
+
+
+def _merged_text(*texts: str) -> dict:
+    """The config that YAML texts make when Snakemake merges them in order."""
+    config: dict = {}
+    for text in texts:
+        update_config(config, yaml.safe_load(text) or {})
     return config
 
 
@@ -189,3 +198,156 @@ def test_snakemake_stops_before_any_job_with_the_one_line_error(tmp_path):
     assert run.returncode != 0
     assert f"config error: {overlay}, line 2: identification.per_run: 'q_z' is an unknown of no variant" in output
     assert "Traceback" not in output and "Job stats" not in output
+
+
+# --- defaults in one place: the library's DEFAULTS, copied by the schema's default: entries --------------------
+
+def _library_defaults() -> dict:
+    """Every default the library fills in, by config section (the one place each is set)."""
+    from hybridtwin import diagnosis, identification
+    from hybridtwin.config import OFFLINE_DEFAULTS
+
+    return {"effects_files": [],  # hybridtwin.config.user_effects: no key, no effects files
+            "offline": OFFLINE_DEFAULTS, "identification": identification.DEFAULTS, "diagnosis": diagnosis.DEFAULTS}
+
+
+def _schema() -> dict:
+    return yaml.safe_load(SCHEMA.read_text())
+
+
+def _declared(schema: dict, path: tuple = ()) -> dict:
+    """{path: default} of every property along the schema's nested ``properties`` from the top."""
+    found = {}
+    for key, sub in schema.get("properties", {}).items():
+        if "default" in sub:
+            found[path + (key,)] = sub["default"]
+        found |= _declared(sub, path + (key,))
+    return found
+
+
+def _same(a, b) -> bool:
+    """Equal and of the same type, recursively (1 is not 1.0 or True: a filled-in default that differs in type
+    from the library's would change a job's params, so rerun it)."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
+    if isinstance(a, list) and isinstance(b, list):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
+    return type(a) is type(b) and a == b
+
+
+def _leaves(defaults: dict, schema: dict, path: tuple) -> list[tuple]:
+    """The library's defaults as paths: into a nested mapping where the schema has its properties (polish,
+    enrichment), else the mapping is one value (sparsity, spgd, n_scenarios)."""
+    out = []
+    for key, value in defaults.items():
+        sub = schema.get("properties", {}).get(key, {})
+        if isinstance(value, dict) and "properties" in sub:
+            out += _leaves(value, sub, path + (key,))
+        else:
+            out.append(path + (key,))
+    return out
+
+
+def _all_default_nodes(node, path: tuple = ()) -> list[tuple]:
+    """The path (schema keys) of every schema node that declares a default."""
+    found = []
+    if isinstance(node, dict):
+        if "default" in node:
+            found.append(path)
+        for key, value in node.items():
+            if key != "default":
+                found += _all_default_nodes(value, path + (key,))
+    elif isinstance(node, list):
+        for i, value in enumerate(node):
+            found += _all_default_nodes(value, path + (i,))
+    return found
+
+
+def test_every_schema_default_is_the_librarys():
+    """The schema's default: entries equal the library's DEFAULTS (type included), every library default has one,
+    and the schema declares no default elsewhere: not for a required key (the config must set it), not under
+    $defs or a mapping of names (Snakemake's validate would fill it into every offline.spgd_variants entry)."""
+    schema, library = _schema(), _library_defaults()
+    declared = _declared(schema)
+    for path, default in declared.items():
+        value = library
+        for key in path:
+            assert isinstance(value, dict) and key in value, f"schema default of {'.'.join(path)}: no library default"
+            value = value[key]
+        assert _same(default, value), f"{'.'.join(path)}: schema {default!r}, library {value!r}"
+    for section, defaults in library.items():
+        paths = _leaves(defaults, schema["properties"][section], (section,)) if isinstance(defaults, dict) \
+            else [(section,)]
+        missing = [".".join(p) for p in paths if p not in declared]
+        assert missing == [], f"library defaults the schema does not declare: {missing}"
+    assert not set(declared) & {(key,) for key in schema["required"]}
+    nowhere_else = [p for p in _all_default_nodes(schema) if tuple(k for k in p if k != "properties") not in declared]
+    assert nowhere_else == []
+
+
+def test_the_defaults_are_a_valid_config():
+    """The library's defaults, written out as a config, pass the schema (a default the schema forbids, e.g. out of
+    range, would be a default no user could write)."""
+    from jsonschema import Draft202012Validator
+
+    config = {"runs": "runs.tsv", "harmonics": 5, "variants": {"v": {"effects": ["unbalance"]}},
+              **copy.deepcopy(_library_defaults())}
+    assert [error.message for error in Draft202012Validator(_schema()).iter_errors(config)] == []
+
+
+@pytest.mark.parametrize("overlay", [
+    "",
+    "offline: {spgd: {max_terms: 20}, spgd_variants: {final: {degree: 2}}, enrichment: {chunks: 3}}\n",
+    "identification: {polish: {joint: false}, joint: {trials: 7}}\ndiagnosis: {alpha: 0.05}\n",
+    "identification: {}\ndiagnosis: {}\noffline: {}\n",
+])
+def test_snakemake_filling_in_the_schema_defaults_changes_no_option(overlay):
+    """common.smk validates the config with Snakemake's validate, which writes the schema's defaults into every
+    section the config gives: what each rule reads (its params) is the same with or without them."""
+    from snakemake.utils import validate
+
+    from hybridtwin import config as cfg
+    from hybridtwin import diagnosis, identification
+
+    config = _merged_text(SMALL, overlay)
+    config["runs"] = str(ROOT / "data" / "default" / "runs.tsv")
+    filled = copy.deepcopy(config)
+    validate(filled, str(SCHEMA))
+    assert filled != config or overlay == ""  # defaults were filled in where the sections are given
+
+    def options(c: dict) -> dict:
+        out = {"offline": cfg.offline(c), "diagnosis": diagnosis.settings(c), "effects": cfg.user_effects(c)}
+        for name in c["variants"]:
+            out[name] = (cfg.offline_for(c, name), identification.settings(c, name),
+                         [identification.rule_settings(c, name, rule) for rule in ("run", "joint", "validation")])
+        return out
+
+    assert repr(options(filled)) == repr(options(config))  # repr: the params Snakemake compares
+
+
+def test_the_bundled_config_writes_out_the_defaults():
+    """config/config.yaml sets its offline, identification and diagnosis options to the library's defaults: the
+    workflow and the Python API (which fills in the defaults) run alike."""
+    bundled = yaml.safe_load((ROOT / "config" / "config.yaml").read_text())
+    library = _library_defaults()
+    for section in ("offline", "identification", "diagnosis"):
+        for key, value in bundled[section].items():
+            default = library[section][key]
+            if key in ("spgd", "joint", "polish", "enrichment"):  # the keys it sets of a nested section
+                assert value == {k: default.get(k) for k in value}, (section, key, value, default)
+            else:
+                assert value == default, (section, key, value, default)
+
+
+def test_the_offline_spgd_defaults_are_the_sparse_pgds():
+    """offline.spgd's defaults but the degree candidates are hybridtwin.spgd.SparsePGD's own (the workflow's
+    libraries and an sPGD built in Python fit alike)."""
+    import inspect
+
+    from hybridtwin.config import OFFLINE_DEFAULTS
+    from hybridtwin.spgd import SparsePGD
+
+    signature = inspect.signature(SparsePGD).parameters
+    for key, value in OFFLINE_DEFAULTS["spgd"].items():
+        if key != "degree":
+            assert _same(value, signature[key].default), (key, value, signature[key].default)

@@ -9,6 +9,7 @@ bad value and the allowed names (``ConfigError``).
 
 from __future__ import annotations
 
+import copy
 import difflib
 import logging
 import sys
@@ -50,14 +51,22 @@ def variant(config: Mapping, name: str, config_dir: Path = CONFIG_DIR) -> Varian
                              shaft=rotor)
 
 
+# The ``offline:`` options' defaults (as identification.DEFAULTS and diagnosis.DEFAULTS for their sections): the
+# schema's ``default:`` entries copy them (tests/test_config.py checks they agree). n_scenarios: per variant, else
+# scenarios.default_n_scenarios; the sPGD options but degree are hybridtwin.spgd.SparsePGD's defaults.
+OFFLINE_DEFAULTS: dict = {
+    "seed": 1, "speed": "measured", "n_scenarios": {}, "n_test": 200, "validation_fraction": 0.2,
+    "chunks": 4, "scope": "run", "pieces": "mode_scaling",
+    "sensor_range_mm": 14.0, "pod_energy_tolerance": 1e-10,
+    "spgd": {"degree": [8, 12], "max_terms": 60, "ridge": 1e-8, "patience": 8, "backfit_iterations": 3,
+             "tolerance": 0.0, "degree_search": "term", "degree_tolerance": 0.0},
+    "enrichment": {"observable_below": 0.3, "n_scenarios": 6000, "chunks": 2}, "spgd_variants": {},
+}
+
+
 def offline(config: Mapping) -> dict:
-    """The ``offline:`` options with their defaults filled in."""
-    defaults = {"seed": 1, "speed": "measured", "n_scenarios": {}, "n_test": 200, "validation_fraction": 0.2,
-                "chunks": 4, "scope": "run", "pieces": "mode_scaling",
-                "sensor_range_mm": 14.0, "pod_energy_tolerance": 1e-10,
-                "spgd": {"degree": [8, 12], "max_terms": 60, "ridge": 1e-8, "patience": 8, "backfit_iterations": 3,
-                         "tolerance": 0.0},
-                "enrichment": {"observable_below": 0.3, "n_scenarios": 6000, "chunks": 2}, "spgd_variants": {}}
+    """The ``offline:`` options with their defaults (``OFFLINE_DEFAULTS``) filled in."""
+    defaults = copy.deepcopy(OFFLINE_DEFAULTS)
     options = {**defaults, **(config.get("offline") or {})}
     for nested in ("spgd", "enrichment"):
         options[nested] = {**defaults[nested], **(options.get(nested) or {})}
