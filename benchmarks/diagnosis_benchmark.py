@@ -3,6 +3,7 @@
     python benchmarks/diagnosis_benchmark.py [--cases none,slope_spring,...] [--integrator time] [--seed 1]
                                              [--trials 4] [--out results/benchmarks/diagnosis_benchmark.tsv]
                                              [--data results/benchmarks/diagnosis_data]
+                                             [--per-run none|q_x,q_y] [--nuisance KEY=VALUE ...]
 
 For each case the virtual rig (``hybridtwin.rig``) makes the bundled plan's 19 fit + 3 validation runs from a
 truth = the Geometric model (k_b 2411.3, zeta_s 0.024, zeta_bup 0.016, bow q_x 0.002, q_y 0.0015 shared) plus
