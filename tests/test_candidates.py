@@ -14,7 +14,7 @@ import scipy.linalg
 import yaml
 
 from hybridtwin import solve
-from hybridtwin.candidates import BUILTIN_TESTED, builtin_candidates, candidates_for
+from hybridtwin.candidates import Candidate, builtin_candidates, candidates_for
 from hybridtwin.effects import builtin_effects
 from hybridtwin.model import rpm_to_rad_s
 from hybridtwin.variants import BASE, BUILTIN_VARIANTS, Variant, load_effects_files
@@ -30,6 +30,29 @@ NEW = ["upper_bearing_anisotropy", "cross_coupled_stiffness", "cross_coupled_dam
 M_BUP, M_BLO, K_LO, ZETA_BLO, R_ME = 0.056, 0.176, 1e4, 0.05, 0.040
 K3 = 2 * 2411.3  # a linear upper bearing (expansion_k3 alone): the whole model is linear
 LINEAR = dict(k3=K3, zeta_s=0.024, zeta_bup=0.016, q_x=0.0, q_y=0.0, m_e=0.0148)
+
+# The pre-change catalogue (issue 25): the built-in candidates, their tested parameters with (range, limits),
+# in order, as candidates.BUILTIN_TESTED gave them before the tested parameters moved onto the effects
+# (Effect.switches). Written out once from that table; the catalogue read from the effects must equal it.
+PRE_CHANGE_CATALOGUE = {
+    "slope_spring": (("k_w", (0.0, 1000.0), None), ("k_z", (0.0, 1000.0), None)),
+    "expansion_k2": (("k2", (-1000, 1000), None),),
+    "expansion_k4": (("k4", (-1000, 1000), None),),
+    "expansion_k5": (("k5", (-1000, 1000), None),),
+    "expansion_k6": (("k6", (-1000, 1000), None),),
+    "expansion_k7": (("k7", (-14000, 14000), None),),
+    "upper_bearing_anisotropy": (("dk_up", (-500.0, 500.0), (-4000.0, 4000.0)),),
+    "cross_coupled_stiffness": (("k_xy", (-200.0, 200.0), (-2000.0, 2000.0)),),
+    "cross_coupled_damping": (("c_xy", (-5.0, 5.0), (-50.0, 50.0)),),
+    "moment_stiffness": (("k_rot", (0.0, 300.0), (0.0, 4140.0)),),
+    "lower_bearing_compliance": (("dk_lo", (-2000.0, 2000.0), (-9900.0, 90000.0)),),
+    "excitation_2x": (("f2_c", (-0.5, 0.5), (-10.0, 10.0)), ("f2_s", (-0.5, 0.5), (-10.0, 10.0))),
+    "excitation_2x_inertial": (("e2_c", (-4.5e-05, 4.5e-05), (-4.5e-04, 4.5e-04)),
+                               ("e2_s", (-4.5e-05, 4.5e-05), (-4.5e-04, 4.5e-04))),
+    "excitation_3x": (("f3_c", (-0.3, 0.3), (-10.0, 10.0)), ("f3_s", (-0.3, 0.3), (-10.0, 10.0))),
+    "speed_damping": (("zeta_v", (0.0, 0.05), (0.0, 1.0)),),
+}
+BUILTIN = list(PRE_CHANGE_CATALOGUE)
 
 
 def _with(*names, base=GEOMETRIC):
@@ -84,8 +107,7 @@ def _global_force(system, q):
 # --- absent at zero ----------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("names", [[name] for name in BUILTIN_TESTED] + [list(BUILTIN_TESTED)],
-                         ids=list(BUILTIN_TESTED) + ["all-at-once"])
+@pytest.mark.parametrize("names", [[name] for name in BUILTIN] + [BUILTIN], ids=BUILTIN + ["all-at-once"])
 def test_every_builtin_candidate_at_zero_is_the_base_system(names):
     """Each candidate, and all of them in one model (the diagnosis' batched score test), at zero."""
     tested = [p for name in names for p in builtin_candidates()[name].tested]
@@ -107,7 +129,7 @@ def test_new_candidates_describe_themselves_and_do_not_collide():
     effects = builtin_effects()
     for name in NEW:
         candidate = builtin_candidates()[name]
-        assert candidate.effect is not None and candidate.meaning and name in BUILTIN_TESTED
+        assert candidate.effect is not None and candidate.meaning and name in BUILTIN
         assert {p.name for p in candidate.effect.parameters} == set(candidate.tested)
         for par in candidate.parameters:
             lo, hi = par.bounds
@@ -349,7 +371,7 @@ def test_a_user_candidate_from_an_effects_file(tmp_path):
         candidates_for(present, ["foundation_damping"])
     final = BUILTIN_VARIANTS["final"]["effects"]
     assert "slope_spring" not in [c.name for c in candidates_for(final)]
-    assert [c.name for c in candidates_for(present)] == list(BUILTIN_TESTED)
+    assert [c.name for c in candidates_for(present)] == BUILTIN
 
 
 def test_a_user_coupling_excitation_elsewhere_coexists_with_the_builtin_one():
@@ -365,3 +387,69 @@ def test_a_user_coupling_excitation_elsewhere_coexists_with_the_builtin_one():
     assert F[d("u0")] == 0.1 and F[d("v0")] == -0.1j
     assert F[d("u10")] == 0.2j and F[d("v10")] == 0.2
     assert np.count_nonzero(F) == 4
+
+
+# --- where a candidate's tested parameters are declared: on the effect (Effect.switches) -----------
+
+
+def test_the_catalogue_read_from_the_effects_is_the_pre_change_one():
+    catalogue = builtin_candidates()
+    assert list(catalogue) == BUILTIN  # the same candidates, in the same order
+    for name, expected in PRE_CHANGE_CATALOGUE.items():
+        candidate = catalogue[name]
+        assert candidate.tested == candidate.effect.switches == tuple(p for p, _, _ in expected)
+        assert [(p.name, p.bounds, p.limits) for p in candidate.parameters] == list(expected)
+    # the other built-in effects declare nothing, so they are no candidates (e.g. expansion_k1, k3, the base)
+    undeclared = [e.name for e in builtin_effects().values() if not e.switches]
+    assert set(undeclared) & set(BUILTIN) == set() and {"expansion_k1", "expansion_k3", "geometric_spring"} <= set(
+        undeclared)
+
+
+SWITCHED_FILE = '''
+from hybridtwin import Effect, Parameter
+
+
+class PlacedDamper(Effect):
+    name = "placed_damper"
+    meaning = "a damper of coefficient c_d at a node n_d"
+    parameters = (Parameter("c_d", "N s/m", (0.0, 5.0), 0.0, "its coefficient"),
+                  Parameter("n_d", "1", (0.0, 10.0), 10.0, "the node it acts at"))
+
+
+class Switched(PlacedDamper):
+    name = "switched_damper"
+    switches = ("c_d",)  # n_d only places it: at c_d = 0 it is absent whatever n_d
+
+
+class Wrong(PlacedDamper):
+    name = "wrong_damper"
+    switches = ("c_x",)
+
+
+placed_damper, switched_damper, wrong_damper = PlacedDamper(), Switched(), Wrong()
+'''
+
+
+def test_a_user_effect_declares_its_switches_or_has_all_its_parameters_tested(tmp_path):
+    path = tmp_path / "dampers.py"
+    path.write_text(SWITCHED_FILE)
+    user = load_effects_files([path])
+    declared, undeclared = candidates_for([], ["switched_damper", "placed_damper"], user_effects=user)
+    assert declared.tested == ("c_d",)  # what it declares
+    assert undeclared.tested == ("c_d", "n_d")  # the rule before switches: all its parameters
+    assert [p.bounds for p in declared.parameters] == [(0.0, 5.0)]  # the range is the Parameter's
+    with pytest.raises(ValueError, match=r"wrong_damper.*\['c_x'\].*switches"):
+        candidates_for([], ["wrong_damper"], user_effects=user)
+
+
+def test_a_harmonic_excitation_switches_on_by_its_own_parameters_wherever_it_acts():
+    moved = dataclasses.replace(builtin_effects()["excitation_2x"], node=10, name="excitation_2x_at_10")
+    assert moved.switches == ("f2_c_10", "f2_s_10") == tuple(p.name for p in moved.parameters)
+    assert Candidate.of(moved).tested == ("f2_c_10", "f2_s_10")
+
+
+def test_an_effect_says_when_it_is_a_candidate():
+    effects = builtin_effects()
+    assert "as a diagnosis candidate: switched on by f2_c, f2_s" in effects["excitation_2x"].describe()
+    assert "switched on by k2\n" in effects["expansion_k2"].describe()  # before the bearing's formula line
+    assert "diagnosis candidate" not in effects["geometric_spring"].describe()

@@ -147,6 +147,12 @@ class Effect:
     nonlinear force also ``dofs`` (the DOF names it reads and acts on, e.g.
     ("u0", "v0")) and ``degree`` (its polynomial degree, which sets the number
     of AFT time samples; None when not polynomial).
+
+    ``switches``: for an effect the diagnosis may test as a candidate (``hybridtwin.candidates``),
+    the parameters that switch it on, each absent at 0 (the effect then adds nothing); the others
+    (e.g. l_i) keep their values. Their ranges are those of their ``Parameter``s. Empty: not
+    declared; a built-in effect is then no candidate, and an effect of a user's effects file
+    named as a candidate has all its parameters tested.
     """
 
     name: str = ""
@@ -154,6 +160,7 @@ class Effect:
     parameters: tuple[Parameter, ...] = ()
     dofs: tuple[str, ...] = ()
     degree: int | None = None
+    switches: tuple[str, ...] = ()
 
     def mass(self, ctx: Context) -> Array | None:
         return None
@@ -190,6 +197,8 @@ class Effect:
             lines.append(
                 f"  {par.name} [{par.unit}] nominal {par.nominal:g}, range {lo:g} .. {hi:g}: {par.meaning}"
             )
+        if self.switches:
+            lines.append(f"  as a diagnosis candidate: switched on by {', '.join(self.switches)}")
         return "\n".join(lines)
 
     def __repr__(self) -> str:
@@ -233,6 +242,7 @@ class PolynomialBearing(Effect):
     parameters: tuple[Parameter, ...] = ()
     terms: tuple[Term, ...] = ()
     node: int = 0
+    switches: tuple[str, ...] = ()
     dofs: tuple[str, ...] = field(init=False)
     degree: int | None = field(init=False)
 

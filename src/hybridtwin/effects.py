@@ -208,11 +208,15 @@ def slope_spring() -> PolynomialBearing:
             Term(lambda p: p.k_w, (0, 0, 1, 0), "k_w u'"),
             Term(lambda p: p.k_z, (0, 0, 3, 0), "k_z u'^3"),
         ),
+        switches=("k_w", "k_z"),  # a candidate: the Final model's slope force, absent at k_w = k_z = 0
     )
 
 
 def _expansion_term(index: int, powers: tuple[int, int, int, int], scale: str, meaning: str,
-                    unit: str, bounds: tuple[float, float], nominal: float) -> PolynomialBearing:
+                    unit: str, bounds: tuple[float, float], nominal: float,
+                    candidate: bool = False) -> PolynomialBearing:
+    """Term k{index} of the Expansion model; ``candidate``: the diagnosis may test it, switched on by k{index}
+    (l_i keeps its value)."""
     name = f"k{index}"
     exponent = {"": 0, "/l_i": 1, "/l_i^2": 2}[scale]
     parameters = (Parameter(name, unit, bounds, nominal, f"Expansion model coefficient k{index} (eq. 23)"),)
@@ -225,24 +229,28 @@ def _expansion_term(index: int, powers: tuple[int, int, int, int], scale: str, m
         parameters=parameters,
         terms=(Term(lambda p: p[name] / p.l_i**exponent if exponent else p[name], powers,
                     f"{name}{scale} {monomial}"),),
+        switches=(name,) if candidate else (),
     )
 
 
 def expansion_terms() -> list[PolynomialBearing]:
-    """The seven terms of the Expansion model of the upper bearing force (eq. 23-24)."""
+    """The seven terms of the Expansion model of the upper bearing force (eq. 23-24).
+
+    The extra terms k2, k4-k7 (u^2, u', u v, (u')^3, u v^2) are candidates; k1 and k3 (the cubic and
+    linear stiffness every upper bearing model has) are not."""
     return [
         _expansion_term(1, (3, 0, 0, 0), "/l_i^2", "cubic stiffness of the upper bearing", "N/m", (0, 3500), 2562.7),
         _expansion_term(2, (2, 0, 0, 0), "/l_i", "quadratic (asymmetric) stiffness of the upper bearing", "N/m",
-                        (-1000, 1000), -70.9),
+                        (-1000, 1000), -70.9, candidate=True),
         _expansion_term(3, (1, 0, 0, 0), "", "linear stiffness of the upper bearing", "N/m", (0, 7000), 5428.5),
         _expansion_term(4, (0, 0, 1, 0), "", "linear force on the shaft slope at the upper bearing", "N",
-                        (-1000, 1000), 341.1),
+                        (-1000, 1000), 341.1, candidate=True),
         _expansion_term(5, (1, 1, 0, 0), "/l_i", "quadratic cross-coupling u v of the upper bearing", "N/m",
-                        (-1000, 1000), 60.9),
+                        (-1000, 1000), 60.9, candidate=True),
         _expansion_term(6, (0, 0, 3, 0), "", "cubic force on the shaft slope at the upper bearing", "N",
-                        (-1000, 1000), 293.0),
+                        (-1000, 1000), 293.0, candidate=True),
         _expansion_term(7, (1, 2, 0, 0), "/l_i^2", "cubic cross-coupling u v^2 of the upper bearing", "N/m",
-                        (-14000, 14000), -627.7),
+                        (-14000, 14000), -627.7, candidate=True),
     ]
 
 
@@ -250,7 +258,7 @@ def expansion_terms() -> list[PolynomialBearing]:
 #
 # Each parameter below has nominal 0, and at 0 its effect adds exactly nothing (0.0 to the
 # matrices, no forcing harmonic), so a model extended by any of them at zero *is* the model
-# without it.
+# without it. Each effect declares them as its ``switches`` (the parameters the diagnosis tests).
 #
 # Ranges. The top of each range should change the sensor response clearly (sensor noise 0.05 mm)
 # but not absurdly. Estimated with Variant.solve on the Geometric model at the bundled data's values
@@ -328,6 +336,7 @@ class UpperBearingAnisotropy(Effect):
     meaning = "upper bearing stiffer along x than along y by 2 dk_up (unequal springs), mean stiffness unchanged"
     parameters = (Parameter("dk_up", "N/m", RANGE_DK_UP, 0.0,
                             "added to the node-0 stiffness in x, removed in y", LIMIT_DK_UP),)
+    switches = ("dk_up",)
 
     def stiffness(self, ctx: Context) -> Array:
         return _entries(ctx, {("u0", "u0"): ctx.p.dk_up, ("v0", "v0"): -ctx.p.dk_up})
@@ -347,6 +356,7 @@ class CrossCoupledStiffness(Effect):
     meaning = "cross-coupled (circulatory) stiffness at the upper bearing, force k_xy (-v, u) along the rotation"
     parameters = (Parameter("k_xy", "N/m", RANGE_K_XY, 0.0, "K[u0, v0] = +k_xy, K[v0, u0] = -k_xy",
                             LIMIT_K_XY),)
+    switches = ("k_xy",)
 
     def stiffness(self, ctx: Context) -> Array:
         return _entries(ctx, {("u0", "v0"): ctx.p.k_xy, ("v0", "u0"): -ctx.p.k_xy})
@@ -364,6 +374,7 @@ class CrossCoupledDamping(Effect):
     meaning = "cross-coupled (skew-symmetric) damping at the upper bearing, force c_xy (-v', u')"
     parameters = (Parameter("c_xy", "N s/m", RANGE_C_XY, 0.0, "C[u0, v0] = +c_xy, C[v0, u0] = -c_xy",
                             LIMIT_C_XY),)
+    switches = ("c_xy",)
 
     def damping(self, ctx: Context) -> Array:
         return _entries(ctx, {("u0", "v0"): ctx.p.c_xy, ("v0", "u0"): -ctx.p.c_xy})
@@ -383,6 +394,7 @@ class MomentStiffness(Effect):
     meaning = "rotational (moment) stiffness of the upper bearing against the shaft's tilt at node 0"
     parameters = (Parameter("k_rot", "N m/rad", RANGE_K_ROT, 0.0, "moment per unit slope at node 0, both planes",
                             LIMIT_K_ROT),)
+    switches = ("k_rot",)
 
     def stiffness(self, ctx: Context) -> Array:
         return _entries(ctx, {("du0", "du0"): ctx.p.k_rot, ("dv0", "dv0"): ctx.p.k_rot})
@@ -401,6 +413,7 @@ class LowerBearingCompliance(Effect):
     meaning = "lower bearing stiffness differs from its known value k by dk_lo (both planes, last node)"
     parameters = (Parameter("dk_lo", "N/m", RANGE_DK_LO, 0.0, "error of the known lower bearing stiffness k",
                             LIMIT_DK_LO),)
+    switches = ("dk_lo",)
 
     def stiffness(self, ctx: Context) -> Array:
         n = ctx.shaft.n
@@ -432,6 +445,9 @@ class HarmonicExcitation(Effect):
     source turning at h Omega, e.g. a coupling or a part mounted off-axis twice per turn. On data
     over a range of speeds the two laws differ by Omega^2, so the diagnosis can say which one the
     data prefer (or that they are confounded, on a narrow speed range).
+
+    Both parameters vanish at 0 (no harmonic at all), so every harmonic excitation declares them as
+    its ``switches``: built with the names of its law and node, a copy at another node included.
     """
 
     name: str = ""
@@ -442,6 +458,7 @@ class HarmonicExcitation(Effect):
     law: str = "constant"
     limits: tuple[float, float] | None = None
     parameters: tuple[Parameter, ...] = field(init=False)
+    switches: tuple[str, ...] = field(init=False)
 
     def __post_init__(self) -> None:
         if int(self.harmonic) != self.harmonic or self.harmonic < 1:
@@ -458,6 +475,7 @@ class HarmonicExcitation(Effect):
             Parameter(self._names[1], unit, self.bounds, 0.0,
                       f"{h}X {what} at t = 0, 90 degrees ahead of the unbalance (node {node})", self.limits),
         )
+        self.switches = self._names
 
     def forcing(self, ctx: Context) -> dict[int, Array]:
         h = self.harmonic
@@ -507,13 +525,15 @@ class SpeedDependentDamping(Effect):
     meaning = "mass-proportional damping growing with speed, C += 2 zeta_v Omega M (extends eq. 31-32)"
     parameters = (Parameter("zeta_v", "1", RANGE_ZETA_V, 0.0,
                             "added first-mode damping ratio per unit Omega / omega_1", LIMIT_ZETA_V),)
+    switches = ("zeta_v",)
 
     def damping(self, ctx: Context) -> Array:
         return (2.0 * ctx.p.zeta_v * ctx.Omega)[:, None, None] * ctx.M
 
 
 def candidate_effects() -> list[Effect]:
-    """The candidate effects (issue 6) with parameters absent at zero; see candidates.BUILTIN_TESTED."""
+    """The candidate effects (issue 6) with parameters absent at zero, each declaring them as its ``switches``
+    (hybridtwin.candidates)."""
     return [UpperBearingAnisotropy(), CrossCoupledStiffness(), CrossCoupledDamping(), MomentStiffness(),
             LowerBearingCompliance(), misalignment_2x(), excitation_2x_inertial(), excitation_3x(),
             SpeedDependentDamping()]
