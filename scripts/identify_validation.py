@@ -1,6 +1,7 @@
 """Rule predict_validation: validation runs predicted with the joint parameters, never fitted (thin wrapper).
 
 Only each run's phase (a nuisance) is aligned; per-run parameters come from their law over the fitted runs.
+Writes the scores (validation.tsv) and the predicted harmonics (validation_harmonics.tsv, for the report).
 Reads only the rule's input, params and output.
 """
 
@@ -20,7 +21,7 @@ joint = idn.read_parameters(smk.input.parameters)
 table = idn.read_harmonics(smk.input.harmonics)
 errors = idn.model_errors(pd.read_csv(smk.input.validation, sep="\t"), list(table["run"]), options["model_error"])
 fitted_runs = table[["run", "rpm_true", "eccentric_mass_g"]].rename(columns={"rpm_true": "rpm"})
-rows = []
+rows, predictions = [], []
 for path in smk.input.libraries:
     library = Library.load(path)
     data = idn.run_data(table, library.run, keyphasor=options["keyphasor"])
@@ -36,6 +37,7 @@ for path in smk.input.libraries:
                                                  int(smk.params.harmonics)), 0.0))
     for name, model, error in models:
         row = val.predict_run(model, data, values, error)
+        predictions.append(val.PredictedRun.from_prediction(row, name))
         row.pop("fitted")
         row.update({"model": name, **{f"{p}_used": v for p, v in values.items()}, "note": "ok"})
         rows.append(row)
@@ -44,3 +46,4 @@ for path in smk.input.libraries:
 columns = ["run", "rpm", "eccentric_mass_g", "model", "error_rel", "chi2_per_residual", "note"]
 pd.DataFrame(rows, columns=None if rows else columns).to_csv(smk.output.table, sep="\t", index=False,
                                                             float_format="%.9g")
+val.write_predictions(smk.output.harmonics, predictions)  # the report reads them instead of predicting again

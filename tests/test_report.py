@@ -139,19 +139,65 @@ class _Fixed:
         return np.repeat(self.M[None], len(np.atleast_2d(x)), axis=0), None
 
 
+def _predicted(M: np.ndarray, data: idn.RunData, model: str = "library") -> val.PredictedRun:
+    """What predict_validation writes for a run of the fixed model M."""
+    return val.PredictedRun.from_prediction(val.predict_run(_Fixed(M), data, {"k": 1.0}), model)
+
+
 def test_validation_run_is_scored_like_predict_validation():
     M, R = _model()[0], _residual()[1]
     sigma = np.full((H, 2), 1e-6)
     data = idn.RunData("v", 700.0, 19.5, "validate", _rotate(M + R, 1.3), sigma)
-    c = report.validation_comparison(_Fixed(M), data, {"k": 1.0}, 0.0, "library")
+    c = report.validation_comparison(_predicted(M, data), data, 0.0)
     scored = val.predict_run(_Fixed(M), data, {"k": 1.0})
-    assert c.role == "validate" and c.dof == 4 * H - 1
+    assert c.role == "validate" and c.dof == 4 * H - 1 and c.source == "library"
     assert c.error_rel == pytest.approx(scored["error_rel"])
     assert c.chi2 == pytest.approx(scored["chi2_per_residual"] * 4 * H)
     assert np.allclose(c.model, M, atol=1e-12)  # the model is in its own frame, the measurement rotated to it
     clean = idn.RunData("v", 700.0, 19.5, "validate", _rotate(M, 1.3), sigma)
-    exact = report.validation_comparison(_Fixed(M), clean, {"k": 1.0}, 0.0, "library")
+    exact = report.validation_comparison(_predicted(M, clean), clean, 0.0)
     assert np.allclose(exact.measured, M, atol=1e-12) and exact.chi2 < 1e-12
+
+
+def test_predicted_harmonics_file_round_trips_exactly(tmp_path):
+    """validation_harmonics.tsv: read_predictions is write_predictions' exact inverse (bit for bit, several runs
+    and both models of a run, channel order as written), and the report's validation run from the file is the one
+    from the prediction itself, which is what the report computed when it predicted the run again."""
+    M, R = _model()[0], _residual()[1]
+    sigma = np.full((H, 2), 1e-6)
+    runs = [idn.RunData("v1", 650.0, 19.5, "validate", _rotate(M + R, 0.4), sigma),
+            idn.RunData("007", 900.0, 0.0, "validate", _rotate(1.1 * M - R, -2.9), sigma)]  # a run name like a number
+    predictions = [_predicted(M, runs[0], "library"), _predicted(M, runs[0], "solver"), _predicted(0.9 * M, runs[1])]
+    path = tmp_path / "validation_harmonics.tsv"
+    val.write_predictions(path, predictions)
+    back = val.read_predictions(path)
+    assert [(p.run, p.model) for p in back] == [("v1", "library"), ("v1", "solver"), ("007", "library")]
+    for a, b in zip(predictions, back):
+        assert a.phase_rad == b.phase_rad and np.array_equal(a.harmonics, b.harmonics)
+        assert b.harmonics.shape == (H, 2)
+    assert val.prediction_table(back).equals(pd.read_csv(path, sep="\t", dtype={"run": str}))
+    for data, a, b in zip([runs[0], runs[0], runs[1]], predictions, back):
+        direct, from_file = (report.validation_comparison(p, data, 0.02) for p in (a, b))
+        assert from_file.chi2 == direct.chi2 and from_file.error_rel == direct.error_rel
+        assert np.array_equal(from_file.model, direct.model) and np.array_equal(from_file.measured, direct.measured)
+        # the re-prediction the report made before: predict_run again, its harmonics rotated to the model frame
+        again = val.predict_run(_Fixed(M if b.run == "v1" else 0.9 * M), data, {"k": 1.0})
+        assert np.array_equal(from_file.model, report.to_model_frame(again["fitted"], again["phase_rad"]))
+    val.write_predictions(path, [])  # no usable validation run: an empty table, read back as none
+    assert val.read_predictions(path) == []
+
+
+def test_predicted_harmonics_reader_names_the_file_and_the_problem(tmp_path):
+    path = tmp_path / "validation_harmonics.tsv"
+    M = _model()[0]
+    data = idn.RunData("v", 700.0, 19.5, "validate", M, np.full((H, 2), 1e-6))
+    table = val.prediction_table([_predicted(M, data)])
+    table.iloc[:-1].to_csv(path, sep="\t", index=False)  # a channel of the last harmonic missing
+    with pytest.raises(ValueError, match=r"validation_harmonics.tsv: run v \(library\) needs harmonics"):
+        val.read_predictions(path)
+    table.drop(columns="phase_rad").to_csv(path, sep="\t", index=False)
+    with pytest.raises(ValueError, match=r"validation_harmonics.tsv: .*\['phase_rad'\] missing"):
+        val.read_predictions(path)
 
 
 def test_drift_test_recovers_a_slope_and_flags_a_drift():
@@ -233,7 +279,7 @@ def test_bic_and_ledger_rows_from_known_inputs():
 def test_figures_show_the_numbers_and_are_written(synthetic, tmp_path):
     M = _model()[0]
     data = idn.RunData("v", 650.0, 19.5, "validate", _rotate(M * 1.1, 0.4), np.full((H, 2), 1e-6))
-    comparisons = synthetic.comparisons + [report.validation_comparison(_Fixed(M), data, {"k": 1.0}, 0.0, "solver")]
+    comparisons = synthetic.comparisons + [report.validation_comparison(_predicted(M, data, "solver"), data, 0.0)]
     errors = report.error_table(comparisons)
     # the error map colours each run by its chi^2/dof, fit runs and the validation run in separate markers
     error_map = report.plot_error_map(errors, "synthetic")

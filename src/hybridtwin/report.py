@@ -3,7 +3,8 @@
 Everything here starts from the identification outputs of a variant: the joint
 fit (``identification/fit.zarr``, ``parameters.tsv``, ``identification/summary.yaml``),
 the per-run fits (``identification/per_run.tsv``) and the validation runs, which
-are predicted with the joint estimates, never fitted (``validation.tsv``). The
+are predicted with the joint estimates, never fitted (``validation.tsv``, their
+harmonics in ``validation_harmonics.tsv``: the report does not predict again). The
 figures and tables show, per run and over runs, how far the model is from the
 measurements in units of the measurement noise, and whether a constant of the
 model has to change from run to run to fit.
@@ -55,7 +56,6 @@ import pandas as pd
 from matplotlib.colors import LogNorm
 from scipy import stats
 
-from . import forward as fwd
 from . import identification as idn
 from . import validation as val
 from .plots import plt
@@ -153,21 +153,14 @@ def fit_comparisons(fit_path: str | Path, parameters: pd.DataFrame, summary: Map
             for k, (run, rpm) in enumerate(zip(group.attrs["runs"], group.attrs["rpm"]))]
 
 
-def used_values(row: Mapping, parameters: Sequence[str]) -> dict[str, float]:
-    """The parameter values [SI] a validation run was predicted with (validation.tsv's ``{p}_used``)."""
-    return {p: float(row[f"{p}_used"]) for p in parameters}
-
-
-def validation_comparison(model: fwd.HarmonicModel, data: idn.RunData, values: Mapping[str, float],
-                          model_error: float, source: str) -> RunComparison:
-    """A validation run predicted as the predict_validation rule does (``identification.predict_run``:
-    joint values, only the phase aligned), in the model's frame."""
-    row = val.predict_run(model, data, values, model_error)
-    H = row["fitted"].shape[0]
-    phase = row["phase_rad"]
+def validation_comparison(prediction: val.PredictedRun, data: idn.RunData, model_error: float) -> RunComparison:
+    """A validation run as the predict_validation rule predicted it (``validation.PredictedRun``, read from
+    validation_harmonics.tsv: joint values, only the phase aligned), in the model's frame."""
+    H = prediction.harmonics.shape[0]
+    phase = prediction.phase_rad
     return RunComparison(data.run, "validate", data.rpm, data.eccentric_mass_g, to_model_frame(data.X[:H], phase),
-                         to_model_frame(row["fitted"], phase), idn.total_sigma(data, model_error)[:H],
-                         4 * H - 1, source)
+                         to_model_frame(prediction.harmonics, phase), idn.total_sigma(data, model_error)[:H],
+                         4 * H - 1, prediction.model)
 
 
 def comparison_table(comparisons: Sequence[RunComparison]) -> pd.DataFrame:

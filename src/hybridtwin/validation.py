@@ -11,12 +11,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from .forward import HarmonicModel
-from .identification import RunData, total_sigma, wrap
+from .identification import CHANNELS, RunData, total_sigma, wrap
 
 Array = np.ndarray
 
@@ -93,6 +95,67 @@ def predict_run(model: HarmonicModel, data: RunData, values: Mapping[str, float]
             "phase_rad": float(wrap(phi)), "x1_amp_measured_m": abs(X[0, 0]), "x1_amp_predicted_m": abs(M[0, 0]),
             "y1_amp_measured_m": abs(X[0, 1]), "y1_amp_predicted_m": abs(M[0, 1]),
             "outside_range": ",".join(outside), "fitted": aligned}
+
+
+#: columns of validation_harmonics.tsv (``write_predictions``): one row per run, model, harmonic and channel
+PREDICTION_COLUMNS = ["run", "model", "phase_rad", "harmonic", "channel", "model_re_m", "model_im_m"]
+
+
+@dataclass(frozen=True)
+class PredictedRun:
+    """A validation run's predicted harmonics h = 1..H as the predict_validation rule computed them.
+
+    model: the response model (``library`` or ``solver``); phase_rad: the run's aligned phase
+    (``predict_run``'s, wrapped); harmonics: (H, 2) complex [m], channels x, y, in the record's frame
+    (the prediction rotated by the phase, what the measurement is scored against).
+    """
+
+    run: str
+    model: str
+    phase_rad: float
+    harmonics: Array
+
+    @classmethod
+    def from_prediction(cls, row: Mapping, model: str) -> "PredictedRun":
+        """From ``predict_run``'s result (its ``fitted`` harmonics and phase)."""
+        return cls(str(row["run"]), model, float(row["phase_rad"]), np.asarray(row["fitted"], complex))
+
+
+def prediction_table(predictions: Sequence[PredictedRun]) -> pd.DataFrame:
+    """Long table of predicted harmonics (``PREDICTION_COLUMNS``; results/{variant}/validation_harmonics.tsv)."""
+    rows = []
+    for p in predictions:
+        for h in range(p.harmonics.shape[0]):
+            for j, channel in enumerate(CHANNELS):
+                rows.append({"run": p.run, "model": p.model, "phase_rad": p.phase_rad, "harmonic": h + 1,
+                             "channel": channel, "model_re_m": p.harmonics[h, j].real,
+                             "model_im_m": p.harmonics[h, j].imag})
+    return pd.DataFrame(rows, columns=PREDICTION_COLUMNS)
+
+
+def write_predictions(path: str | Path, predictions: Sequence[PredictedRun]) -> None:
+    """Write the predicted harmonics with 17 significant digits (``read_predictions`` gives them back exactly)."""
+    prediction_table(predictions).to_csv(path, sep="\t", index=False, float_format="%.17g")
+
+
+def read_predictions(path: str | Path) -> list[PredictedRun]:
+    """``write_predictions``'s file back to PredictedRun (runs and models in the file's order), bit for bit."""
+    exact = {c: float for c in ("phase_rad", "model_re_m", "model_im_m")}  # Python's float: round-trip on any pandas
+    table = pd.read_csv(path, sep="\t", dtype={"run": str, "model": str, "channel": str}, converters=exact)
+    missing = [c for c in PREDICTION_COLUMNS if c not in table]
+    if missing:
+        raise ValueError(f"{path}: not a validation_harmonics table, columns {missing} missing")
+    out = []
+    for (run, model), rows in table.groupby(["run", "model"], sort=False):
+        H = int(rows["harmonic"].max())
+        if len(rows) != 2 * H or set(rows["channel"]) != set(CHANNELS) or rows["phase_rad"].nunique() != 1:
+            raise ValueError(f"{path}: run {run} ({model}) needs harmonics 1..{H} on channels {CHANNELS} "
+                             "and one phase")
+        order = rows.assign(j=rows["channel"].map(CHANNELS.index)).sort_values(["harmonic", "j"])
+        harmonics = np.empty((H, 2), complex)
+        harmonics.real, harmonics.imag = (order[c].to_numpy(float).reshape(H, 2) for c in ("model_re_m", "model_im_m"))
+        out.append(PredictedRun(str(run), str(model), float(rows["phase_rad"].iloc[0]), harmonics))
+    return out
 
 
 

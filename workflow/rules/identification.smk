@@ -83,7 +83,7 @@ rule identify_joint:
 
 
 rule predict_validation:
-    """Validation runs predicted with the joint parameters (never fitted): error per run."""
+    """Validation runs predicted with the joint parameters (never fitted): error per run, predicted harmonics."""
     input:
         parameters="results/{variant}/parameters.tsv",
         libraries=expand("results/{{variant}}/library/{run}.zarr", run=VALIDATION_RUNS),
@@ -96,6 +96,7 @@ rule predict_validation:
             category="Identification",
             subcategory="{variant}",
         ),
+        harmonics="results/{variant}/validation_harmonics.tsv",
     params:
         model=variant_model,
         options=lambda wildcards: rule_settings(config, wildcards.variant, "validation"),
