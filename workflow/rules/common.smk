@@ -6,7 +6,7 @@ from pathlib import Path
 import pandas as pd
 from snakemake.utils import validate
 
-from hybridtwin.config import offline, offline_for, run_plan, variant as config_variant
+from hybridtwin.config import CONFIG_DIR, offline, offline_for, run_plan, variant as config_variant
 from hybridtwin.diagnosis import settings as diagnosis_settings
 from hybridtwin.identification import settings as identification_settings
 from hybridtwin.measurements import DataError, read_runs
@@ -36,6 +36,9 @@ OFFLINE_USED = {
     "spgd_library": ("scope", "sensor_range_mm", "spgd", "pieces"),
     "validate_library": ("sensor_range_mm",),
 }
+# the config's effects files (hybridtwin.config.user_effects: paths relative to the config folder): an input of every
+# rule whose params.model carries them (variant_model), so that editing one reruns the jobs that build the variant
+EFFECTS_FILES = [str(CONFIG_DIR / path) for path in config.get("effects_files") or []]
 # the speeds the libraries are built at: refined from the records, or the sheet's nominal ones
 SPEEDS = "results/data/harmonics.tsv" if OFFLINE["speed"] == "measured" else config["runs"]
 

@@ -6,6 +6,7 @@ rule spgd_global:
     input:
         snapshots="results/{variant}/snapshots.zarr",
         runs=config["runs"],
+        effects=EFFECTS_FILES,  # their contents build the variant (params.model has only the paths)
     output:
         directory("results/{variant}/library_global.zarr"),
     params:
@@ -26,6 +27,7 @@ rule spgd_library:
     fit takes seconds: one job per run paid the start-up and the snapshots' loading once per run)."""
     input:
         unpack(library_input),
+        effects=EFFECTS_FILES,  # their contents build the variant (params.model has only the paths)
     output:
         [directory(path) for path in expand("results/{{variant}}/library/{run}.zarr", run=RUNS)],
     params:
@@ -49,6 +51,7 @@ rule validate_library:
         snapshots="results/{variant}/snapshots.zarr",
         libraries=expand("results/{{variant}}/library/{run}.zarr", run=RUNS),
         runs=config["runs"],
+        effects=EFFECTS_FILES,  # their contents build the variant (params.model has only the paths)
     output:
         table=report(
             "results/{variant}/library_validation.tsv",

@@ -105,6 +105,7 @@ rule report_machine:
     shapes (hybridtwin.machine_plots)."""
     input:
         parameters="results/{variant}/parameters.tsv",
+        effects=EFFECTS_FILES,  # their contents build the variant (params.model has only the paths)
     output:
         campbell=report(
             "results/{variant}/report/campbell.png",
