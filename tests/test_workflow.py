@@ -201,6 +201,32 @@ def test_changing_the_machine_reruns_the_white_box(workdir):
             assert any(f"results/{variant}/{path}" in line for line in outputs), (variant, path)
 
 
+def test_an_effects_file_is_an_input_of_the_jobs_that_build_on_it(workdir):
+    """An effects file listed in the config is an input (not only a path in params) of every model-building
+    job, so that editing its contents reruns them (Snakemake reruns a job whose input is newer than its output):
+    the dry run's input lines of the scenarios, solves, libraries, fits and diagnoses name it."""
+    (workdir / "config" / "my_effects.py").write_text(
+        "from hybridtwin import Parameter, PolynomialBearing, Term\n"
+        "tilt = PolynomialBearing(name='tilt', meaning='tilt stiffness',\n"
+        "    parameters=(Parameter('k_t', 'N', (0.0, 500.0), 100.0, 'slope stiffness'),),\n"
+        "    terms=(Term(lambda p: p.k_t, (0, 0, 1, 0), \"k_t u'\"),))\n")
+    (workdir / "effects.yaml").write_text("effects_files: [my_effects.py]\n")
+    plan = _snakemake(workdir, "--dry-run", config="effects.yaml")
+    assert plan.returncode == 0, plan.stdout[-2000:] + plan.stderr[-2000:]
+    lines = (plan.stdout + plan.stderr).splitlines()
+    jobs = {}  # rule -> its jobs' input lines
+    rule = None
+    for line in lines:
+        if line.startswith("rule "):
+            rule = line.split()[1].rstrip(":")
+        elif line.strip().startswith("input:") and rule:
+            jobs.setdefault(rule, []).append(line)
+    for name in ("sample_scenarios", "solve_chunk", "spgd_library", "identify_joint", "diagnose"):
+        assert name in jobs, (name, sorted(jobs))
+        assert all("config/my_effects.py" in line for line in jobs[name]), (name, jobs[name][:1])
+    assert not any("my_effects.py" in line for line in jobs.get("preprocess", []))  # the data do not depend on it
+
+
 NESTED = """
 variants:
   expansion:
