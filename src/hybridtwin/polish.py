@@ -63,7 +63,7 @@ def polish(fit: Identification, solver_models: Sequence[HarmonicModel], max_iter
         result = LMResult.concatenate([result, _run(exact, extra, fit.X, options)])
         names += [f"random start {i + 1}" for i in range(random_starts)]
     best = int(np.argmin(np.where(np.isfinite(result.loss), result.loss, np.inf)))  # a start may not solve
-    protocol = ProtocolResult(result, best, np.zeros((0, fit.layout.n)), np.zeros(0), result.seconds, len(names))
+    protocol = ProtocolResult.without_monte_carlo(result, best, len(names))
     polished = conclude(exact, protocol, fit.data, fit.X, fit.confidence, fit.units)
     polished.starts = pd.DataFrame({
         "start": names, "chi2_start": result.history[:, 0] * exact.n_data, "chi2": result.loss * exact.n_data,

@@ -72,6 +72,14 @@ class ProtocolResult:
     def theta(self) -> Array:
         return self.trials.x[self.best]
 
+    @classmethod
+    def without_monte_carlo(cls, trials: LMResult, best: int, n_lm: int | None = None) -> "ProtocolResult":
+        """LM runs from given starts and no Monte Carlo repeat (a full-solver polish, a diagnosis refit): the
+        uncertainty then comes from the Jacobian at the best trial alone."""
+        n = trials.x.shape[1]
+        return cls(trials, int(best), np.zeros((0, n)), np.zeros(0), float(trials.seconds),
+                   len(trials.x) if n_lm is None else int(n_lm))
+
 
 def random_starts(layout, n: int, rng: np.random.Generator) -> Array:
     """n uniform random starts in [-1, 1] for the physical entries (phases set later), (n, layout.n)."""

@@ -131,8 +131,7 @@ def _best(result: LMResult) -> int:
 def _concluded(problem: ArrowProblem, result: LMResult, best: int, base: BaseFit, confidence: float,
                ranges: Mapping[str, tuple[float, float]]) -> tuple[Identification, pd.DataFrame]:
     """A refit's result object at its best trial, and the estimates of the parameters in ``ranges``."""
-    protocol = ProtocolResult(result, best, np.zeros((0, problem.layout.n)), np.zeros(0), result.seconds,
-                              len(result.x))
+    protocol = ProtocolResult.without_monte_carlo(result, best)
     fit = conclude(problem, protocol, base.data, base.X, confidence, units(problem.models[0].variant))
     table = fit.table()
     return fit, table[table["parameter"].isin(list(ranges)) & (table["run"] == "all")]
