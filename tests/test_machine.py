@@ -8,6 +8,7 @@ The independent check of a stepped rotor with disks and gyroscopic coupling agai
 import numpy as np
 import pytest
 import scipy.linalg
+from example_machines import STEPPED_YAML as MACHINE_YAML  # the stepped rotor's config section, shared
 
 from hybridtwin.effects import Unbalance, builtin_effects, candidate_effects
 from hybridtwin.machine import Bearing, Disk, Machine, Sensor, ShaftSegment, UnbalancePlane
@@ -289,26 +290,6 @@ def test_campbell_at_rest_is_the_first_mode_of_the_undamped_varm():
 
 
 # --- the machine: section of the config -----------------------------------------------------------
-
-MACHINE_YAML = """\
-machine:
-  name: stepped
-  segments:
-    - {length: 0.2, d_out: 0.04, E: 2.11e+11, rho: 7810, n_elements: 4}
-    - {length: 0.5, d_out: 0.05, d_in: 0.02, E: 2.11e+11, rho: 7810, n_elements: 10}
-    - {length: 0.3, d_out: 0.035, E: 2.11e+11, rho: 7810, n_elements: 3}
-  disks:
-    - {node: 8, mass: 15.3, I_p: 0.12, I_d: 0.062, name: d1}
-    - {node: 16, mass: 7.4, I_p: 0.037, I_d: 0.019, name: d2}
-  bearings: {a: {node: 2, k: 2.0e+7, c: 800}, b: {node: 13, k: 1.0e+7, c: 500}}
-  unbalance_planes: {d1: 8}
-  sensors: {x1: {node: 8, direction: x}, y1: {node: 8, direction: y}}
-variants:
-  linear:
-    effects: [linear_bearing@a, linear_bearing@b, gyroscopic, unbalance@d1]
-    unknown: {k_a: [1.0e+7, 4.0e+7], c_b: [100, 1000]}
-"""
-
 
 @pytest.fixture
 def project(tmp_path, monkeypatch):

@@ -228,10 +228,7 @@ def confirm(base: BaseFit, score: Score, scores: Scores, max_iterations: int = 4
     c = score.candidate
     ranges = {p.name: tuple(p.bounds) for p in c.parameters}
     widened: list = []
-    # the verdicts compare chi^2 drops against thresholds of 6-10: chi^2 to within ~0.5 is all they need, and
-    # stopping there saves the long crawl along flat valleys
-    options = LMOptions(max_iterations=max_iterations, ftol=1e-6, xtol=1e-6, gtol=1e-8, stall_chi2=STALL_CHI2,
-                        geodesic=True)
+    options = _options(max_iterations)
     fit, start_chi2, wider, old = None, [], {}, {}
     for attempt in range(widen + 1):
         problem, theta0 = extended_problem(base, [c], ranges)
@@ -282,17 +279,33 @@ def confirm(base: BaseFit, score: Score, scores: Scores, max_iterations: int = 4
     # the records are steady states the machine stayed in: an optimum whose state is unstable at some run (a
     # Floquet multiplier outside the unit circle) cannot be the machine, whatever its chi^2 (forward.check_stability)
     check = None if quick else fwd.check_stability(fit)
+    return _confirmation(c, fit, estimates, ranges, scores.base_chi2, scores.n_data, start_time, widened,
+                         start_chi2, check)
+
+
+def _confirmation(candidate: Candidate, fit: Identification, estimates: pd.DataFrame,
+                  ranges: Mapping[str, tuple[float, float]], before_chi2: float, n_data: int, start_time: float,
+                  widened: list, start_chi2: Sequence[float], check) -> Confirmation:
+    """A refit's Confirmation: likelihood ratio against ``before_chi2`` (the fit without the candidate) on the
+    candidate's k = len(ranges) parameters, Delta BIC = -LR + k ln n, and whether zero is excluded."""
     chi2 = float(fit.uncertainty.chi2)
-    k, n = len(ranges), scores.n_data
-    lr = scores.base_chi2 - chi2
+    k = len(ranges)
+    lr = before_chi2 - chi2
     # zero is excluded by the interval, or by an estimate pinned at the range edge away from zero (the data want
     # more of the effect than the physical limit allows: its interval is not valid there, the likelihood ratio is)
     far_edge = estimates["at_bound"].astype(bool) & (estimates["value"].abs() > 0)
     excludes = bool(((estimates["ci_low"] > 0) | (estimates["ci_high"] < 0) | far_edge).any())
-    return Confirmation(c, fit, chi2, int(fit.uncertainty.dof), float(lr),
-                        float(stats.chi2.sf(max(lr, 0.0), k)), float(-lr + k * np.log(n)), estimates, excludes,
+    return Confirmation(candidate, fit, chi2, int(fit.uncertainty.dof), float(lr),
+                        float(stats.chi2.sf(max(lr, 0.0), k)), float(-lr + k * np.log(n_data)), estimates, excludes,
                         time.perf_counter() - start_time, {k_: tuple(map(float, v)) for k_, v in ranges.items()},
                         widened, [float(v) for v in start_chi2], None if check is None else check.unstable_runs)
+
+
+def _options(max_iterations: int) -> LMOptions:
+    """A refit's LM options: the verdicts compare chi^2 drops against thresholds of 6-10, so chi^2 to within ~0.5
+    is all they need, and stopping there saves the long crawl along flat valleys."""
+    return LMOptions(max_iterations=max_iterations, ftol=1e-6, xtol=1e-6, gtol=1e-8, stall_chi2=STALL_CHI2,
+                     geodesic=True)
 
 
 def without(base: BaseFit, kept: Sequence[Candidate], ranges: Mapping[str, tuple[float, float]],
@@ -309,20 +322,10 @@ def without(base: BaseFit, kept: Sequence[Candidate], ranges: Mapping[str, tuple
     problem, _ = extended_problem(base, kept, kept_ranges)
     theta = _theta_in(problem.layout, start)[None]
     X = base.X[None]
-    options = LMOptions(max_iterations=max_iterations, ftol=1e-6, xtol=1e-6, gtol=1e-8, stall_chi2=STALL_CHI2,
-                        geodesic=True)
+    options = _options(max_iterations)
     result = _continued(problem, levenberg_marquardt(problem, theta, X, options), X, options)
     last = kept[-1]
     own = {p.name: kept_ranges[p.name] for p in last.parameters}
     fit, estimates = _concluded(problem, result, _best(result), base, confidence, own)
-    check = fwd.check_stability(fit)
-    chi2 = float(fit.uncertainty.chi2)
-    k = len(own)
-    lr = before_chi2 - chi2
-    far_edge = estimates["at_bound"].astype(bool) & (estimates["value"].abs() > 0)
-    excludes = bool(((estimates["ci_low"] > 0) | (estimates["ci_high"] < 0) | far_edge).any())
-    return Confirmation(last, fit, chi2, int(fit.uncertainty.dof), float(lr),
-                        float(stats.chi2.sf(max(lr, 0.0), k)), float(-lr + k * np.log(n_data)), estimates, excludes,
-                        time.perf_counter() - start_time, {k_: tuple(map(float, v)) for k_, v in own.items()}, [],
-                        [float(result.history[0, 0] * problem.n_data)],
-                        None if check is None else check.unstable_runs)
+    return _confirmation(last, fit, estimates, own, before_chi2, n_data, start_time, [],
+                         [float(result.history[0, 0] * problem.n_data)], fwd.check_stability(fit))
