@@ -333,16 +333,19 @@ def test_a_base_fit_in_another_basin_is_left_by_the_profile():
 
 def test_the_path_stops_when_no_quick_refit_comes_near_the_noise():
     """The forward selection's stop rule (diagnosis._out_of_reach): with chi^2 1000 on 100 dof, the drop to
-    chi^2/dof = misfit_ratio (1.2) is 880; a best quick refit removing 50 (x REACH = 500 < 880) stops the path and
-    names that candidate, one removing 100 (x 10 = 1000) lets it go on, and no refit at all never stops it."""
+    chi^2/dof = misfit_ratio (1.2) is 880; a best quick refit removing half of 880 / REACH stops the path and
+    names that candidate (not the weaker one), one removing 880 / REACH lets it go on, and no refit never stops."""
     from types import SimpleNamespace
 
     scores = SimpleNamespace(base_chi2=1000.0, base_dof=100)
     o = dg.DEFAULTS
-    assert dg.REACH == 10.0
-    stop = dg._out_of_reach(scores, {"a": SimpleNamespace(chi2=990.0), "b": SimpleNamespace(chi2=950.0)}, o)
-    assert stop.startswith("the best remaining candidate, b, removes 50 of chi^2 1000") and "880" in stop
-    assert dg._out_of_reach(scores, {"b": SimpleNamespace(chi2=900.0)}, o) == ""
+    needed = 1000.0 - o["misfit_ratio"] * 100
+    short, enough = 0.5 * needed / dg.REACH, needed / dg.REACH
+    stop = dg._out_of_reach(scores, {"a": SimpleNamespace(chi2=1000.0 - short / 2),
+                                     "b": SimpleNamespace(chi2=1000.0 - short)}, o)
+    assert stop.startswith(f"the best remaining candidate, b, removes {short:.4g} of chi^2 1000")
+    assert f"{needed:.4g} needed" in stop
+    assert dg._out_of_reach(scores, {"b": SimpleNamespace(chi2=1000.0 - enough)}, o) == ""
     assert dg._out_of_reach(scores, {}, o) == ""
 
 
