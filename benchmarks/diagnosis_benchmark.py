@@ -161,16 +161,15 @@ def judge(case: str, result: dg.Diagnosis) -> tuple[str, bool]:
 
 
 def estimates(case: str, result: dg.Diagnosis) -> str:
-    """Each hidden parameter's estimate against the truth, from the last step of the path that holds it."""
+    """Each hidden parameter's estimate against the truth, at the path's final fit (``Diagnosis.estimates``)."""
     _, values, _ = CASES[case]
     out = []
+    final = result.estimates().set_index("parameter")
     for name, truth in values.items():
-        rows = [step.confirmation.estimates for step in result.path
-                if name in set(step.confirmation.estimates["parameter"])]
-        if not rows:
+        if name not in final.index:
             out.append(f"{name}: not estimated (truth {truth:.4g})")
             continue
-        r = rows[-1].set_index("parameter").loc[name]
+        r = final.loc[name]
         inside = r.ci_low <= truth <= r.ci_high
         out.append(f"{name} = {r.value:.4g} [{r.ci_low:.4g}, {r.ci_high:.4g}] vs {truth:.4g} "
                    f"({'inside' if inside else 'OUTSIDE'})")

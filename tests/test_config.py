@@ -12,6 +12,7 @@ import pytest
 import yaml
 from snakemake.utils import update_config
 
+from hybridtwin import identification as idn
 from hybridtwin.config import ConfigError, check
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -87,6 +88,8 @@ BAD = {
                           ["identification.per_run", "'q_z'", "unknown of no variant", "q_y"]),
     "per_run parameter of no variant's unknowns": ("identification: {per_run: [zeta_blo]}\n",
                                                   ["identification.per_run", "'zeta_blo'", "unknown of no variant"]),
+    "variant's own per_run": ("variants: {final: {per_run: [q_x, q_z]}}\n",
+                              ["variants.final.per_run", "'q_z'", "not an unknown of variant 'final'", "q_y"]),
     "per_run as one name": ("identification: {per_run: q_x}\n", ["identification.per_run", "'q_x'", "array"]),
     "sparse variant of another type": ("diagnosis: {sparse_variant: [final]}\n",
                                        ["diagnosis.sparse_variant", "['final']", "string", "null"]),
@@ -135,6 +138,7 @@ def test_each_bad_value_is_one_line_naming_file_line_key_and_value(project, name
 @pytest.mark.parametrize("overlay", [
     "identification: {per_run: [k_w]}\n",  # an unknown of one variant (final) only: per run there
     "identification: {per_run: []}\n",
+    "variants: {final: {per_run: []}}\n",  # a diagnosis's recommendation: the bow shared in this variant
     "diagnosis: {sparse_variant: null}\n",
     "diagnosis: {sparse_variant: geometric}\n",
 ])
@@ -351,3 +355,13 @@ def test_the_offline_spgd_defaults_are_the_sparse_pgds():
     for key, value in OFFLINE_DEFAULTS["spgd"].items():
         if key != "degree":
             assert _same(value, signature[key].default), (key, value, signature[key].default)
+
+
+def test_a_variants_own_per_run_overrides_the_identification_default_for_it_alone():
+    """variants.NAME.per_run (what a diagnosis recommends when the data do not need the bow per run) is the joint
+    fit's per_run for that variant; the others keep identification.per_run."""
+    config = {"identification": {"per_run": ["q_x", "q_y"]},
+              "variants": {"geometric": {"effects": ["unbalance"]},
+                           "geometric_lbc": {"effects": ["unbalance"], "per_run": []}}}
+    assert idn.rule_settings(config, "geometric_lbc", "joint")["per_run"] == []
+    assert idn.rule_settings(config, "geometric", "joint")["per_run"] == ["q_x", "q_y"]

@@ -50,14 +50,14 @@ def _data(extra_effects: list[str], values: dict[str, float], seed: int) -> list
     return out
 
 
-def _base_fit(data: list[idn.RunData], spec: dict = GEOMETRIC) -> st.BaseFit:
-    """The variant fitted with the full solver (shared bow): random starts plus the nominal one."""
+def _base_fit(data: list[idn.RunData], spec: dict = GEOMETRIC, per_run=()) -> st.BaseFit:
+    """The variant fitted with the full solver (shared bow, or ``per_run``): random starts plus the nominal one."""
     variant = Variant.from_spec("geometric", spec)
     lower, upper = zip(*variant.unknown.values())
     models = [fwd.SolverModel(variant, d.run, d.rpm, d.eccentric_mass_g, list(variant.unknown), np.array(lower),
                               np.array(upper), H) for d in data]
     options = ProtocolOptions(trials=3, monte_carlo=0, seed=2, lm=lm.LMOptions(max_iterations=60))
-    fit = idn.identify(models, data, (), options)
+    fit = idn.identify(models, data, per_run, options)
     assert fit.success or fit.status == lm.STALLED
     return st.BaseFit(variant, fit.layout, fit.theta, fit.data, H)
 
@@ -396,3 +396,50 @@ def test_backward_elimination_drops_a_stand_in_made_redundant_by_a_later_effect(
     k4_full = k4.estimates.set_index("parameter").loc["k4"]
     k4_kept = final.estimates.set_index("parameter").loc["k4"]
     assert abs(k4_kept.value - k4_full.value) < 2 * (k4_full.ci_high - k4_full.ci_low) / 3.92 + 1e-9
+
+
+def _one_step_path(base: st.BaseFit, name: str) -> tuple[list, st.Scores, dg.Diagnosis]:
+    """The path of a diagnosis that took ``name`` and fits the noise: one thorough-enough refit at ``base``."""
+    scores = st.score_tests(base, _candidates([name]))
+    cf = rf.confirm(base, scores.scores[0], scores, starts=0, widen=0, far=False)
+    path = [dg.Step(name, scores.base_chi2 / scores.base_dof, cf.chi2 / cf.dof, cf.delta_bic, 1.0, cf)]
+    return path, scores, dg.Diagnosis(dg._table(scores, {}, {name: ""}, []), "", "")
+
+
+def test_the_sharing_check_shares_a_bow_the_data_do_not_need_per_run(slope_data):
+    """Data with one bow for all runs, a base with the bow per run (the workflow's default) and the slope force
+    found: the per-run bows buy nothing the shared one does not (likelihood ratio ~ chi^2(6) under "shared"), so
+    the check shares them: the path's last step is the shared fit (no per-run entry, chi^2 within 3 sigma of
+    chi^2(dof)), its k4 the truth's k_w within 10 % as with the shared base (the cubic part is small, see
+    test_estimate_of_the_linear_slope_term_matches_the_truth), and the recommended variant says per_run: []."""
+    base = _base_fit(slope_data, per_run=("q_x", "q_y"))
+    path, scores, result = _one_step_path(base, "expansion_k4")
+    assert path[-1].confirmation.fit.layout.local == ("q_x", "q_y")
+    shared = dg._sharing(base, path, scores, dg.DEFAULTS, result)
+    sharing = result.summary["sharing"]
+    assert sharing["shared"] and sharing["lr_dof"] == 2 * (len(RUNS) - 1)
+    assert sharing["chi2_shared"] >= sharing["chi2_per_run"] - 1e-6 * sharing["chi2_per_run"]  # nested fits
+    final = shared[-1].confirmation
+    assert final.fit.layout.local == () and final.chi2 == pytest.approx(sharing["chi2_shared"])
+    assert final.chi2 / final.dof < 1 + 3 * np.sqrt(2 / final.dof)
+    assert final.estimates.set_index("parameter").loc["k4", "value"] == pytest.approx(324.2, rel=0.1)
+    result.path = shared
+    dg._conclude_path(result, base, scores, dg.DEFAULTS)
+    assert "need not be estimated per run" in result.conclusion
+    spec = result.summary["recommended_variant"]["spec"]
+    assert spec["per_run"] == [] and "per_run: []" in result.recommendation
+    Variant.from_spec(result.summary["recommended_variant"]["name"], spec)  # a valid config entry
+
+
+def test_the_sharing_check_keeps_a_bow_that_differs_between_runs():
+    """The same, but the truth's bow differs between the two unbalance masses (q_x 0.002 at 25.9 g, 0.004 at
+    14.8 g: a bow that the rig's mounting changed): one shared bow cannot fit both, the per-run values are
+    needed and stay (the path unchanged, the recommended variant without per_run)."""
+    truth = TRUTH | {"k_w": 324.2, "k_z": 301.1}
+    heavy = _data(["slope_spring"], truth, seed=1)[:2]
+    light = _data(["slope_spring"], truth | {"q_x": 0.004}, seed=2)[2:]
+    base = _base_fit(heavy + light, per_run=("q_x", "q_y"))
+    path, scores, result = _one_step_path(base, "expansion_k4")
+    kept = dg._sharing(base, path, scores, dg.DEFAULTS, result)
+    assert not result.summary["sharing"]["shared"] and result.summary["sharing"]["lr"] > 100
+    assert kept[-1].confirmation is path[-1].confirmation

@@ -386,6 +386,14 @@ def _name_problems(config: Mapping, config_dir: Path) -> Iterable[Problem]:
                 f"{parameter!r} is an unknown of no variant, so nothing would be estimated per run " \
                 f"{_allowed(parameter, unknowns, 'unknown parameters')}"
 
+    for name, spec in variants.items():
+        own = set((spec or {}).get("unknown") or {})
+        for i, parameter in enumerate((spec or {}).get("per_run") or []):
+            if parameter not in own:
+                yield ("variants", name, "per_run", i), f"variants.{name}.per_run", \
+                    f"{parameter!r} is not an unknown of variant {name!r} " \
+                    f"{_allowed(parameter, own, 'its unknown parameters')}"
+
     diagnosis = config.get("diagnosis") or {}
     available = [c.name for c in candidates_for([])] + list(user)  # built in, then from effects_files
     for i, candidate in enumerate(diagnosis.get("candidates") or []):

@@ -49,7 +49,7 @@ from scipy import stats
 
 from .candidates import Candidate
 from .fingerprint import Fingerprint, fingerprint
-from .refit import Confirmation, confirm, without
+from .refit import Confirmation, confirm, shared, without
 from .score_test import BaseFit, Scores, by_score, extend, nested, score_tests
 from .variants import Variant
 
@@ -88,6 +88,18 @@ class Diagnosis:
     best: Confirmation | None = None  # the first step's best confirmed effect
     path: list = field(default_factory=list)  # forward selection, a Step per effect added
     fingerprint: Fingerprint | None = None  # of the residual left at the end of the path (or of the base)
+
+    def estimates(self) -> pd.DataFrame:
+        """The path's effects' parameters (``Identification.table`` rows, with ``effect``) at the path's final
+        fit, every effect in: an earlier step's own estimate was made without the effects added after it."""
+        if not self.path:
+            return pd.DataFrame(columns=["effect", "parameter", "value", "ci_low", "ci_high"])
+        table = self.path[-1].confirmation.fit.table()
+        table = table[table["run"] == "all"]
+        rows = [table[table["parameter"].isin([p.name for p in step.confirmation.candidate.parameters])]
+                .assign(effect=step.effect) for step in self.path]
+        out = pd.concat(rows, ignore_index=True)
+        return out[["effect"] + [c for c in out if c != "effect"]]
 
     def path_table(self) -> pd.DataFrame:
         """One row per forward-selection step: effect, chi^2/dof before and after, Delta BIC, explained share."""
@@ -249,6 +261,7 @@ def diagnose(base: BaseFit, candidates: Sequence[Candidate], options: Mapping | 
             log.info("forward selection, step %d at %s: %s", len(path) + 1, current.variant.name,
                      "nothing significant left" if best is None else f"best {best.candidate.name}")
     path = _backward(base, path, scores, o, first, log)
+    path = _sharing(base, path, scores, o, first, log)
     first.path = path
     _conclude_path(first, base, scores, o)
     first.fingerprint = residual_fingerprint(base, path[-1].confirmation.fit.fun if path else scores.residual)
@@ -305,6 +318,55 @@ def _backward(base: BaseFit, path: list[Step], scores: Scores, o: Mapping, resul
         path[-1] = Step(path[-1].effect, before / dof, cf.chi2 / cf.dof, -(before - cf.chi2) + k_last * np.log(n),
                         (scores.base_chi2 - cf.chi2) / _excess(scores), cf)
     return path
+
+
+def _sharing(base: BaseFit, path: list[Step], scores: Scores, o: Mapping, result: Diagnosis, log=None
+             ) -> list[Step]:
+    """The sharing check, once the path's effects explain the discrepancy: are the base's per-run parameters
+    (``identification.per_run``, e.g. the bow q_x, q_y) still needed with the effects in? The path's model is
+    fitted with each of them one value shared by all runs (``refit.shared``); the per-run values are kept when
+    their likelihood ratio is significant (``alpha``) with a Delta BIC below ``bic_threshold``, as any effect
+    must be. Otherwise the path's last step becomes the shared fit (its estimates and intervals: per-run values
+    the data do not need trade off against the new effect, e.g. each run's bow and unknown phase absorb most of
+    its 1X response and bias a bearing stiffness resting on the higher harmonics), the recommended variant
+    shares them (``per_run: []``), and ``summary["sharing"]`` has the figures."""
+    local = list(base.layout.local)
+    if not path or not local or not _fits_the_noise(path[-1].confirmation, o):
+        return path
+    final, n = path[-1].confirmation, scores.n_data
+    ranges = {k: v for step in path for k, v in step.confirmation.ranges.items()}
+    before = path[-2].confirmation.chi2 if len(path) > 1 else scores.base_chi2
+    cf = shared(base, [step.confirmation.candidate for step in path], ranges, final.fit, before, n,
+                int(o["max_iterations"]))
+    k = len(local) * (len(base.layout.runs) - 1)  # the per-run values' extra parameters
+    lr = cf.chi2 - final.chi2
+    p_value, delta_bic = float(stats.chi2.sf(max(lr, 0.0), k)), float(-lr + k * np.log(n))
+    keep = (p_value < o["alpha"] and delta_bic < o["bic_threshold"]) or bool(cf.unstable_runs) or \
+        not _fits_the_noise(cf, o)
+    result.summary["sharing"] = {"parameters": local, "chi2_per_run": final.chi2, "dof_per_run": final.dof,
+                                 "chi2_shared": cf.chi2, "dof_shared": cf.dof, "lr": float(lr), "lr_dof": k,
+                                 "lr_p_value": p_value, "delta_bic_per_run": delta_bic, "shared": not keep}
+    if log:
+        log.info("sharing check: %s shared chi^2 %.4g (dof %d) vs per run %.4g (dof %d): likelihood ratio %.3g on %d "
+                 "dof, Delta BIC of per-run values %.3g: %s", ", ".join(local), cf.chi2, cf.dof, final.chi2,
+                 final.dof, lr, k, delta_bic, "kept per run" if keep else "shared")
+    if keep:
+        return path
+    last = path[-1]
+    return path[:-1] + [Step(last.effect, last.chi2_dof_before, cf.chi2 / cf.dof, last.delta_bic,
+                             (scores.base_chi2 - cf.chi2) / _excess(scores), cf)]
+
+
+def _sharing_text(result: Diagnosis) -> str:
+    """The conclusion's sentence on the sharing check (empty when the per-run values stay)."""
+    s = result.summary.get("sharing")
+    if not s or not s["shared"]:
+        return ""
+    names = ", ".join(s["parameters"])
+    return (f"; {names} need not be estimated per run once the effect{'s are' if len(result.path) > 1 else ' is'} "
+            f"in (shared: chi^2 {s['chi2_shared']:.4g} against {s['chi2_per_run']:.4g} per run, likelihood ratio "
+            f"{s['lr']:.3g} on {s['lr_dof']} dof, Delta BIC of the per-run values {s['delta_bic_per_run']:+.3g}): "
+            "the estimates are from the fit with them shared, and the recommended variant shares them")
 
 
 def residual_fingerprint(base: BaseFit, r: Array) -> Fingerprint:
@@ -416,9 +478,13 @@ def _conclude_path(result: Diagnosis, base: BaseFit, scores: Scores, o: Mapping)
     names = [step.effect for step in path]
     first = result.table.index[result.table["effect"] == names[0]][0]
     base_ratio = scores.base_chi2 / scores.base_dof
-    estimates = "; ".join(f"{step.effect}: {_estimate_text(step.confirmation)}" for step in path)
+    final_rows = result.estimates()
+    estimates = "; ".join(f"{step.effect}: "
+                          f"{_estimate_text(step.confirmation, final_rows[final_rows['effect'] == step.effect])}"
+                          for step in path)
     eliminated = [e["effect"] for e in result.summary.get("eliminated", [])]
-    if explains and len(path) == 1 and not eliminated:
+    sharing = _sharing_text(result)
+    if explains and len(path) == 1 and not eliminated and not sharing:
         return  # _conclude's verdict and recommendation stand
     dropped = (f"; {', '.join(eliminated)} dropped by backward elimination (not needed once "
                f"{' and '.join(names)} {'is' if len(names) == 1 else 'are'} in)") if eliminated else ""
@@ -433,11 +499,11 @@ def _conclude_path(result: Diagnosis, base: BaseFit, scores: Scores, o: Mapping)
             head = f"add {together}: together they explain the discrepancy"
         result.conclusion = (f"{head} ({100 * share:.0f} % of the excess chi^2); chi^2/dof {base_ratio:.3g} -> "
                              f"{final.chi2 / final.dof:.3g} (forward selection, {len(path) + len(eliminated)} steps"
-                             f"{dropped}); {estimates}")
+                             f"{dropped}{sharing}); {estimates}")
         candidates = [step.confirmation.candidate for step in path]
         ranges = {k: v for step in path for k, v in step.confirmation.ranges.items()}
         name = "_".join([base.variant.name] + names)
-        spec = variant_spec(base.variant, candidates, ranges)
+        spec = variant_spec(base.variant, candidates, ranges, per_run=[] if sharing else None)
         result.recommendation = (f"Add this variant under `variants:` in config/config.yaml, then run `snakemake "
                                  f"--cores 2` (only the new variant is built) and compare in results/ledger.tsv:"
                                  f"\n\n{variant_lines(name, spec)}\n")
@@ -458,7 +524,9 @@ def _conclude_path(result: Diagnosis, base: BaseFit, scores: Scores, o: Mapping)
     result.summary["conclusion"] = result.conclusion
 
 
-def _estimate_text(cf: Confirmation) -> str:
+def _estimate_text(cf: Confirmation, estimates: pd.DataFrame | None = None) -> str:
+    """The candidate's estimates (``cf.estimates``, or ``estimates``: its rows of another fit) with intervals and
+    the ranges the refit widened."""
     widened = {name for name, _, _ in cf.widened}
 
     def one(r) -> str:
@@ -468,7 +536,7 @@ def _estimate_text(cf: Confirmation) -> str:
             return (f"{r.parameter} = {r.value:.4g} {r.unit} (at the edge of its range [{lo:.4g}, {hi:.4g}], the "
                     "physical limit: the data want more of this effect than it can physically give)")
         return f"{r.parameter} = {r.value:.4g} [{r.ci_low:.4g}, {r.ci_high:.4g}] {r.unit}".rstrip() + note
-    return "; ".join(one(r) for r in cf.estimates.itertuples())
+    return "; ".join(one(r) for r in (cf.estimates if estimates is None else estimates).itertuples())
 
 
 def _table(scores: Scores, confirmations: Mapping[str, Confirmation], verdicts: Mapping[str, str],
@@ -512,9 +580,11 @@ def refits_table(result: Diagnosis) -> pd.DataFrame:
 
 
 def variant_spec(base: Variant, candidate: Candidate | Sequence[Candidate],
-                 ranges: Mapping[str, tuple[float, float]] | None = None) -> dict:
+                 ranges: Mapping[str, tuple[float, float]] | None = None, per_run: Sequence[str] | None = None
+                 ) -> dict:
     """The config entry (``variants:`` form) of ``base`` + the candidate(s), their parameters unknown in their
-    ranges (``ranges``: those a refit widened)."""
+    ranges (``ranges``: those a refit widened); ``per_run``: the variant's own parameters per run (its
+    ``per_run`` key, overriding ``identification.per_run``; None: not set)."""
     added = [candidate] if isinstance(candidate, Candidate) else list(candidate)
     ranges = dict(ranges or {})
     unknown = dict(base.unknown) | {p.name: tuple(ranges.get(p.name, p.bounds)) for c in added for p in c.parameters}
@@ -523,6 +593,8 @@ def variant_spec(base: Variant, candidate: Candidate | Sequence[Candidate],
             "unknown": {k: [float(lo), float(hi)] for k, (lo, hi) in unknown.items()}}
     if base.fixed:
         spec["fixed"] = {k: float(v) for k, v in base.fixed.items()}
+    if per_run is not None:
+        spec["per_run"] = list(per_run)
     return spec
 
 
@@ -535,7 +607,7 @@ def variant_lines(name: str, spec: Mapping) -> str:
             return "[" + ", ".join(flow(v) for v in value) + "]"
         return f"{value:g}" if isinstance(value, float) else str(value)
     lines = [f"  {name}:", f"    description: \"{spec['description']}\""]
-    lines += [f"    {key}: {flow(spec[key])}" for key in ("effects", "unknown", "fixed") if key in spec]
+    lines += [f"    {key}: {flow(spec[key])}" for key in ("effects", "unknown", "fixed", "per_run") if key in spec]
     return "\n".join(lines)
 
 

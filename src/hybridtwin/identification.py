@@ -749,9 +749,13 @@ def runs_with_role(sheet: str | Path, role: str) -> list[str]:
 
 
 def settings(config: Mapping, variant: str) -> dict:
-    """The identification options for ``variant``: defaults, then the config's section; lambda resolved."""
+    """The identification options for ``variant``: defaults, then the config's section; lambda resolved; the
+    variant's own ``per_run`` (its entry under ``variants:``) over ``identification.per_run``."""
     given = dict(config.get("identification") or {})
     out = {**DEFAULTS, **given}
+    own = ((config.get("variants") or {}).get(variant) or {}).get("per_run")
+    if own is not None:
+        out["per_run"] = list(own)
     for key in ("joint", "polish"):
         out[key] = {**DEFAULTS[key], **(given.get(key) or {})}
     sparsity = out["sparsity"]

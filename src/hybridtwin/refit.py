@@ -152,10 +152,19 @@ def _far_ranges(ranges: Mapping[str, tuple[float, float]], candidate: Candidate,
     return out
 
 
-def _theta_in(layout: Layout, fit: Identification) -> Array:
-    """A fit's estimate (SI) as theta of another layout with the same entries (other ranges)."""
+def _theta_in(layout: Layout, fit: Identification, pool=np.mean) -> Array:
+    """A fit's estimate (SI) as theta of another layout (other ranges; a parameter per run in the fit and shared
+    in ``layout`` takes the ``pool`` of its per-run values; one shared in the fit and per run in ``layout``, the
+    shared value at every run)."""
     values = dict(zip(fit.layout.entries(), fit.x))
-    return np.array([values[e] if e[0] == "phase" else float(layout.normalise(e[0], values[e]))
+
+    def value(name: str, run: str) -> float:
+        if (name, run) in values:
+            return values[(name, run)]
+        if run == "all":
+            return float(pool([values[(name, r)] for r in fit.layout.runs]))
+        return values[(name, "all")]
+    return np.array([value(*e) if e[0] == "phase" else float(layout.normalise(e[0], value(*e)))
                      for e in layout.entries()])
 
 
@@ -308,6 +317,27 @@ def _options(max_iterations: int) -> LMOptions:
                      geodesic=True)
 
 
+def _from_fit(base: BaseFit, kept: Sequence[Candidate], ranges: Mapping[str, tuple[float, float]],
+              start: Identification, before_chi2: float, n_data: int, max_iterations: int, confidence: float,
+              per_run: Sequence[str] | None = None, pools=(np.mean,)) -> Confirmation:
+    """The base with the ``kept`` candidates (and ``per_run`` parameters, default the base's) fitted from a fuller
+    fit's optimum ``start`` (a per-run value shared here: each of ``pools`` of the per-run values, one start
+    each), continued while it gains; the Confirmation of the last kept candidate, its likelihood ratio against
+    ``before_chi2``, the optimum's stability checked as in ``confirm``."""
+    start_time = time.perf_counter()
+    kept_ranges = {p.name: tuple(ranges[p.name]) for c in kept for p in c.parameters}
+    problem, _ = extended_problem(base, kept, kept_ranges, per_run)
+    theta = np.stack([_theta_in(problem.layout, start, pool) for pool in pools])
+    X = np.repeat(base.X[None], len(theta), axis=0)
+    options = _options(max_iterations)
+    result = _continued(problem, levenberg_marquardt(problem, theta, X, options), X, options)
+    last = kept[-1]
+    own = {p.name: kept_ranges[p.name] for p in last.parameters}
+    fit, estimates = _concluded(problem, result, _best(result), base, confidence, own)
+    return _confirmation(last, fit, estimates, own, before_chi2, n_data, start_time, [],
+                         (result.history[: len(theta), 0] * problem.n_data).tolist(), fwd.check_stability(fit))
+
+
 def without(base: BaseFit, kept: Sequence[Candidate], ranges: Mapping[str, tuple[float, float]],
             start: Identification, before_chi2: float, n_data: int, max_iterations: int = 40,
             confidence: float = 0.95) -> Confirmation:
@@ -317,15 +347,16 @@ def without(base: BaseFit, kept: Sequence[Candidate], ranges: Mapping[str, tuple
 
     Returned as the Confirmation of the last kept candidate, its likelihood ratio against ``before_chi2`` (the
     fit without it); the stability of the optimum is checked as in ``confirm``."""
-    start_time = time.perf_counter()
-    kept_ranges = {p.name: tuple(ranges[p.name]) for c in kept for p in c.parameters}
-    problem, _ = extended_problem(base, kept, kept_ranges)
-    theta = _theta_in(problem.layout, start)[None]
-    X = base.X[None]
-    options = _options(max_iterations)
-    result = _continued(problem, levenberg_marquardt(problem, theta, X, options), X, options)
-    last = kept[-1]
-    own = {p.name: kept_ranges[p.name] for p in last.parameters}
-    fit, estimates = _concluded(problem, result, _best(result), base, confidence, own)
-    return _confirmation(last, fit, estimates, own, before_chi2, n_data, start_time, [],
-                         [float(result.history[0, 0] * problem.n_data)], fwd.check_stability(fit))
+    return _from_fit(base, kept, ranges, start, before_chi2, n_data, max_iterations, confidence)
+
+
+def shared(base: BaseFit, kept: Sequence[Candidate], ranges: Mapping[str, tuple[float, float]],
+           start: Identification, before_chi2: float, n_data: int, max_iterations: int = 40,
+           confidence: float = 0.95) -> Confirmation:
+    """The base with the ``kept`` candidates and no parameter per run: each of the base's per-run parameters
+    (``base.layout.local``, e.g. the bow q_x, q_y) one value shared by all runs, fitted from a fuller fit's
+    optimum ``start`` with its per-run values pooled (two starts: their mean and their median), continued while
+    it gains. The diagnosis's sharing check (``diagnosis._sharing``) compares its chi^2 with ``start``'s.
+    Returned as ``without``'s."""
+    return _from_fit(base, kept, ranges, start, before_chi2, n_data, max_iterations, confidence, per_run=(),
+                     pools=(np.mean, np.median))

@@ -92,12 +92,15 @@ def extend(variant: Variant, candidates: Sequence[Candidate], ranges: Mapping[st
 
 
 def extended_problem(base: BaseFit, candidates: Sequence[Candidate],
-                     ranges: Mapping[str, tuple[float, float]] | None = None) -> tuple[ArrowProblem, Array]:
-    """The joint problem of the base extended by ``candidates`` (full solver), and theta at beta = 0."""
+                     ranges: Mapping[str, tuple[float, float]] | None = None,
+                     per_run: Sequence[str] | None = None) -> tuple[ArrowProblem, Array]:
+    """The joint problem of the base extended by ``candidates`` (full solver), and theta at beta = 0 (the base's
+    entries; with ``per_run`` other than the base's, entries it lacks are at 0 normalised: set them yourself).
+    per_run: the parameters estimated per run (default: the base's)."""
     ext = extend(base.variant, candidates, ranges)
     lower, upper = zip(*ext.unknown.values())
-    layout = Layout.build(list(ext.unknown), lower, upper, base.layout.runs, base.layout.local,
-                          base.layout.phase_sigma)
+    layout = Layout.build(list(ext.unknown), lower, upper, base.layout.runs,
+                          base.layout.local if per_run is None else per_run, base.layout.phase_sigma)
     models = [SolverModel(ext, d.run, d.rpm, d.eccentric_mass_g, layout.parameters, np.array(lower),
                           np.array(upper), base.harmonics) for d in base.data]
     known = dict(zip(base.layout.entries(), base.theta))

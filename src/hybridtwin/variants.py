@@ -92,10 +92,12 @@ class Variant:
                   shaft: Shaft | None = None) -> "Variant":
         """Build from the config form (see module docstring); ``effects`` adds user effects."""
         registry = builtin_effects() | dict(effects or {})
-        unknown_keys = sorted(set(spec) - {"description", "effects", "unknown", "fixed"})
+        # per_run: which unknowns the joint fit estimates per run, an identification option
+        # (``identification.settings``), not part of the model
+        unknown_keys = sorted(set(spec) - {"description", "effects", "unknown", "fixed", "per_run"})
         if unknown_keys:
             raise ValueError(f"variant {name!r}: unknown key(s) {unknown_keys} "
-                             "(expected description, effects, unknown, fixed)")
+                             "(expected description, effects, unknown, fixed, per_run)")
         chosen = []
         for effect_name in spec.get("effects", []):
             if effect_name not in registry:
