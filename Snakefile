@@ -40,6 +40,7 @@ rule all:
     input:
         "results/data/check.tsv",
         "results/data/harmonics.tsv",
+        "results/data/report/cascade.png",
         expand("results/{variant}/whitebox/sweep.tsv", variant=VARIANTS),
         expand("results/{variant}/whitebox/sweep.png", variant=VARIANTS),
         expand("results/{variant}/library_validation.tsv", variant=VARIANTS),

@@ -1,4 +1,4 @@
-"""Rule preprocess: one run's harmonics table and two-cycle waveforms (thin wrapper).
+"""Rule preprocess: one run's harmonics table, two-cycle waveforms and full spectrum (thin wrapper).
 
 A flagged run (usable False: flat, clipped, noise only, backward whirl, spikes) is written with its note and
 said on the console; identify_run / identify_joint / identify_validation then leave it out.
@@ -7,8 +7,10 @@ said on the console; identify_run / identify_joint / identify_validation then le
 import logging
 import sys
 
-from hybridtwin.measurements import DataError
-from hybridtwin.preprocessing import preprocess_run, write_tsv
+import math
+
+from hybridtwin.measurements import DataError, read_record
+from hybridtwin.preprocessing import preprocess_run, spectrum, write_tsv
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 logging.basicConfig(filename=smk.log[0], level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s")
@@ -28,3 +30,5 @@ if not row["usable"]:
     print(f"preprocess: run {row['run']} is kept out of the fit: {row['note']}", file=sys.stderr)
 write_tsv(table, smk.output.harmonics)
 write_tsv(waves, smk.output.waveforms)
+rpm = row["rpm_true"] if math.isfinite(row["rpm_true"]) else float(row["rpm"])
+write_tsv(spectrum(read_record(smk.params.row["record"]), rpm), smk.output.spectrum)

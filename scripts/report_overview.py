@@ -1,4 +1,4 @@
-"""Rule report_overview: per-run errors (fit and validation runs apart), Bode, polar and error map (thin wrapper)."""
+"""Rule report_overview: per-run errors (fit and validation runs apart) and the error map (thin wrapper)."""
 
 import pandas as pd
 
@@ -13,10 +13,6 @@ errors = report.error_table(comparisons)
 for role, path in (("fit", smk.output.errors), ("validate", smk.output.validation_errors)):
     errors[errors["role"] == role].to_csv(path, sep="\t", index=False, float_format="%.6g")
     log.info("%s runs: %s", role, report.pooled(errors[errors["role"] == role]))
-figures = {"bode": lambda: report.plot_bode(comparisons, variant),
-           "polar": lambda: report.plot_polar(comparisons, variant),
-           "error_map": lambda: report.plot_error_map(errors, variant)}
-for name, plot in figures.items():
-    figure = plot()
-    figure.savefig(smk.output[name], dpi=100)
-    report.plt.close(figure)
+figure = report.plot_error_map(errors, variant)
+figure.savefig(smk.output.error_map, dpi=100)
+report.plt.close(figure)

@@ -296,8 +296,7 @@ def test_figures_show_the_numbers_and_are_written(synthetic, tmp_path):
     assert np.allclose(bars["residual"], np.maximum(expected, floor))
     per_run = _per_run({"k": np.linspace(4, 6, 5)}, np.linspace(400, 800, 5), {"k": np.zeros(5, bool)})
     statistics = report.drift_statistics(per_run, synthetic.parameters)
-    figures = {"run": run_figure, "error_map": error_map, "bode": report.plot_bode(comparisons, "synthetic"),
-               "polar": report.plot_polar(comparisons, "synthetic"),
+    figures = {"run": run_figure, "error_map": error_map,
                "drift": report.plot_drift(per_run, statistics, synthetic.parameters, "synthetic"),
                "ledger": report.plot_ledger(report.ledger_table([report.ledger_row(
                    "synthetic", "", {"n_data": 24, "dof": 19, "chi2": errors["chi2"][:2].sum()}, errors)]),
@@ -319,7 +318,7 @@ def test_two_fit_runs_and_no_validation_run(synthetic, tmp_path):
     row = report.ledger_row("v", "", {"n_data": 24, "dof": 19, "chi2": errors["chi2"].sum()}, errors)
     assert np.isnan(row["validation_chi2_dof"]) and row["worst_validation_run"] == ""
     figures = [report.plot_drift(per_run, statistics, synthetic.parameters, "small"),
-               report.plot_error_map(errors, "small"), report.plot_bode(synthetic.comparisons, "small"),
+               report.plot_error_map(errors, "small"),
                report.plot_ledger(report.ledger_table([row]), {"v": errors})]
     for i, figure in enumerate(figures):
         figure.savefig(tmp_path / f"{i}.png", dpi=30)

@@ -440,6 +440,25 @@ def waveforms(analysis: RunAnalysis, cycles: int = 2) -> pd.DataFrame:
                          "x_raw_m": raw[:, 0], "y_raw_m": raw[:, 1]})
 
 
+SPECTRUM_COLUMNS = ["frequency_hz", "order", "x_amplitude_m", "y_amplitude_m"]
+
+
+def spectrum(record: Record, rpm: float, max_order: float = 10.0) -> pd.DataFrame:
+    """A record's full amplitude spectrum up to ``max_order`` times the speed (the cascade plot's rows): each
+    channel's mean removed, a Hann window, |FFT| scaled so that a sinusoid at a bin's frequency shows its
+    0-peak amplitude [m] (2 |X_k| / sum(w)); ``order``: frequency over the rotation frequency rpm / 60.
+    Unlike the order analysis it keeps everything between the harmonics: subharmonics, natural frequencies
+    excited by noise, the mains, a rub's broadband."""
+    n = record.n_samples
+    window = np.hanning(n)
+    f = np.fft.rfftfreq(n, record.dt_s)
+    keep = f <= max_order * rpm / 60.0
+    amplitudes = [2.0 * np.abs(np.fft.rfft((z - z.mean()) * window))[keep] / window.sum()
+                  for z in (record.x_m, record.y_m)]
+    return pd.DataFrame({"frequency_hz": f[keep], "order": f[keep] * 60.0 / rpm, "x_amplitude_m": amplitudes[0],
+                         "y_amplitude_m": amplitudes[1]})
+
+
 def preprocess_run(sheet_row: Mapping, harmonics: int = 5, sensor_range_m: float | None = None,
                    sensor_resolution_m: float | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
     """One runs-sheet row (with its resolved ``record`` path) -> (one-row tidy table, waveforms).

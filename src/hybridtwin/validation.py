@@ -229,6 +229,13 @@ def validation_values(joint: pd.DataFrame, run: RunData, law: str = "law", runs:
                       ) -> dict[str, float]:
     """Parameter values [SI] to predict a validation run with: the shared estimates, and each per-run
     parameter from its law over the fitted runs (``bow_law``); m_e from the sheet when it is per run."""
+    return values_at(joint, run.rpm, run.eccentric_mass_g, law, runs)
+
+
+def values_at(joint: pd.DataFrame, rpm: float, eccentric_mass_g: float, law: str = "law",
+              runs: pd.DataFrame | None = None) -> dict[str, float]:
+    """``validation_values`` at any speed and eccentric mass (e.g. along a sweep): the shared estimates, each
+    per-run parameter from its law over the fitted runs (their rpm and mass from ``runs`` when given)."""
     physical = joint[joint["kind"] != "nuisance"]
     values = {r.parameter: float(r.value) for r in physical.itertuples() if r.run == "all"}
     local = physical[physical["run"] != "all"]
@@ -236,9 +243,9 @@ def validation_values(joint: pd.DataFrame, run: RunData, law: str = "law", runs:
         local = local.drop(columns=[c for c in ("rpm", "eccentric_mass_g") if c in local]).merge(
             runs[["run", "rpm", "eccentric_mass_g"]], on="run", how="left")
     for p, group in local.groupby("parameter", sort=False):
-        if p == "m_e" and np.isfinite(run.eccentric_mass_g):
-            values[p] = run.eccentric_mass_g * 1e-3
+        if p == "m_e" and np.isfinite(eccentric_mass_g):
+            values[p] = eccentric_mass_g * 1e-3
             continue
         _, predict = bow_law(group, p, law)
-        values[p] = float(predict(run.rpm, run.eccentric_mass_g))
+        values[p] = float(predict(rpm, eccentric_mass_g))
     return values

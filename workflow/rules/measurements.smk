@@ -2,6 +2,8 @@
 # synchronous analysis), and the virtual rig that writes such data sets from a truth model.
 # The sheet (config key `runs`, paths in it relative to its folder) is read in input functions (lazily),
 # so targets that need no measured data never open it.
+import os
+
 from hybridtwin.measurements import read_runs, sheet_entry
 
 RUNS_SHEET = config.get("runs", "data/default/runs.tsv")
@@ -12,7 +14,9 @@ rule check_data:
     input:
         sheet=RUNS_SHEET,
         records=lambda wildcards: list(read_runs(RUNS_SHEET)["record"]),
-        schema="workflow/schemas/runs.schema.yaml",  # relative: a moved or copied project reruns nothing
+        # relative to the working directory (the project root, or another with --directory): a moved or copied
+        # project reruns nothing
+        schema=os.path.relpath(Path(workflow.basedir) / "workflow" / "schemas" / "runs.schema.yaml"),
     output:
         summary="results/data/check.tsv",
     params:
@@ -30,7 +34,8 @@ rule check_data:
 
 
 rule preprocess:
-    """One run: refined speed, harmonics 1X..HX with uncertainties, offsets, noise; two-cycle waveforms."""
+    """One run: refined speed, harmonics 1X..HX with uncertainties, offsets, noise; two-cycle waveforms; the full
+    spectrum (for the cascade)."""
     input:
         check="results/data/check.tsv",
         record=lambda wildcards: sheet_entry(RUNS_SHEET, wildcards.run)["record"],
@@ -39,6 +44,7 @@ rule preprocess:
     output:
         harmonics="results/data/runs/{run}/harmonics.tsv",
         waveforms="results/data/runs/{run}/waveforms.tsv",
+        spectrum="results/data/runs/{run}/spectrum.tsv",
     params:
         row=lambda wildcards: sheet_entry(RUNS_SHEET, wildcards.run),
         harmonics=config["harmonics"],

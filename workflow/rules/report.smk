@@ -4,7 +4,7 @@
 # outputs (the validation runs' predicted harmonics included); nothing is predicted again.
 
 
-REPORT_FILES = ["harmonics.tsv", "runs", "errors.tsv", "validation_errors.tsv", "bode.png", "polar.png",
+REPORT_FILES = ["harmonics.tsv", "runs", "errors.tsv", "validation_errors.tsv", "bode.png", "polar.png", "response.tsv",
                 "error_map.png", "drift.tsv", "drift.png", "campbell.png", "campbell.tsv", "mode_shapes.png"]
 
 
@@ -56,7 +56,7 @@ rule report_runs:
 
 
 rule report_overview:
-    """Errors per run (fit and validation runs apart), Bode and polar plots of 1X-3X, the error map."""
+    """Errors per run (fit and validation runs apart) and the error map."""
     input:
         table="results/{variant}/report/harmonics.tsv",
     output:
@@ -69,18 +69,6 @@ rule report_overview:
         validation_errors=report(
             "results/{variant}/report/validation_errors.tsv",
             caption="../report/report_validation_errors.rst",
-            category="Comparison",
-            subcategory="{variant}",
-        ),
-        bode=report(
-            "results/{variant}/report/bode.png",
-            caption="../report/report_bode.rst",
-            category="Comparison",
-            subcategory="{variant}",
-        ),
-        polar=report(
-            "results/{variant}/report/polar.png",
-            caption="../report/report_polar.rst",
             category="Comparison",
             subcategory="{variant}",
         ),
@@ -98,6 +86,63 @@ rule report_overview:
         "../envs/hybridtwin.yaml"
     script:
         "../../scripts/report_overview.py"
+
+
+rule report_response:
+    """Bode and polar plots of 1X-3X: the fitted model as dense curves by continuation (run-up and run-down per
+    eccentric mass) with the fit and validation runs on top (hybridtwin.response_plots)."""
+    input:
+        table="results/{variant}/report/harmonics.tsv",
+        parameters="results/{variant}/parameters.tsv",
+        effects=EFFECTS_FILES,  # their contents build the variant (params.model has only the paths)
+    output:
+        response="results/{variant}/report/response.tsv",
+        bode=report(
+            "results/{variant}/report/bode.png",
+            caption="../report/report_bode.rst",
+            category="Comparison",
+            subcategory="{variant}",
+        ),
+        polar=report(
+            "results/{variant}/report/polar.png",
+            caption="../report/report_polar.rst",
+            category="Comparison",
+            subcategory="{variant}",
+        ),
+    params:
+        model=variant_model,
+        runs=lambda wildcards: run_plan(config)[["run", "rpm", "eccentric_mass_g", "role"]].to_dict("list"),
+        harmonics=config["harmonics"],
+        options=lambda wildcards: rule_settings(config, wildcards.variant, "validation"),
+    log:
+        "logs/{variant}/report_response.log",
+    benchmark:
+        "results/benchmarks/{variant}/report_response.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
+    script:
+        "../../scripts/report_response.py"
+
+
+rule report_cascade:
+    """The measured full spectra of every run as a cascade (hybridtwin.response_plots.plot_cascade)."""
+    input:
+        spectra=lambda wildcards: expand("results/data/runs/{run}/spectrum.tsv", run=read_runs(RUNS_SHEET)["run"]),
+        harmonics="results/data/harmonics.tsv",
+    output:
+        cascade=report(
+            "results/data/report/cascade.png",
+            caption="../report/report_cascade.rst",
+            category="Measurements",
+        ),
+    log:
+        "logs/data/report_cascade.log",
+    benchmark:
+        "results/benchmarks/data/report_cascade.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
+    script:
+        "../../scripts/report_cascade.py"
 
 
 rule report_machine:

@@ -1,0 +1,37 @@
+"""Rule report_response: Bode and polar plots with the fitted model as dense curves by continuation (run-up and
+run-down per eccentric mass) and the measured runs on top (thin wrapper; hybridtwin.response_plots). Reads only
+the rule's input, params and output.
+
+The model's values: the joint fit's shared estimates, each per-run parameter (the bow) from its law over the
+fitted runs (identification.validation_bow), as for the validation runs.
+"""
+
+import pandas as pd
+
+from hybridtwin import config as cfg
+from hybridtwin import identification as idn
+from hybridtwin import report
+from hybridtwin import response_plots as rp
+
+smk = snakemake  # noqa: F821 (injected by Snakemake)
+log = cfg.rule_logger(smk.log[0], "report_response")
+variant = cfg.variant(smk.params.model, smk.wildcards.variant)  # its spec, the machine, the effects files
+runs = pd.DataFrame(smk.params.runs)
+comparisons = report.read_comparisons(pd.read_csv(smk.input.table, sep="\t", dtype={"run": str}))
+joint = idn.read_parameters(smk.input.parameters)
+speeds = rp.dense_speeds(runs["rpm"])
+log.info("%s: run-up and run-down over %d speeds %.0f-%.0f RPM for eccentric masses %s g", variant.name,
+         len(speeds), speeds[0], speeds[-1], sorted(set(runs["eccentric_mass_g"])))
+dense = rp.dense_response(variant, joint, runs, speeds, int(smk.params.harmonics),
+                          smk.params.options["validation_bow"])
+rp.write_dense(dense, smk.output.response)
+failed = dense[dense["harmonic"] == 1]["x_re_m"].isna()
+if failed.any():
+    log.warning("%d of %d sweep points without a steady state (left as gaps)", int(failed.sum()), len(failed))
+for row in rp.multivalued(dense).dropna().itertuples():
+    log.info("%g g: run-up and run-down differ between %.0f and %.0f RPM (multi-valued response)",
+             row.eccentric_mass_g, row.rpm_from, row.rpm_to)
+for name, plot in (("bode", rp.plot_bode), ("polar", rp.plot_polar)):
+    figure = plot(dense, comparisons, variant.name)
+    figure.savefig(smk.output[name], dpi=100)
+    rp.plt.close(figure)

@@ -1,0 +1,138 @@
+"""The dense model response of the report (hybridtwin.response_plots): the sweeps against the linear rotor solved by
+hand, the table's reader against its writer, the multi-valued band, and the Bode and polar figures."""
+
+import matplotlib
+import numpy as np
+import pandas as pd
+import pytest
+
+from example_machines import LINEAR_EFFECTS, SENSOR_NODE, linear_response, stepped_machine
+from hybridtwin import response_plots as rp
+from hybridtwin.model import Model
+from hybridtwin.report import RunComparison
+from hybridtwin.variants import Variant
+
+MASSES_G = (20.0, 10.0)
+K_A, C_B = 2.5e7, 600.0  # the "fitted" values, away from the machine's nominal ones (2e7, 500)
+
+
+@pytest.fixture(scope="module")
+def linear():
+    """The stepped rotor's linear variant, a joint table with its two unknowns shared, fit runs at two masses
+    around the critical speeds (~3800-4100 RPM), and the dense response over them (41 speeds)."""
+    machine = stepped_machine()
+    fx = machine.effects()
+    variant = Variant("linear", Model([fx[e] for e in LINEAR_EFFECTS], machine),
+                      {"k_a": (1e7, 4e7), "c_b": (100.0, 1000.0)})
+    joint = pd.DataFrame({"parameter": ["k_a", "c_b"], "run": ["all", "all"], "kind": ["shared", "shared"],
+                          "value": [K_A, C_B]})
+    runs = pd.DataFrame({"run": [f"r{rpm}_m{m:g}" for m in MASSES_G for rpm in (3000, 3900, 4600)],
+                         "rpm": [float(rpm) for _ in MASSES_G for rpm in (3000, 3900, 4600)],
+                         "eccentric_mass_g": [m for m in MASSES_G for _ in range(3)]})
+    dense = rp.dense_response(variant, joint, runs, rp.dense_speeds(runs["rpm"], 41), harmonics=2)
+    return machine, runs, dense
+
+
+def test_sweeps_of_a_linear_rotor_are_its_response_solved_by_hand(linear):
+    """Every speed of both sweeps and both masses: the sensor's 1X is (K - Omega^2 M + i Omega (C + G)) X = F
+    assembled and solved by hand (tests/example_machines.linear_response, no Model, no harmonic balance); a
+    linear system's harmonic balance is one exact solve, so the two agree to round-off (1e-9 of the largest
+    amplitude; the condition number near the critical speeds costs a few digits of the 1e-16); 2X is zero."""
+    machine, runs, dense = linear
+    assert set(dense["sweep"]) == {"run-up", "run-down"} and set(dense["eccentric_mass_g"]) == set(MASSES_G)
+    first = dense[dense["harmonic"] == 1]
+    expected = np.array([linear_response(machine, r.rpm, 1e-3 * r.eccentric_mass_g, k={"a": K_A}, c={"b": C_B})
+                         for r in first.itertuples()])
+    u, v = machine.dof(f"u{SENSOR_NODE}"), machine.dof(f"v{SENSOR_NODE}")
+    scale = np.abs(expected[:, u]).max()
+    np.testing.assert_allclose(first["x_re_m"] + 1j * first["x_im_m"], expected[:, u], atol=1e-9 * scale)
+    np.testing.assert_allclose(first["y_re_m"] + 1j * first["y_im_m"], expected[:, v], atol=1e-9 * scale)
+    second = dense[dense["harmonic"] == 2]
+    assert np.abs(second[["x_re_m", "x_im_m", "y_re_m", "y_im_m"]].to_numpy()).max() < 1e-9 * scale
+    # the grid covers the runs with a margin, and the resonance lies inside it
+    assert dense["rpm"].min() < runs["rpm"].min() and dense["rpm"].max() > runs["rpm"].max()
+    assert bool(first["stable"].all())  # a damped linear rotor below any instability
+    band = rp.multivalued(dense)
+    assert band["rpm_from"].isna().all()  # linear: run-up and run-down are the same curve
+
+
+def test_the_dense_table_reader_is_the_writers_exact_inverse(linear, tmp_path):
+    _, _, dense = linear
+    table = dense.copy()
+    table.loc[3, "stable"] = np.nan  # a speed where the sweep did not converge
+    table.loc[3, ["x_re_m", "x_im_m"]] = np.nan
+    rp.write_dense(table, tmp_path / "response.tsv")
+    back = rp.read_dense(tmp_path / "response.tsv")
+    pd.testing.assert_frame_equal(back, table, check_dtype=False)
+    assert back.loc[3, "stable"] is np.nan or pd.isna(back.loc[3, "stable"])
+
+
+def test_multivalued_band_is_where_run_up_and_run_down_differ():
+    """A hand-made table: the run-down's 1X x amplitude 30 % lower at 950-1000 RPM only (a jump band), the rest
+    equal; the band reported is exactly those speeds, and nothing for a mass whose sweeps agree."""
+    rpm = np.arange(900.0, 1051.0, 25.0)
+    rows = []
+    for mass in (14.8, 25.9):
+        for sweep in ("run-up", "run-down"):
+            for speed in rpm:
+                x = 1e-3 * (0.7 if mass == 14.8 and sweep == "run-down" and 950 <= speed <= 1000 else 1.0)
+                rows.append((mass, sweep, speed, 1, x, 0.0, 0.0, x, True, "direct"))
+    band = rp.multivalued(pd.DataFrame(rows, columns=rp.COLUMNS)).set_index("eccentric_mass_g")
+    assert (band.loc[14.8, "rpm_from"], band.loc[14.8, "rpm_to"]) == (950.0, 1000.0)
+    assert np.isnan(band.loc[25.9, "rpm_from"])
+
+
+def test_bode_and_polar_draw_both_sweeps_and_the_measured_runs(linear, tmp_path):
+    """Measured = the model at the run speeds plus a known offset: the figures draw one run-up and one run-down
+    curve per mass in every amplitude panel, and one measured point per fit run."""
+    machine, runs, dense = linear
+    comparisons = []
+    for r in runs.itertuples():
+        X = linear_response(machine, r.rpm, 1e-3 * r.eccentric_mass_g, k={"a": K_A}, c={"b": C_B})
+        model = np.array([[X[machine.dof(f"u{SENSOR_NODE}")], X[machine.dof(f"v{SENSOR_NODE}")]], [0j, 0j]])
+        comparisons.append(RunComparison(r.run, "fit", r.rpm, r.eccentric_mass_g, model * 1.05, model,
+                                         np.full((2, 2), 1e-7), 8.0, "solver"))
+    fig = rp.plot_bode(dense, comparisons, "linear", orders=(1,))
+    amplitude = fig.axes[0]
+    curves = [line for line in amplitude.get_lines() if len(line.get_xdata()) == 41]
+    assert len(curves) == 2 * len(MASSES_G)  # run-up and run-down per mass, the full grid each
+    assert sorted(line.get_linestyle() for line in curves) == ["-", "-", "--", "--"]
+    points = [c for c in amplitude.containers]  # errorbar containers: one per measured run
+    assert len(points) == len(runs)
+    fig.savefig(tmp_path / "bode.png")
+    matplotlib.pyplot.close(fig)
+    fig = rp.plot_polar(dense, comparisons, "linear", orders=(1,))
+    fig.savefig(tmp_path / "polar.png")
+    assert (tmp_path / "polar.png").stat().st_size > 10_000
+    matplotlib.pyplot.close(fig)
+
+
+def test_spectrum_gives_each_sinusoids_amplitude_and_order():
+    """x = 1 mm at 1X + 0.05 mm at 0.43X (a subharmonic the order analysis would not see) + offset, y = 0.2 mm at
+    3X, each at an exact frequency bin of the 4 s record: the spectrum's peaks are the amplitudes (0-peak, the
+    window's gain divided out; np.hanning is the symmetric window, whose leakage at an exact bin is of order
+    1/N = 1e-4 relative) at the right orders; the offset is gone."""
+    from hybridtwin.measurements import Record
+    from hybridtwin.preprocessing import spectrum
+
+    fs, n, rpm = 2000.0, 8000, 900.0  # 4 s; bins every 0.25 Hz; 1X = 15 Hz
+    t = np.arange(n) / fs
+    f1, f_sub = rpm / 60.0, 6.5  # 6.5 Hz: 0.433X, on a bin
+    x = 1e-3 * np.cos(2 * np.pi * f1 * t + 0.3) + 5e-5 * np.sin(2 * np.pi * f_sub * t) + 4e-4
+    y = 2e-4 * np.cos(2 * np.pi * 3 * f1 * t)
+    table = spectrum(Record(None, t, x, y, None, "m"), rpm, max_order=5.0)
+    assert table["order"].max() <= 5.0 and table["frequency_hz"].iloc[0] == 0.0
+
+    def at(f: float) -> pd.Series:  # the bin of f (the grid is the record's, rounded as the record's steps)
+        return table.iloc[int((table["frequency_hz"] - f).abs().argmin())]
+    assert at(f1)["x_amplitude_m"] == pytest.approx(1e-3, rel=1e-3)
+    assert at(f_sub)["x_amplitude_m"] == pytest.approx(5e-5, rel=1e-2)  # 1/20 of the 1X line: its leakage too
+    assert at(3 * f1)["y_amplitude_m"] == pytest.approx(2e-4, rel=1e-3)
+    assert at(f1)["order"] == pytest.approx(1.0, rel=1e-6) and at(0.0)["x_amplitude_m"] < 1e-3 * 4e-4
+    far = table[(table["frequency_hz"] - f1).abs() > 2.0]
+    assert far["y_amplitude_m"].drop(far.index[(far["frequency_hz"] - 3 * f1).abs() <= 2.0]).max() < 1e-7
+
+    runs = pd.DataFrame({"run": ["a", "b"], "rpm": [rpm, 1.1 * rpm], "eccentric_mass_g": [14.8, 14.8]})
+    fig = rp.plot_cascade({"a": table, "b": table.assign(frequency_hz=1.1 * table["frequency_hz"])}, runs)
+    assert len(fig.axes[0].collections) == 2  # one row per run
+    matplotlib.pyplot.close(fig)
