@@ -36,7 +36,7 @@ COLUMNS = ["eccentric_mass_g", "sweep", "rpm", "harmonic", "x_re_m", "x_im_m", "
            "branch"]
 
 
-def dense_speeds(run_rpm: Sequence[float], n_speeds: int = 161, margin: float = 0.08) -> Array:
+def dense_speeds(run_rpm: Sequence[float], n_speeds: int = 121, margin: float = 0.08) -> Array:
     """The sweep's speeds [RPM]: ``n_speeds`` evenly spaced over the runs' range widened by ``margin`` of it on
     each side (not below 1 % of the highest run speed)."""
     lo, hi = float(np.min(run_rpm)), float(np.max(run_rpm))
