@@ -428,6 +428,7 @@ def test_the_sharing_check_shares_a_bow_the_data_do_not_need_per_run(slope_data)
     assert "need not be estimated per run" in result.conclusion
     spec = result.summary["recommended_variant"]["spec"]
     assert spec["per_run"] == [] and "per_run: []" in result.recommendation
+    assert "per run (q_x, q_y)" in dgr._sharing_markdown(sharing) and "`per_run: []`" in dgr._sharing_markdown(sharing)
     Variant.from_spec(result.summary["recommended_variant"]["name"], spec)  # a valid config entry
 
 

@@ -65,7 +65,7 @@ def markdown(result: Diagnosis, sparse: pd.DataFrame | None = None, sparse_name:
                   f"{r.explained_pct:.0f} % | {r.estimate} |" for r in result.path_table().itertuples()]
         path = ("\n## Forward selection\n\nEach step adds the best confirmed effect, then scores and refits the "
                 "others at the extended fit; it stops when nothing significant is left.\n\n" + "\n".join(steps)
-                + "\n")
+                + "\n" + _sharing_markdown(s.get("sharing")))
     return (f"# Diagnosis of variant {s['variant']}\n\n"
             f"{len(s['runs'])} fit runs, {s['n_data']} data; chi^2/dof {s['base_chi2_dof']:.3g} "
             f"(goodness-of-fit p = {s['base_gof_p_value']:.3g}); {len(s['candidates'])} candidates tested, "
@@ -74,6 +74,19 @@ def markdown(result: Diagnosis, sparse: pd.DataFrame | None = None, sparse_name:
                if result.fingerprint and "What the residual looks like" not in result.conclusion else "")
             + "## Candidates\n\n" + "\n".join(rows) + "\n"
             + ("" if sparse is None else _sparse_markdown(sparse, sparse_name)))
+
+
+def _sharing_markdown(sharing: dict | None) -> str:
+    """The sharing check's outcome (``diagnosis._sharing``), one paragraph; empty when it did not run."""
+    if not sharing:
+        return ""
+    names = ", ".join(sharing["parameters"])
+    figures = (f"chi^2 {sharing['chi2_shared']:.4g} with one value for all runs against {sharing['chi2_per_run']:.4g} "
+               f"per run: likelihood ratio {sharing['lr']:.3g} on {sharing['lr_dof']} dof (p = "
+               f"{sharing['lr_p_value']:.3g}), Delta BIC of the per-run values {sharing['delta_bic_per_run']:+.3g}")
+    verdict = ("not needed: they are shared, the estimates above come from that fit, and the recommended variant "
+               "says `per_run: []`" if sharing["shared"] else "needed: they stay per run")
+    return f"\n**Sharing check** of the parameters fitted per run ({names}): {figures}; {verdict}.\n"
 
 
 def plot(result: Diagnosis):
