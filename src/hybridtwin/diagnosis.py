@@ -331,8 +331,8 @@ def _sharing(base: BaseFit, path: list[Step], scores: Scores, o: Mapping, result
     its 1X response and bias a bearing stiffness resting on the higher harmonics), the recommended variant
     shares them (``per_run: []``), and ``summary["sharing"]`` has the figures."""
     local = list(base.layout.local)
-    if not path or not local or not _fits_the_noise(path[-1].confirmation, o):
-        return path
+    if not path or not local or len(base.layout.runs) < 2 or not _fits_the_noise(path[-1].confirmation, o):
+        return path  # (one run: per run and shared are the same fit)
     final, n = path[-1].confirmation, scores.n_data
     ranges = {k: v for step in path for k, v in step.confirmation.ranges.items()}
     before = path[-2].confirmation.chi2 if len(path) > 1 else scores.base_chi2
