@@ -8,10 +8,12 @@ Ranges (the diagnosis widens a range up to its limits when an estimate sits at a
 (2e7 N/m, 800 N s/m) and b (1e7 N/m, 500 N s/m):
 
 - anisotropy: +-20 % of the bearing's stiffness, where the split of the critical speeds near 4000 RPM changes the
-  probes' 1X by tens of micrometres; limits +-50 %, so that x or y stiffness stays positive at the bottom of the
-  variant's ranges (half the nominal stiffness);
-- cross-coupled stiffness: +-1e5 N/m at b (+-2e5 at a), below the 2.3e5 N/m at which it would drive the forward
-  whirl of the overhung disk d2 unstable (its damping ratio is 0.0036 without it); limits ten times the range;
+  probes' 1X by micrometres; limits +-50 %, which keeps the x and y stiffness positive over the variant's ranges
+  (from three quarters of the nominal stiffness);
+- cross-coupled stiffness: +-1e5 N/m at b, below the 2.2e5 N/m at which it drives the forward whirl of the
+  overhung disk d2 unstable (damping ratio 0.003 without it; at the nominal bearings, 2000-5000 RPM), which is
+  its upper limit there (no steady unbalance response beyond it); +-2e5 N/m at a (unstable from 2.8e6);
+  other limits ten times the range;
 - cross-coupled damping: +-40 % of the bearing's damping coefficient, limits ten times the range.
 """
 
@@ -23,12 +25,13 @@ class _AtBearing(Effect):
 
     kind, symbol, unit, what = "", "", "", ""
 
-    def __init__(self, bearing: str, half_range: float, limit: float):
+    def __init__(self, bearing: str, half_range: float, limit: float, upper_limit: float | None = None):
         self.bearing = bearing
         self.name = f"{self.kind}@{bearing}"
         self.meaning = f"{self.what} at bearing {bearing}"
         self.parameters = (Parameter(f"{self.symbol}_{bearing}", self.unit, (-half_range, half_range), 0.0,
-                                     f"{self.what} at bearing {bearing}", (-limit, limit)),)
+                                     f"{self.what} at bearing {bearing}",
+                                     (-limit, limit if upper_limit is None else upper_limit)),)
         self.switches = (self.parameters[0].name,)
 
     def _entries(self, ctx, pairs):
@@ -70,7 +73,7 @@ class Anisotropy(_AtBearing):
 
 
 cross_coupled_stiffness_a = CrossCoupledStiffness("a", 2.0e5, 2.0e6)
-cross_coupled_stiffness_b = CrossCoupledStiffness("b", 1.0e5, 1.0e6)
+cross_coupled_stiffness_b = CrossCoupledStiffness("b", 1.0e5, 1.0e6, upper_limit=2.2e5)
 cross_coupled_damping_a = CrossCoupledDamping("a", 320.0, 3200.0)
 cross_coupled_damping_b = CrossCoupledDamping("b", 200.0, 2000.0)
 anisotropy_a = Anisotropy("a", 4.0e6, 1.0e7)
