@@ -164,7 +164,7 @@ def plot_bode(dense: pd.DataFrame, comparisons: Sequence[RunComparison], variant
         axes[-1, col].set_xlabel("speed [RPM]")
     _legend(fig, axes[0, 0])
     fig.suptitle(f"variant {variant}: Bode plots, model by continuation (solid run-up, dashed run-down, dotted "
-                 "unstable) vs measured (points, 2 sigma bars); magenta: validation runs measured (stars) and "
+                 "unstable)\nvs measured (points, 2 sigma bars); magenta: validation runs measured (stars) and "
                  "predicted (crosses)", fontsize=10)
     fig.tight_layout(rect=(0, 0.035, 1, 1))
     return fig
@@ -232,7 +232,7 @@ def plot_polar(dense: pd.DataFrame, comparisons: Sequence[RunComparison], varian
             ax.set_title(f"{h}X, {channel} [um]; dotted: noise (2 sigma)", fontsize=9)
             ax.tick_params(labelsize=7)
     _legend(fig, axes[0, 0])
-    fig.suptitle(f"variant {variant}: polar plots, model by continuation (solid run-up, dashed run-down) vs "
+    fig.suptitle(f"variant {variant}: polar plots, model by continuation (solid run-up, dashed run-down)\nvs "
                  "measured (points), model's frame; magenta: validation runs", fontsize=10)
     fig.tight_layout(rect=(0, 0.05, 1, 1))
     return fig
