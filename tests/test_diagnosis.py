@@ -444,3 +444,17 @@ def test_the_sharing_check_keeps_a_bow_that_differs_between_runs():
     kept = dg._sharing(base, path, scores, dg.DEFAULTS, result)
     assert not result.summary["sharing"]["shared"] and result.summary["sharing"]["lr"] > 100
     assert kept[-1].confirmation is path[-1].confirmation
+
+
+def test_a_recommended_variant_name_is_valid_in_the_config():
+    """Effects placed at a bearing are named ``effect@bearing``; the recommended variant's name must pass the
+    schema's pattern for variant names (read from the schema itself)."""
+    import re
+    from pathlib import Path
+
+    import yaml
+
+    schema = yaml.safe_load((Path(__file__).resolve().parents[1] / "workflow/schemas/config.schema.yaml").read_text())
+    pattern = schema["properties"]["variants"]["propertyNames"]["pattern"]
+    name = dg._variant_name(["linear", "bearing_anisotropy@b", "cross_coupled_stiffness"])
+    assert name == "linear_bearing_anisotropy_at_b_cross_coupled_stiffness" and re.fullmatch(pattern, name)

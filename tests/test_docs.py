@@ -19,7 +19,8 @@ ROOT = Path(__file__).resolve().parents[1]
 HYBRIDTWIN = str(Path(sys.executable).with_name("hybridtwin"))  # the console script of this environment
 #: the pages a user reads: the README, the docs, each data set's README, the history
 PAGES = sorted({ROOT / "README.md", ROOT / "CHANGELOG.md", ROOT / "benchmarks" / "README.md",
-                *(ROOT / "docs").glob("*.md"), *(ROOT / "data").glob("*/README.md")})
+                *(ROOT / "docs").glob("*.md"), *(ROOT / "data").glob("*/README.md"),
+                *(ROOT / "examples").glob("*/README.md")})
 #: folders never scanned for pointers outside the repository (environments, results, caches)
 IGNORED = {".git", ".venv", "results", ".snakemake", "logs", "__pycache__", ".pytest_cache", ".ruff_cache",
            "node_modules", "records"}

@@ -101,6 +101,7 @@ def test_the_diagnosis_recommends_the_hidden_effect(example):
     assert summary["misfit"] and summary["base_chi2_dof"] > 100
     assert [step["effect"] for step in summary["path"]] == [HIDDEN]
     assert summary["recommended_variant"]["spec"]["effects"][-1] == HIDDEN
+    assert summary["recommended_variant"]["name"] == "linear_bearing_anisotropy_at_b"  # a valid variant name
     recommendation = (example / "results" / "linear" / "diagnosis.md").read_text()
     assert f"**add {HIDDEN}: it explains the discrepancy" in recommendation
     # with it, the residual is the records' noise: chi^2/dof below the diagnosis's misfit_ratio (1.2)

@@ -456,7 +456,7 @@ def _conclude(base: BaseFit, scores: Scores, confirmations: Mapping[str, Confirm
                "candidates": [s.candidate.name for s in scores.scores], "refitted": list(confirmations),
                "conclusion": conclusion, "score_seconds": scores.seconds,
                "recommended_variant": None if best is None else {
-                   "name": f"{base.variant.name}_{best.candidate.name}",
+                   "name": _variant_name([base.variant.name, best.candidate.name]),
                    "spec": variant_spec(base.variant, best.candidate, best.ranges)},
                "refit_seconds": float(sum(cf.seconds for cf in confirmations.values()))}
     return Diagnosis(table, conclusion, recommendation, summary, dict(confirmations), best)
@@ -502,7 +502,7 @@ def _conclude_path(result: Diagnosis, base: BaseFit, scores: Scores, o: Mapping)
                              f"{dropped}{sharing}); {estimates}")
         candidates = [step.confirmation.candidate for step in path]
         ranges = {k: v for step in path for k, v in step.confirmation.ranges.items()}
-        name = "_".join([base.variant.name] + names)
+        name = _variant_name([base.variant.name] + names)
         spec = variant_spec(base.variant, candidates, ranges, per_run=[] if sharing else None)
         result.recommendation = (f"Add this variant under `variants:` in config/config.yaml, then run `snakemake "
                                  f"--cores 2` (only the new variant is built) and compare in results/ledger.tsv:"
@@ -524,17 +524,28 @@ def _conclude_path(result: Diagnosis, base: BaseFit, scores: Scores, o: Mapping)
     result.summary["conclusion"] = result.conclusion
 
 
+def _variant_name(parts: Sequence[str]) -> str:
+    """A recommended variant's name, valid in the config (letters, digits, _): the base's and the effects' names
+    joined by _, an effect placed at a bearing (``cross_coupled_stiffness@b``) spelled ``..._at_b``."""
+    return "_".join(parts).replace("@", "_at_")
+
+
 def _estimate_text(cf: Confirmation, estimates: pd.DataFrame | None = None) -> str:
     """The candidate's estimates (``cf.estimates``, or ``estimates``: its rows of another fit) with intervals and
     the ranges the refit widened."""
     widened = {name for name, _, _ in cf.widened}
+    limits = {p.name: p.limits for p in cf.candidate.parameters}
 
     def one(r) -> str:
         lo, hi = cf.ranges.get(r.parameter, (r.lower, r.upper))
         note = f" (range widened to [{lo:.4g}, {hi:.4g}])" if r.parameter in widened else ""
         if r.at_bound:
-            return (f"{r.parameter} = {r.value:.4g} {r.unit} (at the edge of its range [{lo:.4g}, {hi:.4g}], the "
-                    "physical limit: the data want more of this effect than it can physically give)")
+            edge = hi if abs(r.value - hi) <= abs(r.value - lo) else lo
+            physical = limits.get(r.parameter) is not None and edge in tuple(limits[r.parameter])
+            why = ("its physical limit: the data want more of this effect than it can physically give" if physical
+                   else "the data want more of this effect than the range allows")
+            return (f"{r.parameter} = {r.value:.4g} {r.unit} (at the edge of its range [{lo:.4g}, {hi:.4g}], "
+                    f"{why})")
         return f"{r.parameter} = {r.value:.4g} [{r.ci_low:.4g}, {r.ci_high:.4g}] {r.unit}".rstrip() + note
     return "; ".join(one(r) for r in (cf.estimates if estimates is None else estimates).itertuples())
 
@@ -637,7 +648,7 @@ def _recommend(base: BaseFit, scores: Scores, best: Confirmation | None, confoun
                 f"{100 * share:.0f} % of the excess chi^2")
     conclusion = (f"{head}; chi^2/dof {base_ratio:.3g} -> {best.chi2 / best.dof:.3g} with it, "
                   f"Delta BIC {best.delta_bic:.1f}; {_estimate_text(best)}")
-    new_name = f"{variant.name}_{name}"
+    new_name = _variant_name([variant.name, name])
     recommendation = (f"Add this variant under `variants:` in config/config.yaml, then run `snakemake --cores 2` "
                       f"(only the new variant is built) and compare in results/ledger.tsv:\n\n"
                       f"{variant_lines(new_name, variant_spec(variant, best.candidate, best.ranges))}\n")
