@@ -458,7 +458,8 @@ def _conclude(base: BaseFit, scores: Scores, confirmations: Mapping[str, Confirm
                "recommended_variant": None if best is None else {
                    "name": _variant_name([base.variant.name, best.candidate.name]),
                    "spec": variant_spec(base.variant, best.candidate, best.ranges)},
-               "refit_seconds": float(sum(cf.seconds for cf in confirmations.values()))}
+               "refit_seconds": float(sum(cf.seconds for cf in confirmations.values())),
+               "confounded": list(confounded)}
     return Diagnosis(table, conclusion, recommendation, summary, dict(confirmations), best)
 
 
@@ -490,7 +491,11 @@ def _conclude_path(result: Diagnosis, base: BaseFit, scores: Scores, o: Mapping)
                f"{' and '.join(names)} {'is' if len(names) == 1 else 'are'} in)") if eliminated else ""
     if explains:
         together = " and ".join(names)
-        if len(path) == 1:
+        confounded = result.summary.get("confounded") or []
+        if len(path) == 1 and confounded and not eliminated:  # the first step's tie stands (the sharing check only)
+            head = (f"add {together} or {', '.join(confounded)}: these data cannot tell them apart; {together} "
+                    "explains the discrepancy")
+        elif len(path) == 1:
             result.table.loc[first, "verdict"] = "add: explains the discrepancy"
             head = f"add {together}: it explains the discrepancy"
         else:
