@@ -503,7 +503,7 @@ def _conclude_path(result: Diagnosis, base: BaseFit, scores: Scores, o: Mapping)
                                                   f"discrepancy ({100 * share:.0f} % of the excess chi^2)")
             head = f"add {together}: together they explain the discrepancy"
         result.conclusion = (f"{head} ({100 * share:.0f} % of the excess chi^2); chi^2/dof {base_ratio:.3g} -> "
-                             f"{final.chi2 / final.dof:.3g} (forward selection, {len(path) + len(eliminated)} steps"
+                             f"{final.chi2 / final.dof:.3g} (forward selection, {len(path) + len(eliminated)} step{'s' if len(path) + len(eliminated) != 1 else ''}"
                              f"{dropped}{sharing}); {estimates}")
         candidates = [step.confirmation.candidate for step in path]
         ranges = {k: v for step in path for k, v in step.confirmation.ranges.items()}
