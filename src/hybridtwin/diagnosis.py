@@ -490,7 +490,7 @@ def _conclude_path(result: Diagnosis, base: BaseFit, scores: Scores, o: Mapping)
     dropped = (f"; {', '.join(eliminated)} dropped by backward elimination (not needed once "
                f"{' and '.join(names)} {'is' if len(names) == 1 else 'are'} in)") if eliminated else ""
     if explains:
-        together = " and ".join(names)
+        together, steps = " and ".join(names), len(path) + len(eliminated)
         confounded = result.summary.get("confounded") or []
         if len(path) == 1 and confounded and not eliminated:  # the first step's tie stands (the sharing check only)
             head = (f"add {together} or {', '.join(confounded)}: these data cannot tell them apart; {together} "
@@ -503,7 +503,7 @@ def _conclude_path(result: Diagnosis, base: BaseFit, scores: Scores, o: Mapping)
                                                   f"discrepancy ({100 * share:.0f} % of the excess chi^2)")
             head = f"add {together}: together they explain the discrepancy"
         result.conclusion = (f"{head} ({100 * share:.0f} % of the excess chi^2); chi^2/dof {base_ratio:.3g} -> "
-                             f"{final.chi2 / final.dof:.3g} (forward selection, {len(path) + len(eliminated)} step{'s' if len(path) + len(eliminated) != 1 else ''}"
+                             f"{final.chi2 / final.dof:.3g} (forward selection, {steps} step{'s' if steps != 1 else ''}"
                              f"{dropped}{sharing}); {estimates}")
         candidates = [step.confirmation.candidate for step in path]
         ranges = {k: v for step in path for k, v in step.confirmation.ranges.items()}
