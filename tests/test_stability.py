@@ -272,3 +272,30 @@ def test_a_run_up_across_the_fold_reports_the_stability_of_its_landing_without_a
     reference = solve_sweep(_bistable, np.arange(1000.0, 974.0, -5.0), 1, harmonics=5, direction="down").results[-1]
     scale = np.abs(reference.harmonics[0]).max()
     assert np.abs(unchecked.results[i].harmonics[0] - reference.harmonics[0]).max() < 1e-8 * scale  # as above
+
+
+def test_a_linear_machines_radius_from_eigenvalues_equals_the_monodromy_matrix_route():
+    """The stepped rotor (gyroscopic coupling: C not symmetric) at 16 speeds and bearing stiffnesses: the radius
+    from the first-order form's eigenvalues (``floquet.linear_spectral_radius``, what ``solve`` uses for a system
+    without nonlinear forces) equals the general route's (the full modal basis, expm(A T), the monodromy
+    matrix's eigenvalues) to round-off: measured 1.6e-11 relative; 1e-9 leaves room for it."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from example_machines import LINEAR_EFFECTS, stepped_machine
+
+    from hybridtwin import floquet
+    from hybridtwin.model import Model
+
+    machine = stepped_machine()
+    fx = machine.effects()
+    model = Model([fx[e] for e in LINEAR_EFFECTS], machine)
+    rng = np.random.default_rng(0)
+    S = 16
+    values = {k: np.full(S, float(v.nominal)) for k, v in model.parameters.items()} | {"m_e": np.full(S, 0.02)}
+    values["k_a"] = rng.uniform(1e7, 4e7, S)
+    system = model.system(values, rng.uniform(2000.0, 6000.0, S))
+    result = solve(system, 1, stability=False)
+    general = floquet.spectral_radius(system, result.harmonics, cutoff_factor=None)
+    np.testing.assert_allclose(floquet.linear_spectral_radius(system), general, rtol=1e-9)

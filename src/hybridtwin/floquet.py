@@ -84,6 +84,19 @@ def multipliers(system: System, harmonics: Array, n_steps: int | None = None,
     return _monodromy_eigenvalues(system, basis, dofs, J, n_steps), truncated
 
 
+def linear_spectral_radius(system: System) -> Array:
+    """The largest |mu| per scenario (S,) of a system with no nonlinear force: its Floquet multipliers are
+    exp(lambda T) for the eigenvalues lambda of the first-order form [[0, I], [-M^-1 K, -M^-1 C]] (time-invariant
+    linear flow), so the radius is exp(T max Re lambda), with no matrix exponential and no modal basis."""
+    S, n = system.n_scenarios, system.n_dof
+    A = np.zeros((S, 2 * n, 2 * n))
+    A[:, :n, n:] = np.eye(n)
+    A[:, n:, :n] = -np.linalg.solve(system.M, system.K)
+    A[:, n:, n:] = -np.linalg.solve(system.M, system.C)
+    T = 2.0 * np.pi / system.Omega
+    return np.exp(T * np.linalg.eigvals(A).real.max(axis=1))
+
+
 def spectral_radius(system: System, harmonics: Array, **options) -> Array:
     """The largest |mu| per solution (S,): of the reduced model and of the truncated modes
     (|mu_r| = exp(-phi_r^T C phi_r T / 2), their own decay over a period)."""

@@ -368,17 +368,18 @@ def assess_stability(system: System, result: SteadyState, rows: Array | None = N
 
 def floquet_radius(system: System, harmonics: Array) -> Array:
     """The largest |Floquet multiplier| of each periodic solution ``harmonics`` (S, H+1, n) of ``system``
-    (``floquet.spectral_radius``; a linear system's exactly, from the eigenvalues of its first-order
-    form), in blocks of ``_BLOCK`` scenarios (any mix of speeds)."""
+    (``floquet.spectral_radius``; a linear system's exactly from the eigenvalues of its first-order form,
+    ``floquet.linear_spectral_radius``), in blocks of ``_BLOCK`` scenarios (any mix of speeds)."""
     if system.n_scenarios == 0:
         return np.zeros(0)
-    options = {} if system.forces else {"cutoff_factor": None}  # linear: the 2n multipliers exp(lambda T) exactly
     # blocks of similar speeds: a block's reduced model keeps the modes its fastest member needs
     order = np.argsort(system.Omega, kind="stable")
     blocks = np.array_split(order, max(1, -(-system.n_scenarios // _BLOCK)))
     radius = np.empty(system.n_scenarios)
     for b in blocks:
-        radius[b] = floquet.spectral_radius(system.subset(b), harmonics[b], **options)
+        # linear: the 2n multipliers exp(lambda T) exactly, from the eigenvalues of the first-order form
+        radius[b] = floquet.spectral_radius(system.subset(b), harmonics[b]) if system.forces else \
+            floquet.linear_spectral_radius(system.subset(b))
     return radius
 
 
