@@ -18,7 +18,9 @@ logging.captureWarnings(True)
 log = logging.getLogger("preprocess")
 
 try:
-    table, waves = preprocess_run(smk.params.row, smk.params.harmonics, smk.params.sensor_range_mm * 1e-3)
+    record = read_record(smk.params.row["record"])  # once, for the harmonics and the spectrum
+    table, waves = preprocess_run(smk.params.row, smk.params.harmonics, smk.params.sensor_range_mm * 1e-3,
+                                  record=record)
 except DataError as err:  # check_data has passed the record: only a record changed since fails here
     log.error("%s", err)
     sys.exit(f"preprocess: error: {err}")
@@ -31,4 +33,4 @@ if not row["usable"]:
 write_tsv(table, smk.output.harmonics)
 write_tsv(waves, smk.output.waveforms)
 rpm = row["rpm_true"] if math.isfinite(row["rpm_true"]) else float(row["rpm"])
-write_tsv(spectrum(read_record(smk.params.row["record"]), rpm), smk.output.spectrum)
+write_tsv(spectrum(record, rpm), smk.output.spectrum)

@@ -285,7 +285,7 @@ def _backward(base: BaseFit, path: list[Step], scores: Scores, o: Mapping, resul
     n = scores.n_data
     while len(path) >= 2:
         final = path[-1].confirmation
-        ranges = {k: v for step in path for k, v in step.confirmation.ranges.items()}
+        ranges = _path_ranges(path)
         trials = []
         for i in range(len(path) - 1):
             kept = [step.confirmation.candidate for j, step in enumerate(path) if j != i]
@@ -320,6 +320,11 @@ def _backward(base: BaseFit, path: list[Step], scores: Scores, o: Mapping, resul
     return path
 
 
+def _path_ranges(path: Sequence[Step]) -> dict[str, tuple[float, float]]:
+    """The ranges the path's refits ended with, every effect's parameters (widened ones as widened)."""
+    return {k: v for step in path for k, v in step.confirmation.ranges.items()}
+
+
 def _sharing(base: BaseFit, path: list[Step], scores: Scores, o: Mapping, result: Diagnosis, log=None
              ) -> list[Step]:
     """The sharing check, once the path's effects explain the discrepancy: are the base's per-run parameters
@@ -334,7 +339,7 @@ def _sharing(base: BaseFit, path: list[Step], scores: Scores, o: Mapping, result
     if not path or not local or len(base.layout.runs) < 2 or not _fits_the_noise(path[-1].confirmation, o):
         return path  # (one run: per run and shared are the same fit)
     final, n = path[-1].confirmation, scores.n_data
-    ranges = {k: v for step in path for k, v in step.confirmation.ranges.items()}
+    ranges = _path_ranges(path)
     before = path[-2].confirmation.chi2 if len(path) > 1 else scores.base_chi2
     cf = shared(base, [step.confirmation.candidate for step in path], ranges, final.fit, before, n,
                 int(o["max_iterations"]))
@@ -506,7 +511,7 @@ def _conclude_path(result: Diagnosis, base: BaseFit, scores: Scores, o: Mapping)
                              f"{final.chi2 / final.dof:.3g} (forward selection, {steps} step{'s' if steps != 1 else ''}"
                              f"{dropped}{sharing}); {estimates}")
         candidates = [step.confirmation.candidate for step in path]
-        ranges = {k: v for step in path for k, v in step.confirmation.ranges.items()}
+        ranges = _path_ranges(path)
         name = _variant_name([base.variant.name] + names)
         spec = variant_spec(base.variant, candidates, ranges, per_run=[] if sharing else None)
         result.recommendation = (f"Add this variant under `variants:` in config/config.yaml, then run `snakemake "

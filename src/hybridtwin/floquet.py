@@ -88,13 +88,19 @@ def linear_spectral_radius(system: System) -> Array:
     """The largest |mu| per scenario (S,) of a system with no nonlinear force: its Floquet multipliers are
     exp(lambda T) for the eigenvalues lambda of the first-order form [[0, I], [-M^-1 K, -M^-1 C]] (time-invariant
     linear flow), so the radius is exp(T max Re lambda), with no matrix exponential and no modal basis."""
-    S, n = system.n_scenarios, system.n_dof
-    A = np.zeros((S, 2 * n, 2 * n))
-    A[:, :n, n:] = np.eye(n)
-    A[:, n:, :n] = -np.linalg.solve(system.M, system.K)
-    A[:, n:, n:] = -np.linalg.solve(system.M, system.C)
+    A = _first_order(system.M, system.C, system.K)
     T = 2.0 * np.pi / system.Omega
     return np.exp(T * np.linalg.eigvals(A).real.max(axis=1))
+
+
+def _first_order(M: Array, C: Array, K: Array) -> Array:
+    """The first-order form A = [[0, I], [-M^-1 K, -M^-1 C]] (S, 2m, 2m) of M q'' + C q' + K q = 0."""
+    S, m = M.shape[0], M.shape[1]
+    A = np.zeros((S, 2 * m, 2 * m))
+    A[:, :m, m:] = np.eye(m)
+    A[:, m:, :m] = -np.linalg.solve(M, K)
+    A[:, m:, m:] = -np.linalg.solve(M, C)
+    return A
 
 
 def spectral_radius(system: System, harmonics: Array, **options) -> Array:
@@ -172,10 +178,7 @@ def _monodromy_eigenvalues(system: System, basis: Array, dofs: Array, J: Array, 
     S, m, c = system.n_scenarios, basis.shape[2], dofs.size
     Bt = np.swapaxes(basis, 1, 2)
     M, C, K = (Bt @ X @ basis for X in (system.M, system.C, system.K))
-    A = np.zeros((S, 2 * m, 2 * m))
-    A[:, :m, m:] = np.eye(m)
-    A[:, m:, :m] = -np.linalg.solve(M, K)
-    A[:, m:, m:] = -np.linalg.solve(M, C)
+    A = _first_order(M, C, K)
     T = 2.0 * np.pi / system.Omega
     if c == 0:
         return np.linalg.eigvals(expm(A * T[:, None, None]))

@@ -460,14 +460,16 @@ def spectrum(record: Record, rpm: float, max_order: float = 10.0) -> pd.DataFram
 
 
 def preprocess_run(sheet_row: Mapping, harmonics: int = 5, sensor_range_m: float | None = None,
-                   sensor_resolution_m: float | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
+                   sensor_resolution_m: float | None = None, record: Record | None = None
+                   ) -> tuple[pd.DataFrame, pd.DataFrame]:
     """One runs-sheet row (with its resolved ``record`` path) -> (one-row tidy table, waveforms).
 
     The sensor: the row's sensor_range_mm / sensor_resolution_mm, else the
     given defaults [m], else the built-in ones (``measurements.Sensor``).
+    record: the row's record already read (``read_record``), e.g. for its ``spectrum`` too; else read here.
     """
     sensor = Sensor.for_run(sheet_row, sensor_range_m, sensor_resolution_m)
-    record = read_record(sheet_row["record"])
+    record = read_record(sheet_row["record"]) if record is None else record
     analysis = analyse_record(record, float(sheet_row["rpm"]), harmonics, sensor.range_m,
                               sensor_resolution_m=sensor.resolution_m)
     row = {k: v for k, v in sheet_row.items() if k != "record"} | run_row(analysis, harmonics)

@@ -52,10 +52,11 @@ def dense_response(variant, joint: pd.DataFrame, runs: pd.DataFrame, rpm: Sequen
     (``COLUMNS``; ``stable``: the Floquet check, NaN where the sweep did not converge)."""
     masses = sorted(set(float(m) for m in runs["eccentric_mass_g"]))
     names = list(variant.model.parameters)
+    values_at = val.values_along(joint, law, runs)  # the bow's law fitted once, evaluated at every step
 
     def build(speed: Array, rows: Array):
-        sets = [variant.values(val.values_at(joint, float(s), masses[r], law, runs)
-                               | {"m_e": 1e-3 * masses[r]}) for s, r in zip(speed, rows)]
+        sets = [variant.values(values_at(float(s), masses[r]) | {"m_e": 1e-3 * masses[r]})
+                for s, r in zip(speed, rows)]
         return variant.model.system({k: np.array([float(v[k]) for v in sets]) for k in names}, speed)
 
     frames = []

@@ -234,18 +234,28 @@ def validation_values(joint: pd.DataFrame, run: RunData, law: str = "law", runs:
 
 def values_at(joint: pd.DataFrame, rpm: float, eccentric_mass_g: float, law: str = "law",
               runs: pd.DataFrame | None = None) -> dict[str, float]:
-    """``validation_values`` at any speed and eccentric mass (e.g. along a sweep): the shared estimates, each
-    per-run parameter from its law over the fitted runs (their rpm and mass from ``runs`` when given)."""
+    """``validation_values`` at any speed and eccentric mass: the shared estimates, each per-run parameter from
+    its law over the fitted runs (their rpm and mass from ``runs`` when given). For many points (a sweep), build
+    the laws once with ``values_along``."""
+    return values_along(joint, law, runs)(rpm, eccentric_mass_g)
+
+
+def values_along(joint: pd.DataFrame, law: str = "law", runs: pd.DataFrame | None = None
+                 ) -> Callable[[float, float], dict[str, float]]:
+    """``values_at`` as a function of (rpm, eccentric_mass_g), each per-run parameter's law (``bow_law``) fitted
+    once."""
     physical = joint[joint["kind"] != "nuisance"]
-    values = {r.parameter: float(r.value) for r in physical.itertuples() if r.run == "all"}
+    shared = {r.parameter: float(r.value) for r in physical.itertuples() if r.run == "all"}
     local = physical[physical["run"] != "all"]
     if runs is not None and len(local):
         local = local.drop(columns=[c for c in ("rpm", "eccentric_mass_g") if c in local]).merge(
             runs[["run", "rpm", "eccentric_mass_g"]], on="run", how="left")
-    for p, group in local.groupby("parameter", sort=False):
-        if p == "m_e" and np.isfinite(eccentric_mass_g):
-            values[p] = eccentric_mass_g * 1e-3
-            continue
-        _, predict = bow_law(group, p, law)
-        values[p] = float(predict(rpm, eccentric_mass_g))
-    return values
+    laws = {p: bow_law(group, p, law)[1] for p, group in local.groupby("parameter", sort=False)}
+
+    def at(rpm: float, eccentric_mass_g: float) -> dict[str, float]:
+        values = dict(shared)
+        for p, predict in laws.items():
+            values[p] = eccentric_mass_g * 1e-3 if p == "m_e" and np.isfinite(eccentric_mass_g) else \
+                float(predict(rpm, eccentric_mass_g))
+        return values
+    return at
