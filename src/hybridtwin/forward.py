@@ -120,6 +120,38 @@ def run_up(variant, rpm: Sequence[float], values: Mapping[str, Array | float], h
     return states, jumped
 
 
+def run_ups(variant, rpm: Array, values: Mapping[str, Array], harmonics: int, start_rpm: float = 300.0,
+            step_rpm: float = 50.0) -> tuple:
+    """Steady states of S parameter sets, set s at its own speed ``rpm[s]``, each reached by its own run-up
+    from ``start_rpm`` as in ``run_up`` (the same speed steps, so the same states), all solved in lockstep
+    (``solve_sweep`` with per-scenario speeds): one batched sweep instead of one per run.
+
+    values: complete parameter values [SI], each (S,). Returns the ``SteadyState`` of the S sets and (S,)
+    flags: True for a set whose run-up jumped between branches on the way (a fold crossed)."""
+    from .solver import SteadyState, solve_sweep
+
+    rpm = np.asarray(rpm, float)
+    S = rpm.size
+    ramps = [intermediate_speeds(np.unique([min(start_rpm, r), r]), step_rpm) for r in rpm]
+    speeds = np.full((max(map(len, ramps)), S), np.nan)
+    for s, ramp in enumerate(ramps):
+        speeds[:len(ramp), s] = ramp
+    rest = variant.model.at_rest({k: np.broadcast_to(np.asarray(v, float), (S,)) for k, v in values.items()}, S)
+    sweep = solve_sweep(lambda speed, rows: variant.model.system_at(rest.rows(rows), speed),
+                        speeds, S, harmonics=harmonics, direction="up", stability=False)
+    last = np.array([len(r) for r in ramps]) - 1
+    jumped = np.zeros(S, bool)
+    parts, order = [], []
+    for step, result in enumerate(sweep.results):
+        active = np.flatnonzero(last >= step)
+        jumped[active] |= np.array(["jump" in str(result.branch[a]) for a in active], bool)
+        here = np.flatnonzero(last == step)
+        if here.size:
+            parts.append(SteadyState.concatenate([result], here))
+            order.append(here)
+    return SteadyState.concatenate(parts, np.argsort(np.concatenate(order))), jumped
+
+
 #: a warm start is kept when Newton's solution lies within this fraction of the predicted change of the
 #: condensed state (plus ``WARM_FLOOR`` of its size) from the predictor: a solution farther away means the
 #: continuation in the parameters left the branch the run-up reaches (a fold in between)
@@ -338,13 +370,13 @@ class SolverModel:
             cold = np.flatnonzero(~kept[offsets[k]:offsets[k + 1]])
             m.n_solves += counts[k]
             m.n_warm += counts[k] - cold.size
-            if cold.size:
-                states, jump = run_up(m.variant, [m.rpm], {k_: v[cold] for k_, v in values_k[k].items()}, H,
-                                      jumps=True)
-                parts.append(states[0])
-                order.append(offsets[k] + cold)
-                jumped[offsets[k] + cold] = jump
-                m.n_run_ups += cold.size
+            m.n_run_ups += cold.size
+        cold = np.flatnonzero(~kept)
+        if cold.size:  # every run's cold sets in one lockstep sweep, each on its own run's run-up
+            states, jump = run_ups(first.variant, rpm[cold], {k_: v[cold] for k_, v in values.items()}, H)
+            parts.append(states)
+            order.append(cold)
+            jumped[cold] = jump
         if not parts:
             return None
         result = SteadyState.concatenate(parts, np.argsort(np.concatenate(order)))

@@ -745,13 +745,20 @@ def sensitivity(build: Callable[[Mapping[str, Array]], System], values: Mapping[
         dG_p = derivative(_to_complex(F @ aft.E_plus.T))
         B = np.zeros((n, c))
         B[prob.dofs, np.arange(c)] = 1.0
+    # dD_h Q_h = dK Q_h + i h Omega dC Q_h - (h Omega)^2 dM Q_h: each derivative read once for all harmonics,
+    # and not at all where it is zero (most parameters enter K alone, or only the forcing)
+    products = {name: np.einsum("psij,shj->pshi", dA, Q, optimize=True) if np.any(dA) else None
+                for name, dA in (("K", dK), ("C", dC), ("M", dM))}
     Dinv_rhs = np.empty((s, P, H + 1, n), complex)
     for h in range(H + 1):
         w = (h * Omega)[:, None, None]
         D = system.K + 1j * w * system.C - w * w * system.M  # (s, n, n)
-        dD = dK + 1j * w[None] * dC - (w * w)[None] * dM  # (P, s, n, n)
+        dDQ = np.zeros((P, s, n), complex)
+        for name, factor in (("K", 1.0), ("C", 1j * w[None, :, :, 0]), ("M", -(w * w)[None, :, :, 0])):
+            if products[name] is not None:
+                dDQ = dDQ + factor * products[name][:, :, h]
         dF = derivative(perturbed.forcing[h]) if h in perturbed.forcing else 0.0
-        rhs = -(np.einsum("psij,sj->psi", dD, Q[:, h]) - dF)  # (P, s, n)
+        rhs = -(dDQ - dF)  # (P, s, n)
         if c:
             rhs = rhs + np.einsum("ik,psk->psi", B, dG_p[..., h])
         ok_h = np.ones(s, bool)
