@@ -205,3 +205,26 @@ def test_an_unstable_optimum_is_flagged_on_the_fit_and_never_reported_as_converg
 
     assert check_stability(SimpleNamespace(problem=None)) is None
     assert check_stability(SimpleNamespace(problem=SimpleNamespace(models=[object()]))) is None
+
+
+def test_the_lockstep_run_ups_are_each_runs_own_run_up_bit_for_bit():
+    """``run_ups`` (every set on its own speed ramp, one lockstep sweep) against ``run_up`` called set by set:
+    the solver treats scenarios independently and each set keeps its own ramp from 300 RPM, so the states
+    (and the jump flags) are the same numbers, not just close. Speeds below, at and above the ramp's start,
+    both sides of the resonance, the three eccentric masses."""
+    from hybridtwin.forward import run_up, run_ups
+
+    variant = builtin_variant("geometric")
+    rng = np.random.default_rng(3)
+    rpm = np.repeat([250.0, 300.0, 450.0, 700.0, 850.0, 950.0, 1000.0], 3)
+    S = rpm.size
+    values = variant.values({"k_b": rng.uniform(2000, 3500, S), "zeta_s": rng.uniform(0.01, 0.05, S),
+                             "m_e": np.tile([0.0148, 0.0216, 0.0], 7)})
+    values = {k: np.broadcast_to(np.asarray(v, float), (S,)).copy() for k, v in values.items()}
+    with threadpool_limits(1):
+        states, jumped = run_ups(variant, rpm, values, 5)
+        for s in range(S):
+            own, jump = run_up(variant, [rpm[s]], {k: v[s:s + 1] for k, v in values.items()}, 5, jumps=True)
+            np.testing.assert_array_equal(states.harmonics[s], own[0].harmonics[0])
+            assert jumped[s] == jump[0]
+    assert states.success.all()

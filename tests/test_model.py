@@ -372,3 +372,22 @@ def test_nested_parents_are_the_simplest_contained_variants():
         "unknown": {**specs["geometric"]["unknown"], "k_w": (0.0, 1000.0), "k_z": (0.0, 1000.0)}})
     # every Final monomial is there, but u v^2 comes with -4 k_b / l_i^2: Final is not a special case
     assert not contains(slope, variants["final"]) and contains(slope, variants["geometric"])
+
+
+def test_the_first_mode_of_repeated_pencils_is_each_ones_own():
+    """Pencils repeated in a batch (runs' copies, a perturbed damping) are solved once: each scenario's mode is
+    bit for bit the one it has alone, symmetric and non-symmetric stiffness alike (against a batch of one)."""
+    from hybridtwin.model import _first_mode
+
+    rng = np.random.default_rng(0)
+    n = 12
+    A, B = rng.normal(size=(2, 4, n, n))
+    K = A @ np.swapaxes(A, 1, 2) + n * np.eye(n)
+    M = B @ np.swapaxes(B, 1, 2) + n * np.eye(n)
+    K[3] += 0.01 * rng.normal(size=(n, n))  # a cross-coupled, non-symmetric one
+    pick = rng.integers(0, 4, 50)
+    omega, phi = _first_mode(K[pick], M[pick])
+    for s, i in enumerate(pick):
+        alone = _first_mode(K[i:i + 1], M[i:i + 1])
+        np.testing.assert_array_equal(omega[s], alone[0][0])
+        np.testing.assert_array_equal(phi[s], alone[1][0])
