@@ -22,8 +22,8 @@ runs = [r for r in dict.fromkeys(table["run"]) if r != "all"]
 keyphasor = smk.params.keyphasor  # as the identification used it (identification: keyphasor)
 data = [idn.run_data(harmonics, run, keyphasor=keyphasor) for run in runs]
 base = st.BaseFit.from_table(variant, table, data, int(smk.params.harmonics))
-candidates = candidates_for([e.name for e in variant.model.effects], options["candidates"],
-                            cfg.user_effects(model))
+candidates = candidates_for([e.name for e in variant.model.effects], cfg.candidate_names(options["candidates"], model),
+                            cfg.candidate_effects(model))
 log.info("diagnosing %s on %d fit runs: %d candidates (%s)", variant.name, len(data), len(candidates),
          ", ".join(c.name for c in candidates))
 result = dg.diagnose(base, candidates, options, log)

@@ -22,6 +22,7 @@ import pandas as pd
 import yaml
 from threadpoolctl import threadpool_limits
 
+from .bearing_candidates import at_bearing
 from .effects import Effect
 from .machine import Machine, MachineSpecError
 from .scenarios import default_n_scenarios
@@ -35,6 +36,23 @@ SCHEMA_FILE = Path("workflow") / "schemas" / "config.schema.yaml"
 def user_effects(config: Mapping, config_dir: Path = CONFIG_DIR) -> dict[str, Effect]:
     """Effects from the config's ``effects_files`` (paths relative to the config folder)."""
     return load_effects_files([config_dir / path for path in config.get("effects_files") or []])
+
+
+def candidate_effects(config: Mapping, config_dir: Path = CONFIG_DIR) -> dict[str, Effect]:
+    """Effects the diagnosis may test besides the built-in candidates: the config's effects files', and the
+    candidates the machine sizes to each of its bearings with nominal k (``bearing_candidates``), by name."""
+    placed = {name: e for name, e in machine(config).effects().items() if getattr(e, "switches", ())}
+    return user_effects(config, config_dir) | placed
+
+
+def candidate_names(names: Sequence[str] | None, config: Mapping) -> list[str] | None:
+    """The candidates to test: ``names`` (``diagnosis: candidates``) when given; when null, None (every built-in
+    candidate) on the VARM, and on a machine of your own (``config``'s ``machine:``) the candidates sized to its
+    bearings (the built-in ones act at the VARM's upper bearing, node 0)."""
+    if names is not None or config.get("machine") is None:
+        return None if names is None else list(names)
+    placed = [c.name for b in machine(config).bearings for c in at_bearing(b.name, b.k, b.c)]
+    return placed or None
 
 
 def machine(config: Mapping) -> Machine:
@@ -395,15 +413,18 @@ def _name_problems(config: Mapping, config_dir: Path) -> Iterable[Problem]:
                     f"{_allowed(parameter, own, 'its unknown parameters')}"
 
     diagnosis = config.get("diagnosis") or {}
-    available = [c.name for c in candidates_for([])] + list(user)  # built in, then from effects_files
+    testable = dict(user)
+    if machine_ok:  # the candidates sized to the machine's bearings (bearing_candidates)
+        testable |= {name: e for name, e in rotor.effects().items() if getattr(e, "switches", ())}
+    available = [c.name for c in candidates_for([])] + list(testable)  # built in, effects files, bearings
     for i, candidate in enumerate(diagnosis.get("candidates") or []):
         if candidate not in available:
             yield ("diagnosis", "candidates", i), "diagnosis.candidates", \
                 f"no candidate effect named {candidate!r} " \
-                f"{_allowed(candidate, available, 'candidates, built in or from effects_files')}"
+                f"{_allowed(candidate, available, 'candidates, built in, from effects_files or at the bearings')}"
             continue
         try:
-            candidates_for([], [candidate], user)
+            candidates_for([], [candidate], testable)
         except ValueError as err:  # a user effect that cannot be a candidate
             yield ("diagnosis", "candidates", i), "diagnosis.candidates", str(err)
     sparse = diagnosis.get("sparse_variant")

@@ -29,6 +29,7 @@ from functools import cached_property
 
 import numpy as np
 
+from .bearing_candidates import at_bearing
 from .effect_base import Context, Effect, Parameter
 from .effects import Unbalance, builtin_effects
 from .shaft import DofCounts, Shaft, beam_element, slope_element
@@ -402,8 +403,9 @@ class Machine(DofCounts):
 
     def effects(self) -> dict[str, Effect]:
         """The effects this machine adds to the built-in ones, by name (for a variant's effect list):
-        ``gyroscopic``; ``linear_bearing@<bearing>`` for each bearing with nominal coefficients; every
-        placeable built-in effect at every bearing, ``<effect>@<bearing>``; ``unbalance@<plane>`` for each
+        ``gyroscopic``; ``linear_bearing@<bearing>`` for each bearing with nominal coefficients, and the
+        candidates sized to them (``bearing_candidates.at_bearing``: bearing_anisotropy, cross_coupled_stiffness,
+        cross_coupled_damping); every placeable built-in effect at every bearing, ``<effect>@<bearing>``; ``unbalance@<plane>`` for each
         unbalance plane (the run's eccentric mass m_e at that plane)."""
         out: dict[str, Effect] = {"gyroscopic": Gyroscopic()}
         placeable = [e for e in builtin_effects().values() if hasattr(e, "node")]
@@ -415,6 +417,8 @@ class Machine(DofCounts):
             for effect in placeable:
                 placed = self.place(effect, bearing.name)
                 out[placed.name] = placed
+            for candidate in at_bearing(bearing.name, bearing.k, bearing.c):  # sized to the bearing's k, c
+                out[candidate.name] = candidate
         for plane in self.unbalance_planes:
             out[f"unbalance@{plane.name}"] = PlaneUnbalance(name=f"unbalance@{plane.name}", node=plane.node)
         return out
