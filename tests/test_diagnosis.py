@@ -156,6 +156,25 @@ def test_indistinguishable_candidates_are_called_confounded(slope_base):
     assert "cannot tell them apart" in result.conclusion
 
 
+def test_the_same_local_sensitivities_are_not_confounded_when_the_refits_differ(slope_base):
+    """A user's effect whose derivative at zero is expansion_k4's (a force k_t u') but which also stiffens the
+    bearing like k_t^2 / 20 u (nothing at first order): the score test sees the same sensitivities (nested both
+    ways), but at k_t ~ 324 N its extra 5 kN/m of stiffness cannot fit, so the refits differ by far more than
+    confounded_bic and the data can tell them apart: not "confounded", expansion_k4 the one to add."""
+    twin = PolynomialBearing(name="stiffening_tilt", meaning="k_t u' plus a stiffness k_t^2 / 20 (a user's effect)",
+                             parameters=(Parameter("k_t", "N", (-1000.0, 1000.0), 0.0, "tilt stiffness"),),
+                             terms=(Term(lambda p: p.k_t, (0, 0, 1, 0), "k_t u'"),
+                                    Term(lambda p: p.k_t * p.k_t / 20.0, (1, 0, 0, 0), "k_t^2 / 20 u")))
+    candidates = _candidates(["expansion_k4"]) + [Candidate(twin, ("k_t",))]
+    scores = st.score_tests(slope_base, candidates)
+    by_name = {s.candidate.name: s for s in scores.scores}
+    assert st.nested(by_name["stiffening_tilt"].projected, by_name["expansion_k4"].projected)  # locally the same
+    result = dg.diagnose(slope_base, candidates)
+    verdicts = dict(zip(result.table["effect"], result.table["verdict"]))
+    assert verdicts["expansion_k4"].startswith("add") and "confounded" not in verdicts["expansion_k4"]
+    assert "confounded" not in verdicts["stiffening_tilt"] and "cannot tell them apart" not in result.conclusion
+
+
 def test_unexplained_discrepancy_when_no_candidate_fits():
     """A hidden 3X excitation while only linear 1X-type candidates are offered: say so, name none."""
     data = _data(["excitation_3x"], TRUTH | {"f3_c": 0.3, "f3_s": -0.2}, seed=4)

@@ -422,11 +422,16 @@ def _conclude(base: BaseFit, scores: Scores, confirmations: Mapping[str, Confirm
         within_best, contains_best = nested(projected, best_projected), nested(best_projected, projected)
         inside = [b.candidate.name for b in confirmed if b is not cf and b.delta_bic <= cf.delta_bic
                   and nested(projected, by_name[b.candidate.name].projected)]
-        if within_best and contains_best or (not inside and not contains_best
-                                             and cf.delta_bic - best.delta_bic < o["confounded_bic"]):
+        # the refits decide: sensitivities that span the same space at the base fit (a local statement, and a
+        # borderline one: 1e-3 on a principal angle's cosine) are confounded only if the refits tie as well
+        tie = cf.delta_bic - best.delta_bic < o["confounded_bic"]
+        if tie and (within_best and contains_best or (not inside and not contains_best)):
             confounded.append(name)
             verdicts[name] = (f"confounded with {best.candidate.name}: these data cannot tell them apart "
                               f"(Delta BIC {cf.delta_bic:.1f} vs {best.delta_bic:.1f})")
+        elif within_best and contains_best:
+            verdicts[name] = (f"weaker than {best.candidate.name}: the same sensitivities at the base fit, but the "
+                              f"refits tell them apart (Delta BIC {cf.delta_bic:.1f} vs {best.delta_bic:.1f})")
         elif inside:
             verdicts[name] = f"part of {inside[0]} (its sensitivities lie within that effect's)"
         elif contains_best:
