@@ -451,6 +451,22 @@ def test_the_sharing_check_shares_a_bow_the_data_do_not_need_per_run(slope_data)
     Variant.from_spec(result.summary["recommended_variant"]["name"], spec)  # a valid config entry
 
 
+def test_the_shared_fit_widens_a_range_its_estimate_runs_into(slope_data):
+    """The per-run fit can end with a new effect's range too narrow for the shared fit (its bows traded off
+    against the effect): the shared fit is started across the range and widened as a refit is. Here k4's range
+    is cut to [0, 100] N, a third of the truth's k_w = 324.2 N: the shared fit must widen it past the truth and
+    end inside it, at k_w within 10 % (test_estimate_of_the_linear_slope_term_matches_the_truth), and fit to the
+    noise (chi^2 within 3 sigma of chi^2(dof))."""
+    base = _base_fit(slope_data, per_run=("q_x", "q_y"))
+    path, scores, _ = _one_step_path(base, "expansion_k4")
+    k4 = path[-1].confirmation
+    cf = rf.shared(base, [k4.candidate], {"k4": (0.0, 100.0)}, k4.fit, scores.base_chi2, scores.n_data)
+    assert cf.ranges["k4"][1] > 324.2 and cf.widened and cf.widened[0][1] == (0.0, 100.0)
+    estimate = cf.estimates.set_index("parameter").loc["k4"]
+    assert not estimate["at_bound"] and estimate["value"] == pytest.approx(324.2, rel=0.1)
+    assert cf.chi2 / cf.dof < 1 + 3 * np.sqrt(2 / cf.dof)
+
+
 def test_the_sharing_check_keeps_a_bow_that_differs_between_runs():
     """The same, but the truth's bow differs between the two unbalance masses (q_x 0.002 at 25.9 g, 0.004 at
     14.8 g: a bow that the rig's mounting changed): one shared bow cannot fit both, the per-run values are
