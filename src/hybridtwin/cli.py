@@ -284,7 +284,7 @@ def simulate(args: argparse.Namespace) -> int:
     specs, user, machine = load_catalog(source, args.effects_file)
     variant = build_variant(args.variant, specs, user, source, args.add_effect, machine)
     try:
-        machine.sensor_node  # the output is one x, y probe pair
+        machine.sensor_node  # the output is the first x, y probe pair's
     except ValueError as err:
         raise UsageError(f"{source}: {err}") from None
     values = dict(args.values)
