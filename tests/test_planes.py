@@ -210,5 +210,63 @@ def test_two_planes_see_the_overhung_disks_bearing_that_one_plane_barely_sees(tm
         assert fits["two"].loc[name, "stderr"] < fits["one"].loc[name, "stderr"] / 5, name
 
 
+def test_predictions_comparisons_figures_and_fingerprint_follow_the_channels(tmp_path):
+    """Four channels x1, y1, x2, y2 (not in alphabetical order) through the validation predictions' file, the
+    report's harmonics table and run figure, and the diagnosis fingerprint: the files give the same numbers back
+    in the sensors' order, the figure names the channels it shows, and the fingerprint's whirl is that of the first
+    pair (channels 0, 1): the same as a fingerprint of those two channels alone."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from hybridtwin import report
+    from hybridtwin import validation as val
+    from hybridtwin.fingerprint import fingerprint
+
+    rng = np.random.default_rng(1)
+    channels = ("x1", "y1", "x2", "y2")
+    H = 2
+    Z = rng.standard_normal((H, 4)) + 1j * rng.standard_normal((H, 4))
+    prediction = val.PredictedRun("v1", "solver", 0.3, 1e-4 * Z, channels)
+    val.write_predictions(tmp_path / "p.tsv", [prediction])
+    back = val.read_predictions(tmp_path / "p.tsv")[0]
+    assert back.channels == channels and np.array_equal(back.harmonics, prediction.harmonics)
+
+    comparison = report.RunComparison("v1", "validate", 4000.0, 20.0, 1e-4 * Z, 0.9e-4 * Z, np.full((H, 4), 1e-6),
+                                      2 * Z.size - 1, "solver", channels)
+    table = report.comparison_table([comparison])
+    assert list(table["channel"][:4]) == list(channels)
+    again = report.read_comparisons(table)[0]
+    assert again.channels == channels and np.array_equal(again.measured, comparison.measured)
+    assert again.chi2 == comparison.chi2  # every channel counts
+    figure = report.plot_run(comparison, "linear")
+    assert "shown: channels x1, y1 (the first plane)" in figure._suptitle.get_text()
+    assert figure.axes[0].get_xlabel() == "x1 [mm]"
+    plt.close(figure)
+
+    import pandas as pd
+
+    from hybridtwin.response_plots import plot_cascade
+
+    f = np.linspace(0.0, 300.0, 50)
+    spectra = {"v1": pd.DataFrame({"frequency_hz": f, "order": f / 66.7,
+                                   **{f"{c}_amplitude_m": 1e-6 * (1 + k + f) for k, c in enumerate(channels)}})}
+    cascade = plot_cascade(spectra, pd.DataFrame({"run": ["v1"], "rpm": [4000.0], "eccentric_mass_g": [20.0]}))
+    titles = [ax.get_title() for ax in cascade.axes if ax.get_title()]
+    assert [t.split(":")[0] for t in titles] == list(channels)  # a panel per channel, in the sensors' order
+    plt.close(cascade)
+
+    R = 5
+    X = 1e-4 * (rng.standard_normal((R, H + 1, 4)) + 1j * rng.standard_normal((R, H + 1, 4)))
+    M = X + 1e-6 * (rng.standard_normal(X.shape) + 1j * rng.standard_normal(X.shape))
+    M[:, :, 1] += 3e-6 * 1j * M[:, :, 0] / np.abs(M[:, :, 0])  # a residual that whirls in the first plane
+    rpm = np.linspace(3000, 4000, R)
+    four = fingerprint(X, M, 1e-6, rpm, np.full(R, 20.0))
+    two = fingerprint(X[:, :, :2], M[:, :, :2], 1e-6, rpm, np.full(R, 20.0))
+    np.testing.assert_array_equal(four.forward, two.forward)  # the whirl: channels 0, 1 only
+    assert four.chi2 > two.chi2 and four.dof == 2 * two.dof  # the chi^2: every channel
+
+
 if __name__ == "__main__":
     Path(sys.argv[1]).write_text(json.dumps(varm_reference()))

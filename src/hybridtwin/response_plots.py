@@ -10,7 +10,10 @@ runs). Unstable stretches (a Floquet multiplier outside the unit circle: the mac
 drawn dotted.
 
 ``dense_response`` -> a long table (``write_dense`` / ``read_dense``, exact inverses); ``plot_bode`` and
-``plot_polar`` draw it with the fit and validation runs (``report.RunComparison``, the model's frame).
+``plot_polar`` draw it with the fit and validation runs (``report.RunComparison``, the model's frame). On a
+machine with probes at several planes the curves are those of the first x, y pair (``sensor.sensor_harmonics``,
+the node ``Machine.sensor_node``) and the measured points are the runs' first two channels: declare that pair
+first. The cascade (``plot_cascade``) has a panel per channel.
 """
 
 from __future__ import annotations
@@ -267,18 +270,23 @@ def multivalued(dense: pd.DataFrame, rtol: float = 0.02) -> pd.DataFrame:
 def plot_cascade(spectra: dict[str, pd.DataFrame], runs: pd.DataFrame, orders: Sequence[int] = ORDERS
                  ) -> plt.Figure:
     """Cascade of the measured full spectra (``preprocessing.spectrum``): one row per run, sorted by eccentric
-    mass then speed, x the frequency [Hz], colour the amplitude in dB re 1 um (0-peak), one panel per channel;
+    mass then speed, x the frequency [Hz], colour the amplitude in dB re 1 um (0-peak), one panel per channel
+    (the spectra's <channel>_amplitude_m columns: x, y on the VARM, every sensor of a machine);
     the orders 1X..3X joined across the runs of each mass (dashed): what lies off them (a natural frequency
     excited by the noise, a subharmonic, a rub's broadband) is what the harmonics alone do not show.
     runs: run, rpm (the refined speed), eccentric_mass_g."""
     ordered = runs[runs["run"].isin(list(spectra))].sort_values(["eccentric_mass_g", "rpm"]).reset_index(drop=True)
-    fig, axes = plt.subplots(1, 2, figsize=(13, 0.28 * len(ordered) + 2.5), sharey=True, squeeze=False)
+    suffix = "_amplitude_m"
+    channels = list(dict.fromkeys(c[:-len(suffix)] for s in spectra.values() for c in s.columns
+                                  if c.endswith(suffix))) or ["x", "y"]
+    fig, axes = plt.subplots(1, len(channels), figsize=(6.5 * len(channels), 0.28 * len(ordered) + 2.5), sharey=True,
+                             squeeze=False)
     levels = np.concatenate([20 * np.log10(np.maximum(spectra[r][f"{c}_amplitude_m"].to_numpy() * MICRO, 1e-12))
-                             for r in ordered["run"] for c in "xy"]) if len(ordered) else np.zeros(1)
+                             for r in ordered["run"] for c in channels]) if len(ordered) else np.zeros(1)
     top = float(np.nanmax(levels))
     vmin, vmax = top - 80.0, top  # 80 dB below the largest line: the noise floor and everything above it
     mesh = None
-    for j, channel in enumerate("xy"):
+    for j, channel in enumerate(channels):
         ax = axes[0, j]
         for i, r in enumerate(ordered.itertuples()):
             s = spectra[r.run]
