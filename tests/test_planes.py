@@ -116,8 +116,9 @@ def test_order_analysis_gives_each_channel_its_harmonics_with_one_speed_and_one_
     """Four channels of known 1X and 2X (phases differing per channel) and noise: each channel's harmonics
     recovered to within 5 of their sigmas (a 5-sigma bound on a Gaussian estimate), one speed for the run."""
     import pandas as pd
+    import pytest
 
-    from hybridtwin.measurements import Record
+    from hybridtwin.measurements import DataWarning, Record
     from hybridtwin.preprocessing import analyse_record, harmonic_column, run_row, table_channels
 
     rng = np.random.default_rng(5)
@@ -137,6 +138,17 @@ def test_order_analysis_gives_each_channel_its_harmonics_with_one_speed_and_one_
         error = np.abs(analysis.orders.harmonics[i, 1:] - expected)
         assert (error < 5 * np.sqrt(2) * analysis.orders.sigma[i, 1:]).all(), name
         assert abs(analysis.orders.harmonics[i, 0].real - 1e-5 * (i + 1)) < 1e-7  # its own DC offset
+    # a second plane whirling backward (an anisotropic support between its critical speeds) is no finding; the
+    # first plane whirling backward is (x1 and y1 swapped?)
+    orbit = {"x2": 4e-5 * np.cos(omega * t), "y2": -4e-5 * np.sin(omega * t)}  # a backward whirl at d2
+    ok = analyse_record(Record(Path("b.csv"), t, dict(channels, **{k: v + 1e-6 * rng.standard_normal(t.size)
+                                                                  for k, v in orbit.items()}), None, "m",
+                               pairs=pairs), rpm, 2, 1e-3)
+    assert ok.usable, ok.note
+    with pytest.warns(DataWarning, match="the 1X orbit of x1, y1 whirls backward"):
+        swapped = analyse_record(Record(Path("c.csv"), t, dict(channels, x1=channels["y1"], y1=channels["x1"]),
+                                        None, "m", pairs=pairs), rpm, 2, 1e-3)
+    assert not swapped.usable and "x1 and y1 swapped?" in swapped.note
     row = pd.DataFrame([run_row(analysis, 2)])
     assert table_channels(row) == ("x1", "y1", "x2", "y2")
     assert harmonic_column("x1", 2, "re") == "x1_2_re_m" and harmonic_column("x", 2, "re") == "x2_re_m"

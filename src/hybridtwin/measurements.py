@@ -120,8 +120,8 @@ class Record:
     channel in the file ("mm" or "m"; one string: every channel's); lines: (N,)
     the file line of each sample (None for a record made in memory: line =
     index + 2); pairs: (x channel index, y channel index) of each probe pair at
-    one node (its orbit: the backward-whirl check), default the pair (x, y) when
-    both are channels.
+    one node (its orbit; the backward-whirl check reads the first), default the
+    pair (x, y) when both are channels.
     """
 
     path: Path
