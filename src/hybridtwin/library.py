@@ -441,7 +441,8 @@ def validate_libraries(libraries: list[Library], snapshots_path: str, runs: pd.D
     """Each library against the full solver on its run's test scenarios.
 
     Returns the per-run table (with an "all runs" row) and the parity data
-    (1X amplitudes, full solver vs library) for plotting.
+    (1X amplitudes, full solver vs library, of the first two channels: x, y on the VARM) for plotting. The
+    errors are over every sensor.
     """
     snaps = snapshots.load(snapshots_path)
     plan = runs.set_index("run")
