@@ -9,7 +9,6 @@ import warnings
 
 from snakemake.utils import validate
 
-from hybridtwin.config import machine
 from hybridtwin.measurements import DataError, DataWarning, read_runs
 from hybridtwin.preprocessing import check_data, write_tsv
 
@@ -25,7 +24,7 @@ try:
         summary, errors = check_data(smk.input.sheet, smk.params.harmonics, coverage.get("rpm"),
                                      coverage.get("eccentric_mass_g"), smk.params.sensor_range_mm * 1e-3,
                                      range_names=("config coverage.rpm", "config coverage.eccentric_mass_g"),
-                                     sensors=machine(smk.config))  # the records' channels: one per sensor
+                                     sensors=getattr(smk.params, "sensors", None))  # the records' channels
 except DataError as err:
     log.error("%s", err)
     sys.exit(f"check_data: error: {err}")

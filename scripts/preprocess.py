@@ -9,7 +9,6 @@ import sys
 
 import math
 
-from hybridtwin.config import machine
 from hybridtwin.measurements import DataError, read_record
 from hybridtwin.preprocessing import preprocess_run, spectrum, write_tsv
 
@@ -19,9 +18,9 @@ logging.captureWarnings(True)
 log = logging.getLogger("preprocess")
 
 try:
-    # once, for the harmonics and the spectrum; one channel per sensor of the config's machine (the records' headers
-    # name them, so a change of sensors is a change of the records, which reruns this rule)
-    record = read_record(smk.params.row["record"], machine(smk.config))
+    # once, for the harmonics and the spectrum; one channel per sensor of the config's machine (params.sensors, its
+    # config form; absent: the VARM's x, y)
+    record = read_record(smk.params.row["record"], getattr(smk.params, "sensors", None))
     table, waves = preprocess_run(smk.params.row, smk.params.harmonics, smk.params.sensor_range_mm * 1e-3,
                                   record=record)
 except DataError as err:  # check_data has passed the record: only a record changed since fails here

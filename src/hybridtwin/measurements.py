@@ -208,12 +208,18 @@ class Record:
 
 def record_channels(sensors=None) -> tuple[tuple[str, ...], tuple[tuple[int, int], ...] | None]:
     """(channel names, probe pairs) a record must hold for ``sensors``: None, the VARM's x and y; a ``Machine``
-    (its sensors' names and ``sensor_pairs``); a sequence of sensor names (pairs: x, y when both are there);
-    or of objects with ``name``, ``node``, ``direction`` (a machine's sensors)."""
+    (its sensors' names and ``sensor_pairs``); the config form {name: {node, direction}} (a ``machine:``
+    section's ``sensors``); a sequence of sensor names (pairs: x, y when both are there); or of objects with
+    ``name``, ``node``, ``direction`` (a machine's sensors)."""
     if sensors is None:
         return DEFAULT_CHANNELS, None
     if hasattr(sensors, "sensors") and hasattr(sensors, "sensor_pairs"):
         return tuple(s.name for s in sensors.sensors), tuple(sensors.sensor_pairs)
+    if isinstance(sensors, Mapping):
+        from types import SimpleNamespace
+
+        sensors = [SimpleNamespace(name=str(name), node=spec.get("node"), direction=spec.get("direction"))
+                   for name, spec in sensors.items()]
     items = list(sensors)
     if all(isinstance(item, str) for item in items):
         return tuple(items), None
