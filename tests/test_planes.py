@@ -110,6 +110,8 @@ def test_a_record_holds_a_channel_per_sensor_named_after_it(tmp_path):
         read_record(_write(tmp_path / "d.csv", "time_s,x1_mm,y1_mm,x2_mm,y2_mm,x3_mm"), machine)
     with pytest.raises(DataError, match="missing column x1_mm"):  # the VARM's x, y are not this machine's channels
         read_record(_write(tmp_path / "e.csv", "time_s,x_mm,y_mm"), machine)
+    with pytest.raises(DataError, match=r"machine of your own\? .*check-data --config FILE"):  # read as the VARM's
+        read_record(tmp_path / "a.csv")
     # the config form the workflow's rules pass (params.sensors: the machine section's sensors) reads the same
     config_form = read_record(tmp_path / "a.csv", _machine()[0]["machine"]["sensors"])
     assert config_form.names == record.names and config_form.pairs == record.pairs

@@ -650,6 +650,9 @@ def _record_columns(path: Path, columns: Sequence[str], names: Sequence[str] = D
         has = ("time_s, x_mm, y_mm or x_m, y_m, keyphasor" if tuple(names) == DEFAULT_CHANNELS else
                f"time_s, a column <sensor>_mm or <sensor>_m for each of the machine's sensors {listed}, keyphasor")
         problems.append(f"unexpected column(s) {extra} (a record has {has})")
+    if tuple(names) == DEFAULT_CHANNELS and any(c.rsplit("_", 1)[-1] in UNITS for c in extra):
+        problems.append("displacement columns of other sensors than the VARM's x and y: the record of a machine "
+                        "of your own? Its channels are read by its config's sensors (check-data --config FILE)")
     if problems:
         sensors = "" if tuple(names) == DEFAULT_CHANNELS else f"; the machine's sensors {listed}"
         raise DataError(f"{path}: line 1 (header): " + "; ".join(problems) + f"; the header has {list(columns)}"

@@ -279,7 +279,9 @@ def plot_cascade(spectra: dict[str, pd.DataFrame], runs: pd.DataFrame, orders: S
     suffix = "_amplitude_m"
     channels = list(dict.fromkeys(c[:-len(suffix)] for s in spectra.values() for c in s.columns
                                   if c.endswith(suffix))) or ["x", "y"]
-    fig, axes = plt.subplots(1, len(channels), figsize=(6.5 * len(channels), 0.28 * len(ordered) + 2.5), sharey=True,
+    n_columns = min(len(channels), 2)  # two panels a row: x, y of the VARM side by side, a row per further pair
+    n_rows = -(-len(channels) // n_columns)
+    fig, axes = plt.subplots(n_rows, n_columns, figsize=(13, n_rows * (0.28 * len(ordered) + 2.5)), sharey=True,
                              squeeze=False)
     levels = np.concatenate([20 * np.log10(np.maximum(spectra[r][f"{c}_amplitude_m"].to_numpy() * MICRO, 1e-12))
                              for r in ordered["run"] for c in channels]) if len(ordered) else np.zeros(1)
@@ -287,7 +289,7 @@ def plot_cascade(spectra: dict[str, pd.DataFrame], runs: pd.DataFrame, orders: S
     vmin, vmax = top - 80.0, top  # 80 dB below the largest line: the noise floor and everything above it
     mesh = None
     for j, channel in enumerate(channels):
-        ax = axes[0, j]
+        ax = axes[j // n_columns, j % n_columns]
         for i, r in enumerate(ordered.itertuples()):
             s = spectra[r.run]
             f = s["frequency_hz"].to_numpy()
@@ -306,10 +308,13 @@ def plot_cascade(spectra: dict[str, pd.DataFrame], runs: pd.DataFrame, orders: S
                         ha="center", va="bottom", annotation_clip=False)
         ax.set_xlabel("frequency [Hz]")
         ax.set_title(f"{channel}: amplitude [dB re 1 um, 0-peak]", fontsize=9)
-    axes[0, 0].set_yticks(range(len(ordered)))
-    axes[0, 0].set_yticklabels([f"{r.rpm:.0f} RPM, {r.eccentric_mass_g:g} g" for r in ordered.itertuples()],
-                               fontsize=7)
+    for row in range(n_rows):
+        axes[row, 0].set_yticks(range(len(ordered)))
+        axes[row, 0].set_yticklabels([f"{r.rpm:.0f} RPM, {r.eccentric_mass_g:g} g" for r in ordered.itertuples()],
+                                     fontsize=7)
+    for j in range(len(channels), n_rows * n_columns):  # an odd number of channels: the last panel unused
+        axes[j // n_columns, j % n_columns].set_visible(False)
     if mesh is not None:
-        fig.colorbar(mesh, ax=axes[0, :].tolist(), shrink=0.8, label="dB re 1 um")
+        fig.colorbar(mesh, ax=axes.ravel().tolist(), shrink=0.8, label="dB re 1 um")
     fig.suptitle("Cascade of the measured spectra (one row per run; dashed: 1X-3X)", fontsize=10)
     return fig
