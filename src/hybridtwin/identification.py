@@ -10,8 +10,11 @@ parameters normalised to x = 2 (p - lo) / (hi - lo) - 1 in [-1, 1],
 with X_hc the measured sensor harmonics (results/data/harmonics.tsv), M_hc the
 library's (``Library``: response and exact Jacobian), s_hc the standard
 uncertainty of each real and imaginary part (the measured sigma, plus, by
-default, the library's own error, see ``total_sigma``) and n_r = 4 H per run
-the number of real residuals. How the paper's loss is made precise here:
+default, the library's own error, see ``total_sigma``) and n_r = 2 C H per run
+the number of real residuals. The channels c are the machine's sensors in their
+declared order, C of them (x, y on the VARM: n_r = 4 H); the run's phase phi_run
+is shared by all its channels (one time origin per record). How the paper's
+loss is made precise here:
 
 - eq. 10 is a sum of squares weighted by the uncertainties (a chi^2 per
   residual), so L2 ~ 1 when the model explains the data to within its noise;
