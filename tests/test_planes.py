@@ -286,5 +286,44 @@ def test_predictions_comparisons_figures_and_fingerprint_follow_the_channels(tmp
     assert four.chi2 > two.chi2 and four.dof == 2 * two.dof  # the chi^2: every channel
 
 
+def test_a_library_and_its_surrogate_give_every_sensor_in_declared_order():
+    """A library with four sensor DOFs (two planes, declared out of DOF order): Library.sensor is its own field at
+    those DOFs in that order, and the identification's SensorSurrogate (h >= 1, normalised parameters) the same
+    numbers; exact algebra on the same amplitudes, so round-off only (1e-12 relative)."""
+    from hybridtwin.forward import SensorSurrogate
+    from hybridtwin.library import Library
+    from hybridtwin.spgd import SparsePGD
+
+    rng = np.random.default_rng(7)
+
+    def truth(X):
+        p1, p2, p3 = X.T
+        return np.column_stack([(1 + p1 * p1) * (2 - p2), p1 + 0.3 * p2 * p3, p3 * p3 - p2])
+
+    X, X_val = rng.uniform(-1, 1, (300, 3)), rng.uniform(-1, 1, (100, 3))
+    model = SparsePGD(degree=3, max_terms=6).fit(X, truth(X), X_val, truth(X_val))
+    n_harmonics, n_dof = 3, 44
+    modes = np.linalg.qr(rng.standard_normal((2 * n_harmonics * n_dof, 3)))[0]
+    dofs = [24, 2, 27, 5]  # v1, u1, v4, u4: any order, any planes
+    lower, upper = np.zeros(3), np.array([1.0, 2.0, 4.0])
+    library = Library("r1", ["a", "b", "c"], lower, upper, modes, np.ones(3), model, n_harmonics, n_dof, dofs)
+    values = rng.uniform(lower, upper, (50, 3))
+    sensor = library.sensor(values)
+    assert sensor.shape == (50, n_harmonics, 4)
+    np.testing.assert_allclose(sensor, library.field(values)[:, :, dofs], rtol=1e-12, atol=1e-14)
+    surrogate = SensorSurrogate(library)
+    M, dM = surrogate.evaluate(2 * (values - lower) / (upper - lower) - 1)
+    assert surrogate.C == 4 and M.shape == (50, n_harmonics - 1, 4) and dM.shape == (50, n_harmonics - 1, 4, 3)
+    np.testing.assert_allclose(M, sensor[:, 1:], rtol=1e-12, atol=1e-14)
+    # the Jacobian per channel: central differences of the surrogate (a polynomial of degree 3: truncation of
+    # order step^2 ~ 1e-12, round-off ~ 1e-16 / 1e-6 = 1e-10 of the response's size)
+    x0, step = 2 * (values[:1] - lower) / (upper - lower) - 1, 1e-6
+    for j in range(3):
+        e = np.zeros((1, 3))
+        e[0, j] = step
+        numeric = (surrogate.evaluate(x0 + e, False)[0] - surrogate.evaluate(x0 - e, False)[0]) / (2 * step)
+        np.testing.assert_allclose(dM[0, ..., j], numeric[0], rtol=1e-6, atol=1e-8 * np.abs(M[0]).max())
+
+
 if __name__ == "__main__":
     Path(sys.argv[1]).write_text(json.dumps(varm_reference()))
