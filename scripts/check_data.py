@@ -23,7 +23,8 @@ try:
         warnings.simplefilter("always", DataWarning)
         summary, errors = check_data(smk.input.sheet, smk.params.harmonics, coverage.get("rpm"),
                                      coverage.get("eccentric_mass_g"), smk.params.sensor_range_mm * 1e-3,
-                                     range_names=("config coverage.rpm", "config coverage.eccentric_mass_g"))
+                                     range_names=("config coverage.rpm", "config coverage.eccentric_mass_g"),
+                                     sensors=getattr(smk.params, "sensors", None))  # the records' channels
 except DataError as err:
     log.error("%s", err)
     sys.exit(f"check_data: error: {err}")

@@ -37,7 +37,7 @@ for path in smk.input.libraries:
                                                  int(smk.params.harmonics)), 0.0))
     for name, model, error in models:
         row = val.predict_run(model, data, values, error)
-        predictions.append(val.PredictedRun.from_prediction(row, name))
+        predictions.append(val.PredictedRun.from_prediction(row, name, data.channels))
         row.pop("fitted")
         row.update({"model": name, **{f"{p}_used": v for p, v in values.items()}, "note": "ok"})
         rows.append(row)

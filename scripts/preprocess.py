@@ -18,16 +18,18 @@ logging.captureWarnings(True)
 log = logging.getLogger("preprocess")
 
 try:
-    record = read_record(smk.params.row["record"])  # once, for the harmonics and the spectrum
+    # once, for the harmonics and the spectrum; one channel per sensor of the config's machine (params.sensors, its
+    # config form; absent: the VARM's x, y)
+    record = read_record(smk.params.row["record"], getattr(smk.params, "sensors", None))
     table, waves = preprocess_run(smk.params.row, smk.params.harmonics, smk.params.sensor_range_mm * 1e-3,
                                   record=record)
 except DataError as err:  # check_data has passed the record: only a record changed since fails here
     log.error("%s", err)
     sys.exit(f"preprocess: error: {err}")
 row = table.iloc[0]
-log.info("%s: %.3f RPM (nominal %g), %d revolutions, noise %.4f / %.4f mm, phase %s: %s", row["run"],
-         row["rpm_true"], row["rpm"], row["n_revolutions"], 1e3 * row["noise_x_m"], 1e3 * row["noise_y_m"],
-         row["phase_reference"], row["note"])
+log.info("%s: %.3f RPM (nominal %g), %d revolutions, noise %s mm, phase %s: %s", row["run"],
+         row["rpm_true"], row["rpm"], row["n_revolutions"],
+         " / ".join(f"{1e3 * row[f'noise_{c}_m']:.4f}" for c in record.names), row["phase_reference"], row["note"])
 if not row["usable"]:
     print(f"preprocess: run {row['run']} is kept out of the fit: {row['note']}", file=sys.stderr)
 write_tsv(table, smk.output.harmonics)

@@ -387,15 +387,23 @@ def test_simulate_on_a_longer_varm_shaft(capsys, tmp_path):
     np.testing.assert_allclose(table.u_re_m + 1j * table.u_im_m, U, rtol=1e-8, atol=1e-8 * abs(U).max())
 
 
-def test_simulate_refuses_probes_at_two_planes(capsys, tmp_path):
+def test_simulate_shows_the_first_probe_pair_and_refuses_a_machine_without_one(capsys, tmp_path):
+    """With a second probe plane the output is still the first x, y pair's (node 8): the same table as without
+    it; a machine with no node holding both an x and a y probe is refused in one line."""
     from example_machines import STEPPED_YAML
 
     config = yaml.safe_load(STEPPED_YAML)
+    args = ("--variant", "linear", "--rpm", "2000")
+    (tmp_path / "one.yaml").write_text(yaml.safe_dump(config))
     config["machine"]["sensors"]["x2"] = {"node": 16, "direction": "x"}
+    (tmp_path / "two.yaml").write_text(yaml.safe_dump(config))
+    one, two = (_run(capsys, "--config", str(tmp_path / f"{name}.yaml"), *args) for name in ("one", "two"))
+    assert one[0] == two[0] == 0 and one[1] == two[1] and one[1].startswith("harmonic,")
+    config["machine"]["sensors"] = {"x1": {"node": 8, "direction": "x"}, "y2": {"node": 16, "direction": "y"}}
     (tmp_path / "config.yaml").write_text(yaml.safe_dump(config))
-    code, out, err = _run(capsys, "--config", str(tmp_path / "config.yaml"), "--variant", "linear", "--rpm", "2000")
+    code, out, err = _run(capsys, "--config", str(tmp_path / "config.yaml"), *args)
     assert code == 2 and out == "" and len(err.strip().splitlines()) == 1
-    assert "config.yaml: machine 'stepped': sensors" in err and "not one x and one y probe" in err
+    assert "config.yaml: machine 'stepped': sensors" in err and "no node with both an x and a y probe" in err
 
 
 def _plain(value):

@@ -127,6 +127,9 @@ def test_the_refit_with_the_hidden_effect_recovers_the_truth(example):
 def test_the_loop_ran_on_the_example_machine(example):
     check = pd.read_csv(example / "results" / "data" / "check.tsv", sep="\t")
     assert check["usable"].all() and sorted(check["run"]) == sorted(RUNS)
+    # the records' four channels, the probes at d1 and at d2, named after the sensors, all preprocessed
+    harmonics = pd.read_csv(example / "results" / "data" / "harmonics.tsv", sep="\t")
+    assert {f"{c}_1_re_m" for c in ("x1", "y1", "x2", "y2")} <= set(harmonics.columns)
     # the report's machine figures are the stepped rotor's: its critical speeds near 3800-4100 RPM are in the
     # Campbell data (tests/example_machines.py: 3793 backward, 4064 forward at the nominal bearings)
     campbell = pd.read_csv(example / "results" / "linear" / "report" / "campbell.tsv", sep="\t")

@@ -233,10 +233,19 @@ def test_sensors_by_name_node_and_direction():
     machine = _stepped()
     assert machine.sensor_dofs() == [machine.dof("u8"), machine.dof("v8"), machine.dof("u16")]
     assert machine.sensor_planes == [8, 16]
-    with pytest.raises(ValueError, match="several sensor planes"):
-        machine.sensor_node
+    # every sensor is a channel (sensor_dofs, declared order); the orbit is the first node with an x and a y probe
+    assert sensor_dofs(machine) == machine.sensor_dofs()
+    assert machine.sensor_node == 8 and machine.sensor_pairs == [(0, 1)]
+    assert sensor_dofs(machine, 8) == [machine.dof("u8"), machine.dof("v8")]
     one_plane = Machine("p", machine.segments, sensors=[Sensor("a", 3, "x"), Sensor("b", 3, "y")])
     assert sensor_dofs(one_plane) == [one_plane.dof("u3"), one_plane.dof("v3")]
+    # pairs follow the nodes, not the declaration order
+    two = Machine("p", machine.segments, sensors=[Sensor("y2", 9, "y"), Sensor("x1", 3, "x"), Sensor("x2", 9, "x"),
+                                                  Sensor("y1", 3, "y")])
+    assert two.sensor_node == 9 and two.sensor_pairs == [(2, 0), (1, 3)]
+    lone = Machine("p", machine.segments, sensors=[Sensor("a", 3, "x"), Sensor("b", 4, "y")])
+    with pytest.raises(ValueError, match="no node with both an x and a y probe"):
+        lone.sensor_node
 
 
 @pytest.mark.parametrize("kwargs, message", [

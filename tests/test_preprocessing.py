@@ -145,8 +145,8 @@ def test_phase_aligned_comparison_ignores_time_origin_and_offsets(plain):
     # the same run recorded from another instant and with other sensor offsets
     record = a.record
     cut = slice(137, None)
-    shifted = Record(record.path, record.time_s[cut] - record.time_s[137], record.x_m[cut] + 2e-4,
-                     record.y_m[cut] - 1e-4, None, record.unit)
+    shifted = Record.xy(record.path, record.time_s[cut] - record.time_s[137], record.x_m[cut] + 2e-4,
+                        record.y_m[cut] - 1e-4, None, record.unit)
     b = analyse_record(shifted, row["rpm"], H)
     r_b, phi_b = phase_aligned_residuals(b.orders.harmonics, b.orders.sigma, model)
     assert np.abs(r_b).max() < 4.0 and phi_b != pytest.approx(phi, abs=1e-2)  # a different nuisance phase
@@ -206,7 +206,7 @@ def test_1x_significance_of_noise_alone_follows_its_f_distribution():
     t = np.arange(int(K * 60 / rpm * fs)) / fs
     ratios = []
     for _ in range(200):
-        record = Record(Path("noise.csv"), t, *(5e-5 * rng.standard_normal((2, t.size))), None, "mm")
+        record = Record.xy(Path("noise.csv"), t, *(5e-5 * rng.standard_normal((2, t.size))), None, "mm")
         orders = order_analysis(record, SpeedEstimate(rpm, 0.0), PhaseOrigin(0.0, 0.0, "arbitrary"), 5)
         assert orders.n_revolutions == K
         ratios += list(np.abs(orders.harmonics[:, 1]) / orders.sigma[:, 1])

@@ -120,7 +120,7 @@ def test_spectrum_gives_each_sinusoids_amplitude_and_order():
     f1, f_sub = rpm / 60.0, 6.5  # 6.5 Hz: 0.433X, on a bin
     x = 1e-3 * np.cos(2 * np.pi * f1 * t + 0.3) + 5e-5 * np.sin(2 * np.pi * f_sub * t) + 4e-4
     y = 2e-4 * np.cos(2 * np.pi * 3 * f1 * t)
-    table = spectrum(Record(None, t, x, y, None, "m"), rpm, max_order=5.0)
+    table = spectrum(Record.xy(None, t, x, y, None, "m"), rpm, max_order=5.0)
     assert table["order"].max() <= 5.0 and table["frequency_hz"].iloc[0] == 0.0
 
     def at(f: float) -> pd.Series:  # the bin of f (the grid is the record's, rounded as the record's steps)

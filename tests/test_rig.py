@@ -241,10 +241,11 @@ def test_rig_builds_the_truth_on_the_configs_machine(tmp_path, capsys):
     for row in table.itertuples():
         X = linear_response(machine, row.rpm_true, row.eccentric_mass_g * 1e-3, k={"a": 2.5e7}, c={"b": 700.0})
         expected = X[[machine.dof(f"u{SENSOR_NODE}"), machine.dof(f"v{SENSOR_NODE}")]]
-        got = np.array([complex(row.x1_re_m, row.x1_im_m), complex(row.y1_re_m, row.y1_im_m)])
+        # the channels are named after the machine's sensors x1, y1 (harmonic h: x1_<h>_re_m, ...)
+        got = np.array([complex(row.x1_1_re_m, row.x1_1_im_m), complex(row.y1_1_re_m, row.y1_1_im_m)])
         # harmonic balance of a linear system: one Newton step, exact to round-off (1e-9 relative asserted)
         np.testing.assert_allclose(got, expected, rtol=1e-9)
-        assert abs(complex(row.x2_re_m, row.x2_im_m)) < 1e-12 * abs(expected[0])  # linear: 1X only
+        assert abs(complex(row.x1_2_re_m, row.x1_2_im_m)) < 1e-12 * abs(expected[0])  # linear: 1X only
     key = yaml.safe_load((tmp_path / "out" / "truth.yaml").read_text())
     assert key["machine"] == machine.to_mapping() == Machine.from_mapping(config["machine"]).to_mapping()
     assert key["truth"]["effects"] == truth["effects"]
@@ -269,17 +270,18 @@ def test_rig_on_the_default_machine_is_unchanged(tmp_path, capsys):
 
 
 def test_rig_refuses_a_machine_it_cannot_record(tmp_path, capsys):
-    """Without the truth's effects (the default truth is the VARM's) or with probes at two planes: one line."""
+    """Without the truth's effects (the default truth is the VARM's) or without any x, y probe pair at one node
+    (a record's orbit): one line. Probes at two planes are recorded (test_planes.py)."""
     from example_machines import stepped_config, stepped_machine
 
     with pytest.raises(RigError, match="truth: machine 'stepped' needs the truth's effects"):
         Truth.from_spec({"values": {}}, machine=stepped_machine())
     config = stepped_config()
-    config["machine"]["sensors"]["x2"] = {"node": 16, "direction": "x"}
+    config["machine"]["sensors"] = {"x1": {"node": 8, "direction": "x"}, "y2": {"node": 16, "direction": "y"}}
     code = _machine_rig(tmp_path, config, {"effects": ["linear_bearing@a", "linear_bearing@b"]},
                         plan(("a", 1000, 1.0)), "out")
     err = capsys.readouterr().err
-    assert code == 1 and "not one x and one y probe at one node" in err and len(err.strip().splitlines()) == 1
+    assert code == 1 and "no node with both an x and a y probe" in err and len(err.strip().splitlines()) == 1
 
 
 def test_rig_rule_script_passes_the_machine(tmp_path):

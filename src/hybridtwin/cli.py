@@ -209,8 +209,8 @@ def build_parser() -> argparse.ArgumentParser:
     sim = sub.add_parser(
         "simulate", help="periodic steady state at one operating point; sensor harmonics as CSV",
         description="Solve the periodic steady state at one operating point of the config's machine (its "
-                    "'machine:' section; the VARM without one) and print the harmonics at its x, y probes "
-                    "(node 1 on the VARM) as CSV: harmonic,u_re_m,u_im_m,v_re_m,v_im_m with "
+                    "'machine:' section; the VARM without one) and print the harmonics at its first x, y probe "
+                    "pair (node 1 on the VARM) as CSV: harmonic,u_re_m,u_im_m,v_re_m,v_im_m with "
                     "u(t) = Re(sum_h U_h exp(i h Omega t)), t = 0 when the unbalance points to +x "
                     "(--polar: 0-peak amplitude [um] and phase [deg] instead). When the direct solve fails, "
                     f"the point is reached by continuation by itself: a run-up from {RUN_UP_FROM_RPM:g} RPM, else "
@@ -284,7 +284,7 @@ def simulate(args: argparse.Namespace) -> int:
     specs, user, machine = load_catalog(source, args.effects_file)
     variant = build_variant(args.variant, specs, user, source, args.add_effect, machine)
     try:
-        machine.sensor_node  # the output is one x, y probe pair
+        machine.sensor_node  # the output is the first x, y probe pair's
     except ValueError as err:
         raise UsageError(f"{source}: {err}") from None
     values = dict(args.values)

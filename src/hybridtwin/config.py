@@ -350,7 +350,7 @@ def _name_problems(config: Mapping, config_dir: Path) -> Iterable[Problem]:
     rotor, machine_ok = Machine.varm(), False
     try:
         rotor = Machine.from_mapping(config.get("machine"))
-        rotor.sensor_node  # the workflow reads one x and one y probe at one node
+        rotor.sensor_node  # at least one x, y probe pair (its orbit); the records hold a channel per sensor
         machine_ok = True
     except MachineSpecError as err:
         yield ("machine",) + err.path, _key(("machine",) + err.path), err.message

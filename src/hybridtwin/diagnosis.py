@@ -376,13 +376,14 @@ def _sharing_text(result: Diagnosis) -> str:
 
 def residual_fingerprint(base: BaseFit, r: Array) -> Fingerprint:
     """The fingerprint (``hybridtwin.fingerprint``) of a fit's weighted residuals r (eq. 10, the data part first:
-    per run [Re, Im] of (X - M) / s over (H, 2), as ``ArrowProblem.evaluate``): E = X - M rebuilt from r."""
+    per run [Re, Im] of (X - M) / s over (H, C), as ``ArrowProblem.evaluate``): E = X - M rebuilt from r."""
     R, H = len(base.data), base.harmonics
-    parts = np.asarray(r, float)[: R * 4 * H].reshape(R, 2, H, 2)
-    E = (parts[:, 0] + 1j * parts[:, 1]) * base.sigma  # (R, H, 2)
-    measured = np.concatenate([np.zeros((R, 1, 2), complex), base.X], axis=1)  # h = 0 (DC) unused
-    model = measured - np.concatenate([np.zeros((R, 1, 2), complex), E], axis=1)
-    sigma = np.concatenate([np.full((R, 1, 2), np.inf), base.sigma], axis=1)
+    C = base.sigma.shape[2]  # channels: the sensors (x, y on the VARM)
+    parts = np.asarray(r, float)[: R * 2 * C * H].reshape(R, 2, H, C)
+    E = (parts[:, 0] + 1j * parts[:, 1]) * base.sigma  # (R, H, C)
+    measured = np.concatenate([np.zeros((R, 1, C), complex), base.X], axis=1)  # h = 0 (DC) unused
+    model = measured - np.concatenate([np.zeros((R, 1, C), complex), E], axis=1)
+    sigma = np.concatenate([np.full((R, 1, C), np.inf), base.sigma], axis=1)
     return fingerprint(measured, model, sigma, [d.rpm for d in base.data], [d.eccentric_mass_g for d in base.data],
                        [d.run for d in base.data])
 

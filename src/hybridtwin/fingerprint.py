@@ -32,8 +32,9 @@ E|E / sigma|^2 = 2 (two degrees of freedom). sigma = inf marks an entry that is 
    significant (a missing excitation or a nonlinearity at that harmonic).
 
 Significance: chi^2 of k = 2 j real numbers against chi^2(k), exactly (sf = exp(-x/2) sum_{i<j} (x/2)^i / i!),
-at level ``alpha``. Where along the shaft an equivalent force would act is not estimated: the sensors
-sit at one node only, so the residual cannot locate it.
+at level ``alpha``. Where along the shaft an equivalent force would act is not estimated. With more than one
+sensor plane (issue 24) every channel counts in 1, 3, 4 and 5; the whirl (2) is that of the first plane's x, y
+probes, channels 0 and 1 (the machine declares them first).
 """
 
 from __future__ import annotations
@@ -243,8 +244,9 @@ def _slope(x: Array, y: Array, w: Array, groups: Array | None = None) -> tuple[f
 
 def _check(measured, model, sigma, rpm, eccentric_mass_g, runs):
     measured, model = np.asarray(measured), np.asarray(model)
-    if measured.ndim != 3 or measured.shape[2] != 2 or measured.shape[1] < 2 or measured.shape[0] < 1:
-        raise ValueError(f"measured must be (runs, H+1, 2 channels x/y) with H >= 1, got shape {measured.shape}")
+    if measured.ndim != 3 or measured.shape[2] < 2 or measured.shape[1] < 2 or measured.shape[0] < 1:
+        raise ValueError(f"measured must be (runs, H+1, channels) with the first plane's x, y as channels 0, 1 and "
+                         f"H >= 1, got shape {measured.shape}")
     if model.shape != measured.shape:
         raise ValueError(f"model has shape {model.shape}, measured {measured.shape}: they must match")
     for name, a in (("measured", measured), ("model", model)):
@@ -273,7 +275,8 @@ def fingerprint(measured, model, sigma, rpm, eccentric_mass_g, runs=None, alpha:
                 include_dc: bool = False) -> Fingerprint:
     """The fingerprint of E = measured - model (module docstring).
 
-    measured, model: (R, H+1, 2) complex [m], h = 0..H, channels x, y; sigma: broadcastable to it [m], the
+    measured, model: (R, H+1, C) complex [m], h = 0..H, channels x, y (C = 2, the VARM), or the machine's
+    sensors with the first plane's x, y first (the whirl reads channels 0 and 1); sigma: broadcastable to it [m], the
     standard uncertainty of each real and imaginary part (inf: entry unused); rpm, eccentric_mass_g: (R,);
     runs: R distinct names (default "0".."R-1"); alpha: significance level of the noise tests.
     """
@@ -300,8 +303,8 @@ def fingerprint(measured, model, sigma, rpm, eccentric_mass_g, runs=None, alpha:
     speed, speed_se, resp, resp_se = nan.copy(), nan.copy(), nan.copy(), nan.copy()
     growth_runs, unmod_runs, unmod_share = np.zeros(H1, int), np.zeros(H1, int), np.zeros(H1)
     for h in range(H1):
-        if h >= 1:  # whirl: both channels needed
-            both = used[:, h].all(1)
+        if h >= 1:  # whirl: both channels of the first x, y pair (channels 0, 1) needed
+            both = used[:, h, :2].all(1)
             w = np.where(both, 2.0 / np.where(both, sigma[:, h, 0] ** 2 + sigma[:, h, 1] ** 2, 1.0), 0.0)
             F, B = (E[:, h, 0] + 1j * E[:, h, 1]) / 2, (E[:, h, 0] - 1j * E[:, h, 1]) / 2
             f_ex = max(float(np.sum(w * np.abs(F) ** 2)) - both.sum(), 0.0)

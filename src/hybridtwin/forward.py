@@ -1,8 +1,9 @@
 """Forward models: a run's sensor harmonics h = 1..H as a function of the unknown parameters.
 
 Two kinds share one interface (``HarmonicModel``: ``parameters``, ``lower``,
-``upper``, ``H``, ``evaluate(x (N, d), jacobian)`` -> M (N, H, 2) complex [m]
-and dM/dx (N, H, 2, d), x the parameters normalised to [-1, 1]):
+``upper``, ``H``, ``evaluate(x (N, d), jacobian)`` -> M (N, H, C) complex [m]
+and dM/dx (N, H, C, d), x the parameters normalised to [-1, 1], C the machine's
+sensors in declared order, ``sensor.sensor_dofs``: x, y on the VARM):
 
 - ``SensorSurrogate``: a run's sPGD library (microseconds per evaluation,
   exact Jacobian of the surrogate);
@@ -43,7 +44,7 @@ class HarmonicModel(Protocol):
     H: int
 
     def evaluate(self, x: Array, jacobian: bool = True) -> tuple[Array, Array | None]:
-        """x (N, d) -> M (N, H, 2) complex [m] and dM/dx (N, H, 2, d)."""
+        """x (N, d) -> M (N, H, C) complex [m] and dM/dx (N, H, C, d)."""
 
 
 class SensorSurrogate:
@@ -63,25 +64,26 @@ class SensorSurrogate:
         h = np.arange(1, self.H + 1)
         rows = [feature_index(h, dof, library.n_harmonics, library.n_dof, imaginary)
                 for imaginary in (False, True) for dof in library.sensor_dofs]
-        sensor_modes = library.modes[np.concatenate(rows)]  # (4H, m): Re x, Re y, Im x, Im y
-        self.model = library.model.projected(sensor_modes.T)  # outputs Re x, Re y, Im x, Im y (4H)
+        self.C = len(library.sensor_dofs)  # channels: the sensors (x, y on the VARM)
+        sensor_modes = library.modes[np.concatenate(rows)]  # (2CH, m): Re of each sensor, then Im of each
+        self.model = library.model.projected(sensor_modes.T)  # outputs Re x, Re y, Im x, Im y (2CH)
         self.parameters = list(library.parameters)
         self.lower, self.upper = np.asarray(library.lower, float), np.asarray(library.upper, float)
         self.run = library.run
 
     def evaluate(self, x: Array, jacobian: bool = True) -> tuple[Array, Array | None]:
-        """M (N, H, 2) complex and dM/dx (N, H, 2, d) at normalised x (N, d) in [-1, 1]."""
+        """M (N, H, C) complex and dM/dx (N, H, C, d) at normalised x (N, d) in [-1, 1]."""
         x = np.clip(np.atleast_2d(x), -1.0, 1.0)
         y, J = self.model.evaluate(x, jacobian=jacobian)
         if not jacobian:
             return self._complex(y), None
         N, d = x.shape
-        out = self._complex(J.reshape(d * N, -1)).reshape(d, N, self.H, 2)
+        out = self._complex(J.reshape(d * N, -1)).reshape(d, N, self.H, self.C)
         return self._complex(y), np.moveaxis(out, 0, -1)
 
     def _complex(self, features: Array) -> Array:
-        """(N, 4H) [Re x, Re y, Im x, Im y] -> (N, H, 2) complex."""
-        parts = features.reshape(features.shape[0], 2, 2, self.H)  # (N, Re/Im, channel, h)
+        """(N, 2CH) [Re x, Re y, Im x, Im y] -> (N, H, C) complex."""
+        parts = features.reshape(features.shape[0], 2, self.C, self.H)  # (N, Re/Im, channel, h)
         return np.swapaxes(parts[:, 0] + 1j * parts[:, 1], 1, 2)
 
 
@@ -167,7 +169,8 @@ SENSITIVITY_STEP = 1e-4
 class SolverModel:
     """A run's sensor harmonics from the full harmonic-balance solver.
 
-    Same interface as ``SensorSurrogate``: evaluate(x (N, d)) -> M (N, H, 2), dM/dx (N, H, 2, d).
+    Same interface as ``SensorSurrogate``: evaluate(x (N, d)) -> M (N, H, C), dM/dx (N, H, C, d), C the
+    machine's sensors (``sensor.sensor_dofs``).
     The response at a parameter set is the steady state a run-up from 300 RPM reaches (the rig's
     history, ``run_up``). Two things make repeated evaluations (an LM's iterates) cheap:
 
@@ -233,15 +236,21 @@ class SolverModel:
             self._dstate = np.concatenate([self._dstate, dstate[keep]])[-self.cache_size:]
         self._x = np.concatenate([self._x, x[keep]])[-self.cache_size:]
 
-    def _sensor(self, harmonics: Array) -> Array:
-        """Sensor harmonics h = 1..H (..., H, 2) from full harmonics (..., H+1, n)."""
-        from .sensor import sensor_harmonics
+    @property
+    def C(self) -> int:
+        """Channels: the machine's sensors (x, y on the VARM)."""
+        from .sensor import sensor_dofs
 
-        U, V = sensor_harmonics(harmonics, self.variant.model.shaft)
-        return np.stack([U[..., 1:], V[..., 1:]], axis=-1)
+        return len(sensor_dofs(self.variant.model.shaft))
+
+    def _sensor(self, harmonics: Array) -> Array:
+        """Every sensor's harmonics h = 1..H (..., H, C) from full harmonics (..., H+1, n)."""
+        from .sensor import sensor_channels
+
+        return sensor_channels(harmonics, self.variant.model.shaft)[..., 1:, :]
 
     def _solve(self, x: Array) -> Array:
-        """Sensor harmonics (N, H, 2) at normalised x (N, d) by the run-up alone (the differences' path)."""
+        """Sensor harmonics (N, H, C) at normalised x (N, d) by the run-up alone (the differences' path)."""
         result = run_up(self.variant, [self.rpm], self._values(x), self.harmonics)[0]
         self.n_solves += x.shape[0]
         self.n_run_ups += x.shape[0]
@@ -250,19 +259,22 @@ class SolverModel:
         return M
 
     def evaluate(self, x: Array, jacobian: bool = True) -> tuple[Array, Array | None]:
-        """M (N, H, 2) complex [m] and dM/dx (N, H, 2, d) at normalised x (N, d); NaN where there is no
+        """M (N, H, C) complex [m] and dM/dx (N, H, C, d) at normalised x (N, d); NaN where there is no
         steady state (or x is NaN)."""
         x = np.atleast_2d(np.asarray(x, float))
         N, d = x.shape
-        M = np.full((N, self.harmonics, 2), np.nan + 0j)
-        dM = np.full((N, self.harmonics, 2, d), np.nan + 0j) if jacobian else None
         finite = np.flatnonzero(np.isfinite(x).all(axis=1))
         if finite.size == 0:
-            return M, dM
+            return (np.full((N, self.harmonics, self.C), np.nan + 0j),
+                    np.full((N, self.harmonics, self.C, d), np.nan + 0j) if jacobian else None)
         if self.analytic:  # the batched path with one run: warm starts and exact sensitivities
             return SolverModel.evaluate_together([self], [x], jacobian)[0]
-        M[finite], J = self._differences(x[finite], jacobian)
+        M_finite, J = self._differences(x[finite], jacobian)
+        M = np.full((N, self.harmonics, M_finite.shape[2]), np.nan + 0j)
+        M[finite] = M_finite
+        dM = None
         if jacobian:
+            dM = np.full((N, self.harmonics, M_finite.shape[2], d), np.nan + 0j)
             dM[finite] = J
         return M, dM
 
@@ -280,11 +292,11 @@ class SolverModel:
         from .solver import SteadyState, sensitivity
 
         first = models[0]
-        H, d = first.harmonics, len(first.parameters)
+        H, d, C = first.harmonics, len(first.parameters), first.C
         batch = SolverModel._steady_states(models, xs)
         if batch is None:  # no finite parameter set at all
-            return [(np.full((x.shape[0], H, 2), np.nan + 0j),
-                     np.full((x.shape[0], H, 2, d), np.nan + 0j) if jacobian else None) for x in _as_2d(xs)]
+            return [(np.full((x.shape[0], H, C), np.nan + 0j),
+                     np.full((x.shape[0], H, C, d), np.nan + 0j) if jacobian else None) for x in _as_2d(xs)]
         result, values, rpm, offsets = batch.result, batch.values, batch.rpm, batch.offsets
         S = result.n_scenarios
         M_all = first._sensor(result.harmonics)
@@ -303,11 +315,11 @@ class SolverModel:
         out = []
         for k, (m, x, r) in enumerate(zip(models, batch.xs, batch.rows)):
             sl = slice(offsets[k], offsets[k + 1])
-            M = np.full((x.shape[0], H, 2), np.nan + 0j)
+            M = np.full((x.shape[0], H, C), np.nan + 0j)
             M[r] = M_all[sl]
             dM = None
             if jacobian:
-                dM = np.full((x.shape[0], H, 2, d), np.nan + 0j)
+                dM = np.full((x.shape[0], H, C, d), np.nan + 0j)
                 dM[r] = dM_all[sl]
                 if m.warm and r.size:
                     own = SteadyState.concatenate([result], np.arange(offsets[k], offsets[k + 1]))

@@ -10,8 +10,11 @@ parameters normalised to x = 2 (p - lo) / (hi - lo) - 1 in [-1, 1],
 with X_hc the measured sensor harmonics (results/data/harmonics.tsv), M_hc the
 library's (``Library``: response and exact Jacobian), s_hc the standard
 uncertainty of each real and imaginary part (the measured sigma, plus, by
-default, the library's own error, see ``total_sigma``) and n_r = 4 H per run
-the number of real residuals. How the paper's loss is made precise here:
+default, the library's own error, see ``total_sigma``) and n_r = 2 C H per run
+the number of real residuals. The channels c are the machine's sensors in their
+declared order, C of them (x, y on the VARM: n_r = 4 H); the run's phase phi_run
+is shared by all its channels (one time origin per record). How the paper's
+loss is made precise here:
 
 - eq. 10 is a sum of squares weighted by the uncertainties (a chi^2 per
   residual), so L2 ~ 1 when the model explains the data to within its noise;
@@ -66,104 +69,14 @@ import numpy as np
 import pandas as pd
 
 from .forward import HarmonicModel, SolverModel, evaluate_runs
+from .measured import (  # noqa: F401 (the measured harmonics: hybridtwin.measured, also read from here)
+    CHANNELS, RunData, model_errors, read_harmonics, run_data, table_harmonics, total_sigma,
+)
 from .lm import STATUS_MESSAGES, Evaluation, LMOptions
 from .protocol import ProtocolOptions, ProtocolResult, run_protocol
 from .uncertainty import Uncertainty, analyse_uncertainty, student_t
 
 Array = np.ndarray
-
-CHANNELS = ("x", "y")
-
-
-# --- measured data ----------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class RunData:
-    """One run's measured sensor harmonics h = 1..H (DC excluded) and their uncertainties.
-
-    X: (H, 2) complex [m], channels x, y; sigma: (H, 2) [m], standard uncertainty of
-    each of the real and imaginary parts (measured, from the synchronous analysis).
-    """
-
-    run: str
-    rpm: float
-    eccentric_mass_g: float
-    role: str
-    X: Array
-    sigma: Array
-    usable: bool = True
-    note: str = "ok"
-    phase_sigma: float = math.inf  # [rad] uncertainty of X's absolute phase (keyphasor); inf: arbitrary origin
-
-    @property
-    def H(self) -> int:
-        return self.X.shape[0]
-
-
-def read_harmonics(path: str | Path) -> pd.DataFrame:
-    """The preprocessed table (results/data/harmonics.tsv), run ids as strings."""
-    return pd.read_csv(path, sep="\t", dtype={"run": str})
-
-
-def table_harmonics(table: pd.DataFrame) -> int:
-    """Highest harmonic H present in a harmonics table (columns x{h}_re_m)."""
-    h = 0
-    while f"x{h + 1}_re_m" in table:
-        h += 1
-    if h == 0:
-        raise ValueError("the harmonics table has no x1_re_m column (not results/data/harmonics.tsv?)")
-    return h
-
-
-def run_data(table: pd.DataFrame, run: str, harmonics: int | None = None, keyphasor: bool = True) -> RunData:
-    """The measured harmonics of ``run`` from the preprocessed table (h = 1..H, SI).
-
-    With ``keyphasor`` (the default), a run whose phases were referred to its keyphasor mark
-    (``phase_reference`` "keyphasor") has absolute phases: phase_sigma = Omega sigma_t, and sigma is
-    the noise's alone (the origin's share, ``preprocessing.origin_share``, taken out of the table's).
-    """
-    rows = table[table["run"] == run]
-    if len(rows) != 1:
-        raise ValueError(f"the harmonics table has {len(rows)} rows for run {run!r} (expected 1)")
-    row = rows.iloc[0]
-    H = table_harmonics(table) if harmonics is None else min(harmonics, table_harmonics(table))
-    X = np.array([[row[f"{c}{h}_re_m"] + 1j * row[f"{c}{h}_im_m"] for c in CHANNELS] for h in range(1, H + 1)])
-    sigma = np.array([[row[f"{c}{h}_sigma_m"] for c in CHANNELS] for h in range(1, H + 1)], float)
-    rpm = float(row.get("rpm_true", row["rpm"]))
-    phase_sigma = math.inf
-    if keyphasor and str(row.get("phase_reference", "arbitrary")) == "keyphasor":
-        from .preprocessing import origin_share
-
-        omega, sigma_t = rpm * math.pi / 30.0, float(row["phase_origin_sigma_s"])
-        share = origin_share(np.vstack([np.zeros((1, 2)), X]).T, omega, sigma_t).T[1:]  # (H, 2)
-        sigma = np.sqrt(np.maximum(sigma**2 - share**2, (1e-3 * sigma) ** 2))
-        phase_sigma = max(omega * sigma_t, 1e-9)
-    usable = bool(row.get("usable", True)) and np.isfinite(X).all() and np.isfinite(sigma).all()
-    return RunData(str(run), rpm, float(row["eccentric_mass_g"]), str(row.get("role", "fit")), X, sigma, usable,
-                   str(row.get("note", "ok")), phase_sigma)
-
-
-def total_sigma(data: RunData, relative_model_error: float = 0.0) -> Array:
-    """Residual weights s_hc (eq. 10): the measured sigma and a relative model error in quadrature.
-
-    A library with relative error e (its validation table's median) misses each
-    harmonic by about e |X_hc|, i.e. e |X_hc| / sqrt(2) per real and imaginary part.
-    """
-    return np.sqrt(data.sigma**2 + 0.5 * (relative_model_error * np.abs(data.X)) ** 2)
-
-
-def model_errors(validation: pd.DataFrame | None, runs: Sequence[str], column: str | None = "median_error_pct"
-                 ) -> dict[str, float]:
-    """Relative library error per run (fraction) from library_validation.tsv; 0 without a table or column."""
-    if validation is None or column in (None, "none"):
-        return {r: 0.0 for r in runs}
-    table = validation.set_index(validation["run"].astype(str))
-    out = {}
-    for run in runs:
-        value = table[column].get(run, np.nan) if column in table else np.nan
-        out[run] = 0.0 if not np.isfinite(value) else float(value) / 100.0
-    return out
 
 
 # --- the problem: parameters, residuals, block-arrow Jacobian ---------------------------
@@ -339,7 +252,8 @@ class ArrowProblem:
         self.H = int(sigma.shape[1])
         if any(m.H < self.H for m in models):
             raise ValueError(f"a model has fewer harmonics than the data's H = {self.H}")
-        self.sigma = np.asarray(sigma, float)  # (R, H, 2)
+        self.sigma = np.asarray(sigma, float)  # (R, H, C), C channels (the sensors; x, y on the VARM)
+        self.C = int(self.sigma.shape[2])
         self.sparsity = float(sparsity)
         self.l1_epsilon = float(l1_epsilon)
         self.l1_a, self.l1_b = layout.l1_scale()
@@ -348,10 +262,10 @@ class ArrowProblem:
     @property
     def n_data(self) -> int:
         """Real data residuals per trial, n_r of eq. 10."""
-        return self.layout.n_runs * 4 * self.H
+        return self.layout.n_runs * 2 * self.C * self.H
 
     def model_response(self, theta: Array, r: int, jacobian: bool) -> tuple[Array, Array | None, Array]:
-        """Run r's harmonics in the record's frame e^{ih phi} M (N, H, 2), d/dx (N, H, 2, d), rotation."""
+        """Run r's harmonics in the record's frame e^{ih phi} M (N, H, C), d/dx (N, H, C, d), rotation."""
         x, phi = self.layout.run_parameters(theta, r)
         M, dM = self.models[r].evaluate(x, jacobian)
         rotation = np.exp(1j * np.outer(phi, self.h))[:, :, None]  # (N, H, 1)
@@ -369,9 +283,9 @@ class ArrowProblem:
         return out
 
     def evaluate(self, theta: Array, X: Array, jacobian: bool = True) -> Evaluation:
-        """Residuals (and Jacobian) at theta (N, n) for data X (N, R, H, 2) complex."""
+        """Residuals (and Jacobian) at theta (N, n) for data X (N, R, H, C) complex."""
         N, R, L = theta.shape[0], self.layout.n_runs, self.layout
-        m = 4 * self.H
+        m = 2 * self.C * self.H
         r = np.empty((N, R, m))
         Js = np.empty((N, R, m, L.n_shared)) if jacobian else None
         Jl = np.empty((N, R, m, L.n_block)) if jacobian else None
@@ -436,7 +350,7 @@ class ArrowProblem:
 
 
 def _real(z: Array) -> Array:
-    """Complex (N, H, 2, ...) -> real (N, 4H, ...) as [Re (H, 2) flattened, Im (H, 2) flattened]."""
+    """Complex (N, H, C, ...) -> real (N, 2CH, ...) as [Re (H, C) flattened, Im (H, C) flattened]."""
     N = z.shape[0]
     flat = z.reshape((N, z.shape[1] * z.shape[2]) + z.shape[3:])
     return np.concatenate([flat.real, flat.imag], axis=1)
@@ -478,7 +392,7 @@ class Identification:
     uncertainty: Uncertainty | None
     confidence: float
     data: list[RunData]
-    X: Array | None  # (R, H, 2) measured harmonics used
+    X: Array | None  # (R, H, C) measured harmonics used
     units: dict[str, str] = field(default_factory=dict)
     source: str = "library"  # the response model: "library" (sPGD) or "solver" (full harmonic balance)
     starts: pd.DataFrame | None = None  # a polish's starts: start, chi2_start, chi2, chi2_dof, iterations, status
@@ -514,7 +428,7 @@ class Identification:
                 and r in ("all", run)}
 
     def fitted(self, trial_theta: Array | None = None) -> Array:
-        """The fitted harmonics in each record's frame (R, H, 2) complex [m]."""
+        """The fitted harmonics in each record's frame (R, H, C) complex [m]."""
         self._require_fit("the fitted harmonics")
         theta = (self.theta if trial_theta is None else trial_theta)[None]
         return np.stack([self.problem.model_response(theta, k, False)[0][0] for k in range(self.layout.n_runs)])

@@ -69,7 +69,8 @@ class Library:
         return 2.0 * (values - self.lower) / (self.upper - self.lower) - 1.0
 
     def sensor(self, values: Array, jacobian: bool = False) -> Array | tuple[Array, Array]:
-        """Sensor harmonics (N, H+1, 2) complex [U_h, V_h]; with ``jacobian`` also d/dp (N, H+1, 2, d) [m / SI].
+        """Sensor harmonics (N, H+1, C) complex, one per sensor of ``sensor_dofs`` (U_h, V_h on the VARM); with
+        ``jacobian`` also d/dp (N, H+1, C, d) [m / SI].
 
         The sPGD amplitudes are projected on the sensor rows of the POD basis once (the response is
         linear in them), so a batch costs the factors and one product with (K, 4 (H+1)) amplitudes.
@@ -88,9 +89,9 @@ class Library:
         return self._sensor_cache[1]
 
     def _to_sensor(self, features: Array) -> Array:
-        """(..., 2 * 2 * (H+1)) [Re U, Re V, Im U, Im V] -> (..., H+1, 2) complex."""
+        """(..., 2 * C * (H+1)) [Re U, Re V, Im U, Im V] -> (..., H+1, C) complex, C = len(sensor_dofs)."""
         H1 = self.n_harmonics
-        parts = features.reshape(features.shape[:-1] + (2, 2, H1))
+        parts = features.reshape(features.shape[:-1] + (2, len(self.sensor_dofs), H1))
         return np.moveaxis(parts[..., 0, :, :] + 1j * parts[..., 1, :, :], -2, -1)
 
     def at_operating_point(self, run: str, rpm: float, eccentric_mass_g: float) -> "Library":
@@ -440,7 +441,8 @@ def validate_libraries(libraries: list[Library], snapshots_path: str, runs: pd.D
     """Each library against the full solver on its run's test scenarios.
 
     Returns the per-run table (with an "all runs" row) and the parity data
-    (1X amplitudes, full solver vs library) for plotting.
+    (1X amplitudes, full solver vs library, of the first two channels: x, y on the VARM) for plotting. The
+    errors are over every sensor.
     """
     snaps = snapshots.load(snapshots_path)
     plan = runs.set_index("run")

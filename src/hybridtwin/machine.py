@@ -17,6 +17,10 @@ the VARM's variants leave it out, as the paper does.
 ``Machine.varm()`` is the bundled default, the paper's rig: one uniform segment with Table 1's I and m,
 bearings ``upper`` (node 0) and ``lower`` (node 10), the unbalance plane ``eccentric_mass`` (node 5),
 sensors ``x`` and ``y`` at node 1. A model built on it is bit for bit the one built on ``Shaft()``.
+
+Sensors: any number of probes, each at a node in direction x or y; a record holds one channel per sensor,
+named after it (docs/measurement-format.md). At least one node needs both an x and a y probe
+(``sensor_node``, the orbit the plots and checks show).
 """
 
 from __future__ import annotations
@@ -371,14 +375,26 @@ class Machine(DofCounts):
 
     @property
     def sensor_node(self) -> int:
-        """The node of the machine's x, y probe pair, where there is exactly one plane of them (the form the
-        measurement format and the workflow read today); a one-line error otherwise."""
-        planes = self.sensor_planes
-        if len(planes) != 1 or sorted(s.direction for s in self.sensors) != ["x", "y"]:
-            raise ValueError(f"machine {self.name!r}: sensors {[(s.name, s.node, s.direction) for s in self.sensors]}"
-                             " are not one x and one y probe at one node; records of several sensor planes are "
-                             "not read yet (issue 24)")
-        return planes[0]
+        """The node of the first x, y probe pair (the first node, in declared order, with both an x and a y
+        probe): the plane whose orbit the plots, the whirl checks and ``hybridtwin simulate`` show. A one-line
+        error when no node has both. Records carry every sensor (``sensor_dofs``); this is only the orbit."""
+        for node in self.sensor_planes:
+            if {s.direction for s in self.sensors if s.node == node} == {"x", "y"}:
+                return node
+        raise ValueError(f"machine {self.name!r}: sensors {[(s.name, s.node, s.direction) for s in self.sensors]}"
+                         " have no node with both an x and a y probe; at least one x, y pair is needed (its orbit)")
+
+    @property
+    def sensor_pairs(self) -> list[tuple[int, int]]:
+        """(index of the x probe, index of the y probe) in ``sensors`` for each node with exactly one of each,
+        in order of the nodes' first appearance: the orbits the records show."""
+        out = []
+        for node in self.sensor_planes:
+            at = [(i, s.direction) for i, s in enumerate(self.sensors) if s.node == node]
+            xs, ys = [i for i, d in at if d == "x"], [i for i, d in at if d == "y"]
+            if len(xs) == 1 and len(ys) == 1:
+                out.append((xs[0], ys[0]))
+        return out
 
     # --- effects at named places ---------------------------------------------------------------------
 

@@ -2,8 +2,10 @@
 
 A data set is a runs sheet (TSV, one row per run: run, rpm, eccentric_mass_g,
 path, role; optional sensor_range_mm, sensor_resolution_mm; extra columns
-carried through) and one record (CSV) per run: time_s, x_mm, y_mm (or x_m,
-y_m) and an optional keyphasor column.
+carried through) and one record (CSV) per run: time_s, one displacement
+column per sensor of the machine named after it, <sensor>_mm or <sensor>_m
+(the VARM's sensors are x and y: time_s, x_mm, y_mm), and an optional
+keyphasor column.
 
 Both files go through one text reader (``read_text_table``), so every reader of
 a sheet (``hybridtwin check-data``, the workflow at parse time, every script)
@@ -31,7 +33,7 @@ from __future__ import annotations
 import difflib
 import re
 import warnings
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -47,8 +49,9 @@ SENSOR_COLUMNS = ("sensor_range_mm", "sensor_resolution_mm")
 ROLES = ("fit", "validate")
 RUN_ID = re.compile(r"^[A-Za-z0-9_-]+$")
 UNITS = {"mm": 1e-3, "m": 1.0}  # displacement column suffix -> metres per unit
-_CHANNEL = re.compile(r"^([xy])_(.+)$")
 RECORD_COLUMNS = ("time_s", "keyphasor")
+#: the channels of a record when no machine says otherwise: the VARM's sensors x and y
+DEFAULT_CHANNELS = ("x", "y")
 
 #: the paper's lasers: +-14 mm measuring range (sensor_range_mm) ...
 SENSOR_RANGE_MM = 14.0
@@ -111,19 +114,62 @@ class Sensor:
 class Record:
     """One run's record in SI units.
 
-    time_s, x_m, y_m: (N,) arrays; keyphasor: (N,) bool or None when the file
-    has no keyphasor column; unit: the displacement unit of the file ("mm",
-    "m", or "mm/m" when x and y differ); lines: (N,) the file line of each
-    sample (None for a record made in memory: line = index + 2).
+    time_s: (N,); channels: {sensor name: (N,) displacement [m]} in the
+    machine's sensor order (the VARM: x, y); keyphasor: (N,) bool or None when
+    the file has no keyphasor column; units: the displacement unit of each
+    channel in the file ("mm" or "m"; one string: every channel's); lines: (N,)
+    the file line of each sample (None for a record made in memory: line =
+    index + 2); pairs: (x channel index, y channel index) of each probe pair at
+    one node (its orbit; the backward-whirl check reads the first), default the
+    pair (x, y) when both are channels.
     """
 
     path: Path
     time_s: Array
-    x_m: Array
-    y_m: Array
+    channels: Mapping[str, Array]
     keyphasor: Array | None
-    unit: str
+    units: Mapping[str, str] | str
     lines: Array | None = None
+    pairs: tuple[tuple[int, int], ...] | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "channels", dict(self.channels))
+        if isinstance(self.units, str):
+            object.__setattr__(self, "units", {name: self.units for name in self.channels})
+        if self.pairs is None:
+            names = list(self.channels)
+            pairs = ((names.index("x"), names.index("y")),) if {"x", "y"} <= set(names) else ()
+            object.__setattr__(self, "pairs", pairs)
+
+    @classmethod
+    def xy(cls, path, time_s: Array, x_m: Array, y_m: Array, keyphasor: Array | None = None, unit: str = "m",
+           lines: Array | None = None) -> "Record":
+        """A record of the two channels x and y (the VARM's)."""
+        return cls(path, time_s, {"x": x_m, "y": y_m}, keyphasor, unit, lines)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """The channels' names, in order."""
+        return tuple(self.channels)
+
+    @property
+    def data(self) -> Array:
+        """Every channel as columns, (N, C) [m]."""
+        return np.column_stack([self.channels[name] for name in self.channels])
+
+    @property
+    def x_m(self) -> Array:
+        return self.channel("x")
+
+    @property
+    def y_m(self) -> Array:
+        return self.channel("y")
+
+    @property
+    def unit(self) -> str:
+        """The file's displacement unit: "mm" or "m", or each channel's joined by "/" when they differ."""
+        units = list(self.units.values())
+        return units[0] if len(set(units)) == 1 else "/".join(units)
 
     @property
     def n_samples(self) -> int:
@@ -144,18 +190,47 @@ class Record:
         return self.n_samples * self.dt_s
 
     def channel(self, name: str) -> Array:
-        """The displacement channel "x" or "y" [m]."""
-        return {"x": self.x_m, "y": self.y_m}[name]
+        """The displacement channel of sensor ``name`` [m]."""
+        try:
+            return self.channels[name]
+        except KeyError:
+            raise KeyError(f"{self.path}: no channel {name!r} (channels: {', '.join(self.channels)})") from None
 
     def channel_unit(self, name: str) -> str:
-        """The unit of channel "x" or "y" in the file ("mm" or "m")."""
-        units = self.unit.split("/")
-        return units[0] if len(units) == 1 or name == "x" else units[1]
+        """The unit of channel ``name`` in the file ("mm" or "m")."""
+        return self.units[name]
 
     def line(self, index) -> Array:
         """File line number(s) of sample index(es)."""
         index = np.asarray(index)
         return self.lines[index] if self.lines is not None else index + 2
+
+
+def record_channels(sensors=None) -> tuple[tuple[str, ...], tuple[tuple[int, int], ...] | None]:
+    """(channel names, probe pairs) a record must hold for ``sensors``: None, the VARM's x and y; a ``Machine``
+    (its sensors' names and ``sensor_pairs``); the config form {name: {node, direction}} (a ``machine:``
+    section's ``sensors``); a sequence of sensor names (pairs: x, y when both are there); or of objects with
+    ``name``, ``node``, ``direction`` (a machine's sensors)."""
+    if sensors is None:
+        return DEFAULT_CHANNELS, None
+    if hasattr(sensors, "sensors") and hasattr(sensors, "sensor_pairs"):
+        return tuple(s.name for s in sensors.sensors), tuple(sensors.sensor_pairs)
+    if isinstance(sensors, Mapping):
+        from types import SimpleNamespace
+
+        sensors = [SimpleNamespace(name=str(name), node=spec.get("node"), direction=spec.get("direction"))
+                   for name, spec in sensors.items()]
+    items = list(sensors)
+    if all(isinstance(item, str) for item in items):
+        return tuple(items), None
+    names = tuple(str(item.name) for item in items)
+    pairs = []
+    for node in dict.fromkeys(item.node for item in items):
+        xs = [i for i, item in enumerate(items) if item.node == node and item.direction == "x"]
+        ys = [i for i, item in enumerate(items) if item.node == node and item.direction == "y"]
+        if len(xs) == 1 and len(ys) == 1:
+            pairs.append((xs[0], ys[0]))
+    return names, tuple(pairs)
 
 
 @dataclass(frozen=True)
@@ -422,26 +497,30 @@ def check_coverage(runs: pd.DataFrame, rpm_range: Sequence[float] | None = None,
 # --- a record ---------------------------------------------------------------------------
 
 
-def read_record(path: str | Path) -> Record:
+def read_record(path: str | Path, sensors=None) -> Record:
     """Read and validate one record (docs/measurement-format.md, "A record").
 
+    sensors: the machine whose sensors name the channels (a ``Machine``, its
+    sensors, or their names; ``record_channels``); None: the VARM's x and y.
     Checks: the file exists and parses (``read_text_table``); a time_s column
-    and one x and one y displacement column with a known unit (x_mm/y_mm or
-    x_m/y_m); every cell numeric and present (no NaN, no empty cell, no decimal
-    comma); time strictly increasing and uniform (no gaps: a step > 1.5 median
-    steps; no jitter beyond 1 %); a keyphasor column, if any, holding only 0
-    and 1 with at least one mark. Raises ``DataError`` naming the file, lines
-    and columns. Plausibility of the values (units, range, speed) is
+    and one displacement column per sensor with a known unit (<sensor>_mm or
+    <sensor>_m, e.g. x_mm/y_mm), no column of an unknown sensor; every cell
+    numeric and present (no NaN, no empty cell, no decimal comma); time
+    strictly increasing and uniform (no gaps: a step > 1.5 median steps; no
+    jitter beyond 1 %); a keyphasor column, if any, holding only 0 and 1 with
+    at least one mark. Raises ``DataError`` naming the file, lines and columns.
+    Plausibility of the values (units, range, speed) is
     ``hybridtwin.plausibility``'s.
     """
     path = Path(path)
+    names, pairs = record_channels(sensors)
     table, line = read_text_table(path, ",")
-    time_col, x_col, y_col, unit = _record_columns(path, table.columns)
+    time_col, chosen = _record_columns(path, table.columns, names)
     if len(table) < 3:
         raise DataError(f"{path}: only {len(table)} sample(s); a record needs many revolutions of samples")
     problems: list[str] = []
     values = {}
-    for column in (time_col, x_col, y_col):
+    for column in (time_col, *(c for c, _ in chosen.values())):
         values[column], found = _numeric_column(table[column], column, line, allow_empty=False)
         problems += found
     keyphasor = None
@@ -454,8 +533,9 @@ def read_record(path: str | Path) -> Record:
     problems = _time_problems(time_s, line)
     if problems:
         raise DataError(_format(path, problems))
-    scale_x, scale_y = UNITS[_CHANNEL.match(x_col).group(2)], UNITS[_CHANNEL.match(y_col).group(2)]
-    return Record(path, time_s, values[x_col] * scale_x, values[y_col] * scale_y, keyphasor, unit, line)
+    channels = {name: values[column] * UNITS[unit] for name, (column, unit) in chosen.items()}
+    return Record(path, time_s, channels, keyphasor, {name: unit for name, (_, unit) in chosen.items()}, line,
+                  pairs)
 
 
 def check_length(record: Record, rpm: float, min_revolutions: float = MIN_REVOLUTIONS) -> None:
@@ -496,7 +576,7 @@ def detect_saturation(record: Record, sensor_range_m: float | None = None,
     """
     sensor = Sensor(sensor_range_m or SENSOR_RANGE_MM * 1e-3, resolution_m or 0.0)
     found = []
-    for name in ("x", "y"):
+    for name in record.names:
         values = record.channel(name)
         spread = float(np.ptp(values))
         if spread <= max(1e-12 * max(1.0, float(np.abs(values).max())), resolution_m or 0.0):
@@ -536,33 +616,48 @@ def _require_columns(path: Path, have: Sequence[str], required: Sequence[str], k
                         f"the header has {list(have)}")
 
 
-def _record_columns(path: Path, columns: Sequence[str]) -> tuple[str, str, str, str]:
-    """(time column, x column, y column, unit) of a record header, or DataError."""
-    _require_columns(path, columns, ("time_s",), RECORD_COLUMNS,
-                     "a record needs time_s, x_mm and y_mm (or x_m and y_m), optionally keyphasor")
+def _record_columns(path: Path, columns: Sequence[str], names: Sequence[str] = DEFAULT_CHANNELS
+                    ) -> tuple[str, dict[str, tuple[str, str]]]:
+    """(time column, {sensor name: (its column, unit)}) of a record header, or DataError."""
+    listed = ", ".join(names)
+    expected = ("time_s, x_mm and y_mm (or x_m and y_m)" if tuple(names) == DEFAULT_CHANNELS else
+                f"time_s and one column <sensor>_mm (or <sensor>_m) for each of the machine's sensors {listed}")
+    _require_columns(path, columns, ("time_s",), RECORD_COLUMNS, f"a record needs {expected}, optionally keyphasor")
     problems, chosen = [], {}
-    for axis in ("x", "y"):
-        candidates = [(c, m.group(2)) for c in columns if (m := _CHANNEL.match(c)) and m.group(1) == axis]
-        known = [(c, u) for c, u in candidates if u in UNITS]
-        unknown = [c for c, u in candidates if u not in UNITS]
+    own = {}
+    for axis in names:
+        candidates = [(c, c[len(axis) + 1:]) for c in columns if c.startswith(f"{axis}_") and c not in RECORD_COLUMNS]
+        # a column of another sensor whose name starts with this one's (x and x_b): not this sensor's
+        own[axis] = [(c, u) for c, u in candidates if not any(c.startswith(f"{other}_") and len(other) > len(axis)
+                                                              for other in names)]
+    claimed = {c for found in own.values() for c, _ in found}
+    for axis in names:
+        known = [(c, u) for c, u in own[axis] if u in UNITS]
+        unknown = [c for c, u in own[axis] if u not in UNITS]
         if unknown and not known:
-            problems.append(f"column {unknown[0]!r}: unknown unit {_CHANNEL.match(unknown[0]).group(2)!r} "
+            problems.append(f"column {unknown[0]!r}: unknown unit {unknown[0][len(axis) + 1:]!r} "
                             f"(use {axis}_mm or {axis}_m)")
         elif len(known) > 1:
             problems.append(f"columns {[c for c, _ in known]}: more than one {axis} displacement column")
         elif not known:
-            close = difflib.get_close_matches(f"{axis}_mm", list(columns), n=1, cutoff=0.5)
+            close = difflib.get_close_matches(f"{axis}_mm", [c for c in columns if c not in claimed], n=1, cutoff=0.5)
             hint = f" (found {close[0]!r}: misnamed?)" if close and close[0] not in RECORD_COLUMNS else ""
             problems.append(f"missing column {axis}_mm (or {axis}_m){hint}")
         else:
             chosen[axis] = known[0]
-    extra = [c for c in columns if c not in RECORD_COLUMNS and not _CHANNEL.match(c)]
+    extra = [c for c in columns if c not in RECORD_COLUMNS and c not in claimed]
     if extra:
-        problems.append(f"unexpected column(s) {extra} (a record has time_s, x_mm, y_mm or x_m, y_m, keyphasor)")
+        has = ("time_s, x_mm, y_mm or x_m, y_m, keyphasor" if tuple(names) == DEFAULT_CHANNELS else
+               f"time_s, a column <sensor>_mm or <sensor>_m for each of the machine's sensors {listed}, keyphasor")
+        problems.append(f"unexpected column(s) {extra} (a record has {has})")
+    if tuple(names) == DEFAULT_CHANNELS and any(c.rsplit("_", 1)[-1] in UNITS for c in extra):
+        problems.append("displacement columns of other sensors than the VARM's x and y: the record of a machine "
+                        "of your own? Its channels are read by its config's sensors (check-data --config FILE)")
     if problems:
-        raise DataError(f"{path}: line 1 (header): " + "; ".join(problems) + f"; the header has {list(columns)}")
-    (x_col, x_unit), (y_col, y_unit) = chosen["x"], chosen["y"]
-    return "time_s", x_col, y_col, x_unit if x_unit == y_unit else f"{x_unit}/{y_unit}"
+        sensors = "" if tuple(names) == DEFAULT_CHANNELS else f"; the machine's sensors {listed}"
+        raise DataError(f"{path}: line 1 (header): " + "; ".join(problems) + f"; the header has {list(columns)}"
+                        + sensors)
+    return "time_s", chosen
 
 
 def _numeric_column(cells: pd.Series, column: str, line: Array, allow_empty: bool,

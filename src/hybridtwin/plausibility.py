@@ -60,8 +60,9 @@ SPIKE_SIGMAS = 8.0
 class Flag:
     """A finding that keeps a readable run out of the fit.
 
-    kind: "noise_only", "backward_whirl" or "spikes"; channel: "x", "y" or
-    "xy"; short: a few words for the run's note; message: what and why.
+    kind: "noise_only", "backward_whirl" or "spikes"; channel: a channel's
+    name, or a probe pair's two names joined ("xy"); short: a few words for
+    the run's note; message: what and why.
     """
 
     path: Path
@@ -79,7 +80,7 @@ def check_magnitudes(record: Record, sensor: Sensor) -> None:
     problems = []
     limit = sensor.range_m + sensor.rail_band_m
     range_mm = f"+-{sensor.range_m * 1e3:g} mm"
-    for name in ("x", "y"):
+    for name in record.names:
         values, unit = record.channel(name), record.channel_unit(name)
         column, scale = f"{name}_{unit}", UNITS[unit]
         peak = float(np.abs(values).max())
@@ -107,7 +108,7 @@ def check_magnitudes(record: Record, sensor: Sensor) -> None:
 
 def dominant_rpm(record: Record) -> tuple[float, float]:
     """(speed of the strongest spectral line of both channels [RPM], its power over the spectrum's median)."""
-    data = np.column_stack([record.x_m, record.y_m])
+    data = record.data
     data = (data - data.mean(0)) * np.hanning(record.n_samples)[:, None]
     n_fft = 1 << int(np.ceil(np.log2(8 * record.n_samples)))
     power = (np.abs(np.fft.rfft(data, n_fft, axis=0)) ** 2).sum(1)
@@ -144,8 +145,8 @@ def response_flags(record: Record, harmonics: Array, sigma: Array, residual: Arr
                    skip: tuple[str, ...] = ()) -> list[Flag]:
     """Flags of an analysed record (module docstring), each also emitted as a ``DataWarning``.
 
-    harmonics, sigma: (2, H+1) synchronous averages and their standard
-    uncertainty per real/imaginary part [m] (channels x, y); residual: (N, 2)
+    harmonics, sigma: (C, H+1) synchronous averages and their standard
+    uncertainty per real/imaginary part [m] (C channels, the record's); residual: (N, C)
     record minus the averaged waveform, every sample [m]; skip: channels not
     judged for spikes (already flagged as clipped: their tops are no spikes).
     """
@@ -153,22 +154,30 @@ def response_flags(record: Record, harmonics: Array, sigma: Array, residual: Arr
     X1, s1 = harmonics[:, 1], sigma[:, 1]
     ratio = np.abs(X1) / np.where(s1 > 0, s1, np.inf)
     significant = ratio >= SIGNIFICANCE
-    for i, name in enumerate(("x", "y")):
+    for i, name in enumerate(record.names):
         if not significant[i]:
             flags.append(Flag(record.path, name, "noise_only", f"{name} 1X not significant (noise only?)",
                               f"channel {name}: its 1X ({abs(X1[i]) * 1e3:.4f} mm) is not significant against its "
                               f"uncertainty ({s1[i] * 1e3:.2g} mm): |1X|/sigma = {ratio[i]:.1f} < {SIGNIFICANCE:g}; "
                               "the channel carries noise only (sensor unplugged or misaimed?) or the run has no "
                               "response"))
-    if significant.all():
-        forward, backward = abs(X1[0] + 1j * X1[1]) / 2, abs(X1[0] - 1j * X1[1]) / 2
-        if backward - forward > WHIRL_SIGMAS * float(np.hypot(*s1)):
-            flags.append(Flag(record.path, "xy", "backward_whirl", "1X whirls backward (x and y swapped?)",
-                              f"the 1X orbit whirls backward (forward {forward * 1e3:.4f} mm, backward "
+    # the first x, y pair's orbit only (the machine's first plane, the VARM's one): a plane elsewhere can whirl
+    # backward in earnest, between the backward and forward critical speeds of an anisotropic support (the
+    # stepped rotor's d2 at 3700-3850 RPM), which no check on one run can tell from swapped channels
+    for ix, iy in record.pairs[:1]:
+        if not (significant[ix] and significant[iy]):
+            continue
+        pair = record.names[ix] + record.names[iy]
+        swapped = "x and y swapped?" if pair == "xy" else f"{record.names[ix]} and {record.names[iy]} swapped?"
+        forward, backward = abs(X1[ix] + 1j * X1[iy]) / 2, abs(X1[ix] - 1j * X1[iy]) / 2
+        if backward - forward > WHIRL_SIGMAS * float(np.hypot(s1[ix], s1[iy])):
+            orbit = "the 1X orbit" if pair == "xy" else f"the 1X orbit of {record.names[ix]}, {record.names[iy]}"
+            flags.append(Flag(record.path, pair, "backward_whirl", f"1X whirls backward ({swapped})",
+                              f"{orbit} whirls backward (forward {forward * 1e3:.4f} mm, backward "
                               f"{backward * 1e3:.4f} mm) while the unbalance response whirls forward (the shaft turns "
-                              "from +x towards +y): x and y swapped, or one channel's sign reversed?"))
+                              f"from +x towards +y): {swapped[:-1]}, or one channel's sign reversed?"))
     if residual is not None:
-        for i, name in enumerate(("x", "y")):
+        for i, name in enumerate(record.names):
             if name in skip:
                 continue
             r = residual[:, i]

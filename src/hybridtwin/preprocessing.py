@@ -70,7 +70,7 @@ from .measurements import (
 from .plausibility import SPEED_TOLERANCE, Flag, check_magnitudes, check_speed, response_flags
 
 Array = np.ndarray
-CHANNELS = ("x", "y")
+CHANNELS = ("x", "y")  # the VARM's channels (a record's own: ``Record.names``)
 #: the true speed is sought within this fraction of the nominal speed (beyond it: plausibility.check_speed's error)
 SPEED_SEARCH = SPEED_TOLERANCE
 
@@ -111,11 +111,12 @@ class PhaseOrigin:
 class OrderAnalysis:
     """Synchronous averages of one record.
 
-    harmonics: (2, H+1) complex [m] for channels x, y, h = 0..H, with
-    x(t) ~ Re(sum_h X_h exp(i h Omega (t - origin))); sigma: (2, H+1) standard
-    uncertainty of each of the real and imaginary parts [m]; per_revolution:
-    (K, 2, H+1) the individual revolutions' estimates; noise_m: (2,) residual
-    standard deviation about the averaged waveform.
+    harmonics: (C, H+1) complex [m] for the record's channels (x, y on the
+    VARM), h = 0..H, with x(t) ~ Re(sum_h X_h exp(i h Omega (t - origin)));
+    sigma: (C, H+1) standard uncertainty of each of the real and imaginary
+    parts [m]; per_revolution: (K, C, H+1) the individual revolutions'
+    estimates; noise_m: (C,) residual standard deviation about the averaged
+    waveform. One speed and one phase origin for all channels of a run.
     """
 
     harmonics: Array
@@ -188,7 +189,7 @@ def design_matrix(t: Array, omega: float, harmonics: int) -> Array:
 
 
 def refine_speed(record: Record, rpm_nominal: float, harmonics: int = 5,
-                 channels: tuple[str, ...] = CHANNELS, search: float = SPEED_SEARCH) -> SpeedEstimate:
+                 channels: tuple[str, ...] | None = None, search: float = SPEED_SEARCH) -> SpeedEstimate:
     """Maximum-likelihood rotation speed from the record (module docstring, step 1).
 
     Raises ``DataError`` when the best frequency lies at the edge of the
@@ -196,7 +197,7 @@ def refine_speed(record: Record, rpm_nominal: float, harmonics: int = 5,
     or the record holds no periodic signal).
     """
     t = record.time_s - record.time_s.mean()
-    data = np.column_stack([record.channel(c) for c in channels])
+    data = np.column_stack([record.channel(c) for c in (record.names if channels is None else channels)])
     data = data - data.mean(0)
     f0 = rpm_nominal / 60.0
     step = 0.25 / (harmonics * record.duration_s)
@@ -297,7 +298,7 @@ def quantisation_sigma(weights: Array, k: Array, f: float, dt: float, n_position
 
 
 def order_analysis(record: Record, speed: SpeedEstimate, origin: PhaseOrigin, harmonics: int = 5) -> OrderAnalysis:
-    """Synchronous averages of DC and 1X..HX of x and y over whole revolutions (module docstring, step 3)."""
+    """Synchronous averages of DC and 1X..HX of every channel over whole revolutions (module docstring, step 3)."""
     t, period, omega = record.time_s, speed.period_s, speed.omega
     first = int(np.ceil((t[0] - origin.time_s) / period - 1e-9))
     start = origin.time_s + first * period
@@ -307,13 +308,13 @@ def order_analysis(record: Record, speed: SpeedEstimate, origin: PhaseOrigin, ha
                         "analysis needs at least 2")
     revolution = np.floor((t - start) / period).astype(int)
     used = (revolution >= 0) & (revolution < K)
-    data = np.column_stack([record.x_m, record.y_m])[used]
+    data = record.data[used]
     A = design_matrix(t[used] - origin.time_s, omega, harmonics)
     bounds = np.searchsorted(revolution[used], np.arange(K))  # first sample of each revolution
     normal = np.add.reduceat(np.einsum("np,nq->npq", A, A), bounds, axis=0)  # (K, p, p)
-    rhs = np.add.reduceat(np.einsum("np,nc->npc", A, data), bounds, axis=0)  # (K, p, 2)
-    coef = np.linalg.solve(normal, rhs)  # (K, p, 2)
-    per_rev = _to_complex(np.moveaxis(coef, 2, 1))  # (K, 2, H+1)
+    rhs = np.add.reduceat(np.einsum("np,nc->npc", A, data), bounds, axis=0)  # (K, p, C)
+    coef = np.linalg.solve(normal, rhs)  # (K, p, C)
+    per_rev = _to_complex(np.moveaxis(coef, 2, 1))  # (K, C, H+1)
     mean = per_rev.mean(0)
     scatter = np.sqrt(0.5 * (per_rev.real.var(0, ddof=1) + per_rev.imag.var(0, ddof=1)) / K)
     sigma = np.sqrt(scatter**2 + origin_share(mean, omega, origin.sigma_s) ** 2)
@@ -378,14 +379,38 @@ def analyse_record(record: Record, rpm_nominal: float, harmonics: int = 5, senso
     analysis.orders = order_analysis(record, analysis.speed, analysis.origin, harmonics)
     orders = analysis.orders
     A = design_matrix(record.time_s - analysis.origin.time_s, analysis.speed.omega, orders.H)
-    residual = np.column_stack([record.x_m, record.y_m]) - A @ _to_real(orders.harmonics).T
+    residual = record.data - A @ _to_real(orders.harmonics).T
     clipped = tuple(f.channel for f in analysis.findings if f.kind == "clipped")
     analysis.findings += response_flags(record, orders.harmonics, orders.sigma, residual, skip=clipped)
     return analysis
 
 
+def harmonic_column(channel: str, h: int, part: str) -> str:
+    """The harmonics table's column of channel ``channel``, harmonic ``h``, ``part`` re, im, amp or sigma [m]:
+    x1_re_m for channel x (the VARM's), x1_1_re_m for channel x1 (an underscore when the name ends in a digit)."""
+    return f"{channel}{'_' if channel[-1:].isdigit() else ''}{h}_{part}_m"
+
+
+def table_channels(table: pd.DataFrame) -> tuple[str, ...]:
+    """The channels of a harmonics table (``run_row``'s columns), in order: the names c with a column
+    noise_<c>_m and the 1X of c (its real part or amplitude); ("x", "y") for the VARM's, also for a table
+    with x1_re_m and y1_re_m but no noise columns (one written by hand)."""
+    out = []
+    for column in table.columns:
+        if column.startswith("noise_") and column.endswith("_m"):
+            name = column[len("noise_"):-len("_m")]
+            if name and any(harmonic_column(name, 1, part) in table for part in ("re", "amp")):
+                out.append(name)
+    if not out and all(f"{c}1_re_m" in table for c in CHANNELS):
+        return CHANNELS
+    return tuple(out)
+
+
 def run_row(analysis: RunAnalysis, harmonics: int, complex_parts: bool = True) -> dict:
-    """The tidy per-run result (one row, SI, units in the column names); NaN where not analysed."""
+    """The tidy per-run result (one row, SI, units in the column names); NaN where not analysed.
+
+    Per channel c of the record (x, y on the VARM): noise_<c>_m, offset_<c>_m, offset_<c>_sigma_m, then per
+    harmonic h its real and imaginary part, amplitude and sigma (``harmonic_column``: x1_re_m, ...)."""
     record = analysis.record
     nan = float("nan")
     row = {"n_samples": record.n_samples, "duration_s": record.duration_s, "sample_rate_hz": record.sample_rate_hz,
@@ -399,18 +424,19 @@ def run_row(analysis: RunAnalysis, harmonics: int, complex_parts: bool = True) -
     row["phase_origin_s"] = origin.time_s if origin else nan
     row["phase_origin_sigma_s"] = origin.sigma_s if origin else nan
     row["n_revolutions"] = orders.n_revolutions if orders else 0
-    for i, name in enumerate(CHANNELS):
+    names = record.names
+    for i, name in enumerate(names):
         row[f"noise_{name}_m"] = orders.noise_m[i] if orders else nan
-    for i, name in enumerate(CHANNELS):
+    for i, name in enumerate(names):
         row[f"offset_{name}_m"] = orders.harmonics[i, 0].real if orders else nan
         row[f"offset_{name}_sigma_m"] = orders.sigma[i, 0] if orders else nan
-    for i, name in enumerate(CHANNELS):
+    for i, name in enumerate(names):
         for h in range(1, harmonics + 1):
             X = orders.harmonics[i, h] if orders else complex(nan, nan)
             if complex_parts:
-                row[f"{name}{h}_re_m"], row[f"{name}{h}_im_m"] = X.real, X.imag
-            row[f"{name}{h}_amp_m"] = abs(X)
-            row[f"{name}{h}_sigma_m"] = orders.sigma[i, h] if orders else nan
+                row[harmonic_column(name, h, "re")], row[harmonic_column(name, h, "im")] = X.real, X.imag
+            row[harmonic_column(name, h, "amp")] = abs(X)
+            row[harmonic_column(name, h, "sigma")] = orders.sigma[i, h] if orders else nan
     row["flat"], row["saturated"], row["usable"], row["note"] = (
         analysis.flat, analysis.saturated, analysis.usable, analysis.note)
     row["flags"] = ",".join(dict.fromkeys(f.kind for f in analysis.findings))
@@ -421,10 +447,12 @@ def waveforms(analysis: RunAnalysis, cycles: int = 2) -> pd.DataFrame:
     """Two (``cycles``) revolutions from the phase origin, for plotting.
 
     time_s: time since the phase origin (the record's own samples, dt = 1/fs);
-    angle_rad: Omega time_s; x_m, y_m: the synchronous average 1X..HX (DC and
-    noise removed); x_raw_m, y_raw_m: the recorded samples minus the DC offset.
+    angle_rad: Omega time_s; per channel c (x, y on the VARM): <c>_m, the
+    synchronous average 1X..HX (DC and noise removed), and <c>_raw_m, the
+    recorded samples minus the DC offset.
     """
-    columns = ["time_s", "angle_rad", "x_m", "y_m", "x_raw_m", "y_raw_m"]
+    names = analysis.record.names
+    columns = ["time_s", "angle_rad", *(f"{c}_m" for c in names), *(f"{c}_raw_m" for c in names)]
     if analysis.orders is None:
         return pd.DataFrame(columns=columns)
     record, orders, speed = analysis.record, analysis.orders, analysis.speed
@@ -435,9 +463,11 @@ def waveforms(analysis: RunAnalysis, cycles: int = 2) -> pd.DataFrame:
     tau = record.time_s[take] - analysis.origin.time_s
     A = design_matrix(tau, speed.omega, orders.H)
     clean = A[:, 1:] @ _to_real(orders.harmonics)[:, 1:].T
-    raw = np.column_stack([record.x_m[take], record.y_m[take]]) - orders.harmonics[:, 0].real
-    return pd.DataFrame({"time_s": tau, "angle_rad": speed.omega * tau, "x_m": clean[:, 0], "y_m": clean[:, 1],
-                         "x_raw_m": raw[:, 0], "y_raw_m": raw[:, 1]})
+    raw = record.data[take] - orders.harmonics[:, 0].real
+    out = {"time_s": tau, "angle_rad": speed.omega * tau}
+    out |= {f"{c}_m": clean[:, i] for i, c in enumerate(names)}
+    out |= {f"{c}_raw_m": raw[:, i] for i, c in enumerate(names)}
+    return pd.DataFrame(out, columns=columns)
 
 
 SPECTRUM_COLUMNS = ["frequency_hz", "order", "x_amplitude_m", "y_amplitude_m"]
@@ -453,23 +483,25 @@ def spectrum(record: Record, rpm: float, max_order: float = 10.0) -> pd.DataFram
     window = np.hanning(n)
     f = np.fft.rfftfreq(n, record.dt_s)
     keep = f <= max_order * rpm / 60.0
-    amplitudes = [2.0 * np.abs(np.fft.rfft((z - z.mean()) * window))[keep] / window.sum()
-                  for z in (record.x_m, record.y_m)]
-    return pd.DataFrame({"frequency_hz": f[keep], "order": f[keep] * 60.0 / rpm, "x_amplitude_m": amplitudes[0],
-                         "y_amplitude_m": amplitudes[1]})
+    out = {"frequency_hz": f[keep], "order": f[keep] * 60.0 / rpm}
+    for name in record.names:
+        z = record.channel(name)
+        out[f"{name}_amplitude_m"] = 2.0 * np.abs(np.fft.rfft((z - z.mean()) * window))[keep] / window.sum()
+    return pd.DataFrame(out)
 
 
 def preprocess_run(sheet_row: Mapping, harmonics: int = 5, sensor_range_m: float | None = None,
-                   sensor_resolution_m: float | None = None, record: Record | None = None
+                   sensor_resolution_m: float | None = None, record: Record | None = None, sensors=None
                    ) -> tuple[pd.DataFrame, pd.DataFrame]:
     """One runs-sheet row (with its resolved ``record`` path) -> (one-row tidy table, waveforms).
 
     The sensor: the row's sensor_range_mm / sensor_resolution_mm, else the
     given defaults [m], else the built-in ones (``measurements.Sensor``).
-    record: the row's record already read (``read_record``), e.g. for its ``spectrum`` too; else read here.
+    record: the row's record already read (``read_record``), e.g. for its ``spectrum`` too; else read here,
+    its channels named after ``sensors`` (the machine's, ``measurements.record_channels``; None: x, y).
     """
     sensor = Sensor.for_run(sheet_row, sensor_range_m, sensor_resolution_m)
-    record = read_record(sheet_row["record"]) if record is None else record
+    record = read_record(sheet_row["record"], sensors) if record is None else record
     analysis = analyse_record(record, float(sheet_row["rpm"]), harmonics, sensor.range_m,
                               sensor_resolution_m=sensor.resolution_m)
     row = {k: v for k, v in sheet_row.items() if k != "record"} | run_row(analysis, harmonics)
@@ -477,7 +509,7 @@ def preprocess_run(sheet_row: Mapping, harmonics: int = 5, sensor_range_m: float
 
 
 def summarise_runs(runs: pd.DataFrame, harmonics: int = 5, sensor_range_m: float | None = None,
-                   min_revolutions: float = MIN_REVOLUTIONS, sensor_resolution_m: float | None = None
+                   min_revolutions: float = MIN_REVOLUTIONS, sensor_resolution_m: float | None = None, sensors=None
                    ) -> tuple[pd.DataFrame, dict[str, str]]:
     """check-data: every run of a validated sheet analysed; (summary table, {run: error message}).
 
@@ -485,7 +517,7 @@ def summarise_runs(runs: pd.DataFrame, harmonics: int = 5, sensor_range_m: float
     ``run_row`` without the complex parts (amplitudes and uncertainties only)
     and ``status`` ("ok", "excluded: ...", or "invalid: <error>"). Runs whose
     record is invalid keep their row (status invalid) and their error is
-    returned, so nothing is dropped silently. The sensor as in ``preprocess_run``.
+    returned, so nothing is dropped silently. The sensor and ``sensors`` as in ``preprocess_run``.
     """
     rows, errors = [], {}
     for _, sheet_row in runs.iterrows():
@@ -494,7 +526,7 @@ def summarise_runs(runs: pd.DataFrame, harmonics: int = 5, sensor_range_m: float
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("always", DataWarning)  # every flagged run is reported, not just the first
-                record = read_record(sheet_row["record"])
+                record = read_record(sheet_row["record"], sensors)
                 analysis = analyse_record(record, float(sheet_row["rpm"]), harmonics, sensor.range_m,
                                           min_revolutions, sensor.resolution_m)
             rows.append(base | run_row(analysis, harmonics, complex_parts=False) | {"status": analysis.note})
@@ -562,17 +594,18 @@ def write_tsv(table: pd.DataFrame, path: str | Path) -> None:
 def check_data(sheet: str | Path, harmonics: int = 5, rpm_range: tuple[float, float] | None = None,
                mass_range_g: tuple[float, float] | None = None, sensor_range_m: float | None = None,
                min_revolutions: float = MIN_REVOLUTIONS, sensor_resolution_m: float | None = None,
-               range_names: tuple[str, str] = ("--rpm-range", "--mass-range-g")
+               range_names: tuple[str, str] = ("--rpm-range", "--mass-range-g"), sensors=None
                ) -> tuple[pd.DataFrame, dict[str, str]]:
     """Validate a runs sheet and every record; (summary table, {run: error}).
 
     The sheet is read as the workflow reads it (``read_runs`` with every mass
     required) and must be valid, like its coverage (``check_coverage``): both
-    raise ``DataError``; record problems are collected per run (``summarise_runs``).
+    raise ``DataError``; record problems are collected per run (``summarise_runs``). sensors: the machine
+    whose sensors name the records' channels (``measurements.record_channels``; None: the VARM's x, y).
     """
     runs = read_runs(sheet, require_mass=True)
     check_coverage(runs, rpm_range, mass_range_g, sheet, range_names)
-    return summarise_runs(runs, harmonics, sensor_range_m, min_revolutions, sensor_resolution_m)
+    return summarise_runs(runs, harmonics, sensor_range_m, min_revolutions, sensor_resolution_m, sensors)
 
 
 def format_summary(summary: pd.DataFrame, harmonics: int) -> str:
@@ -580,20 +613,22 @@ def format_summary(summary: pd.DataFrame, harmonics: int) -> str:
     if "rpm_true" not in summary:
         return summary[["run", "rpm", "status"]].to_string(index=False)
     mm = 1e3
+    channels = table_channels(summary)
     view = pd.DataFrame({
         "run": summary["run"], "rpm": summary["rpm"], "rpm_true": summary["rpm_true"].round(2),
         "dev_%": (100 * summary["speed_deviation_rel"]).round(3), "samples": summary["n_samples"],
         "duration_s": summary["duration_s"].round(3), "fs_hz": summary["sample_rate_hz"].round(1),
         "revs": summary["n_revolutions"],
-        "noise_x_mm": (mm * summary["noise_x_m"]).round(4), "noise_y_mm": (mm * summary["noise_y_m"]).round(4),
-        "offset_x_mm": (mm * summary["offset_x_m"]).round(4), "offset_y_mm": (mm * summary["offset_y_m"]).round(4),
+        **{f"noise_{c}_mm": (mm * summary[f"noise_{c}_m"]).round(4) for c in channels},
+        **{f"offset_{c}_mm": (mm * summary[f"offset_{c}_m"]).round(4) for c in channels},
         "phase": summary["phase_reference"], "saturated": summary["saturated"], "status": summary["status"],
     })
     amplitudes = pd.DataFrame({"run": summary["run"]})
-    for name in CHANNELS:
+    for name in channels:
         for h in range(1, harmonics + 1):
-            amplitudes[f"{name}{h}X_mm"] = (mm * summary[f"{name}{h}_amp_m"]).map(lambda v: f"{v:.4f}")
-    sigma = mm * summary[[f"{c}1_sigma_m" for c in CHANNELS]].max(axis=1)
+            amplitudes[f"{name}{'_' if name[-1:].isdigit() else ''}{h}X_mm"] = (
+                mm * summary[harmonic_column(name, h, "amp")]).map(lambda v: f"{v:.4f}")
+    sigma = mm * summary[[harmonic_column(c, 1, "sigma") for c in channels]].max(axis=1)
     amplitudes["sigma_1X_mm"] = sigma.map(lambda v: f"{v:.1e}")
     return (view.to_string(index=False, na_rep="-") + "\n\nharmonic amplitudes, 0-peak [mm] (sigma_1X_mm: standard "
             "uncertainty of the 1X real/imaginary parts):\n" + amplitudes.to_string(index=False, na_rep="-"))
@@ -604,9 +639,10 @@ def add_check_data_command(sub) -> None:
     parser = sub.add_parser(
         "check-data", help="validate a runs sheet and its records; per-run summary (speed, noise, offsets, harmonics)",
         description="Validate a runs sheet (TSV: run, rpm, eccentric_mass_g, path, role) and every record it "
-                    "lists (CSV: time_s, x_mm, y_mm or x_m, y_m, optional keyphasor), then print per run: samples, "
-                    "duration, sample rate, the true speed refined from the record vs the nominal one, noise level, "
-                    "DC offsets, amplitude per harmonic and saturation. Exit status 1 on invalid input.")
+                    "lists (CSV: time_s, one column <sensor>_mm or <sensor>_m per sensor of the machine, x_mm, y_mm "
+                    "on the VARM, optional keyphasor), then print per run and channel: samples, duration, sample "
+                    "rate, the true speed refined from the record vs the nominal one, noise level, DC offsets, "
+                    "amplitude per harmonic and saturation. Exit status 1 on invalid input.")
     parser.add_argument("runs", type=Path, help="the runs sheet (TSV); record paths are relative to its folder")
     parser.add_argument("--harmonics", type=int, default=5, help="highest harmonic H analysed (default 5)")
     parser.add_argument("--min-revolutions", type=float, default=MIN_REVOLUTIONS,
@@ -621,6 +657,9 @@ def add_check_data_command(sub) -> None:
     parser.add_argument("--sensor-resolution-mm", type=_positive_mm, default=None,
                         help=f"sensor resolution [mm] (default: the sheet's sensor_resolution_mm column, else "
                              f"{SENSOR_RESOLUTION_MM:g})")
+    parser.add_argument("--config", type=Path, default=None,
+                        help="workflow config whose 'machine:' names the records' channels (one per sensor); default "
+                             "./config/config.yaml when it exists, else the VARM (channels x, y)")
     parser.add_argument("--output", type=Path, default=None, help="also write the full summary (SI units) as TSV")
     parser.add_argument("--strict", action="store_true",
                         help="exit 1 also when a run is flagged (kept out of the fit: flat, clipped, noise only, "
@@ -643,13 +682,20 @@ def check_data_command(args) -> int:
     if args.harmonics < 1:
         print(f"hybridtwin check-data: error: --harmonics must be >= 1, got {args.harmonics}", file=sys.stderr)
         return 2
+    from .cli import UsageError, _config_file, config_machine  # the config read as `simulate` reads it
+
     mm = {k: None if v is None else v * 1e-3 for k, v in (("range", args.sensor_range_mm),
                                                           ("resolution", args.sensor_resolution_mm))}
+    try:
+        machine = config_machine(_config_file(args.config))
+    except UsageError as err:
+        print(f"hybridtwin check-data: error: {err}", file=sys.stderr)
+        return 2
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", DataWarning)
         try:
             summary, errors = check_data(args.runs, args.harmonics, args.rpm_range, args.mass_range_g, mm["range"],
-                                         args.min_revolutions, mm["resolution"])
+                                         args.min_revolutions, mm["resolution"], sensors=machine)
         except DataError as err:
             print(f"hybridtwin check-data: error: {err}", file=sys.stderr)
             return 1

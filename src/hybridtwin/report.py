@@ -82,10 +82,12 @@ ERROR_COLUMNS = ["run", "rpm", "eccentric_mass_g", "role", "source", "chi2", "do
 class RunComparison:
     """A run's measured and model harmonics h = 1..H in the model's frame (module docstring).
 
-    measured, model: (H, 2) complex [m], channels x, y; sigma: (H, 2) [m], standard
-    uncertainty of each real and imaginary part (the weights of the fit); dof: the
-    run's degrees of freedom; role: ``fit`` or ``validate``; source: the response
-    model (``solver`` or ``library``).
+    measured, model: (H, C) complex [m], one column per channel (``channels``, the
+    sensors: x, y on the VARM); sigma: (H, C) [m], standard uncertainty of each real
+    and imaginary part (the weights of the fit); dof: the run's degrees of freedom;
+    role: ``fit`` or ``validate``; source: the response model (``solver`` or
+    ``library``). The run's figure (``plot_run``) shows the first two channels as an
+    orbit: the first plane's x, y probes when the machine declares them first.
     """
 
     run: str
@@ -97,6 +99,7 @@ class RunComparison:
     sigma: Array
     dof: float
     source: str
+    channels: tuple[str, ...] = idn.CHANNELS
 
     @property
     def H(self) -> int:
@@ -116,7 +119,7 @@ class RunComparison:
 
     @property
     def signal_m(self) -> float:
-        """||X|| over h = 1..H and both channels [m]."""
+        """||X|| over h = 1..H and every channel [m]."""
         return float(np.linalg.norm(self.measured))
 
     @property
@@ -147,9 +150,10 @@ def fit_comparisons(fit_path: str | Path, parameters: pd.DataFrame, summary: Map
     phases = parameters[parameters["parameter"] == "phase"].set_index("run")["value"]
     masses = harmonics.set_index("run")["eccentric_mass_g"]
     source = str(parameters["source"].iloc[0])
-    dof = 4 * measured.shape[1] * summary["dof"] / summary["n_data"]
+    channels = tuple(group.attrs.get("channels", idn.CHANNELS))
+    dof = 2 * measured.shape[2] * measured.shape[1] * summary["dof"] / summary["n_data"]  # a run's share
     return [RunComparison(run, "fit", float(rpm), float(masses[run]), to_model_frame(measured[k], phases[run]),
-                          to_model_frame(model[k], phases[run]), sigma[k], dof, source)
+                          to_model_frame(model[k], phases[run]), sigma[k], dof, source, channels)
             for k, (run, rpm) in enumerate(zip(group.attrs["runs"], group.attrs["rpm"]))]
 
 
@@ -160,7 +164,7 @@ def validation_comparison(prediction: val.PredictedRun, data: idn.RunData, model
     phase = prediction.phase_rad
     return RunComparison(data.run, "validate", data.rpm, data.eccentric_mass_g, to_model_frame(data.X[:H], phase),
                          to_model_frame(prediction.harmonics, phase), idn.total_sigma(data, model_error)[:H],
-                         4 * H - 1, prediction.model)
+                         2 * prediction.harmonics.size - 1, prediction.model, tuple(data.channels))
 
 
 def comparison_table(comparisons: Sequence[RunComparison]) -> pd.DataFrame:
@@ -168,7 +172,7 @@ def comparison_table(comparisons: Sequence[RunComparison]) -> pd.DataFrame:
     rows = []
     for c in comparisons:
         for h in range(c.H):
-            for j, channel in enumerate(idn.CHANNELS):
+            for j, channel in enumerate(c.channels):
                 rows.append({"run": c.run, "role": c.role, "rpm": c.rpm, "eccentric_mass_g": c.eccentric_mass_g,
                              "source": c.source, "dof": c.dof, "harmonic": h + 1, "channel": channel,
                              "measured_re_m": c.measured[h, j].real, "measured_im_m": c.measured[h, j].imag,
@@ -181,19 +185,21 @@ def read_comparisons(table: pd.DataFrame) -> list[RunComparison]:
     """``comparison_table``'s rows back to RunComparison (runs in the table's order)."""
     out = []
     for run, rows in table.groupby("run", sort=False):
-        rows = rows.sort_values(["harmonic", "channel"])  # channels x, y
+        channels = tuple(dict.fromkeys(rows["channel"].astype(str)))  # the table's order: the sensors'
+        rows = rows.assign(j=rows["channel"].astype(str).map(channels.index)).sort_values(["harmonic", "j"])
         first = rows.iloc[0]
+        C = len(channels)
         out.append(RunComparison(str(run), str(first["role"]), float(first["rpm"]),
                                  float(first["eccentric_mass_g"]),
-                                 _grid(rows, "measured_re_m") + 1j * _grid(rows, "measured_im_m"),
-                                 _grid(rows, "model_re_m") + 1j * _grid(rows, "model_im_m"), _grid(rows, "sigma_m"),
-                                 float(first["dof"]), str(first["source"])))
+                                 _grid(rows, "measured_re_m", C) + 1j * _grid(rows, "measured_im_m", C),
+                                 _grid(rows, "model_re_m", C) + 1j * _grid(rows, "model_im_m", C),
+                                 _grid(rows, "sigma_m", C), float(first["dof"]), str(first["source"]), channels))
     return out
 
 
-def _grid(rows: pd.DataFrame, column: str) -> Array:
-    """A column of one run's rows (sorted by harmonic, channel) as (H, 2)."""
-    return rows[column].to_numpy(float).reshape(-1, 2)
+def _grid(rows: pd.DataFrame, column: str, channels: int = 2) -> Array:
+    """A column of one run's rows (sorted by harmonic, channel) as (H, C)."""
+    return rows[column].to_numpy(float).reshape(-1, channels)
 
 
 # --- errors per run ---------------------------------------------------------------------
@@ -407,14 +413,19 @@ def _run_title(c: RunComparison) -> str:
 
 
 def plot_run(c: RunComparison, variant: str) -> plt.Figure:
-    """One run: orbit, x and y over two revolutions with the residual, and the residual whirl spectrum."""
+    """One run: orbit, x and y over two revolutions with the residual, and the residual whirl spectrum; of the
+    first two channels (the first plane's x, y probes when declared first; the other channels are in the run's
+    rows of harmonics.tsv and in its chi^2, and the title says so)."""
     fig = plt.figure(figsize=(14, 6.2))
     grid = fig.add_gridspec(2, 3, width_ratios=(1.0, 1.5, 1.3), height_ratios=(1.4, 1.0))
     _orbit(fig.add_subplot(grid[:, 0]), c)
     signals = fig.add_subplot(grid[0, 1])
     _signals(signals, fig.add_subplot(grid[1, 1], sharex=signals), c)
     _spectrum(fig.add_subplot(grid[:, 2]), c)
-    fig.suptitle(f"variant {variant}, {_run_title(c)}", fontsize=10)
+    shown = "" if len(c.channels) <= 2 else (f"\nshown: channels {c.channels[0]}, {c.channels[1]} (the first "
+                                             f"plane); chi^2 and error over all {len(c.channels)}: "
+                                             f"{', '.join(c.channels)}")
+    fig.suptitle(f"variant {variant}, {_run_title(c)}{shown}", fontsize=10)
     fig.tight_layout()
     return fig
 
@@ -426,8 +437,8 @@ def _orbit(ax: plt.Axes, c: RunComparison) -> None:
         ax.plot(xy[:, 0] * MILLI, xy[:, 1] * MILLI, label=label, **style)
         ax.plot(xy[0, 0] * MILLI, xy[0, 1] * MILLI, "o", color=style["color"], ms=5)
     ax.set_aspect("equal", adjustable="datalim")
-    ax.set_xlabel("x [mm]")
-    ax.set_ylabel("y [mm]")
+    ax.set_xlabel(f"{c.channels[0]} [mm]")
+    ax.set_ylabel(f"{c.channels[1]} [mm]")
     ax.set_title("orbit (h = 1..H, DC removed); dot: t = 0", fontsize=9)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
@@ -438,7 +449,7 @@ def _signals(ax: plt.Axes, ax_residual: plt.Axes, c: RunComparison) -> None:
     _, model = waveform(c.model)
     turns = angle / (2 * np.pi)
     noise = waveform_noise(c.sigma)
-    for j, channel in enumerate(("x", "y")):
+    for j, channel in enumerate(c.channels[:2]):
         colour = f"C{j}"
         ax.plot(turns, measured[:, j] * MILLI, color=colour, lw=2, label=f"{channel} measured")
         ax.plot(turns, model[:, j] * MILLI, color="k", lw=1, ls="--" if j == 0 else ":", label=f"{channel} model")

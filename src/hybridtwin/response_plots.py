@@ -10,7 +10,10 @@ runs). Unstable stretches (a Floquet multiplier outside the unit circle: the mac
 drawn dotted.
 
 ``dense_response`` -> a long table (``write_dense`` / ``read_dense``, exact inverses); ``plot_bode`` and
-``plot_polar`` draw it with the fit and validation runs (``report.RunComparison``, the model's frame).
+``plot_polar`` draw it with the fit and validation runs (``report.RunComparison``, the model's frame). On a
+machine with probes at several planes the curves are those of the first x, y pair (``sensor.sensor_harmonics``,
+the node ``Machine.sensor_node``) and the measured points are the runs' first two channels: declare that pair
+first. The cascade (``plot_cascade``) has a panel per channel.
 """
 
 from __future__ import annotations
@@ -267,19 +270,26 @@ def multivalued(dense: pd.DataFrame, rtol: float = 0.02) -> pd.DataFrame:
 def plot_cascade(spectra: dict[str, pd.DataFrame], runs: pd.DataFrame, orders: Sequence[int] = ORDERS
                  ) -> plt.Figure:
     """Cascade of the measured full spectra (``preprocessing.spectrum``): one row per run, sorted by eccentric
-    mass then speed, x the frequency [Hz], colour the amplitude in dB re 1 um (0-peak), one panel per channel;
+    mass then speed, x the frequency [Hz], colour the amplitude in dB re 1 um (0-peak), one panel per channel
+    (the spectra's <channel>_amplitude_m columns: x, y on the VARM, every sensor of a machine);
     the orders 1X..3X joined across the runs of each mass (dashed): what lies off them (a natural frequency
     excited by the noise, a subharmonic, a rub's broadband) is what the harmonics alone do not show.
     runs: run, rpm (the refined speed), eccentric_mass_g."""
     ordered = runs[runs["run"].isin(list(spectra))].sort_values(["eccentric_mass_g", "rpm"]).reset_index(drop=True)
-    fig, axes = plt.subplots(1, 2, figsize=(13, 0.28 * len(ordered) + 2.5), sharey=True, squeeze=False)
+    suffix = "_amplitude_m"
+    channels = list(dict.fromkeys(c[:-len(suffix)] for s in spectra.values() for c in s.columns
+                                  if c.endswith(suffix))) or ["x", "y"]
+    n_columns = min(len(channels), 2)  # two panels a row: x, y of the VARM side by side, a row per further pair
+    n_rows = -(-len(channels) // n_columns)
+    fig, axes = plt.subplots(n_rows, n_columns, figsize=(13, n_rows * (0.28 * len(ordered) + 2.5)), sharey=True,
+                             squeeze=False)
     levels = np.concatenate([20 * np.log10(np.maximum(spectra[r][f"{c}_amplitude_m"].to_numpy() * MICRO, 1e-12))
-                             for r in ordered["run"] for c in "xy"]) if len(ordered) else np.zeros(1)
+                             for r in ordered["run"] for c in channels]) if len(ordered) else np.zeros(1)
     top = float(np.nanmax(levels))
     vmin, vmax = top - 80.0, top  # 80 dB below the largest line: the noise floor and everything above it
     mesh = None
-    for j, channel in enumerate("xy"):
-        ax = axes[0, j]
+    for j, channel in enumerate(channels):
+        ax = axes[j // n_columns, j % n_columns]
         for i, r in enumerate(ordered.itertuples()):
             s = spectra[r.run]
             f = s["frequency_hz"].to_numpy()
@@ -298,10 +308,13 @@ def plot_cascade(spectra: dict[str, pd.DataFrame], runs: pd.DataFrame, orders: S
                         ha="center", va="bottom", annotation_clip=False)
         ax.set_xlabel("frequency [Hz]")
         ax.set_title(f"{channel}: amplitude [dB re 1 um, 0-peak]", fontsize=9)
-    axes[0, 0].set_yticks(range(len(ordered)))
-    axes[0, 0].set_yticklabels([f"{r.rpm:.0f} RPM, {r.eccentric_mass_g:g} g" for r in ordered.itertuples()],
-                               fontsize=7)
+    for row in range(n_rows):
+        axes[row, 0].set_yticks(range(len(ordered)))
+        axes[row, 0].set_yticklabels([f"{r.rpm:.0f} RPM, {r.eccentric_mass_g:g} g" for r in ordered.itertuples()],
+                                     fontsize=7)
+    for j in range(len(channels), n_rows * n_columns):  # an odd number of channels: the last panel unused
+        axes[j // n_columns, j % n_columns].set_visible(False)
     if mesh is not None:
-        fig.colorbar(mesh, ax=axes[0, :].tolist(), shrink=0.8, label="dB re 1 um")
+        fig.colorbar(mesh, ax=axes.ravel().tolist(), shrink=0.8, label="dB re 1 um")
     fig.suptitle("Cascade of the measured spectra (one row per run; dashed: 1X-3X)", fontsize=10)
     return fig

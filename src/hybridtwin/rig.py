@@ -56,7 +56,7 @@ import argparse
 import sys
 import warnings
 import zlib
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
@@ -68,7 +68,7 @@ from .effects import Effect
 from .machine import Machine, default_machine
 from .measurements import DataError, read_runs
 from .model import rpm_to_rad_s
-from .sensor import sensor_dofs
+from .sensor import sensor_dofs, sensor_names
 from .solver import solve_sweep
 from .transient import NotSettledError, SettledPeriod, run_up_harmonics
 from .variants import EffectsFileError, Variant, load_effects_files
@@ -192,7 +192,7 @@ class Truth:
             raise RigError(f"truth: machine {machine.name!r} needs the truth's effects (the default truth, "
                            f"{DEFAULT_TRUTH['description']}, is the VARM's)")
         try:
-            machine.sensor_node  # the records hold one x and one y probe at one node
+            machine.sensor_node  # at least one x, y probe pair; the records hold a channel per sensor
         except ValueError as err:
             raise RigError(f"truth: {err}") from None
         effect_names = spec.get("effects", DEFAULT_TRUTH["effects"])
@@ -278,31 +278,34 @@ def read_plan(path: str | Path) -> pd.DataFrame:
     return plan.drop(columns=["path", "record"])
 
 
-def draw_conditions(plan: pd.DataFrame, imperfections: Imperfections, seed: int) -> pd.DataFrame:
-    """Per run: rpm_true, phase_origin_rad, offset_{x,y}_m, noise_{x,y}_m, drawn from (seed, run id)."""
+def draw_conditions(plan: pd.DataFrame, imperfections: Imperfections, seed: int,
+                    channels: Sequence[str] = ("x", "y")) -> pd.DataFrame:
+    """Per run: rpm_true, phase_origin_rad, then offset_<c>_m for each channel c (the sensors: x, y on the VARM),
+    then noise_<c>_m for each, drawn from (seed, run id)."""
     rows = []
+    C = len(channels)
     for run_id, rpm in zip(plan["run"], plan["rpm"].to_numpy(float)):
         rng = _rng(seed, run_id, 0)
         speed = rpm * (1.0 + imperfections.speed_error * rng.standard_normal())
         phase = rng.uniform(0.0, 2.0 * np.pi) if imperfections.random_phase else 0.0
-        offsets = rng.uniform(-imperfections.offset_mm, imperfections.offset_mm, 2) * 1e-3
-        noise = rng.uniform(*imperfections.noise_mm, 2) * 1e-3
-        rows.append({"run": run_id, "rpm_true": speed, "phase_origin_rad": phase, "offset_x_m": offsets[0],
-                     "offset_y_m": offsets[1], "noise_x_m": noise[0], "noise_y_m": noise[1]})
+        offsets = rng.uniform(-imperfections.offset_mm, imperfections.offset_mm, C) * 1e-3
+        noise = rng.uniform(*imperfections.noise_mm, C) * 1e-3
+        rows.append({"run": run_id, "rpm_true": speed, "phase_origin_rad": phase,
+                     **{f"offset_{c}_m": offsets[i] for i, c in enumerate(channels)},
+                     **{f"noise_{c}_m": noise[i] for i, c in enumerate(channels)}})
     return pd.DataFrame(rows)
 
 
 @dataclass
 class TruthResponse:
-    """Sensor harmonics of the truth at each run's true speed: X, Y (R, H+1) complex [m], by run-up,
-    and the run-down's X_down, Y_down for the uniqueness check (agreeing to ``unique_tolerance``, relative);
-    success/branch/message per run; stable: the run-up's state is stable (harmonic balance: its largest
-    Floquet multiplier ``floquet_radius`` < 1; time integration: settled on, so stable, radius NaN)."""
+    """Sensor harmonics of the truth at each run's true speed: Z (R, H+1, C) complex [m], one channel per sensor
+    (x, y on the VARM: ``X``, ``Y`` are the first two), by run-up, and the run-down's Z_down for the uniqueness
+    check (agreeing to ``unique_tolerance``, relative); success/branch/message per run; stable: the run-up's state
+    is stable (harmonic balance: its largest Floquet multiplier ``floquet_radius`` < 1; time integration: settled
+    on, so stable, radius NaN)."""
 
-    X: Array
-    Y: Array
-    X_down: Array
-    Y_down: Array
+    Z: Array
+    Z_down: Array
     success: Array
     branch: Array
     message: Array
@@ -315,11 +318,25 @@ class TruthResponse:
         self.stable = np.zeros(R, bool) if self.stable is None else self.stable
         self.floquet_radius = np.full(R, np.nan) if self.floquet_radius is None else self.floquet_radius
 
+    @classmethod
+    def empty(cls, runs: int, harmonics: int, channels: int, **kwargs) -> "TruthResponse":
+        return cls(np.full((runs, harmonics + 1, channels), np.nan + 0j),
+                   np.full((runs, harmonics + 1, channels), np.nan + 0j), np.zeros(runs, bool),
+                   np.empty(runs, object), np.empty(runs, object), **kwargs)
+
+    @property
+    def X(self) -> Array:
+        return self.Z[..., 0]
+
+    @property
+    def Y(self) -> Array:
+        return self.Z[..., 1]
+
     @property
     def difference_rel(self) -> Array:
-        """max_h |run-up - run-down| / max_h |run-up| over both channels, per run."""
-        diff = np.maximum(np.abs(self.X - self.X_down).max(1), np.abs(self.Y - self.Y_down).max(1))
-        scale = np.maximum(np.abs(self.X).max(1), np.abs(self.Y).max(1))
+        """max_h |run-up - run-down| / max_h |run-up| over every channel, per run."""
+        diff = np.abs(self.Z - self.Z_down).max(1).max(-1)
+        scale = np.abs(self.Z).max(1).max(-1)
         return diff / np.maximum(scale, 1e-300)
 
     @property
@@ -338,10 +355,8 @@ def solve_truth(truth: Truth, runs: pd.DataFrame, harmonics: int = 7, start_rpm:
         return _solve_truth_time(truth, runs, harmonics, rundown_margin_rpm)
     if integrator != "hb":
         raise RigError(f"rig: integrator must be one of {list(INTEGRATORS)}, got {integrator!r}")
-    R = len(runs)
-    out = TruthResponse(*(np.full((R, harmonics + 1), np.nan + 0j) for _ in range(4)), np.zeros(R, bool),
-                        np.empty(R, object), np.empty(R, object))
     dofs = sensor_dofs(truth.variant.model.shaft)
+    out = TruthResponse.empty(len(runs), harmonics, len(dofs))
     for mass_g, group in runs.groupby("eccentric_mass_g", sort=True):
         values = truth.variant.values({**truth.values, "m_e": float(mass_g) * 1e-3})
         speeds = group["rpm_true"].to_numpy(float)
@@ -351,8 +366,7 @@ def solve_truth(truth: Truth, runs: pd.DataFrame, harmonics: int = 7, start_rpm:
                       harmonics, "down")
         for pos, speed in zip(positions, speeds):
             res_up, res_down = up[speed], down[speed]
-            out.X[pos], out.Y[pos] = res_up.harmonics[0, :, dofs[0]], res_up.harmonics[0, :, dofs[1]]
-            out.X_down[pos], out.Y_down[pos] = res_down.harmonics[0, :, dofs[0]], res_down.harmonics[0, :, dofs[1]]
+            out.Z[pos], out.Z_down[pos] = res_up.harmonics[0][:, dofs], res_down.harmonics[0][:, dofs]
             out.success[pos] = bool(res_up.success[0])
             out.stable[pos], out.floquet_radius[pos] = bool(res_up.stable[0]), res_up.floquet_radius[0]
             out.branch[pos] = str(res_up.branch[0])
@@ -370,10 +384,8 @@ def _solve_truth_time(truth: Truth, runs: pd.DataFrame, harmonics: int, rundown_
     sensor DOFs. Up and down agreeing to TIME_UNIQUE_TOLERANCE is a unique steady state. A speed that does
     not settle fails (``success`` False, the reason in ``message``), and so do the speeds after it.
     """
-    R = len(runs)
-    out = TruthResponse(*(np.full((R, harmonics + 1), np.nan + 0j) for _ in range(4)), np.zeros(R, bool),
-                        np.empty(R, object), np.empty(R, object), unique_tolerance=TIME_UNIQUE_TOLERANCE)
     dofs = sensor_dofs(truth.variant.model.shaft)
+    out = TruthResponse.empty(len(runs), harmonics, len(dofs), unique_tolerance=TIME_UNIQUE_TOLERANCE)
     for mass_g, group in runs.groupby("eccentric_mass_g", sort=True):
         values = truth.variant.values({**truth.values, "m_e": float(mass_g) * 1e-3})
         speeds = np.unique(group["rpm_true"].to_numpy(float))
@@ -385,14 +397,14 @@ def _solve_truth_time(truth: Truth, runs: pd.DataFrame, harmonics: int, rundown_
             res_up, res_down = up[speed], down[speed]
             out.branch[pos] = "time run-up"
             if isinstance(res_up, SettledPeriod):
-                out.X[pos], out.Y[pos] = res_up.harmonics[:, 0], res_up.harmonics[:, 1]
+                out.Z[pos] = res_up.harmonics
                 out.success[pos] = out.stable[pos] = True  # settled on: a stable orbit
                 out.message[pos] = (f"settled after {res_up.n_periods} periods (last change "
                                     f"{res_up.change:.1e} of the largest harmonic)")
             else:
                 out.message[pos] = f"time run-up: {res_up}"
             if isinstance(res_down, SettledPeriod):
-                out.X_down[pos], out.Y_down[pos] = res_down.harmonics[:, 0], res_down.harmonics[:, 1]
+                out.Z_down[pos] = res_down.harmonics
             else:
                 out.message[pos] += f"; time run-down: {res_down}"
     return out
@@ -410,26 +422,32 @@ def _time_sweep(variant: Variant, values: Mapping[str, Array], speeds: Array, ha
     return dict(zip(speeds, results))
 
 
-def synthesise(X: Array, Y: Array, rpm_true: float, conditions: Mapping[str, float], imperfections: Imperfections,
-               rng: np.random.Generator) -> dict[str, Array]:
-    """One record's columns [SI]: time_s, x_m, y_m, keyphasor (or None), and the clipping mask.
+def synthesise(Z: Array, rpm_true: float, conditions: Mapping[str, float], imperfections: Imperfections,
+               rng: np.random.Generator, channels: Sequence[str] = ("x", "y")) -> dict[str, Array]:
+    """One record's columns [SI]: time_s, <c>_m for each channel c (the sensors; x_m, y_m on the VARM),
+    keyphasor (or None), and the clipping mask. Z: (H+1, C) the channels' harmonics.
 
     x(t) = Re(sum_h X_h exp(i h Omega (t + t0))) + offset + noise, t0 = phase / Omega
     (the rotor angle at t = 0 is ``phase``), then clipped at +-sensor range if
     ``imperfections.clip``. The keyphasor marks the sample nearest to each time
-    the unbalance points to +x, Omega (t + t0) = 2 pi k.
+    the unbalance points to +x, Omega (t + t0) = 2 pi k. The noise is drawn channel
+    after channel, in order.
     """
     n = int(round(imperfections.duration_s * imperfections.sample_rate_hz))
     t = np.arange(n) / imperfections.sample_rate_hz
     omega = float(rpm_to_rad_s(rpm_true))
     angle = omega * t + conditions["phase_origin_rad"]
-    rotation = np.exp(1j * np.outer(angle, np.arange(X.size)))  # (N, H+1)
-    x = (rotation @ X).real + conditions["offset_x_m"] + conditions["noise_x_m"] * rng.standard_normal(n)
-    y = (rotation @ Y).real + conditions["offset_y_m"] + conditions["noise_y_m"] * rng.standard_normal(n)
+    rotation = np.exp(1j * np.outer(angle, np.arange(Z.shape[0])))  # (N, H+1)
     limit = imperfections.sensor_range_mm * 1e-3
-    clipped = (np.abs(x) > limit) | (np.abs(y) > limit)
+    out: dict = {"time_s": t}
+    clipped = np.zeros(n, bool)
+    for i, c in enumerate(channels):
+        z = (rotation @ np.ascontiguousarray(Z[:, i])).real + conditions[f"offset_{c}_m"] + conditions[f"noise_{c}_m"] * rng.standard_normal(n)
+        clipped |= np.abs(z) > limit
+        out[f"{c}_m"] = z
     if imperfections.clip:
-        x, y = np.clip(x, -limit, limit), np.clip(y, -limit, limit)
+        for c in channels:
+            out[f"{c}_m"] = np.clip(out[f"{c}_m"], -limit, limit)
     keyphasor = None
     if imperfections.keyphasor:
         period = 2.0 * np.pi / omega
@@ -438,15 +456,17 @@ def synthesise(X: Array, Y: Array, rpm_true: float, conditions: Mapping[str, flo
         index = np.round(marks * imperfections.sample_rate_hz).astype(int)
         keyphasor = np.zeros(n, np.int8)
         keyphasor[index[(index >= 0) & (index < n)]] = 1
-    return {"time_s": t, "x_m": x, "y_m": y, "keyphasor": keyphasor, "clipped": clipped}
+    return out | {"keyphasor": keyphasor, "clipped": clipped}
 
 
-def write_record(path: Path, record: Mapping[str, Array | None], unit: str = "mm") -> None:
-    """Write time_s, x_{unit}, y_{unit}[, keyphasor] as CSV (0.1 um resolution in mm, 10 nm in m)."""
+def write_record(path: Path, record: Mapping[str, Array | None], unit: str = "mm",
+                 channels: Sequence[str] = ("x", "y")) -> None:
+    """Write time_s, <c>_{unit} for each channel c (x_mm, y_mm on the VARM)[, keyphasor] as CSV (0.1 um
+    resolution in mm, 10 nm in m)."""
     scale, fmt = (1e3, "%.4f") if unit == "mm" else (1.0, "%.8f")
-    columns = [record["time_s"], record["x_m"] * scale, record["y_m"] * scale]
-    header = ["time_s", f"x_{unit}", f"y_{unit}"]
-    formats = ["%.6f", fmt, fmt]
+    columns = [record["time_s"], *(record[f"{c}_m"] * scale for c in channels)]
+    header = ["time_s", *(f"{c}_{unit}" for c in channels)]
+    formats = ["%.6f"] + [fmt] * len(channels)
     if record.get("keyphasor") is not None:
         columns.append(record["keyphasor"])
         header.append("keyphasor")
@@ -465,7 +485,8 @@ def generate(plan: pd.DataFrame, spec: RigSpec, out_dir: str | Path) -> pd.DataF
     (columns unique, stable, inside_range).
     """
     out_dir = Path(out_dir)
-    conditions = draw_conditions(plan, spec.imperfections, spec.seed)
+    channels = sensor_names(spec.truth.variant.model.shaft)  # one per sensor of the truth's machine
+    conditions = draw_conditions(plan, spec.imperfections, spec.seed, channels)
     runs = plan.reset_index(drop=True).join(conditions.drop(columns="run"))
     response = solve_truth(spec.truth, runs, spec.harmonics, spec.start_rpm, spec.step_rpm, spec.rundown_margin_rpm,
                            spec.integrator)
@@ -473,11 +494,11 @@ def generate(plan: pd.DataFrame, spec: RigSpec, out_dir: str | Path) -> pd.DataF
     if failed.any():
         detail = "; ".join(f"{r} ({m})" for r, m in zip(runs["run"][failed], response.message[failed]))
         raise RigError(f"the truth has no periodic steady state at: {detail}")
-    truth = _truth_table(runs, response, spec)
+    truth = _truth_table(runs, response, spec, channels)
     for i, row in runs.iterrows():
-        record = synthesise(response.X[i], response.Y[i], row["rpm_true"], row, spec.imperfections,
-                            _rng(spec.seed, row["run"], 1))
-        write_record(out_dir / "records" / f"{row['run']}.csv", record, spec.imperfections.unit)
+        record = synthesise(response.Z[i], row["rpm_true"], row, spec.imperfections, _rng(spec.seed, row["run"], 1),
+                            channels)
+        write_record(out_dir / "records" / f"{row['run']}.csv", record, spec.imperfections.unit, channels)
         truth.loc[i, "clipped_samples"] = int(record["clipped"].sum())
     _warn(truth, spec.imperfections)
     sheet = plan.copy()
@@ -515,13 +536,16 @@ def _sweep(variant: Variant, values: Mapping[str, Array], speeds: Array, harmoni
     return dict(zip(sweep.rpm, sweep.results))
 
 
-def _truth_table(runs: pd.DataFrame, response: TruthResponse, spec: RigSpec) -> pd.DataFrame:
+def _truth_table(runs: pd.DataFrame, response: TruthResponse, spec: RigSpec,
+                 channels: Sequence[str] = ("x", "y")) -> pd.DataFrame:
     """The answer key: conditions, truth harmonics (model frame), uniqueness, peak vs sensor range."""
+    from .preprocessing import harmonic_column
+
     table = runs.copy()
     for h in range(spec.harmonics + 1):
-        for name, Z in (("x", response.X), ("y", response.Y)):
-            table[f"{name}{h}_re_m"] = Z[:, h].real
-            table[f"{name}{h}_im_m"] = Z[:, h].imag
+        for i, name in enumerate(channels):
+            table[harmonic_column(name, h, "re")] = response.Z[:, h, i].real
+            table[harmonic_column(name, h, "im")] = response.Z[:, h, i].imag
     table["updown_difference_rel"] = response.difference_rel
     table["unique"] = response.unique
     table["stable"], table["floquet_radius"] = response.stable, response.floquet_radius
@@ -530,8 +554,8 @@ def _truth_table(runs: pd.DataFrame, response: TruthResponse, spec: RigSpec) -> 
     rotation = np.exp(1j * np.outer(angle, np.arange(spec.harmonics + 1)))
     limit = spec.imperfections.sensor_range_mm * 1e-3
     inside = np.ones(len(table), bool)
-    for name, Z in (("x", response.X), ("y", response.Y)):
-        wave = (rotation @ Z.T).real + table[f"offset_{name}_m"].to_numpy()
+    for i, name in enumerate(channels):
+        wave = (rotation @ np.ascontiguousarray(response.Z[:, :, i]).T).real + table[f"offset_{name}_m"].to_numpy()
         peak = np.abs(wave).max(0)
         table[f"peak_{name}_m"] = peak
         inside &= peak + RANGE_SIGMAS * table[f"noise_{name}_m"].to_numpy() < limit
@@ -541,7 +565,7 @@ def _truth_table(runs: pd.DataFrame, response: TruthResponse, spec: RigSpec) -> 
 
 
 def _warn(truth: pd.DataFrame, imperfections: Imperfections) -> None:
-    for row in truth.itertuples():
+    for row in truth.itertuples(index=False):
         if not row.unique and not np.isfinite(row.updown_difference_rel):
             warnings.warn(f"run {row.run}: uniqueness of the steady state at {row.rpm_true:.2f} RPM not checked, "
                           f"the run-down found no steady state ({row.message}); the record follows the run-up "
@@ -556,7 +580,7 @@ def _warn(truth: pd.DataFrame, imperfections: Imperfections) -> None:
                           "it, so the record shows a state no rig could hold (truth.tsv, column stable)",
                           RigWarning, stacklevel=3)
         if not row.inside_range:
-            peak = max(row.peak_x_m, row.peak_y_m) * 1e3
+            peak = max(getattr(row, c) for c in truth.columns if c.startswith("peak_") and c.endswith("_m")) * 1e3
             action = (f"{row.clipped_samples} sample(s) clipped" if imperfections.clip else "not clipped (clip off)")
             warnings.warn(f"run {row.run}: the response reaches {peak:.2f} mm (+ noise) against the sensor range "
                           f"+-{imperfections.sensor_range_mm:g} mm: {action}", RigWarning, stacklevel=3)
@@ -663,7 +687,7 @@ def rig_command(args) -> int:
         "run": truth["run"], "rpm": truth["rpm"], "eccentric_mass_g": truth["eccentric_mass_g"],
         "rpm_true": truth["rpm_true"].round(3), "unique": truth["unique"], "stable": truth["stable"],
         "updown_diff_rel": truth["updown_difference_rel"].map(lambda v: f"{v:.1e}"),
-        "peak_x_mm": (1e3 * truth["peak_x_m"]).round(3), "peak_y_mm": (1e3 * truth["peak_y_m"]).round(3),
+        **{f"{c[:-2]}_mm": (1e3 * truth[c]).round(3) for c in truth.columns if c.startswith("peak_") and c.endswith("_m")},
         "inside_range": truth["inside_range"], "clipped_samples": truth["clipped_samples"],
     })
     print(report.to_string(index=False))

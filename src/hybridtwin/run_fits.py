@@ -280,10 +280,12 @@ def theta_from_nested(table: pd.DataFrame, parent: Variant, variant: Variant, la
 def write_fit(path: str | Path, fit: idn.Identification, rpm: Sequence[float], cycles: int = 2,
               n_time: int = 200) -> None:
     """The fitted response for plotting (zarr v3): per run, measured and fitted harmonics h = 1..H in the
-    record's frame, sigmas, and two revolutions of x, y (measured synchronous average and fitted)."""
+    record's frame, sigmas, and two revolutions of every channel (x, y on the VARM; measured synchronous average
+    and fitted); the channels' names in the attribute ``channels``."""
     import zarr
 
     group = zarr.open_group(str(path), mode="w")
+    channels = list(fit.data[0].channels) if getattr(fit, "data", None) else list(idn.CHANNELS)
     fitted = fit.fitted()
     H = fit.X.shape[1]
     angle = np.linspace(0, 2 * np.pi * cycles, n_time, endpoint=False)
@@ -299,7 +301,7 @@ def write_fit(path: str | Path, fit: idn.Identification, rpm: Sequence[float], c
     for name, data in arrays.items():
         group.create_array(name, data=np.asarray(data, float))
     group.attrs.update({"runs": list(fit.layout.runs), "rpm": [float(v) for v in rpm],
-                        "channels": list(idn.CHANNELS), "chi2_dof": float(fit.chi2_dof),
+                        "channels": channels, "chi2_dof": float(fit.chi2_dof),
                         "values": {k: float(v) for k, v in fit.values().items()},
                         "layout": "arrays (run, harmonic, channel); waves (run, time, channel); angle = Omega t"})
     from .stores import write_manifest  # the store's checksums, last: readers verify them (hybridtwin.stores)

@@ -1,6 +1,10 @@
-"""The sensors: displacements x = u_n(t), y = v_n(t) at one node (node 1 on the VARM).
+"""The sensors: displacement probes, each reading u_n(t) (direction x) or v_n(t) (direction y) at a node.
 
-``node`` defaults to the structure's probe plane: a ``Machine``'s ``sensor_node`` (its one x, y pair),
+A plain ``Shaft`` (the VARM's structure) has two, named x and y, at node 1. A ``Machine`` has the sensors it
+declares, in their declared order: ``sensor_names`` and ``sensor_dofs`` give every one of them (the channels of
+a record, docs/measurement-format.md), ``sensor_channels`` their harmonics. The functions that show an orbit
+(``sensor_harmonics``, ``harmonics_frame``, ``time_series_frame``) read one x, y pair: ``node`` defaults to the
+structure's first probe plane, a ``Machine``'s ``sensor_node`` (the first node with both an x and a y probe),
 node 1 for a plain ``Shaft``.
 
 Conventions: amplitudes 0-peak, u(t) = Re(sum_h U_h exp(i h Omega t)), t = 0 when
@@ -17,22 +21,42 @@ from .shaft import Shaft
 from .solver import SteadyState
 
 SENSOR_NODE = 1  # z = 0.085 m on the VARM
+#: the channels of a plain Shaft (and of the VARM): x and y at SENSOR_NODE
+DEFAULT_SENSORS = ("x", "y")
+
+
+def _is_machine(shaft) -> bool:
+    return hasattr(type(shaft), "sensor_node")
 
 
 def sensor_node(shaft: Shaft) -> int:
-    """The node of the x, y probes: a Machine's ``sensor_node``, SENSOR_NODE for a plain Shaft."""
-    return shaft.sensor_node if hasattr(type(shaft), "sensor_node") else SENSOR_NODE
+    """The node of the (first) x, y probe pair: a Machine's ``sensor_node``, SENSOR_NODE for a plain Shaft."""
+    return shaft.sensor_node if _is_machine(shaft) else SENSOR_NODE
+
+
+def sensor_names(shaft: Shaft) -> tuple[str, ...]:
+    """The channel names, one per sensor in declared order: a Machine's sensors' names, ("x", "y") for a Shaft."""
+    return tuple(s.name for s in shaft.sensors) if _is_machine(shaft) else DEFAULT_SENSORS
 
 
 def sensor_dofs(shaft: Shaft, node: int | None = None) -> list[int]:
-    """Global DOF indices [u_node, v_node] read by the sensors."""
+    """Global DOF indices read by the sensors: every sensor of a Machine in declared order ([u1, v1] for a plain
+    Shaft); with ``node``, the x, y pair [u_node, v_node] there."""
+    if node is None and _is_machine(shaft):
+        return shaft.sensor_dofs()
     node = sensor_node(shaft) if node is None else node
     return [shaft.dof(f"u{node}"), shaft.dof(f"v{node}")]
 
 
+def sensor_channels(harmonics: Array, shaft: Shaft) -> Array:
+    """Every sensor's harmonics (..., H+1, C) complex [m] from harmonics (..., H+1, n), channels in the order of
+    ``sensor_names``."""
+    return harmonics[..., sensor_dofs(shaft)]
+
+
 def sensor_harmonics(harmonics: Array, shaft: Shaft, node: int | None = None) -> tuple[Array, Array]:
-    """U_h, V_h at the sensor node from harmonics (..., H+1, n): each (..., H+1) complex [m]."""
-    u, v = sensor_dofs(shaft, node)
+    """U_h, V_h at the (first) x, y probe pair's node from harmonics (..., H+1, n): each (..., H+1) complex [m]."""
+    u, v = sensor_dofs(shaft, sensor_node(shaft) if node is None else node)
     return harmonics[..., u], harmonics[..., v]
 
 
@@ -49,21 +73,22 @@ def harmonics_frame(result: SteadyState, shaft: Shaft, scenario: int = 0, node: 
 def time_series_frame(result: SteadyState, shaft: Shaft, t: Array, scenario: int = 0,
                       node: int | None = None) -> pd.DataFrame:
     """x_m, y_m at times ``t`` [s], evaluated from the Fourier series (not resampled)."""
-    xy = result.time_series(t, sensor_dofs(shaft, node))[scenario]
+    xy = result.time_series(t, sensor_dofs(shaft, sensor_node(shaft) if node is None else node))[scenario]
     return pd.DataFrame({"time_s": t, "x_m": xy[:, 0], "y_m": xy[:, 1]})
 
 
 def peak_displacement(harmonics: Array, shaft: Shaft, node: int | None = None, n_time: int = 64) -> Array:
-    """Largest |x(t)| or |y(t)| over a period at the sensor, (...,) [m]; NaN stays NaN."""
-    U, V = sensor_harmonics(harmonics, shaft, node)
-    h = np.arange(U.shape[-1])
+    """Largest |displacement| over a period at any sensor (every sensor of a Machine; with ``node``, the x, y
+    pair there), (...,) [m]; NaN stays NaN."""
+    dofs = sensor_dofs(shaft, node)
+    h = np.arange(harmonics.shape[-2])
     phase = np.exp(2j * np.pi * np.outer(np.arange(n_time) / n_time, h))  # (N, H+1)
-    x = np.abs((U[..., None, :] * phase).sum(-1).real).max(-1)
-    y = np.abs((V[..., None, :] * phase).sum(-1).real).max(-1)
-    return np.maximum(x, y)
+    peaks = [np.abs((harmonics[..., dof][..., None, :] * phase).sum(-1).real).max(-1) for dof in dofs]
+    return np.maximum.reduce(peaks) if len(peaks) > 1 else peaks[0]
 
 
 def observable(harmonics: Array, shaft: Shaft, sensor_range_m: float, node: int | None = None) -> Array:
-    """True where the steady state exists and stays inside the sensors' range (what a rig can measure)."""
+    """True where the steady state exists and stays inside the sensors' range at every sensor (what a rig can
+    measure)."""
     peak = peak_displacement(harmonics, shaft, node)
     return np.isfinite(peak) & (peak <= sensor_range_m)

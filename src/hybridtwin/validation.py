@@ -49,8 +49,8 @@ def bow_law(table: pd.DataFrame, parameter: str, law: str = "law"
 
 
 def _with_dc(z: Array, fill: float = 0.0) -> Array:
-    """(H, 2) h = 1..H -> (2, H+1) with an h = 0 column (``fit_phase``'s layout; h = 0 is ignored there)."""
-    return np.vstack([np.full((1, 2), fill, z.dtype), z]).T
+    """(H, C) h = 1..H -> (C, H+1) with an h = 0 column (``fit_phase``'s layout; h = 0 is ignored there)."""
+    return np.vstack([np.full((1, z.shape[1]), fill, z.dtype), z]).T
 
 
 def keyphasor_phase(X: Array, M: Array, sigma: Array, phase_sigma: float, iterations: int = 3) -> float:
@@ -75,13 +75,13 @@ def predict_run(model: HarmonicModel, data: RunData, values: Mapping[str, float]
     chi2_per_residual (with the measured sigmas and the library error), the
     phase, 1X amplitudes measured and predicted, and the predicted harmonics.
     """
-    from .preprocessing import fit_phase
+    from .preprocessing import fit_phase, harmonic_column
 
     H = min(data.H, model.H)
     x = np.array([2 * (values[p] - lo) / (hi - lo) - 1 for p, lo, hi in zip(model.parameters, model.lower,
                                                                              model.upper)])
     outside = [p for p, v in zip(model.parameters, x) if abs(v) > 1 + 1e-9]
-    M = model.evaluate(np.clip(x, -1, 1)[None], jacobian=False)[0][0, :H]  # (H, 2)
+    M = model.evaluate(np.clip(x, -1, 1)[None], jacobian=False)[0][0, :H]  # (H, C)
     X, sigma = data.X[:H], total_sigma(data, model_error)[:H]
     if math.isfinite(data.phase_sigma):
         phi = keyphasor_phase(X, M, sigma, data.phase_sigma)
@@ -90,11 +90,13 @@ def predict_run(model: HarmonicModel, data: RunData, values: Mapping[str, float]
     aligned = M * np.exp(1j * np.arange(1, H + 1) * phi)[:, None]
     error = np.sqrt((np.abs(X - aligned) ** 2).sum() / (np.abs(X) ** 2).sum())
     residual = (X - aligned) / sigma
+    amplitudes = {}
+    for j, channel in enumerate(data.channels):  # x1_amp_measured_m, ... (channel x1: x1_1_amp_measured_m)
+        stem = harmonic_column(channel, 1, "amp")[:-2]
+        amplitudes |= {f"{stem}_measured_m": abs(X[0, j]), f"{stem}_predicted_m": abs(M[0, j])}
     return {"run": data.run, "rpm": data.rpm, "eccentric_mass_g": data.eccentric_mass_g,
-            "error_rel": float(error), "chi2_per_residual": float((np.abs(residual) ** 2).sum() / (4 * H)),
-            "phase_rad": float(wrap(phi)), "x1_amp_measured_m": abs(X[0, 0]), "x1_amp_predicted_m": abs(M[0, 0]),
-            "y1_amp_measured_m": abs(X[0, 1]), "y1_amp_predicted_m": abs(M[0, 1]),
-            "outside_range": ",".join(outside), "fitted": aligned}
+            "error_rel": float(error), "chi2_per_residual": float((np.abs(residual) ** 2).sum() / (2 * X.size)),
+            "phase_rad": float(wrap(phi)), **amplitudes, "outside_range": ",".join(outside), "fitted": aligned}
 
 
 #: columns of validation_harmonics.tsv (``write_predictions``): one row per run, model, harmonic and channel
@@ -106,19 +108,23 @@ class PredictedRun:
     """A validation run's predicted harmonics h = 1..H as the predict_validation rule computed them.
 
     model: the response model (``library`` or ``solver``); phase_rad: the run's aligned phase
-    (``predict_run``'s, wrapped); harmonics: (H, 2) complex [m], channels x, y, in the record's frame
-    (the prediction rotated by the phase, what the measurement is scored against).
+    (``predict_run``'s, wrapped); harmonics: (H, C) complex [m], one column per channel (``channels``, the
+    sensors: x, y on the VARM), in the record's frame (the prediction rotated by the phase, what the
+    measurement is scored against).
     """
 
     run: str
     model: str
     phase_rad: float
     harmonics: Array
+    channels: tuple[str, ...] = CHANNELS
 
     @classmethod
-    def from_prediction(cls, row: Mapping, model: str) -> "PredictedRun":
-        """From ``predict_run``'s result (its ``fitted`` harmonics and phase)."""
-        return cls(str(row["run"]), model, float(row["phase_rad"]), np.asarray(row["fitted"], complex))
+    def from_prediction(cls, row: Mapping, model: str, channels: Sequence[str] = CHANNELS) -> "PredictedRun":
+        """From ``predict_run``'s result (its ``fitted`` harmonics and phase); ``channels``: the run's
+        (``RunData.channels``)."""
+        return cls(str(row["run"]), model, float(row["phase_rad"]), np.asarray(row["fitted"], complex),
+                   tuple(channels))
 
 
 def prediction_table(predictions: Sequence[PredictedRun]) -> pd.DataFrame:
@@ -126,7 +132,7 @@ def prediction_table(predictions: Sequence[PredictedRun]) -> pd.DataFrame:
     rows = []
     for p in predictions:
         for h in range(p.harmonics.shape[0]):
-            for j, channel in enumerate(CHANNELS):
+            for j, channel in enumerate(p.channels):
                 rows.append({"run": p.run, "model": p.model, "phase_rad": p.phase_rad, "harmonic": h + 1,
                              "channel": channel, "model_re_m": p.harmonics[h, j].real,
                              "model_im_m": p.harmonics[h, j].imag})
@@ -148,13 +154,17 @@ def read_predictions(path: str | Path) -> list[PredictedRun]:
     out = []
     for (run, model), rows in table.groupby(["run", "model"], sort=False):
         H = int(rows["harmonic"].max())
-        if len(rows) != 2 * H or set(rows["channel"]) != set(CHANNELS) or rows["phase_rad"].nunique() != 1:
-            raise ValueError(f"{path}: run {run} ({model}) needs harmonics 1..{H} on channels {CHANNELS} "
-                             "and one phase")
-        order = rows.assign(j=rows["channel"].map(CHANNELS.index)).sort_values(["harmonic", "j"])
-        harmonics = np.empty((H, 2), complex)
-        harmonics.real, harmonics.imag = (order[c].to_numpy(float).reshape(H, 2) for c in ("model_re_m", "model_im_m"))
-        out.append(PredictedRun(str(run), str(model), float(rows["phase_rad"].iloc[0]), harmonics))
+        channels = tuple(dict.fromkeys(rows["channel"]))  # the file's order: the sensors'
+        C = len(channels)
+        counts = rows.groupby("harmonic")["channel"].agg(list)
+        if (len(rows) != C * H or set(counts.index) != set(range(1, H + 1))
+                or any(tuple(v) != channels for v in counts) or rows["phase_rad"].nunique() != 1):
+            raise ValueError(f"{path}: run {run} ({model}) needs harmonics 1..{H} on every channel "
+                             f"{list(channels)} and one phase")
+        order = rows.assign(j=rows["channel"].map(channels.index)).sort_values(["harmonic", "j"])
+        harmonics = np.empty((H, C), complex)
+        harmonics.real, harmonics.imag = (order[c].to_numpy(float).reshape(H, C) for c in ("model_re_m", "model_im_m"))
+        out.append(PredictedRun(str(run), str(model), float(rows["phase_rad"].iloc[0]), harmonics, channels))
     return out
 
 

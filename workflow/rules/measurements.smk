@@ -7,6 +7,10 @@ import os
 from hybridtwin.measurements import read_runs, sheet_entry
 
 RUNS_SHEET = config.get("runs", "data/default/runs.tsv")
+# The records' channels are the machine's sensors, one column each named after it (issue 24), a param of the rules
+# that read records: a change of sensors reruns them. Without a machine: no param, the VARM's channels x, y (so
+# the VARM's jobs keep the params they had before several sensor planes were read).
+SENSOR_PARAMS = {"sensors": (config["machine"] or {}).get("sensors")} if config.get("machine") else {}
 
 
 rule check_data:
@@ -23,6 +27,7 @@ rule check_data:
         harmonics=config["harmonics"],
         coverage=config.get("coverage", {}),
         sensor_range_mm=OFFLINE["sensor_range_mm"],  # the lasers' range (a sheet's sensor_range_mm column overrides)
+        **SENSOR_PARAMS,
     log:
         "logs/data/check_data.log",
     benchmark:
@@ -49,6 +54,7 @@ rule preprocess:
         row=lambda wildcards: sheet_entry(RUNS_SHEET, wildcards.run),
         harmonics=config["harmonics"],
         sensor_range_mm=OFFLINE["sensor_range_mm"],
+        **SENSOR_PARAMS,
     log:
         "logs/data/preprocess/{run}.log",
     benchmark:

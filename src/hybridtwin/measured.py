@@ -1,0 +1,120 @@
+"""A run's measured sensor harmonics as the identification reads them (results/data/harmonics.tsv).
+
+One channel per sensor of the machine, in its declared order (x, y on the VARM): ``RunData.X`` and
+``RunData.sigma`` are (H, C), ``RunData.channels`` the channels' names; the table's columns are
+``preprocessing.run_row``'s (``harmonic_column``), its channels ``preprocessing.table_channels``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .preprocessing import harmonic_column, origin_share, table_channels
+
+Array = np.ndarray
+
+#: the VARM's channels (a run's own: ``RunData.channels``)
+CHANNELS = ("x", "y")
+
+
+@dataclass(frozen=True)
+class RunData:
+    """One run's measured sensor harmonics h = 1..H (DC excluded) and their uncertainties.
+
+    X: (H, C) complex [m], one column per channel (``channels``: x, y on the VARM); sigma: (H, C) [m],
+    standard uncertainty of each of the real and imaginary parts (measured, from the synchronous analysis).
+    """
+
+    run: str
+    rpm: float
+    eccentric_mass_g: float
+    role: str
+    X: Array
+    sigma: Array
+    usable: bool = True
+    note: str = "ok"
+    phase_sigma: float = math.inf  # [rad] uncertainty of X's absolute phase (keyphasor); inf: arbitrary origin
+    channels: tuple[str, ...] = CHANNELS  # the sensors' names, one per column of X
+
+    @property
+    def H(self) -> int:
+        return self.X.shape[0]
+
+
+def read_harmonics(path: str | Path) -> pd.DataFrame:
+    """The preprocessed table (results/data/harmonics.tsv), run ids as strings."""
+    return pd.read_csv(path, sep="\t", dtype={"run": str})
+
+
+def table_harmonics(table: pd.DataFrame) -> int:
+    """Highest harmonic H present in a harmonics table for every channel (columns x1_re_m, ... on the VARM)."""
+    channels = table_channels(table)
+    if not channels:
+        raise ValueError("the harmonics table has no channels (columns noise_<sensor>_m, offset_<sensor>_m and "
+                         "x1_re_m, ...; not results/data/harmonics.tsv?)")
+    h = 0
+    while all(harmonic_column(c, h + 1, "re") in table for c in channels):
+        h += 1
+    if h == 0:
+        raise ValueError(f"the harmonics table has no {harmonic_column(channels[0], 1, 're')} column (not "
+                         "results/data/harmonics.tsv?)")
+    return h
+
+
+def run_data(table: pd.DataFrame, run: str, harmonics: int | None = None, keyphasor: bool = True) -> RunData:
+    """The measured harmonics of ``run`` from the preprocessed table (h = 1..H, SI).
+
+    With ``keyphasor`` (the default), a run whose phases were referred to its keyphasor mark
+    (``phase_reference`` "keyphasor") has absolute phases: phase_sigma = Omega sigma_t, and sigma is
+    the noise's alone (the origin's share, ``preprocessing.origin_share``, taken out of the table's).
+    The channels are the table's (``preprocessing.table_channels``: every sensor of the machine).
+    """
+    rows = table[table["run"] == run]
+    if len(rows) != 1:
+        raise ValueError(f"the harmonics table has {len(rows)} rows for run {run!r} (expected 1)")
+    row = rows.iloc[0]
+    H = table_harmonics(table) if harmonics is None else min(harmonics, table_harmonics(table))
+    channels = table_channels(table)
+    X = np.array([[row[harmonic_column(c, h, "re")] + 1j * row[harmonic_column(c, h, "im")] for c in channels]
+                  for h in range(1, H + 1)])
+    sigma = np.array([[row[harmonic_column(c, h, "sigma")] for c in channels] for h in range(1, H + 1)], float)
+    rpm = float(row.get("rpm_true", row["rpm"]))
+    phase_sigma = math.inf
+    if keyphasor and str(row.get("phase_reference", "arbitrary")) == "keyphasor":
+        omega, sigma_t = rpm * math.pi / 30.0, float(row["phase_origin_sigma_s"])
+        share = origin_share(np.vstack([np.zeros((1, len(channels))), X]).T, omega, sigma_t).T[1:]  # (H, C)
+        sigma = np.sqrt(np.maximum(sigma**2 - share**2, (1e-3 * sigma) ** 2))
+        phase_sigma = max(omega * sigma_t, 1e-9)
+    usable = bool(row.get("usable", True)) and np.isfinite(X).all() and np.isfinite(sigma).all()
+    return RunData(str(run), rpm, float(row["eccentric_mass_g"]), str(row.get("role", "fit")), X, sigma, usable,
+                   str(row.get("note", "ok")), phase_sigma, channels)
+
+
+def total_sigma(data: RunData, relative_model_error: float = 0.0) -> Array:
+    """Residual weights s_hc (eq. 10): the measured sigma and a relative model error in quadrature.
+
+    A library with relative error e (its validation table's median) misses each
+    harmonic by about e |X_hc|, i.e. e |X_hc| / sqrt(2) per real and imaginary part.
+    """
+    return np.sqrt(data.sigma**2 + 0.5 * (relative_model_error * np.abs(data.X)) ** 2)
+
+
+def model_errors(validation: pd.DataFrame | None, runs: Sequence[str], column: str | None = "median_error_pct"
+                 ) -> dict[str, float]:
+    """Relative library error per run (fraction) from library_validation.tsv; 0 without a table or column."""
+    if validation is None or column in (None, "none"):
+        return {r: 0.0 for r in runs}
+    table = validation.set_index(validation["run"].astype(str))
+    out = {}
+    for run in runs:
+        value = table[column].get(run, np.nan) if column in table else np.nan
+        out[run] = 0.0 if not np.isfinite(value) else float(value) / 100.0
+    return out
+
+
