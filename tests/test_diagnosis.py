@@ -493,3 +493,13 @@ def test_a_recommended_variant_name_is_valid_in_the_config():
     pattern = schema["properties"]["variants"]["propertyNames"]["pattern"]
     name = dg._variant_name(["linear", "bearing_anisotropy@b", "cross_coupled_stiffness"])
     assert name == "linear_bearing_anisotropy_at_b_cross_coupled_stiffness" and re.fullmatch(pattern, name)
+
+
+@pytest.mark.parametrize("value, low, high", [(1200005.31, 1199927.44, 1200083.19), (324.0, 323.4, 324.6),
+                                              (-5998.0, -5999.5, -5996.5), (0.197, 0.192, 0.202)])
+def test_an_estimates_text_shows_its_interval(value, low, high):
+    """The printed interval's ends differ from each other and from the value (a narrow interval around a large
+    value printed to 4 digits read "1.2e+06 [1.2e+06, 1.2e+06]"), with 4 significant digits at least."""
+    d = dg._digits(value, high - low)
+    texts = [f"{x:.{d}g}" for x in (low, value, high)]
+    assert len(set(texts)) == 3 and d >= 4

@@ -562,8 +562,17 @@ def _estimate_text(cf: Confirmation, estimates: pd.DataFrame | None = None) -> s
                    else "the data want more of this effect than the range allows")
             return (f"{r.parameter} = {r.value:.4g} {r.unit} (at the edge of its range [{lo:.4g}, {hi:.4g}], "
                     f"{why})")
-        return f"{r.parameter} = {r.value:.4g} [{r.ci_low:.4g}, {r.ci_high:.4g}] {r.unit}".rstrip() + note
+        d = _digits(r.value, r.ci_high - r.ci_low)
+        return f"{r.parameter} = {r.value:.{d}g} [{r.ci_low:.{d}g}, {r.ci_high:.{d}g}] {r.unit}".rstrip() + note
     return "; ".join(one(r) for r in (cf.estimates if estimates is None else estimates).itertuples())
+
+
+def _digits(value: float, width: float) -> int:
+    """Significant digits that show an interval of ``width`` around ``value`` (4 at least): the interval's ends
+    differ in the printed text (1.2e+06 [1.2e+06, 1.2e+06] says nothing; 1.200005e+06 [1.199927e+06, ...] does)."""
+    if not (np.isfinite(value) and np.isfinite(width)) or width <= 0 or value == 0:
+        return 4
+    return int(min(12, max(4, np.ceil(np.log10(abs(value) / width)) + 2)))
 
 
 def _table(scores: Scores, confirmations: Mapping[str, Confirmation], verdicts: Mapping[str, str],
