@@ -25,7 +25,7 @@ log.info("%s: run-up and run-down over %d speeds %.0f-%.0f RPM for eccentric mas
 dense = rp.dense_response(variant, joint, runs, speeds, int(smk.params.harmonics),
                           smk.params.options["validation_bow"])
 rp.write_dense(dense, smk.output.response)
-failed = dense[dense["harmonic"] == 1]["x_re_m"].isna()
+failed = dense[dense["harmonic"] == 1][f"{rp.channels_of(dense)[0]}_re_m"].isna()
 if failed.any():
     log.warning("%d of %d sweep points without a steady state (left as gaps)", int(failed.sum()), len(failed))
 for row in rp.multivalued(dense).dropna().itertuples():

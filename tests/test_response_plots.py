@@ -45,10 +45,11 @@ def test_sweeps_of_a_linear_rotor_are_its_response_solved_by_hand(linear):
                          for r in first.itertuples()])
     u, v = machine.dof(f"u{SENSOR_NODE}"), machine.dof(f"v{SENSOR_NODE}")
     scale = np.abs(expected[:, u]).max()
-    np.testing.assert_allclose(first["x_re_m"] + 1j * first["x_im_m"], expected[:, u], atol=1e-9 * scale)
-    np.testing.assert_allclose(first["y_re_m"] + 1j * first["y_im_m"], expected[:, v], atol=1e-9 * scale)
+    assert rp.channels_of(dense) == ["x1", "y1"]  # the machine's sensors, by name
+    np.testing.assert_allclose(first["x1_re_m"] + 1j * first["x1_im_m"], expected[:, u], atol=1e-9 * scale)
+    np.testing.assert_allclose(first["y1_re_m"] + 1j * first["y1_im_m"], expected[:, v], atol=1e-9 * scale)
     second = dense[dense["harmonic"] == 2]
-    assert np.abs(second[["x_re_m", "x_im_m", "y_re_m", "y_im_m"]].to_numpy()).max() < 1e-9 * scale
+    assert np.abs(second[["x1_re_m", "x1_im_m", "y1_re_m", "y1_im_m"]].to_numpy()).max() < 1e-9 * scale
     # the grid covers the runs with a margin, and the resonance lies inside it
     assert dense["rpm"].min() < runs["rpm"].min() and dense["rpm"].max() > runs["rpm"].max()
     assert bool(first["stable"].all())  # a damped linear rotor below any instability
@@ -60,7 +61,7 @@ def test_the_dense_table_reader_is_the_writers_exact_inverse(linear, tmp_path):
     _, _, dense = linear
     table = dense.copy()
     table.loc[3, "stable"] = np.nan  # a speed where the sweep did not converge
-    table.loc[3, ["x_re_m", "x_im_m"]] = np.nan
+    table.loc[3, ["x1_re_m", "x1_im_m"]] = np.nan
     rp.write_dense(table, tmp_path / "response.tsv")
     back = rp.read_dense(tmp_path / "response.tsv")
     pd.testing.assert_frame_equal(back, table, check_dtype=False)
@@ -135,4 +136,42 @@ def test_spectrum_gives_each_sinusoids_amplitude_and_order():
     runs = pd.DataFrame({"run": ["a", "b"], "rpm": [rpm, 1.1 * rpm], "eccentric_mass_g": [14.8, 14.8]})
     fig = rp.plot_cascade({"a": table, "b": table.assign(frequency_hz=1.1 * table["frequency_hz"])}, runs)
     assert len(fig.axes[0].collections) == 2  # one row per run
+    matplotlib.pyplot.close(fig)
+
+
+def test_every_plane_of_a_two_plane_machine_gets_its_curves():
+    """Probes at d1 (node 8) and at the overhung disk d2 (node 16): the dense table has the four channels in
+    declared order, each the linear rotor's response solved by hand at its own node (1e-9 of the largest, as
+    above), and the Bode figure draws both sweeps per mass in each channel's amplitude panel (8 rows)."""
+    from hybridtwin.machine import Sensor
+
+    machine = stepped_machine()
+    machine = type(machine)(machine.name, machine.segments, machine.disks, machine.bearings,
+                            machine.unbalance_planes, list(machine.sensors) + [Sensor("x2", 16, "x"),
+                                                                               Sensor("y2", 16, "y")])
+    fx = machine.effects()
+    variant = Variant("linear", Model([fx[e] for e in LINEAR_EFFECTS], machine), {"k_a": (1e7, 4e7)})
+    joint = pd.DataFrame({"parameter": ["k_a"], "run": ["all"], "kind": ["shared"], "value": [K_A]})
+    runs = pd.DataFrame({"run": ["r3000_m20", "r4600_m20"], "rpm": [3000.0, 4600.0], "eccentric_mass_g": [20.0, 20.0]})
+    dense = rp.dense_response(variant, joint, runs, rp.dense_speeds(runs["rpm"], 11), harmonics=1)
+    assert rp.channels_of(dense) == ["x1", "y1", "x2", "y2"]
+    first = dense[dense["harmonic"] == 1]
+    expected = np.array([linear_response(machine, r.rpm, 1e-3 * r.eccentric_mass_g, k={"a": K_A})
+                         for r in first.itertuples()])
+    scale = np.abs(expected).max()
+    for channel, dof in (("x1", "u8"), ("y1", "v8"), ("x2", "u16"), ("y2", "v16")):
+        np.testing.assert_allclose(first[f"{channel}_re_m"] + 1j * first[f"{channel}_im_m"],
+                                   expected[:, machine.dof(dof)], atol=1e-9 * scale)
+    comparisons = [RunComparison(r.run, "fit", r.rpm, 20.0, np.ones((1, 4)) * 1e-5, np.ones((1, 4)) * 1e-5,
+                                 np.full((1, 4), 1e-7), 8.0, "solver", ("x1", "y1", "x2", "y2"))
+                   for r in runs.itertuples()]
+    fig = rp.plot_bode(dense, comparisons, "linear", orders=(1,))
+    amplitude_panels = fig.axes[0::2]
+    assert len(fig.axes) == 8 and [ax.get_title() for ax in amplitude_panels] == ["1X, x1", "1X, y1", "1X, x2",
+                                                                                   "1X, y2"]
+    for ax in amplitude_panels:
+        assert len([line for line in ax.get_lines() if len(line.get_xdata()) == 11]) == 2  # run-up, run-down
+    matplotlib.pyplot.close(fig)
+    fig = rp.plot_polar(dense, comparisons, "linear", orders=(1,))
+    assert len(fig.axes) == 4
     matplotlib.pyplot.close(fig)

@@ -9,11 +9,11 @@ per-run parameter (the bow) from its law over the fitted runs (``validation.valu
 runs). Unstable stretches (a Floquet multiplier outside the unit circle: the machine cannot stay there) are
 drawn dotted.
 
-``dense_response`` -> a long table (``write_dense`` / ``read_dense``, exact inverses); ``plot_bode`` and
-``plot_polar`` draw it with the fit and validation runs (``report.RunComparison``, the model's frame). On a
-machine with probes at several planes the curves are those of the first x, y pair (``sensor.sensor_harmonics``,
-the node ``Machine.sensor_node``) and the measured points are the runs' first two channels: declare that pair
-first. The cascade (``plot_cascade``) has a panel per channel.
+``dense_response`` -> a long table (``write_dense`` / ``read_dense``, exact inverses) with two columns per
+sensor channel (``<channel>_re_m``, ``<channel>_im_m``: x, y on the VARM, every sensor of a machine in declared
+order); ``plot_bode`` and ``plot_polar`` draw every channel with the fit and validation runs
+(``report.RunComparison``, the model's frame; its channels in the same declared order). The cascade
+(``plot_cascade``) has a panel per channel too.
 """
 
 from __future__ import annotations
@@ -30,13 +30,26 @@ import pandas as pd  # noqa: E402
 from . import validation as val  # noqa: E402
 from .identification import wrap  # noqa: E402
 from .report import MICRO, ORDERS, VALIDATION_STYLE, RunComparison, mass_colours  # noqa: E402
-from .sensor import sensor_harmonics  # noqa: E402
+from .sensor import sensor_channels, sensor_names  # noqa: E402
 from .solver import solve_sweep  # noqa: E402
 
 Array = np.ndarray
 SWEEPS = {"up": "run-up", "down": "run-down"}
-COLUMNS = ["eccentric_mass_g", "sweep", "rpm", "harmonic", "x_re_m", "x_im_m", "y_re_m", "y_im_m", "stable",
-           "branch"]
+
+
+def columns(channels: Sequence[str]) -> list[str]:
+    """The dense table's columns for sensor ``channels`` (declared order)."""
+    return (["eccentric_mass_g", "sweep", "rpm", "harmonic"] + [f"{c}_{part}_m" for c in channels for part in
+                                                               ("re", "im")] + ["stable", "branch"])
+
+
+#: the VARM's (probes x, y)
+COLUMNS = columns(("x", "y"))
+
+
+def channels_of(table: pd.DataFrame) -> list[str]:
+    """The sensor channels of a dense table, in its column order."""
+    return [c[:-len("_re_m")] for c in table.columns if c.endswith("_re_m")]
 
 
 def dense_speeds(run_rpm: Sequence[float], n_speeds: int = 121, margin: float = 0.08) -> Array:
@@ -52,9 +65,11 @@ def dense_response(variant, joint: pd.DataFrame, runs: pd.DataFrame, rpm: Sequen
     """Sensor harmonics 1X..HX of the fitted ``variant`` along a run-up and a run-down over ``rpm``, one sweep per
     eccentric mass of ``runs`` (rows: run, rpm, eccentric_mass_g; the fit runs), all masses in one batched
     sweep. joint: the joint parameter table (parameters.tsv). One row per (mass, sweep, speed, harmonic)
-    (``COLUMNS``; ``stable``: the Floquet check, NaN where the sweep did not converge)."""
+    (``columns`` of the machine's sensors; ``stable``: the Floquet check, NaN where the sweep did not converge)."""
     masses = sorted(set(float(m) for m in runs["eccentric_mass_g"]))
     names = list(variant.model.parameters)
+    shaft = variant.model.shaft
+    channels = sensor_names(shaft)
     values_at = val.values_along(joint, law, runs)  # the bow's law fitted once, evaluated at every step
 
     def build(speed: Array, rows: Array):
@@ -66,17 +81,16 @@ def dense_response(variant, joint: pd.DataFrame, runs: pd.DataFrame, rpm: Sequen
     for direction, label in SWEEPS.items():
         sweep = solve_sweep(build, np.asarray(rpm, float), len(masses), direction=direction, harmonics=harmonics)
         for speed, result in zip(sweep.rpm, sweep.results):
-            U, V = sensor_harmonics(result.harmonics, variant.model.shaft)
+            Z = sensor_channels(result.harmonics, shaft)  # (S, H+1, C)
             ok = np.asarray(result.success, bool)
             radius = np.asarray(result.floquet_radius, float)
             for s, mass in enumerate(masses):
                 stable = bool(radius[s] < 1.0) if ok[s] and np.isfinite(radius[s]) else np.nan
                 for h in range(1, harmonics + 1):
-                    x = U[s, h] if ok[s] else np.nan + 0j
-                    y = V[s, h] if ok[s] else np.nan + 0j
-                    frames.append((mass, label, float(speed), h, x.real, x.imag, y.real, y.imag, stable,
-                                   str(result.branch[s])))
-    table = pd.DataFrame(frames, columns=COLUMNS)
+                    z = Z[s, h] if ok[s] else np.full(len(channels), np.nan + 0j)
+                    parts = [v for c in z for v in (c.real, c.imag)]
+                    frames.append((mass, label, float(speed), h, *parts, stable, str(result.branch[s])))
+    table = pd.DataFrame(frames, columns=columns(channels))
     table["stable"] = table["stable"].astype(object)  # True, False, or NaN (not assessed)
     return table
 
@@ -88,15 +102,17 @@ def write_dense(table: pd.DataFrame, path) -> None:
 
 def read_dense(path) -> pd.DataFrame:
     """The table ``write_dense`` wrote (``stable`` back to True/False/NaN)."""
+    header = pd.read_csv(path, sep="\t", nrows=0).columns
     table = pd.read_csv(path, sep="\t", dtype={"sweep": str, "branch": str}, keep_default_na=False,
-                        na_values={c: ["", "nan", "NaN"] for c in COLUMNS if c not in ("sweep", "branch")})
+                        na_values={c: ["", "nan", "NaN"] for c in header if c not in ("sweep", "branch")})
     table["stable"] = table["stable"].map({True: True, False: False, "True": True, "False": False}).astype(object)
     table.loc[table["stable"].isna(), "stable"] = np.nan
-    return table[COLUMNS]
+    return table[columns(channels_of(table))]
 
 
 def _channel(table: pd.DataFrame, j: int) -> Array:
-    c = "xy"[j]
+    """The j-th sensor channel's complex harmonic (declared order)."""
+    c = channels_of(table)[j]
     return table[f"{c}_re_m"].to_numpy() + 1j * table[f"{c}_im_m"].to_numpy()
 
 
@@ -128,15 +144,18 @@ def _curve(ax_amp, ax_phase, part: pd.DataFrame, j: int, colour: str, style: str
 
 def plot_bode(dense: pd.DataFrame, comparisons: Sequence[RunComparison], variant: str,
               orders: Sequence[int] = ORDERS) -> plt.Figure:
-    """Amplitude (0-peak) and phase (model frame) of harmonics ``orders`` vs speed, x and y: the model's run-up
+    """Amplitude (0-peak) and phase (model frame) of harmonics ``orders`` vs speed, every channel (two rows each: x, y
+    on the VARM; every probe of a machine, the runs' channels taken in the same declared order): the model's run-up
     (solid) and run-down (dashed) per eccentric mass, unstable stretches dotted; the fit runs measured (points, 2
     sigma bars), the validation runs measured (stars) and predicted (crosses); the noise (2 sigma, grey)."""
     H = min([int(dense["harmonic"].max())] + [c.H for c in comparisons])
     orders = [h for h in orders if h <= H]
     colours = mass_colours(sorted(set(dense["eccentric_mass_g"])))
-    fig, axes = plt.subplots(4, len(orders), figsize=(4.6 * len(orders), 12), sharex=True, squeeze=False)
+    channels = channels_of(dense)
+    fig, axes = plt.subplots(2 * len(channels), len(orders), figsize=(4.6 * len(orders), 6 * len(channels)),
+                             sharex=True, squeeze=False)
     for col, h in enumerate(orders):
-        for j, channel in enumerate("xy"):
+        for j, channel in enumerate(channels):
             amp, ph = axes[2 * j, col], axes[2 * j + 1, col]
             sigmas = [c.sigma[h - 1, j] for c in comparisons] or [float(np.nanmax(np.abs(_channel(dense, j))))]
             floor = 0.2 * min(sigmas) * MICRO
@@ -170,7 +189,7 @@ def plot_bode(dense: pd.DataFrame, comparisons: Sequence[RunComparison], variant
     fig.suptitle(f"variant {variant}: Bode plots, model by continuation (solid run-up, dashed run-down, dotted "
                  "unstable)\nvs measured (points, 2 sigma bars); magenta: validation runs measured (stars) and "
                  "predicted (crosses)", fontsize=10)
-    fig.tight_layout(rect=(0, 0.035, 1, 1))
+    fig.tight_layout(rect=(0, 0.035 * 2 / len(channels), 1, 1))
     return fig
 
 
@@ -200,16 +219,18 @@ def _validation(amp, ph, c: RunComparison, h: int, j: int, floor: float) -> None
 
 def plot_polar(dense: pd.DataFrame, comparisons: Sequence[RunComparison], variant: str,
                orders: Sequence[int] = ORDERS) -> plt.Figure:
-    """Polar (Nyquist) plots of harmonics ``orders`` in x and y (model frame, radius in um): the model's run-up
+    """Polar (Nyquist) plots of harmonics ``orders``, a row per channel (x and y on the VARM; model frame, radius in
+    um): the model's run-up
     (solid) and run-down (dashed) per mass, the measured fit runs (points, 1X labelled with the speed), the
     validation runs (stars measured, crosses predicted), the noise circle (2 sigma)."""
     H = min([int(dense["harmonic"].max())] + [c.H for c in comparisons])
     orders = [h for h in orders if h <= H]
     colours = mass_colours(sorted(set(dense["eccentric_mass_g"])))
-    fig, axes = plt.subplots(2, len(orders), figsize=(4.8 * len(orders), 9.6), squeeze=False,
-                             subplot_kw={"projection": "polar"})
+    channels = channels_of(dense)
+    fig, axes = plt.subplots(len(channels), len(orders), figsize=(4.8 * len(orders), 4.8 * len(channels)),
+                             squeeze=False, subplot_kw={"projection": "polar"})
     for col, h in enumerate(orders):
-        for j, channel in enumerate("xy"):
+        for j, channel in enumerate(channels):
             ax = axes[j, col]
             for (mass, sweep), part in dense[dense["harmonic"] == h].groupby(["eccentric_mass_g", "sweep"]):
                 z = _channel(part, j)
@@ -238,7 +259,7 @@ def plot_polar(dense: pd.DataFrame, comparisons: Sequence[RunComparison], varian
     _legend(fig, axes[0, 0])
     fig.suptitle(f"variant {variant}: polar plots, model by continuation (solid run-up, dashed run-down)\nvs "
                  "measured (points), model's frame; magenta: validation runs", fontsize=10)
-    fig.tight_layout(rect=(0, 0.05, 1, 1))
+    fig.tight_layout(rect=(0, 0.05 * 2 / len(channels), 1, 1))
     return fig
 
 
@@ -258,7 +279,7 @@ def multivalued(dense: pd.DataFrame, rtol: float = 0.02) -> pd.DataFrame:
         down = part[part["sweep"] == SWEEPS["down"]].set_index("rpm")
         common = up.index.intersection(down.index)
         differ = np.zeros(len(common), bool)
-        for j in (0, 1):
+        for j in range(len(channels_of(part))):
             a, b = np.abs(_channel(up.loc[common], j)), np.abs(_channel(down.loc[common], j))
             differ |= np.abs(a - b) > rtol * np.maximum(np.maximum(a, b), 1e-300)
         speeds = np.asarray(common)[differ]
