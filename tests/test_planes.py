@@ -262,8 +262,14 @@ def test_predictions_comparisons_figures_and_fingerprint_follow_the_channels(tmp
     assert again.channels == channels and np.array_equal(again.measured, comparison.measured)
     assert again.chi2 == comparison.chi2  # every channel counts
     figure = report.plot_run(comparison, "linear")
-    assert "shown: channels x1, y1 (the first plane)" in figure._suptitle.get_text()
-    assert figure.axes[0].get_xlabel() == "x1 [mm]"
+    orbits = [ax for ax in figure.axes if ax.get_title().startswith("orbit")]
+    assert [(ax.get_xlabel(), ax.get_ylabel()) for ax in orbits] == [("x1 [mm]", "y1 [mm]"), ("x2 [mm]", "y2 [mm]")]
+    assert "not drawn" not in figure._suptitle.get_text()  # every channel has its row
+    plt.close(figure)
+    odd = report.RunComparison("v1", "validate", 4000.0, 20.0, 1e-4 * Z[:, :3], 0.9e-4 * Z[:, :3],
+                               np.full((H, 3), 1e-6), 11, "solver", channels[:3])
+    figure = report.plot_run(odd, "linear")
+    assert "not drawn: channel x2 (no pair)" in figure._suptitle.get_text()
     plt.close(figure)
 
     import pandas as pd

@@ -86,8 +86,8 @@ class RunComparison:
     sensors: x, y on the VARM); sigma: (H, C) [m], standard uncertainty of each real
     and imaginary part (the weights of the fit); dof: the run's degrees of freedom;
     role: ``fit`` or ``validate``; source: the response model (``solver`` or
-    ``library``). The run's figure (``plot_run``) shows the first two channels as an
-    orbit: the first plane's x, y probes when the machine declares them first.
+    ``library``). The run's figure (``plot_run``) draws each consecutive pair of
+    channels as an orbit: a plane's x, y probes when the machine declares them so.
     """
 
     run: str
@@ -413,21 +413,33 @@ def _run_title(c: RunComparison) -> str:
 
 
 def plot_run(c: RunComparison, variant: str) -> plt.Figure:
-    """One run: orbit, x and y over two revolutions with the residual, and the residual whirl spectrum; of the
-    first two channels (the first plane's x, y probes when declared first; the other channels are in the run's
-    rows of harmonics.tsv and in its chi^2, and the title says so)."""
-    fig = plt.figure(figsize=(14, 6.2))
-    grid = fig.add_gridspec(2, 3, width_ratios=(1.0, 1.5, 1.3), height_ratios=(1.4, 1.0))
-    _orbit(fig.add_subplot(grid[:, 0]), c)
-    signals = fig.add_subplot(grid[0, 1])
-    _signals(signals, fig.add_subplot(grid[1, 1], sharex=signals), c)
-    _spectrum(fig.add_subplot(grid[:, 2]), c)
-    shown = "" if len(c.channels) <= 2 else (f"\nshown: channels {c.channels[0]}, {c.channels[1]} (the first "
-                                             f"plane); chi^2 and error over all {len(c.channels)}: "
-                                             f"{', '.join(c.channels)}")
+    """One run: orbit, x and y over two revolutions with the residual, and the residual whirl spectrum; a row per
+    pair of channels in declared order (a plane's x then y probe: x, y on the VARM, one row; x1, y1, x2, y2 on a
+    machine with probes at two planes, two rows). An odd last channel has no orbit: it is in the run's rows of
+    harmonics.tsv and in its chi^2, and the title says so."""
+    pairs = probe_pairs(c)
+    fig = plt.figure(figsize=(14, 6.2 * len(pairs)))
+    grid = fig.add_gridspec(2 * len(pairs), 3, width_ratios=(1.0, 1.5, 1.3), height_ratios=(1.4, 1.0) * len(pairs))
+    for k, pair in enumerate(pairs):
+        _orbit(fig.add_subplot(grid[2 * k:2 * k + 2, 0]), pair)
+        signals = fig.add_subplot(grid[2 * k, 1])
+        _signals(signals, fig.add_subplot(grid[2 * k + 1, 1], sharex=signals), pair)
+        _spectrum(fig.add_subplot(grid[2 * k:2 * k + 2, 2]), pair)
+    left = c.channels[2 * len(pairs):]
+    shown = "" if not left else (f"\nnot drawn: channel{'s' if len(left) > 1 else ''} {', '.join(left)} (no pair); "
+                                 f"chi^2 and error over all {len(c.channels)}: {', '.join(c.channels)}")
     fig.suptitle(f"variant {variant}, {_run_title(c)}{shown}", fontsize=10)
     fig.tight_layout()
     return fig
+
+
+def probe_pairs(c: RunComparison) -> list[RunComparison]:
+    """The run's channels in consecutive pairs (declared order: each plane's x probe, then its y probe), each as a
+    RunComparison of its two channels."""
+    from dataclasses import replace
+
+    return [replace(c, measured=c.measured[:, j:j + 2], model=c.model[:, j:j + 2], sigma=c.sigma[:, j:j + 2],
+                    channels=tuple(c.channels[j:j + 2])) for j in range(0, len(c.channels) - 1, 2)]
 
 
 def _orbit(ax: plt.Axes, c: RunComparison) -> None:
