@@ -24,6 +24,7 @@ read from the machine the model is built on (``ctx.shaft.node(NAME)``), so the e
 from __future__ import annotations
 
 from .effect_base import Array, Context, Effect, Parameter
+from .effects import dof_entries
 
 #: range and limits of each candidate as fractions of the bearing's k (stiffness terms) or c (damping)
 ANISOTROPY_RANGE, ANISOTROPY_LIMIT = 0.2, 0.5
@@ -48,13 +49,11 @@ class AtBearing(Effect):
         self.switches = (self.parameters[0].name,)
 
     def _entries(self, ctx: Context) -> Array:
-        """(S, n, n): the parameter's value times each (row, column, sign) of ``pairs`` at the bearing's node."""
+        """(S, n, n): the parameter's value times each (row, column, sign) of ``pairs`` at the bearing's node (the
+        VARM candidates' ``effects.dof_entries`` at a named node)."""
         node = ctx.shaft.node(self.bearing)
         value = ctx.p[self.parameters[0].name]
-        out = ctx.zeros()
-        for row, col, sign in self.pairs:
-            out[:, ctx.dof(f"{row}{node}"), ctx.dof(f"{col}{node}")] += sign * value
-        return out
+        return dof_entries(ctx, {(f"{row}{node}", f"{col}{node}"): sign * value for row, col, sign in self.pairs})
 
 
 class BearingAnisotropy(AtBearing):

@@ -41,8 +41,7 @@ def user_effects(config: Mapping, config_dir: Path = CONFIG_DIR) -> dict[str, Ef
 def candidate_effects(config: Mapping, config_dir: Path = CONFIG_DIR) -> dict[str, Effect]:
     """Effects the diagnosis may test besides the built-in candidates: the config's effects files', and the
     candidates the machine sizes to each of its bearings with nominal k (``bearing_candidates``), by name."""
-    placed = {name: e for name, e in machine(config).effects().items() if getattr(e, "switches", ())}
-    return user_effects(config, config_dir) | placed
+    return user_effects(config, config_dir) | machine(config).candidates()
 
 
 def candidate_names(names: Sequence[str] | None, config: Mapping) -> list[str] | None:
@@ -415,7 +414,7 @@ def _name_problems(config: Mapping, config_dir: Path) -> Iterable[Problem]:
     diagnosis = config.get("diagnosis") or {}
     testable = dict(user)
     if machine_ok:  # the candidates sized to the machine's bearings (bearing_candidates)
-        testable |= {name: e for name, e in rotor.effects().items() if getattr(e, "switches", ())}
+        testable |= rotor.candidates()
     available = [c.name for c in candidates_for([])] + list(testable)  # built in, effects files, bearings
     for i, candidate in enumerate(diagnosis.get("candidates") or []):
         if candidate not in available:

@@ -313,7 +313,7 @@ LIMIT_E = (-4.5e-4, 4.5e-4)
 LIMIT_ZETA_V = (0.0, 1.0)
 
 
-def _entries(ctx: Context, values: Mapping[tuple[str, str], Array]) -> Array:
+def dof_entries(ctx: Context, values: Mapping[tuple[str, str], Array]) -> Array:
     """(S, n, n) matrix with ``values`` (S,) at the (row DOF, column DOF) entries named by its keys."""
     out = ctx.zeros()
     for (row, col), value in values.items():
@@ -339,7 +339,7 @@ class UpperBearingAnisotropy(Effect):
     switches = ("dk_up",)
 
     def stiffness(self, ctx: Context) -> Array:
-        return _entries(ctx, {("u0", "u0"): ctx.p.dk_up, ("v0", "v0"): -ctx.p.dk_up})
+        return dof_entries(ctx, {("u0", "u0"): ctx.p.dk_up, ("v0", "v0"): -ctx.p.dk_up})
 
 
 class CrossCoupledStiffness(Effect):
@@ -359,7 +359,7 @@ class CrossCoupledStiffness(Effect):
     switches = ("k_xy",)
 
     def stiffness(self, ctx: Context) -> Array:
-        return _entries(ctx, {("u0", "v0"): ctx.p.k_xy, ("v0", "u0"): -ctx.p.k_xy})
+        return dof_entries(ctx, {("u0", "v0"): ctx.p.k_xy, ("v0", "u0"): -ctx.p.k_xy})
 
 
 class CrossCoupledDamping(Effect):
@@ -377,7 +377,7 @@ class CrossCoupledDamping(Effect):
     switches = ("c_xy",)
 
     def damping(self, ctx: Context) -> Array:
-        return _entries(ctx, {("u0", "v0"): ctx.p.c_xy, ("v0", "u0"): -ctx.p.c_xy})
+        return dof_entries(ctx, {("u0", "v0"): ctx.p.c_xy, ("v0", "u0"): -ctx.p.c_xy})
 
 
 class MomentStiffness(Effect):
@@ -397,7 +397,7 @@ class MomentStiffness(Effect):
     switches = ("k_rot",)
 
     def stiffness(self, ctx: Context) -> Array:
-        return _entries(ctx, {("du0", "du0"): ctx.p.k_rot, ("dv0", "dv0"): ctx.p.k_rot})
+        return dof_entries(ctx, {("du0", "du0"): ctx.p.k_rot, ("dv0", "dv0"): ctx.p.k_rot})
 
 
 class LowerBearingCompliance(Effect):
@@ -417,7 +417,7 @@ class LowerBearingCompliance(Effect):
 
     def stiffness(self, ctx: Context) -> Array:
         n = ctx.shaft.n
-        return _entries(ctx, {(f"u{n}", f"u{n}"): ctx.p.dk_lo, (f"v{n}", f"v{n}"): ctx.p.dk_lo})
+        return dof_entries(ctx, {(f"u{n}", f"u{n}"): ctx.p.dk_lo, (f"v{n}", f"v{n}"): ctx.p.dk_lo})
 
 
 @dataclass(eq=False)

@@ -439,6 +439,11 @@ class Machine(DofCounts):
             out[f"unbalance@{plane.name}"] = PlaneUnbalance(name=f"unbalance@{plane.name}", node=plane.node)
         return out
 
+    def candidates(self) -> dict[str, Effect]:
+        """The effects of ``effects()`` the diagnosis can test (those declaring ``switches``): the candidates sized
+        to each bearing with nominal k, and the placeable built-in candidates at every bearing, by name."""
+        return {name: e for name, e in self.effects().items() if e.switches}
+
     def model(self, effects: Sequence[Effect]):
         """A ``Model`` of ``effects`` on this machine."""
         from .model import Model

@@ -94,18 +94,16 @@ def _first_mode(K: Array, M: Array) -> tuple[Array, Array]:
     # scenarios with the same pencil (another run's copy, a parameter that does not enter K or M at rest, e.g.
     # the sensitivities' perturbed damping or bow) are solved once: the same numbers, bit for bit
     S = K.shape[0]
-    rows = np.concatenate([K.reshape(S, -1), M.reshape(S, -1)], axis=1)
-    keys = np.ascontiguousarray(rows).view(np.dtype((np.void, rows.dtype.itemsize * rows.shape[1])))[:, 0]
+    flat = np.ascontiguousarray(np.concatenate([K.reshape(S, -1), M.reshape(S, -1)], axis=1))
+    keys = flat.view(np.dtype((np.void, flat.dtype.itemsize * flat.shape[1])))[:, 0]
     _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
-    if first.size < S:
-        omega_u, phi_u = _first_mode(K[first], M[first])
-        return omega_u[inverse], phi_u[inverse]
+    K, M = K[first], M[first]
     symmetric = np.isclose(K, np.swapaxes(K, -1, -2), rtol=1e-12, atol=0.0).all(axis=(-2, -1))
     lam1, phi = np.empty(K.shape[0]), np.empty(K.shape[:2])
     for rows, mode in ((np.flatnonzero(symmetric), _symmetric_mode), (np.flatnonzero(~symmetric), _general_mode)):
         if rows.size:
             lam1[rows], phi[rows] = mode(K[rows], M[rows])
-    return np.sqrt(np.where(lam1 > 0, lam1, np.nan)), phi
+    return np.sqrt(np.where(lam1 > 0, lam1, np.nan))[inverse], phi[inverse]
 
 
 def _symmetric_mode(K: Array, M: Array) -> tuple[Array, Array]:

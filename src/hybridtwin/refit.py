@@ -168,6 +168,18 @@ def _theta_in(layout: Layout, fit: Identification, pool=np.mean) -> Array:
                      for e in layout.entries()])
 
 
+def _widened_starts(layout: Layout, fit: Identification, cols: list[int], names: Sequence[str],
+                    wider: Mapping[str, tuple[float, float]], old: Mapping[str, tuple[float, float]]) -> Array:
+    """The starts after a widening (``_widened``): the previous optimum ``fit`` in the new ``layout``, and the same
+    with each widened parameter (``names`` at columns ``cols``) halfway from there to its new edge."""
+    previous = _theta_in(layout, fit)
+    further = previous.copy()
+    for j, name in zip(cols, names):
+        if name in wider:
+            further[j] = 0.5 * (previous[j] + (1.0 if wider[name][1] > old[name][1] else -1.0))
+    return np.vstack([previous, further])
+
+
 def _continued(problem: ArrowProblem, result: LMResult, X: Array, options: LMOptions) -> LMResult:
     """The best trial continued (damping reset, at most CONTINUATIONS times) while it stopped descending at its
     iteration budget or on a stall; the continuations are appended as trials."""
@@ -245,14 +257,8 @@ def confirm(base: BaseFit, score: Score, scores: Scores, max_iterations: int = 4
         cols = [layout.entries().index((p.name, "all")) for p in c.parameters]
         if fit is None:
             theta = _refit_starts(theta0, cols, score.step, starts, zlib.crc32(c.name.encode()), quick)
-        else:  # widened: from the previous optimum, and halfway from it to the new edge
-            previous = _theta_in(layout, fit)
-            further = previous.copy()
-            for j, p in zip(cols, c.parameters):
-                if p.name in wider:
-                    edge = 1.0 if wider[p.name][1] > old[p.name][1] else -1.0
-                    further[j] = 0.5 * (previous[j] + edge)
-            theta = np.vstack([previous, further])
+        else:
+            theta = _widened_starts(layout, fit, cols, [p.name for p in c.parameters], wider, old)
         X = np.repeat(base.X[None], len(theta), axis=0)
         first_refit = fit is None
         result = levenberg_marquardt(problem, theta, X, options)
@@ -344,13 +350,8 @@ def _from_fit(base: BaseFit, kept: Sequence[Candidate], ranges: Mapping[str, tup
                 across = _refit_starts(theta[0], cols, None, spread,
                                        zlib.crc32("+".join(c.name for c in kept).encode()))
                 theta = np.vstack([theta, across[1:]])
-        else:  # widened: from the previous optimum, and halfway from it to the new edge
-            previous = _theta_in(layout, fit)
-            further = previous.copy()
-            for j, name in zip(cols, kept_ranges):
-                if name in wider:
-                    further[j] = 0.5 * (previous[j] + (1.0 if wider[name][1] > old[name][1] else -1.0))
-            theta = np.vstack([previous, further])
+        else:
+            theta = _widened_starts(layout, fit, cols, list(kept_ranges), wider, old)
         X = np.repeat(base.X[None], len(theta), axis=0)
         result = _continued(problem, levenberg_marquardt(problem, theta, X, options), X, options)
         if fit is None:

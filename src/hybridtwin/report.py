@@ -47,7 +47,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -436,8 +436,6 @@ def plot_run(c: RunComparison, variant: str) -> plt.Figure:
 def probe_pairs(c: RunComparison) -> list[RunComparison]:
     """The run's channels in consecutive pairs (declared order: each plane's x probe, then its y probe), each as a
     RunComparison of its two channels."""
-    from dataclasses import replace
-
     return [replace(c, measured=c.measured[:, j:j + 2], model=c.model[:, j:j + 2], sigma=c.sigma[:, j:j + 2],
                     channels=tuple(c.channels[j:j + 2])) for j in range(0, len(c.channels) - 1, 2)]
 
