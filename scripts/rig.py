@@ -4,7 +4,7 @@ import logging
 from pathlib import Path
 
 from hybridtwin.machine import Machine
-from hybridtwin.rig import RigSpec, generate, read_plan
+from hybridtwin.rig import RigSpec, generate, peak_columns, read_plan
 from hybridtwin.variants import load_effects_file
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
@@ -20,7 +20,7 @@ spec = RigSpec.from_mapping(smk.params.spec, effects, machine)
 log.info("truth on machine %s", machine.name)
 plan = read_plan(smk.input.plan)
 truth = generate(plan, spec, Path(smk.output.sheet).parent)
-peaks = [c for c in truth.columns if c.startswith("peak_") and c.endswith("_m")]  # one per sensor
+peaks = peak_columns(truth)  # one per sensor
 for _, row in truth.iterrows():
     log.info("%s: %.3f RPM, unique %s (run-up/run-down %.1e), peak %s mm, inside range %s", row["run"],
              row["rpm_true"], row["unique"], row["updown_difference_rel"],

@@ -36,6 +36,7 @@ import numpy as np
 from .bearing_candidates import at_bearing
 from .effect_base import Context, Effect, Parameter
 from .effects import Unbalance, builtin_effects
+from .measurements import sensor_pairs
 from .shaft import DofCounts, Shaft, beam_element, slope_element
 
 Array = np.ndarray
@@ -387,14 +388,8 @@ class Machine(DofCounts):
     @property
     def sensor_pairs(self) -> list[tuple[int, int]]:
         """(index of the x probe, index of the y probe) in ``sensors`` for each node with exactly one of each,
-        in order of the nodes' first appearance: the orbits the records show."""
-        out = []
-        for node in self.sensor_planes:
-            at = [(i, s.direction) for i, s in enumerate(self.sensors) if s.node == node]
-            xs, ys = [i for i, d in at if d == "x"], [i for i, d in at if d == "y"]
-            if len(xs) == 1 and len(ys) == 1:
-                out.append((xs[0], ys[0]))
-        return out
+        in order of the nodes' first appearance: the orbits the records show (``measurements.sensor_pairs``)."""
+        return sensor_pairs(self.sensors)
 
     # --- effects at named places ---------------------------------------------------------------------
 

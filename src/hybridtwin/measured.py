@@ -15,12 +15,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from .measurements import DEFAULT_CHANNELS
 from .preprocessing import harmonic_column, origin_share, table_channels
 
 Array = np.ndarray
 
 #: the VARM's channels (a run's own: ``RunData.channels``)
-CHANNELS = ("x", "y")
+CHANNELS = DEFAULT_CHANNELS  # the VARM's
 
 
 @dataclass(frozen=True)

@@ -213,8 +213,8 @@ def record_channels(sensors=None) -> tuple[tuple[str, ...], tuple[tuple[int, int
     ``name``, ``node``, ``direction`` (a machine's sensors)."""
     if sensors is None:
         return DEFAULT_CHANNELS, None
-    if hasattr(sensors, "sensors") and hasattr(sensors, "sensor_pairs"):
-        return tuple(s.name for s in sensors.sensors), tuple(sensors.sensor_pairs)
+    if hasattr(sensors, "sensors"):  # a Machine
+        sensors = sensors.sensors
     if isinstance(sensors, Mapping):
         from types import SimpleNamespace
 
@@ -223,14 +223,20 @@ def record_channels(sensors=None) -> tuple[tuple[str, ...], tuple[tuple[int, int
     items = list(sensors)
     if all(isinstance(item, str) for item in items):
         return tuple(items), None
-    names = tuple(str(item.name) for item in items)
+    return tuple(str(item.name) for item in items), tuple(sensor_pairs(items))
+
+
+def sensor_pairs(sensors: Sequence) -> list[tuple[int, int]]:
+    """(index of the x probe, index of the y probe) for each node of ``sensors`` (objects with ``node`` and
+    ``direction``) with exactly one of each, in order of the nodes' first appearance: the orbits a record shows."""
+    items = list(sensors)
     pairs = []
     for node in dict.fromkeys(item.node for item in items):
         xs = [i for i, item in enumerate(items) if item.node == node and item.direction == "x"]
         ys = [i for i, item in enumerate(items) if item.node == node and item.direction == "y"]
         if len(xs) == 1 and len(ys) == 1:
             pairs.append((xs[0], ys[0]))
-    return names, tuple(pairs)
+    return pairs
 
 
 @dataclass(frozen=True)

@@ -64,13 +64,13 @@ import pandas as pd
 from scipy.optimize import minimize_scalar
 
 from .measurements import (
-    MIN_REVOLUTIONS, SENSOR_RANGE_MM, SENSOR_RESOLUTION_MM, DataError, DataWarning, Record, Saturation, Sensor,
+    DEFAULT_CHANNELS, MIN_REVOLUTIONS, SENSOR_RANGE_MM, SENSOR_RESOLUTION_MM, DataError, DataWarning, Record, Saturation, Sensor,
     check_coverage, check_length, check_sampling, detect_saturation, read_record, read_runs,
 )
 from .plausibility import SPEED_TOLERANCE, Flag, check_magnitudes, check_speed, response_flags
 
 Array = np.ndarray
-CHANNELS = ("x", "y")  # the VARM's channels (a record's own: ``Record.names``)
+CHANNELS = DEFAULT_CHANNELS  # the VARM's channels (a record's own: ``Record.names``)
 #: the true speed is sought within this fraction of the nominal speed (beyond it: plausibility.check_speed's error)
 SPEED_SEARCH = SPEED_TOLERANCE
 
@@ -197,7 +197,7 @@ def refine_speed(record: Record, rpm_nominal: float, harmonics: int = 5,
     or the record holds no periodic signal).
     """
     t = record.time_s - record.time_s.mean()
-    data = np.column_stack([record.channel(c) for c in (record.names if channels is None else channels)])
+    data = record.data if channels is None else np.column_stack([record.channel(c) for c in channels])
     data = data - data.mean(0)
     f0 = rpm_nominal / 60.0
     step = 0.25 / (harmonics * record.duration_s)
@@ -388,7 +388,12 @@ def analyse_record(record: Record, rpm_nominal: float, harmonics: int = 5, senso
 def harmonic_column(channel: str, h: int, part: str) -> str:
     """The harmonics table's column of channel ``channel``, harmonic ``h``, ``part`` re, im, amp or sigma [m]:
     x1_re_m for channel x (the VARM's), x1_1_re_m for channel x1 (an underscore when the name ends in a digit)."""
-    return f"{channel}{'_' if channel[-1:].isdigit() else ''}{h}_{part}_m"
+    return f"{harmonic_stem(channel, h)}_{part}_m"
+
+
+def harmonic_stem(channel: str, h: int) -> str:
+    """Channel ``channel``'s harmonic ``h`` in column names: x1 for channel x, x1_1 for channel x1."""
+    return f"{channel}{'_' if channel[-1:].isdigit() else ''}{h}"
 
 
 def table_channels(table: pd.DataFrame) -> tuple[str, ...]:
@@ -401,7 +406,7 @@ def table_channels(table: pd.DataFrame) -> tuple[str, ...]:
             name = column[len("noise_"):-len("_m")]
             if name and any(harmonic_column(name, 1, part) in table for part in ("re", "amp")):
                 out.append(name)
-    if not out and all(f"{c}1_re_m" in table for c in CHANNELS):
+    if not out and all(harmonic_column(c, 1, "re") in table for c in CHANNELS):
         return CHANNELS
     return tuple(out)
 
@@ -626,7 +631,7 @@ def format_summary(summary: pd.DataFrame, harmonics: int) -> str:
     amplitudes = pd.DataFrame({"run": summary["run"]})
     for name in channels:
         for h in range(1, harmonics + 1):
-            amplitudes[f"{name}{'_' if name[-1:].isdigit() else ''}{h}X_mm"] = (
+            amplitudes[f"{harmonic_stem(name, h)}X_mm"] = (
                 mm * summary[harmonic_column(name, h, "amp")]).map(lambda v: f"{v:.4f}")
     sigma = mm * summary[[harmonic_column(c, 1, "sigma") for c in channels]].max(axis=1)
     amplitudes["sigma_1X_mm"] = sigma.map(lambda v: f"{v:.1e}")

@@ -185,8 +185,7 @@ def read_comparisons(table: pd.DataFrame) -> list[RunComparison]:
     """``comparison_table``'s rows back to RunComparison (runs in the table's order)."""
     out = []
     for run, rows in table.groupby("run", sort=False):
-        channels = tuple(dict.fromkeys(rows["channel"].astype(str)))  # the table's order: the sensors'
-        rows = rows.assign(j=rows["channel"].astype(str).map(channels.index)).sort_values(["harmonic", "j"])
+        channels, rows = val.channel_order(rows)  # the table's order: the sensors'
         first = rows.iloc[0]
         C = len(channels)
         out.append(RunComparison(str(run), str(first["role"]), float(first["rpm"]),
@@ -197,7 +196,7 @@ def read_comparisons(table: pd.DataFrame) -> list[RunComparison]:
     return out
 
 
-def _grid(rows: pd.DataFrame, column: str, channels: int = 2) -> Array:
+def _grid(rows: pd.DataFrame, column: str, channels: int) -> Array:
     """A column of one run's rows (sorted by harmonic, channel) as (H, C)."""
     return rows[column].to_numpy(float).reshape(-1, channels)
 

@@ -299,7 +299,7 @@ def draw_conditions(plan: pd.DataFrame, imperfections: Imperfections, seed: int,
 @dataclass
 class TruthResponse:
     """Sensor harmonics of the truth at each run's true speed: Z (R, H+1, C) complex [m], one channel per sensor
-    (x, y on the VARM: ``X``, ``Y`` are the first two), by run-up, and the run-down's Z_down for the uniqueness
+    (x, y on the VARM), by run-up, and the run-down's Z_down for the uniqueness
     check (agreeing to ``unique_tolerance``, relative); success/branch/message per run; stable: the run-up's state
     is stable (harmonic balance: its largest Floquet multiplier ``floquet_radius`` < 1; time integration: settled
     on, so stable, radius NaN)."""
@@ -323,14 +323,6 @@ class TruthResponse:
         return cls(np.full((runs, harmonics + 1, channels), np.nan + 0j),
                    np.full((runs, harmonics + 1, channels), np.nan + 0j), np.zeros(runs, bool),
                    np.empty(runs, object), np.empty(runs, object), **kwargs)
-
-    @property
-    def X(self) -> Array:
-        return self.Z[..., 0]
-
-    @property
-    def Y(self) -> Array:
-        return self.Z[..., 1]
 
     @property
     def difference_rel(self) -> Array:
@@ -564,7 +556,13 @@ def _truth_table(runs: pd.DataFrame, response: TruthResponse, spec: RigSpec,
     return table
 
 
+def peak_columns(truth: pd.DataFrame) -> list[str]:
+    """The truth table's largest-displacement columns, one per sensor (peak_<sensor>_m)."""
+    return [c for c in truth.columns if c.startswith("peak_") and c.endswith("_m")]
+
+
 def _warn(truth: pd.DataFrame, imperfections: Imperfections) -> None:
+    peaks = peak_columns(truth)
     for row in truth.itertuples(index=False):
         if not row.unique and not np.isfinite(row.updown_difference_rel):
             warnings.warn(f"run {row.run}: uniqueness of the steady state at {row.rpm_true:.2f} RPM not checked, "
@@ -580,7 +578,7 @@ def _warn(truth: pd.DataFrame, imperfections: Imperfections) -> None:
                           "it, so the record shows a state no rig could hold (truth.tsv, column stable)",
                           RigWarning, stacklevel=3)
         if not row.inside_range:
-            peak = max(getattr(row, c) for c in truth.columns if c.startswith("peak_") and c.endswith("_m")) * 1e3
+            peak = max(getattr(row, c) for c in peaks) * 1e3
             action = (f"{row.clipped_samples} sample(s) clipped" if imperfections.clip else "not clipped (clip off)")
             warnings.warn(f"run {row.run}: the response reaches {peak:.2f} mm (+ noise) against the sensor range "
                           f"+-{imperfections.sensor_range_mm:g} mm: {action}", RigWarning, stacklevel=3)
@@ -687,7 +685,7 @@ def rig_command(args) -> int:
         "run": truth["run"], "rpm": truth["rpm"], "eccentric_mass_g": truth["eccentric_mass_g"],
         "rpm_true": truth["rpm_true"].round(3), "unique": truth["unique"], "stable": truth["stable"],
         "updown_diff_rel": truth["updown_difference_rel"].map(lambda v: f"{v:.1e}"),
-        **{f"{c[:-2]}_mm": (1e3 * truth[c]).round(3) for c in truth.columns if c.startswith("peak_") and c.endswith("_m")},
+        **{f"{c[:-2]}_mm": (1e3 * truth[c]).round(3) for c in peak_columns(truth)},
         "inside_range": truth["inside_range"], "clipped_samples": truth["clipped_samples"],
     })
     print(report.to_string(index=False))

@@ -17,12 +17,13 @@ import numpy as np
 import pandas as pd
 
 from .effect_base import Array
+from .measurements import DEFAULT_CHANNELS
 from .shaft import Shaft
 from .solver import SteadyState
 
 SENSOR_NODE = 1  # z = 0.085 m on the VARM
 #: the channels of a plain Shaft (and of the VARM): x and y at SENSOR_NODE
-DEFAULT_SENSORS = ("x", "y")
+DEFAULT_SENSORS = DEFAULT_CHANNELS  # a plain Shaft's (the VARM's) probes
 
 
 def _is_machine(shaft) -> bool:
@@ -44,6 +45,11 @@ def sensor_dofs(shaft: Shaft, node: int | None = None) -> list[int]:
     Shaft); with ``node``, the x, y pair [u_node, v_node] there."""
     if node is None and _is_machine(shaft):
         return shaft.sensor_dofs()
+    return pair_dofs(shaft, node)
+
+
+def pair_dofs(shaft: Shaft, node: int | None = None) -> list[int]:
+    """[u_node, v_node]: the x, y pair at ``node``, by default the (first) probe pair's (``sensor_node``)."""
     node = sensor_node(shaft) if node is None else node
     return [shaft.dof(f"u{node}"), shaft.dof(f"v{node}")]
 
@@ -56,7 +62,7 @@ def sensor_channels(harmonics: Array, shaft: Shaft) -> Array:
 
 def sensor_harmonics(harmonics: Array, shaft: Shaft, node: int | None = None) -> tuple[Array, Array]:
     """U_h, V_h at the (first) x, y probe pair's node from harmonics (..., H+1, n): each (..., H+1) complex [m]."""
-    u, v = sensor_dofs(shaft, sensor_node(shaft) if node is None else node)
+    u, v = pair_dofs(shaft, node)
     return harmonics[..., u], harmonics[..., v]
 
 
@@ -73,7 +79,7 @@ def harmonics_frame(result: SteadyState, shaft: Shaft, scenario: int = 0, node: 
 def time_series_frame(result: SteadyState, shaft: Shaft, t: Array, scenario: int = 0,
                       node: int | None = None) -> pd.DataFrame:
     """x_m, y_m at times ``t`` [s], evaluated from the Fourier series (not resampled)."""
-    xy = result.time_series(t, sensor_dofs(shaft, sensor_node(shaft) if node is None else node))[scenario]
+    xy = result.time_series(t, pair_dofs(shaft, node))[scenario]
     return pd.DataFrame({"time_s": t, "x_m": xy[:, 0], "y_m": xy[:, 1]})
 
 

@@ -75,7 +75,7 @@ def predict_run(model: HarmonicModel, data: RunData, values: Mapping[str, float]
     chi2_per_residual (with the measured sigmas and the library error), the
     phase, 1X amplitudes measured and predicted, and the predicted harmonics.
     """
-    from .preprocessing import fit_phase, harmonic_column
+    from .preprocessing import fit_phase, harmonic_stem
 
     H = min(data.H, model.H)
     x = np.array([2 * (values[p] - lo) / (hi - lo) - 1 for p, lo, hi in zip(model.parameters, model.lower,
@@ -92,7 +92,7 @@ def predict_run(model: HarmonicModel, data: RunData, values: Mapping[str, float]
     residual = (X - aligned) / sigma
     amplitudes = {}
     for j, channel in enumerate(data.channels):  # x1_amp_measured_m, ... (channel x1: x1_1_amp_measured_m)
-        stem = harmonic_column(channel, 1, "amp")[:-2]
+        stem = f"{harmonic_stem(channel, 1)}_amp"
         amplitudes |= {f"{stem}_measured_m": abs(X[0, j]), f"{stem}_predicted_m": abs(M[0, j])}
     return {"run": data.run, "rpm": data.rpm, "eccentric_mass_g": data.eccentric_mass_g,
             "error_rel": float(error), "chi2_per_residual": float((np.abs(residual) ** 2).sum() / (2 * X.size)),
@@ -144,6 +144,13 @@ def write_predictions(path: str | Path, predictions: Sequence[PredictedRun]) -> 
     prediction_table(predictions).to_csv(path, sep="\t", index=False, float_format="%.17g")
 
 
+def channel_order(rows: pd.DataFrame) -> tuple[tuple[str, ...], pd.DataFrame]:
+    """A long table's channels in the order they first appear (the sensors'), and its rows sorted by harmonic then
+    that channel order (a (H, C) grid when reshaped)."""
+    channels = tuple(dict.fromkeys(rows["channel"].astype(str)))
+    return channels, rows.assign(j=rows["channel"].astype(str).map(channels.index)).sort_values(["harmonic", "j"])
+
+
 def read_predictions(path: str | Path) -> list[PredictedRun]:
     """``write_predictions``'s file back to PredictedRun (runs and models in the file's order), bit for bit."""
     exact = {c: float for c in ("phase_rad", "model_re_m", "model_im_m")}  # Python's float: round-trip on any pandas
@@ -154,14 +161,13 @@ def read_predictions(path: str | Path) -> list[PredictedRun]:
     out = []
     for (run, model), rows in table.groupby(["run", "model"], sort=False):
         H = int(rows["harmonic"].max())
-        channels = tuple(dict.fromkeys(rows["channel"]))  # the file's order: the sensors'
+        channels, order = channel_order(rows)
         C = len(channels)
         counts = rows.groupby("harmonic")["channel"].agg(list)
         if (len(rows) != C * H or set(counts.index) != set(range(1, H + 1))
                 or any(tuple(v) != channels for v in counts) or rows["phase_rad"].nunique() != 1):
             raise ValueError(f"{path}: run {run} ({model}) needs harmonics 1..{H} on every channel "
                              f"{list(channels)} and one phase")
-        order = rows.assign(j=rows["channel"].map(channels.index)).sort_values(["harmonic", "j"])
         harmonics = np.empty((H, C), complex)
         harmonics.real, harmonics.imag = (order[c].to_numpy(float).reshape(H, C) for c in ("model_re_m", "model_im_m"))
         out.append(PredictedRun(str(run), str(model), float(rows["phase_rad"].iloc[0]), harmonics, channels))

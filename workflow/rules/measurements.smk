@@ -10,7 +10,7 @@ RUNS_SHEET = config.get("runs", "data/default/runs.tsv")
 # The records' channels are the machine's sensors, one column each named after it (issue 24), a param of the rules
 # that read records: a change of sensors reruns them. Without a machine: no param, the VARM's channels x, y (so
 # the VARM's jobs keep the params they had before several sensor planes were read).
-SENSOR_PARAMS = {"sensors": (config["machine"] or {}).get("sensors")} if config.get("machine") else {}
+SENSOR_PARAMS = {"sensors": config["machine"].get("sensors")} if config.get("machine") else {}
 
 
 rule check_data:
