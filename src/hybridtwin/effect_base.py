@@ -269,27 +269,32 @@ class PolynomialBearing(Effect):
         return out
 
     def force(self, q: Array, p: Params) -> tuple[Array, Array]:
+        """F (S, n_local, N) and dF/dq (S, n_local, n_local, N) at the time samples q (S, n_local, N).
+
+        Both planes at once: q's variables are stacked as (own deflection, other deflection, own slope,
+        other slope) of the x plane and of the y plane, (2, S, n_local, N), so every monomial is one
+        product for both (elementwise the same arithmetic as plane by plane)."""
         n_local = q.shape[1]
-        F = np.zeros_like(q)
-        J = np.zeros(q.shape[:2] + (n_local,) + q.shape[2:])
+        swap = [1, 0, 3, 2][:n_local]  # the y plane's variables in the x plane's order
         max_power = max(max(t.powers) for t in self.terms)
-        powers = [_powers(q[:, j], max_power) for j in range(n_local)]
-        # local index of (own deflection, other deflection, own slope, other slope) per plane
-        planes = ((0, 1, 2, 3), (1, 0, 3, 2))
+        powers = _powers(np.stack([q, q[:, swap]]), max_power)  # [e] -> (2, S, n_local, N)
+        F = np.zeros((2,) + q.shape[:1] + q.shape[2:])  # (plane, S, N): the force on its own deflection
+        J = np.zeros((2,) + q.shape)  # (plane, S, variable, N)
         for term in self.terms:
             if term.degree < 2:
                 continue
             c = term.coefficient(p)[:, None]
-            for variables in planes:
-                row = variables[0]
-                factors = [powers[variables[k]][e] for k, e in enumerate(term.powers) if e]
-                exps = [(variables[k], e) for k, e in enumerate(term.powers) if e]
-                F[:, row] -= c * _product(factors)
-                for m, (local, e) in enumerate(exps):
-                    others = factors[:m] + factors[m + 1 :]
-                    derivative = e * powers[local][e - 1]
-                    J[:, row, local] -= c * _product(others + [derivative])
-        return F, J
+            exps = [(k, e) for k, e in enumerate(term.powers) if e]
+            factors = [powers[e][:, :, k] for k, e in exps]
+            F -= c * _product(factors)
+            for m, (k, e) in enumerate(exps):
+                others = factors[:m] + factors[m + 1 :]
+                J[:, :, k] -= c * _product(others + [e * powers[e - 1][:, :, k]])
+        F_out = np.zeros_like(q)
+        F_out[:, 0], F_out[:, 1] = F[0], F[1]
+        J_out = np.zeros(q.shape[:2] + (n_local,) + q.shape[2:])
+        J_out[:, 0], J_out[:, 1, swap] = J[0], J[1]
+        return F_out, J_out
 
     @classmethod
     def combined(cls, bearings: Sequence["PolynomialBearing"]) -> "PolynomialBearing":

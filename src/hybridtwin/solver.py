@@ -150,9 +150,11 @@ class _Condensed:
         if not linear:  # the AFT of the local forces only (``sensitivity``): no linear solves
             return
         self.X_lin, self.R = self._linear_solves()
-        c, K2 = len(self.dofs), 2 * H + 1
+        K2 = 2 * H + 1
         self.a = _to_real(self.X_lin[:, :, self.dofs])  # (S, c, 2H+1)
-        self.Hreal = _receptance_real(self.R[:, :, self.dofs, :]).reshape(system.n_scenarios, c * K2, c * K2)
+        self.Hc = self.R[:, :, self.dofs, :]  # the receptance on the nonlinear DOFs, (S, H+1, c, c)
+        # dG[s, i, k, j, l] = sum_n E+[k, n] J[s, i, j, n] E[n, l] as one product J @ W, W[n, (k, l)] = E+[k, n] E[n, l]
+        self.W = (self.E_plus.T[:, :, None] * self.E[:, None, :]).reshape(self.N, K2 * K2)
 
     def _linear_solves(self) -> tuple[Array, Array]:
         """Q_lin,h = D_h^-1 F_h and R_h = D_h^-1 B for h = 0..H, block by uncoupled block."""
@@ -195,17 +197,19 @@ class _Condensed:
         return F, J
 
     def evaluate(self, x: Array, idx: Array, jacobian: bool = True) -> tuple[Array, Array | None]:
-        """Residual r = x - a - H G(x) (S', c, 2H+1) and, optionally, dr/dx (S', m, m)."""
+        """Residual r = x - a - H G(x) (S', c, 2H+1) and, optionally, dr/dx = I - H dG/dx (S', m, m)."""
         F, J = self._force_series(x, idx, jacobian)
-        g = (F @ self.E_plus.T).reshape(len(idx), -1)
-        Hr = self.Hreal[idx]
-        r = x - self.a[idx] - (Hr @ g[:, :, None]).reshape(x.shape)
+        Hc = self.Hc[idx]
+        r = x - self.a[idx] - _receptance_times(Hc, (F @ self.E_plus.T)[..., None])[..., 0]
         if not jacobian:
             return r, None
-        m = g.shape[1]
-        # dG[s, i, k, j, l] = sum_n E+[k, n] J[s, i, j, n] E[n, l]
-        dG = np.swapaxes((J[:, :, :, None, :] * self.E_plus) @ self.E, 2, 3).reshape(len(idx), m, m)
-        return r, np.eye(m) - Hr @ dG
+        S, c, K2 = x.shape
+        m = c * K2
+        dG = (J.reshape(-1, self.N) @ self.W).reshape(S, c, c, K2, K2).transpose(0, 1, 3, 2, 4).reshape(S, c, K2, m)
+        Jr = _receptance_times(Hc, dG).reshape(S, m, m)
+        np.negative(Jr, out=Jr)
+        Jr[:, np.arange(m), np.arange(m)] += 1.0
+        return r, Jr
 
     def full_harmonics(self, x: Array, idx: Array) -> Array:
         """Q_h on all DOFs (S', H+1, n): Q_h = Q_lin,h + R_h G_h(x)."""
@@ -245,17 +249,17 @@ def _to_complex(x: Array) -> Array:
     return out
 
 
-def _receptance_real(Hc: Array) -> Array:
-    """Block form of x_h = H_h G_h in real coefficients, (S, c, 2H+1, c, 2H+1)."""
-    S, H1, c, _ = Hc.shape
-    K2 = 2 * H1 - 1
-    out = np.zeros((S, c, K2, c, K2))
-    out[:, :, 0, :, 0] = Hc[:, 0].real
-    for h in range(1, H1):
-        A, B = Hc[:, h].real, Hc[:, h].imag
-        cos, sin = 2 * h - 1, 2 * h
-        out[:, :, cos, :, cos], out[:, :, cos, :, sin] = A, -B
-        out[:, :, sin, :, cos], out[:, :, sin, :, sin] = B, A
+def _receptance_times(Hc: Array, Y: Array) -> Array:
+    """x_h = H_h G_h in real coefficients for q columns at once: Y (S, c, 2H+1, q) -> (S, c, 2H+1, q).
+
+    Harmonic h's cosine and sine rows are one complex product, (A + iB)(Y_cos + i Y_sin): the real block
+    form [[A, -B], [B, A]] of the receptance (S, c 2H+1, c 2H+1) is block diagonal in h, so its product is
+    H+1 products of c x c blocks, not one of the whole matrix."""
+    out = np.empty(Y.shape)
+    out[:, :, 0] = Hc[:, 0].real @ Y[:, :, 0]
+    product = Hc[:, 1:] @ (Y[:, :, 1::2] + 1j * Y[:, :, 2::2]).transpose(0, 2, 1, 3)  # (S, H, c, q)
+    out[:, :, 1::2] = product.real.transpose(0, 2, 1, 3)
+    out[:, :, 2::2] = product.imag.transpose(0, 2, 1, 3)
     return out
 
 
