@@ -26,6 +26,10 @@ Usage (from the repository root, in the project's environment):
     # and the Monte Carlo spread
     python benchmarks/main_job_benchmark.py --protocol . --protocol-runs r350_m25p9 r700_m14p8 r950_m0p0
 
+    # the joint fit's library protocol in-process (identify_joint without the polish), its repeats from fresh random
+    # starts (the literal protocol) against the workflow's (joint.monte_carlo_starts), per variant
+    python benchmarks/main_job_benchmark.py --joint . --joint-variants geometric expansion
+
 Timings on a shared machine are noisy: the load average before and after each run is printed; compare the
 two columns of one invocation, not figures taken at different times.
 """
@@ -175,6 +179,52 @@ def protocol_comparison(folder: Path, variant_name: str, runs: list[str]) -> pd.
     return pd.DataFrame(rows)
 
 
+def joint_comparison(folder: Path, variant_name: str) -> dict:
+    """The joint fit's library protocol (``run_fits.fit_joint`` with the polish off) with the literal repeats and with
+    the workflow's ``joint.monte_carlo_starts``: CPU seconds, LM problems, the largest change of the estimate
+    (normalised units), the Monte Carlo std of the shared physical parameters (optima / literal)."""
+    import numpy as np
+    import yaml
+    from threadpoolctl import threadpool_limits
+
+    from hybridtwin import config as cfg
+    from hybridtwin import identification as idn
+    from hybridtwin.library import Library
+    from hybridtwin.run_fits import fit_joint
+
+    config = yaml.safe_load((folder / "config" / "config.yaml").read_text())
+    variant = cfg.variant(config, variant_name, folder / "config")
+    options = {**idn.rule_settings(config, variant_name, "joint"), "polish": False}
+    results = folder / "results" / variant_name
+    runs = idn.runs_with_role(folder / config["runs"], "fit")
+    libraries = [Library.load(results / "library" / f"{run}.zarr") for run in runs]
+    per_run = {run: idn.read_parameters(results / "runs" / run / "parameters.tsv") for run in runs}
+    harmonics = idn.read_harmonics(folder / "results" / "data" / "harmonics.tsv")
+    validation = pd.read_csv(results / "library_validation.tsv", sep="\t")
+    fits, cpu = {}, {}
+    for name, k in (("literal", 0), ("optima", int(options["joint"]["monte_carlo_starts"]))):
+        start = time.process_time()
+        with threadpool_limits(1):
+            fits[name] = fit_joint(variant, {**options, "joint": {**options["joint"], "monte_carlo_starts": k}},
+                                   libraries, harmonics, per_run, validation, int(config["harmonics"])).library_fit
+        cpu[name] = time.process_time() - start
+    tables = {name: fit.table() for name, fit in fits.items()}
+    shared = tables["literal"]["run"].eq("all") & tables["literal"]["parameter"].ne("phase")
+    spread = tables["optima"].loc[shared, "mc_std"] / tables["literal"].loc[shared, "mc_std"]
+    loss = {name: fit.protocol.monte_carlo_loss for name, fit in fits.items()}
+    return {"variant": variant_name, "cpu_literal_s": cpu["literal"], "cpu_optima_s": cpu["optima"],
+            "lm_literal": fits["literal"].protocol.n_lm, "lm_optima": fits["optima"].protocol.n_lm,
+            "estimate_change": float(np.abs(fits["optima"].theta - fits["literal"].theta).max()),
+            "mc_std_ratio_median": float(spread.median()), "mc_std_ratio_min": float(spread.min()),
+            "mc_std_ratio_max": float(spread.max()),
+            # the Monte Carlo std over the linearised standard error, median over the shared physical parameters
+            **{f"mc_over_se_{name}": float((tables[name].loc[shared, "mc_std"] / tables[name].loc[shared, "stderr"])
+                                           .median()) for name in fits},
+            # repeats (same noise draws in both) whose kept loss is no higher than the literal repeat's
+            "optima_not_worse": float((loss["optima"] <= loss["literal"] * (1 + 1e-6) + 1e-12).mean()),
+            "mc_loss_literal": float(loss["literal"].mean()), "mc_loss_optima": float(loss["optima"].mean())}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--old", type=Path, help="folder of the earlier commit's workflow run")
@@ -185,7 +235,16 @@ def main() -> None:
     parser.add_argument("--workdir", type=Path, default=Path("/tmp/main_job_benchmark"))
     parser.add_argument("--protocol", type=Path, help="folder of a workflow run: compare the per-run protocols")
     parser.add_argument("--protocol-runs", nargs="+", default=["r350_m25p9", "r700_m14p8", "r950_m0p0"])
+    parser.add_argument("--joint", type=Path, help="folder of a workflow run: compare the joint fit's protocols")
+    parser.add_argument("--joint-variants", nargs="+", default=["geometric", "geometric_slope", "expansion", "final"])
     args = parser.parse_args()
+    if args.joint:
+        print(f"load average {load()}")
+        table = pd.DataFrame([joint_comparison(args.joint, name) for name in args.joint_variants])
+        table["estimate_change"] = table["estimate_change"].map("{:.1e}".format)
+        print(table.round(3).to_string(index=False), flush=True)
+        if args.old is None and not args.run and not args.protocol:
+            return
     if args.protocol:
         print(f"load average {load()}")
         table = protocol_comparison(args.protocol, args.variant, args.protocol_runs)
