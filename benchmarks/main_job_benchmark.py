@@ -30,6 +30,11 @@ Usage (from the repository root, in the project's environment):
     # starts (the literal protocol) against the workflow's (joint.monte_carlo_starts), per variant
     python benchmarks/main_job_benchmark.py --joint . --joint-variants geometric expansion
 
+    # the scenario solves of one chunk in-process (as solve_chunk: the first N scenarios of the variant at every run),
+    # an older source tree (e.g. a worktree of the previous commit) against this one, each in its own process, one
+    # thread, twice in turn: CPU seconds and how far the steady states differ
+    python benchmarks/main_job_benchmark.py --solves FOLDER --old-src OLD/src --variant expansion --scenarios 200
+
 Timings on a shared machine are noisy: the load average before and after each run is printed; compare the
 two columns of one invocation, not figures taken at different times.
 """
@@ -137,7 +142,8 @@ def worktree(workdir: Path, name: str, commit: str) -> Path:
 
 def protocol_comparison(folder: Path, variant_name: str, runs: list[str]) -> pd.DataFrame:
     """Per run: the per-run protocol with the paper's literal repeats and with the workflow's setting, CPU
-    seconds, LM problems, the largest change of the estimate (normalised units), the Monte Carlo std of each physical parameter
+    seconds, LM problems, the largest change of the estimate (normalised units), the Monte Carlo std of each physical
+    parameter
     (optima / literal, median and range over the parameters) and the repeats' mean loss."""
     from dataclasses import replace
 
@@ -225,6 +231,51 @@ def joint_comparison(folder: Path, variant_name: str) -> dict:
             "mc_loss_literal": float(loss["literal"].mean()), "mc_loss_optima": float(loss["optima"].mean())}
 
 
+_SOLVE = """
+import pickle, sys, time
+import pandas as pd, yaml
+from hybridtwin import config as cfg
+from hybridtwin.scenarios import solve_runs
+folder, variant_name, n, out = sys.argv[1], sys.argv[2], int(sys.argv[3]), sys.argv[4]
+config = yaml.safe_load(open(f"{folder}/config/config.yaml"))
+variant = cfg.variant(config, variant_name, __import__("pathlib").Path(folder) / "config")
+scenarios = pd.read_csv(f"{folder}/results/{variant_name}/scenarios.tsv", sep="\\t").iloc[:n]
+runs = cfg.run_plan(f"{folder}/{config['runs']}", f"{folder}/results/data/harmonics.tsv")
+start = time.process_time()
+solutions = solve_runs(variant, runs, {k: scenarios[k].to_numpy() for k in variant.unknown_names}, config["harmonics"])
+print(time.process_time() - start)
+pickle.dump(solutions, open(out, "wb"))
+"""
+
+
+def solve_comparison(folder: Path, old_src: Path, variant: str, n: int, repeats: int = 2) -> None:
+    """``_SOLVE`` with each source tree (old, new, old, new, ...): CPU seconds, then the states' differences."""
+    import pickle
+    import tempfile
+
+    import numpy as np
+
+    cpu: dict[str, list[float]] = {"old": [], "new": []}
+    with tempfile.TemporaryDirectory() as tmp:
+        for _ in range(repeats):
+            for name, src in (("old", old_src), ("new", ROOT / "src")):
+                env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(src)}
+                run = subprocess.run([sys.executable, "-c", _SOLVE, str(folder), variant, str(n), f"{tmp}/{name}.pkl"],
+                                     env=env, capture_output=True, text=True, check=True)
+                cpu[name].append(float(run.stdout.split()[-1]))
+        old, new = (pickle.load(open(f"{tmp}/{name}.pkl", "rb")) for name in ("old", "new"))
+    both = old.success & new.success
+    scale = np.abs(old.harmonics[both]).max(axis=(1, 2))
+    change = np.abs(new.harmonics[both] - old.harmonics[both]).max(axis=(1, 2)) / scale
+    listed = {name: ", ".join(f"{c:.1f}" for c in values) for name, values in cpu.items()}
+    print(f"{variant}, {n} scenarios at {len(old.runs)} runs, one thread: CPU old {listed['old']}"
+          f" s, new {listed['new']} s (new / old {min(cpu['new']) / min(cpu['old']):.2f}, "
+          f"best of each)")
+    print(f"steady states: success flags the same {bool((old.success == new.success).all())}, stability the same "
+          f"{bool((old.stable == new.stable).all())}, branches the same {bool((old.branch == new.branch).all())}; "
+          f"largest relative change of a converged state {change.max():.1e} (median {np.median(change):.1e})")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--old", type=Path, help="folder of the earlier commit's workflow run")
@@ -237,7 +288,16 @@ def main() -> None:
     parser.add_argument("--protocol-runs", nargs="+", default=["r350_m25p9", "r700_m14p8", "r950_m0p0"])
     parser.add_argument("--joint", type=Path, help="folder of a workflow run: compare the joint fit's protocols")
     parser.add_argument("--joint-variants", nargs="+", default=["geometric", "geometric_slope", "expansion", "final"])
+    parser.add_argument("--solves", type=Path, help="folder of a workflow run: time one chunk's solves, old vs new")
+    parser.add_argument("--old-src", type=Path, help="with --solves: the older source tree (its src folder)")
+    parser.add_argument("--scenarios", type=int, default=200, help="with --solves: the first N scenarios")
     args = parser.parse_args()
+    if args.solves:
+        if args.old_src is None:
+            parser.error("--solves needs --old-src")
+        print(f"load average {load()}")
+        solve_comparison(args.solves, args.old_src, args.variant, args.scenarios)
+        return
     if args.joint:
         print(f"load average {load()}")
         table = pd.DataFrame([joint_comparison(args.joint, name) for name in args.joint_variants])

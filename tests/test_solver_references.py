@@ -318,6 +318,29 @@ def test_sweeps_in_lockstep_equal_their_own_sweeps_jump_included(block, monkeypa
     assert "jump between 1.25 and 1.3 RPM" in lockstep.results[len(ramps[0]) - 1].branch[0]
 
 
+def test_lockstep_sweeps_that_jump_at_different_steps_and_go_on_equal_their_own_sweeps():
+    """A sweep's failed continuations wait while the other scenarios go on, and are refined and jumped in one
+    batch with those of other steps (``solver._sweep_pass``): three hardening Duffing oscillators whose upper
+    folds lie at different speeds (gamma 0.05, 0.1, 0.2: jumps at 1.2, 1.3 and 1.45) run up together to 1.6,
+    each continuing on the lower branch after its jump. Every step of each equals its own sweep to the bit,
+    messages and branch labels included."""
+    gammas = np.array([0.05, 0.1, 0.2])
+    ramp = np.round(np.arange(0.5, 1.6001, 0.05), 10)
+    lockstep = solve_sweep(lambda om, rows: duffing(om, gamma=gammas[rows]), ramp, 3, harmonics=3)
+    jumps = []
+    for s, gamma in enumerate(gammas):
+        alone = solve_sweep(lambda om, rows: duffing(om, gamma=gamma), ramp, 1, harmonics=3)
+        for step, result in enumerate(alone.results):
+            mine = lockstep.results[step]
+            np.testing.assert_array_equal(mine.harmonics[s], result.harmonics[0])
+            np.testing.assert_array_equal(mine.state[s], result.state[0])
+            assert (mine.success[s], mine.message[s], mine.branch[s]) == (
+                result.success[0], result.message[0], result.branch[0])
+        jumps.append([step for step, r in enumerate(lockstep.results) if "jump" in r.branch[s]])
+        assert all(r.success[s] for r in lockstep.results)  # on the lower branch after the jump, to the end
+    assert [ramp[j] for (j,) in jumps] == [1.2, 1.3, 1.45]
+
+
 @pytest.mark.parametrize("speeds, problem", [
     ([[0.5, np.nan], [0.6, 0.7]], "first speed"),
     ([[0.5, 0.5], [np.nan, 0.6], [0.7, 0.7]], "NaN only after"),

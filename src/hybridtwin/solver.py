@@ -205,7 +205,9 @@ class _Condensed:
             return r, None
         S, c, K2 = x.shape
         m = c * K2
-        dG = (J.reshape(-1, self.N) @ self.W).reshape(S, c, c, K2, K2).transpose(0, 1, 3, 2, 4).reshape(S, c, K2, m)
+        # a product per scenario (a stack), not one over the batch: a scenario's round-off must not depend on its batch
+        dG = (J.reshape(S, c * c, self.N) @ self.W).reshape(S, c, c, K2, K2).transpose(0, 1, 3, 2, 4).reshape(
+            S, c, K2, m)
         Jr = _receptance_times(Hc, dG).reshape(S, m, m)
         np.negative(Jr, out=Jr)
         Jr[:, np.arange(m), np.arange(m)] += 1.0
@@ -541,37 +543,100 @@ def solve_sweep(
     speeds = _sweep_speeds(rpm, n_scenarios, direction)
     label = "run-up" if direction == "up" else "run-down"
     options = {**options, "stability": False}  # assessed once per step, below
-    results: list[SteadyState] = []
-    previous: SteadyState | None = None
-    previous_rpm = np.full(n_scenarios, np.nan)
-    for speed in speeds:
-        active = ~np.isnan(speed)
-        cont = np.flatnonzero(active & previous.success) if previous is not None else np.arange(0)
-        fresh = np.setdiff1d(np.flatnonzero(active), cont)
-        parts = []
+    results: list[SteadyState | None] = [None] * speeds.shape[0]
+    # Passes over the steps: a scenario whose continuation fails at a step waits there (``_Deferred``) while the
+    # others go on; then the step halvings and jumps of every waiting scenario, whatever its step, run in one
+    # batch (few scenarios per step would each pay a batched call's fixed cost), and those scenarios go on from
+    # the step after, in the next pass. Each scenario meets the same computations as in a step-by-step sweep.
+    begin = np.full(n_scenarios, -1)  # the last step already final, per scenario
+    columns = np.arange(n_scenarios)
+    while columns.size:
+        waiting = _sweep_pass(build, speeds, results, columns, begin, label, options, stability)
+        if not waiting.rows.size:
+            break
+        rpm_to = speeds[waiting.step, waiting.rows]
+        res = _refine(build, waiting.first, waiting.rpm_from, rpm_to, waiting.x0, waiting.rows, max_refine, label,
+                      options)
+        lost = np.flatnonzero(~res.success)
+        if lost.size:
+            _replace(res, lost, _in_blocks(lost.size, lambda b: _jump(
+                build, waiting.rpm_from[lost[b]], rpm_to[lost[b]], waiting.x0[lost[b]], waiting.rows[lost[b]], label,
+                options)))
+        if stability:  # (jumps assessed their own landings)
+            converged = np.flatnonzero(res.success & np.isnan(res.floquet_radius))
+            if converged.size:
+                assess_stability(build(rpm_to[converged], waiting.rows[converged]), res, converged)
+        for step in np.unique(waiting.step):
+            mine = np.flatnonzero(waiting.step == step)
+            _replace(results[step], waiting.rows[mine], SteadyState.concatenate([res], mine))
+        begin[waiting.rows] = waiting.step
+        columns = waiting.rows
+    return Sweep(speeds[:, 0] if np.ndim(rpm) == 1 else speeds, results, direction)
+
+
+@dataclass
+class _Deferred:
+    """Scenarios ``rows`` whose continuation to step ``step`` (from ``rpm_from``, state ``x0``) failed at the first
+    attempt ``first``: their step halvings and jumps are still to come."""
+
+    rows: Array
+    step: Array
+    rpm_from: Array
+    x0: Array
+    first: SteadyState | None
+
+
+def _sweep_pass(build, speeds: Array, results: list, columns: Array, begin: Array, label: str, options: dict,
+                stability: bool) -> _Deferred:
+    """Advance scenarios ``columns`` from their step ``begin + 1`` on, in lockstep, into ``results`` (a step's
+    SteadyState of every scenario; a scenario that waits, or has not reached the step yet, holds a placeholder
+    row there until a later pass). Continuation failures wait (``_Deferred``) instead of being refined here."""
+    n_steps, S = speeds.shape
+    waits: list[tuple] = []
+    waiting = np.zeros(S, bool)
+    for i in range(n_steps):
+        mine = columns[(begin[columns] < i) & ~waiting[columns]]
+        speed = speeds[i]
+        previous = results[i - 1] if i > 0 else None
+        active = mine[~np.isnan(speed[mine])]
+        cont = active[previous.success[active]] if previous is not None else np.arange(0)
+        fresh = np.setdiff1d(active, cont)
+        ended = np.setdiff1d(mine, active)
+        parts, rows = [], []
         if cont.size:
-            res_c = _continue(build, previous_rpm[cont], speed[cont], previous.state[cont], cont, max_refine, label,
-                              options)
-            lost = np.flatnonzero(~res_c.success)
-            if lost.size:
-                at = cont[lost]
-                _replace(res_c, lost, _in_blocks(at.size, lambda b: _jump(
-                    build, previous_rpm[at[b]], speed[at[b]], previous.state[at[b]], at[b], label, options)))
-            parts.append(res_c)
+            first = _attempt(build, speed[cont], previous.state[cont], cont, label, options)
+            failed = np.flatnonzero(~first.success)
+            if failed.size:
+                waiting[cont[failed]] = True
+                waits.append((cont[failed], np.full(failed.size, i), speeds[i - 1, cont[failed]],
+                               previous.state[cont[failed]], SteadyState.concatenate([first], failed)))
+            parts.append(first)
+            rows.append(cont)
         if fresh.size:
             parts.append(_in_blocks(fresh.size, lambda b: solve(build(speed[fresh[b]], fresh[b]),
                                                                 stall_window=_STALL_WINDOW, **options)))
-        ended = np.flatnonzero(~active)
+            rows.append(fresh)
         if ended.size:
             parts.append(_ended(previous, ended))
-        res = SteadyState.concatenate(parts, np.argsort(np.concatenate([cont, fresh, ended])))
-        if stability:  # (jumps assessed their own landings)
-            converged = np.flatnonzero(active & res.success & np.isnan(res.floquet_radius))
+            rows.append(ended)
+        if results[i] is None:  # the first pass: rows for the scenarios that wait, to be replaced later
+            rest = np.setdiff1d(np.arange(S), np.concatenate(rows) if rows else np.arange(0))
+            if rest.size:
+                parts.append(_ended(previous, rest))
+                rows.append(rest)
+            results[i] = SteadyState.concatenate(parts, np.argsort(np.concatenate(rows)))
+        elif rows:
+            order = np.concatenate(rows)
+            _replace(results[i], order, SteadyState.concatenate(parts))
+        if stability and mine.size:
+            converged = active[results[i].success[active] & np.isnan(results[i].floquet_radius[active])]
             if converged.size:
-                assess_stability(build(speed[converged], converged), res, converged)
-        results.append(res)
-        previous, previous_rpm = res, np.where(active, speed, previous_rpm)
-    return Sweep(speeds[:, 0] if np.ndim(rpm) == 1 else speeds, results, direction)
+                assess_stability(build(speed[converged], converged), results[i], converged)
+    if not waits:
+        return _Deferred(np.arange(0), np.arange(0), np.zeros(0), np.zeros((0,)), None)
+    rows, step, rpm_from, x0, first = zip(*waits)
+    return _Deferred(np.concatenate(rows), np.concatenate(step), np.concatenate(rpm_from), np.concatenate(x0),
+                     SteadyState.concatenate(list(first)))
 
 
 def _sweep_speeds(rpm: Sequence[float] | Array, n_scenarios: int, direction: str) -> Array:
@@ -661,10 +726,22 @@ def _replace(target: SteadyState, where: Array, source: SteadyState) -> None:
         getattr(target, f)[where] = getattr(source, f)
 
 
+def _attempt(build, rpm_to: Array, x0, rows, label, options) -> SteadyState:
+    """One continuation step from ``x0`` to ``rpm_to`` (per row), no halving."""
+    return _in_blocks(rows.size, lambda b: solve(build(rpm_to[b], rows[b]), initial=x0[b], branch=label,
+                                                 stall_window=_CONTINUATION_STALL, **options))
+
+
 def _continue(build, rpm_from: Array, rpm_to: Array, x0, rows, depth, label, options) -> SteadyState:
     """Continue from ``x0`` at ``rpm_from`` to ``rpm_to`` (per row), halving the step where Newton fails."""
-    res = _in_blocks(rows.size, lambda b: solve(build(rpm_to[b], rows[b]), initial=x0[b], branch=label,
-                                                stall_window=_CONTINUATION_STALL, **options))
+    return _refine(build, _attempt(build, rpm_to, x0, rows, label, options), rpm_from, rpm_to, x0, rows, depth,
+                   label, options)
+
+
+def _refine(build, res: SteadyState, rpm_from: Array, rpm_to: Array, x0, rows, depth, label, options
+            ) -> SteadyState:
+    """``res``, a continuation step's first attempt, with each failed row's step halved (two half steps, each
+    continued the same way) up to ``depth`` times; in place."""
     failed = np.flatnonzero(~res.success)
     if depth == 0 or failed.size == 0:
         return res
