@@ -70,8 +70,10 @@ def stage_of(path: Path) -> str:
 
 
 def jobs(results: Path, variant: str) -> pd.DataFrame:
-    """One row per job of ``variant`` and of the measured data: file, stage, s, cpu_time."""
-    folders = [results / "benchmarks" / variant, results / "benchmarks" / "data"]
+    """One row per job of ``variant`` (``all``: of every variant) and of the measured data: file, stage, s,
+    cpu_time."""
+    folders = ([p for p in (results / "benchmarks").iterdir() if p.is_dir()] if variant == "all"
+               else [results / "benchmarks" / variant, results / "benchmarks" / "data"])
     files = sorted(p for folder in folders if folder.is_dir() for p in folder.rglob("*.tsv"))
     if not files:
         raise SystemExit(f"main_job_benchmark: no benchmark files under {results / 'benchmarks'} for {variant} "
@@ -280,7 +282,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--old", type=Path, help="folder of the earlier commit's workflow run")
     parser.add_argument("--new", type=Path, default=ROOT, help="folder of this commit's workflow run")
-    parser.add_argument("--variant", default="geometric")
+    parser.add_argument("--variant", default="geometric", help="a variant, or all (the whole main job)")
     parser.add_argument("--run", action="store_true", help="run the workflow in worktrees of both commits first")
     parser.add_argument("--old-commit", help="with --run: the earlier commit")
     parser.add_argument("--workdir", type=Path, default=Path("/tmp/main_job_benchmark"))

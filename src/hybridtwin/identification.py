@@ -649,7 +649,7 @@ DEFAULTS: dict = {
     "confidence": 0.95,
     "max_iterations": 100,
     # the joint fit's protocol; its repeats also start at the k best distinct optima of its trials (0: fresh
-    # random starts each, the paper's literal protocol, ~6x the time of the library stage of identify_joint)
+    # random starts each, the literal protocol, 6-13x the time of the library stage of identify_joint)
     "joint": {"trials": 50, "monte_carlo": 100, "monte_carlo_starts": 8},
     "polish": {"joint": True, "runs": False, "max_iterations": 60, "nested": True},
     "keyphasor": True,  # runs with a keyphasor: absolute phases, phase prior N(0, (Omega sigma_t)^2); false: free
