@@ -35,6 +35,10 @@ Usage (from the repository root, in the project's environment):
     # thread, twice in turn: CPU seconds and how far the steady states differ
     python benchmarks/main_job_benchmark.py --solves FOLDER --old-src OLD/src --variant expansion --scenarios 200
 
+    # did the results move? two finished runs of the main job: the ledger's columns, every estimate (in standard
+    # errors of the old one), each diagnosis's verdict
+    python benchmarks/main_job_benchmark.py --results OLD_FOLDER NEW_FOLDER
+
 Timings on a shared machine are noisy: the load average before and after each run is printed; compare the
 two columns of one invocation, not figures taken at different times.
 """
@@ -278,6 +282,38 @@ def solve_comparison(folder: Path, old_src: Path, variant: str, n: int, repeats:
           f"largest relative change of a converged state {change.max():.1e} (median {np.median(change):.1e})")
 
 
+def results_comparison(old: Path, new: Path) -> None:
+    """How far a run's results moved against another's: per ledger column group the largest relative change,
+    per variant the largest change of an estimate over its old standard error, and whether each diagnosis's
+    diagnosis recommends the same effects (diagnosis.yaml) and says so in the same words."""
+    import yaml
+
+    ledgers = [pd.read_csv(folder / "results" / "ledger.tsv", sep="\t") for folder in (old, new)]
+    numeric = [c for c in ledgers[0].columns if pd.api.types.is_numeric_dtype(ledgers[0][c])]
+    change = ((ledgers[1][numeric] - ledgers[0][numeric]).abs() / ledgers[0][numeric].abs()).max()
+    validation = [c for c in numeric if c.startswith(("validation", "chi2_dof_v"))]
+    groups = {"fit (chi2, chi2_dof, bic, per fit run)": [c for c in numeric if c not in validation],
+              "validation runs": validation}
+    for name, columns in groups.items():
+        print(f"ledger, {name}: largest relative change {change[columns].max():.1e} ({change[columns].idxmax()})")
+    text = [c for c in ledgers[0].columns if c not in numeric]
+    same_text = all((ledgers[0][c].astype(str) == ledgers[1][c].astype(str)).all() for c in text)
+    print(f"ledger, text columns the same: {same_text}")
+    for variant in ledgers[0]["variant"]:
+        tables = [pd.read_csv(folder / "results" / variant / "parameters.tsv", sep="\t") for folder in (old, new)]
+        moved = float(((tables[1]["value"] - tables[0]["value"]).abs() / tables[0]["stderr"]).max())
+        diagnoses = [yaml.safe_load((folder / "results" / variant / "diagnosis.yaml").read_text())
+                     for folder in (old, new)]
+        recommended = [(d.get("recommended_variant") or {}).get("spec", {}).get("effects") for d in diagnoses]
+        confounded = [d.get("confounded") for d in diagnoses]
+        same = recommended[0] == recommended[1] and confounded[0] == confounded[1]
+        text = "word for word" if diagnoses[0]["conclusion"] == diagnoses[1]["conclusion"] else "not word for word"
+        print(f"{variant}: estimates moved at most {moved:.1e} standard errors; diagnosis: the recommended effects "
+              f"and the confounded ones {'the same' if same else 'DIFFER'}, the conclusion {text}")
+        if text != "word for word":
+            print(f"  old: {diagnoses[0]['conclusion']}\n  new: {diagnoses[1]['conclusion']}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--old", type=Path, help="folder of the earlier commit's workflow run")
@@ -293,7 +329,12 @@ def main() -> None:
     parser.add_argument("--solves", type=Path, help="folder of a workflow run: time one chunk's solves, old vs new")
     parser.add_argument("--old-src", type=Path, help="with --solves: the older source tree (its src folder)")
     parser.add_argument("--scenarios", type=int, default=200, help="with --solves: the first N scenarios")
+    parser.add_argument("--results", type=Path, nargs=2, metavar=("OLD", "NEW"),
+                        help="two finished runs of the main job: how far the results moved")
     args = parser.parse_args()
+    if args.results:
+        results_comparison(*args.results)
+        return
     if args.solves:
         if args.old_src is None:
             parser.error("--solves needs --old-src")
