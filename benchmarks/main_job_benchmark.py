@@ -267,7 +267,9 @@ def solve_comparison(folder: Path, old_src: Path, variant: str, n: int, repeats:
             for name, src in (("old", old_src), ("new", ROOT / "src")):
                 env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(src)}
                 run = subprocess.run([sys.executable, "-c", _SOLVE, str(folder), variant, str(n), f"{tmp}/{name}.pkl"],
-                                     env=env, capture_output=True, text=True, check=True)
+                                     env=env, capture_output=True, text=True, check=False)
+                if run.returncode:
+                    raise SystemExit(f"the solves with {src} failed:\n{run.stderr[-3000:]}")
                 cpu[name].append(float(run.stdout.split()[-1]))
         old, new = (pickle.load(open(f"{tmp}/{name}.pkl", "rb")) for name in ("old", "new"))
     both = old.success & new.success

@@ -123,7 +123,7 @@ LIGHT = {"k_b": 2331.5, "zeta_s": 0.01, "zeta_bup": 0.0, "q_x": 0.005, "q_y": 0.
 
 def _run_up_radius(variant, values, rpm, mass_g, harmonics=5):
     """The reference: the Floquet radius of the solver's own run-up to ``rpm`` (stability assessed there)."""
-    from hybridtwin.solver import solve_sweep
+    from hybridtwin.continuation import solve_sweep
 
     full = variant.values({**values, "m_e": mass_g * 1e-3})
     speeds = np.append(np.arange(300.0, rpm, 25.0), rpm)

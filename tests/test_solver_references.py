@@ -320,7 +320,7 @@ def test_sweeps_in_lockstep_equal_their_own_sweeps_jump_included(block, monkeypa
 
 def test_lockstep_sweeps_that_jump_at_different_steps_and_go_on_equal_their_own_sweeps():
     """A sweep's failed continuations wait while the other scenarios go on, and are refined and jumped in one
-    batch with those of other steps (``solver._sweep_pass``): three hardening Duffing oscillators whose upper
+    batch with those of other steps (``continuation._sweep_pass``): three hardening Duffing oscillators whose upper
     folds lie at different speeds (gamma 0.05, 0.1, 0.2: jumps at 1.2, 1.3 and 1.45) run up together to 1.6,
     each continuing on the lower branch after its jump. Every step of each equals its own sweep to the bit,
     messages and branch labels included."""

@@ -20,7 +20,8 @@ from hybridtwin.model import LocalForce
 from hybridtwin.pod import pod_of_runs
 from hybridtwin.scenarios import solve_runs
 from hybridtwin.snapshots import read_chunks, write_chunk
-from hybridtwin.solver import solve, solve_sweep
+from hybridtwin.continuation import solve_sweep
+from hybridtwin.solver import solve
 from hybridtwin.variants import BUILTIN_VARIANTS, Variant
 
 GEOMETRIC = Variant.from_spec("geometric", BUILTIN_VARIANTS["geometric"], {})
@@ -238,19 +239,19 @@ def test_a_jump_that_lands_on_an_unstable_branch_goes_on_to_a_stable_one(monkeyp
     converges to the unstable middle branch at 965 RPM, the linear response to the stable lower one. The jump
     reports the stable one, the solution the run-down reaches by continuation (the reference); with the
     unstable start alone, the unstable landing is kept, flagged."""
-    import hybridtwin.solver as solver
+    import hybridtwin.continuation as continuation
 
     down = solve_sweep(_bistable, np.arange(1000.0, 959.0, -5.0), 1, harmonics=5, direction="down")
     at = dict(zip(down.rpm, down.results))
     reference, x_last = at[965.0], at[960.0].state
     assert reference.stable[0]
     options = {"harmonics": 5, "stability": False}  # as solve_sweep passes them: the jump assesses regardless
-    monkeypatch.setattr(solver, "_JUMP_STARTS", (2.0,))
-    unstable = solver._jump(_bistable, np.array([960.0]), np.array([965.0]), x_last, np.arange(1), "run-up", options)
+    monkeypatch.setattr(continuation, "_JUMP_STARTS", (2.0,))
+    unstable = continuation._jump(_bistable, np.array([960.0]), np.array([965.0]), x_last, np.arange(1), "run-up", options)
     assert unstable.success[0] and not unstable.stable[0] and 1.05 < unstable.floquet_radius[0] < 1.2
     assert unstable.message[0].startswith("unstable periodic solution")
-    monkeypatch.setattr(solver, "_JUMP_STARTS", (2.0, None))
-    jumped = solver._jump(_bistable, np.array([960.0]), np.array([965.0]), x_last, np.arange(1), "run-up", options)
+    monkeypatch.setattr(continuation, "_JUMP_STARTS", (2.0, None))
+    jumped = continuation._jump(_bistable, np.array([960.0]), np.array([965.0]), x_last, np.arange(1), "run-up", options)
     assert jumped.stable[0] and jumped.branch[0] == "run-up, jump between 960 and 965 RPM"
     # the same periodic solution as the run-down's, both converged to 1e-10: agreement to ~1e-9 of the amplitude
     scale = np.abs(reference.harmonics[0]).max()

@@ -3,7 +3,8 @@
 from .effect_base import Context, Effect, Parameter, Params, PolynomialBearing, Term
 from .model import LocalForce, Model, System, rpm_to_rad_s
 from .shaft import Shaft
-from .solver import SteadyState, Sweep, solve, solve_sweep
+from .continuation import Sweep, solve_sweep
+from .solver import SteadyState, solve
 
 __all__ = [
     "Context", "Effect", "LocalForce", "Model", "Parameter", "Params", "PolynomialBearing", "Shaft",

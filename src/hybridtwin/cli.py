@@ -26,7 +26,8 @@ from .effect_base import Effect
 from .effects import builtin_effects
 from .machine import Machine, MachineSpecError, default_machine
 from .sensor import harmonics_frame, sensor_harmonics, time_series_frame
-from .solver import SteadyState, solve, solve_sweep
+from .continuation import solve_sweep
+from .solver import SteadyState, solve
 from .variants import BUILTIN_VARIANTS, EffectsFileError, Variant, load_effects_files
 
 #: the config read when --config is not given and the command runs from the project root

@@ -99,7 +99,7 @@ def run_up(variant, rpm: Sequence[float], values: Mapping[str, Array | float], h
     with ``jumps``, also (S,) flags: True for a set whose run-up jumped between
     branches at any step up to the highest of ``rpm`` (a fold crossed on the way).
     """
-    from .solver import solve_sweep
+    from .continuation import solve_sweep
 
     base = variant.values(values)
     S = max(np.size(v) for v in base.values())
@@ -130,7 +130,8 @@ def run_ups(variant, rpm: Array, values: Mapping[str, Array], harmonics: int, st
 
     values: complete parameter values [SI], each (S,). Returns the ``SteadyState`` of the S sets and (S,)
     flags: True for a set whose run-up jumped between branches on the way (a fold crossed)."""
-    from .solver import SteadyState, solve_sweep
+    from .continuation import solve_sweep
+    from .solver import SteadyState
 
     rpm = np.asarray(rpm, float)
     S = rpm.size

@@ -3,7 +3,7 @@
 Between the run speeds a model is not a straight line: near a resonance its amplitude rises and its phase turns
 by 180 degrees within a few RPM, and a nonlinear bearing can make the response multi-valued (the run-up and the
 run-down reach different steady states over a band of speeds, with a jump at each end). So the curves here are
-harmonic-balance sweeps by continuation (``solver.solve_sweep``), one run-up and one run-down per eccentric mass
+harmonic-balance sweeps by continuation (``continuation.solve_sweep``), one run-up and one run-down per eccentric mass
 of the fit runs, on a dense speed grid over the runs' range; the values are the joint fit's estimates, each
 per-run parameter (the bow) from its law over the fitted runs (``validation.values_at``, as for the validation
 runs). Unstable stretches (a Floquet multiplier outside the unit circle: the machine cannot stay there) are
@@ -31,7 +31,7 @@ from . import validation as val  # noqa: E402
 from .identification import wrap  # noqa: E402
 from .report import MICRO, ORDERS, VALIDATION_STYLE, RunComparison, mass_colours  # noqa: E402
 from .sensor import sensor_channels, sensor_names  # noqa: E402
-from .solver import solve_sweep  # noqa: E402
+from .continuation import solve_sweep  # noqa: E402
 
 Array = np.ndarray
 SWEEPS = {"up": "run-up", "down": "run-down"}

@@ -69,7 +69,7 @@ from .machine import Machine, default_machine
 from .measurements import DataError, read_runs
 from .model import rpm_to_rad_s
 from .sensor import sensor_dofs, sensor_names
-from .solver import solve_sweep
+from .continuation import solve_sweep
 from .transient import NotSettledError, SettledPeriod, run_up_harmonics
 from .variants import EffectsFileError, Variant, load_effects_files
 

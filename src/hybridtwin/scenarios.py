@@ -22,7 +22,8 @@ import pandas as pd
 
 from .effect_base import Array
 from .sensor import sensor_harmonics
-from .solver import SteadyState, flag_unstable, floquet_radius, solve_sweep
+from .continuation import solve_sweep
+from .solver import SteadyState, flag_unstable, floquet_radius
 from .variants import Variant
 
 SPLITS = ("train", "validation", "test")
