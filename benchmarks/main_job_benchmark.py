@@ -146,6 +146,20 @@ def worktree(workdir: Path, name: str, commit: str) -> Path:
     return path
 
 
+def _literal_and_optima(fit, k: int) -> tuple[dict, dict]:
+    """``fit(monte_carlo_starts)`` with the literal repeats (0) and with ``k`` starts, on one BLAS thread: the fits
+    and their CPU seconds, keyed "literal" and "optima"."""
+    from threadpoolctl import threadpool_limits
+
+    fits, cpu = {}, {}
+    for name, starts in (("literal", 0), ("optima", k)):
+        start = time.process_time()
+        with threadpool_limits(1):
+            fits[name] = fit(starts)
+        cpu[name] = time.process_time() - start
+    return fits, cpu
+
+
 def protocol_comparison(folder: Path, variant_name: str, runs: list[str]) -> pd.DataFrame:
     """Per run: the per-run protocol with the paper's literal repeats and with the workflow's setting, CPU
     seconds, LM problems, the largest change of the estimate (normalised units), the Monte Carlo std of each physical
@@ -155,8 +169,6 @@ def protocol_comparison(folder: Path, variant_name: str, runs: list[str]) -> pd.
 
     import numpy as np
     import yaml
-    from threadpoolctl import threadpool_limits
-
     from hybridtwin import forward as fwd
     from hybridtwin import identification as idn
     from hybridtwin.library import Library
@@ -170,13 +182,9 @@ def protocol_comparison(folder: Path, variant_name: str, runs: list[str]) -> pd.
         data = idn.run_data(harmonics, run, keyphasor=options["keyphasor"])
         library = Library.load(folder / "results" / variant_name / "library" / f"{run}.zarr")
         errors = idn.model_errors(validation, [run], options["model_error"])
-        fits, cpu = {}, {}
-        for name, k in (("literal", 0), ("optima", int(options["monte_carlo_starts"]))):
-            start = time.process_time()
-            with threadpool_limits(1):
-                fits[name] = idn.identify([fwd.SensorSurrogate(library)], [data], (),
-                                          replace(idn.protocol_options(options), monte_carlo_starts=k), errors)
-            cpu[name] = time.process_time() - start
+        fits, cpu = _literal_and_optima(lambda k: idn.identify(
+            [fwd.SensorSurrogate(library)], [data], (), replace(idn.protocol_options(options), monte_carlo_starts=k),
+            errors), int(options["monte_carlo_starts"]))
         tables = {name: fit.table().set_index("parameter") for name, fit in fits.items()}
         physical = [p for p in tables["literal"].index if p != "phase"]
         spread = tables["optima"].loc[physical, "mc_std"] / tables["literal"].loc[physical, "mc_std"]
@@ -197,7 +205,6 @@ def joint_comparison(folder: Path, variant_name: str) -> dict:
     (normalised units), the Monte Carlo std of the shared physical parameters (optima / literal)."""
     import numpy as np
     import yaml
-    from threadpoolctl import threadpool_limits
 
     from hybridtwin import config as cfg
     from hybridtwin import identification as idn
@@ -213,13 +220,9 @@ def joint_comparison(folder: Path, variant_name: str) -> dict:
     per_run = {run: idn.read_parameters(results / "runs" / run / "parameters.tsv") for run in runs}
     harmonics = idn.read_harmonics(folder / "results" / "data" / "harmonics.tsv")
     validation = pd.read_csv(results / "library_validation.tsv", sep="\t")
-    fits, cpu = {}, {}
-    for name, k in (("literal", 0), ("optima", int(options["joint"]["monte_carlo_starts"]))):
-        start = time.process_time()
-        with threadpool_limits(1):
-            fits[name] = fit_joint(variant, {**options, "joint": {**options["joint"], "monte_carlo_starts": k}},
-                                   libraries, harmonics, per_run, validation, int(config["harmonics"])).library_fit
-        cpu[name] = time.process_time() - start
+    fits, cpu = _literal_and_optima(lambda k: fit_joint(
+        variant, {**options, "joint": {**options["joint"], "monte_carlo_starts": k}}, libraries, harmonics, per_run,
+        validation, int(config["harmonics"])).library_fit, int(options["joint"]["monte_carlo_starts"]))
     tables = {name: fit.table() for name, fit in fits.items()}
     shared = tables["literal"]["run"].eq("all") & tables["literal"]["parameter"].ne("phase")
     spread = tables["optima"].loc[shared, "mc_std"] / tables["literal"].loc[shared, "mc_std"]

@@ -80,58 +80,48 @@ def solve_sweep(
     label = "run-up" if direction == "up" else "run-down"
     options = {**options, "stability": False}  # assessed once per step, below
     results: list[SteadyState | None] = [None] * speeds.shape[0]
-    # Passes over the steps: a scenario whose continuation fails at a step waits there (``_Deferred``) while the
+    # Passes over the steps: a scenario whose continuation fails at a step waits there (``_sweep_pass``) while the
     # others go on; then the step halvings and jumps of every waiting scenario, whatever its step, run in one
     # batch (few scenarios per step would each pay a batched call's fixed cost), and those scenarios go on from
     # the step after, in the next pass. Each scenario meets the same computations as in a step-by-step sweep.
     begin = np.full(n_scenarios, -1)  # the last step already final, per scenario
     columns = np.arange(n_scenarios)
-    while columns.size:
-        waiting = _sweep_pass(build, speeds, results, columns, begin, label, options, stability)
-        if not waiting.rows.size:
+    while True:
+        waits = _sweep_pass(build, speeds, results, columns, begin, label, options, stability)
+        rows = np.flatnonzero(waits >= 0)
+        if not rows.size:
             break
-        rpm_to = speeds[waiting.step, waiting.rows]
-        res = _refine(build, waiting.first, waiting.rpm_from, rpm_to, waiting.x0, waiting.rows, max_refine, label,
-                      options)
+        rows = rows[np.argsort(waits[rows], kind="stable")]  # by step, then scenario
+        step = waits[rows]
+        steps = np.unique(step)
+        # each waiting row's first attempt is its row of results[step], its start that of results[step - 1]
+        first = SteadyState.concatenate([results[k].take(rows[step == k]) for k in steps])
+        x0 = np.concatenate([results[k - 1].state[rows[step == k]] for k in steps])
+        rpm_from, rpm_to = speeds[step - 1, rows], speeds[step, rows]
+        res = _refine(build, first, rpm_from, rpm_to, x0, rows, max_refine, label, options)
         lost = np.flatnonzero(~res.success)
         if lost.size:
-            _replace(res, lost, _in_blocks(lost.size, lambda b: _jump(
-                build, waiting.rpm_from[lost[b]], rpm_to[lost[b]], waiting.x0[lost[b]], waiting.rows[lost[b]], label,
-                options)))
+            res.put(lost, _in_blocks(lost.size, lambda b: _jump(
+                build, rpm_from[lost[b]], rpm_to[lost[b]], x0[lost[b]], rows[lost[b]], label, options)))
         if stability:  # (jumps assessed their own landings)
-            converged = np.flatnonzero(res.success & np.isnan(res.floquet_radius))
-            if converged.size:
-                assess_stability(build(rpm_to[converged], waiting.rows[converged]), res, converged)
-        for step in np.unique(waiting.step):
-            mine = np.flatnonzero(waiting.step == step)
-            _replace(results[step], waiting.rows[mine], SteadyState.concatenate([res], mine))
-        begin[waiting.rows] = waiting.step
-        columns = waiting.rows
+            _assess_new(build, rpm_to, rows, res, np.arange(rows.size))
+        for k in steps:
+            results[k].put(rows[step == k], res.take(np.flatnonzero(step == k)))
+        begin[rows] = step
+        columns = rows
     return Sweep(speeds[:, 0] if np.ndim(rpm) == 1 else speeds, results, direction)
 
 
-@dataclass
-class _Deferred:
-    """Scenarios ``rows`` whose continuation to step ``step`` (from ``rpm_from``, state ``x0``) failed at the first
-    attempt ``first``: their step halvings and jumps are still to come."""
-
-    rows: Array
-    step: Array
-    rpm_from: Array
-    x0: Array
-    first: SteadyState | None
-
-
 def _sweep_pass(build, speeds: Array, results: list, columns: Array, begin: Array, label: str, options: dict,
-                stability: bool) -> _Deferred:
+                stability: bool) -> Array:
     """Advance scenarios ``columns`` from their step ``begin + 1`` on, in lockstep, into ``results`` (a step's
     SteadyState of every scenario; a scenario that waits, or has not reached the step yet, holds a placeholder
-    row there until a later pass). Continuation failures wait (``_Deferred``) instead of being refined here."""
+    row there until a later pass). A scenario whose continuation fails stops there, its failed first attempt in
+    ``results``: the step where each waits for its step halvings and jumps, (S,), -1 where none does."""
     n_steps, S = speeds.shape
-    waits: list[tuple] = []
-    waiting = np.zeros(S, bool)
-    for i in range(n_steps):
-        mine = columns[(begin[columns] < i) & ~waiting[columns]]
+    waits = np.full(S, -1)
+    for i in range(begin[columns].min() + 1, n_steps):
+        mine = columns[(begin[columns] < i) & (waits[columns] < 0)]
         speed = speeds[i]
         previous = results[i - 1] if i > 0 else None
         active = mine[~np.isnan(speed[mine])]
@@ -141,11 +131,7 @@ def _sweep_pass(build, speeds: Array, results: list, columns: Array, begin: Arra
         parts, rows = [], []
         if cont.size:
             first = _attempt(build, speed[cont], previous.state[cont], cont, label, options)
-            failed = np.flatnonzero(~first.success)
-            if failed.size:
-                waiting[cont[failed]] = True
-                waits.append((cont[failed], np.full(failed.size, i), speeds[i - 1, cont[failed]],
-                               previous.state[cont[failed]], SteadyState.concatenate([first], failed)))
+            waits[cont[~first.success]] = i
             parts.append(first)
             rows.append(cont)
         if fresh.size:
@@ -162,17 +148,18 @@ def _sweep_pass(build, speeds: Array, results: list, columns: Array, begin: Arra
                 rows.append(rest)
             results[i] = SteadyState.concatenate(parts, np.argsort(np.concatenate(rows)))
         elif rows:
-            order = np.concatenate(rows)
-            _replace(results[i], order, SteadyState.concatenate(parts))
-        if stability and mine.size:
-            converged = active[results[i].success[active] & np.isnan(results[i].floquet_radius[active])]
-            if converged.size:
-                assess_stability(build(speed[converged], converged), results[i], converged)
-    if not waits:
-        return _Deferred(np.arange(0), np.arange(0), np.zeros(0), np.zeros((0,)), None)
-    rows, step, rpm_from, x0, first = zip(*waits)
-    return _Deferred(np.concatenate(rows), np.concatenate(step), np.concatenate(rpm_from), np.concatenate(x0),
-                     SteadyState.concatenate(list(first)))
+            results[i].put(np.concatenate(rows), SteadyState.concatenate(parts))
+        if stability:
+            _assess_new(build, speed[active], active, results[i], active)
+    return waits
+
+
+def _assess_new(build, rpm: Array, rows: Array, result: SteadyState, where: Array) -> None:
+    """The stability of the converged, not yet assessed rows ``where`` of ``result`` (scenarios ``rows`` at
+    speeds ``rpm``, one per row of ``where``)."""
+    new = result.success[where] & np.isnan(result.floquet_radius[where])
+    if new.any():
+        assess_stability(build(rpm[new], rows[new]), result, where[new])
 
 
 def _sweep_speeds(rpm: Sequence[float] | Array, n_scenarios: int, direction: str) -> Array:
@@ -210,7 +197,7 @@ def _in_blocks(n: int, solve_block: Callable[[Array], SteadyState]) -> SteadySta
 
 def _ended(previous: SteadyState, rows: Array) -> SteadyState:
     """Scenarios ``rows`` at a step after their sweep's last speed: unsolved, with the reason."""
-    out = SteadyState.concatenate([previous], rows)
+    out = previous.take(rows)
     out.harmonics[:], out.state[:], out.residual[:] = np.nan, np.nan, np.nan
     out.success[:], out.status[:], out.iterations[:], out.floquet_radius[:] = False, INVALID, 0, np.nan
     out.message[:] = "no speed at this step: the scenario's sweep has ended"
@@ -246,20 +233,13 @@ def _jump(build, rpm_from: Array, rpm_to: Array, x_last, rows, label, options) -
             best = trial
         else:  # a stable landing, or a first landing at all, replaces what the earlier starts found
             better = np.flatnonzero(trial.stable | (trial.success & ~best.success[open_]))
-            _replace(best, open_[better], SteadyState.concatenate([trial], better))
+            best.put(open_[better], trial.take(better))
     failed = np.flatnonzero(~best.success)
     best.message[failed] = [
         f"no periodic solution found at {rpm_to[i]:g} RPM: the {label} branch ends at a fold after {rpm_from[i]:g} "
         f"RPM and none of {len(_JUMP_STARTS)} starting points converged" for i in failed]
     best.branch[failed] = label
     return best
-
-
-def _replace(target: SteadyState, where: Array, source: SteadyState) -> None:
-    """target[where] = source, field by field."""
-    for f in ("harmonics", "success", "status", "message", "iterations", "residual", "branch", "state",
-              "floquet_radius"):
-        getattr(target, f)[where] = getattr(source, f)
 
 
 def _attempt(build, rpm_to: Array, x0, rows, label, options) -> SteadyState:
@@ -287,5 +267,5 @@ def _refine(build, res: SteadyState, rpm_from: Array, rpm_to: Array, x0, rows, d
     if ok.size:
         again = _continue(build, mid[ok], rpm_to[failed[ok]], half.state[ok], rows[failed[ok]], depth - 1, label,
                           options)
-        _replace(res, failed[ok], again)
+        res.put(failed[ok], again)
     return res

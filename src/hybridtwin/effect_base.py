@@ -226,6 +226,8 @@ class Term:
 
 
 _VARIABLES = ("u", "v", "du", "dv")
+#: the y plane's (own deflection, other deflection, own slope, other slope) as indices into _VARIABLES
+_OTHER_PLANE = (1, 0, 3, 2)
 
 
 @dataclass(eq=False)
@@ -257,12 +259,12 @@ class PolynomialBearing(Effect):
 
     def stiffness(self, ctx: Context) -> Array:
         out = ctx.zeros()
-        own = {"x": ("u", "v", "du", "dv"), "y": ("v", "u", "dv", "du")}
+        own = [_VARIABLES, tuple(_VARIABLES[i] for i in _OTHER_PLANE)]  # the x plane's force, the y plane's
         for term in self.terms:
             if term.degree != 1:
                 continue
             c = term.coefficient(ctx.p)
-            for variables in own.values():
+            for variables in own:
                 row = ctx.dof(f"{variables[0]}{self.node}")
                 col = ctx.dof(f"{variables[term.powers.index(1)]}{self.node}")
                 out[:, row, col] += c
@@ -275,7 +277,7 @@ class PolynomialBearing(Effect):
         other slope) of the x plane and of the y plane, (2, S, n_local, N), so every monomial is one
         product for both (elementwise the same arithmetic as plane by plane)."""
         n_local = q.shape[1]
-        swap = [1, 0, 3, 2][:n_local]  # the y plane's variables in the x plane's order
+        swap = list(_OTHER_PLANE[:n_local])  # the y plane's variables in the x plane's order
         max_power = max(max(t.powers) for t in self.terms)
         powers = _powers(np.stack([q, q[:, swap]]), max_power)  # [e] -> (2, S, n_local, N)
         F = np.zeros((2,) + q.shape[:1] + q.shape[2:])  # (plane, S, N): the force on its own deflection

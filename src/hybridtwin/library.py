@@ -54,7 +54,7 @@ class Library:
         h = np.arange(self.n_harmonics)
         rows = [feature_index(h, dof, self.n_harmonics, self.n_dof, imaginary)
                 for imaginary in (False, True) for dof in self.sensor_dofs]
-        self._sensor_modes = self.modes[np.concatenate(rows)]  # (2 * 2 * (H+1), m_d)
+        self._sensor_modes = self.modes[np.concatenate(rows)]  # (2 C (H+1), m_d), C sensor channels
 
     @property
     def n_modes(self) -> int:
@@ -73,7 +73,7 @@ class Library:
         ``jacobian`` also d/dp (N, H+1, C, d) [m / SI].
 
         The sPGD amplitudes are projected on the sensor rows of the POD basis once (the response is
-        linear in them), so a batch costs the factors and one product with (K, 4 (H+1)) amplitudes.
+        linear in them), so a batch costs the factors and one product with (K, 2 C (H+1)) amplitudes.
         """
         x = self.normalise(values)
         y, J = self._sensor_model().evaluate(x, jacobian=jacobian)
@@ -83,7 +83,7 @@ class Library:
         return self._to_sensor(y), np.moveaxis(self._to_sensor(J), 0, -1)
 
     def _sensor_model(self) -> SparsePGD | PiecewiseSPGD:
-        """The sPGD projected on the sensor rows, a_k Phi_sensor^T (K, 4 (H+1)), cached for the current model."""
+        """The sPGD projected on the sensor rows, a_k Phi_sensor^T (K, 2 C (H+1)), cached for the current model."""
         if getattr(self, "_sensor_cache", (None,))[0] is not self.model:
             self._sensor_cache = (self.model, self.model.projected(self._sensor_modes.T))
         return self._sensor_cache[1]

@@ -250,7 +250,7 @@ class LMResult:
 
 def levenberg_marquardt(problem, theta0: Array, X: Array, options: LMOptions = LMOptions(),
                         fixed: Array | None = None) -> LMResult:
-    """Minimise ||r||^2 + ||rho||^2 (eq. 9-11) from every start theta0 (T, n), trial t on data X[t] (T, R, H, 2).
+    """Minimise ||r||^2 + ||rho||^2 (eq. 9-11) from every start theta0 (T, n), trial t on data X[t] (T, R, H, C).
 
     Batched projected Levenberg-Marquardt (module docstring), in batches of ``options.batch`` trials.
     ``fixed`` (T, n) or (n,) bool: entries held at their start (a profile: the others are fitted with these

@@ -625,8 +625,8 @@ def _require_columns(path: Path, have: Sequence[str], required: Sequence[str], k
 def _record_columns(path: Path, columns: Sequence[str], names: Sequence[str] = DEFAULT_CHANNELS
                     ) -> tuple[str, dict[str, tuple[str, str]]]:
     """(time column, {sensor name: (its column, unit)}) of a record header, or DataError."""
-    listed = ", ".join(names)
-    expected = ("time_s, x_mm and y_mm (or x_m and y_m)" if tuple(names) == DEFAULT_CHANNELS else
+    listed, varm = ", ".join(names), tuple(names) == DEFAULT_CHANNELS
+    expected = ("time_s, x_mm and y_mm (or x_m and y_m)" if varm else
                 f"time_s and one column <sensor>_mm (or <sensor>_m) for each of the machine's sensors {listed}")
     _require_columns(path, columns, ("time_s",), RECORD_COLUMNS, f"a record needs {expected}, optionally keyphasor")
     problems, chosen = [], {}
@@ -653,14 +653,14 @@ def _record_columns(path: Path, columns: Sequence[str], names: Sequence[str] = D
             chosen[axis] = known[0]
     extra = [c for c in columns if c not in RECORD_COLUMNS and c not in claimed]
     if extra:
-        has = ("time_s, x_mm, y_mm or x_m, y_m, keyphasor" if tuple(names) == DEFAULT_CHANNELS else
+        has = ("time_s, x_mm, y_mm or x_m, y_m, keyphasor" if varm else
                f"time_s, a column <sensor>_mm or <sensor>_m for each of the machine's sensors {listed}, keyphasor")
         problems.append(f"unexpected column(s) {extra} (a record has {has})")
-    if tuple(names) == DEFAULT_CHANNELS and any(c.rsplit("_", 1)[-1] in UNITS for c in extra):
+    if varm and any(c.rsplit("_", 1)[-1] in UNITS for c in extra):
         problems.append("displacement columns of other sensors than the VARM's x and y: the record of a machine "
                         "of your own? Its channels are read by its config's sensors (check-data --config FILE)")
     if problems:
-        sensors = "" if tuple(names) == DEFAULT_CHANNELS else f"; the machine's sensors {listed}"
+        sensors = "" if varm else f"; the machine's sensors {listed}"
         raise DataError(f"{path}: line 1 (header): " + "; ".join(problems) + f"; the header has {list(columns)}"
                         + sensors)
     return "time_s", chosen

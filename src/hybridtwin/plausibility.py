@@ -10,7 +10,7 @@ checks that its numbers can be what the sensor measured on this machine:
   +-range expressed in metres (+-0.014 for the paper's lasers): metres under an
   ``x_mm`` header. A sensor with noise cannot write a whole record inside 14 um.
 - **Speed** (``check_speed``, an error): the record's strongest spectral line
-  (Hann window, zero-padded FFT of both channels, parabolic peak) must be the
+  (Hann window, zero-padded FFT of every channel, parabolic peak) must be the
   1X at the sheet's nominal speed within ``SPEED_TOLERANCE`` (the band the
   speed refinement searches) plus half a frequency bin; otherwise the error
   names both speeds (a wrong rpm in the sheet, or the record of another run).
@@ -107,7 +107,7 @@ def check_magnitudes(record: Record, sensor: Sensor) -> None:
 
 
 def dominant_rpm(record: Record) -> tuple[float, float]:
-    """(speed of the strongest spectral line of both channels [RPM], its power over the spectrum's median)."""
+    """(speed of the strongest spectral line of all channels [RPM], its power over the spectrum's median)."""
     data = record.data
     data = (data - data.mean(0)) * np.hanning(record.n_samples)[:, None]
     n_fft = 1 << int(np.ceil(np.log2(8 * record.n_samples)))
@@ -118,7 +118,7 @@ def dominant_rpm(record: Record) -> tuple[float, float]:
         return float("nan"), 0.0
     k = band[np.argmax(power[band])]
     floor = float(np.median(power[band]))
-    if not power[k] > 0:  # both channels constant: no line at all
+    if not power[k] > 0:  # every channel constant: no line at all
         return float("nan"), 0.0
     f = freq[k]
     if band[0] < k < freq.size - 1 and power[k - 1] > 0 and power[k + 1] > 0:
@@ -164,9 +164,8 @@ def response_flags(record: Record, harmonics: Array, sigma: Array, residual: Arr
     # the first x, y pair's orbit only (the machine's first plane, the VARM's one): a plane elsewhere can whirl
     # backward in earnest, between the backward and forward critical speeds of an anisotropic support (the
     # stepped rotor's d2 at 3700-3850 RPM), which no check on one run can tell from swapped channels
-    for ix, iy in record.pairs[:1]:
-        if not (significant[ix] and significant[iy]):
-            continue
+    ix, iy = record.pairs[0] if record.pairs else (None, None)
+    if ix is not None and significant[ix] and significant[iy]:
         pair = record.names[ix] + record.names[iy]
         swapped = "x and y swapped?" if pair == "xy" else f"{record.names[ix]} and {record.names[iy]} swapped?"
         forward, backward = abs(X1[ix] + 1j * X1[iy]) / 2, abs(X1[ix] - 1j * X1[iy]) / 2

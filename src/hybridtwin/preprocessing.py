@@ -6,7 +6,7 @@ it with a steady-state model (u(t) = Re(sum_h U_h exp(i h Omega t)), 0-peak):
 1. Speed. The nominal RPM is only a set point. ``refine_speed`` finds the
    rotation frequency as the maximum-likelihood frequency of a harmonic
    series in white Gaussian noise: a coarse search of the summed power of
-   1X..HX of both channels within +-2 % of nominal (grid finer than a quarter
+   1X..HX of every channel within +-2 % of nominal (grid finer than a quarter
    of the HX line width), then variable projection (the linear harmonic
    amplitudes solved exactly for each trial Omega, Omega minimising
    sum_ch log RSS_ch, the profile likelihood with an unknown noise level per

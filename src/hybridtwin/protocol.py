@@ -92,7 +92,7 @@ def run_protocol(problem, X: Array, sigma_noise: Array, options: ProtocolOptions
                  extra_starts: Array | None = None) -> ProtocolResult:
     """tau random trials (+ ``extra_starts``) on the data and on n_MC re-sampled copies, batched LM.
 
-    X, sigma_noise: (R, H, 2) measured harmonics and the measured sigmas used for
+    X, sigma_noise: (R, H, C) measured harmonics (C channels) and the measured sigmas used for
     re-sampling (X + sigma (N(0,1) + i N(0,1)), independently per repeat). The random numbers are drawn
     in the same order in both modes (the noise of every repeat, then the trials' starts): the trials on
     the measured data, hence the estimate, do not depend on ``monte_carlo_starts``.

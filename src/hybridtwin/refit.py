@@ -35,6 +35,9 @@ STALL_CHI2 = 0.5
 #: the next forward-selection step wrongly credits to any effect with extra freedom (measured: cross-coupled
 #: stiffness alone stopped at chi^2 644, and any second effect then "explained" the rest down to 318)
 CONTINUATIONS = 3
+#: starts of the shared fit with the candidates' parameters across their ranges, and the times it may widen a
+#: range whose estimate sits at an edge (``shared``)
+SHARED_SPREAD, SHARED_WIDEN = 3, 4
 
 
 @dataclass
@@ -399,7 +402,3 @@ def shared(base: BaseFit, kept: Sequence[Candidate], ranges: Mapping[str, tuple[
     return _from_fit(base, kept, ranges, start, before_chi2, n_data, max_iterations, confidence, per_run=(),
                      pools=(np.mean, np.median), spread=SHARED_SPREAD, widen=SHARED_WIDEN)
 
-
-#: starts of the shared fit with the candidates' parameters across their ranges, and the times it may widen a
-#: range whose estimate sits at an edge (``shared``)
-SHARED_SPREAD, SHARED_WIDEN = 3, 4

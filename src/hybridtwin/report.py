@@ -21,14 +21,14 @@ Conventions (stated once):
   B_h = conj(X_h - i Y_h) / 2 (backward); a harmonic's noise alone has an
   RMS magnitude sqrt((s_x^2 + s_y^2) / 2) in each (``whirl_noise``).
 - Normalised error chi^2 / dof, with chi^2 = sum |X - M|^2 / s^2 over h = 1..H
-  and both channels (the residuals of the fit, each real and imaginary part
+  and the C channels (the residuals of the fit, each real and imaginary part
   weighted by its standard uncertainty s): 1 is the noise floor. A fit run's
-  dof is its share of the joint fit's, 4 H dof / n_data, so the runs' chi^2
-  and dof add up to the joint fit's; a validation run has 4 H - 1 (only its
+  dof is its share of the joint fit's, 2 C H dof / n_data, so the runs' chi^2
+  and dof add up to the joint fit's; a validation run has 2 C H - 1 (only its
   phase aligned). ``p_value``: the probability of a chi^2 at least as large if
   the model were right and the sigmas correct; below ``ALPHA`` the run is
   "beyond noise".
-- Relative error: ||X - M|| / ||X|| over h = 1..H and both channels, the
+- Relative error: ||X - M|| / ||X|| over h = 1..H and all channels, the
   relative L2 error of the signals' periodic part (Parseval).
 - Drift of a constant (``drift_test``): the per-run estimates v_r with
   uncertainties s_r (the Monte Carlo spread of each per-run fit, which the

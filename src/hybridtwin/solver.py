@@ -23,6 +23,7 @@ Amplitudes are 0-peak; t = 0 when the unbalance points to +x.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
@@ -38,6 +39,11 @@ CONVERGED, MAX_ITER, SINGULAR, DIVERGED, LINEAR_SINGULAR, INVALID, STALLED = 0, 
 _DIVERGENCE_FACTOR = 1e3
 _MAX_HALVINGS = 8  # backtracking steps of the damped Newton
 _BLOCK = 256  # most scenarios per batched solve (``floquet_radius``; a sweep's ``continuation._in_blocks``)
+
+
+#: SteadyState's fields with one row per scenario
+_PER_SCENARIO = ("harmonics", "Omega", "success", "status", "message", "iterations", "residual", "branch", "state",
+                 "floquet_radius")
 
 
 @dataclass
@@ -95,12 +101,21 @@ class SteadyState:
         """Failed scenarios and why."""
         return {int(i): str(self.message[i]) for i in np.flatnonzero(~self.success)}
 
+    def take(self, rows: Array) -> "SteadyState":
+        """The scenarios ``rows`` only."""
+        return SteadyState(**{f: getattr(self, f)[rows] for f in _PER_SCENARIO}, n_time=self.n_time)
+
+    def put(self, where: Array, source: "SteadyState") -> None:
+        """Scenarios ``where`` of this result become ``source``'s (the same scenarios at the same speeds: every
+        per-scenario field but ``Omega``), in place."""
+        for f in _PER_SCENARIO:
+            if f != "Omega":
+                getattr(self, f)[where] = getattr(source, f)
+
     @staticmethod
     def concatenate(parts: Sequence["SteadyState"], order: Array | None = None) -> "SteadyState":
         """Stack results of disjoint scenario sets; ``order`` permutes the result."""
-        fields = ("harmonics", "Omega", "success", "status", "message", "iterations", "residual", "branch", "state",
-                  "floquet_radius")
-        stacked = {f: np.concatenate([getattr(p, f) for p in parts]) for f in fields}
+        stacked = {f: np.concatenate([getattr(p, f) for p in parts]) for f in _PER_SCENARIO}
         if order is not None:
             stacked = {f: v[order] for f, v in stacked.items()}
         return SteadyState(**stacked, n_time=parts[0].n_time)
@@ -123,6 +138,17 @@ def fourier_matrices(H: int, N: int) -> tuple[Array, Array]:
     return E, E_plus
 
 
+@functools.cache
+def _aft_matrices(H: int, N: int) -> tuple[Array, Array, Array]:
+    """``fourier_matrices`` and W[n, (k, l)] = E+[k, n] E[n, l], with which the AFT derivative
+    dG[s, i, k, j, l] = sum_n E+[k, n] J[s, i, j, n] E[n, l] is one product J @ W; once per (H, N), read-only."""
+    E, E_plus = fourier_matrices(H, N)
+    W = (E_plus.T[:, :, None] * E[:, None, :]).reshape(N, (2 * H + 1) ** 2)
+    for A in (E, E_plus, W):
+        A.flags.writeable = False
+    return E, E_plus, W
+
+
 def default_n_time(H: int, forces: Sequence) -> int:
     """Alias-free AFT sample count (d+1) H + 1 for degree-d polynomial forces; 64 if not polynomial."""
     degrees = [f.degree for f in forces]
@@ -139,16 +165,14 @@ class _Condensed:
         self.dofs = np.unique(np.concatenate([f.dofs for f in system.forces])) if system.forces else np.array([], int)
         self.local = [np.searchsorted(self.dofs, f.dofs) for f in system.forces]
         self.N = n_time or default_n_time(H, system.forces)
-        self.E, self.E_plus = fourier_matrices(H, self.N)
+        self.E, self.E_plus, self.W = _aft_matrices(H, self.N)
         self.linear_ok = np.ones(system.n_scenarios, bool)
         if not linear:  # the AFT of the local forces only (``sensitivity``): no linear solves
             return
         self.X_lin, self.R = self._linear_solves()
-        K2 = 2 * H + 1
         self.a = _to_real(self.X_lin[:, :, self.dofs])  # (S, c, 2H+1)
-        self.Hc = self.R[:, :, self.dofs, :]  # the receptance on the nonlinear DOFs, (S, H+1, c, c)
-        # dG[s, i, k, j, l] = sum_n E+[k, n] J[s, i, j, n] E[n, l] as one product J @ W, W[n, (k, l)] = E+[k, n] E[n, l]
-        self.W = (self.E_plus.T[:, :, None] * self.E[:, None, :]).reshape(self.N, K2 * K2)
+        Hc = self.R[:, :, self.dofs, :]  # the receptance on the nonlinear DOFs, (S, H+1, c, c)
+        self.H0, self.Hh = Hc[:, 0].real.copy(), Hc[:, 1:].copy()  # h = 0 (real), h = 1..H (``_receptance_times``)
 
     def _linear_solves(self) -> tuple[Array, Array]:
         """Q_lin,h = D_h^-1 F_h and R_h = D_h^-1 B for h = 0..H, block by uncoupled block."""
@@ -193,8 +217,8 @@ class _Condensed:
     def evaluate(self, x: Array, idx: Array, jacobian: bool = True) -> tuple[Array, Array | None]:
         """Residual r = x - a - H G(x) (S', c, 2H+1) and, optionally, dr/dx = I - H dG/dx (S', m, m)."""
         F, J = self._force_series(x, idx, jacobian)
-        Hc = self.Hc[idx]
-        r = x - self.a[idx] - _receptance_times(Hc, (F @ self.E_plus.T)[..., None])[..., 0]
+        H0, Hh = self.H0[idx], self.Hh[idx]
+        r = x - self.a[idx] - _receptance_times(H0, Hh, (F @ self.E_plus.T)[..., None])[..., 0]
         if not jacobian:
             return r, None
         S, c, K2 = x.shape
@@ -202,7 +226,7 @@ class _Condensed:
         # a product per scenario (a stack), not one over the batch: a scenario's round-off must not depend on its batch
         dG = (J.reshape(S, c * c, self.N) @ self.W).reshape(S, c, c, K2, K2).transpose(0, 1, 3, 2, 4).reshape(
             S, c, K2, m)
-        Jr = _receptance_times(Hc, dG).reshape(S, m, m)
+        Jr = _receptance_times(H0, Hh, dG).reshape(S, m, m)
         np.negative(Jr, out=Jr)
         Jr[:, np.arange(m), np.arange(m)] += 1.0
         return r, Jr
@@ -245,15 +269,15 @@ def _to_complex(x: Array) -> Array:
     return out
 
 
-def _receptance_times(Hc: Array, Y: Array) -> Array:
+def _receptance_times(H0: Array, Hh: Array, Y: Array) -> Array:
     """x_h = H_h G_h in real coefficients for q columns at once: Y (S, c, 2H+1, q) -> (S, c, 2H+1, q).
 
     Harmonic h's cosine and sine rows are one complex product, (A + iB)(Y_cos + i Y_sin): the real block
     form [[A, -B], [B, A]] of the receptance (S, c 2H+1, c 2H+1) is block diagonal in h, so its product is
     H+1 products of c x c blocks, not one of the whole matrix."""
     out = np.empty(Y.shape)
-    out[:, :, 0] = Hc[:, 0].real @ Y[:, :, 0]
-    product = Hc[:, 1:] @ (Y[:, :, 1::2] + 1j * Y[:, :, 2::2]).transpose(0, 2, 1, 3)  # (S, H, c, q)
+    out[:, :, 0] = H0 @ Y[:, :, 0]
+    product = Hh @ (Y[:, :, 1::2] + 1j * Y[:, :, 2::2]).transpose(0, 2, 1, 3)  # (S, H, c, q)
     out[:, :, 1::2] = product.real.transpose(0, 2, 1, 3)
     out[:, :, 2::2] = product.imag.transpose(0, 2, 1, 3)
     return out
