@@ -150,7 +150,7 @@ def run_ups(variant, rpm: Array, values: Mapping[str, Array], harmonics: int, st
         jumped[active] |= np.array(["jump" in str(result.branch[a]) for a in active], bool)
         here = np.flatnonzero(last == step)
         if here.size:
-            parts.append(SteadyState.concatenate([result], here))
+            parts.append(result.take(here))
             order.append(here)
     return SteadyState.concatenate(parts, np.argsort(np.concatenate(order))), jumped
 
@@ -290,7 +290,7 @@ class SolverModel:
                           ) -> list[tuple[Array, Array | None]]:
         """``evaluate`` of several runs' models (one variant, same parameters, analytic) in one batched solve
         and one sensitivity call (``evaluate_runs``)."""
-        from .solver import SteadyState, sensitivity
+        from .solver import sensitivity
 
         first = models[0]
         H, d, C = first.harmonics, len(first.parameters), first.C
@@ -307,7 +307,7 @@ class SolverModel:
             ok = np.flatnonzero(result.success)
             steps = SENSITIVITY_STEP * (first.upper - first.lower)
             dQ_ok, dstate_ok = sensitivity(lambda v: batch.build(v, rpm[ok]), {k_: v[ok] for k_, v in values.items()},
-                                           first.parameters, SteadyState.concatenate([result], ok), steps,
+                                           first.parameters, result.take(ok), steps,
                                            condensed=True)
             dQ = np.full((S,) + dQ_ok.shape[1:], np.nan + 0j)
             dstate = np.full((S,) + dstate_ok.shape[1:], np.nan)
@@ -323,7 +323,7 @@ class SolverModel:
                 dM = np.full((x.shape[0], H, C, d), np.nan + 0j)
                 dM[r] = dM_all[sl]
                 if m.warm and r.size:
-                    own = SteadyState.concatenate([result], np.arange(offsets[k], offsets[k + 1]))
+                    own = result.take(np.arange(offsets[k], offsets[k + 1]))
                     m._remember(x[r], own, dstate[sl], batch.jumped[sl])
             out.append((M, dM))
         return out
@@ -376,7 +376,7 @@ class SolverModel:
             good = result.success & (gap <= allowed)
             kept[where[good]] = True
             if good.any():
-                parts.append(SteadyState.concatenate([result], np.flatnonzero(good)))
+                parts.append(result.take(np.flatnonzero(good)))
                 order.append(where[good])
         jumped = np.zeros(S, bool)
         for k, m in enumerate(models):
