@@ -36,7 +36,7 @@ Usage (from the repository root, in the project's environment):
     python benchmarks/main_job_benchmark.py --solves FOLDER --old-src OLD/src --variant expansion --scenarios 200
 
     # did the results move? two finished runs of the main job: the ledger's columns, every estimate (in standard
-    # errors of the old one), each diagnosis's verdict
+    # errors of the old one), each diagnosis's verdict, the libraries' test errors and the per-run protocol's estimates
     python benchmarks/main_job_benchmark.py --results OLD_FOLDER NEW_FOLDER
 
 Timings on a shared machine are noisy: the load average before and after each run is printed; compare the
@@ -317,6 +317,31 @@ def results_comparison(old: Path, new: Path) -> None:
               f"and the confounded ones {'the same' if same else 'DIFFER'}, the conclusion {text}")
         if text != "word for word":
             print(f"  old: {diagnoses[0]['conclusion']}\n  new: {diagnoses[1]['conclusion']}")
+        print(f"  {library_and_protocol_change(old, new, variant)}")
+
+
+def library_and_protocol_change(old: Path, new: Path, variant: str) -> str:
+    """What the libraries' density changes: their test errors (library_validation.tsv, the medians over the runs
+    of each run's median and 95th percentile, and the largest per-run ratio new/old), and how far the paper's
+    per-run protocol moved (runs/*/parameters.tsv: every per-run estimate's change over its old Monte Carlo
+    spread; median, 90th percentile, largest)."""
+    errors = [pd.read_csv(folder / "results" / variant / "library_validation.tsv", sep="\t").set_index("run")
+              for folder in (old, new)]
+    ratio = {q: (errors[1][f"{q}_error_pct"] / errors[0][f"{q}_error_pct"]) for q in ("median", "p95")}
+    moves = []
+    for path in sorted((old / "results" / variant / "runs").glob("*/parameters.tsv")):
+        before = pd.read_csv(path, sep="\t")
+        after = pd.read_csv(new / path.relative_to(old), sep="\t")
+        moves.append((after["value"] - before["value"]).abs() / before["mc_std"].where(before["mc_std"] > 0))
+    moved = pd.concat(moves).dropna() if moves else pd.Series(dtype=float)
+    text = (f"library test error (% of the response, median over the runs) median {errors[0]['median_error_pct'].median():.3g}"
+            f" -> {errors[1]['median_error_pct'].median():.3g}, p95 {errors[0]['p95_error_pct'].median():.3g} -> "
+            f"{errors[1]['p95_error_pct'].median():.3g} (per run new/old: median x{ratio['median'].median():.2f}, "
+            f"largest x{ratio['median'].max():.2f})")
+    if moved.size:
+        text += (f"; per-run protocol estimates moved median {moved.median():.2f}, 90 % {moved.quantile(0.9):.2f}, "
+                 f"largest {moved.max():.3g} Monte Carlo spreads ({moved.size} estimates)")
+    return text
 
 
 def main() -> None:
