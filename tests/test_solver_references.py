@@ -296,7 +296,7 @@ def test_sweeps_in_lockstep_equal_their_own_sweeps_jump_included(block, monkeypa
     including the run-up that passes the upper fold (1.25 < Om_fold < 1.3) and jumps, must be the
     same to the bit, labels and messages included, whether the batch is solved whole or in blocks
     (``block`` 2: the 3 scenarios in 2 blocks); a scenario whose sweep has ended is marked so."""
-    monkeypatch.setattr(solver_module, "_BLOCK", block)
+    monkeypatch.setattr(solver_module, "BLOCK", block)
     gammas = np.array([0.1, 0.05, 0.1])
     ramps = [np.round(np.arange(0.5, 1.3001, 0.05), 10), np.round(np.arange(0.6, 1.0001, 0.1), 10),
              np.round(np.arange(0.5, 0.7001, 0.05), 10)]

@@ -109,7 +109,7 @@ def _harmonics(text: str) -> int:
 # --- variants and effects: built in, from a config, from effect files -------------------------------
 
 
-def _config_file(config: Path | None) -> Path | None:
+def config_file(config: Path | None) -> Path | None:
     """--config, or ./config/config.yaml when run from the project root, or None (built-in variants)."""
     if config is not None:
         return config
@@ -281,7 +281,7 @@ def _common(parser: argparse.ArgumentParser, variant: bool = True, default_varia
 
 
 def simulate(args: argparse.Namespace) -> int:
-    source = _config_file(args.config)
+    source = config_file(args.config)
     specs, user, machine = load_catalog(source, args.effects_file)
     variant = build_variant(args.variant, specs, user, source, args.add_effect, machine)
     try:
@@ -459,14 +459,14 @@ def _warn_defaults_and_ranges(variant: Variant, given: dict[str, float]) -> None
 
 
 def list_effects(args: argparse.Namespace) -> int:
-    _, user, _ = load_catalog(_config_file(args.config), args.effects_file)
+    _, user, _ = load_catalog(config_file(args.config), args.effects_file)
     for effect in (builtin_effects() | user).values():
         print(effect.describe(), end="\n\n")
     return 0
 
 
 def describe_variants(args: argparse.Namespace) -> int:
-    source = _config_file(args.config)
+    source = config_file(args.config)
     specs, user, machine = load_catalog(source, args.effects_file)
     if args.variant is not None:
         print(build_variant(args.variant, specs, user, source, args.add_effect, machine).describe())

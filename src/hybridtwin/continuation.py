@@ -182,7 +182,7 @@ def _sweep_speeds(rpm: Sequence[float] | Array, n_scenarios: int, direction: str
 
 
 def _in_blocks(n: int, solve_block: Callable[[Array], SteadyState]) -> SteadyState:
-    """solve_block(b) over index blocks b of 0..n-1 of at most ``_BLOCK`` scenarios, stacked in order.
+    """solve_block(b) over index blocks b of 0..n-1 of at most ``solver.BLOCK`` scenarios, stacked in order.
 
     The result does not depend on the blocking (the solver treats scenarios independently), but
     the time does: per scenario a batched solve costs least at a few hundred (final variant,
@@ -190,7 +190,7 @@ def _in_blocks(n: int, solve_block: Callable[[Array], SteadyState]) -> SteadySta
     4096), beyond which its temporaries outgrow the caches. Sweeps in lockstep (several
     run-ups) and enrichment designs would otherwise batch thousands.
     """
-    blocks = np.array_split(np.arange(n), max(1, -(-n // solver._BLOCK)))
+    blocks = solver.index_blocks(np.arange(n))
     parts = [solve_block(b) for b in blocks]
     return parts[0] if len(parts) == 1 else SteadyState.concatenate(parts)
 

@@ -31,7 +31,7 @@ import numpy as np
 
 from .library import Library
 from .pod import feature_index
-from .scenarios import intermediate_speeds
+from .scenarios import intermediate_speeds, padded_speeds
 
 Array = np.ndarray
 
@@ -136,9 +136,7 @@ def run_ups(variant, rpm: Array, values: Mapping[str, Array], harmonics: int, st
     rpm = np.asarray(rpm, float)
     S = rpm.size
     ramps = [intermediate_speeds(np.unique([min(start_rpm, r), r]), step_rpm) for r in rpm]
-    speeds = np.full((max(map(len, ramps)), S), np.nan)
-    for s, ramp in enumerate(ramps):
-        speeds[:len(ramp), s] = ramp
+    speeds = padded_speeds(ramps)
     rest = variant.model.at_rest({k: np.broadcast_to(np.asarray(v, float), (S,)) for k, v in values.items()}, S)
     sweep = solve_sweep(lambda speed, rows: variant.model.system_at(rest.rows(rows), speed),
                         speeds, S, harmonics=harmonics, direction="up", stability=False)

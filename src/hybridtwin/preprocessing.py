@@ -687,12 +687,12 @@ def check_data_command(args) -> int:
     if args.harmonics < 1:
         print(f"hybridtwin check-data: error: --harmonics must be >= 1, got {args.harmonics}", file=sys.stderr)
         return 2
-    from .cli import UsageError, _config_file, config_machine  # the config read as `simulate` reads it
+    from .cli import UsageError, config_file, config_machine  # the config read as `simulate` reads it
 
     mm = {k: None if v is None else v * 1e-3 for k, v in (("range", args.sensor_range_mm),
                                                           ("resolution", args.sensor_resolution_mm))}
     try:
-        machine = config_machine(_config_file(args.config))
+        machine = config_machine(config_file(args.config))
     except UsageError as err:
         print(f"hybridtwin check-data: error: {err}", file=sys.stderr)
         return 2

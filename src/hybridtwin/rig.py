@@ -665,9 +665,9 @@ def add_rig_command(sub) -> None:
 
 def rig_command(args) -> int:
     """``hybridtwin rig``: generate, print a per-run report; 0 ok, 1 on an unusable spec or plan."""
-    from .cli import _config_file, load_catalog  # the config read as `simulate` reads it (UsageError: exit 2)
+    from .cli import config_file, load_catalog  # the config read as `simulate` reads it (UsageError: exit 2)
 
-    _, config_effects, machine = load_catalog(_config_file(args.config), [])
+    _, config_effects, machine = load_catalog(config_file(args.config), [])
     try:
         spec, spec_plan = load_spec(args.spec, args.effects_file, machine, config_effects)
         spec = _override(spec, args)

@@ -14,7 +14,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -115,9 +115,7 @@ def solve_runs(variant: Variant, runs: pd.DataFrame, values: Mapping[str, Array 
         return out
     ramps = [intermediate_speeds(np.unique(np.append(group["rpm"].to_numpy(float), start_rpm)), step_rpm)
              for _, group in groups]
-    speeds = np.full((max(map(len, ramps)), len(groups) * S), np.nan)  # column g S + s: mass g, scenario s
-    for g, ramp in enumerate(ramps):
-        speeds[: len(ramp), g * S:(g + 1) * S] = ramp[:, None]
+    speeds = padded_speeds(ramps, S)  # column g S + s: mass g, scenario s
     scenario_values = {k: np.tile(np.broadcast_to(v, (S,)), len(groups)) for k, v in base.items()}
     if "m_e" not in values:  # an unknown m_e keeps each scenario's own value
         scenario_values["m_e"] = np.repeat([float(mass_g) * 1e-3 for mass_g, _ in groups], S)
@@ -259,6 +257,15 @@ def solve_operating_points(variant: Variant, points: pd.DataFrame, overrides: Ma
     out["branch"] = solutions.branch[:, 0]
     out["message"] = solutions.message[:, 0]
     return out
+
+
+def padded_speeds(ramps: Sequence[Array], each: int = 1) -> Array:
+    """Per-scenario sweep speeds for ``continuation.solve_sweep`` (n, len(ramps) * each): ``each`` columns per
+    ramp, in order, NaN after a ramp's last speed."""
+    speeds = np.full((max(map(len, ramps)), len(ramps) * each), np.nan)
+    for g, ramp in enumerate(ramps):
+        speeds[:len(ramp), g * each:(g + 1) * each] = np.asarray(ramp, float)[:, None]
+    return speeds
 
 
 def intermediate_speeds(speeds: Array, step: float) -> Array:

@@ -38,7 +38,7 @@ CONVERGED, MAX_ITER, SINGULAR, DIVERGED, LINEAR_SINGULAR, INVALID, STALLED = 0, 
 # amplitude growth (vs the linear response) taken as "no bounded periodic solution found"
 _DIVERGENCE_FACTOR = 1e3
 _MAX_HALVINGS = 8  # backtracking steps of the damped Newton
-_BLOCK = 256  # most scenarios per batched solve (``floquet_radius``; a sweep's ``continuation._in_blocks``)
+BLOCK = 256  # most scenarios per batched solve (``floquet_radius``; a sweep's ``continuation._in_blocks``)
 
 
 #: SteadyState's fields with one row per scenario
@@ -390,15 +390,20 @@ def assess_stability(system: System, result: SteadyState, rows: Array | None = N
         flag_unstable(result, rows[ok], floquet_radius(system.subset(ok), result.harmonics[rows[ok]]))
 
 
+def index_blocks(indices: Array) -> list[Array]:
+    """``indices`` in consecutive blocks of at most ``BLOCK``, as even as possible (``np.array_split``)."""
+    return np.array_split(indices, max(1, -(-len(indices) // BLOCK)))
+
+
 def floquet_radius(system: System, harmonics: Array) -> Array:
     """The largest |Floquet multiplier| of each periodic solution ``harmonics`` (S, H+1, n) of ``system``
     (``floquet.spectral_radius``; a linear system's exactly from the eigenvalues of its first-order form,
-    ``floquet.linear_spectral_radius``), in blocks of ``_BLOCK`` scenarios (any mix of speeds)."""
+    ``floquet.linear_spectral_radius``), in blocks of ``BLOCK`` scenarios (``index_blocks``; any mix of speeds)."""
     if system.n_scenarios == 0:
         return np.zeros(0)
     # blocks of similar speeds: a block's reduced model keeps the modes its fastest member needs
     order = np.argsort(system.Omega, kind="stable")
-    blocks = np.array_split(order, max(1, -(-system.n_scenarios // _BLOCK)))
+    blocks = index_blocks(order)
     radius = np.empty(system.n_scenarios)
     for b in blocks:
         # linear: the 2n multipliers exp(lambda T) exactly, from the eigenvalues of the first-order form
