@@ -8,6 +8,7 @@ The independent check of a stepped rotor with disks and gyroscopic coupling agai
 import numpy as np
 import pytest
 import scipy.linalg
+import yaml
 from example_machines import STEPPED_YAML as MACHINE_YAML  # the stepped rotor's config section, shared
 
 from hybridtwin.effects import Unbalance, builtin_effects, candidate_effects
@@ -239,10 +240,18 @@ def test_sensors_by_name_node_and_direction():
     assert sensor_dofs(machine, 8) == [machine.dof("u8"), machine.dof("v8")]
     one_plane = Machine("p", machine.segments, sensors=[Sensor("a", 3, "x"), Sensor("b", 3, "y")])
     assert sensor_dofs(one_plane) == [one_plane.dof("u3"), one_plane.dof("v3")]
-    # pairs follow the nodes, not the declaration order
-    two = Machine("p", machine.segments, sensors=[Sensor("y2", 9, "y"), Sensor("x1", 3, "x"), Sensor("x2", 9, "x"),
-                                                  Sensor("y1", 3, "y")])
-    assert two.sensor_node == 9 and two.sensor_pairs == [(2, 0), (1, 3)]
+    # the machine keeps its sensors plane by plane, x then y (planes in order of first appearance), unpaired probes
+    # last: the channel order the per-run figure (consecutive pairs) and the whirl check (channels 0, 1) rely on
+    two = Machine("p", machine.segments, sensors=[Sensor("y2", 9, "y"), Sensor("x1", 3, "x"), Sensor("z", 5, "x"),
+                                                  Sensor("x2", 9, "x"), Sensor("y1", 3, "y")])
+    assert [s.name for s in two.sensors] == ["x2", "y2", "x1", "y1", "z"]
+    assert two.sensor_node == 9 and two.sensor_pairs == [(0, 1), (2, 3)]
+    assert two.sensor_dofs() == [two.dof("u9"), two.dof("v9"), two.dof("u3"), two.dof("v3"), two.dof("u5")]
+    # a mapping written with sorted keys (yaml.safe_dump) reads as the same machine
+    spec = yaml.safe_load(MACHINE_YAML)["machine"]
+    spec["sensors"] = {"x1": {"node": 8, "direction": "x"}, "x2": {"node": 16, "direction": "x"},
+                       "y1": {"node": 8, "direction": "y"}, "y2": {"node": 16, "direction": "y"}}
+    assert [s.name for s in Machine.from_mapping(spec).sensors] == ["x1", "y1", "x2", "y2"]
     lone = Machine("p", machine.segments, sensors=[Sensor("a", 3, "x"), Sensor("b", 4, "y")])
     with pytest.raises(ValueError, match="no node with both an x and a y probe"):
         lone.sensor_node

@@ -34,7 +34,7 @@ E|E / sigma|^2 = 2 (two degrees of freedom). sigma = inf marks an entry that is 
 Significance: chi^2 of k = 2 j real numbers against chi^2(k), exactly (sf = exp(-x/2) sum_{i<j} (x/2)^i / i!),
 at level ``alpha``. Where along the shaft an equivalent force would act is not estimated. With more than one
 sensor plane (issue 24) every channel counts in 1, 3, 4 and 5; the whirl (2) is that of the first plane's x, y
-probes, channels 0 and 1 (the machine declares them first).
+probes, channels 0 and 1 (the machine orders them first, ``Machine.sensors``).
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 Two kinds share one interface (``HarmonicModel``: ``parameters``, ``lower``,
 ``upper``, ``H``, ``evaluate(x (N, d), jacobian)`` -> M (N, H, C) complex [m]
 and dM/dx (N, H, C, d), x the parameters normalised to [-1, 1], C the machine's
-sensors in declared order, ``sensor.sensor_dofs``: x, y on the VARM):
+sensors in the machine's order, ``sensor.sensor_dofs``: x, y on the VARM):
 
 - ``SensorSurrogate``: a run's sPGD library (microseconds per evaluation,
   exact Jacobian of the surrogate);

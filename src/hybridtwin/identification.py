@@ -11,8 +11,8 @@ with X_hc the measured sensor harmonics (results/data/harmonics.tsv), M_hc the
 library's (``Library``: response and exact Jacobian), s_hc the standard
 uncertainty of each real and imaginary part (the measured sigma, plus, by
 default, the library's own error, see ``total_sigma``) and n_r = 2 C H per run
-the number of real residuals. The channels c are the machine's sensors in their
-declared order, C of them (x, y on the VARM: n_r = 4 H); the run's phase phi_run
+the number of real residuals. The channels c are the machine's sensors in
+the machine's order, C of them (x, y on the VARM: n_r = 4 H); the run's phase phi_run
 is shared by all its channels (one time origin per record). How the paper's
 loss is made precise here:
 

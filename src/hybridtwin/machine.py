@@ -157,7 +157,9 @@ class Machine(DofCounts):
     """A rotor described by segments and disks, with named bearings, unbalance planes and sensors.
 
     ``rotary_inertia``: add the sections' rotary inertia rho I (a Rayleigh beam); off for the VARM, whose
-    model leaves it out (docs/model.md, "Shaft").
+    model leaves it out (docs/model.md, "Shaft"). ``sensors`` are kept plane by plane, each plane's x probe then
+    its y probe (planes in order of first appearance), probes without a partner after them: the records'
+    channel order.
     """
 
     name: str
@@ -179,6 +181,13 @@ class Machine(DofCounts):
                 raise ValueError(f"{where}: {attr}: {err}") from None
         if not self.segments:
             raise ValueError(f"{where}: the shaft needs at least one segment")
+        # the channel order every consumer relies on: plane by plane (in order of first appearance) its x probe, then
+        # its y probe; probes without a partner after them, as declared. The per-run figure pairs consecutive
+        # channels and the whirl checks read channels 0 and 1; a config written with sorted keys (x1, x2, y1, y2)
+        # would otherwise pair x1 with x2.
+        paired = [i for pair in sensor_pairs(self.sensors) for i in pair]
+        order = paired + [i for i in range(len(self.sensors)) if i not in paired]
+        object.__setattr__(self, "sensors", tuple(self.sensors[i] for i in order))
         n_nodes = sum(s.n_elements for s in self.segments) + 1
         names: dict[str, int] = {}
         for kind, items in (("disk", self.disks), ("bearing", self.bearings),
@@ -376,7 +385,7 @@ class Machine(DofCounts):
 
     @property
     def sensor_node(self) -> int:
-        """The node of the first x, y probe pair (the first node, in declared order, with both an x and a y
+        """The node of the first x, y probe pair (the first node, in the machine's order, with both an x and a y
         probe): the plane whose orbit the plots, the whirl checks and ``hybridtwin simulate`` show. A one-line
         error when no node has both. Records carry every sensor (``sensor_dofs``); this is only the orbit."""
         for node in self.sensor_planes:
@@ -388,7 +397,8 @@ class Machine(DofCounts):
     @property
     def sensor_pairs(self) -> list[tuple[int, int]]:
         """(index of the x probe, index of the y probe) in ``sensors`` for each node with exactly one of each,
-        in order of the nodes' first appearance: the orbits the records show (``measurements.sensor_pairs``)."""
+        in order of the nodes' first appearance: the orbits the records show (``measurements.sensor_pairs``);
+        (0, 1), (2, 3), ... since the machine orders its sensors so."""
         return sensor_pairs(self.sensors)
 
     # --- effects at named places ---------------------------------------------------------------------

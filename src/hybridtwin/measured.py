@@ -1,6 +1,6 @@
 """A run's measured sensor harmonics as the identification reads them (results/data/harmonics.tsv).
 
-One channel per sensor of the machine, in its declared order (x, y on the VARM): ``RunData.X`` and
+One channel per sensor of the machine, in its order (``Machine.sensors``) (x, y on the VARM): ``RunData.X`` and
 ``RunData.sigma`` are (H, C), ``RunData.channels`` the channels' names; the table's columns are
 ``preprocessing.run_row``'s (``harmonic_column``), its channels ``preprocessing.table_channels``.
 """

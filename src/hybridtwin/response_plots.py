@@ -12,7 +12,7 @@ drawn dotted.
 ``dense_response`` -> a long table (``write_dense`` / ``read_dense``, exact inverses) with two columns per
 sensor channel (``<channel>_re_m``, ``<channel>_im_m``: x, y on the VARM, every sensor of a machine in declared
 order); ``plot_bode`` and ``plot_polar`` draw every channel with the fit and validation runs
-(``report.RunComparison``, the model's frame; its channels in the same declared order). The cascade
+(``report.RunComparison``, the model's frame; its channels in the same order). The cascade
 (``plot_cascade``) has a panel per channel too.
 """
 
@@ -38,7 +38,7 @@ SWEEPS = {"up": "run-up", "down": "run-down"}
 
 
 def columns(channels: Sequence[str]) -> list[str]:
-    """The dense table's columns for sensor ``channels`` (declared order)."""
+    """The dense table's columns for sensor ``channels`` (the machine's order)."""
     return (["eccentric_mass_g", "sweep", "rpm", "harmonic"] + [f"{c}_{part}_m" for c in channels for part in
                                                                ("re", "im")] + ["stable", "branch"])
 
@@ -111,7 +111,7 @@ def read_dense(path) -> pd.DataFrame:
 
 
 def _channel(table: pd.DataFrame, j: int) -> Array:
-    """The j-th sensor channel's complex harmonic (declared order)."""
+    """The j-th sensor channel's complex harmonic (the machine's order)."""
     c = channels_of(table)[j]
     return table[f"{c}_re_m"].to_numpy() + 1j * table[f"{c}_im_m"].to_numpy()
 
@@ -145,7 +145,7 @@ def _curve(ax_amp, ax_phase, part: pd.DataFrame, j: int, colour: str, style: str
 def plot_bode(dense: pd.DataFrame, comparisons: Sequence[RunComparison], variant: str,
               orders: Sequence[int] = ORDERS) -> plt.Figure:
     """Amplitude (0-peak) and phase (model frame) of harmonics ``orders`` vs speed, every channel (two rows each: x, y
-    on the VARM; every probe of a machine, the runs' channels taken in the same declared order): the model's run-up
+    on the VARM; every probe of a machine, the runs' channels taken in the same order): the model's run-up
     (solid) and run-down (dashed) per eccentric mass, unstable stretches dotted; the fit runs measured (points, 2
     sigma bars), the validation runs measured (stars) and predicted (crosses); the noise (2 sigma, grey)."""
     H = min([int(dense["harmonic"].max())] + [c.H for c in comparisons])

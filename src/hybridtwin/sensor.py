@@ -1,8 +1,9 @@
 """The sensors: displacement probes, each reading u_n(t) (direction x) or v_n(t) (direction y) at a node.
 
 A plain ``Shaft`` (the VARM's structure) has two, named x and y, at node 1. A ``Machine`` has the sensors it
-declares, in their declared order: ``sensor_names`` and ``sensor_dofs`` give every one of them (the channels of
-a record, docs/measurement-format.md), ``sensor_channels`` their harmonics. The functions that show an orbit
+declares, in its order (``Machine.sensors``: plane by plane, x then y): ``sensor_names`` and ``sensor_dofs``
+give every one of them (the channels of a record, docs/measurement-format.md), ``sensor_channels`` their
+harmonics. The functions that show an orbit
 (``sensor_harmonics``, ``harmonics_frame``, ``time_series_frame``) read one x, y pair: ``node`` defaults to the
 structure's first probe plane, a ``Machine``'s ``sensor_node`` (the first node with both an x and a y probe),
 node 1 for a plain ``Shaft``.
@@ -36,12 +37,12 @@ def sensor_node(shaft: Shaft) -> int:
 
 
 def sensor_names(shaft: Shaft) -> tuple[str, ...]:
-    """The channel names, one per sensor in declared order: a Machine's sensors' names, ("x", "y") for a Shaft."""
+    """The channel names, one per sensor in the machine's order: a Machine's sensors' names, ("x", "y") for a Shaft."""
     return tuple(s.name for s in shaft.sensors) if _is_machine(shaft) else DEFAULT_SENSORS
 
 
 def sensor_dofs(shaft: Shaft, node: int | None = None) -> list[int]:
-    """Global DOF indices read by the sensors: every sensor of a Machine in declared order ([u1, v1] for a plain
+    """Global DOF indices read by the sensors: every sensor of a Machine in its order ([u1, v1] for a plain
     Shaft); with ``node``, the x, y pair [u_node, v_node] there."""
     if node is None and _is_machine(shaft):
         return shaft.sensor_dofs()
