@@ -237,6 +237,41 @@ def _profile(problem: ArrowProblem, theta0: Array, here: Array, cols: list[int],
     return _continued(problem, levenberg_marquardt(problem, starts, X, options), X, options)
 
 
+def _fit_widening(base: BaseFit, kept: Sequence[Candidate], ranges: Mapping[str, tuple[float, float]],
+                  per_run: Sequence[str] | None, first_starts, options: LMOptions, widen: int, confidence: float,
+                  go_on: bool = True) -> tuple[Identification, pd.DataFrame, dict, list, list[float]]:
+    """The base with the ``kept`` candidates fitted (full solver) in ``ranges`` (their parameters'), from
+    ``first_starts(layout, theta0, cols)`` (cols: the candidates' parameters in the layout), the best start
+    continued while it gains (``go_on``); then while an estimate sits at an edge away from zero its range is widened
+    (``_widened``, at most ``widen`` times) and the fit goes on from its previous optimum (``_widened_starts``), so
+    each widening can only lower chi^2. Returns the fit, its estimates of the candidates' parameters, the final
+    ranges, the widenings (name, old range, new range) and the full solver's chi^2 at each first start."""
+    ranges = dict(ranges)
+    fit, start_chi2, widened, wider, old = None, [], [], {}, {}
+    for attempt in range(widen + 1):
+        problem, theta0 = extended_problem(base, kept, ranges, per_run)
+        layout = problem.layout
+        cols = [layout.entries().index((p.name, "all")) for c in kept for p in c.parameters]
+        theta = first_starts(layout, theta0, cols) if fit is None else \
+            _widened_starts(layout, fit, cols, list(ranges), wider, old)
+        X = np.repeat(base.X[None], len(theta), axis=0)
+        result = levenberg_marquardt(problem, theta, X, options)
+        if fit is None:  # the objective at each start (LM's first evaluation): chi^2 plus any phase prior
+            start_chi2 = (result.history[:, 0] * problem.n_data).tolist()
+        if go_on:  # the best start stopped while descending: let it go on
+            result = _continued(problem, result, X, options)
+        fit, estimates = _concluded(problem, result, _best(result), base, confidence, ranges)
+        wider = {}
+        for c in kept:
+            wider |= _widened(ranges, estimates[estimates["parameter"].isin([p.name for p in c.parameters])], c)
+        if not wider or attempt == widen:
+            break
+        widened += [(name, ranges[name], new) for name, new in wider.items()]
+        old = dict(ranges)
+        ranges |= wider
+    return fit, estimates, ranges, widened, start_chi2
+
+
 def confirm(base: BaseFit, score: Score, scores: Scores, max_iterations: int = 40,
             confidence: float = 0.95, starts: int = 4, widen: int = 4, quick: bool = False, far: bool = True,
             far_misfit: bool = True) -> Confirmation:
@@ -250,33 +285,14 @@ def confirm(base: BaseFit, score: Score, scores: Scores, max_iterations: int = 4
     only lower chi^2."""
     start_time = time.perf_counter()
     c = score.candidate
-    ranges = {p.name: tuple(p.bounds) for p in c.parameters}
-    widened: list = []
     options = _options(max_iterations)
-    fit, start_chi2, wider, old = None, [], {}, {}
-    for attempt in range(widen + 1):
-        problem, theta0 = extended_problem(base, [c], ranges)
-        layout = problem.layout
-        cols = [layout.entries().index((p.name, "all")) for p in c.parameters]
-        if fit is None:
-            theta = _refit_starts(theta0, cols, score.step, starts, zlib.crc32(c.name.encode()), quick)
-        else:
-            theta = _widened_starts(layout, fit, cols, [p.name for p in c.parameters], wider, old)
-        X = np.repeat(base.X[None], len(theta), axis=0)
-        first_refit = fit is None
-        result = levenberg_marquardt(problem, theta, X, options)
-        if first_refit:  # the objective at each start (LM's first evaluation): chi^2 plus any phase prior
-            start_chi2 = (result.history[:, 0] * problem.n_data).tolist()
-        if not quick:  # the best start stopped while descending: let it go on
-            result = _continued(problem, result, X, options)
-        best = _best(result)
-        fit, estimates = _concluded(problem, result, best, base, confidence, ranges)
-        wider = _widened(ranges, estimates, c)
-        if not wider or attempt == widen:
-            break
-        widened += [(name, ranges[name], new) for name, new in wider.items()]
-        old = dict(ranges)
-        ranges |= wider
+
+    def first_starts(layout: Layout, theta0: Array, cols: list[int]) -> Array:
+        return _refit_starts(theta0, cols, score.step, starts, zlib.crc32(c.name.encode()), quick)
+
+    fit, estimates, ranges, widened, start_chi2 = _fit_widening(
+        base, [c], {p.name: tuple(p.bounds) for p in c.parameters}, None, first_starts, options, widen, confidence,
+        go_on=not quick)  # a quick refit does not continue its best start
     # the far side: a truth beyond the range on the side the base fit did not lean to, or a base fit whose own
     # parameters sit in another basin; looked for when the refit needed a wider range or does not fit to the noise
     # (a refit that explains everything needs no other basin)
@@ -340,35 +356,17 @@ def _from_fit(base: BaseFit, kept: Sequence[Candidate], ranges: Mapping[str, tup
     the last kept candidate, its likelihood ratio against ``before_chi2``, the optimum's stability checked as in
     ``confirm``."""
     start_time = time.perf_counter()
-    kept_ranges = {p.name: tuple(ranges[p.name]) for c in kept for p in c.parameters}
-    options = _options(max_iterations)
-    fit, start_chi2, widened, wider, old = None, [], [], {}, {}
-    for attempt in range(widen + 1):
-        problem, _ = extended_problem(base, kept, kept_ranges, per_run)
-        layout = problem.layout
-        cols = [layout.entries().index((p.name, "all")) for c in kept for p in c.parameters]
-        if fit is None:
-            theta = np.stack([_theta_in(layout, start, pool) for pool in pools])
-            if spread:
-                across = _refit_starts(theta[0], cols, None, spread,
-                                       zlib.crc32("+".join(c.name for c in kept).encode()))
-                theta = np.vstack([theta, across[1:]])
-        else:
-            theta = _widened_starts(layout, fit, cols, list(kept_ranges), wider, old)
-        X = np.repeat(base.X[None], len(theta), axis=0)
-        result = _continued(problem, levenberg_marquardt(problem, theta, X, options), X, options)
-        if fit is None:
-            start_chi2 = (result.history[: len(theta), 0] * problem.n_data).tolist()
-        fit, estimates = _concluded(problem, result, _best(result), base, confidence, kept_ranges)
-        wider = {}
-        for c in kept:
-            names = [p.name for p in c.parameters]
-            wider |= _widened(kept_ranges, estimates[estimates["parameter"].isin(names)], c)
-        if not wider or attempt == widen:
-            break
-        widened += [(name, kept_ranges[name], new) for name, new in wider.items()]
-        old = dict(kept_ranges)
-        kept_ranges |= wider
+
+    def first_starts(layout: Layout, theta0: Array, cols: list[int]) -> Array:
+        theta = np.stack([_theta_in(layout, start, pool) for pool in pools])
+        if spread:
+            across = _refit_starts(theta[0], cols, None, spread, zlib.crc32("+".join(c.name for c in kept).encode()))
+            theta = np.vstack([theta, across[1:]])
+        return theta
+
+    fit, estimates, kept_ranges, widened, start_chi2 = _fit_widening(
+        base, kept, {p.name: tuple(ranges[p.name]) for c in kept for p in c.parameters}, per_run, first_starts,
+        _options(max_iterations), widen, confidence)
     last = kept[-1]
     own = {p.name: kept_ranges[p.name] for p in last.parameters}
     estimates = estimates[estimates["parameter"].isin(list(own))]
