@@ -216,7 +216,11 @@ class _Condensed:
 
     def evaluate(self, x: Array, idx: Array, jacobian: bool = True) -> tuple[Array, Array | None]:
         """Residual r = x - a - H G(x) (S', c, 2H+1) and, optionally, dr/dx = I - H dG/dx (S', m, m)."""
-        F, J = self._force_series(x, idx, jacobian)
+        return self._from_forces(x, idx, *self._force_series(x, idx, jacobian))
+
+    def _from_forces(self, x: Array, idx: Array, F: Array, J: Array | None) -> tuple[Array, Array | None]:
+        """``evaluate`` from the force series F at x and, unless None, its derivatives J (``_force_series``)."""
+        jacobian = J is not None
         H0, Hh = self.H0[idx], self.Hh[idx]
         r = x - self.a[idx] - _receptance_times(H0, Hh, (F @ self.E_plus.T)[..., None])[..., 0]
         if not jacobian:
@@ -609,11 +613,11 @@ def sensitivity(build: Callable[[Mapping[str, Array]], System], values: Mapping[
         out[ok] = Dinv_rhs
         return (out, out_x) if condensed else out
     # condensed: J_r dx = B^T D^-1 rhs (real form), J_r the Newton Jacobian at x
-    _, Jr = prob.evaluate(x, np.arange(s), jacobian=True)
+    F_x, J = prob._force_series(x, np.arange(s), jacobian=True)  # the forces and dF/dq (s, c, c, N) at x
+    _, Jr = prob._from_forces(x, np.arange(s), F_x, J)
     a = _to_real(Dinv_rhs[..., prob.dofs].reshape(s * P, H + 1, c)).reshape(s, P, -1)
     dx = np.linalg.solve(Jr, np.swapaxes(a, 1, 2))  # (s, m, P)
     dx = np.swapaxes(dx, 1, 2).reshape(s, P, c, 2 * H + 1)
-    _, J = prob._force_series(x, np.arange(s), jacobian=True)  # dF/dq (s, c, c, N)
     dF_t = np.einsum("sijn,spjn->spin", J, dx @ prob.E.T, optimize=True)  # (s, P, c, N)
     dG = _to_complex((dF_t @ prob.E_plus.T).reshape(s * P, c, -1)).reshape(s, P, c, H + 1)
     out[ok] = Dinv_rhs + np.einsum("shnc,spch->sphn", prob.R, dG, optimize=True)
