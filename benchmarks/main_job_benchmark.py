@@ -362,44 +362,44 @@ def main() -> None:
     parser.add_argument("--results", type=Path, nargs=2, metavar=("OLD", "NEW"),
                         help="two finished runs of the main job: how far the results moved")
     args = parser.parse_args()
+    if args.solves and args.old_src is None:
+        parser.error("--solves needs --old-src")
+    if args.run and not args.old_commit:
+        parser.error("--run needs --old-commit")
+    stage_table = args.run or args.old is not None
+    if not (args.results or args.solves or args.joint or args.protocol or stage_table):
+        parser.error("give --old FOLDER (or --run --old-commit COMMIT), --results, --solves, --joint or --protocol")
+    # each requested comparison in turn (several may be asked at once), the stage table last
     if args.results:
         results_comparison(*args.results)
-        return
     if args.solves:
-        if args.old_src is None:
-            parser.error("--solves needs --old-src")
         print(f"load average {load()}")
         solve_comparison(args.solves, args.old_src, args.variant, args.scenarios)
+    for folder, compare, names in ((args.joint, joint_comparison_table, args.joint_variants),
+                                   (args.protocol, protocol_comparison, args.protocol_runs)):
+        if folder:
+            print(f"load average {load()}")
+            table = compare(folder, args.variant, names)
+            table["estimate_change"] = table["estimate_change"].map("{:.1e}".format)
+            print(table.round(3).to_string(index=False), flush=True)
+    if not stage_table:
         return
-    if args.joint:
-        print(f"load average {load()}")
-        table = pd.DataFrame([joint_comparison(args.joint, name) for name in args.joint_variants])
-        table["estimate_change"] = table["estimate_change"].map("{:.1e}".format)
-        print(table.round(3).to_string(index=False), flush=True)
-        if args.old is None and not args.run and not args.protocol:
-            return
-    if args.protocol:
-        print(f"load average {load()}")
-        table = protocol_comparison(args.protocol, args.variant, args.protocol_runs)
-        table["estimate_change"] = table["estimate_change"].map("{:.1e}".format)
-        print(table.round(3).to_string(index=False))
-        if args.old is None and not args.run:
-            return
     if args.run:
-        if not args.old_commit:
-            parser.error("--run needs --old-commit")
         args.workdir.mkdir(parents=True, exist_ok=True)
         head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, check=True, capture_output=True,
                               text=True).stdout.strip()
         args.old, args.new = worktree(args.workdir, "old", args.old_commit), worktree(args.workdir, "new", head)
         walls = {name: run_workflow(path, args.variant) for name, path in (("old", args.old), ("new", args.new))}
         print(f"wall: old {walls['old']:.0f} s, new {walls['new']:.0f} s")
-    if args.old is None:
-        parser.error("give --old FOLDER (or --run --old-commit COMMIT)")
     old, new = (breakdown(folder / "results", args.variant) for folder in (args.old, args.new))
     print(f"\n{args.variant}: old {args.old}, new {args.new} (load average now {load()})\n")
     print(side_by_side(old, new))
 
+
+def joint_comparison_table(folder: Path, variant: str, names: list[str]) -> pd.DataFrame:
+    """``joint_comparison`` of each variant of ``names`` (``variant`` unused: the joint comparison is per
+    variant), one row each."""
+    return pd.DataFrame([joint_comparison(folder, name) for name in names])
 
 if __name__ == "__main__":
     main()
