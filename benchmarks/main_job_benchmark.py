@@ -293,6 +293,8 @@ def results_comparison(old: Path, new: Path) -> None:
     diagnosis recommends the same effects (diagnosis.yaml) and says so in the same words."""
     import yaml
 
+    from hybridtwin.identification import read_parameters
+
     ledgers = [pd.read_csv(folder / "results" / "ledger.tsv", sep="\t") for folder in (old, new)]
     numeric = [c for c in ledgers[0].columns if pd.api.types.is_numeric_dtype(ledgers[0][c])]
     change = ((ledgers[1][numeric] - ledgers[0][numeric]).abs() / ledgers[0][numeric].abs()).max()
@@ -305,7 +307,7 @@ def results_comparison(old: Path, new: Path) -> None:
     same_text = all((ledgers[0][c].astype(str) == ledgers[1][c].astype(str)).all() for c in text)
     print(f"ledger, text columns the same: {same_text}")
     for variant in ledgers[0]["variant"]:
-        tables = [pd.read_csv(folder / "results" / variant / "parameters.tsv", sep="\t") for folder in (old, new)]
+        tables = [read_parameters(folder / "results" / variant / "parameters.tsv") for folder in (old, new)]
         moved = float(((tables[1]["value"] - tables[0]["value"]).abs() / tables[0]["stderr"]).max())
         diagnoses = [yaml.safe_load((folder / "results" / variant / "diagnosis.yaml").read_text())
                      for folder in (old, new)]
@@ -325,19 +327,20 @@ def library_and_protocol_change(old: Path, new: Path, variant: str) -> str:
     of each run's median and 95th percentile, and the largest per-run ratio new/old), and how far the paper's
     per-run protocol moved (runs/*/parameters.tsv: every per-run estimate's change over its old Monte Carlo
     spread; median, 90th percentile, largest)."""
+    from hybridtwin.identification import read_parameters
+
     errors = [pd.read_csv(folder / "results" / variant / "library_validation.tsv", sep="\t").set_index("run")
               for folder in (old, new)]
-    ratio = {q: (errors[1][f"{q}_error_pct"] / errors[0][f"{q}_error_pct"]) for q in ("median", "p95")}
+    ratio = errors[1]["median_error_pct"] / errors[0]["median_error_pct"]
     moves = []
     for path in sorted((old / "results" / variant / "runs").glob("*/parameters.tsv")):
-        before = pd.read_csv(path, sep="\t")
-        after = pd.read_csv(new / path.relative_to(old), sep="\t")
+        before, after = read_parameters(path), read_parameters(new / path.relative_to(old))
         moves.append((after["value"] - before["value"]).abs() / before["mc_std"].where(before["mc_std"] > 0))
     moved = pd.concat(moves).dropna() if moves else pd.Series(dtype=float)
-    text = (f"library test error (% of the response, median over the runs) median {errors[0]['median_error_pct'].median():.3g}"
-            f" -> {errors[1]['median_error_pct'].median():.3g}, p95 {errors[0]['p95_error_pct'].median():.3g} -> "
-            f"{errors[1]['p95_error_pct'].median():.3g} (per run new/old: median x{ratio['median'].median():.2f}, "
-            f"largest x{ratio['median'].max():.2f})")
+    median, p95 = ([table[f"{q}_error_pct"].median() for table in errors] for q in ("median", "p95"))
+    text = (f"library test error (% of the response, median over the runs) median {median[0]:.3g} -> {median[1]:.3g}, "
+            f"p95 {p95[0]:.3g} -> {p95[1]:.3g} (per run new/old: median x{ratio.median():.2f}, "
+            f"largest x{ratio.max():.2f})")
     if moved.size:
         text += (f"; per-run protocol estimates moved median {moved.median():.2f}, 90 % {moved.quantile(0.9):.2f}, "
                  f"largest {moved.max():.3g} Monte Carlo spreads ({moved.size} estimates)")

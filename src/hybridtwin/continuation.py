@@ -181,6 +181,15 @@ def _sweep_speeds(rpm: Sequence[float] | Array, n_scenarios: int, direction: str
     return speeds
 
 
+def padded_speeds(ramps: Sequence[Array], each: int = 1) -> Array:
+    """Per-scenario sweep speeds for ``solve_sweep`` (n, len(ramps) * each): ``each`` columns per
+    ramp, in order, NaN after a ramp's last speed."""
+    speeds = np.full((max(map(len, ramps)), len(ramps) * each), np.nan)
+    for g, ramp in enumerate(ramps):
+        speeds[:len(ramp), g * each:(g + 1) * each] = np.asarray(ramp, float)[:, None]
+    return speeds
+
+
 def _in_blocks(n: int, solve_block: Callable[[Array], SteadyState]) -> SteadyState:
     """solve_block(b) over index blocks b of 0..n-1 of at most ``solver.BLOCK`` scenarios, stacked in order.
 

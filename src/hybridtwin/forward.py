@@ -31,7 +31,8 @@ import numpy as np
 
 from .library import Library
 from .pod import feature_index
-from .scenarios import intermediate_speeds, padded_speeds
+from .continuation import padded_speeds
+from .scenarios import intermediate_speeds
 
 Array = np.ndarray
 

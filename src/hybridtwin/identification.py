@@ -54,8 +54,8 @@ The paper's protocol (``hybridtwin.protocol``): tau = 50 random trials, the lowe
 estimate; n_MC Monte Carlo repeats on data re-sampled with the measured sigmas (each from the best distinct
 optima of the fit's trials, ``monte_carlo_starts`` and ``joint.monte_carlo_starts``); lambda = 0 for the Geometric
 model, 0.1 for the Expansion model. The per-run and joint stages: ``hybridtwin.run_fits``. Uncertainty and
-identifiability: ``hybridtwin.uncertainty``. The response models (library or full solver): ``hybridtwin.forward``. Validation
-runs and per-run drift: ``hybridtwin.validation``.
+identifiability: ``hybridtwin.uncertainty``. The response models (library or full solver):
+``hybridtwin.forward``. Validation runs and per-run drift: ``hybridtwin.validation``.
 """
 
 from __future__ import annotations

@@ -413,8 +413,8 @@ def _run_title(c: RunComparison) -> str:
 
 def plot_run(c: RunComparison, variant: str) -> plt.Figure:
     """One run: orbit, x and y over two revolutions with the residual, and the residual whirl spectrum; a row per
-    pair of channels in the machine's order (a plane's x then y probe: x, y on the VARM, one row; x1, y1, x2, y2 on a
-    machine with probes at two planes, two rows). An odd last channel has no orbit: it is in the run's rows of
+    pair of channels in the machine's order (a plane's x then y probe: x, y on the VARM, one row; x1, y1, x2, y2
+    on a machine with probes at two planes, two rows). An odd last channel has no orbit: it is in the run's rows of
     harmonics.tsv and in its chi^2, and the title says so."""
     pairs = probe_pairs(c)
     fig = plt.figure(figsize=(14, 6.2 * len(pairs)))
@@ -433,8 +433,8 @@ def plot_run(c: RunComparison, variant: str) -> plt.Figure:
 
 
 def probe_pairs(c: RunComparison) -> list[RunComparison]:
-    """The run's channels in consecutive pairs (the machine's order: each plane's x probe, then its y probe), each as a
-    RunComparison of its two channels."""
+    """The run's channels in consecutive pairs (the machine's order: each plane's x probe, then its y probe), each
+    as a RunComparison of its two channels."""
     return [replace(c, measured=c.measured[:, j:j + 2], model=c.model[:, j:j + 2], sigma=c.sigma[:, j:j + 2],
                     channels=tuple(c.channels[j:j + 2])) for j in range(0, len(c.channels) - 1, 2)]
 

@@ -3,14 +3,14 @@
 Between the run speeds a model is not a straight line: near a resonance its amplitude rises and its phase turns
 by 180 degrees within a few RPM, and a nonlinear bearing can make the response multi-valued (the run-up and the
 run-down reach different steady states over a band of speeds, with a jump at each end). So the curves here are
-harmonic-balance sweeps by continuation (``continuation.solve_sweep``), one run-up and one run-down per eccentric mass
-of the fit runs, on a dense speed grid over the runs' range; the values are the joint fit's estimates, each
+harmonic-balance sweeps by continuation (``continuation.solve_sweep``), one run-up and one run-down per eccentric
+mass of the fit runs, on a dense speed grid over the runs' range; the values are the joint fit's estimates, each
 per-run parameter (the bow) from its law over the fitted runs (``validation.values_at``, as for the validation
 runs). Unstable stretches (a Floquet multiplier outside the unit circle: the machine cannot stay there) are
 drawn dotted.
 
 ``dense_response`` -> a long table (``write_dense`` / ``read_dense``, exact inverses) with two columns per
-sensor channel (``<channel>_re_m``, ``<channel>_im_m``: x, y on the VARM, every sensor of a machine in declared
+sensor channel (``<channel>_re_m``, ``<channel>_im_m``: x, y on the VARM, every sensor of a machine in its
 order); ``plot_bode`` and ``plot_polar`` draw every channel with the fit and validation runs
 (``report.RunComparison``, the model's frame; its channels in the same order). The cascade
 (``plot_cascade``) has a panel per channel too.

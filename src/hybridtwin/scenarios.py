@@ -14,7 +14,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -22,7 +22,7 @@ import pandas as pd
 
 from .effect_base import Array
 from .sensor import sensor_harmonics
-from .continuation import solve_sweep
+from .continuation import padded_speeds, solve_sweep
 from .solver import SteadyState, flag_unstable, floquet_radius
 from .variants import Variant
 
@@ -257,15 +257,6 @@ def solve_operating_points(variant: Variant, points: pd.DataFrame, overrides: Ma
     out["branch"] = solutions.branch[:, 0]
     out["message"] = solutions.message[:, 0]
     return out
-
-
-def padded_speeds(ramps: Sequence[Array], each: int = 1) -> Array:
-    """Per-scenario sweep speeds for ``continuation.solve_sweep`` (n, len(ramps) * each): ``each`` columns per
-    ramp, in order, NaN after a ramp's last speed."""
-    speeds = np.full((max(map(len, ramps)), len(ramps) * each), np.nan)
-    for g, ramp in enumerate(ramps):
-        speeds[:len(ramp), g * each:(g + 1) * each] = np.asarray(ramp, float)[:, None]
-    return speeds
 
 
 def intermediate_speeds(speeds: Array, step: float) -> Array:

@@ -37,7 +37,8 @@ def sensor_node(shaft: Shaft) -> int:
 
 
 def sensor_names(shaft: Shaft) -> tuple[str, ...]:
-    """The channel names, one per sensor in the machine's order: a Machine's sensors' names, ("x", "y") for a Shaft."""
+    """The channel names, one per sensor in the machine's order: a Machine's sensors' names, ("x", "y") for a
+    Shaft."""
     return tuple(s.name for s in shaft.sensors) if _is_machine(shaft) else DEFAULT_SENSORS
 
 
