@@ -160,6 +160,19 @@ def _literal_and_optima(fit, k: int) -> tuple[dict, dict]:
     return fits, cpu
 
 
+def _side_by_side(fits: dict, cpu: dict, spread: pd.Series) -> dict:
+    """The figures both protocol comparisons print: CPU seconds and LM problems of each, the largest change of the
+    estimate (normalised units; the same trials on the measured data, batched with other repeats: round-off
+    apart), the Monte Carlo std ratio optima / literal (median and range over the parameters)."""
+    import numpy as np
+
+    return {"cpu_literal_s": cpu["literal"], "cpu_optima_s": cpu["optima"],
+            "lm_literal": fits["literal"].protocol.n_lm, "lm_optima": fits["optima"].protocol.n_lm,
+            "estimate_change": float(np.abs(fits["optima"].theta - fits["literal"].theta).max()),
+            "mc_std_ratio_median": float(spread.median()), "mc_std_ratio_min": float(spread.min()),
+            "mc_std_ratio_max": float(spread.max())}
+
+
 def protocol_comparison(folder: Path, variant_name: str, runs: list[str]) -> pd.DataFrame:
     """Per run: the per-run protocol with the paper's literal repeats and with the workflow's setting, CPU
     seconds, LM problems, the largest change of the estimate (normalised units), the Monte Carlo std of each physical
@@ -167,7 +180,6 @@ def protocol_comparison(folder: Path, variant_name: str, runs: list[str]) -> pd.
     (optima / literal, median and range over the parameters) and the repeats' mean loss."""
     from dataclasses import replace
 
-    import numpy as np
     import yaml
     from hybridtwin import forward as fwd
     from hybridtwin import identification as idn
@@ -188,12 +200,7 @@ def protocol_comparison(folder: Path, variant_name: str, runs: list[str]) -> pd.
         tables = {name: fit.table().set_index("parameter") for name, fit in fits.items()}
         physical = [p for p in tables["literal"].index if p != "phase"]
         spread = tables["optima"].loc[physical, "mc_std"] / tables["literal"].loc[physical, "mc_std"]
-        rows.append({"run": run, "cpu_literal_s": cpu["literal"], "cpu_optima_s": cpu["optima"],
-                     "lm_literal": fits["literal"].protocol.n_lm, "lm_optima": fits["optima"].protocol.n_lm,
-                     # the same trials on the measured data, batched with other repeats (round-off apart)
-                     "estimate_change": float(np.abs(fits["optima"].theta - fits["literal"].theta).max()),
-                     "mc_std_ratio_median": float(spread.median()), "mc_std_ratio_min": float(spread.min()),
-                     "mc_std_ratio_max": float(spread.max()),
+        rows.append({"run": run, **_side_by_side(fits, cpu, spread),
                      "mc_loss_literal": float(fits["literal"].protocol.monte_carlo_loss.mean()),
                      "mc_loss_optima": float(fits["optima"].protocol.monte_carlo_loss.mean())})
     return pd.DataFrame(rows)
@@ -203,7 +210,6 @@ def joint_comparison(folder: Path, variant_name: str) -> dict:
     """The joint fit's library protocol (``run_fits.fit_joint`` with the polish off) with the literal repeats and with
     the workflow's ``joint.monte_carlo_starts``: CPU seconds, LM problems, the largest change of the estimate
     (normalised units), the Monte Carlo std of the shared physical parameters (optima / literal)."""
-    import numpy as np
     import yaml
 
     from hybridtwin import config as cfg
@@ -227,11 +233,7 @@ def joint_comparison(folder: Path, variant_name: str) -> dict:
     shared = tables["literal"]["run"].eq("all") & tables["literal"]["parameter"].ne("phase")
     spread = tables["optima"].loc[shared, "mc_std"] / tables["literal"].loc[shared, "mc_std"]
     loss = {name: fit.protocol.monte_carlo_loss for name, fit in fits.items()}
-    return {"variant": variant_name, "cpu_literal_s": cpu["literal"], "cpu_optima_s": cpu["optima"],
-            "lm_literal": fits["literal"].protocol.n_lm, "lm_optima": fits["optima"].protocol.n_lm,
-            "estimate_change": float(np.abs(fits["optima"].theta - fits["literal"].theta).max()),
-            "mc_std_ratio_median": float(spread.median()), "mc_std_ratio_min": float(spread.min()),
-            "mc_std_ratio_max": float(spread.max()),
+    return {"variant": variant_name, **_side_by_side(fits, cpu, spread),
             # the Monte Carlo std over the linearised standard error, median over the shared physical parameters
             **{f"mc_over_se_{name}": float((tables[name].loc[shared, "mc_std"] / tables[name].loc[shared, "stderr"])
                                            .median()) for name in fits},
