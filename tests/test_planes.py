@@ -16,6 +16,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 REFERENCE = Path(__file__).with_name("planes_varm_reference.json")
@@ -293,6 +294,40 @@ def test_predictions_comparisons_figures_and_fingerprint_follow_the_channels(tmp
     two = fingerprint(X[:, :, :2], M[:, :, :2], 1e-6, rpm, np.full(R, 20.0))
     np.testing.assert_array_equal(four.forward, two.forward)  # the whirl: channels 0, 1 only
     assert four.chi2 > two.chi2 and four.dof == 2 * two.dof  # the chi^2: every channel
+
+
+def test_the_run_figure_draws_an_orbit_for_each_plane_the_machine_declares_and_no_other(tmp_path):
+    """A plane with an x and a y probe, and two probes without a partner (an x at one node, a y at another): the
+    machine keeps them x1, y1, xa, yb. Consecutive channels would draw xa against yb as if they were one plane's
+    orbit; with the machine's pairs (``sensor_pair_names`` of the config's sensors, as the report_runs rule passes
+    them) the figure has the one orbit x1, y1 and its title names xa and yb as not drawn."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from hybridtwin import report
+
+    sensors = {"yb": {"node": 4, "direction": "y"}, "x1": {"node": 9, "direction": "x"},
+               "xa": {"node": 2, "direction": "x"}, "y1": {"node": 9, "direction": "y"}}
+    pairs = report.sensor_pair_names(sensors)
+    assert pairs == [("x1", "y1")]
+    assert report.sensor_pair_names(None) is None  # the VARM: its x, y
+    rng = np.random.default_rng(3)
+    H, channels = 2, ("x1", "y1", "xa", "yb")  # the machine's order (tests/test_machine.py: sensors_by_name)
+    Z = 1e-4 * (rng.standard_normal((H, 4)) + 1j * rng.standard_normal((H, 4)))
+    comparison = report.RunComparison("r1", "fit", 3000.0, 10.0, Z, 0.9 * Z, np.full((H, 4), 1e-6), 15, "solver",
+                                      channels)
+    figure = report.plot_run(comparison, "linear", pairs)
+    orbits = [ax for ax in figure.axes if ax.get_title().startswith("orbit")]
+    assert [(ax.get_xlabel(), ax.get_ylabel()) for ax in orbits] == [("x1 [mm]", "y1 [mm]")]
+    assert "not drawn: channels xa, yb (no pair)" in figure._suptitle.get_text()
+    plt.close(figure)
+    # the pair's numbers are its own channels' (by name, whatever the column order)
+    swapped = report.probe_pairs(comparison, [("y1", "x1")])[0]
+    np.testing.assert_array_equal(swapped.measured, Z[:, [1, 0]])
+    with pytest.raises(ValueError, match="r1: probe pair channel.* x2"):
+        report.probe_pairs(comparison, [("x2", "y1")])
 
 
 def test_a_library_and_its_surrogate_give_every_sensor_in_declared_order():

@@ -57,6 +57,7 @@ from matplotlib.colors import LogNorm
 from scipy import stats
 
 from . import identification as idn
+from . import measurements as meas
 from . import validation as val
 from .plots import plt
 
@@ -411,12 +412,12 @@ def _run_title(c: RunComparison) -> str:
             f"{c.eccentric_mass_g:g} g; chi^2/dof = {c.chi2_dof:.3g}, error {100 * c.error_rel:.2g} %")
 
 
-def plot_run(c: RunComparison, variant: str) -> plt.Figure:
+def plot_run(c: RunComparison, variant: str, pairs: Sequence[tuple[str, str]] | None = None) -> plt.Figure:
     """One run: orbit, x and y over two revolutions with the residual, and the residual whirl spectrum; a row per
-    pair of channels in the machine's order (a plane's x then y probe: x, y on the VARM, one row; x1, y1, x2, y2
-    on a machine with probes at two planes, two rows). An odd last channel has no orbit: it is in the run's rows of
+    plane with an x and a y probe (``pairs``: the channels' names, ``sensor_pair_names``; None: consecutive
+    channels, the VARM's x, y, one row). A probe without a partner has no orbit: it is in the run's rows of
     harmonics.tsv and in its chi^2, and the title says so."""
-    pairs = probe_pairs(c)
+    pairs = probe_pairs(c, pairs)
     fig = plt.figure(figsize=(14, 6.2 * len(pairs)))
     grid = fig.add_gridspec(2 * len(pairs), 3, width_ratios=(1.0, 1.5, 1.3), height_ratios=(1.4, 1.0) * len(pairs))
     for k, pair in enumerate(pairs):
@@ -424,7 +425,7 @@ def plot_run(c: RunComparison, variant: str) -> plt.Figure:
         signals = fig.add_subplot(grid[2 * k, 1])
         _signals(signals, fig.add_subplot(grid[2 * k + 1, 1], sharex=signals), pair)
         _spectrum(fig.add_subplot(grid[2 * k:2 * k + 2, 2]), pair)
-    left = c.channels[2 * len(pairs):]
+    left = [name for name in c.channels if not any(name in pair.channels for pair in pairs)]
     shown = "" if not left else (f"\nnot drawn: channel{'s' if len(left) > 1 else ''} {', '.join(left)} (no pair); "
                                  f"chi^2 and error over all {len(c.channels)}: {', '.join(c.channels)}")
     fig.suptitle(f"variant {variant}, {_run_title(c)}{shown}", fontsize=10)
@@ -432,11 +433,31 @@ def plot_run(c: RunComparison, variant: str) -> plt.Figure:
     return fig
 
 
-def probe_pairs(c: RunComparison) -> list[RunComparison]:
-    """The run's channels in consecutive pairs (the machine's order: each plane's x probe, then its y probe), each
-    as a RunComparison of its two channels."""
-    return [replace(c, measured=c.measured[:, j:j + 2], model=c.model[:, j:j + 2], sigma=c.sigma[:, j:j + 2],
-                    channels=tuple(c.channels[j:j + 2])) for j in range(0, len(c.channels) - 1, 2)]
+def probe_pairs(c: RunComparison, pairs: Sequence[tuple[str, str]] | None = None) -> list[RunComparison]:
+    """Each plane's (x, y) probes as a RunComparison of those two channels. pairs: the channels' names
+    (``sensor_pair_names`` of the machine); None: consecutive channels (0, 1), (2, 3), ..., which are the planes
+    only when every probe has a partner (the VARM's x, y). A name the run lacks is a ValueError."""
+    if pairs is None:
+        pairs = [tuple(c.channels[j:j + 2]) for j in range(0, len(c.channels) - 1, 2)]
+    index = {name: k for k, name in enumerate(c.channels)}
+    missing = [name for pair in pairs for name in pair if name not in index]
+    if missing:
+        raise ValueError(f"run {c.run}: probe pair channel(s) {', '.join(missing)} not among its channels "
+                         f"{', '.join(c.channels)}")
+    out = []
+    for pair in pairs:
+        cols = [index[name] for name in pair]
+        out.append(replace(c, measured=c.measured[:, cols], model=c.model[:, cols], sigma=c.sigma[:, cols],
+                           channels=tuple(pair)))
+    return out
+
+
+def sensor_pair_names(sensors=None) -> list[tuple[str, str]] | None:
+    """The (x, y) channel names of each plane with one probe of each for ``sensors`` (a machine's sensors in any
+    form ``measurements.record_channels`` takes: the config's {name: {node, direction}}, a Machine); None for the
+    VARM (its x, y)."""
+    names, pairs = meas.record_channels(sensors)
+    return None if pairs is None else [(names[i], names[j]) for i, j in pairs]
 
 
 def _orbit(ax: plt.Axes, c: RunComparison) -> None:

@@ -36,6 +36,8 @@ rule report_runs:
     """One figure per run: orbit, x and y over two revolutions with the residual, residual whirl spectrum."""
     input:
         table="results/{variant}/report/harmonics.tsv",
+    params:
+        **SENSOR_PARAMS,  # the machine's probes: which channels are a plane's x and y (an orbit each)
     output:
         runs=report(
             directory("results/{variant}/report/runs"),
