@@ -257,6 +257,32 @@ def test_sensors_by_name_node_and_direction():
         lone.sensor_node
 
 
+@pytest.mark.parametrize("declared", [["x1", "x2", "y1", "y2"], ["y3", "x1", "x2", "y1"]])
+def test_records_read_with_the_configs_sensors_have_the_machines_channel_order(tmp_path, declared):
+    """The workflow reads records with the config's sensors mapping (rule params), the model's sensor DOFs come
+    from the Machine: both must give the channels in the same order, or the fit compares one probe's measurement
+    with another's model (a sorted-keys config, x1 x2 y1 y2; a config with probes that have no partner). The
+    record's file columns are in yet another order: channels are found by name."""
+    from hybridtwin.measurements import read_record, record_channels
+
+    nodes = {"x1": (8, "x"), "y1": (8, "y"), "x2": (16, "x"), "y2": (16, "y"), "y3": (12, "y")}
+    spec = yaml.safe_load(MACHINE_YAML)["machine"]
+    spec["sensors"] = {name: {"node": nodes[name][0], "direction": nodes[name][1]} for name in declared}
+    machine = Machine.from_mapping(spec)
+    names, pairs = record_channels(spec["sensors"])
+    assert names == tuple(s.name for s in machine.sensors) and list(pairs) == machine.sensor_pairs
+    assert names[:2] == ("x1", "y1")  # a plane's x, then its y, first
+    t = np.arange(200) / 2000.0
+    columns = sorted(declared, reverse=True)
+    path = tmp_path / "r.csv"
+    path.write_text("time_s," + ",".join(f"{c}_mm" for c in columns) + "\n" + "\n".join(
+        f"{x:.6f}," + ",".join(f"{k + 1}" for k, _ in enumerate(columns)) for x in t) + "\n")
+    record = read_record(path, spec["sensors"])
+    assert list(record.channels) == list(names)
+    for k, c in enumerate(columns):  # each channel holds its own column's values
+        assert np.all(record.channels[c] == (k + 1) * 1e-3)
+
+
 @pytest.mark.parametrize("kwargs, message", [
     (dict(disks=[Disk(40, 1.0)]), "disk at node 40: nodes are the integers 0..17"),
     (dict(sensors=[Sensor("s", 2.0, "x")]), "sensor 's' at node 2.0: nodes are the integers 0..17"),

@@ -36,7 +36,7 @@ import numpy as np
 from .bearing_candidates import at_bearing
 from .effect_base import Context, Effect, Parameter
 from .effects import Unbalance, builtin_effects
-from .measurements import sensor_pairs
+from .measurements import machine_order, sensor_pairs
 from .shaft import DofCounts, Shaft, beam_element, slope_element
 
 Array = np.ndarray
@@ -185,9 +185,7 @@ class Machine(DofCounts):
         # its y probe; probes without a partner after them, as declared. The per-run figure pairs consecutive
         # channels and the whirl checks read channels 0 and 1; a config written with sorted keys (x1, x2, y1, y2)
         # would otherwise pair x1 with x2.
-        paired = [i for pair in sensor_pairs(self.sensors) for i in pair]
-        order = paired + [i for i in range(len(self.sensors)) if i not in paired]
-        object.__setattr__(self, "sensors", tuple(self.sensors[i] for i in order))
+        object.__setattr__(self, "sensors", tuple(self.sensors[i] for i in machine_order(self.sensors)))
         n_nodes = sum(s.n_elements for s in self.segments) + 1
         names: dict[str, int] = {}
         for kind, items in (("disk", self.disks), ("bearing", self.bearings),

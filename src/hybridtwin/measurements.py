@@ -223,7 +223,17 @@ def record_channels(sensors=None) -> tuple[tuple[str, ...], tuple[tuple[int, int
     items = list(sensors)
     if all(isinstance(item, str) for item in items):
         return tuple(items), None
+    items = [items[i] for i in machine_order(items)]  # the machine's channel order, however they were declared
     return tuple(str(item.name) for item in items), tuple(sensor_pairs(items))
+
+
+def machine_order(sensors: Sequence) -> list[int]:
+    """The indexes of ``sensors`` (objects with ``node`` and ``direction``) in a machine's channel order: plane by
+    plane (``sensor_pairs``: nodes in order of first appearance) its x probe, then its y probe; then the probes
+    without a partner, as declared. Records, the model's sensor DOFs and every table of channels use this order."""
+    items = list(sensors)
+    paired = [i for pair in sensor_pairs(items) for i in pair]
+    return paired + [i for i in range(len(items)) if i not in paired]
 
 
 def sensor_pairs(sensors: Sequence) -> list[tuple[int, int]]:
