@@ -53,7 +53,12 @@ def _reduced_project(work: Path) -> Path:
     config["variants"] = {"linear": config["variants"]["linear"]}  # the base the diagnosis examines
     for section, options in REDUCED.items():
         config[section] = {**config.get(section, {}), **options}
-    (work / "config" / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False))
+    # written with sorted keys, as yaml.safe_dump does by default: the sensors read x1, x2, y1, y2, and the loop must
+    # still take each plane's x and y together (records and model in the machine's order, x1, y1, x2, y2; with the
+    # declared order the records' channels were x1, x2, y1, y2 and the diagnosis said "unexplained")
+    (work / "config" / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=True))
+    assert list(yaml.safe_load((work / "config" / "config.yaml").read_text())["machine"]["sensors"]) == [
+        "x1", "x2", "y1", "y2"]
     return work
 
 
