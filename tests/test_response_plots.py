@@ -84,15 +84,15 @@ def test_multivalued_band_is_where_run_up_and_run_down_differ():
 
 
 def test_bode_and_polar_draw_both_sweeps_and_the_measured_runs(linear, tmp_path):
-    """Measured = the model at the run speeds plus a known offset: the figures draw one run-up and one run-down
+    """Measured = the model at the run speeds times 1.05 (x1), 1.3 (y1): the figures draw one run-up and one run-down
     curve per mass in every amplitude panel, and one measured point per fit run."""
     machine, runs, dense = linear
     comparisons = []
     for r in runs.itertuples():
         X = linear_response(machine, r.rpm, 1e-3 * r.eccentric_mass_g, k={"a": K_A}, c={"b": C_B})
         model = np.array([[X[machine.dof(f"u{SENSOR_NODE}")], X[machine.dof(f"v{SENSOR_NODE}")]], [0j, 0j]])
-        comparisons.append(RunComparison(r.run, "fit", r.rpm, r.eccentric_mass_g, model * 1.05, model,
-                                         np.full((2, 2), 1e-7), 8.0, "solver"))
+        comparisons.append(RunComparison(r.run, "fit", r.rpm, r.eccentric_mass_g, model * [1.05, 1.3], model,
+                                         np.full((2, 2), 1e-7), 8.0, "solver", ("x1", "y1")))
     fig = rp.plot_bode(dense, comparisons, "linear", orders=(1,))
     amplitude = fig.axes[0]
     curves = [line for line in amplitude.get_lines() if len(line.get_xdata()) == 41]
@@ -100,6 +100,20 @@ def test_bode_and_polar_draw_both_sweeps_and_the_measured_runs(linear, tmp_path)
     assert sorted(line.get_linestyle() for line in curves) == ["-", "-", "--", "--"]
     points = [c for c in amplitude.containers]  # errorbar containers: one per measured run
     assert len(points) == len(runs)
+    # the runs' channels are matched to the model's by name: the same runs with their columns stored y1, x1 give
+    # the same measured points in each panel
+    drawn = [ax.containers[0].lines[0].get_ydata()[0] for ax in fig.axes[0::2]]
+    assert drawn[1] / drawn[0] == pytest.approx(1.3 / 1.05, rel=1e-6)  # an isotropic rotor: |x1| = |y1| in the model
+    matplotlib.pyplot.close(fig)
+    swapped = [RunComparison(c.run, c.role, c.rpm, c.eccentric_mass_g, c.measured[:, ::-1], c.model[:, ::-1],
+                             c.sigma[:, ::-1], c.dof, c.source, ("y1", "x1")) for c in comparisons]
+    fig = rp.plot_bode(dense, swapped, "linear", orders=(1,))
+    assert [ax.containers[0].lines[0].get_ydata()[0] for ax in fig.axes[0::2]] == drawn
+    matplotlib.pyplot.close(fig)
+    with pytest.raises(ValueError, match="channels x, y, but the model's response has x1, y1"):
+        rp.plot_bode(dense, [RunComparison(c.run, c.role, c.rpm, c.eccentric_mass_g, c.measured, c.model, c.sigma,
+                                           c.dof, c.source, ("x", "y")) for c in comparisons], "linear")
+    fig = rp.plot_bode(dense, comparisons, "linear", orders=(1,))
     fig.savefig(tmp_path / "bode.png")
     matplotlib.pyplot.close(fig)
     fig = rp.plot_polar(dense, comparisons, "linear", orders=(1,))

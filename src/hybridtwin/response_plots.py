@@ -19,6 +19,7 @@ order); ``plot_bode`` and ``plot_polar`` draw every channel with the fit and val
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import replace
 
 import matplotlib
 
@@ -142,16 +143,31 @@ def _curve(ax_amp, ax_phase, part: pd.DataFrame, j: int, colour: str, style: str
     return rpm, phase
 
 
+def _by_channel(comparisons: Sequence[RunComparison], channels: Sequence[str]) -> list[RunComparison]:
+    """The runs' columns in the dense table's channel order, matched by name; a run whose channels are not the
+    table's is a ValueError naming both."""
+    out = []
+    for c in comparisons:
+        if sorted(c.channels) != sorted(channels):
+            raise ValueError(f"run {c.run}: channels {', '.join(c.channels)}, but the model's response has "
+                             f"{', '.join(channels)}")
+        cols = [list(c.channels).index(name) for name in channels]
+        out.append(replace(c, measured=c.measured[:, cols], model=c.model[:, cols], sigma=c.sigma[:, cols],
+                           channels=tuple(channels)))
+    return out
+
+
 def plot_bode(dense: pd.DataFrame, comparisons: Sequence[RunComparison], variant: str,
               orders: Sequence[int] = ORDERS) -> plt.Figure:
     """Amplitude (0-peak) and phase (model frame) of harmonics ``orders`` vs speed, every channel (two rows each: x, y
-    on the VARM; every probe of a machine, the runs' channels taken in the same order): the model's run-up
+    on the VARM; every probe of a machine, the runs' channels matched by name): the model's run-up
     (solid) and run-down (dashed) per eccentric mass, unstable stretches dotted; the fit runs measured (points, 2
     sigma bars), the validation runs measured (stars) and predicted (crosses); the noise (2 sigma, grey)."""
     H = min([int(dense["harmonic"].max())] + [c.H for c in comparisons])
     orders = [h for h in orders if h <= H]
     colours = mass_colours(sorted(set(dense["eccentric_mass_g"])))
     channels = channels_of(dense)
+    comparisons = _by_channel(comparisons, channels)
     fig, axes = plt.subplots(2 * len(channels), len(orders), figsize=(4.6 * len(orders), 6 * len(channels)),
                              sharex=True, squeeze=False)
     for col, h in enumerate(orders):
@@ -227,6 +243,7 @@ def plot_polar(dense: pd.DataFrame, comparisons: Sequence[RunComparison], varian
     orders = [h for h in orders if h <= H]
     colours = mass_colours(sorted(set(dense["eccentric_mass_g"])))
     channels = channels_of(dense)
+    comparisons = _by_channel(comparisons, channels)
     fig, axes = plt.subplots(len(channels), len(orders), figsize=(4.8 * len(orders), 4.8 * len(channels)),
                              squeeze=False, subplot_kw={"projection": "polar"})
     for col, h in enumerate(orders):
