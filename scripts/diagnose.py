@@ -20,7 +20,7 @@ table = pd.read_csv(smk.input.parameters, sep="\t", dtype={"run": str})
 harmonics = idn.read_harmonics(smk.input.harmonics)
 runs = [r for r in dict.fromkeys(table["run"]) if r != "all"]
 keyphasor = smk.params.keyphasor  # as the identification used it (identification: keyphasor)
-data = [idn.run_data(harmonics, run, keyphasor=keyphasor) for run in runs]
+data = [idn.run_data(harmonics, run, keyphasor=keyphasor, channels=variant.channels) for run in runs]
 base = st.BaseFit.from_table(variant, table, data, int(smk.params.harmonics))
 candidates = candidates_for([e.name for e in variant.model.effects], cfg.candidate_names(options["candidates"], model),
                             cfg.candidate_effects(model))

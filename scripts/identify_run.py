@@ -21,7 +21,7 @@ harmonics = idn.read_harmonics(smk.input.harmonics)
 validation = pd.read_csv(smk.input.validation, sep="\t")
 outputs = zip(smk.params.runs, smk.input.libraries, smk.output.parameters, smk.output.history, smk.output.fit)
 for run, library, parameters, history, fit in outputs:
-    data = idn.run_data(harmonics, run, keyphasor=options["keyphasor"])
+    data = idn.run_data(harmonics, run, keyphasor=options["keyphasor"], channels=variant.channels)
     result = fit_run(variant, options, Library.load(library), data, validation, int(smk.params.harmonics))
     write_run_fit(result, parameters, history, fit)
     for message in result.messages:

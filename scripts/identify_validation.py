@@ -24,7 +24,7 @@ fitted_runs = table[["run", "rpm_true", "eccentric_mass_g"]].rename(columns={"rp
 rows, predictions = [], []
 for path in smk.input.libraries:
     library = Library.load(path)
-    data = idn.run_data(table, library.run, keyphasor=options["keyphasor"])
+    data = idn.run_data(table, library.run, keyphasor=options["keyphasor"], channels=variant.channels)
     if not data.usable:
         rows.append({"run": data.run, "rpm": data.rpm, "eccentric_mass_g": data.eccentric_mass_g,
                      "model": "none", "note": data.note})

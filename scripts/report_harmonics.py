@@ -32,7 +32,7 @@ scores = validation.set_index(["run", "model"])["error_rel"]
 for prediction in predictions:
     if prediction.model != source:
         continue
-    data = idn.run_data(table, prediction.run, keyphasor=options["keyphasor"])
+    data = idn.run_data(table, prediction.run, keyphasor=options["keyphasor"], channels=prediction.channels)
     error = errors.get(data.run, 0.0) if source == "library" else 0.0
     comparison = report.validation_comparison(prediction, data, error)
     comparisons.append(comparison)

@@ -163,6 +163,18 @@ def test_order_analysis_gives_each_channel_its_harmonics_with_one_speed_and_one_
     assert table_channels(row) == ("x1", "y1", "x2", "y2")
     assert harmonic_column("x1", 2, "re") == "x1_2_re_m" and harmonic_column("x", 2, "re") == "x2_re_m"
     assert {"noise_x2_m", "offset_y2_m", "y2_2_sigma_m"} <= set(row.columns)
+    # the fits read a run's channels by the model's sensor names, in the model's order, whatever the table's order
+    from hybridtwin.measured import run_data
+
+    row = row.assign(run="r1", rpm=rpm, eccentric_mass_g=20.0)
+    data = run_data(row, "r1")
+    assert data.channels == ("x1", "y1", "x2", "y2")
+    other = run_data(row, "r1", channels=("x2", "y2", "x1", "y1"))
+    assert other.channels == ("x2", "y2", "x1", "y1")
+    np.testing.assert_array_equal(other.X, data.X[:, [2, 3, 0, 1]])
+    np.testing.assert_array_equal(other.sigma, data.sigma[:, [2, 3, 0, 1]])
+    with pytest.raises(ValueError, match="channels are x1, y1, x2, y2, the model's sensors x, y"):
+        run_data(row, "r1", channels=("x", "y"))
 
 
 def test_two_planes_see_the_overhung_disks_bearing_that_one_plane_barely_sees(tmp_path, capsys):

@@ -68,20 +68,29 @@ def table_harmonics(table: pd.DataFrame) -> int:
     return h
 
 
-def run_data(table: pd.DataFrame, run: str, harmonics: int | None = None, keyphasor: bool = True) -> RunData:
+def run_data(table: pd.DataFrame, run: str, harmonics: int | None = None, keyphasor: bool = True,
+             channels: Sequence[str] | None = None) -> RunData:
     """The measured harmonics of ``run`` from the preprocessed table (h = 1..H, SI).
 
     With ``keyphasor`` (the default), a run whose phases were referred to its keyphasor mark
     (``phase_reference`` "keyphasor") has absolute phases: phase_sigma = Omega sigma_t, and sigma is
     the noise's alone (the origin's share, ``preprocessing.origin_share``, taken out of the table's).
-    The channels are the table's (``preprocessing.table_channels``: every sensor of the machine).
+    The channels are the table's (``preprocessing.table_channels``: every sensor of the machine); with
+    ``channels`` (the model's sensors, ``sensor.sensor_names``), taken by name in that order, and a table whose
+    channels are others is a ValueError naming both: a fit never compares one probe with another's model.
     """
     rows = table[table["run"] == run]
     if len(rows) != 1:
         raise ValueError(f"the harmonics table has {len(rows)} rows for run {run!r} (expected 1)")
     row = rows.iloc[0]
     H = table_harmonics(table) if harmonics is None else min(harmonics, table_harmonics(table))
-    channels = table_channels(table)
+    found = table_channels(table)
+    if channels is None:
+        channels = found
+    elif sorted(channels) != sorted(found):
+        raise ValueError(f"the harmonics table's channels are {', '.join(found)}, the model's sensors "
+                         f"{', '.join(channels)}: the records and the machine in the config disagree")
+    channels = tuple(channels)
     X = np.array([[row[harmonic_column(c, h, "re")] + 1j * row[harmonic_column(c, h, "im")] for c in channels]
                   for h in range(1, H + 1)])
     sigma = np.array([[row[harmonic_column(c, h, "sigma")] for c in channels] for h in range(1, H + 1)], float)

@@ -148,7 +148,8 @@ def fit_joint(variant: Variant, options: Mapping, libraries: Sequence[Library], 
     warnings: list[str] = []
     data, models = [], []
     for library in libraries:
-        run = idn.run_data(harmonics_table, library.run, keyphasor=options["keyphasor"])
+        run = idn.run_data(harmonics_table, library.run, keyphasor=options["keyphasor"],
+                           channels=variant.channels)
         if not run.usable:
             warnings.append(f"run {run.run} left out of the joint fit: {run.note}")
             continue

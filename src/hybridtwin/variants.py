@@ -27,6 +27,7 @@ import numpy as np
 from .effect_base import Array, Effect, Params, PolynomialBearing
 from .effects import builtin_effects
 from .model import Model, System
+from .sensor import sensor_names
 from .shaft import Shaft
 from .solver import SteadyState, solve
 
@@ -115,6 +116,11 @@ class Variant:
     @property
     def unknown_names(self) -> list[str]:
         return list(self.unknown)
+
+    @property
+    def channels(self) -> tuple[str, ...]:
+        """The model's sensor channels, in the machine's order (``sensor.sensor_names``; x, y on the VARM)."""
+        return sensor_names(self.model.shaft)
 
     def bounds(self, names: Sequence[str] | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Lower and upper ends of the unknowns' ranges, in the order of ``names`` (default: as declared)."""
