@@ -181,10 +181,10 @@ class Machine(DofCounts):
                 raise ValueError(f"{where}: {attr}: {err}") from None
         if not self.segments:
             raise ValueError(f"{where}: the shaft needs at least one segment")
-        # the channel order every consumer relies on: plane by plane (in order of first appearance) its x probe, then
-        # its y probe; probes without a partner after them, as declared. The per-run figure pairs consecutive
-        # channels and the whirl checks read channels 0 and 1; a config written with sorted keys (x1, x2, y1, y2)
-        # would otherwise pair x1 with x2.
+        # the channel order (measurements.machine_order, also the records' as read with the config's sensors): plane
+        # by plane (in order of first appearance) its x probe, then its y probe; probes without a partner after them,
+        # as declared. The whirl checks read channels 0 and 1 as the first plane's x and y; a config written with
+        # sorted keys (x1, x2, y1, y2) would otherwise have them read x1 and x2.
         object.__setattr__(self, "sensors", tuple(self.sensors[i] for i in machine_order(self.sensors)))
         n_nodes = sum(s.n_elements for s in self.segments) + 1
         names: dict[str, int] = {}
