@@ -495,6 +495,34 @@ def test_a_recommended_variant_name_is_valid_in_the_config():
     assert name == "linear_bearing_anisotropy_at_b_cross_coupled_stiffness" and re.fullmatch(pattern, name)
 
 
+def test_the_recommended_variants_yaml_reads_back_as_numbers():
+    """The "What to do" lines are pasted under ``variants:``: every range end and fixed value must read back as the
+    number it was (to the 6 digits printed), large and small ones too. Python's ``f"{3e7:g}"`` is "3e+07", which
+    YAML 1.1 (PyYAML, Snakemake's loader) reads as a string, and the config check then rejected the pasted
+    variant; the schema's own type check is applied here."""
+    from pathlib import Path
+
+    import jsonschema
+    import yaml
+
+    spec = {"description": "linear + bearing_anisotropy@b: stiffness along x minus the mean at bearing b",
+            "effects": ["linear_bearing@a", "bearing_anisotropy@b"],
+            "unknown": {"k_a": [1.5e7, 3e7], "dk_b": [-2e6, 2e6], "c_a": [400.0, 1600.0], "zeta": [0.01, 0.05],
+                        "tiny": [1e-5, 2.5e-4], "k": [0.0, 1000.0]},
+            "fixed": {"q": 1e-5, "big": -1.23456e12}}
+    read = yaml.safe_load("variants:\n" + dg.variant_lines("v", spec))["variants"]["v"]
+    for section in ("unknown", "fixed"):
+        for name, value in spec[section].items():
+            assert not isinstance(read[section][name], str), (section, name, read[section][name])
+            np.testing.assert_allclose(read[section][name], value, rtol=5e-6)
+    schema = yaml.safe_load((Path(__file__).resolve().parents[1] / "workflow/schemas/config.schema.yaml").read_text())
+    variant_schema = schema["properties"]["variants"]["additionalProperties"]
+    jsonschema.validate(read, {**variant_schema, "definitions": schema.get("definitions", {}),
+                               "$defs": schema.get("$defs", {})})
+    assert [dg.yaml_number(x) for x in (3e7, -2e6, 2000.0, 0.05, 1e-5)] == ["3.0e+07", "-2.0e+06", "2000", "0.05",
+                                                                          "1.0e-05"]
+
+
 @pytest.mark.parametrize("value, low, high", [(1200005.31, 1199927.44, 1200083.19), (324.0, 323.4, 324.6),
                                               (-5998.0, -5999.5, -5996.5), (0.197, 0.192, 0.202)])
 def test_an_estimates_text_shows_its_interval(value, low, high):

@@ -634,6 +634,14 @@ def variant_spec(base: Variant, candidate: Candidate | Sequence[Candidate],
     return spec
 
 
+def yaml_number(value: float) -> str:
+    """``value`` to 6 significant digits as YAML reads a number: 2000, 0.05, 3.0e+07, -2.0e+06 (``3e+07`` would
+    be a string to YAML 1.1, the loader of PyYAML and Snakemake: a float's exponent form needs a point)."""
+    text = f"{value:g}"
+    mantissa, e, exponent = text.partition("e")
+    return f"{mantissa}.0e{exponent}" if e and "." not in mantissa else text
+
+
 def variant_lines(name: str, spec: Mapping) -> str:
     """``spec`` as YAML lines to paste under ``variants:`` in config/config.yaml."""
     def flow(value) -> str:
@@ -641,7 +649,7 @@ def variant_lines(name: str, spec: Mapping) -> str:
             return "{" + ", ".join(f"{k}: {flow(v)}" for k, v in value.items()) + "}"
         if isinstance(value, list):
             return "[" + ", ".join(flow(v) for v in value) + "]"
-        return f"{value:g}" if isinstance(value, float) else str(value)
+        return yaml_number(value) if isinstance(value, float) else str(value)
     lines = [f"  {name}:", f"    description: \"{spec['description']}\""]
     lines += [f"    {key}: {flow(spec[key])}" for key in ("effects", "unknown", "fixed", "per_run") if key in spec]
     return "\n".join(lines)
