@@ -283,6 +283,26 @@ def test_records_read_with_the_configs_sensors_have_the_machines_channel_order(t
         assert np.all(record.channels[c] == (k + 1) * 1e-3)
 
 
+def test_sensor_names_in_capitals_read_their_columns_in_any_case(tmp_path):
+    """Sensors X1, Y1 (the schema allows capitals): their records' columns X1_mm, Y1_mm (as the rig writes them)
+    or x1_mm, y1_mm (headers are read in any case) are their channels, named as the machine names them; two
+    sensors whose names differ only in case are an error, since no record could tell their columns apart."""
+    from hybridtwin.measurements import read_record
+
+    spec = yaml.safe_load(MACHINE_YAML)["machine"]
+    spec["sensors"] = {"X1": {"node": 8, "direction": "x"}, "Y1": {"node": 8, "direction": "y"}}
+    t = np.arange(100) / 2000.0
+    for header in ("time_s,X1_mm,Y1_mm", "TIME_S,x1_mm,y1_MM"):
+        path = tmp_path / "r.csv"
+        path.write_text(header + "\n" + "\n".join(f"{x:.6f},1,2" for x in t) + "\n")
+        record = read_record(path, spec["sensors"])
+        assert list(record.channels) == ["X1", "Y1"], header
+        assert np.all(record.channels["X1"] == 1e-3) and np.all(record.channels["Y1"] == 2e-3)
+    spec["sensors"]["x1"] = {"node": 4, "direction": "x"}
+    with pytest.raises(ValueError, match="'X1', 'x1' differ only in case"):
+        Machine.from_mapping(spec)
+
+
 @pytest.mark.parametrize("kwargs, message", [
     (dict(disks=[Disk(40, 1.0)]), "disk at node 40: nodes are the integers 0..17"),
     (dict(sensors=[Sensor("s", 2.0, "x")]), "sensor 's' at node 2.0: nodes are the integers 0..17"),

@@ -202,6 +202,11 @@ class Machine(DofCounts):
                 if item.name in names:
                     raise ValueError(f"{where}: the name {item.name!r} is used twice")
                 names[item.name] = int(item.node)
+        lowered = [str(s.name).lower() for s in self.sensors]
+        clash = sorted({s.name for s in self.sensors if lowered.count(str(s.name).lower()) > 1})
+        if clash:  # a record's header is read in any case: X1_mm and x1_mm are one column
+            raise ValueError(f"{where}: sensors {', '.join(map(repr, clash))} differ only in case; records cannot "
+                             "tell their columns apart")
         for disk in self.disks:
             if not (disk.mass >= 0 and disk.I_p >= 0 and disk.I_d >= 0):
                 raise ValueError(f"{where}: disk at node {disk.node}: mass, I_p and I_d must be >= 0")

@@ -641,11 +641,12 @@ def _record_columns(path: Path, columns: Sequence[str], names: Sequence[str] = D
     _require_columns(path, columns, ("time_s",), RECORD_COLUMNS, f"a record needs {expected}, optionally keyphasor")
     problems, chosen = [], {}
     own = {}
-    for axis in names:
-        candidates = [(c, c[len(axis) + 1:]) for c in columns if c.startswith(f"{axis}_") and c not in RECORD_COLUMNS]
+    for axis in names:  # headers are read in lower case (read_text_table): a sensor X1's column X1_mm is x1_mm
+        low = axis.lower()
+        candidates = [(c, c[len(low) + 1:]) for c in columns if c.startswith(f"{low}_") and c not in RECORD_COLUMNS]
         # a column of another sensor whose name starts with this one's (x and x_b): not this sensor's
-        own[axis] = [(c, u) for c, u in candidates if not any(c.startswith(f"{other}_") and len(other) > len(axis)
-                                                              for other in names)]
+        own[axis] = [(c, u) for c, u in candidates
+                     if not any(c.startswith(f"{other.lower()}_") and len(other) > len(axis) for other in names)]
     claimed = {c for found in own.values() for c, _ in found}
     for axis in names:
         known = [(c, u) for c, u in own[axis] if u in UNITS]
@@ -656,7 +657,8 @@ def _record_columns(path: Path, columns: Sequence[str], names: Sequence[str] = D
         elif len(known) > 1:
             problems.append(f"columns {[c for c, _ in known]}: more than one {axis} displacement column")
         elif not known:
-            close = difflib.get_close_matches(f"{axis}_mm", [c for c in columns if c not in claimed], n=1, cutoff=0.5)
+            close = difflib.get_close_matches(f"{axis.lower()}_mm", [c for c in columns if c not in claimed], n=1,
+                                              cutoff=0.5)
             hint = f" (found {close[0]!r}: misnamed?)" if close and close[0] not in RECORD_COLUMNS else ""
             problems.append(f"missing column {axis}_mm (or {axis}_m){hint}")
         else:
