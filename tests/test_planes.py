@@ -148,17 +148,24 @@ def test_order_analysis_gives_each_channel_its_harmonics_with_one_speed_and_one_
         error = np.abs(analysis.orders.harmonics[i, 1:] - expected)
         assert (error < 5 * np.sqrt(2) * analysis.orders.sigma[i, 1:]).all(), name
         assert abs(analysis.orders.harmonics[i, 0].real - 1e-5 * (i + 1)) < 1e-7  # its own DC offset
-    # a second plane whirling backward (an anisotropic support between its critical speeds) is no finding; the
-    # first plane whirling backward is (x1 and y1 swapped?)
+    # one plane whirling backward while another whirls forward can be real (between the split critical speeds of an
+    # anisotropic support): a warning, the run stays in the fit, whichever plane the machine lists first; every
+    # plane backward is a finding (the record's x and y swapped), the run is kept out
     orbit = {"x2": 4e-5 * np.cos(omega * t), "y2": -4e-5 * np.sin(omega * t)}  # a backward whirl at d2
-    ok = analyse_record(Record(Path("b.csv"), t, dict(channels, **{k: v + 1e-6 * rng.standard_normal(t.size)
-                                                                  for k, v in orbit.items()}), None, "m",
-                               pairs=pairs), rpm, 2, 1e-3)
-    assert ok.usable, ok.note
+    d2_backward = dict(channels, **{k: v + 1e-6 * rng.standard_normal(t.size) for k, v in orbit.items()})
+    for order in (pairs, pairs[::-1]):
+        with pytest.warns(DataWarning, match="orbit of x2, y2 whirls backward .* while the orbit of x1, y1 whirls "
+                                             "forward: real between"):
+            ok = analyse_record(Record(Path("b.csv"), t, d2_backward, None, "m", pairs=order), rpm, 2, 1e-3)
+        assert ok.usable, ok.note
+    with pytest.warns(DataWarning, match="the 1X orbit of x1, y1 whirls backward .* x1 and y1 swapped"):
+        one = analyse_record(Record(Path("c.csv"), t, dict(channels, x1=channels["y1"], y1=channels["x1"]),
+                                    None, "m", pairs=pairs), rpm, 2, 1e-3)
+    assert one.usable  # the other plane whirls forward: no single run can tell
+    every = dict(channels, x1=channels["y1"], y1=channels["x1"], x2=channels["y2"], y2=channels["x2"])
     with pytest.warns(DataWarning, match="the 1X orbit of x1, y1 whirls backward"):
-        swapped = analyse_record(Record(Path("c.csv"), t, dict(channels, x1=channels["y1"], y1=channels["x1"]),
-                                        None, "m", pairs=pairs), rpm, 2, 1e-3)
-    assert not swapped.usable and "x1 and y1 swapped?" in swapped.note
+        swapped = analyse_record(Record(Path("d.csv"), t, every, None, "m", pairs=pairs), rpm, 2, 1e-3)
+    assert not swapped.usable and "x1 and y1 swapped?" in swapped.note and "x2 and y2 swapped?" in swapped.note
     row = pd.DataFrame([run_row(analysis, 2)])
     assert table_channels(row) == ("x1", "y1", "x2", "y2")
     assert harmonic_column("x1", 2, "re") == "x1_2_re_m" and harmonic_column("x", 2, "re") == "x2_re_m"

@@ -22,9 +22,11 @@ checks that its numbers can be what the sensor measured on this machine:
   of K revolutions, |X_1|^2 / sigma_1^2 = 2 F(2, 2K - 2): above 5^2 with
   probability (1 + 25 / (2K - 2))^-(K - 1), 7e-5 for K = 20, exp(-12.5) = 4e-6
   as K grows): a channel of noise only (an unplugged or misaimed sensor) fails it; the 1X
-  orbit whirls forward, as the unbalance response of this machine does (the
-  shaft turns from +x towards +y): a backward orbit means x and y swapped or
-  one channel's sign reversed; no single spikes: a sample further than
+  orbit of each plane (x, y pair) whirls forward, as an unbalance response does
+  away from the critical speeds (the shaft turns from +x towards +y): when every
+  plane whirls backward, x and y are swapped or one channel's sign reversed; one
+  plane backward while another whirls forward can be real (between the split
+  critical speeds of an anisotropic support): a warning, the run stays; no single spikes: a sample further than
   SPIKE_SIGMAS robust standard deviations (1.4826 x the median absolute
   deviation) from the synchronous-average waveform (for Gaussian noise a
   1e-15 chance per sample).
@@ -161,20 +163,35 @@ def response_flags(record: Record, harmonics: Array, sigma: Array, residual: Arr
                               f"uncertainty ({s1[i] * 1e3:.2g} mm): |1X|/sigma = {ratio[i]:.1f} < {SIGNIFICANCE:g}; "
                               "the channel carries noise only (sensor unplugged or misaimed?) or the run has no "
                               "response"))
-    # the first x, y pair's orbit only (the machine's first plane, the VARM's one): a plane elsewhere can whirl
-    # backward in earnest, between the backward and forward critical speeds of an anisotropic support (the
-    # stepped rotor's d2 at 3700-3850 RPM), which no check on one run can tell from swapped channels
-    ix, iy = record.pairs[0] if record.pairs else (None, None)
-    if ix is not None and significant[ix] and significant[iy]:
+    # every plane's 1X orbit (each x, y pair). An unbalance response whirls forward below and above the critical
+    # speeds; between the backward and forward critical speeds of an anisotropic support a plane can whirl backward
+    # in earnest (the stepped rotor's d2 at 3700-3850 RPM, with d1 forward), which no check on one run can tell from
+    # that plane's probes swapped. So a run is kept out only when every plane judged whirls backward (the VARM's one
+    # plane; a record with all its x and y columns swapped); a plane backward while another whirls forward is a
+    # warning, and the run stays in the fit.
+    judged, backward = [], []
+    for ix, iy in record.pairs or ():
+        if not (significant[ix] and significant[iy]):
+            continue
+        forward_amp, backward_amp = abs(X1[ix] + 1j * X1[iy]) / 2, abs(X1[ix] - 1j * X1[iy]) / 2
+        judged.append((ix, iy))
+        if backward_amp - forward_amp > WHIRL_SIGMAS * float(np.hypot(s1[ix], s1[iy])):
+            backward.append((ix, iy, forward_amp, backward_amp))
+    for ix, iy, forward_amp, backward_amp in backward:
         pair = record.names[ix] + record.names[iy]
         swapped = "x and y swapped?" if pair == "xy" else f"{record.names[ix]} and {record.names[iy]} swapped?"
-        forward, backward = abs(X1[ix] + 1j * X1[iy]) / 2, abs(X1[ix] - 1j * X1[iy]) / 2
-        if backward - forward > WHIRL_SIGMAS * float(np.hypot(s1[ix], s1[iy])):
-            orbit = "the 1X orbit" if pair == "xy" else f"the 1X orbit of {record.names[ix]}, {record.names[iy]}"
+        orbit = "the 1X orbit" if pair == "xy" else f"the 1X orbit of {record.names[ix]}, {record.names[iy]}"
+        whirl = (f"{orbit} whirls backward (forward {forward_amp * 1e3:.4f} mm, backward {backward_amp * 1e3:.4f} mm)")
+        if len(backward) == len(judged):
             flags.append(Flag(record.path, pair, "backward_whirl", f"1X whirls backward ({swapped})",
-                              f"{orbit} whirls backward (forward {forward * 1e3:.4f} mm, backward "
-                              f"{backward * 1e3:.4f} mm) while the unbalance response whirls forward (the shaft turns "
-                              f"from +x towards +y): {swapped[:-1]}, or one channel's sign reversed?"))
+                              f"{whirl} while the unbalance response whirls forward (the shaft turns from +x towards "
+                              f"+y): {swapped[:-1]}, or one channel's sign reversed?"))
+        else:
+            forward_planes = ", ".join(f"{record.names[a]}, {record.names[b]}" for a, b in judged
+                                       if (a, b) not in {(c[0], c[1]) for c in backward})
+            warnings.warn(f"{record.path}: {whirl} while the orbit of {forward_planes} whirls forward: real between "
+                          f"the backward and forward critical speeds of an anisotropic support, or {swapped} The run "
+                          "stays in the fit", DataWarning, stacklevel=2)
     if residual is not None:
         for i, name in enumerate(record.names):
             if name in skip:
