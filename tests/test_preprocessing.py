@@ -180,6 +180,12 @@ def test_per_run_table_and_two_cycle_waveforms(plain, tmp_path):
                    "offset_x_m", "phase_reference", "eccentric_mass_g", "role"):
         assert column in table
     assert table["x1_re_m"].iloc[0] == pytest.approx(a.orders.harmonics[0, 1].real)
+    # the sheet's own columns are carried through, also one named like a column of the analysis (kept apart)
+    entry = sheet.iloc[1].to_dict() | {"note": "first try", "usable": "maybe", "operator": "AB"}
+    table, _ = preprocess_run(entry, H)
+    assert table["note"].iloc[0] == "ok" and bool(table["usable"].iloc[0])
+    assert (table["sheet_note"].iloc[0], table["sheet_usable"].iloc[0], table["operator"].iloc[0]) == (
+        "first try", "maybe", "AB")
 
 
 # --- plausibility (hybridtwin.plausibility, docs/data-checks.md) -------------------------

@@ -55,7 +55,7 @@ from __future__ import annotations
 import argparse
 import sys
 import warnings
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -509,8 +509,15 @@ def preprocess_run(sheet_row: Mapping, harmonics: int = 5, sensor_range_m: float
     record = read_record(sheet_row["record"], sensors) if record is None else record
     analysis = analyse_record(record, float(sheet_row["rpm"]), harmonics, sensor.range_m,
                               sensor_resolution_m=sensor.resolution_m)
-    row = {k: v for k, v in sheet_row.items() if k != "record"} | run_row(analysis, harmonics)
-    return pd.DataFrame([row]), waveforms(analysis)
+    analysed = run_row(analysis, harmonics)
+    return pd.DataFrame([_carried(sheet_row, analysed) | analysed]), waveforms(analysis)
+
+
+def _carried(sheet_row: Mapping, analysed: Iterable[str]) -> dict:
+    """The runs sheet's columns carried into a result row: all but the resolved record path, and one named like a
+    column of the analysis (note, usable, unit, keyphasor, status, ...) as sheet_<name>, not overwritten."""
+    taken = set(analysed)
+    return {(f"sheet_{k}" if k in taken else k): v for k, v in sheet_row.items() if k != "record"}
 
 
 def summarise_runs(runs: pd.DataFrame, harmonics: int = 5, sensor_range_m: float | None = None,
@@ -526,7 +533,6 @@ def summarise_runs(runs: pd.DataFrame, harmonics: int = 5, sensor_range_m: float
     """
     rows, errors = [], {}
     for _, sheet_row in runs.iterrows():
-        base = {k: v for k, v in sheet_row.items() if k != "record"}
         sensor = Sensor.for_run(sheet_row, sensor_range_m, sensor_resolution_m)
         try:
             with warnings.catch_warnings():
@@ -534,10 +540,12 @@ def summarise_runs(runs: pd.DataFrame, harmonics: int = 5, sensor_range_m: float
                 record = read_record(sheet_row["record"], sensors)
                 analysis = analyse_record(record, float(sheet_row["rpm"]), harmonics, sensor.range_m,
                                           min_revolutions, sensor.resolution_m)
-            rows.append(base | run_row(analysis, harmonics, complex_parts=False) | {"status": analysis.note})
+            analysed = run_row(analysis, harmonics, complex_parts=False) | {"status": analysis.note}
+            rows.append(_carried(sheet_row, analysed) | analysed)
         except DataError as err:
             errors[str(sheet_row["run"])] = str(err)
-            rows.append(base | {"status": f"invalid: {str(err).splitlines()[0]}", "usable": False})
+            analysed = {"status": f"invalid: {str(err).splitlines()[0]}", "usable": False}
+            rows.append(_carried(sheet_row, analysed) | analysed)
     return pd.DataFrame(rows), errors
 
 
