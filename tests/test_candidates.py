@@ -372,6 +372,13 @@ def test_a_user_candidate_from_an_effects_file(tmp_path):
     final = BUILTIN_VARIANTS["final"]["effects"]
     assert "slope_spring" not in [c.name for c in candidates_for(final)]
     assert [c.name for c in candidates_for(present)] == BUILTIN
+    # a user's effect named like a built-in candidate is the one tested, as it is the one a variant builds with
+    # (variants.Variant.from_spec: the user's effects override the built-in ones of the same name)
+    clash = {"cross_coupled_stiffness": user["foundation_damping"]}
+    tested = candidates_for(present, ["cross_coupled_stiffness"], user_effects=clash)[0]
+    assert tested.tested == ("c_f",)
+    assert [c.tested for c in candidates_for(present, None, user_effects=clash)
+            if c.name == "foundation_damping"] == [("c_f",)]
 
 
 def test_a_user_coupling_excitation_elsewhere_coexists_with_the_builtin_one():

@@ -352,6 +352,30 @@ def test_simulate_builds_the_variant_on_the_configs_machine(capsys, tmp_path):
         np.testing.assert_allclose(got, expected, rtol=2e-9)
 
 
+def test_on_the_configs_machine_simulate_defaults_to_its_variant_and_effects_lists_its_placed_effects(capsys,
+                                                                                                      tmp_path):
+    """Without --variant, simulate on a machine of your own builds the config's first variant (the VARM's geometric
+    cannot be built there): the same output as with --variant linear. ``hybridtwin effects`` lists what the
+    machine adds (linear_bearing@a, unbalance@d1, bearing_anisotropy@b, gyroscopic), as variants can use them;
+    on the VARM it lists no placed effects."""
+    from example_machines import STEPPED_YAML
+
+    (tmp_path / "config.yaml").write_text(STEPPED_YAML)
+    common = ["--config", str(tmp_path / "config.yaml"), "--rpm", "3000", "--eccentric-mass-g", "20"]
+    code, default, err = _run(capsys, *common)
+    assert code == 0, err
+    code, named, err = _run(capsys, *common, "--variant", "linear")
+    assert code == 0 and default == named
+    code = main(["effects", "--config", str(tmp_path / "config.yaml")])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    for name in ("linear_bearing@a", "unbalance@d1", "bearing_anisotropy@b", "gyroscopic"):
+        assert f"{name}:" in out or f"{name} " in out, name
+    code = main(["effects"])
+    varm, err = capsys.readouterr()
+    assert code == 0 and "@" not in varm
+
+
 def test_simulate_on_a_longer_varm_shaft(capsys, tmp_path):
     """The VARM's own description in the config (Machine.varm().to_mapping()) prints byte for byte what a config
     without machine: prints; the same machine with a longer shaft gives another response, the one the Python API's model

@@ -493,6 +493,9 @@ def test_a_recommended_variant_name_is_valid_in_the_config():
     pattern = schema["properties"]["variants"]["propertyNames"]["pattern"]
     name = dg._variant_name(["linear", "bearing_anisotropy@b", "cross_coupled_stiffness"])
     assert name == "linear_bearing_anisotropy_at_b_cross_coupled_stiffness" and re.fullmatch(pattern, name)
+    # an effect of the user's file may be named with other characters (oil-film_b): still a valid variant name
+    name = dg._variant_name(["linear", "oil-film_b", "k.2"])
+    assert name == "linear_oil_film_b_k_2" and re.fullmatch(pattern, name)
 
 
 def test_the_recommended_variants_yaml_reads_back_as_numbers():

@@ -80,18 +80,18 @@ def candidates_for(present: Sequence[str], names: Sequence[str] | None = None,
                    user_effects: Mapping[str, Effect] | None = None) -> list[Candidate]:
     """The candidates to test on a variant whose effects are ``present`` (those already in it are skipped).
 
-    names: which candidates (default: every built-in one); a name that is not built in must be an effect
-    of ``user_effects`` (the config's effects files), and then its ``switches`` are tested, or all its
-    parameters if it declares none.
+    names: which candidates (default: every built-in one); a name of ``user_effects`` (the config's effects
+    files; also one that a built-in candidate has: the user's effect overrides it, as it does in a variant) has
+    its ``switches`` tested, or all its parameters if it declares none; any other name must be built in.
     """
     available = builtin_candidates()
     user_effects = dict(user_effects or {})
     chosen = []
     for name in (list(available) if names is None else names):
-        if name in available:
-            candidate = available[name]
-        elif name in user_effects:
+        if name in user_effects:  # an effect of the config's files overrides a built-in one of its name, as in variants
             candidate = Candidate.of(user_effects[name])
+        elif name in available:
+            candidate = available[name]
         else:
             raise ValueError(f"no candidate effect named {name!r} (built in: {sorted(available)}; "
                              f"from effects files: {sorted(user_effects)})")

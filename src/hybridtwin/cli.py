@@ -253,7 +253,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "ranges), or with --variant describe one in full (every effect and parameter). The variants "
                     "are those of ./config/config.yaml when run from the project root (or of --config), else the "
                     "built-in ones (geometric, expansion, final).")
-    _common(var, default_variant=None)
+    _common(var)
     from .preprocessing import add_check_data_command  # measured data (issue 4)
     from .rig import add_rig_command
 
@@ -262,11 +262,11 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _common(parser: argparse.ArgumentParser, variant: bool = True, default_variant: str | None = "geometric") -> None:
+def _common(parser: argparse.ArgumentParser, variant: bool = True) -> None:
     if variant:
-        parser.add_argument("--variant", default=default_variant,
-                            help=f"model variant (default {default_variant})" if default_variant
-                            else "the variant to describe (default: list them all)")
+        parser.add_argument("--variant", default=None,
+                            help="the variant to describe (default: list them all)" if parser.prog.endswith("variants")
+                            else "model variant (default: geometric on the VARM, else the config's first variant)")
         parser.add_argument("--add-effect", action="append", default=[], metavar="NAME",
                             help="add this effect (built in or from --effects-file) to the variant (repeatable); "
                                  "its parameters keep their nominal values (simulate: unless --set)")
@@ -283,7 +283,8 @@ def _common(parser: argparse.ArgumentParser, variant: bool = True, default_varia
 def simulate(args: argparse.Namespace) -> int:
     source = config_file(args.config)
     specs, user, machine = load_catalog(source, args.effects_file)
-    variant = build_variant(args.variant, specs, user, source, args.add_effect, machine)
+    name = args.variant or ("geometric" if "geometric" in specs and not _own_machine(source) else next(iter(specs)))
+    variant = build_variant(name, specs, user, source, args.add_effect, machine)
     try:
         machine.sensor_node  # the output is the first x, y probe pair's
     except ValueError as err:
@@ -459,10 +460,17 @@ def _warn_defaults_and_ranges(variant: Variant, given: dict[str, float]) -> None
 
 
 def list_effects(args: argparse.Namespace) -> int:
-    _, user, _ = load_catalog(config_file(args.config), args.effects_file)
-    for effect in (builtin_effects() | user).values():
+    source = config_file(args.config)
+    _, user, machine = load_catalog(source, args.effects_file)
+    placed = machine.effects() if _own_machine(source) else {}  # linear_bearing@a, unbalance@d1, gyroscopic, ...
+    for effect in (builtin_effects() | placed | user).values():
         print(effect.describe(), end="\n\n")
     return 0
+
+
+def _own_machine(config: Path | None) -> bool:
+    """Whether ``config`` describes a machine of its own (a ``machine:`` section), not the VARM."""
+    return config is not None and bool(read_config(config).get("machine"))
 
 
 def describe_variants(args: argparse.Namespace) -> int:

@@ -40,6 +40,7 @@ mistake surrogate error for physics.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
@@ -541,9 +542,11 @@ def _conclude_path(result: Diagnosis, base: BaseFit, scores: Scores, o: Mapping)
 
 
 def _variant_name(parts: Sequence[str]) -> str:
-    """A recommended variant's name, valid in the config (letters, digits, _): the base's and the effects' names
-    joined by _, an effect placed at a bearing (``cross_coupled_stiffness@b``) spelled ``..._at_b``."""
-    return "_".join(parts).replace("@", "_at_")
+    """A recommended variant's name, valid in the config (a letter, then letters, digits, _): the base's and the
+    effects' names joined by _, an effect placed at a bearing (``cross_coupled_stiffness@b``) spelled ``..._at_b``,
+    any other character an effect's name may hold (``oil-film_b``) as _."""
+    name = re.sub(r"[^A-Za-z0-9_]", "_", "_".join(parts).replace("@", "_at_"))
+    return name if name[:1].isalpha() else f"v_{name}"
 
 
 def _estimate_text(cf: Confirmation, estimates: pd.DataFrame | None = None) -> str:
