@@ -101,6 +101,26 @@ def test_gyroscopic_modes_of_a_spinning_disk():
     np.testing.assert_allclose(np.abs(modes.whirl_index), 1.0, rtol=1e-9)  # a disk's whirl is circular
 
 
+def test_campbell_branches_start_at_rest_where_they_go_on_an_anisotropic_support():
+    """Bearing b anisotropic (the stepped rotor, dk_b = 1.2e6 N/m): at rest its modes are planar (whirl index of
+    round-off size, either sign), so the forward/backward split at 0 RPM was random and the diagram's branches
+    jumped between 0 and the next speed. Now each planar mode takes its sense at the nearest speed: the split at 0
+    RPM is that at 1 RPM, and every branch's frequency moves by less than 0.1 % from 0 to 1 RPM (a speed change
+    of 1 RPM shifts the gyroscopic splitting by a few 1e-4 Hz: continuity)."""
+    from hybridtwin.machine_plots import branches
+    from hybridtwin.model import campbell
+
+    machine = stepped_machine()
+    fx = machine.effects()
+    model = Model([fx[e] for e in LINEAR_EFFECTS + ["bearing_anisotropy@b"]], machine)
+    values = {k: float(p.nominal) for k, p in model.parameters.items()} | {"dk_b": 1.2e6}
+    table = branches(campbell(model, values, [0.0, 1.0, 50.0], 6))
+    at = {rpm: part.set_index(["whirl", "branch"])["frequency_hz"] for rpm, part in table.groupby("rpm")}
+    assert (table[table["rpm"] == 0.0]["whirl_index"].abs() < 1e-6).any()  # the case: planar modes at rest
+    assert sorted(at[0.0].index) == sorted(at[1.0].index)
+    np.testing.assert_allclose(at[0.0].sort_index(), at[1.0].sort_index(), rtol=1e-3)
+
+
 def test_deflection_of_planar_circular_and_elliptic_whirl():
     """The signed semi-major axis: |U| for a planar or a circular whirl (forward or backward), the larger
     semi-axis of an ellipse; the sign flips where the deflection points against the largest one."""

@@ -259,7 +259,8 @@ def campbell(model: Model, values: Mapping[str, Array | float], rpm: Array | Seq
     Whirl from the mode's x-plane entries U (u, du) and y-plane entries V (v, dv): whirl_index =
     -2 sum Im(conj(U) V) / sum(|U|^2 + |V|^2), +1 a circular forward whirl (turning with the shaft,
     V = -i U), -1 backward, 0 planar. Columns: rpm, mode (0 = lowest), frequency_hz, damping_ratio, whirl ("forward" or "backward"),
-    whirl_index.
+    whirl_index. A planar mode (|whirl_index| < PLANAR_WHIRL, e.g. at rest on anisotropic supports) is given the
+    sense of the same mode at the nearest speed of ``rpm`` where it whirls.
     """
     import pandas as pd
 
@@ -281,7 +282,20 @@ def campbell(model: Model, values: Mapping[str, Array | float], rpm: Array | Seq
             index = -2.0 * np.sum(np.imag(np.conj(U) * V)) / np.sum(np.abs(U) ** 2 + np.abs(V) ** 2)
             rows.append((rpm[s], mode, lam[j].imag / (2 * np.pi), -lam[j].real / abs(lam[j]),
                          "forward" if index >= 0 else "backward", index))
-    return pd.DataFrame(rows, columns=["rpm", "mode", "frequency_hz", "damping_ratio", "whirl", "whirl_index"])
+    table = pd.DataFrame(rows, columns=["rpm", "mode", "frequency_hz", "damping_ratio", "whirl", "whirl_index"])
+    # a planar mode (at rest on anisotropic supports: whirl_index ~ 1e-11, its sign round-off) takes the sense of
+    # the same mode at the nearest speed where it whirls, the branch it starts; else the branches jump at 0 RPM
+    planar = table["whirl_index"].abs() < PLANAR_WHIRL
+    whirling = table[~planar]
+    for i in np.flatnonzero(planar):
+        same = whirling[whirling["mode"] == table.at[i, "mode"]]
+        if len(same):
+            table.at[i, "whirl"] = same.at[(same["rpm"] - table.at[i, "rpm"]).abs().idxmin(), "whirl"]
+    return table
+
+
+#: |whirl_index| below which a mode is planar (``campbell``): far below any whirl the rotor's speed induces
+PLANAR_WHIRL = 1e-6
 
 
 def _circular(lam: Array, q: Array) -> Array:
