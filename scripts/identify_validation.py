@@ -44,6 +44,7 @@ for path in smk.input.libraries:
         log.info("%s (%s): relative error %.3g, chi^2 per residual %.3g", data.run, name, row["error_rel"],
                  row["chi2_per_residual"])
 columns = ["run", "rpm", "eccentric_mass_g", "model", "error_rel", "chi2_per_residual", "note"]
-pd.DataFrame(rows, columns=None if rows else columns).to_csv(smk.output.table, sep="\t", index=False,
-                                                            float_format="%.9g")
+table = pd.DataFrame(rows)  # every column, also when no validation run could be predicted (all flagged)
+table.reindex(columns=list(dict.fromkeys([*table.columns, *columns]))).to_csv(
+    smk.output.table, sep="\t", index=False, float_format="%.9g")
 val.write_predictions(smk.output.harmonics, predictions)  # the report reads them instead of predicting again

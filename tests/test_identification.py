@@ -395,6 +395,39 @@ def test_workflow_writes_the_per_run_joint_and_validation_outputs(geometric_trut
     assert "Nothing to be done" in rerun.stdout + rerun.stderr
 
 
+def test_validation_runs_all_kept_out_still_give_a_full_validation_table(geometric_truth, tmp_path, monkeypatch):
+    """Every validation run flagged (e.g. a spike in the only one): predict_validation's table still has its score
+    columns (error_rel, chi2_per_residual; NaN), which report_harmonics, the ledger and the summary read; with
+    only "none" rows it had none, and report_harmonics stopped with KeyError: 'error_rel'. The rule's script, run
+    on this workflow's files with those runs marked unusable."""
+    import runpy
+    from types import SimpleNamespace
+
+    from hybridtwin.identification import rule_settings
+
+    work, _ = geometric_truth
+    config = yaml.safe_load((work / "config" / "config.yaml").read_text())
+    table = pd.read_csv(work / "results" / "data" / "harmonics.tsv", sep="\t")
+    flagged = table["run"].isin(VALIDATE)
+    table.loc[flagged, "usable"], table.loc[flagged, "note"] = False, "excluded: y spike(s) at line(s) 2002"
+    table.to_csv(tmp_path / "harmonics.tsv", sep="\t", index=False)
+    results = work / "results" / "geometric"
+    smk = SimpleNamespace(
+        input=SimpleNamespace(parameters=str(results / "parameters.tsv"), harmonics=str(tmp_path / "harmonics.tsv"),
+                              libraries=[str(results / "library" / f"{run}.zarr") for run in VALIDATE],
+                              validation=str(results / "library_validation.tsv")),
+        output=SimpleNamespace(table=str(tmp_path / "validation.tsv"), harmonics=str(tmp_path / "predicted.tsv")),
+        params=SimpleNamespace(model={"variants": {"geometric": config["variants"]["geometric"]}, "machine": None,
+                                      "effects_files": []},
+                               options=rule_settings(config, "geometric", "validation"), harmonics=config["harmonics"]),
+        log=[str(tmp_path / "log.txt")], wildcards=SimpleNamespace(variant="geometric"))
+    monkeypatch.chdir(work)
+    runpy.run_path(str(ROOT / "scripts" / "identify_validation.py"), init_globals={"snakemake": smk})
+    written = pd.read_csv(tmp_path / "validation.tsv", sep="\t")
+    assert set(written["run"]) == set(VALIDATE) and (written["model"] == "none").all()
+    assert {"error_rel", "chi2_per_residual", "note"} <= set(written) and written["error_rel"].isna().all()
+
+
 def test_batched_surrogate_equals_the_library(geometric_truth):
     """SensorSurrogate (sPGD projected on the sensor once, d + 1 products) is Library.sensor, h >= 1."""
     from hybridtwin.library import Library

@@ -36,6 +36,7 @@ from .continuation import solve_sweep  # noqa: E402
 
 Array = np.ndarray
 SWEEPS = {"up": "run-up", "down": "run-down"}
+MIN_WIDTH_IN = 10.0  # the Bode and polar figures' width with one harmonic (H = 1): room for the title and legend
 
 
 def columns(channels: Sequence[str]) -> list[str]:
@@ -168,8 +169,8 @@ def plot_bode(dense: pd.DataFrame, comparisons: Sequence[RunComparison], variant
     colours = mass_colours(sorted(set(dense["eccentric_mass_g"])))
     channels = channels_of(dense)
     comparisons = _by_channel(comparisons, channels)
-    fig, axes = plt.subplots(2 * len(channels), len(orders), figsize=(4.6 * len(orders), 6 * len(channels)),
-                             sharex=True, squeeze=False)
+    fig, axes = plt.subplots(2 * len(channels), len(orders), sharex=True, squeeze=False,
+                             figsize=(max(4.6 * len(orders), MIN_WIDTH_IN), 6 * len(channels)))
     for col, h in enumerate(orders):
         for j, channel in enumerate(channels):
             amp, ph = axes[2 * j, col], axes[2 * j + 1, col]
@@ -244,8 +245,8 @@ def plot_polar(dense: pd.DataFrame, comparisons: Sequence[RunComparison], varian
     colours = mass_colours(sorted(set(dense["eccentric_mass_g"])))
     channels = channels_of(dense)
     comparisons = _by_channel(comparisons, channels)
-    fig, axes = plt.subplots(len(channels), len(orders), figsize=(4.8 * len(orders), 4.8 * len(channels)),
-                             squeeze=False, subplot_kw={"projection": "polar"})
+    fig, axes = plt.subplots(len(channels), len(orders), squeeze=False, subplot_kw={"projection": "polar"},
+                             figsize=(max(4.8 * len(orders), MIN_WIDTH_IN), 4.8 * len(channels)))
     for col, h in enumerate(orders):
         for j, channel in enumerate(channels):
             ax = axes[j, col]
