@@ -237,6 +237,18 @@ def test_missing_sheet_and_reversed_or_missed_coverage(tmp_path, good_records, c
     err = capsys.readouterr().err
     assert "line 2, run 'a': eccentric mass 14.8 g is outside the covered range [0, 10] g" in err
     assert "line 4, run 'c': eccentric mass 25.9 g" in err
+    # without the options, the config's checks apply, as in the workflow's check_data rule: its coverage, its sensor
+    # range (offline.sensor_range_mm), its harmonics
+    config = tmp_path / "config.yaml"
+    config.write_text("coverage: {eccentric_mass_g: [0, 10]}\n")
+    assert main(["check-data", str(sheet), "--config", str(config)]) == 1
+    err = capsys.readouterr().err
+    assert "line 2, run 'a': eccentric mass 14.8 g is outside the covered range [0, 10] g" in err
+    config.write_text("offline: {sensor_range_mm: 0.5}\nharmonics: 2\n")
+    assert main(["check-data", str(sheet), "--config", str(config)]) == 1
+    out, err = capsys.readouterr()
+    assert "beyond the sensor range +-0.5 mm" in err and "3X" not in out
+    assert main(["check-data", str(sheet), "--config", str(config), "--sensor-range-mm", "14"]) == 0  # option wins
 
 
 # --- sheets that mean the same as the clean one -----------------------------------------

@@ -657,22 +657,27 @@ def add_check_data_command(sub) -> None:
                     "rate, the true speed refined from the record vs the nominal one, noise level, DC offsets, "
                     "amplitude per harmonic and saturation. Exit status 1 on invalid input.")
     parser.add_argument("runs", type=Path, help="the runs sheet (TSV); record paths are relative to its folder")
-    parser.add_argument("--harmonics", type=int, default=5, help="highest harmonic H analysed (default 5)")
+    parser.add_argument("--harmonics", type=int, default=None,
+                        help="highest harmonic H analysed (default: the config's harmonics, else 5)")
     parser.add_argument("--min-revolutions", type=float, default=MIN_REVOLUTIONS,
                         help=f"fewest revolutions a record must hold (default {MIN_REVOLUTIONS})")
     parser.add_argument("--rpm-range", type=float, nargs=2, metavar=("LOW", "HIGH"), default=None,
-                        help="speeds the model libraries cover [RPM]; runs outside are an error")
+                        help="speeds the model libraries cover [RPM]; runs outside are an error (default: the "
+                             "config's coverage.rpm)")
     parser.add_argument("--mass-range-g", type=float, nargs=2, metavar=("LOW", "HIGH"), default=None,
-                        help="eccentric masses the model libraries cover [g]; runs outside are an error")
+                        help="eccentric masses the model libraries cover [g]; runs outside are an error (default: "
+                             "the config's coverage.eccentric_mass_g)")
     parser.add_argument("--sensor-range-mm", type=_positive_mm, default=None,
                         help=f"sensor range [mm]: samples near +-range are clipped, beyond it impossible (default: "
-                             f"the sheet's sensor_range_mm column, else {SENSOR_RANGE_MM:g})")
+                             f"the sheet's sensor_range_mm column, else the config's offline.sensor_range_mm, else "
+                             f"{SENSOR_RANGE_MM:g})")
     parser.add_argument("--sensor-resolution-mm", type=_positive_mm, default=None,
                         help=f"sensor resolution [mm] (default: the sheet's sensor_resolution_mm column, else "
                              f"{SENSOR_RESOLUTION_MM:g})")
     parser.add_argument("--config", type=Path, default=None,
-                        help="workflow config whose 'machine:' names the records' channels (one per sensor); default "
-                             "./config/config.yaml when it exists, else the VARM (channels x, y)")
+                        help="workflow config: its 'machine:' names the records' channels (one per sensor), its "
+                             "harmonics, coverage and offline.sensor_range_mm are the checks' defaults, as in the "
+                             "workflow; default ./config/config.yaml when it exists, else the VARM (channels x, y)")
     parser.add_argument("--output", type=Path, default=None, help="also write the full summary (SI units) as TSV")
     parser.add_argument("--strict", action="store_true",
                         help="exit 1 also when a run is flagged (kept out of the fit: flat, clipped, noise only, "
@@ -691,28 +696,40 @@ def _positive_mm(text: str) -> float:
 
 
 def check_data_command(args) -> int:
-    """``hybridtwin check-data``: print the summary, warnings and errors; 0 valid, 1 invalid (or flagged, --strict)."""
-    if args.harmonics < 1:
-        print(f"hybridtwin check-data: error: --harmonics must be >= 1, got {args.harmonics}", file=sys.stderr)
-        return 2
-    from .cli import UsageError, config_file, config_machine  # the config read as `simulate` reads it
+    """``hybridtwin check-data``: print the summary, warnings and errors; 0 valid, 1 invalid (or flagged, --strict).
 
-    mm = {k: None if v is None else v * 1e-3 for k, v in (("range", args.sensor_range_mm),
-                                                          ("resolution", args.sensor_resolution_mm))}
+    The checks are the workflow's (rule check_data): what the command line does not set comes from the config,
+    as the workflow takes it (harmonics, coverage, offline.sensor_range_mm, the machine's sensors)."""
+    from .cli import UsageError, config_file, config_machine, read_config  # the config read as `simulate` reads it
+
     try:
-        machine = config_machine(config_file(args.config))
+        source = config_file(args.config)
+        machine = config_machine(source)
+        data = read_config(source) if source is not None else {}
     except UsageError as err:
         print(f"hybridtwin check-data: error: {err}", file=sys.stderr)
         return 2
+    harmonics = args.harmonics if args.harmonics is not None else int(data.get("harmonics", 5))
+    if harmonics < 1:
+        print(f"hybridtwin check-data: error: --harmonics must be >= 1, got {harmonics}", file=sys.stderr)
+        return 2
+    coverage = data.get("coverage") or {}
+    rpm_range = args.rpm_range or coverage.get("rpm")
+    mass_range = args.mass_range_g or coverage.get("eccentric_mass_g")
+    names = ("--rpm-range" if args.rpm_range else "config coverage.rpm",
+             "--mass-range-g" if args.mass_range_g else "config coverage.eccentric_mass_g")
+    range_mm = args.sensor_range_mm or (data.get("offline") or {}).get("sensor_range_mm")
+    mm = {k: None if v is None else float(v) * 1e-3 for k, v in (("range", range_mm),
+                                                                 ("resolution", args.sensor_resolution_mm))}
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", DataWarning)
         try:
-            summary, errors = check_data(args.runs, args.harmonics, args.rpm_range, args.mass_range_g, mm["range"],
-                                         args.min_revolutions, mm["resolution"], sensors=machine)
+            summary, errors = check_data(args.runs, harmonics, rpm_range, mass_range, mm["range"],
+                                         args.min_revolutions, mm["resolution"], names, sensors=machine)
         except DataError as err:
             print(f"hybridtwin check-data: error: {err}", file=sys.stderr)
             return 1
-    print(format_summary(summary, args.harmonics))
+    print(format_summary(summary, harmonics))
     if args.output:
         try:
             write_tsv(summary, args.output)
