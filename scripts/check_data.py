@@ -40,4 +40,8 @@ if errors:
     for run, message in errors.items():
         log.error("run %s: %s", run, message)
     sys.exit(f"check_data: {len(errors)} invalid record(s) in {smk.input.sheet}:\n" + "\n".join(errors.values()))
+if not (summary["usable"].astype(bool) & (summary["role"] == "fit")).any():  # the identification needs one
+    log.error("no usable fit run in %s", smk.input.sheet)
+    sys.exit(f"check_data: no usable fit run in {smk.input.sheet}: every run with role fit is kept out of the fit "
+             "(each said above, with why); nothing could be identified, so nothing is built")
 write_tsv(summary, smk.output.summary)

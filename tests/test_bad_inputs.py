@@ -251,6 +251,16 @@ def test_missing_sheet_and_reversed_or_missed_coverage(tmp_path, good_records, c
     assert main(["check-data", str(sheet), "--config", str(config), "--sensor-range-mm", "14"]) == 0  # option wins
 
 
+def test_a_sheet_without_a_usable_fit_run_is_an_error(tmp_path, good_records, capsys):
+    """Every run validation (or every fit run kept out): nothing could be identified. check-data says so and
+    exits 1, as the workflow's check_data job stops before the offline stage (it stopped at identify_joint, after
+    every library was built)."""
+    sheet = data_set(tmp_path, good_records, tsv(HEADER, *(row.replace("|fit", "|validate") for row in ROWS)))
+    assert main(["check-data", str(sheet)]) == 1
+    err = capsys.readouterr().err
+    assert f"error: no usable fit run in {sheet}" in err and "3 ok" in err
+
+
 # --- sheets that mean the same as the clean one -----------------------------------------
 
 SAME_SHEETS = [

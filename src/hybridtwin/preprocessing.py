@@ -743,4 +743,8 @@ def check_data_command(args) -> int:
     flagged = (~summary["usable"].astype(bool)).sum() - len(errors)
     print(f"# {len(summary)} run(s): {len(summary) - len(errors) - flagged} ok, {flagged} flagged (kept out of the "
           f"fit), {len(errors)} invalid", file=sys.stderr)
-    return 1 if errors or (args.strict and flagged) else 0
+    no_fit = not (summary["usable"].astype(bool) & (summary["role"] == "fit")).any()
+    if no_fit:  # as the workflow's check_data: the identification needs one
+        print(f"hybridtwin check-data: error: no usable fit run in {args.runs}: every run with role fit is kept out "
+              "of the fit or invalid; nothing could be identified", file=sys.stderr)
+    return 1 if errors or no_fit or (args.strict and flagged) else 0
