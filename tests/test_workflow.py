@@ -91,6 +91,14 @@ def test_offline_stage_builds_and_scores_libraries(workdir):
         assert degrees.map(lambda v: {float(d) for d in v.replace("*", "").split("/")} <= {2, 3}).all()
         assert degrees.str.contains("/").all() == (variant == "geometric")
         assert table.loc[table["run"] == "r400_m25p9", "median_error_pct"].item() < allowed
+        # each run's speed is the one its library was solved at (offline.speed: measured, refined from the
+        # record), not the sheet's nominal one
+        from hybridtwin import snapshots
+
+        solved = snapshots.load(str(workdir / "results" / variant / "snapshots.zarr"))
+        speeds = np.array([solved.rpm[solved.run_index(run)] for run in RUNS])
+        assert (speeds != [float(run[1:].split("_")[0]) for run in RUNS]).any()  # refined: not the nominal ones
+        np.testing.assert_allclose(table["rpm"].iloc[:-1], speeds, rtol=5e-6)  # half the 6th digit of 100-999
         assert (workdir / "results" / variant / "library_parity.png").stat().st_size > 0
         pod = pd.read_csv(workdir / "results" / variant / "pod.tsv", sep="\t")
         assert (pod["n_modes"] >= 1).all() and (pod["sigma2_over_sigma1"] < 1).all()

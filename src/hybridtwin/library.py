@@ -459,7 +459,8 @@ def validate_libraries(libraries: list[Library], snapshots_path: str, runs: pd.D
         # (which is large where the response nearly cancels at the sensor)
         size = sensor_signal_norm(reference)
         typical = error * size / np.median(size) if size.size else error
-        rows.append({"run": library.run, "rpm": plan.loc[library.run, "rpm"],
+        # the speed the run was solved at (offline.speed: measured, refined from its record), not the sheet's
+        rows.append({"run": library.run, "rpm": float(snaps.rpm[r]),
                      "eccentric_mass_g": plan.loc[library.run, "eccentric_mass_g"],
                      **_error_stats(error),
                      "p95_error_of_median_response_pct": 100 * float(np.percentile(typical, 95)) if size.size else np.nan,
