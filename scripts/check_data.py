@@ -10,7 +10,7 @@ import warnings
 from snakemake.utils import validate
 
 from hybridtwin.measurements import DataError, DataWarning, read_runs
-from hybridtwin.preprocessing import check_data, write_tsv
+from hybridtwin.preprocessing import check_data, has_usable_fit_run, write_tsv
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 logging.basicConfig(filename=smk.log[0], level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s")
@@ -40,7 +40,7 @@ if errors:
     for run, message in errors.items():
         log.error("run %s: %s", run, message)
     sys.exit(f"check_data: {len(errors)} invalid record(s) in {smk.input.sheet}:\n" + "\n".join(errors.values()))
-if not (summary["usable"].astype(bool) & (summary["role"] == "fit")).any():  # the identification needs one
+if not has_usable_fit_run(summary):
     log.error("no usable fit run in %s", smk.input.sheet)
     sys.exit(f"check_data: no usable fit run in {smk.input.sheet}: every run with role fit is kept out of the fit "
              "(each said above, with why); nothing could be identified, so nothing is built")

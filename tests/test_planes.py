@@ -347,7 +347,7 @@ def test_the_run_figure_draws_an_orbit_for_each_plane_the_machine_declares_and_n
     # the pair's numbers are its own channels' (by name, whatever the column order)
     swapped = report.probe_pairs(comparison, [("y1", "x1")])[0]
     np.testing.assert_array_equal(swapped.measured, Z[:, [1, 0]])
-    with pytest.raises(ValueError, match="r1: probe pair channel.* x2"):
+    with pytest.raises(ValueError, match="run r1: channel.s. x2 not among its channels"):
         report.probe_pairs(comparison, [("x2", "y1")])
 
 

@@ -621,6 +621,12 @@ def check_data(sheet: str | Path, harmonics: int = 5, rpm_range: tuple[float, fl
     return summarise_runs(runs, harmonics, sensor_range_m, min_revolutions, sensor_resolution_m, sensors)
 
 
+def has_usable_fit_run(summary: pd.DataFrame) -> bool:
+    """Whether ``check_data``'s summary holds a usable run with role fit: without one nothing can be identified
+    (check-data and the workflow's check_data stop)."""
+    return bool((summary["usable"].astype(bool) & (summary["role"] == "fit")).any())
+
+
 def format_summary(summary: pd.DataFrame, harmonics: int) -> str:
     """The check-data printout: one line per run (figures in mm), then the harmonic amplitudes."""
     if "rpm_true" not in summary:
@@ -704,8 +710,8 @@ def check_data_command(args) -> int:
 
     try:
         source = config_file(args.config)
-        machine = config_machine(source)
         data = read_config(source) if source is not None else {}
+        machine = config_machine(source, data)
     except UsageError as err:
         print(f"hybridtwin check-data: error: {err}", file=sys.stderr)
         return 2
@@ -743,8 +749,8 @@ def check_data_command(args) -> int:
     flagged = (~summary["usable"].astype(bool)).sum() - len(errors)
     print(f"# {len(summary)} run(s): {len(summary) - len(errors) - flagged} ok, {flagged} flagged (kept out of the "
           f"fit), {len(errors)} invalid", file=sys.stderr)
-    no_fit = not (summary["usable"].astype(bool) & (summary["role"] == "fit")).any()
-    if no_fit:  # as the workflow's check_data: the identification needs one
+    no_fit = not has_usable_fit_run(summary)
+    if no_fit:  # as the workflow's check_data
         print(f"hybridtwin check-data: error: no usable fit run in {args.runs}: every run with role fit is kept out "
               "of the fit or invalid; nothing could be identified", file=sys.stderr)
     return 1 if errors or no_fit or (args.strict and flagged) else 0

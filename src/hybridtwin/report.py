@@ -106,6 +106,16 @@ class RunComparison:
     def H(self) -> int:
         return self.measured.shape[0]
 
+    def select(self, channels: Sequence[str]) -> "RunComparison":
+        """The run with only ``channels``, in that order, taken by name; a name it lacks is a ValueError."""
+        missing = [name for name in channels if name not in self.channels]
+        if missing:
+            raise ValueError(f"run {self.run}: channel(s) {', '.join(missing)} not among its channels "
+                             f"{', '.join(self.channels)}")
+        cols = [self.channels.index(name) for name in channels]
+        return replace(self, measured=self.measured[:, cols], model=self.model[:, cols], sigma=self.sigma[:, cols],
+                       channels=tuple(channels))
+
     @property
     def residual(self) -> Array:
         return self.measured - self.model
@@ -439,17 +449,7 @@ def probe_pairs(c: RunComparison, pairs: Sequence[tuple[str, str]] | None = None
     only when every probe has a partner (the VARM's x, y). A name the run lacks is a ValueError."""
     if pairs is None:
         pairs = [tuple(c.channels[j:j + 2]) for j in range(0, len(c.channels) - 1, 2)]
-    index = {name: k for k, name in enumerate(c.channels)}
-    missing = [name for pair in pairs for name in pair if name not in index]
-    if missing:
-        raise ValueError(f"run {c.run}: probe pair channel(s) {', '.join(missing)} not among its channels "
-                         f"{', '.join(c.channels)}")
-    out = []
-    for pair in pairs:
-        cols = [index[name] for name in pair]
-        out.append(replace(c, measured=c.measured[:, cols], model=c.model[:, cols], sigma=c.sigma[:, cols],
-                           channels=tuple(pair)))
-    return out
+    return [c.select(pair) for pair in pairs]
 
 
 def sensor_pair_names(sensors=None) -> list[tuple[str, str]] | None:

@@ -19,7 +19,6 @@ order); ``plot_bode`` and ``plot_polar`` draw every channel with the fit and val
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import replace
 
 import matplotlib
 
@@ -147,15 +146,11 @@ def _curve(ax_amp, ax_phase, part: pd.DataFrame, j: int, colour: str, style: str
 def _by_channel(comparisons: Sequence[RunComparison], channels: Sequence[str]) -> list[RunComparison]:
     """The runs' columns in the dense table's channel order, matched by name; a run whose channels are not the
     table's is a ValueError naming both."""
-    out = []
     for c in comparisons:
         if sorted(c.channels) != sorted(channels):
             raise ValueError(f"run {c.run}: channels {', '.join(c.channels)}, but the model's response has "
                              f"{', '.join(channels)}")
-        cols = [list(c.channels).index(name) for name in channels]
-        out.append(replace(c, measured=c.measured[:, cols], model=c.model[:, cols], sigma=c.sigma[:, cols],
-                           channels=tuple(channels)))
-    return out
+    return [c.select(channels) for c in comparisons]
 
 
 def plot_bode(dense: pd.DataFrame, comparisons: Sequence[RunComparison], variant: str,
