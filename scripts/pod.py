@@ -1,15 +1,22 @@
 """Rule pod: per run, the POD of the observable training snapshots (thin wrapper). Reads only the rule's input,
 params and output."""
 
+import sys
+
 from hybridtwin import config as cfg
-from hybridtwin.pod import pod_of_runs
+from hybridtwin.pod import ThinLibraryError, pod_of_runs
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "pod")
 variant = cfg.variant(smk.params.model, smk.wildcards.variant)  # its spec, the machine, the effects files
 options = smk.params.offline
-table = pod_of_runs(smk.input[0], smk.output.store, variant.model.shaft, options["sensor_range_mm"] * 1e-3,
-                    options["pod_energy_tolerance"])
+try:
+    table = pod_of_runs(smk.input[0], smk.output.store, variant.model.shaft, options["sensor_range_mm"] * 1e-3,
+                        options["pod_energy_tolerance"])
+except ThinLibraryError as err:
+    log.error("%s", err)
+    sys.exit(f"pod: error: variant {variant.name}: too few usable scenarios for a library at "
+             f"{len(err.lines) - 1} run(s):\n  " + "\n  ".join(err.lines))
 table.to_csv(smk.output.table, sep="\t", index=False, float_format="%.6g")
 for row in table.itertuples():
     log.info("run %s: %d snapshots, m_d = %d, sigma_2/sigma_1 = %.3g", row.run, row.n_snapshots, row.n_modes,

@@ -106,6 +106,43 @@ def test_offline_stage_builds_and_scores_libraries(workdir):
             assert (workdir / "results" / variant / "library" / f"{run}.zarr" / "zarr.json").exists()
 
 
+def test_a_run_with_too_few_usable_scenarios_is_named_with_its_counts_before_any_pod(workdir, tmp_path):
+    """A run whose responses leave the sensor range for nearly the whole box (near a resonance) cannot have a
+    library: the pod stage says which run, how many scenarios were usable and where the others went, for every
+    such run at once, instead of a traceback in the middle of a variant's sPGD job."""
+    from hybridtwin.pod import MIN_TRAIN, ThinLibraryError, pod_of_runs
+    from hybridtwin.sensor import peak_displacement
+    from hybridtwin.shaft import Shaft
+
+    solved = snapshots.load(str(workdir / "results" / "geometric" / "snapshots.zarr"))
+    shaft = Shaft()  # the VARM's shaft: the sensors the SMALL config reads
+    peaks = peak_displacement(solved.harmonics, shaft)  # (runs, scenarios)
+    fitting = solved.steady & (solved.split == "train")
+    # a sensor range just below the 5th smallest training peak of the first run: 4 usable training scenarios there
+    # by construction (peaks of distinct scenarios differ), and the test counts the other runs' usable ones itself
+    first_peaks = np.sort(peaks[0][fitting[0]])
+    sensor_range = 0.5 * (first_peaks[3] + first_peaks[4])
+    with pytest.raises(ThinLibraryError) as caught:
+        pod_of_runs(str(workdir / "results" / "geometric" / "snapshots.zarr"), str(tmp_path / "pod.zarr"), shaft,
+                    sensor_range, 1e-10)
+    usable_train = (fitting & (peaks <= sensor_range)).sum(axis=1)
+    table = caught.value.runs.set_index("run")
+    assert sorted(table.index) == sorted(run for run, n in zip(solved.runs, usable_train) if n < MIN_TRAIN
+                                         or run in table.index)  # every run short of training scenarios named
+    assert table.loc[RUNS[0], "usable_train"] == 4
+    assert table.loc[RUNS[0], "train"] == ((solved.split == "train") & solved.solved[0]).sum()  # solved there
+    for run, row in table.iterrows():  # where the rest went adds up to every fitting scenario solved at the run
+        r = solved.run_index(run)
+        fitting_r = np.isin(solved.split, ("train", "validation")) & solved.solved[r]
+        assert (row.usable_train + row.usable_validation + row.beyond_range + row.unstable + row.failed
+                == fitting_r.sum())
+        assert row.unstable + row.failed == (~solved.steady[r] & fitting_r).sum()
+        assert row.usable_train == (fitting[r] & (peaks[r] <= sensor_range)).sum()
+    assert len(caught.value.lines) == len(table) + 1 and caught.value.lines[0].startswith(f"run {table.index[0]} (")
+    assert "offline.enrichment" in caught.value.lines[-1]
+    assert not (tmp_path / "pod.zarr").exists()  # nothing half written
+
+
 def test_chunks_hold_exactly_the_sampled_scenarios(workdir):
     scenarios = pd.read_csv(workdir / "results" / "geometric" / "scenarios.tsv", sep="\t")
     assert len(scenarios) == 100 and scenarios["split"].value_counts().to_dict() == {

@@ -23,7 +23,7 @@ import zarr
 
 from . import snapshots
 from .effect_base import Array
-from .pod import POD, feature_index, from_features, load_pod, pod, to_features
+from .pod import MIN_TRAIN, MIN_VALIDATION, POD, feature_index, from_features, load_pod, pod, to_features
 from .sensor import observable, sensor_dofs
 from .shaft import Shaft
 from .spgd import PiecewiseSPGD, SparsePGD, fit_piecewise, fit_spgd, model_from_arrays, piece_index, relative_error
@@ -163,7 +163,7 @@ def build_library(run: str, basis: POD, harmonics: Array, values: Array, split: 
     S, H1, n = harmonics.shape
     usable = np.asarray(usable, bool)
     train, val = usable & (split == "train"), usable & (split == "validation")
-    if train.sum() < 10 or val.sum() < 2:
+    if train.sum() < MIN_TRAIN or val.sum() < MIN_VALIDATION:
         raise ValueError(f"run {run}: too few usable scenarios to build a library "
                          f"({train.sum()} training, {val.sum()} validation)")
     features = np.where(usable[:, None], to_features(np.nan_to_num(harmonics)), 0.0)
@@ -208,7 +208,7 @@ def build_global_library(snaps: snapshots.Snapshots, fit_runs: Sequence[str], lo
         split.append(snaps.split[usable])
     X, F, split = np.concatenate(X), np.concatenate(F), np.concatenate(split)
     train, val = split == "train", split == "validation"
-    if train.sum() < 10 or val.sum() < 2:
+    if train.sum() < MIN_TRAIN or val.sum() < MIN_VALIDATION:
         raise ValueError(f"too few usable scenarios to build a global library ({train.sum()} training, "
                          f"{val.sum()} validation)")
     basis = pod(F[train], energy_tolerance)

@@ -22,6 +22,32 @@ from .sensor import observable
 from .shaft import Shaft
 from .stores import open_verified, write_manifest
 
+#: the fewest usable (steady, observable) scenarios a run's library is built from: training, validation
+MIN_TRAIN, MIN_VALIDATION = 10, 2
+
+
+class ThinLibraryError(ValueError):
+    """Runs whose usable scenarios are too few for a library. ``runs``: a table, one row per such run (run, rpm,
+    eccentric_mass_g, the usable and solved training and validation scenarios, and where the other fitting
+    scenarios went: beyond_range, unstable, failed; observable_share of the first design); the message is a
+    line per run, then what to change."""
+
+    def __init__(self, runs: pd.DataFrame, sensor_range_m: float):
+        self.runs = runs
+        self.lines = [
+            f"run {row.run} ({row.rpm:.6g} RPM, {row.eccentric_mass_g:.6g} g): {row.usable_train} of {row.train} "
+            f"training and {row.usable_validation} of {row.validation} validation scenarios usable (a library needs "
+            f"{MIN_TRAIN} and {MIN_VALIDATION}); the others: {row.beyond_range} beyond the sensor range "
+            f"({sensor_range_m * 1e3:.6g} mm), {row.unstable} unstable, {row.failed} without a solution; observable "
+            f"share of the first design {row.observable_share:.0%}" for row in runs.itertuples()]
+        self.lines.append(
+            "the variant's ranges put these runs' responses out of what can be measured or solved for most "
+            "scenarios (near a resonance, typically). Either: more scenarios where these runs can be measured "
+            "(offline.enrichment: observable_below above the run's observable share, n_scenarios > 0; or a "
+            "larger offline.n_scenarios), offline.sensor_range_mm set to the probes' real range, ranges of the "
+            "variant's unknowns narrowed to what the machine can be, or the runs left out of the runs sheet")
+        super().__init__("\n".join(self.lines))
+
 
 def to_features(harmonics: Array) -> Array:
     """(S, H+1, n) complex -> (S, 2 (H+1) n) real [Re, Im]."""
@@ -92,11 +118,14 @@ def pod_of_runs(snapshots_path: str, out_path: str, shaft: Shaft, sensor_range_m
     singular value ratios.
     """
     snaps = snapshots.load(snapshots_path)
+    usable_all = [snaps.steady[r] & observable(snaps.harmonics[r], shaft, sensor_range_m)
+                  for r in range(len(snaps.runs))]
+    _check_enough(snaps, usable_all, sensor_range_m)
     store = zarr.open_group(out_path, mode="w")
     rows = []
     first_design, solved = snaps.design == "hypercube", snaps.solved
     for r, run in enumerate(snaps.runs):
-        usable = snaps.steady[r] & observable(snaps.harmonics[r], shaft, sensor_range_m)
+        usable = usable_all[r]
         train = usable & (snaps.split == "train")
         basis = pod(to_features(snaps.harmonics[r][train]), energy_tolerance)
         group = store.create_group(run)
@@ -113,6 +142,28 @@ def pod_of_runs(snapshots_path: str, out_path: str, shaft: Shaft, sensor_range_m
                      "sigma4_over_sigma1": ratios[3]})
     write_manifest(out_path)
     return pd.DataFrame(rows)
+
+
+def _check_enough(snaps: snapshots.Snapshots, usable: list[Array], sensor_range_m: float) -> None:
+    """ThinLibraryError naming every run with fewer than MIN_TRAIN usable training or MIN_VALIDATION validation
+    scenarios (among those solved at the run), with where the others went and what to change."""
+    rows = []
+    first = snaps.design == "hypercube"
+    for r, run in enumerate(snaps.runs):
+        train, validation = ((snaps.split == split) & snaps.solved[r] for split in ("train", "validation"))
+        n_train, n_validation = int((usable[r] & train).sum()), int((usable[r] & validation).sum())
+        if n_train >= MIN_TRAIN and n_validation >= MIN_VALIDATION:
+            continue
+        fitting = train | validation
+        rows.append({"run": run, "rpm": snaps.rpm[r], "eccentric_mass_g": snaps.eccentric_mass_g[r],
+                     "usable_train": n_train, "train": int(train.sum()), "usable_validation": n_validation,
+                     "validation": int(validation.sum()),
+                     "beyond_range": int((fitting & snaps.steady[r] & ~usable[r]).sum()),
+                     "unstable": int((fitting & snaps.success[r] & ~snaps.stable[r]).sum()),
+                     "failed": int((fitting & ~snaps.success[r]).sum()),
+                     "observable_share": float(usable[r][first].mean())})
+    if rows:
+        raise ThinLibraryError(pd.DataFrame(rows), sensor_range_m)
 
 
 def load_pod(path: str, run: str) -> tuple[POD, Array]:
