@@ -158,6 +158,9 @@ def test_keyphasor_phase_prior_keeps_the_phase_information():
     reference = s2 * np.linalg.inv(J.T @ J) * np.outer(scale, scale)
     np.testing.assert_allclose(b.uncertainty.covariance, reference, rtol=1e-8, atol=1e-12 * np.abs(reference).max())
     assert b.uncertainty.dof == 8 + 1 - 4  # 2 harmonics x 2 channels x Re/Im and the prior, four entries
+    # the summary (the ledger's n_data, k = n_data - dof, BIC) counts the prior as a datum, as chi^2 and dof do
+    assert b.summary()["n_data"] - b.summary()["dof"] == 4 and a.summary()["n_data"] - a.summary()["dof"] == 4
+    assert b.summary()["n_data"] == 8 + 1 and a.summary()["n_data"] == 8
     assert b.uncertainty.stderr[1] < 0.8 * a.uncertainty.stderr[1]
     # a keyphasor run's prediction moves its phase only within the prior: 0 on data equal to the model
     exact = replace(toy_data(x_true, 0.0), phase_sigma=1e-4)

@@ -541,13 +541,19 @@ class Identification:
         return pd.DataFrame({"trial": trial, "iteration": iteration, "loss": h[trial, iteration],
                              "selected": trial == self.protocol.best})
 
+    @property
+    def n_residuals(self) -> int:
+        """The residuals chi^2 and dof count: the data's (``ArrowProblem.n_data``) and one per keyphasor phase prior
+        (a pseudo-measurement), so that n_residuals - dof is the number of fitted entries, phases included."""
+        return int(self.problem.n_data + np.count_nonzero(self.layout.phase_prior))
+
     def summary(self) -> dict:
         self._require_fit("the summary")
         u, tr = self.uncertainty, self.protocol.trials
         at_best = np.isclose(tr.loss, tr.loss[self.protocol.best], rtol=1e-6, atol=1e-12)
         return {"runs": list(self.layout.runs), "shared": list(self.layout.shared),
                 "per_run": list(self.layout.local), "keyphasor_runs": self.layout.absolute_runs,
-                "n_data": int(self.problem.n_data), "dof": int(u.dof),
+                "n_data": self.n_residuals, "dof": int(u.dof),
                 "chi2": float(u.chi2), "chi2_dof": float(u.chi2_dof), "loss": float(self.loss),
                 "cost": float(self.cost), "status": int(self.status), "message": self.message,
                 "collinearity_index": float(u.collinearity_index), "trials": int(len(tr.loss)),
