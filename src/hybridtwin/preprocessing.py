@@ -188,6 +188,10 @@ def design_matrix(t: Array, omega: float, harmonics: int) -> Array:
     return out
 
 
+#: the largest block of the speed search's (frequency x sample) matrices, complex values (16 MiB each)
+_SPEED_BLOCK_VALUES = 1 << 20
+
+
 def refine_speed(record: Record, rpm_nominal: float, harmonics: int = 5,
                  channels: tuple[str, ...] | None = None, search: float = SPEED_SEARCH) -> SpeedEstimate:
     """Maximum-likelihood rotation speed from the record (module docstring, step 1).
@@ -203,11 +207,14 @@ def refine_speed(record: Record, rpm_nominal: float, harmonics: int = 5,
     step = 0.25 / (harmonics * record.duration_s)
     grid = f0 + np.arange(-np.ceil(search * f0 / step), np.ceil(search * f0 / step) + 1) * step
     power = np.zeros(grid.size)
-    first = np.exp(-2j * np.pi * np.outer(grid, t))  # (G, N), exp(-i 2 pi f t)
-    kernel = first.copy()
-    for _ in range(harmonics):  # kernel = first^h: exp(-i 2 pi h f t)
-        power += (np.abs(kernel @ data) ** 2).sum(1)
-        kernel *= first
+    # the grid in blocks of about _SPEED_BLOCK_VALUES complex values (G x N grows with the record's duration
+    # squared: 481 x 600 000, 4.3 GiB a matrix, for 60 s at 10 kHz); each frequency's power is its own row's
+    for rows in np.array_split(np.arange(grid.size), -(-grid.size * t.size // _SPEED_BLOCK_VALUES)):
+        first = np.exp(-2j * np.pi * np.outer(grid[rows], t))  # (g, N), exp(-i 2 pi f t)
+        kernel = first.copy()
+        for _ in range(harmonics):  # kernel = first^h: exp(-i 2 pi h f t)
+            power[rows] += (np.abs(kernel @ data) ** 2).sum(1)
+            kernel *= first
     best = int(np.argmax(power))
     if best in (0, grid.size - 1):
         raise DataError(f"{record.path}: no rotation frequency found within +-{100 * search:g} % of the nominal "
