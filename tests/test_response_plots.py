@@ -122,6 +122,41 @@ def test_bode_and_polar_draw_both_sweeps_and_the_measured_runs(linear, tmp_path)
     matplotlib.pyplot.close(fig)
 
 
+def test_validation_runs_phase_is_drawn_on_the_curves_branch():
+    """A validation run predicted exactly on a forward-whirling one-mode response (x = u / (1 - r^2 + 2 i zeta r),
+    y = -i x: y lags x by a quarter turn, so past the critical speed its phase goes beyond -180 degrees): the
+    predicted phase (cross) lies on the drawn curve, whose phase is unwrapped along speed, not a whole turn away
+    where np.angle's (-180, 180] put it. Reference: the response's own phase, unwrapped from rest, in closed form
+    (-90 - atan2(2 zeta r, 1 - r^2) degrees for y)."""
+    critical, zeta, u = 3000.0, 0.05, 1e-4
+    rpm = np.linspace(1000.0, 5000.0, 81)
+    rows = []
+    for sweep in rp.SWEEPS.values():
+        for speed in rpm:
+            r = speed / critical
+            x = u * r * r / (1 - r * r + 2j * zeta * r)
+            for h, z in ((1, x), (2, 0.01 * x)):
+                y = -1j * z
+                rows.append((10.0, sweep, speed, h, z.real, z.imag, y.real, y.imag, True, "run-up"))
+    dense = pd.DataFrame(rows, columns=["eccentric_mass_g", "sweep", "rpm", "harmonic", "x1_re_m", "x1_im_m",
+                                        "y1_re_m", "y1_im_m", "stable", "branch"])
+    speeds = [2000.0, 3300.0, 4500.0]
+    comparisons = []
+    for speed in speeds:
+        r = speed / critical
+        x = u * r * r / (1 - r * r + 2j * zeta * r)
+        model = np.array([[x, -1j * x], [0.01 * x, -0.01j * x]])
+        comparisons.append(RunComparison(f"v{speed:g}", "validate", speed, 10.0, model * 1.01, model,
+                                         np.full((2, 2), 1e-8), 8.0, "solver", ("x1", "y1")))
+    fig = rp.plot_bode(dense, comparisons, "synthetic", orders=(1,))
+    y_phase = fig.axes[3]
+    crosses = [line.get_ydata()[0] for line in y_phase.get_lines() if line.get_marker() == "x"]
+    expected = [-90.0 - np.degrees(np.arctan2(2 * zeta * s / critical, 1 - (s / critical) ** 2)) for s in speeds]
+    assert expected[-1] < -180  # past the critical speed: beyond np.angle's range
+    np.testing.assert_allclose(crosses, expected, atol=1e-9)
+    matplotlib.pyplot.close(fig)
+
+
 def test_spectrum_gives_each_sinusoids_amplitude_and_order():
     """x = 1 mm at 1X + 0.05 mm at 0.43X (a subharmonic the order analysis would not see) + offset, y = 0.2 mm at
     3X, each at an exact frequency bin of the 4 s record: the spectrum's peaks are the amplitudes (0-peak, the

@@ -171,20 +171,20 @@ def plot_bode(dense: pd.DataFrame, comparisons: Sequence[RunComparison], variant
             amp, ph = axes[2 * j, col], axes[2 * j + 1, col]
             sigmas = [c.sigma[h - 1, j] for c in comparisons] or [float(np.nanmax(np.abs(_channel(dense, j))))]
             floor = 0.2 * min(sigmas) * MICRO
+            ups = {}  # each mass's run-up curve (rpm, unwrapped phase): the branch of 2 pi a run's phase is drawn on
             for mass, both in dense[dense["harmonic"] == h].groupby("eccentric_mass_g", sort=True):
                 sweeps = {sweep: part for sweep, part in both.groupby("sweep")}
                 up = _curve(amp, ph, sweeps[SWEEPS["up"]], j, colours[mass], "-", f"{mass:g} g model, run-up",
                             floor)
                 _curve(amp, ph, sweeps[SWEEPS["down"]], j, colours[mass], "--", f"{mass:g} g model, run-down",
                        floor, up)
-                finite = np.isfinite(up[1])
+                ups[mass] = up
                 for c in comparisons:
                     if c.role == "fit" and c.eccentric_mass_g == mass:
-                        near = np.interp(c.rpm, up[0][finite], up[1][finite]) if finite.any() else 0.0
-                        _measured(amp, ph, c, h, j, colours[mass], floor, near, f"{mass:g} g measured")
+                        _measured(amp, ph, c, h, j, colours[mass], floor, _near(ups, c), f"{mass:g} g measured")
             for c in comparisons:
                 if c.role == "validate":
-                    _validation(amp, ph, c, h, j, floor)
+                    _validation(amp, ph, c, h, j, floor, _near(ups, c))
             ordered = sorted(comparisons, key=lambda c: c.rpm)
             if ordered:
                 amp.plot([c.rpm for c in ordered], [2 * c.sigma[h - 1, j] * MICRO for c in ordered], ":",
@@ -216,17 +216,28 @@ def _measured(amp, ph, c: RunComparison, h: int, j: int, colour: str, floor: flo
         ph.errorbar([c.rpm], [np.degrees(phase)], yerr=[np.degrees(2 * s / abs(z))], fmt="o", ms=4, color=colour)
 
 
-def _validation(amp, ph, c: RunComparison, h: int, j: int, floor: float) -> None:
+def _near(ups: dict, c: RunComparison) -> float:
+    """The model curve's unwrapped phase at run ``c``'s speed, on the run-up of its eccentric mass (or the nearest
+    mass drawn): a run's phase is drawn within pi of it, on the curve's branch of 2 pi."""
+    if not ups:
+        return 0.0
+    rpm, phase = ups[min(ups, key=lambda mass: abs(mass - c.eccentric_mass_g))]
+    finite = np.isfinite(phase)
+    return float(np.interp(c.rpm, rpm[finite], phase[finite])) if finite.any() else 0.0
+
+
+def _validation(amp, ph, c: RunComparison, h: int, j: int, floor: float, near: float) -> None:
     z, m, s = c.measured[h - 1, j], c.model[h - 1, j], c.sigma[h - 1, j]
+    predicted = near + wrap(np.angle(m) - near)  # on the curve's branch, as the fit runs (``_measured``)
     style = {"color": VALIDATION_STYLE["color"], "ms": VALIDATION_STYLE["ms"], "ls": "none"}
     amp.plot(c.rpm, max(abs(z) * MICRO, floor), marker=VALIDATION_STYLE["marker"], mfc="none",
              label="validation measured", **style)
     amp.plot(c.rpm, max(abs(m) * MICRO, floor), marker="x", label="validation predicted", **style)
     if abs(z) > 2 * s:
-        ph.plot(c.rpm, np.degrees(np.angle(m) + wrap(np.angle(z) - np.angle(m))), marker=VALIDATION_STYLE["marker"],
+        ph.plot(c.rpm, np.degrees(predicted + wrap(np.angle(z) - predicted)), marker=VALIDATION_STYLE["marker"],
                 mfc="none", **style)
     if abs(m) > 0.1 * s:
-        ph.plot(c.rpm, np.degrees(np.angle(m)), marker="x", **style)
+        ph.plot(c.rpm, np.degrees(predicted), marker="x", **style)
 
 
 def plot_polar(dense: pd.DataFrame, comparisons: Sequence[RunComparison], variant: str,
