@@ -210,6 +210,18 @@ def test_per_run_table_and_two_cycle_waveforms(plain, tmp_path):
     assert table["note"].iloc[0] == "ok" and bool(table["usable"].iloc[0])
     assert (table["sheet_note"].iloc[0], table["sheet_usable"].iloc[0], table["operator"].iloc[0]) == (
         "first try", "maybe", "AB")
+    # a sheet column named record (the name of the resolved record path read_runs adds) is kept as sheet_record
+    own = pd.read_csv(a.record.path.parents[1] / "runs.tsv", sep="\t", dtype=str, keep_default_na=False)
+    own["record"] = [f"take {i}" for i in range(len(own))]
+    own.to_csv(tmp_path / "runs.tsv", sep="\t", index=False)
+    for name in own["path"]:
+        (tmp_path / name).parent.mkdir(exist_ok=True)
+        (tmp_path / name).write_bytes((a.record.path.parents[1] / name).read_bytes())
+    sheet = read_runs(tmp_path / "runs.tsv")
+    assert sheet["sheet_record"].tolist() == own["record"].tolist()
+    assert Path(sheet["record"].iloc[1]) == tmp_path / own["path"].iloc[1]
+    table, _ = preprocess_run(sheet.iloc[1].to_dict(), H)
+    assert table["sheet_record"].iloc[0] == "take 1" and "record" not in table
 
 
 # --- plausibility (hybridtwin.plausibility, docs/data-checks.md) -------------------------

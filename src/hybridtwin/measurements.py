@@ -48,6 +48,9 @@ REQUIRED_SHEET_COLUMNS = ("run", "rpm", "eccentric_mass_g", "path")  # role defa
 SENSOR_COLUMNS = ("sensor_range_mm", "sensor_resolution_mm")
 ROLES = ("fit", "validate")
 RUN_ID = re.compile(r"^[A-Za-z0-9_-]+$")
+#: run ids that pandas reads as missing values (its default NA strings that are valid ids): they would vanish from
+#: the result tables
+MISSING_LOOKING_IDS = ("NA", "NULL", "NaN", "None", "nan", "null")
 UNITS = {"mm": 1e-3, "m": 1.0}  # displacement column suffix -> metres per unit
 RECORD_COLUMNS = ("time_s", "keyphasor")
 #: the channels of a record when no machine says otherwise: the VARM's sensors x and y
@@ -405,6 +408,9 @@ def read_runs(path: str | Path, check_files: bool = True, require_path: bool = T
     bad_id = ~runs.str.fullmatch(RUN_ID.pattern) & (runs != "")
     problems += [f"line {n}, column run: {v!r} is not a valid run id (letters, digits, '-', '_' only: it becomes "
                  "a file name)" for n, v in zip(line[bad_id], runs[bad_id])]
+    missing_looking = runs.isin(MISSING_LOOKING_IDS)
+    problems += [f"line {n}, column run: {v!r} reads as a missing value in the result tables (a pandas default): "
+                 f"name the run otherwise" for n, v in zip(line[missing_looking.to_numpy()], runs[missing_looking])]
     for run_id, lines in _duplicates(runs[runs != ""], line[(runs != "").to_numpy()]):
         problems.append(f"lines {', '.join(map(str, lines))}, column run: duplicate run id {run_id!r}")
     for key, lines in _duplicates(runs[runs != ""].str.lower(), line[(runs != "").to_numpy()]):
@@ -439,9 +445,14 @@ def read_runs(path: str | Path, check_files: bool = True, require_path: bool = T
     if require_path:
         problems += [f"line {n}, column path: empty (the record of run {r!r} is not given)"
                      for n, r, p in zip(line, runs, rel) if not p]
-        for shared, lines in _duplicates(rel[rel != ""], line[(rel != "").to_numpy()]):
+        # the same file however it is spelled (./records/a.csv, records//a.csv, a link to it)
+        same_file = pd.Series([str((path.parent / p).resolve()) for p in rel], index=rel.index)
+        given = rel != ""
+        for shared, lines in _duplicates(same_file[given], line[given.to_numpy()]):
+            spelled = sorted(set(rel[same_file == shared]))
             problems.append(f"lines {', '.join(map(str, lines))}, column path: runs "
-                            f"{runs[rel == shared].tolist()} share the record {shared!r}")
+                            f"{runs[same_file == shared].tolist()} share the record "
+                            f"{' = '.join(repr(s) for s in spelled)}")
     record = [path.parent / p if p else None for p in rel]
     if check_files:
         for n, r, p, f in zip(line, runs, rel, record):
@@ -451,7 +462,7 @@ def read_runs(path: str | Path, check_files: bool = True, require_path: bool = T
                 problems.append(f"line {n}, column path: record {p!r} of run {r!r} does not exist (looked for {f})")
     if problems:
         raise DataError(_format(path, problems))
-    out = table.copy()
+    out = table.rename(columns={"record": "sheet_record"})  # a column of the user's: kept, under another name
     out["run"], out["rpm"], out["eccentric_mass_g"], out["path"], out["role"] = runs, rpm, mass, rel, role
     for column, values in sensors.items():
         out[column] = values
