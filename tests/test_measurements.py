@@ -9,7 +9,8 @@ import pytest
 
 from hybridtwin.cli import main
 from hybridtwin.measurements import (
-    DataError, DataWarning, check_coverage, check_length, detect_saturation, read_record, read_runs, sheet_entry,
+    SATURATED_SAMPLES, DataError, DataWarning, Record, check_coverage, check_length, detect_saturation, read_record,
+    read_runs, sheet_entry,
 )
 from hybridtwin.preprocessing import analyse_record
 
@@ -274,6 +275,34 @@ def test_noisy_unclipped_record_is_not_flagged(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error", DataWarning)  # any warning fails the test
         assert detect_saturation(record) == []
+
+
+def test_a_quiet_channel_written_in_coarse_steps_is_not_clipped_unless_its_top_piles_up():
+    """10 kHz, 0.27 mm at 1X, noise 0.5 um, values written to the micrometre (a common logger resolution): the
+    peaks repeat their written value for dozens of samples without any clipping (noise below one step); that is
+    no saturation. The same signal clipped at 99 % of its amplitude is: its top piles up at one written level.
+    Reference: the clipping is made by construction (np.clip), the unclipped record has none."""
+    rng = np.random.default_rng(5)
+    fs, rpm = 10_000.0, 350.0
+    t = np.arange(40_000) / fs
+    w = 2 * np.pi * rpm / 60
+    clean = 0.27e-3 * np.cos(w * t) + 0.1e-3 + rng.normal(0, 0.5e-6, t.size)
+    y = 0.25e-3 * np.sin(w * t) + rng.normal(0, 0.5e-6, t.size)
+
+    def written(v):  # to the micrometre, as a file with 3 decimals in mm
+        return np.round(v * 1e6) * 1e-6
+
+    record = Record(Path("quiet.csv"), t, {"x": written(clean), "y": written(y)}, None, "mm")
+    peak = written(clean).max()
+    assert np.sum(written(clean) == peak) >= SATURATED_SAMPLES  # the old rule's premise fails here
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DataWarning)
+        assert detect_saturation(record) == []
+    limit = 0.1e-3 + 0.99 * 0.27e-3
+    clipped = Record(Path("clipped.csv"), t, {"x": written(np.minimum(clean, limit)), "y": written(y)}, None, "mm")
+    with pytest.warns(DataWarning, match="channel x is clipped"):
+        found = detect_saturation(clipped)
+    assert [(f.channel, f.kind) for f in found] == [("x", "clipped")]
 
 
 def test_clipping_at_a_known_sensor_range(tmp_path):

@@ -72,6 +72,11 @@ GAP_FACTOR = 1.5
 FLAT_TOP_SAMPLES = 3
 #: ... and at least this many samples sit at that extreme value (or on the sensor's rail) in all
 SATURATED_SAMPLES = 5
+#: ... and, on a channel written at a coarse resolution, more than this many times the samples of the next level
+#: inward: a clipped top piles samples up at one level; a sine's unclipped peak holds at most ~1.7 times the next
+#: level's samples (its time within one step of the peak, sqrt(2), against the next step's, 2 - sqrt(2)); a sine
+#: clipped at 99.5 % of its amplitude, written in steps of 1/470 of it, holds 4.7 times
+CLIP_PILEUP = 3.0
 #: the rail: samples within max(RAIL_RESOLUTIONS resolutions, RAIL_FRACTION of the range) of +-range
 RAIL_RESOLUTIONS = 10.0
 RAIL_FRACTION = 0.002
@@ -597,7 +602,10 @@ def detect_saturation(record: Record, sensor_range_m: float | None = None,
     channel: at least SATURATED_SAMPLES samples equal to that extreme (within
     1e-7 of the channel's span) including at least one run of FLAT_TOP_SAMPLES
     consecutive ones (noise makes an unsaturated peak practically never repeat
-    its exact value); or, with ``sensor_range_m``, at least SATURATED_SAMPLES
+    its exact value), and more than CLIP_PILEUP times the samples at the next
+    level inward (the step between the channel's written values: a quiet
+    channel written in coarse steps repeats its peak values without being
+    clipped); or, with ``sensor_range_m``, at least SATURATED_SAMPLES
     samples on the rail, within ``Sensor.rail_band_m`` of +-range: a saturated
     laser whose output still carries a little noise.
     """
@@ -611,10 +619,13 @@ def detect_saturation(record: Record, sensor_range_m: float | None = None,
                                     values.size))
             continue
         tol = 1e-7 * spread
+        levels = np.unique(values)
+        step = float(np.min(np.diff(levels)))  # the written resolution, where the values are quantised
         for sign, extreme in ((1.0, float(values.max())), (-1.0, float(values.min()))):
             at = np.abs(values - extreme) <= tol
             tops = _flat_tops(at)
-            if at.sum() >= SATURATED_SAMPLES and tops > 0:
+            inward = int(np.sum(np.abs(values - (extreme - sign * step)) <= tol)) if step > 2 * tol else 0
+            if at.sum() >= SATURATED_SAMPLES and tops > 0 and at.sum() > CLIP_PILEUP * inward:
                 found.append(Saturation(record.path, name, "clipped", extreme, int(at.sum()), tops, values.size))
                 continue
             if sensor_range_m is None:
