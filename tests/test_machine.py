@@ -420,6 +420,8 @@ def test_config_without_machine_is_the_varm(project):
     (("disks", 0, "node", 40), "machine: machine 'stepped': disk 'd1' at node 40: nodes are the integers 0..17"),
     (("sensors", "x1", "node", 16), "machine.sensors: machine 'stepped': sensors"),
     (("bearings", "a", "nodes", 2), "machine.bearings.a: unknown key 'nodes' (did you mean 'node'?"),
+    (("bearings", "a", "k"), "no effect named 'linear_bearing@a': bearing 'a' is declared without its nominal k "
+                             "(and c) in machine.bearings (e.g. a: {node: 2, k: 2.0e+06, c: 300})"),
 ])
 def test_bad_machine_sections_are_one_line_each(project, edit, expected):
     import yaml

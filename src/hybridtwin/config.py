@@ -245,6 +245,22 @@ def _short(value, width: int = 60) -> str:
     return text if len(text) <= width else text[:width - 3] + "..."
 
 
+def _no_such_effect(effect: str, registry: Mapping, rotor) -> str:
+    """Why ``effect`` is not offered: a bearing effect at a bearing declared without nominal coefficients, or no
+    such name (with the closest)."""
+    kind, _, bearing = effect.partition("@")
+    sized = kind in ("linear_bearing", "bearing_anisotropy", "cross_coupled_stiffness", "cross_coupled_damping")
+    bare = [b for b in getattr(rotor, "bearings", ()) if b.name == bearing and (b.k is None or
+                                                                                 (kind == "cross_coupled_damping"
+                                                                                  and not b.c))]
+    if sized and bare:
+        need = "c > 0" if kind == "cross_coupled_damping" else "k (and c)"
+        return (f"no effect named {effect!r}: bearing {bearing!r} is declared without its nominal {need} in "
+                f"machine.bearings (e.g. {bearing}: {{node: {bare[0].node}, k: 2.0e+06, c: 300}}), which "
+                f"{kind}@{bearing} needs")
+    return f"no effect named {effect!r} {_allowed(effect, registry, 'effects')}"
+
+
 def _allowed(name: str, names: Iterable[str], what: str) -> str:
     names = sorted(map(str, names))
     close = difflib.get_close_matches(str(name), names, n=1)
@@ -370,7 +386,7 @@ def _name_problems(config: Mapping, config_dir: Path) -> Iterable[Problem]:
                 if not machine_ok and "@" in str(effect):
                     continue  # placed at a name of the machine, whose own problem is reported
                 yield where + ("effects", i), _key(where + ("effects",)), \
-                    f"no effect named {effect!r} {_allowed(effect, registry, 'effects')}"
+                    _no_such_effect(str(effect), registry, rotor)
         for kind in ("unknown", "fixed") if not bad else ():  # parameters only once the effects are known
             for parameter in spec.get(kind) or {}:
                 if parameter not in parameters:
