@@ -215,6 +215,13 @@ def test_effects_are_placed_at_named_bearings():
             "unbalance@d1"} <= set(effects)
     lower = effects["lower_bearing@b"]
     assert lower.node == 13 and builtin_effects()["lower_bearing"].node is None  # the built-in is untouched
+    # a placed effect says where it acts, not the VARM's place (its upper or lower bearing, node 0, lowest node)
+    for name, effect in effects.items():
+        if "@" in name:
+            assert not any(words in effect.meaning for words in ("upper bearing", "lower bearing", "node 0",
+                                                                   "lowest node")), (name, effect.meaning)
+    assert "at node 13" in lower.meaning and "bearing a" in effects["excitation_2x@a"].meaning
+    assert "upper bearing" in builtin_effects()["excitation_2x"].meaning  # the built-ins keep theirs
     spring = effects["geometric_spring@a"]
     assert spring.dofs == ("u2", "v2")
     model = Model([effects["linear_bearing@a"], effects["linear_bearing@b"], lower], machine)

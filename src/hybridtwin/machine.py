@@ -26,6 +26,7 @@ named after it (docs/measurement-format.md). At least one node needs both an x a
 from __future__ import annotations
 
 import copy
+import re
 import dataclasses
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -150,6 +151,19 @@ def _tuple(items: Iterable, kind: type) -> tuple:
         if not isinstance(item, kind):
             raise TypeError(f"expected {kind.__name__} objects, got {type(item).__name__}")
     return out
+
+
+#: the VARM's words for where a built-in effect acts, and what they become where it is placed at a bearing
+_VARM_PLACES = ((r"at node 0\b", "at node {node}"), (r"at the lowest node", "at node {node}"),
+                (r"\b(the )?upper bearing\b", "bearing {at}"), (r"\b(the )?lower bearing\b", "bearing {at}"))
+
+
+def placed_meaning(meaning: str, at: str, node: int) -> str:
+    """A built-in effect's meaning with the VARM's place (its upper or lower bearing, node 0, the lowest node)
+    replaced by the bearing ``at`` and its ``node`` ("2X rotating force at bearing nde")."""
+    for pattern, place in _VARM_PLACES:
+        meaning = re.sub(pattern, place.format(at=at, node=node), meaning)
+    return meaning
 
 
 @dataclass(frozen=True, eq=False)
@@ -420,9 +434,12 @@ class Machine(DofCounts):
         if isinstance(effect, LinearBearing):
             return dataclasses.replace(effect, node=node, name=name, bearing=at)
         if dataclasses.is_dataclass(effect):
-            return dataclasses.replace(effect, node=node, name=name)
-        placed = copy.copy(effect)
-        placed.node, placed.name = node, name
+            placed = dataclasses.replace(effect, node=node, name=name)
+        else:
+            placed = copy.copy(effect)
+            placed.node, placed.name = node, name
+        if isinstance(getattr(effect, "meaning", None), str):  # its words for the place, the place's (frozen too)
+            object.__setattr__(placed, "meaning", placed_meaning(effect.meaning, at, node))
         return placed
 
     def effects(self) -> dict[str, Effect]:
