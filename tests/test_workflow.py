@@ -247,29 +247,46 @@ def test_changing_the_machine_reruns_the_white_box(workdir):
 
 
 def test_an_effects_file_is_an_input_of_the_jobs_that_build_on_it(workdir):
-    """An effects file listed in the config is an input (not only a path in params) of every model-building
-    job, so that editing its contents reruns them (Snakemake reruns a job whose input is newer than its output):
-    the dry run's input lines of the scenarios, solves, libraries, fits and diagnoses name it."""
+    """An effects file is an input (not only a path in params) of every job that builds a variant using one of its
+    effects, so that editing it reruns them, and of every diagnosis (its effects are candidates); the variants
+    that use none of them do not depend on it: adding the file to the finished small workflow, with a variant
+    using its effect, plans that variant's jobs and the diagnoses, not the other variants' libraries."""
     (workdir / "config" / "my_effects.py").write_text(
         "from hybridtwin import Parameter, PolynomialBearing, Term\n"
         "tilt = PolynomialBearing(name='tilt', meaning='tilt stiffness',\n"
         "    parameters=(Parameter('k_t', 'N', (0.0, 500.0), 100.0, 'slope stiffness'),),\n"
         "    terms=(Term(lambda p: p.k_t, (0, 0, 1, 0), \"k_t u'\"),))\n")
-    (workdir / "effects.yaml").write_text("effects_files: [my_effects.py]\n")
-    plan = _snakemake(workdir, "--dry-run", config="effects.yaml")
+    (workdir / "effects.yaml").write_text(
+        "effects_files: [my_effects.py]\n"
+        "variants:\n"
+        "  geometric_tilt:\n"
+        "    effects: [centrifugal_softening, structural_damping, upper_housing, lower_bearing, unbalance, shaft_bow,\n"
+        "              geometric_spring, tilt]\n"
+        "    unknown: {k_b: [2000, 3500], zeta_s: [0.01, 0.05], zeta_bup: [0.0, 0.05], q_x: [0.001, 0.01],\n"
+        "              q_y: [0.001, 0.01], k_t: [0, 500]}\n")
+    try:
+        plan = _snakemake(workdir, "--dry-run", config="effects.yaml")
+    finally:
+        (workdir / "config" / "my_effects.py").unlink()
     assert plan.returncode == 0, plan.stdout[-2000:] + plan.stderr[-2000:]
     lines = (plan.stdout + plan.stderr).splitlines()
-    jobs = {}  # rule -> its jobs' input lines
-    rule = None
+    jobs = {}  # rule -> [(its input line, its wildcards line)]
+    rule, inputs = None, ""
     for line in lines:
-        if line.startswith("rule "):
-            rule = line.split()[1].rstrip(":")
+        if line.startswith(("rule ", "localrule ")):
+            rule, inputs = line.split()[1].rstrip(":"), ""
         elif line.strip().startswith("input:") and rule:
-            jobs.setdefault(rule, []).append(line)
-    for name in ("sample_scenarios", "solve_chunk", "spgd_library", "identify_joint", "diagnose"):
+            inputs = line
+        elif line.strip().startswith("wildcards:") and rule:
+            jobs.setdefault(rule, []).append((inputs, line))
+    for name in ("sample_scenarios", "solve_chunk", "spgd_library", "identify_joint"):
         assert name in jobs, (name, sorted(jobs))
-        assert all("config/my_effects.py" in line for line in jobs[name]), (name, jobs[name][:1])
-    assert not any("my_effects.py" in line for line in jobs.get("preprocess", []))  # the data do not depend on it
+        assert all("variant=geometric_tilt" in wildcards for _, wildcards in jobs[name]), (name, jobs[name])
+        assert all("config/my_effects.py" in inputs for inputs, _ in jobs[name]), (name, jobs[name][:1])
+    diagnoses = {wildcards.split("variant=")[1].split(",")[0] for _, wildcards in jobs["diagnose"]}
+    assert diagnoses == {"geometric", "final", "geometric_tilt"}  # the new candidate: every diagnosis reruns
+    assert all("config/my_effects.py" in inputs for inputs, _ in jobs["diagnose"])
+    assert "preprocess" not in jobs  # the data do not depend on it
 
 
 NESTED = """

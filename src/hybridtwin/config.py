@@ -38,6 +38,24 @@ def user_effects(config: Mapping, config_dir: Path = CONFIG_DIR) -> dict[str, Ef
     return load_effects_files([config_dir / path for path in config.get("effects_files") or []])
 
 
+def effects_files_used(config: Mapping, names: Iterable[str], config_dir: Path = CONFIG_DIR) -> list[str]:
+    """The config's ``effects_files`` (as written) that define an effect one of the variants ``names`` lists: what
+    building them reads (an edit of another file, e.g. one adding a diagnosis candidate, does not touch them)."""
+    used = {str(e) for name in names for e in (config["variants"][name].get("effects") or [])}
+    return [path for path in config.get("effects_files") or []
+            if used & _effects_defined(str(config_dir / path), _mtime(config_dir / path))]
+
+
+def _mtime(path: Path) -> int:
+    return path.stat().st_mtime_ns if path.is_file() else -1
+
+
+@cache
+def _effects_defined(path: str, mtime_ns: int) -> frozenset[str]:
+    """The names of the effects one effects file defines (read once per version of the file)."""
+    return frozenset(load_effects_files([path])) if mtime_ns >= 0 else frozenset()
+
+
 def candidate_effects(config: Mapping, config_dir: Path = CONFIG_DIR) -> dict[str, Effect]:
     """Effects the diagnosis may test besides the built-in candidates: the config's effects files', and the
     candidates the machine sizes to each of its bearings with nominal k (``bearing_candidates``), by name."""

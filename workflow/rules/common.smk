@@ -6,7 +6,7 @@ from pathlib import Path
 import pandas as pd
 from snakemake.utils import validate
 
-from hybridtwin.config import CONFIG_DIR, offline, offline_for, run_plan, variant as config_variant
+from hybridtwin.config import CONFIG_DIR, effects_files_used, offline, offline_for, run_plan, variant as config_variant
 from hybridtwin.diagnosis import settings as diagnosis_settings
 from hybridtwin.identification import settings as identification_settings
 from hybridtwin.measurements import DataError, read_runs
@@ -36,8 +36,9 @@ OFFLINE_USED = {
     "spgd_library": ("scope", "sensor_range_mm", "spgd", "pieces"),
     "validate_library": ("sensor_range_mm",),
 }
-# the config's effects files (hybridtwin.config.user_effects: paths relative to the config folder): an input of every
-# rule whose params.model carries them (variant_model), so that editing one reruns the jobs that build the variant
+# the config's effects files (hybridtwin.config.user_effects: paths relative to the config folder): those a variant
+# uses are an input of every rule whose params.model carries them (variant_effects), so that editing one reruns the
+# jobs that build the variant; all of them of the diagnosis (its candidates)
 EFFECTS_FILES = [str(CONFIG_DIR / path) for path in config.get("effects_files") or []]
 # the speeds the libraries are built at: refined from the records, or the sheet's nominal ones
 SPEEDS = "results/data/harmonics.tsv" if OFFLINE["speed"] == "measured" else config["runs"]
@@ -80,12 +81,25 @@ def nested_fits_input(wildcards):
     return {"nested": [f"results/{name}/parameters.tsv" for name in parents]} if parents else {}
 
 
-def variant_model(wildcards, nested=()):
+def variant_model(wildcards, nested=(), all_effects=False):
     """What building the variant takes (hybridtwin.config.variant on this part of the config): its spec, and those
-    of the ``nested`` variants, the machine and the effects files."""
+    of the ``nested`` variants, the machine and the effects files that define effects they use (``all_effects``:
+    every one, e.g. the diagnosis's candidates)."""
     names = [wildcards.variant, *nested]
+    files = (list(config.get("effects_files") or []) if all_effects
+             else effects_files_used(config, names, CONFIG_DIR))
     return {"variants": {name: config["variants"][name] for name in names}, "machine": config.get("machine"),
-            "effects_files": list(config.get("effects_files") or [])}
+            "effects_files": files}
+
+
+def model_effects(model):
+    """The effects files of a job's params.model as its input paths: editing one reruns the job."""
+    return [str(CONFIG_DIR / path) for path in model["effects_files"]]
+
+
+def variant_effects(wildcards):
+    """The effects files that build the variant (variant_model's), as input."""
+    return model_effects(variant_model(wildcards))
 
 
 def joint_model(wildcards):
@@ -94,11 +108,16 @@ def joint_model(wildcards):
     return variant_model(wildcards, [Path(path).parent.name for path in nested])
 
 
+def joint_effects(wildcards):
+    """joint_model's effects files, as input."""
+    return model_effects(joint_model(wildcards))
+
+
 def diagnosis_model(wildcards):
     """variant_model with the L1-sparse variant the diagnosis shows side by side, when it is an input
     (sparse_route_input)."""
     sparse = [diagnosis_settings(config)["sparse_variant"]] if sparse_route_input(wildcards) else []
-    return variant_model(wildcards, sparse)
+    return variant_model(wildcards, sparse, all_effects=True)  # the candidates: every effects file's
 
 
 def joint_parent(wildcards):

@@ -7,7 +7,7 @@ rule diagnose:
         unpack(sparse_route_input),
         parameters="results/{variant}/parameters.tsv",
         harmonics="results/data/harmonics.tsv",
-        effects=EFFECTS_FILES,  # their contents build the variant (params.model has only the paths)
+        effects=EFFECTS_FILES,  # all of them: the variant and the candidates (params.model: the paths)
     output:
         table=report(
             "results/{variant}/diagnosis.tsv",

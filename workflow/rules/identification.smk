@@ -18,7 +18,7 @@ rule identify_run:
         libraries=expand("results/{{variant}}/library/{run}.zarr", run=FIT_RUNS),
         harmonics="results/data/harmonics.tsv",
         validation="results/{variant}/library_validation.tsv",
-        effects=EFFECTS_FILES,  # their contents build the variant (params.model has only the paths)
+        effects=variant_effects,  # their contents build the variant (params.model has only the paths)
     output:
         parameters=expand("results/{{variant}}/runs/{run}/parameters.tsv", run=FIT_RUNS),
         history=expand("results/{{variant}}/runs/{run}/history.tsv", run=FIT_RUNS),
@@ -47,7 +47,7 @@ rule identify_joint:
         per_run=expand("results/{{variant}}/runs/{run}/parameters.tsv", run=FIT_RUNS),
         harmonics="results/data/harmonics.tsv",
         validation="results/{variant}/library_validation.tsv",
-        effects=EFFECTS_FILES,  # their contents build the variant (params.model has only the paths)
+        effects=joint_effects,  # their contents build the variants (params.model has only the paths)
     output:
         table=report(
             "results/{variant}/parameters.tsv",
@@ -91,7 +91,7 @@ rule predict_validation:
         libraries=expand("results/{{variant}}/library/{run}.zarr", run=VALIDATION_RUNS),
         harmonics="results/data/harmonics.tsv",
         validation="results/{variant}/library_validation.tsv",
-        effects=EFFECTS_FILES,  # their contents build the variant (params.model has only the paths)
+        effects=variant_effects,  # their contents build the variant (params.model has only the paths)
     output:
         table=report(
             "results/{variant}/validation.tsv",

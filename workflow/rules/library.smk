@@ -6,7 +6,7 @@ rule spgd_global:
     input:
         snapshots="results/{variant}/snapshots.zarr",
         runs=config["runs"],
-        effects=EFFECTS_FILES,  # their contents build the variant (params.model has only the paths)
+        effects=variant_effects,  # their contents build the variant (params.model has only the paths)
     output:
         directory("results/{variant}/library_global.zarr"),
     params:
@@ -27,7 +27,7 @@ rule spgd_library:
     fit takes seconds: one job per run paid the start-up and the snapshots' loading once per run)."""
     input:
         unpack(library_input),
-        effects=EFFECTS_FILES,  # their contents build the variant (params.model has only the paths)
+        effects=variant_effects,  # their contents build the variant (params.model has only the paths)
     output:
         [directory(path) for path in expand("results/{{variant}}/library/{run}.zarr", run=RUNS)],
     params:
@@ -51,7 +51,7 @@ rule validate_library:
         snapshots="results/{variant}/snapshots.zarr",
         libraries=expand("results/{{variant}}/library/{run}.zarr", run=RUNS),
         runs=config["runs"],
-        effects=EFFECTS_FILES,  # their contents build the variant (params.model has only the paths)
+        effects=variant_effects,  # their contents build the variant (params.model has only the paths)
     output:
         table=report(
             "results/{variant}/library_validation.tsv",

@@ -4,7 +4,7 @@
 rule pod:
     input:
         "results/{variant}/snapshots.zarr",
-        effects=EFFECTS_FILES,  # their contents build the variant (params.model has only the paths)
+        effects=variant_effects,  # their contents build the variant (params.model has only the paths)
     output:
         store=directory("results/{variant}/pod.zarr"),
         table=report(

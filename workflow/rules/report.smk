@@ -96,7 +96,7 @@ rule report_response:
     input:
         table="results/{variant}/report/harmonics.tsv",
         parameters="results/{variant}/parameters.tsv",
-        effects=EFFECTS_FILES,  # their contents build the variant (params.model has only the paths)
+        effects=variant_effects,  # their contents build the variant (params.model has only the paths)
     output:
         response="results/{variant}/report/response.tsv",
         bode=report(
@@ -152,7 +152,7 @@ rule report_machine:
     shapes (hybridtwin.machine_plots)."""
     input:
         parameters="results/{variant}/parameters.tsv",
-        effects=EFFECTS_FILES,  # their contents build the variant (params.model has only the paths)
+        effects=variant_effects,  # their contents build the variant (params.model has only the paths)
     output:
         campbell=report(
             "results/{variant}/report/campbell.png",

@@ -5,7 +5,7 @@ rule sample_scenarios:
     """Seeded Latin hypercube over the variant's unknown ranges, split train/validation/test."""
     input:
         runs=config["runs"],
-        effects=EFFECTS_FILES,  # their contents build the variant (params.model has only the paths)
+        effects=variant_effects,  # their contents build the variant (params.model has only the paths)
     output:
         "results/{variant}/scenarios.tsv",
     params:
@@ -27,7 +27,7 @@ rule solve_chunk:
         scenarios="results/{variant}/scenarios.tsv",
         runs=config["runs"],
         speeds=SPEEDS,
-        effects=EFFECTS_FILES,  # their contents build the variant (params.model has only the paths)
+        effects=variant_effects,  # their contents build the variant (params.model has only the paths)
     output:
         directory("results/{variant}/chunks/{chunk}.zarr"),
     params:
@@ -54,7 +54,7 @@ rule sample_enrichment:
     input:
         scenarios="results/{variant}/scenarios.tsv",
         chunks=expand("results/{{variant}}/chunks/{chunk}.zarr", chunk=CHUNKS),
-        effects=EFFECTS_FILES,  # their contents build the variant (params.model has only the paths)
+        effects=variant_effects,  # their contents build the variant (params.model has only the paths)
     output:
         scenarios="results/{variant}/enrichment.tsv",
         summary=report(
@@ -82,7 +82,7 @@ rule solve_enrichment:
         scenarios="results/{variant}/enrichment.tsv",
         runs=config["runs"],
         speeds=SPEEDS,
-        effects=EFFECTS_FILES,  # their contents build the variant (params.model has only the paths)
+        effects=variant_effects,  # their contents build the variant (params.model has only the paths)
     output:
         directory("results/{variant}/enrichment/{chunk}.zarr"),
     params:

@@ -5,7 +5,7 @@ rule whitebox_sweep:
     """Sensor harmonics of one variant over the run plan, by run-up per eccentric mass."""
     input:
         points=config["runs"],
-        effects=EFFECTS_FILES,  # their contents build the variant (params.model has only the paths)
+        effects=variant_effects,  # their contents build the variant (params.model has only the paths)
     output:
         table="results/{variant}/whitebox/sweep.tsv",
         plot=report(
