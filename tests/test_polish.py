@@ -71,6 +71,11 @@ def test_polish_scores_every_start_and_ends_at_the_best():
     assert table["selected"].sum() == 1
     assert polished.uncertainty.chi2 <= table["chi2_start"].min() * (1 + 1e-9)  # never worse than a start
     assert np.isclose(polished.uncertainty.chi2, table["chi2"].min(), rtol=1e-9)
+    # the selected start's chi^2/dof is the result's (one count of the dof: the data and the phase prior less
+    # the free entries), as the log and the ledger print it
+    selected = table[table["selected"]].iloc[0]
+    assert np.isclose(selected.chi2_dof, polished.uncertainty.chi2_dof, rtol=1e-9)
+    assert polished.uncertainty.dof == 4 + 1 - 2  # Re, Im of 1X of two channels and the prior; a and the phase
 
 
 def test_a_large_misfit_brings_random_starts_that_find_the_solver_basin():

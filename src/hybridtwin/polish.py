@@ -65,6 +65,9 @@ def polish(fit: Identification, solver_models: Sequence[HarmonicModel], max_iter
     best = int(np.argmin(np.where(np.isfinite(result.loss), result.loss, np.inf)))  # a start may not solve
     protocol = ProtocolResult.without_monte_carlo(result, best, len(names))
     polished = conclude(exact, protocol, fit.data, fit.X, fit.confidence, fit.units)
+    # every start's chi^2/dof on the result's dof (its data and phase priors less its free entries): the
+    # selected start's is then the fit's chi2_dof (the ledger's), not another count of the same chi^2
+    dof = max(polished.uncertainty.dof, 1)
     polished.starts = pd.DataFrame({
         "start": names, "chi2_start": result.history[:, 0] * exact.n_data, "chi2": result.loss * exact.n_data,
         "chi2_dof": result.loss * exact.n_data / dof, "iterations": result.nit, "status": result.status,
