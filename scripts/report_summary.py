@@ -5,6 +5,7 @@ import yaml
 
 from hybridtwin import config as cfg
 from hybridtwin import summary
+from hybridtwin.measured import read_harmonics
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "report_summary")
@@ -23,6 +24,6 @@ png = summary.png_bytes(figure)
 with open(smk.output.plot, "wb") as stream:
     stream.write(png)
 with open(smk.output.page, "w") as stream:
-    stream.write(summary.landing_rst(table, errors))
+    stream.write(summary.landing_rst(table, errors, summary.kept_out(read_harmonics(smk.input.harmonics))))
 best = summary.best_variant(table)
 log.info("best variant %s (chi^2/dof %.4g); %s", best["variant"], best["chi2_dof"], best["conclusion"])

@@ -3,6 +3,7 @@ harmonics, and that every figure is written (seconds, no solver); the report's f
 known tables; and `snakemake --report report.html` on a small run of the workflow (about a minute)."""
 
 import html as htmllib
+import io
 import json
 import re
 import subprocess
@@ -412,6 +413,29 @@ def test_first_page_is_valid_rst_that_links_every_failing_run_to_its_figure(thre
     assert "add slope_spring (in the config as base_slope)" in text
     assert "results/other/diagnosis.md" in links
     assert {"results/ledger.tsv", "results/summary.png"} <= set(links)
+    assert "kept out by the data checks" not in text  # none was
+
+
+def test_first_page_names_the_runs_the_data_checks_kept_out(three_variants):
+    """A run kept out (harmonics.tsv's usable false) is in no variant's errors: the first page names it, with its
+    role and why, right after the headline, so that 'on its N fit runs' is not read as every run of the sheet."""
+    from docutils.core import publish_parts
+
+    harmonics = pd.DataFrame({"run": ["a", "r975", "v2"], "role": ["fit", "fit", "validate"],
+                              "usable": [True, False, False],
+                              "note": ["ok", "excluded (saturated, harmonics biased): x clipped at +14.000 mm",
+                                       "excluded: y flat"]})
+    excluded = summary.kept_out(harmonics)
+    assert excluded["run"].tolist() == ["r975", "v2"]
+    page = summary.landing_rst(three_variants.table, three_variants.errors, excluded)
+    text = re.sub(r"<[^>]+>", "", publish_parts(page, writer="html", settings_overrides={"halt_level": 2})
+                  ["html_body"])
+    assert "2 runs kept out by the data checks" in text and "r975 (fit: excluded (saturated" in text
+    assert "v2 (validate: excluded: y flat)" in text
+    assert text.index("kept out") < text.index("The ledger")
+    # read back from the table as written (usable as text True/False)
+    written = pd.read_csv(io.StringIO(harmonics.to_csv(sep="\t", index=False)), sep="\t", dtype={"run": str})
+    assert summary.kept_out(written)["run"].tolist() == ["r975", "v2"]
 
 
 def test_first_page_links_only_the_worst_runs_of_a_variant_failing_everywhere():

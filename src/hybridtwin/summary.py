@@ -264,12 +264,29 @@ def _failures(variant: str, table: pd.DataFrame) -> str:
             + f" ({error_map}).")
 
 
-def landing_rst(summary: pd.DataFrame, errors: Mapping[str, pd.DataFrame]) -> str:
-    """The report's first page: the best variant, the ledger, what the diagnoses recommend and where each
-    variant fails, with links that open the figures in the report. reStructuredText, included by
-    workflow/report/workflow.rst; short, to fit a window (see above)."""
-    return "\n\n".join([
-        _headline(summary),
+def kept_out(harmonics: pd.DataFrame) -> pd.DataFrame:
+    """The runs the data checks kept out (results/data/harmonics.tsv's usable false): run, role, note."""
+    usable = harmonics["usable"].astype(str).str.lower().isin(("true", "1"))
+    return harmonics.loc[~usable, ["run", "role", "note"]].reset_index(drop=True)
+
+
+def _kept_out_line(runs: pd.DataFrame) -> str:
+    if runs.empty:
+        return ""
+    listed = "; ".join(f"{_text(r.run)} ({_text(r.role)}: {_text(str(r.note))})" for r in runs.itertuples())
+    n = len(runs)
+    return (f"**{n} run{'s' if n > 1 else ''} kept out by the data checks** (neither fitted nor scored; "
+            f"results/data/check.tsv): {listed}.")
+
+
+def landing_rst(summary: pd.DataFrame, errors: Mapping[str, pd.DataFrame],
+                excluded: pd.DataFrame | None = None) -> str:
+    """The report's first page: the best variant, the runs the data checks kept out (``excluded``: ``kept_out``),
+    the ledger, what the diagnoses recommend and where each variant fails, with links that open the figures in
+    the report. reStructuredText, included by workflow/report/workflow.rst; short, to fit a window (see above)."""
+    excluded = excluded if excluded is not None else pd.DataFrame(columns=["run", "role", "note"])
+    return "\n\n".join(part for part in [
+        _headline(summary), _kept_out_line(excluded),
         "**The ledger** (Delta BIC: lower is better, above 10 is strong evidence; all columns: "
         + result_link("ledger.tsv", "results/ledger.tsv") + "):",
         _list_table(["variant", "chi^2/dof", "validation", "Delta BIC", "worst run"], _ledger_rows(summary)),
@@ -278,4 +295,5 @@ def landing_rst(summary: pd.DataFrame, errors: Mapping[str, pd.DataFrame]) -> st
         (f"**Where each variant fails**: runs beyond the noise (p < {ALPHA:g}), worst first, with their "
          "chi^2/dof; a link opens the run's figure:"),
         "\n".join(f"- {_failures(r.variant, errors[r.variant])}" for r in summary.itertuples()),
-        "Every run of every variant in one figure: " + result_link("summary.png", "results/summary.png") + "."]) + "\n"
+        "Every run of every variant in one figure: " + result_link("summary.png", "results/summary.png") + "."]
+        if part) + "\n"

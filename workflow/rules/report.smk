@@ -239,6 +239,7 @@ rule report_summary:
         validation_errors=expand("results/{variant}/report/validation_errors.tsv", variant=VARIANTS),
         diagnoses=expand("results/{variant}/diagnosis.yaml", variant=VARIANTS),
         figures=expand("results/{variant}/report/runs", variant=VARIANTS),  # what the page links to
+        harmonics="results/data/harmonics.tsv",  # the runs the data checks kept out (usable false)
     output:
         table=report("results/summary.tsv", caption="../report/summary_table.rst", category="Summary"),
         plot=report("results/summary.png", caption="../report/summary_plot.rst", category="Summary"),
