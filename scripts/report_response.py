@@ -19,7 +19,11 @@ variant = cfg.variant(smk.params.model, smk.wildcards.variant)  # its spec, the 
 runs = pd.DataFrame(smk.params.runs)
 comparisons = report.read_comparisons(pd.read_csv(smk.input.table, sep="\t", dtype={"run": str}))
 joint = idn.read_parameters(smk.input.parameters)
-speeds = rp.dense_speeds(runs["rpm"])
+criticals = rp.critical_speeds(variant, joint, rp.dense_speeds(runs["rpm"]),
+                               float(runs["eccentric_mass_g"].median()))
+speeds = rp.refined_speeds(rp.dense_speeds(runs["rpm"]), criticals)  # denser through each resonance
+log.info("critical speeds of the fitted model in the range (RPM, damping ratio): %s",
+         ", ".join(f"{rpm:.0f} ({zeta:.3g})" for rpm, zeta in criticals) or "none")
 log.info("%s: run-up and run-down over %d speeds %.0f-%.0f RPM for eccentric masses %s g", variant.name,
          len(speeds), speeds[0], speeds[-1], sorted(set(runs["eccentric_mass_g"])))
 dense = rp.dense_response(variant, joint, runs, speeds, int(smk.params.harmonics),
