@@ -194,6 +194,27 @@ def test_the_dense_grid_resolves_the_resonance_peaks():
     assert drawn_peak(refined) == pytest.approx(peak, rel=0.01)
 
 
+@pytest.mark.parametrize("plot", ["plot_bode", "plot_polar"])
+def test_the_two_line_title_clears_the_first_rows_panel_titles(plot):
+    """Two planes of probes (x1, y1, x2, y2): the figure's title sits above every panel's title (it overlapped
+    the first row's on a probe's four-channel machine). Checked on the drawn figure's text boxes."""
+    rpm = np.linspace(1000.0, 5000.0, 41)
+    rows = []
+    for sweep in rp.SWEEPS.values():
+        for speed in rpm:
+            z = 1e-4 / (1 - (speed / 3000) ** 2 + 0.1j * speed / 3000)
+            for h in (1, 2, 3):
+                rows.append((10.0, sweep, speed, h, *[part for c in (z, -1j * z, z / 2, -0.5j * z)
+                                                      for part in (c.real, c.imag)], True, "run-up"))
+    dense = pd.DataFrame(rows, columns=rp.columns(("x1", "y1", "x2", "y2")))
+    fig = getattr(rp, plot)(dense, [], "two planes")
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    title = fig._suptitle.get_window_extent(renderer)
+    assert all(title.y0 >= ax.title.get_window_extent(renderer).y1 for ax in fig.axes if ax.get_title())
+    matplotlib.pyplot.close(fig)
+
+
 def test_spectrum_gives_each_sinusoids_amplitude_and_order():
     """x = 1 mm at 1X + 0.05 mm at 0.43X (a subharmonic the order analysis would not see) + offset, y = 0.2 mm at
     3X, each at an exact frequency bin of the 4 s record: the spectrum's peaks are the amplitudes (0-peak, the

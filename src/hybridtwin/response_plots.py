@@ -36,6 +36,7 @@ from .continuation import solve_sweep  # noqa: E402
 Array = np.ndarray
 SWEEPS = {"up": "run-up", "down": "run-down"}
 MIN_WIDTH_IN = 10.0  # the Bode and polar figures' width with one harmonic (H = 1): room for the title and legend
+TITLE_IN = 0.5  # the Bode and polar figures' two-line title: kept clear of the first row's panel titles
 
 
 def columns(channels: Sequence[str]) -> list[str]:
@@ -245,7 +246,7 @@ def plot_bode(dense: pd.DataFrame, comparisons: Sequence[RunComparison], variant
     fig.suptitle(f"variant {variant}: Bode plots, model by continuation (solid run-up, dashed run-down, dotted "
                  "unstable)\nvs measured (points, 2 sigma bars); magenta: validation runs measured (stars) and "
                  "predicted (crosses)", fontsize=10)
-    fig.tight_layout(rect=(0, 0.035 * 2 / len(channels), 1, 1))
+    fig.tight_layout(rect=(0, 0.035 * 2 / len(channels), 1, 1 - TITLE_IN / fig.get_figheight()))
     return fig
 
 
@@ -327,7 +328,7 @@ def plot_polar(dense: pd.DataFrame, comparisons: Sequence[RunComparison], varian
     _legend(fig, axes[0, 0])
     fig.suptitle(f"variant {variant}: polar plots, model by continuation (solid run-up, dashed run-down)\nvs "
                  "measured (points), model's frame; magenta: validation runs", fontsize=10)
-    fig.tight_layout(rect=(0, 0.05 * 2 / len(channels), 1, 1))
+    fig.tight_layout(rect=(0, 0.05 * 2 / len(channels), 1, 1 - TITLE_IN / fig.get_figheight()))
     return fig
 
 
