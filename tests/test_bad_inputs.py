@@ -469,6 +469,20 @@ RECORD_CASES = {
     "a quiet run at half the sheet's speed": signal_case("error", lambda t, x, y, r: (t, *quiet_half_speed(t, r)),
                                                          ("the record turns at about 30", "not at the runs sheet's "
                                                           "600 RPM (1/2 of it)", "2 times the true one?")),
+    # micrometres of vibration in mm, judged against the default 14 mm range: the message names the setting
+    "micrometres of vibration, a sensor of smaller range not given": signal_case(
+        "error", lambda t, x, y, r: (t, 8e-3 * (x - 0.3), 8e-3 * (y + 0.1)),
+        ("column x_mm: every value lies within +-0.014", "the sensor's range is smaller than +-14 mm",
+         "column sensor_range_mm of the runs sheet", "offline.sensor_range_mm", "check-data --sensor-range-mm")),
+    # a channel copied into another (an export slip): an error naming both columns
+    "y a copy of x": signal_case("error", lambda t, x, y, r: (t, x, x.copy()),
+                                 ("columns x_mm and y_mm hold the same samples (", "export slip?")),
+    "y a copy of x shifted by a constant": signal_case("error", lambda t, x, y, r: (t, x, x - 0.4),
+                                                       ("columns x_mm and y_mm hold the same samples +0.4 mm apart",)),
+    "y a copy of x, both metres under mm": signal_case(
+        "error", lambda t, x, y, r: (t, x * 1e-3, x * 1e-3),
+        ("3 problems", "column x_mm: every value lies within", "column y_mm: every value lies within",
+         "columns x_mm and y_mm hold the same samples")),
 }
 
 
@@ -605,6 +619,16 @@ def test_a_run_whose_strongest_line_is_not_its_1x_is_analysed_with_a_warning(tmp
     # synchronous, pulls the 11 revolutions' speed by 0.11 %)
     assert abs(row["rpm_true"] / rpm - 1) < 5e-3
     assert abs(row["x1_amp_m"] - amplitude * 1e-3) < 5 * row["x1_sigma_m"]  # and its 1X within 5 sigma
+
+
+def test_micrometres_of_vibration_pass_with_the_sensors_range(tmp_path, good_records, capsys):
+    """The record of the case "micrometres of vibration, a sensor of smaller range not given" passes once the
+    sensor's range is given as its message says (2 mm: a channel is judged metres only within +-0.002)."""
+    sheet = data_set(tmp_path, good_records)
+    t, x, y, _ = signals(600.0)
+    write_record(tmp_path / "records" / "a.csv", t, 8e-3 * (x - 0.3), 8e-3 * (y + 0.1))
+    assert main(["check-data", str(sheet), "--sensor-range-mm", "2", "--strict"]) == 0
+    assert "3 ok, 0 flagged (kept out of the fit), 0 invalid" in capsys.readouterr().err
 
 
 def test_bundled_data_pass_unflagged(capsys):

@@ -6,9 +6,16 @@ checks that its numbers can be what the sensor measured on this machine:
 - **Magnitudes** (``check_magnitudes``, an error): no sample beyond the sensor's
   range (+-``Sensor.range_m``, plus the rail band): millimetres under an
   ``x_m`` header, a DC offset of hundreds of millimetres, micrometres under
-  ``x_mm`` all land there; and not every value of an ``x_mm`` channel inside
-  +-range expressed in metres (+-0.014 for the paper's lasers): metres under an
-  ``x_mm`` header. A sensor with noise cannot write a whole record inside 14 um.
+  ``x_mm`` that exceed the range land there (a few micrometres under ``x_mm``
+  read as a few mm inside the range cannot be told from millimetres); and not
+  every value of an ``x_mm`` channel inside +-range expressed in metres (+-0.014
+  for the paper's lasers): metres under an ``x_mm`` header, or a vibration of
+  micrometres measured by a sensor of smaller range than the one given (the
+  message names the settings). A sensor with noise cannot write a whole record
+  inside 14 um. With them (every problem at once, ``duplicated_channels``): no
+  two channels, neither flat, whose difference spans no more than the sensor's
+  resolution (a channel copied into another, also shifted by a constant: two
+  sensors never write the same noise).
 - **Speed** (``check_speed``): an error when the record's strongest spectral line
   (Hann window, zero-padded FFT of every channel, parabolic peak), standing
   LINE_SIGNIFICANCE times above the spectrum's median, lies further than
@@ -90,8 +97,29 @@ class Flag:
         return f"{self.path}: {self.message}; the run is kept out of the fit"
 
 
+def duplicated_channels(record: Record, sensor: Sensor) -> list[str]:
+    """The problems of channels holding the same samples (module docstring): every pair of channels, neither flat,
+    whose difference spans no more than the sensor's resolution (a copy, or a copy shifted by a constant)."""
+    values = [record.channel(name) for name in record.names]
+    live = [i for i, v in enumerate(values) if np.ptp(v) > sensor.resolution_m]  # flat ones are flagged as such
+    problems = []
+    for a, i in enumerate(live):
+        for j in live[a + 1:]:
+            difference = values[i] - values[j]
+            if np.ptp(difference) <= sensor.resolution_m:
+                columns = [f"{record.names[c]}_{record.channel_unit(record.names[c])}" for c in (i, j)]
+                shift = float(np.median(difference))
+                same = "the same samples" if shift == 0 else f"the same samples {shift * 1e3:+.4g} mm apart"
+                problems.append(f"columns {columns[0]} and {columns[1]} hold {same} (their difference spans "
+                                f"{np.ptp(difference) * 1e3:.3g} mm, within the sensor's resolution "
+                                f"{sensor.resolution_m * 1e3:g} mm): one channel copied into the other, an export "
+                                "slip? Two sensors never write the same noise")
+    return problems
+
+
 def check_magnitudes(record: Record, sensor: Sensor) -> None:
-    """Raise ``DataError`` when a channel's values cannot be what the sensor measured (module docstring)."""
+    """Raise ``DataError`` when a channel's values cannot be what the sensor measured, or two channels hold the
+    same samples (module docstring); every problem of the record at once."""
     problems = []
     limit = sensor.range_m + sensor.rail_band_m
     range_mm = f"+-{sensor.range_m * 1e3:g} mm"
@@ -116,7 +144,11 @@ def check_magnitudes(record: Record, sensor: Sensor) -> None:
         elif unit == "mm" and np.ptp(values) > 0 and peak <= sensor.range_m * 1e-3:
             problems.append(f"column {column}: every value lies within +-{sensor.range_m:g} (the sensor range "
                             f"written in metres; largest {peak / scale:.3g} mm): the values look like metres under "
-                            f"a {column} header (name the column {name}_m), or the channel holds no signal")
+                            f"a {column} header (name the column {name}_m), or the channel holds no signal; or the "
+                            f"vibration is truly this small and the sensor's range is smaller than {range_mm}: give "
+                            "it (column sensor_range_mm of the runs sheet, offline.sensor_range_mm in the config, "
+                            "check-data --sensor-range-mm)")
+    problems += duplicated_channels(record, sensor)
     if problems:
         raise DataError(_format(record.path, problems))
 
