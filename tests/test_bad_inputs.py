@@ -470,7 +470,36 @@ RECORD_CASES = {
                                 ("channel y is flat (constant 3.2500 mm",)),
     "flat within the resolution": signal_case("flag", lambda t, x, y, r: (t, x, 3.25 + 1e-3 * (np.arange(t.size) % 2)),
                                               ("channel y is flat",)),
+    # the speed of a record with more than a 1X: a quiet run at half the sheet's speed (its 2X at the sheet's 1X;
+    # before, analysed at the sheet's speed with its 2X taken for the 1X), and a loud one with a 2X (still caught)
+    "a quiet run at half the sheet's speed": signal_case("error", lambda t, x, y, r: (t, *quiet_half_speed(t, r)),
+                                                         ("the record turns at about 30", "not at the runs sheet's "
+                                                          "600 RPM (1/2 of it)", "2 times the true one?")),
+    # micrometres of vibration in mm, judged against the default 14 mm range: the message names the setting
+    "micrometres of vibration, a sensor of smaller range not given": signal_case(
+        "error", lambda t, x, y, r: (t, 8e-3 * (x - 0.3), 8e-3 * (y + 0.1)),
+        ("column x_mm: every value lies within +-0.014", "the sensor's range is smaller than +-14 mm",
+         "column sensor_range_mm of the runs sheet", "offline.sensor_range_mm", "check-data --sensor-range-mm")),
+    # a channel copied into another (an export slip): an error naming both columns
+    "y a copy of x": signal_case("error", lambda t, x, y, r: (t, x, x.copy()),
+                                 ("columns x_mm and y_mm hold the same samples (", "export slip?")),
+    "y a copy of x shifted by a constant": signal_case("error", lambda t, x, y, r: (t, x, x - 0.4),
+                                                       ("columns x_mm and y_mm hold the same samples +0.4 mm apart",)),
+    "y a copy of x, both metres under mm": signal_case(
+        "error", lambda t, x, y, r: (t, x * 1e-3, x * 1e-3),
+        ("3 problems", "column x_mm: every value lies within", "column y_mm: every value lies within",
+         "columns x_mm and y_mm hold the same samples")),
 }
+
+
+def quiet_half_speed(t: np.ndarray, rng: np.random.Generator, rpm: float = 300.0) -> tuple[np.ndarray, np.ndarray]:
+    """A quiet forward orbit at ``rpm`` [mm]: 1X 0.03 mm, 2X 0.02 mm, noise 0.05 mm (the probe's record). Both lines
+    stand far above the threshold of a present line (their power is about 290 and 130 times their neighbourhood's
+    median for 2 s at 2 kHz: 25 needed), below the 1000 of a line judged by its strength alone."""
+    angle = 2 * np.pi * rpm / 60 * t
+    x = 0.03 * np.cos(angle) + 0.02 * np.cos(2 * angle) + 0.3 + NOISE * rng.standard_normal(t.size)
+    y = 0.03 * np.sin(angle) + 0.02 * np.sin(2 * angle) - 0.1 + NOISE * rng.standard_normal(t.size)
+    return x, y
 
 
 def _record_of_another_run(folder: Path) -> None:
@@ -479,6 +508,19 @@ def _record_of_another_run(folder: Path) -> None:
 
 RECORD_CASES["the record of another run"] = RecordCase(
     "error", _record_of_another_run, ("a.csv: the record turns at about 700.0 RPM", "says 600 RPM (+16.7 %"))
+
+
+def _twice_the_speed_with_a_2x(folder: Path) -> None:
+    t, x, y, _ = signals(600.0)
+    angle = 2 * np.pi * 600.0 / 60 * t
+    write_record(folder / "records" / "a.csv", t, x + 0.1 * np.cos(2 * angle), y + 0.1 * np.sin(2 * angle))
+    path = folder / "runs.tsv"
+    path.write_text(path.read_text().replace("a\t600\t", "a\t1200\t"))
+
+
+# the sheet's 1X falls on the record's 2X (a line there): still caught, as the slower speed whose harmonics hold more
+RECORD_CASES["twice the speed in the sheet, the record with a 2X"] = RecordCase(
+    "error", _twice_the_speed_with_a_2x, ("turns at about 600.0 RPM", "1200 RPM"))
 
 
 def _rail_of_a_5_mm_sensor(folder: Path) -> None:
@@ -545,6 +587,54 @@ def test_the_suite_holds_at_least_60_bad_inputs():
     errors = len(SHEET_ERRORS) + sum(c.kind == "error" for c in RECORD_CASES.values())
     flags = sum(c.kind == "flag" for c in RECORD_CASES.values())
     assert errors + flags >= 60 and flags >= 10
+
+
+# --- a correct run whose 1X is not its strongest line: analysed, with a warning naming that line ---------------
+
+STRONGER_LINES = {  # run a's speed [RPM], its 1X [mm] (x; y 0.9 of it), the stronger line [Hz], that line (t, angle)
+    "50 Hz mains hum": (350.0, 0.27, 50.0, lambda t, angle: (0.3 * np.sin(2 * np.pi * 50.0 * t),
+                                                             0.3 * np.sin(2 * np.pi * 50.0 * t + 1.0))),
+    "a 2X response (misalignment)": (600.0, 0.2, 20.0, lambda t, angle: (0.6 * np.cos(2 * angle),
+                                                                         0.6 * np.sin(2 * angle))),
+    "a natural frequency at 15.3 Hz": (350.0, 0.27, 15.3, lambda t, angle: (0.4 * np.cos(2 * np.pi * 15.3 * t),
+                                                                            0.4 * np.sin(2 * np.pi * 15.3 * t))),
+}
+
+
+@pytest.mark.parametrize("name", list(STRONGER_LINES))
+def test_a_run_whose_strongest_line_is_not_its_1x_is_analysed_with_a_warning(tmp_path, good_records, capsys, name):
+    """Before, each was an error blaming the sheet's rpm ("the record turns at about 3000.0 RPM (its strongest
+    line)"): the 1X is there, so the run is analysed at its own speed, and the warning names the stronger line."""
+    rpm, amplitude, line_hz, stronger = STRONGER_LINES[name]
+    sheet = data_set(tmp_path, good_records)
+    t, x, y, _ = signals(rpm, amplitude_mm=amplitude)
+    dx, dy = stronger(t, 2 * np.pi * rpm / 60 * t)
+    write_record(tmp_path / "records" / "a.csv", t, x + dx, y + dy)
+    sheet.write_text(sheet.read_text().replace("a\t600\t", f"a\t{rpm:g}\t"))
+    out = tmp_path / "check.tsv"
+    assert main(["check-data", str(sheet), "--output", str(out), "--strict"]) == 0
+    err = capsys.readouterr().err
+    assert "3 ok, 0 flagged (kept out of the fit), 0 invalid" in err
+    warning = next(line for line in err.splitlines() if "strongest spectral line" in line)
+    assert warning.startswith(f"hybridtwin check-data: warning: {tmp_path / 'records' / 'a.csv'}: ")
+    hz, rpm_line = map(float, re.search(r"lies at ([0-9.]+) Hz \(([0-9.]+) RPM", warning).groups())
+    assert abs(hz - line_hz) < 0.05  # a tenth of the 0.5 Hz bin of 2 s: the interpolated peak of a clean line
+    assert abs(rpm_line - 60 * line_hz) < 3.0 and "the 1X is there" in warning
+    row = pd.read_csv(out, sep="\t", dtype={"run": str}).set_index("run").loc["a"]
+    # its own speed, not the stronger line's: within a quarter of the +-2 % search (the 15.3 Hz line, not
+    # synchronous, pulls the 11 revolutions' speed by 0.11 %)
+    assert abs(row["rpm_true"] / rpm - 1) < 5e-3
+    assert abs(row["x1_amp_m"] - amplitude * 1e-3) < 5 * row["x1_sigma_m"]  # and its 1X within 5 sigma
+
+
+def test_micrometres_of_vibration_pass_with_the_sensors_range(tmp_path, good_records, capsys):
+    """The record of the case "micrometres of vibration, a sensor of smaller range not given" passes once the
+    sensor's range is given as its message says (2 mm: a channel is judged metres only within +-0.002)."""
+    sheet = data_set(tmp_path, good_records)
+    t, x, y, _ = signals(600.0)
+    write_record(tmp_path / "records" / "a.csv", t, 8e-3 * (x - 0.3), 8e-3 * (y + 0.1))
+    assert main(["check-data", str(sheet), "--sensor-range-mm", "2", "--strict"]) == 0
+    assert "3 ok, 0 flagged (kept out of the fit), 0 invalid" in capsys.readouterr().err
 
 
 def test_bundled_data_pass_unflagged(capsys):

@@ -6,16 +6,31 @@ checks that its numbers can be what the sensor measured on this machine:
 - **Magnitudes** (``check_magnitudes``, an error): no sample beyond the sensor's
   range (+-``Sensor.range_m``, plus the rail band): millimetres under an
   ``x_m`` header, a DC offset of hundreds of millimetres, micrometres under
-  ``x_mm`` all land there; and not every value of an ``x_mm`` channel inside
-  +-range expressed in metres (+-0.014 for the paper's lasers): metres under an
-  ``x_mm`` header. A sensor with noise cannot write a whole record inside 14 um.
-- **Speed** (``check_speed``, an error): the record's strongest spectral line
-  (Hann window, zero-padded FFT of every channel, parabolic peak) must be the
-  1X at the sheet's nominal speed within ``SPEED_TOLERANCE`` (the band the
-  speed refinement searches) plus half a frequency bin; otherwise the error
-  names both speeds (a wrong rpm in the sheet, or the record of another run).
-  Only a line standing LINE_SIGNIFICANCE times above the spectrum's median is
-  judged; a record without one is left to the 1X significance below.
+  ``x_mm`` that exceed the range land there (a few micrometres under ``x_mm``
+  read as a few mm inside the range cannot be told from millimetres); and not
+  every value of an ``x_mm`` channel inside +-range expressed in metres (+-0.014
+  for the paper's lasers): metres under an ``x_mm`` header, or a vibration of
+  micrometres measured by a sensor of smaller range than the one given (the
+  message names the settings). A sensor with noise cannot write a whole record
+  inside 14 um. With them (every problem at once, ``duplicated_channels``): no
+  two channels, neither flat, whose difference spans no more than the sensor's
+  resolution (a channel copied into another, also shifted by a constant: two
+  sensors never write the same noise).
+- **Speed** (``check_speed``): an error when the record's strongest spectral line
+  (Hann window, zero-padded FFT of every channel, parabolic peak), standing
+  LINE_SIGNIFICANCE times above the spectrum's median, lies further than
+  ``SPEED_TOLERANCE`` (the band the speed refinement searches) plus half a
+  frequency bin from the sheet's 1X and the record holds no line within that
+  band (a local maximum LINE_PRESENCE times above the median of its
+  neighbourhood): the error names both speeds (a wrong rpm in the sheet, or the
+  record of another run). When the 1X is there, a stronger line elsewhere (mains
+  hum, a 2X, a natural frequency) is a ``DataWarning`` naming it, and the run is
+  analysed. An error too, also on a quiet record (``_slower_speed``): a line at the
+  sheet's speed / k (k in SUBHARMONICS) whose harmonics other than the sheet's
+  1X..HX hold more power than these (lines LINE_PRESENCE above their neighbourhood
+  only): a sheet's rpm k times the true one, whose refinement (+-2 %) would lock
+  on the record's kX. A subharmonic response stronger than the synchronous one
+  looks the same.
 - **Response** (``response_flags``, flags that keep the run out of the fit):
   the 1X of each channel significant against its own uncertainty
   (|X_1| / sigma_1 >= SIGNIFICANCE; for noise alone, sigma_1 from the scatter
@@ -50,6 +65,11 @@ Array = np.ndarray
 SPEED_TOLERANCE = 0.02
 #: a spectral line this many times the spectrum's median power is a line (judged against the nominal speed)
 LINE_SIGNIFICANCE = 1000.0
+#: a spectral line this many times the median power of its neighbourhood is present (the nominal 1X, the lines
+#: of a slower speed): for noise alone (2 channels, power ~ chi^2_4) a chance of 3e-17 per frequency bin
+LINE_PRESENCE = 25.0
+#: the record may turn at the sheet's speed divided by these (a sheet's rpm k times the true one)
+SUBHARMONICS = (2, 3, 4, 5)
 #: |1X| / sigma_1X below this: the channel's 1X is not significant (noise only)
 SIGNIFICANCE = 5.0
 #: a backward orbit: |backward 1X| exceeds |forward 1X| by more than this many standard uncertainties
@@ -77,8 +97,29 @@ class Flag:
         return f"{self.path}: {self.message}; the run is kept out of the fit"
 
 
+def duplicated_channels(record: Record, sensor: Sensor) -> list[str]:
+    """The problems of channels holding the same samples (module docstring): every pair of channels, neither flat,
+    whose difference spans no more than the sensor's resolution (a copy, or a copy shifted by a constant)."""
+    values = [record.channel(name) for name in record.names]
+    live = [i for i, v in enumerate(values) if np.ptp(v) > sensor.resolution_m]  # flat ones are flagged as such
+    problems = []
+    for a, i in enumerate(live):
+        for j in live[a + 1:]:
+            difference = values[i] - values[j]
+            if np.ptp(difference) <= sensor.resolution_m:
+                columns = [f"{record.names[c]}_{record.channel_unit(record.names[c])}" for c in (i, j)]
+                shift = float(np.median(difference))
+                same = "the same samples" if shift == 0 else f"the same samples {shift * 1e3:+.4g} mm apart"
+                problems.append(f"columns {columns[0]} and {columns[1]} hold {same} (their difference spans "
+                                f"{np.ptp(difference) * 1e3:.3g} mm, within the sensor's resolution "
+                                f"{sensor.resolution_m * 1e3:g} mm): one channel copied into the other, an export "
+                                "slip? Two sensors never write the same noise")
+    return problems
+
+
 def check_magnitudes(record: Record, sensor: Sensor) -> None:
-    """Raise ``DataError`` when a channel's values cannot be what the sensor measured (module docstring)."""
+    """Raise ``DataError`` when a channel's values cannot be what the sensor measured, or two channels hold the
+    same samples (module docstring); every problem of the record at once."""
     problems = []
     limit = sensor.range_m + sensor.rail_band_m
     range_mm = f"+-{sensor.range_m * 1e3:g} mm"
@@ -103,44 +144,143 @@ def check_magnitudes(record: Record, sensor: Sensor) -> None:
         elif unit == "mm" and np.ptp(values) > 0 and peak <= sensor.range_m * 1e-3:
             problems.append(f"column {column}: every value lies within +-{sensor.range_m:g} (the sensor range "
                             f"written in metres; largest {peak / scale:.3g} mm): the values look like metres under "
-                            f"a {column} header (name the column {name}_m), or the channel holds no signal")
+                            f"a {column} header (name the column {name}_m), or the channel holds no signal; or the "
+                            f"vibration is truly this small and the sensor's range is smaller than {range_mm}: give "
+                            "it (column sensor_range_mm of the runs sheet, offline.sensor_range_mm in the config, "
+                            "check-data --sensor-range-mm)")
+    problems += duplicated_channels(record, sensor)
     if problems:
         raise DataError(_format(record.path, problems))
 
 
+@dataclass(frozen=True)
+class _Spectrum:
+    """The summed power spectrum of a record's channels (Hann window, zero-padded FFT; ``check_speed``).
+
+    freq [Hz], power: every channel's |FFT|^2 summed; first: the first index judged (2 / duration: below, the
+    window's leakage of DC and drift); bin_hz: 1 / duration, the unpadded frequency step.
+    """
+
+    freq: Array
+    power: Array
+    first: int
+    bin_hz: float
+
+    @classmethod
+    def of(cls, record: Record) -> "_Spectrum":
+        data = record.data
+        data = (data - data.mean(0)) * np.hanning(record.n_samples)[:, None]
+        n_fft = 1 << int(np.ceil(np.log2(8 * record.n_samples)))
+        power = (np.abs(np.fft.rfft(data, n_fft, axis=0)) ** 2).sum(1)
+        freq = np.fft.rfftfreq(n_fft, record.dt_s)
+        return cls(freq, power, int(np.searchsorted(freq, 2.0 / record.duration_s)), 1.0 / record.duration_s)
+
+    def peak(self, k: int) -> float:
+        """The frequency of the line at index k [Hz], parabolic in log power through its neighbours."""
+        f, power = float(self.freq[k]), self.power
+        if self.first < k < self.freq.size - 1 and power[k - 1] > 0 and power[k + 1] > 0 and power[k] > 0:
+            a, b, c = np.log(power[k - 1:k + 2])
+            if a - 2 * b + c < 0:
+                f += 0.5 * (a - c) / (a - 2 * b + c) * (self.freq[1] - self.freq[0])
+        return f
+
+    def line(self, f: float, half_width: float) -> tuple[float, float, float]:
+        """The line within f +- half_width [Hz]: (its frequency [Hz], power, power over the local median); (nan, 0,
+        0) when the band holds no local maximum of the spectrum (only the skirt of a line outside it) or lies
+        outside the judged spectrum. The local median: over f +- max(10 bins, f / 2), robust to the few lines
+        there, and to a noise floor that is not flat (drift and 1/f noise at low frequencies)."""
+        lo, hi = np.searchsorted(self.freq, [f - half_width, f + half_width])
+        lo, hi = max(lo, self.first), min(hi, self.freq.size)
+        if hi <= lo:
+            return float("nan"), 0.0, 0.0
+        k = lo + int(np.argmax(self.power[lo:hi]))
+        power = self.power
+        if not (power[k] > 0 and (k == 0 or power[k] >= power[k - 1])
+                and (k == power.size - 1 or power[k] >= power[k + 1])):
+            return float("nan"), 0.0, 0.0
+        reach = max(10 * self.bin_hz, 0.5 * f)
+        a, b = np.searchsorted(self.freq, [f - reach, f + reach])
+        floor = float(np.median(power[max(a, self.first):max(b, max(a, self.first) + 1)]))
+        return self.peak(k), float(power[k]), (float(power[k]) / floor if floor > 0 else np.inf)
+
+    def strongest(self) -> tuple[float, float, float]:
+        """The strongest line of the judged spectrum: (frequency [Hz], power, power over the spectrum's median);
+        (nan, 0, 0) when there is none (too short a spectrum, every channel constant)."""
+        band = np.arange(self.first, self.freq.size)
+        if band.size < 3:
+            return float("nan"), 0.0, 0.0
+        k = band[np.argmax(self.power[band])]
+        floor = float(np.median(self.power[band]))
+        if not self.power[k] > 0:
+            return float("nan"), 0.0, 0.0
+        return self.peak(k), float(self.power[k]), (float(self.power[k]) / floor if floor > 0 else np.inf)
+
+
 def dominant_rpm(record: Record) -> tuple[float, float]:
     """(speed of the strongest spectral line of all channels [RPM], its power over the spectrum's median)."""
-    data = record.data
-    data = (data - data.mean(0)) * np.hanning(record.n_samples)[:, None]
-    n_fft = 1 << int(np.ceil(np.log2(8 * record.n_samples)))
-    power = (np.abs(np.fft.rfft(data, n_fft, axis=0)) ** 2).sum(1)
-    freq = np.fft.rfftfreq(n_fft, record.dt_s)
-    band = np.flatnonzero(freq >= 2.0 / record.duration_s)  # below: the window's leakage of DC and drift
-    if band.size < 3:
-        return float("nan"), 0.0
-    k = band[np.argmax(power[band])]
-    floor = float(np.median(power[band]))
-    if not power[k] > 0:  # every channel constant: no line at all
-        return float("nan"), 0.0
-    f = freq[k]
-    if band[0] < k < freq.size - 1 and power[k - 1] > 0 and power[k + 1] > 0:
-        a, b, c = np.log(power[k - 1:k + 2])
-        if a - 2 * b + c < 0:
-            f += 0.5 * (a - c) / (a - 2 * b + c) * (freq[1] - freq[0])
-    return 60.0 * f, (float(power[k]) / floor if floor > 0 else np.inf)
+    f, _, contrast = _Spectrum.of(record).strongest()
+    return 60.0 * f, contrast
 
 
-def check_speed(record: Record, rpm_nominal: float, tolerance: float = SPEED_TOLERANCE) -> None:
-    """Raise ``DataError`` when the record turns at another speed than the sheet's nominal one (module docstring)."""
-    rpm, contrast = dominant_rpm(record)
-    if not np.isfinite(rpm) or contrast < LINE_SIGNIFICANCE:
-        return
+def _series(spectrum: _Spectrum, f: float, orders: int) -> Array:
+    """The power of the lines at m f, m = 1..orders (0 where no line stands LINE_PRESENCE above its
+    neighbourhood). Harmonic m is sought within +-(1 + 0.1 m) bins of m f: a line's main lobe (Hann: +-2 bins)
+    peaks within a bin of it, and the fundamental's frequency, interpolated on a line well above the floor,
+    errs by a small fraction of a bin (0.05 bin on a quiet record: 0.03 mm in 0.05 mm noise), m times that at
+    harmonic m."""
+    out = np.zeros(orders)
+    for m in range(1, orders + 1):
+        _, power, contrast = spectrum.line(m * f, (1.0 + 0.1 * m) * spectrum.bin_hz)
+        out[m - 1] = power if contrast >= LINE_PRESENCE else 0.0
+    return out
+
+
+def _slower_speed(spectrum: _Spectrum, rpm_nominal: float, tolerance: float, harmonics: int
+                  ) -> tuple[int, float, float] | None:
+    """The record turning at the sheet's speed / k (k in ``SUBHARMONICS``; module docstring): (k, its speed
+    [RPM], the share of the synchronous power its series holds beyond the sheet's 1X..HX), or None; of several
+    such k, the one whose series holds the most power."""
+    f0, best = rpm_nominal / 60.0, None
+    for k in SUBHARMONICS:
+        f, _, contrast = spectrum.line(f0 / k, tolerance * f0 / k + 0.5 * spectrum.bin_hz)
+        if not contrast >= LINE_PRESENCE:
+            continue
+        series = _series(spectrum, f, k * harmonics)
+        nominal = series[k - 1::k].sum()  # m = k, 2k, ...: the sheet's 1X..HX
+        beyond = series.sum() - nominal
+        if beyond > nominal and (best is None or series.sum() > best[3]):
+            best = (k, 60.0 * f, beyond / series.sum(), series.sum())
+    return None if best is None else best[:3]
+
+
+def check_speed(record: Record, rpm_nominal: float, tolerance: float = SPEED_TOLERANCE, harmonics: int = 5) -> None:
+    """Raise ``DataError`` when the record turns at another speed than the sheet's nominal one; a
+    ``DataWarning`` when it turns at that speed but another line is stronger than its 1X (module docstring)."""
+    spectrum = _Spectrum.of(record)
+    f, power, contrast = spectrum.strongest()
+    rpm = 60.0 * f
     margin = tolerance * rpm_nominal + 0.5 * 60.0 / record.duration_s  # half a frequency bin
-    if abs(rpm - rpm_nominal) > margin:
+    f1, power_1x, contrast_1x = spectrum.line(rpm_nominal / 60.0, margin / 60.0)
+    loud = np.isfinite(rpm) and contrast >= LINE_SIGNIFICANCE and abs(rpm - rpm_nominal) > margin
+    if loud and not contrast_1x >= LINE_PRESENCE:
         raise DataError(f"{record.path}: the record turns at about {rpm:.1f} RPM (its strongest line) but the runs "
                         f"sheet says {rpm_nominal:g} RPM ({100 * (rpm / rpm_nominal - 1):+.1f} %, tolerance "
-                        f"+-{100 * tolerance:g} %): a wrong rpm in the sheet, the record of another run, or "
-                        "time_s not in seconds")
+                        f"+-{100 * tolerance:g} %), where the record holds no line: a wrong rpm in the sheet, the "
+                        "record of another run, or time_s not in seconds")
+    slower = _slower_speed(spectrum, rpm_nominal, tolerance, harmonics)
+    if slower is not None:
+        k, rpm_k, share = slower
+        raise DataError(f"{record.path}: the record turns at about {rpm_k:.1f} RPM, not at the runs sheet's "
+                        f"{rpm_nominal:g} RPM (1/{k} of it): its line at {rpm_k:.1f} RPM and those of its harmonics "
+                        f"that are not the sheet's 1X..{harmonics}X hold {100 * share:.0f} % of the synchronous power: "
+                        f"a wrong rpm in the sheet ({k} times the true one?) or the record of another run; a "
+                        f"subharmonic (1/{k}X) response stronger than the synchronous one would look the same")
+    if loud:
+        warnings.warn(f"{record.path}: its strongest spectral line lies at {f:.2f} Hz ({rpm:.1f} RPM, {f / f1:.2f} x "
+                      f"the 1X), {power / power_1x:.3g} times the power of the 1X at {60 * f1:.1f} RPM (the runs "
+                      f"sheet: {rpm_nominal:g} RPM): mains hum, a 2X (misalignment), a natural frequency or another "
+                      "machine's vibration; the 1X is there, and the run is analysed at its speed (near the sheet's)",
+                      DataWarning, stacklevel=2)
 
 
 def response_flags(record: Record, harmonics: Array, sigma: Array, residual: Array | None,

@@ -375,7 +375,7 @@ def analyse_record(record: Record, rpm_nominal: float, harmonics: int = 5, senso
     sensor = Sensor(SENSOR_RANGE_MM * 1e-3 if sensor_range_m is None else sensor_range_m,
                     SENSOR_RESOLUTION_MM * 1e-3 if sensor_resolution_m is None else sensor_resolution_m)
     check_magnitudes(record, sensor)
-    check_speed(record, rpm_nominal)  # first: a wrong rpm is named as such, not as a record too short
+    check_speed(record, rpm_nominal, harmonics=harmonics)  # first: a wrong rpm named so, not a record too short
     check_length(record, rpm_nominal, min_revolutions)
     check_sampling(record, rpm_nominal * (1 + SPEED_SEARCH), harmonics)
     analysis = RunAnalysis(record, rpm_nominal, detect_saturation(record, sensor.range_m, sensor.resolution_m))
