@@ -113,6 +113,15 @@ def offline(config: Mapping) -> dict:
     return options
 
 
+def data_check_settings(config: Mapping) -> dict:
+    """What the data checks take from a config, one derivation for the workflow's check_data and preprocess rules
+    (their params) and ``hybridtwin check-data`` (its defaults, each option overriding one): ``harmonics`` (H),
+    ``coverage`` (``rpm`` and ``eccentric_mass_g`` ranges, or empty), ``sensor_range_mm`` (offline.sensor_range_mm
+    with its default: the probes' range; a sheet's sensor_range_mm column overrides it run by run)."""
+    return {"harmonics": config.get("harmonics", 5), "coverage": config.get("coverage") or {},
+            "sensor_range_mm": offline(config)["sensor_range_mm"]}  # as written (a param's value: 14 stays 14)
+
+
 def offline_for(config: Mapping, name: str, keys: Sequence[str] | None = None) -> dict:
     """The ``offline:`` options as variant ``name``'s rules see them: its own n_s and sPGD options
     (``spgd`` updated by its ``spgd_variants`` entry) only, so that declaring another variant (and its

@@ -714,6 +714,7 @@ def check_data_command(args) -> int:
     The checks are the workflow's (rule check_data): what the command line does not set comes from the config,
     as the workflow takes it (harmonics, coverage, offline.sensor_range_mm, the machine's sensors)."""
     from .cli import UsageError, config_file, config_machine, read_config  # the config read as `simulate` reads it
+    from .config import data_check_settings
 
     try:
         source = config_file(args.config)
@@ -722,16 +723,16 @@ def check_data_command(args) -> int:
     except UsageError as err:
         print(f"hybridtwin check-data: error: {err}", file=sys.stderr)
         return 2
-    harmonics = args.harmonics if args.harmonics is not None else int(data.get("harmonics", 5))
+    settings = data_check_settings(data)  # the workflow's, from the config (its defaults without one)
+    harmonics = args.harmonics if args.harmonics is not None else int(settings["harmonics"])
     if harmonics < 1:
         print(f"hybridtwin check-data: error: --harmonics must be >= 1, got {harmonics}", file=sys.stderr)
         return 2
-    coverage = data.get("coverage") or {}
-    rpm_range = args.rpm_range or coverage.get("rpm")
-    mass_range = args.mass_range_g or coverage.get("eccentric_mass_g")
+    rpm_range = args.rpm_range or settings["coverage"].get("rpm")
+    mass_range = args.mass_range_g or settings["coverage"].get("eccentric_mass_g")
     names = ("--rpm-range" if args.rpm_range else "config coverage.rpm",
              "--mass-range-g" if args.mass_range_g else "config coverage.eccentric_mass_g")
-    range_mm = args.sensor_range_mm or (data.get("offline") or {}).get("sensor_range_mm")
+    range_mm = args.sensor_range_mm or settings["sensor_range_mm"]
     mm = {k: None if v is None else float(v) * 1e-3 for k, v in (("range", range_mm),
                                                                  ("resolution", args.sensor_resolution_mm))}
     with warnings.catch_warnings(record=True) as caught:

@@ -4,6 +4,7 @@
 # so targets that need no measured data never open it.
 import os
 
+from hybridtwin.config import data_check_settings
 from hybridtwin.measurements import read_runs, sheet_entry
 
 RUNS_SHEET = config.get("runs", "data/default/runs.tsv")
@@ -11,6 +12,8 @@ RUNS_SHEET = config.get("runs", "data/default/runs.tsv")
 # that read records: a change of sensors reruns them. Without a machine: no param, the VARM's channels x, y (so
 # the VARM's jobs keep the params they had before several sensor planes were read).
 SENSOR_PARAMS = {"sensors": config["machine"].get("sensors")} if config.get("machine") else {}
+# what the data checks take from the config, derived once (as `hybridtwin check-data` derives its defaults)
+CHECK_SETTINGS = data_check_settings(config)
 
 
 rule check_data:
@@ -24,9 +27,7 @@ rule check_data:
     output:
         summary="results/data/check.tsv",
     params:
-        harmonics=config["harmonics"],
-        coverage=config.get("coverage", {}),
-        sensor_range_mm=OFFLINE["sensor_range_mm"],  # the lasers' range (a sheet's sensor_range_mm column overrides)
+        **CHECK_SETTINGS,  # harmonics, coverage, sensor_range_mm (the lasers'; a sheet's column overrides it)
         **SENSOR_PARAMS,
     log:
         "logs/data/check_data.log",
@@ -52,8 +53,8 @@ rule preprocess:
         spectrum="results/data/runs/{run}/spectrum.tsv",
     params:
         row=lambda wildcards: sheet_entry(RUNS_SHEET, wildcards.run),
-        harmonics=config["harmonics"],
-        sensor_range_mm=OFFLINE["sensor_range_mm"],
+        harmonics=CHECK_SETTINGS["harmonics"],
+        sensor_range_mm=CHECK_SETTINGS["sensor_range_mm"],
         **SENSOR_PARAMS,
     log:
         "logs/data/preprocess/{run}.log",
