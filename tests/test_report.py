@@ -532,3 +532,21 @@ def test_report_made_before_the_end_says_so_instead_of_failing(reported):
     first = _embedded(pages["early"], "workflow_desc")
     assert "is not there yet" in first and "System Message" not in first
     assert "results/summary.png" not in _embedded(pages["early"], "results")
+
+
+@pytest.mark.parametrize("harmonics, panels", [(1, ["1X at the sensor"]), (3, ["1X at the sensor", "3X at the sensor"])])
+def test_whitebox_sweep_figure_has_a_panel_per_harmonic_it_can_draw(harmonics, panels):
+    """With H = 1 the sweep table has no 3X: one panel, not a blank half figure (probe)."""
+    from hybridtwin.plots import plot_sweep
+
+    rows = []
+    for mass in (0.0, 14.8):
+        for rpm in (400.0, 600.0, 800.0):
+            row = {"run": f"r{rpm:g}_{mass:g}", "rpm": rpm, "eccentric_mass_g": mass, "success": True}
+            for h in range(1, harmonics + 1):
+                row |= {f"U{h}_re_m": 1e-4 * h, f"U{h}_im_m": 0.0, f"V{h}_re_m": 0.0, f"V{h}_im_m": -1e-4 * h}
+            rows.append(row)
+    fig = plot_sweep(pd.DataFrame(rows), "v")
+    assert [ax.get_title() for ax in fig.axes if ax.get_visible()] == panels
+    assert all(ax.lines for ax in fig.axes)
+    report.plt.close(fig)

@@ -8,12 +8,12 @@ import pandas as pd
 
 
 def plot_sweep(table: pd.DataFrame, title: str) -> plt.Figure:
-    """1X and 3X sensor amplitudes (0-peak, mm) vs speed, one line per eccentric mass."""
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4), sharex=True)
-    for h, ax in zip((1, 3), axes):
-        if f"U{h}_re_m" not in table:
-            ax.set_visible(False)
-            continue
+    """1X and 3X sensor amplitudes (0-peak, mm) vs speed, one line per eccentric mass (1X alone when the table
+    has no 3X: H < 3)."""
+    orders = [h for h in (1, 3) if f"U{h}_re_m" in table]
+    fig, axes = plt.subplots(1, len(orders), figsize=(5 * len(orders) + 1, 4), sharex=True, squeeze=False)
+    axes = axes[0]
+    for h, ax in zip(orders, axes):
         for colour, (mass, group) in enumerate(table.groupby("eccentric_mass_g")):
             group = group.sort_values("rpm")
             ok = group["success"].to_numpy(bool)
