@@ -1,6 +1,8 @@
 """Reading and checking measured runs: every bad-input case fails the way it should, naming file and problem."""
 
+import dataclasses
 import warnings
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -215,8 +217,89 @@ def test_record_with_a_gap(tmp_path):
 
 def test_record_with_non_uniform_time(tmp_path):
     path = write_record(tmp_path / "r.csv")
-    edit_line(path, 500, 0, "0.24905")  # 0.2490 s + 10 % of a step: jitter beyond the 1 % tolerance
-    with pytest.raises(DataError, match=r"column time_s: non-uniform step \(median 0\.0005 s, tolerance 1 %\)"):
+    edit_line(path, 500, 0, "0.24905")  # 0.2490 s + 10 % of a step: beyond the 5 % of jitter tolerated
+    # the stamps need 5 decimals (0.24905): their rounding is +-5e-6 s, the tolerance 5e-6 + 5 % of 5e-4 s = 3e-5 s
+    with pytest.raises(DataError, match=r"column time_s: non-uniform step \(dt 0\.0005 s, the least-squares fit "
+                                        r"t0 \+ n dt; tolerance half a unit of the last decimal written, 5e-06 s, "
+                                        r"plus 5 % of a step: 3e-05 s\) on 1 line\(s\): line 500 \(0\.24905 s is "
+                                        r"\+5e-05 s = \+10\.0 % of a step off\)"):
+        read_record(path)
+
+
+def test_record_with_a_repeated_time_stamp(tmp_path):
+    path = write_record(tmp_path / "r.csv")
+    edit_line(path, 31, 0, "0.0140")  # line 30's time again (line 31 holds 0.0145 s): a duplicated stamp
+    with pytest.raises(DataError, match=r"column time_s: not increasing on 1 line\(s\): line 31 \(0\.014 s after "
+                                        r"0\.014 s\)"):
+        read_record(path)
+
+
+def _write_times(path: Path, times: Sequence[str]) -> None:
+    """Replace the time_s column of a record by the given cells (the other cells as written)."""
+    table = pd.read_csv(path, dtype=str)
+    table["time_s"] = times
+    table.to_csv(path, index=False)
+
+
+def _harmonics(record) -> np.ndarray:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DataWarning)
+        analysis = analyse_record(record, RPM)
+    return analysis.orders.harmonics, analysis.orders.sigma
+
+
+@pytest.mark.parametrize("fs, decimals", [(2560.0, 5), (3000.0, 4)])
+def test_time_stamps_rounded_to_few_decimals_are_uniform_and_read_as_t0_plus_n_dt(tmp_path, fs, decimals):
+    """An analyser's 2560 Hz written with 5 decimals (steps 0.00039 and 0.0004 s), 3000 Hz with 4 (0.0003 and
+    0.0004 s): uniform sampling, the steps differ by the stamps' rounding only. They were rejected as non-uniform
+    (1 % of the median step); now the record is read with the least-squares base t0 + n dt in their place."""
+    path = write_record(tmp_path / "r.csv", fs=fs)
+    exact = np.arange(int(2.0 * fs)) / fs
+    _write_times(path, [f"{t:.{decimals}f}" for t in exact])
+    record = read_record(path)
+    # each stamp is rounded by at most q / 2 (q = 10^-decimals); were the roundings independent (sigma q / sqrt(12)),
+    # the fitted line would err by about 2 sigma / sqrt(N) at its ends: 2 q / sqrt(N) is 3.5 times that (measured:
+    # 8e-9 s and 1.1e-8 s, the roundings of n / fs being periodic in n, against the bounds 2.8e-7 s and 2.6e-6 s)
+    q = 10.0**-decimals
+    bound = 2 * q / np.sqrt(exact.size)
+    assert np.abs(record.time_s - exact).max() < bound
+    assert record.sample_rate_hz == pytest.approx(fs, rel=2 * bound / (exact[-1] - exact[0]))  # ends off by < bound
+    # what the analysis sees: the harmonics of the exact base. A base error dt_max rotates hX by h Omega dt_max:
+    # at most 5 x 62.8 rad/s x 2.6e-6 s = 8e-4 of |X| (1X: 1 mm, 0.8 um, against sigma ~ 1 um): 1 sigma bounds it
+    # (measured: 1e-7 sigma). With the rounded stamps themselves, the 3000 Hz record's median step (0.0003 s)
+    # makes it turn at 667 RPM: the speed check rejects it.
+    X, sigma = _harmonics(record)
+    X_exact, _ = _harmonics(dataclasses.replace(record, time_s=exact))
+    assert np.abs(X - X_exact)[:, 1:].max() < sigma[:, 1:].min()
+
+
+@pytest.mark.parametrize("jitter", ["normal 1 us", "uniform 4 %"])
+def test_time_stamp_jitter_within_5_percent_of_a_step_is_accepted(tmp_path, jitter):
+    """Random timing jitter of the stamps well below a step (the probe's 1 us = 0.2 % of a step at 2 kHz, and up to
+    +-4 %) is no gap and no missing sample: the record is read with the least-squares base t0 + n dt."""
+    path = write_record(tmp_path / "r.csv")
+    exact = np.arange(4000) / 2000.0
+    rng = np.random.default_rng(5)
+    if jitter == "normal 1 us":
+        sigma_t = 1e-6
+        error = rng.normal(0.0, sigma_t, exact.size)
+    else:
+        sigma_t = 0.04 * 5e-4 / np.sqrt(3.0)
+        error = rng.uniform(-0.04, 0.04, exact.size) * 5e-4
+    _write_times(path, [f"{t:.10f}" for t in exact + error])
+    record = read_record(path)
+    # independent errors of sigma_t: the fitted line errs by about 2 sigma_t / sqrt(N) at its ends; 5 times that
+    assert np.abs(record.time_s - exact).max() < 5 * 2 * sigma_t / np.sqrt(exact.size)
+    assert record.sample_rate_hz == pytest.approx(2000.0, rel=1e-5)
+
+
+def test_time_stamp_jitter_beyond_5_percent_of_a_step_is_rejected(tmp_path):
+    path = write_record(tmp_path / "r.csv")
+    exact = np.arange(4000) / 2000.0
+    error = np.random.default_rng(5).uniform(-0.08, 0.08, exact.size) * 5e-4  # +-8 %: about 3/8 of them beyond 5 %
+    _write_times(path, [f"{t:.10f}" for t in exact + error])
+    with pytest.raises(DataError, match=r"column time_s: non-uniform step \(dt 0\.0005 s.* plus 5 % of a step: "
+                                        r"2\.5e-05 s\) on \d{4} line\(s\)"):
         read_record(path)
 
 
