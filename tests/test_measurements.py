@@ -318,8 +318,90 @@ def test_keyphasor_column_must_hold_marks(tmp_path):
     with pytest.raises(DataError, match="column keyphasor: no mark"):
         read_record(path)
     edit_line(path, 3, 3, "yes")
-    with pytest.raises(DataError, match=r"column keyphasor: not 0 or 1 on 1 line\(s\): line 3 \('yes'\)"):
+    with pytest.raises(DataError, match=r"column keyphasor: not a level of a two-level signal: 0/1 \(or 0\.0/1\.0, "
+                                        r"true/false\), 0/5 V .* on 1 line\(s\): line 3 \('yes'\)"):
         read_record(path)
+
+
+KEYPHASOR_RPM = 610.0  # not a divisor of 2 kHz x 60: the marks fall between samples
+
+
+def _keyphasor_record(path: Path, high: str = "1", low: str = "0", width: int = 1, missed: Sequence[int] = ()
+                      ) -> tuple[Path, np.ndarray]:
+    """A record at KEYPHASOR_RPM with a keyphasor column: a pulse ``width`` samples wide at ``high`` from the first
+    sample at or after each instant the unbalance points to +x (x = cos(Omega t)), ``low`` elsewhere; the pulses
+    numbered in ``missed`` left out. Returns the path and the samples of the rising edges."""
+    write_record(path, rpm=KEYPHASOR_RPM)
+    period, dt = 60.0 / KEYPHASOR_RPM, 1 / 2000.0
+    starts = np.ceil(np.arange(int(2.0 / period) + 1) * period / dt - 1e-9).astype(int)
+    starts = np.delete(starts[starts < 4000], list(missed))
+    levels = np.full(4000, low, dtype=object)
+    for start in starts:
+        levels[start:start + width] = high
+    table = pd.read_csv(path, dtype=str)
+    table["keyphasor"] = levels
+    table.to_csv(path, index=False)
+    return path, starts
+
+
+@pytest.mark.parametrize("high, low, width", [
+    ("1", "0", 1), ("1.0", "0.0", 1), ("True", "False", 1), ("true", "false", 3), ("5", "0", 1), ("5", "0", 3),
+    ("4.98", "0.02", 2), ("1", "0", 4),
+])
+def test_any_two_level_keyphasor_is_read_as_marks_at_its_rising_edges(tmp_path, high, low, width):
+    """0.0/1.0, true/false, a 0/5 V TTL signal, pulses several samples wide: a mark at the first sample of each
+    high pulse; the analysis is then that of the one-sample 0/1 marks, exactly (the same marks)."""
+    path, starts = _keyphasor_record(tmp_path / "r.csv", high, low, width)
+    record = read_record(path)
+    assert np.array_equal(np.flatnonzero(record.keyphasor), starts)
+    reference = read_record(_keyphasor_record(tmp_path / "ref.csv")[0])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DataWarning)
+        analysis, expected = analyse_record(record, KEYPHASOR_RPM), analyse_record(reference, KEYPHASOR_RPM)
+    assert analysis.origin == expected.origin and analysis.origin.n_marks == starts.size == 21
+    assert np.array_equal(analysis.orders.harmonics, expected.orders.harmonics)
+    # the phases are absolute: 1X of x = cos(Omega t) is real, to within the mark's lateness (at most one step,
+    # Omega dt = 0.032 rad) plus its noise (sigma / |X| = 1e-3 rad; 5 sigma)
+    X1 = analysis.orders.harmonics[0, 1]
+    assert abs(np.angle(X1)) < 2 * np.pi * KEYPHASOR_RPM / 60 / 2000 + 5 * analysis.orders.sigma[0, 1] / abs(X1)
+
+
+def test_keyphasor_missed_mark_tolerated_spurious_mark_an_error_on_its_file_lines(tmp_path):
+    path, starts = _keyphasor_record(tmp_path / "r.csv", "5", "0", width=3, missed=[7])  # TTL, one mark missed
+    record = read_record(path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DataWarning)
+        assert analyse_record(record, KEYPHASOR_RPM).origin.n_marks == starts.size == 20
+    lines = path.read_text().splitlines()
+    spurious = starts[3] + 50  # a quarter turn after the fourth mark (49 samples per revolution)
+    lines[spurious + 1] = lines[spurious + 1].rsplit(",", 1)[0] + ",5"
+    path.write_text("\n".join(lines[:10] + [""] + lines[10:]) + "\n")  # a blank line 11: samples shift one line down
+    with pytest.raises(DataError, match=rf"column keyphasor: two marks within one revolution at lines "
+                                        rf"{starts[3] + 3} and {spurious + 3} \(period"):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DataWarning)
+            analyse_record(read_record(path), KEYPHASOR_RPM)
+
+
+def test_keyphasor_with_more_than_two_levels_is_an_analogue_signal_and_an_error(tmp_path):
+    path = write_record(tmp_path / "r.csv")
+    table = pd.read_csv(path, dtype=str)
+    table["keyphasor"] = [f"{v:.3f}" for v in 2.5 + 2.5 * np.sin(2 * np.pi * 10 * np.arange(len(table)) / 2000.0)]
+    table.to_csv(path, index=False)
+    with pytest.raises(DataError, match=r"column keyphasor: 101 distinct levels \('2\.500' \(line 2\), '2\.579' "
+                                        r"\(line 3\), '2\.657' \(line 4\), \.\.\.\), an analogue signal; a keyphasor "
+                                        r"column holds a two-level signal: 0/1"):
+        read_record(path)
+
+
+def test_keyphasor_pulse_already_high_on_the_first_sample(tmp_path):
+    from hybridtwin.measurements import keyphasor_marks
+    wide = np.array([1, 1, 0, 0, 0, 1, 1, 1, 0, 0, 0, 1, 1, 1, 0], bool)
+    assert np.flatnonzero(keyphasor_marks(wide)).tolist() == [5, 11]  # its rising edge came before the record
+    whole = np.array([1, 1, 1, 0, 0, 1, 1, 1, 0, 0, 1, 1, 1, 0], bool)
+    assert np.flatnonzero(keyphasor_marks(whole)).tolist() == [0, 5, 10]  # as wide as the others: a whole pulse
+    single = np.array([1, 0, 0, 0, 1, 0, 0, 0, 1, 0], bool)
+    assert np.flatnonzero(keyphasor_marks(single)).tolist() == [0, 4, 8]  # one-sample marks are their own edges
 
 
 def test_empty_and_missing_files(tmp_path):

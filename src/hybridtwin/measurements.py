@@ -542,10 +542,11 @@ def read_record(path: str | Path, sensors=None) -> Record:
     numeric and present (no NaN, no empty cell, no decimal comma); time
     strictly increasing and uniform (no gaps: a step > 1.5 median steps; every
     stamp within its rounding plus 5 % of a step of t0 + n dt, ``_time_problems``);
-    a keyphasor column, if any, holding only 0 and 1 with at least one mark.
-    Raises ``DataError`` naming the file, lines and columns. The record's time_s
-    is the least-squares uniform base t0 + n dt (``uniform_time_base``), free of
-    the stamps' rounding and jitter.
+    a keyphasor column, if any, a two-level signal (0/1, true/false, 0/5 V, ...)
+    with at least one rising edge. Raises ``DataError`` naming the file, lines
+    and columns. The record's time_s is the least-squares uniform base t0 + n dt
+    (``uniform_time_base``), free of the stamps' rounding and jitter; its
+    keyphasor is True on the rising edges (``keyphasor_marks``).
     Plausibility of the values (units, range, speed) is
     ``hybridtwin.plausibility``'s.
     """
@@ -729,14 +730,54 @@ def _numeric_column(cells: pd.Series, column: str, line: Array, allow_empty: boo
 
 
 def _keyphasor(cells: pd.Series, line: Array) -> tuple[Array | None, list[str]]:
-    ok = cells.isin(("0", "1")).to_numpy()
-    if not ok.all():
-        return None, _listed("column keyphasor: not 0 or 1", line[~ok], [repr(v) for v in cells.to_numpy()[~ok]])
-    marks = (cells == "1").to_numpy()
+    """The marks of a keyphasor column: True on the first sample of each high pulse (``keyphasor_marks``).
+
+    Any two-level signal is a keyphasor: 0/1 written as integers or floats, true/false (any case), a 0/5 V
+    TTL signal or any other low/high pair of numbers; the higher level is "high". A cell that is neither a
+    finite number nor true/false, or more than two levels (an analogue tach signal), is a problem.
+    """
+    text = cells.astype(str).str.strip()
+    words = text.str.lower().map({"true": 1.0, "false": 0.0})
+    levels = pd.to_numeric(text, errors="coerce").to_numpy(float)
+    levels = np.where(words.notna().to_numpy(), words.to_numpy(float), levels)
+    accepted = ("a two-level signal: 0/1 (or 0.0/1.0, true/false), 0/5 V or any other low/high pair of numbers, "
+                "the marks at its rising edges")
+    bad = ~np.isfinite(levels)
+    if bad.any():
+        return None, _listed(f"column keyphasor: not a level of {accepted}", line[bad],
+                             [repr(v) for v in text.to_numpy()[bad]])
+    distinct = np.unique(levels)
+    if distinct.size > 2:
+        first = np.sort(np.unique(levels, return_index=True)[1])[:3]  # the first three levels in the file
+        shown = ", ".join(f"{text.iloc[i]!r} (line {line[i]})" for i in first)
+        return None, [f"column keyphasor: {distinct.size} distinct levels ({shown}, ...), an analogue signal; a "
+                      f"keyphasor column holds {accepted} (threshold an analogue tach signal into 0/1)"]
+    if distinct.size < 2:
+        return None, [f"column keyphasor: no mark (one level, {text.iloc[0]!r}, throughout) in the whole record; "
+                      "drop the column if there is no keyphasor"]
+    marks = keyphasor_marks(levels > distinct[0])
     if not marks.any():
-        return None, ["column keyphasor: no mark (no 1) in the whole record; drop the column if there is no "
-                      "keyphasor"]
+        return None, ["column keyphasor: no mark (no rising edge: only a pulse already high on the first sample) in "
+                      "the whole record; drop the column if there is no keyphasor"]
     return marks, []
+
+
+def keyphasor_marks(high: Array) -> Array:
+    """The once-per-turn marks of a two-level keyphasor signal: True on the first sample of each high pulse.
+
+    high: (N,) bool, the signal at its high level. A pulse already high on the first sample began before
+    the record unless it is as wide as the record's other pulses (their median width; kept when it is the
+    only pulse): its rising edge was not recorded and it is left out (a missed mark, which the phase
+    origin's regression tolerates). Marks written one sample wide (0/1) are their own rising edges.
+    """
+    high = np.asarray(high, bool)
+    edges = np.diff(np.concatenate(([0], high.astype(np.int8), [0])))
+    starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    marks = np.zeros(high.size, bool)
+    marks[starts] = True
+    if starts.size > 1 and starts[0] == 0 and stops[0] - starts[0] < np.median(stops[1:] - starts[1:]):
+        marks[0] = False
+    return marks
 
 
 def _time_problems(t: Array, line: Array) -> list[str]:
