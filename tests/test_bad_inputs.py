@@ -429,7 +429,7 @@ RECORD_CASES = {
                                         ("100 Hz sampling gives", "too few to resolve 5X"), fs=100.0, seconds=6.0),
     "keyphasor not 0/1": text_case(lambda s: lines_edited(s, lambda n, row: row + (",keyphasor" if n == 1 else
                                                                                     ",yes" if n == 3 else ",0")),
-                                   ("column keyphasor: not 0 or 1", "line 3 ('yes')")),
+                                   ("column keyphasor: not a level of a two-level signal", "line 3 ('yes')")),
     "keyphasor without a mark": text_case(lambda s: lines_edited(s, lambda n, row: row + (",keyphasor" if n == 1
                                                                                            else ",0")),
                                           ("column keyphasor: no mark",)),

@@ -1,6 +1,8 @@
 """Reading and checking measured runs: every bad-input case fails the way it should, naming file and problem."""
 
+import dataclasses
 import warnings
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -215,8 +217,89 @@ def test_record_with_a_gap(tmp_path):
 
 def test_record_with_non_uniform_time(tmp_path):
     path = write_record(tmp_path / "r.csv")
-    edit_line(path, 500, 0, "0.24905")  # 0.2490 s + 10 % of a step: jitter beyond the 1 % tolerance
-    with pytest.raises(DataError, match=r"column time_s: non-uniform step \(median 0\.0005 s, tolerance 1 %\)"):
+    edit_line(path, 500, 0, "0.24905")  # 0.2490 s + 10 % of a step: beyond the 5 % of jitter tolerated
+    # the stamps need 5 decimals (0.24905): their rounding is +-5e-6 s, the tolerance 5e-6 + 5 % of 5e-4 s = 3e-5 s
+    with pytest.raises(DataError, match=r"column time_s: non-uniform step \(dt 0\.0005 s, the least-squares fit "
+                                        r"t0 \+ n dt; tolerance half a unit of the last decimal written, 5e-06 s, "
+                                        r"plus 5 % of a step: 3e-05 s\) on 1 line\(s\): line 500 \(0\.24905 s is "
+                                        r"\+5e-05 s = \+10\.0 % of a step off\)"):
+        read_record(path)
+
+
+def test_record_with_a_repeated_time_stamp(tmp_path):
+    path = write_record(tmp_path / "r.csv")
+    edit_line(path, 31, 0, "0.0140")  # line 30's time again (line 31 holds 0.0145 s): a duplicated stamp
+    with pytest.raises(DataError, match=r"column time_s: not increasing on 1 line\(s\): line 31 \(0\.014 s after "
+                                        r"0\.014 s\)"):
+        read_record(path)
+
+
+def _write_times(path: Path, times: Sequence[str]) -> None:
+    """Replace the time_s column of a record by the given cells (the other cells as written)."""
+    table = pd.read_csv(path, dtype=str)
+    table["time_s"] = times
+    table.to_csv(path, index=False)
+
+
+def _harmonics(record) -> np.ndarray:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DataWarning)
+        analysis = analyse_record(record, RPM)
+    return analysis.orders.harmonics, analysis.orders.sigma
+
+
+@pytest.mark.parametrize("fs, decimals", [(2560.0, 5), (3000.0, 4)])
+def test_time_stamps_rounded_to_few_decimals_are_uniform_and_read_as_t0_plus_n_dt(tmp_path, fs, decimals):
+    """An analyser's 2560 Hz written with 5 decimals (steps 0.00039 and 0.0004 s), 3000 Hz with 4 (0.0003 and
+    0.0004 s): uniform sampling, the steps differ by the stamps' rounding only. They were rejected as non-uniform
+    (1 % of the median step); now the record is read with the least-squares base t0 + n dt in their place."""
+    path = write_record(tmp_path / "r.csv", fs=fs)
+    exact = np.arange(int(2.0 * fs)) / fs
+    _write_times(path, [f"{t:.{decimals}f}" for t in exact])
+    record = read_record(path)
+    # each stamp is rounded by at most q / 2 (q = 10^-decimals); were the roundings independent (sigma q / sqrt(12)),
+    # the fitted line would err by about 2 sigma / sqrt(N) at its ends: 2 q / sqrt(N) is 3.5 times that (measured:
+    # 8e-9 s and 1.1e-8 s, the roundings of n / fs being periodic in n, against the bounds 2.8e-7 s and 2.6e-6 s)
+    q = 10.0**-decimals
+    bound = 2 * q / np.sqrt(exact.size)
+    assert np.abs(record.time_s - exact).max() < bound
+    assert record.sample_rate_hz == pytest.approx(fs, rel=2 * bound / (exact[-1] - exact[0]))  # ends off by < bound
+    # what the analysis sees: the harmonics of the exact base. A base error dt_max rotates hX by h Omega dt_max:
+    # at most 5 x 62.8 rad/s x 2.6e-6 s = 8e-4 of |X| (1X: 1 mm, 0.8 um, against sigma ~ 1 um): 1 sigma bounds it
+    # (measured: 1e-7 sigma). With the rounded stamps themselves, the 3000 Hz record's median step (0.0003 s)
+    # makes it turn at 667 RPM: the speed check rejects it.
+    X, sigma = _harmonics(record)
+    X_exact, _ = _harmonics(dataclasses.replace(record, time_s=exact))
+    assert np.abs(X - X_exact)[:, 1:].max() < sigma[:, 1:].min()
+
+
+@pytest.mark.parametrize("jitter", ["normal 1 us", "uniform 4 %"])
+def test_time_stamp_jitter_within_5_percent_of_a_step_is_accepted(tmp_path, jitter):
+    """Random timing jitter of the stamps well below a step (the probe's 1 us = 0.2 % of a step at 2 kHz, and up to
+    +-4 %) is no gap and no missing sample: the record is read with the least-squares base t0 + n dt."""
+    path = write_record(tmp_path / "r.csv")
+    exact = np.arange(4000) / 2000.0
+    rng = np.random.default_rng(5)
+    if jitter == "normal 1 us":
+        sigma_t = 1e-6
+        error = rng.normal(0.0, sigma_t, exact.size)
+    else:
+        sigma_t = 0.04 * 5e-4 / np.sqrt(3.0)
+        error = rng.uniform(-0.04, 0.04, exact.size) * 5e-4
+    _write_times(path, [f"{t:.10f}" for t in exact + error])
+    record = read_record(path)
+    # independent errors of sigma_t: the fitted line errs by about 2 sigma_t / sqrt(N) at its ends; 5 times that
+    assert np.abs(record.time_s - exact).max() < 5 * 2 * sigma_t / np.sqrt(exact.size)
+    assert record.sample_rate_hz == pytest.approx(2000.0, rel=1e-5)
+
+
+def test_time_stamp_jitter_beyond_5_percent_of_a_step_is_rejected(tmp_path):
+    path = write_record(tmp_path / "r.csv")
+    exact = np.arange(4000) / 2000.0
+    error = np.random.default_rng(5).uniform(-0.08, 0.08, exact.size) * 5e-4  # +-8 %: about 3/8 of them beyond 5 %
+    _write_times(path, [f"{t:.10f}" for t in exact + error])
+    with pytest.raises(DataError, match=r"column time_s: non-uniform step \(dt 0\.0005 s.* plus 5 % of a step: "
+                                        r"2\.5e-05 s\) on \d{4} line\(s\)"):
         read_record(path)
 
 
@@ -235,8 +318,90 @@ def test_keyphasor_column_must_hold_marks(tmp_path):
     with pytest.raises(DataError, match="column keyphasor: no mark"):
         read_record(path)
     edit_line(path, 3, 3, "yes")
-    with pytest.raises(DataError, match=r"column keyphasor: not 0 or 1 on 1 line\(s\): line 3 \('yes'\)"):
+    with pytest.raises(DataError, match=r"column keyphasor: not a level of a two-level signal: 0/1 \(or 0\.0/1\.0, "
+                                        r"true/false\), 0/5 V .* on 1 line\(s\): line 3 \('yes'\)"):
         read_record(path)
+
+
+KEYPHASOR_RPM = 610.0  # not a divisor of 2 kHz x 60: the marks fall between samples
+
+
+def _keyphasor_record(path: Path, high: str = "1", low: str = "0", width: int = 1, missed: Sequence[int] = ()
+                      ) -> tuple[Path, np.ndarray]:
+    """A record at KEYPHASOR_RPM with a keyphasor column: a pulse ``width`` samples wide at ``high`` from the first
+    sample at or after each instant the unbalance points to +x (x = cos(Omega t)), ``low`` elsewhere; the pulses
+    numbered in ``missed`` left out. Returns the path and the samples of the rising edges."""
+    write_record(path, rpm=KEYPHASOR_RPM)
+    period, dt = 60.0 / KEYPHASOR_RPM, 1 / 2000.0
+    starts = np.ceil(np.arange(int(2.0 / period) + 1) * period / dt - 1e-9).astype(int)
+    starts = np.delete(starts[starts < 4000], list(missed))
+    levels = np.full(4000, low, dtype=object)
+    for start in starts:
+        levels[start:start + width] = high
+    table = pd.read_csv(path, dtype=str)
+    table["keyphasor"] = levels
+    table.to_csv(path, index=False)
+    return path, starts
+
+
+@pytest.mark.parametrize("high, low, width", [
+    ("1", "0", 1), ("1.0", "0.0", 1), ("True", "False", 1), ("true", "false", 3), ("5", "0", 1), ("5", "0", 3),
+    ("4.98", "0.02", 2), ("1", "0", 4),
+])
+def test_any_two_level_keyphasor_is_read_as_marks_at_its_rising_edges(tmp_path, high, low, width):
+    """0.0/1.0, true/false, a 0/5 V TTL signal, pulses several samples wide: a mark at the first sample of each
+    high pulse; the analysis is then that of the one-sample 0/1 marks, exactly (the same marks)."""
+    path, starts = _keyphasor_record(tmp_path / "r.csv", high, low, width)
+    record = read_record(path)
+    assert np.array_equal(np.flatnonzero(record.keyphasor), starts)
+    reference = read_record(_keyphasor_record(tmp_path / "ref.csv")[0])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DataWarning)
+        analysis, expected = analyse_record(record, KEYPHASOR_RPM), analyse_record(reference, KEYPHASOR_RPM)
+    assert analysis.origin == expected.origin and analysis.origin.n_marks == starts.size == 21
+    assert np.array_equal(analysis.orders.harmonics, expected.orders.harmonics)
+    # the phases are absolute: 1X of x = cos(Omega t) is real, to within the mark's lateness (at most one step,
+    # Omega dt = 0.032 rad) plus its noise (sigma / |X| = 1e-3 rad; 5 sigma)
+    X1 = analysis.orders.harmonics[0, 1]
+    assert abs(np.angle(X1)) < 2 * np.pi * KEYPHASOR_RPM / 60 / 2000 + 5 * analysis.orders.sigma[0, 1] / abs(X1)
+
+
+def test_keyphasor_missed_mark_tolerated_spurious_mark_an_error_on_its_file_lines(tmp_path):
+    path, starts = _keyphasor_record(tmp_path / "r.csv", "5", "0", width=3, missed=[7])  # TTL, one mark missed
+    record = read_record(path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DataWarning)
+        assert analyse_record(record, KEYPHASOR_RPM).origin.n_marks == starts.size == 20
+    lines = path.read_text().splitlines()
+    spurious = starts[3] + 50  # a quarter turn after the fourth mark (49 samples per revolution)
+    lines[spurious + 1] = lines[spurious + 1].rsplit(",", 1)[0] + ",5"
+    path.write_text("\n".join(lines[:10] + [""] + lines[10:]) + "\n")  # a blank line 11: samples shift one line down
+    with pytest.raises(DataError, match=rf"column keyphasor: two marks within one revolution at lines "
+                                        rf"{starts[3] + 3} and {spurious + 3} \(period"):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DataWarning)
+            analyse_record(read_record(path), KEYPHASOR_RPM)
+
+
+def test_keyphasor_with_more_than_two_levels_is_an_analogue_signal_and_an_error(tmp_path):
+    path = write_record(tmp_path / "r.csv")
+    table = pd.read_csv(path, dtype=str)
+    table["keyphasor"] = [f"{v:.3f}" for v in 2.5 + 2.5 * np.sin(2 * np.pi * 10 * np.arange(len(table)) / 2000.0)]
+    table.to_csv(path, index=False)
+    with pytest.raises(DataError, match=r"column keyphasor: 101 distinct levels \('2\.500' \(line 2\), '2\.579' "
+                                        r"\(line 3\), '2\.657' \(line 4\), \.\.\.\), an analogue signal; a keyphasor "
+                                        r"column holds a two-level signal: 0/1"):
+        read_record(path)
+
+
+def test_keyphasor_pulse_already_high_on_the_first_sample(tmp_path):
+    from hybridtwin.measurements import keyphasor_marks
+    wide = np.array([1, 1, 0, 0, 0, 1, 1, 1, 0, 0, 0, 1, 1, 1, 0], bool)
+    assert np.flatnonzero(keyphasor_marks(wide)).tolist() == [5, 11]  # its rising edge came before the record
+    whole = np.array([1, 1, 1, 0, 0, 1, 1, 1, 0, 0, 1, 1, 1, 0], bool)
+    assert np.flatnonzero(keyphasor_marks(whole)).tolist() == [0, 5, 10]  # as wide as the others: a whole pulse
+    single = np.array([1, 0, 0, 0, 1, 0, 0, 0, 1, 0], bool)
+    assert np.flatnonzero(keyphasor_marks(single)).tolist() == [0, 4, 8]  # one-sample marks are their own edges
 
 
 def test_empty_and_missing_files(tmp_path):

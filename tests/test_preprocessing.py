@@ -10,8 +10,8 @@ import pytest
 from hybridtwin.measurements import Record, read_record, read_runs
 from hybridtwin.plausibility import LINE_SIGNIFICANCE, SIGNIFICANCE, dominant_rpm
 from hybridtwin.preprocessing import (
-    PhaseOrigin, SpeedEstimate, analyse_record, fit_phase, order_analysis, phase_aligned_residuals, preprocess_run,
-    quantisation_sigma, waveforms,
+    PhaseOrigin, SpeedEstimate, analyse_record, fit_phase, order_analysis, phase_aligned_residuals, phase_origin,
+    preprocess_run, quantisation_sigma, waveforms,
 )
 from hybridtwin.rig import Imperfections, RigSpec, generate
 
@@ -137,6 +137,25 @@ def test_keyphasor_origin_sigma_is_the_rms_error_of_rounded_marks(rpm, marks):
         errors.append(intercept + slope * k_c - events[k_c] * dt)
     reference = np.sqrt(np.mean(np.square(errors)))
     assert quantisation_sigma(weights, k, period / dt, dt) == pytest.approx(reference, rel=0.05)
+
+
+def test_keyphasor_pulses_wider_than_a_sample_are_one_mark_each():
+    """A record made in memory whose keyphasor is high for 3 samples per turn: phase_origin takes the rising edges
+    (the first sample of each pulse), the origin of one-sample marks there, exactly; before, the second sample of
+    the first pulse was "two marks within one revolution"."""
+    fs, rpm = 2000.0, 610.0
+    t = np.arange(4000) / fs
+    angle = 2 * np.pi * rpm / 60 * t
+    x, y = 1e-3 * np.cos(angle), 1e-3 * np.sin(angle)
+    edges = np.ceil(np.arange(21) * 60 / rpm * fs - 1e-9).astype(int)
+    single, wide = np.zeros(t.size, bool), np.zeros(t.size, bool)
+    single[edges] = True
+    for k in range(3):
+        wide[edges + k] = True
+    speed = SpeedEstimate(rpm, 0.0)
+    origin = phase_origin(Record.xy("wide.csv", t, x, y, wide), speed)
+    assert origin == phase_origin(Record.xy("single.csv", t, x, y, single), speed)
+    assert origin.source == "keyphasor" and origin.n_marks == 21
 
 
 def test_keyphasor_gives_absolute_phases(plain, with_keyphasor):

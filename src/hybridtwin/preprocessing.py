@@ -65,7 +65,7 @@ from scipy.optimize import minimize_scalar
 
 from .measurements import (
     DEFAULT_CHANNELS, MIN_REVOLUTIONS, SENSOR_RANGE_MM, SENSOR_RESOLUTION_MM, DataError, DataWarning, Record, Saturation, Sensor,
-    check_coverage, check_length, check_sampling, detect_saturation, read_record, read_runs,
+    check_coverage, check_length, check_sampling, detect_saturation, keyphasor_marks, read_record, read_runs,
 )
 from .plausibility import SPEED_TOLERANCE, Flag, check_magnitudes, check_speed, response_flags
 
@@ -257,18 +257,24 @@ def _speed_sigma(t: Array, data: Array, omega: float, harmonics: int) -> float:
 
 
 def phase_origin(record: Record, speed: SpeedEstimate) -> PhaseOrigin:
-    """The phase reference: the keyphasor mark nearest the middle, else a revolution boundary there."""
+    """The phase reference: the keyphasor mark nearest the middle, else a revolution boundary there.
+
+    The marks are the rising edges of ``record.keyphasor`` (``keyphasor_marks``: the first sample of each
+    pulse, however wide); a missed mark is tolerated (the sequence is fitted over the mark numbers k), two
+    marks within one revolution or one more than a quarter period off the sequence are a ``DataError``.
+    """
     t, period = record.time_s, speed.period_s
     if record.keyphasor is None:
         whole = int(np.floor((t[-1] + record.dt_s - t[0]) / period))
         return PhaseOrigin(float(t[0] + (whole // 2) * period), 0.0, "arbitrary")
-    marks = t[record.keyphasor]
-    index = np.flatnonzero(record.keyphasor)
+    index = np.flatnonzero(keyphasor_marks(record.keyphasor))  # a pulse wider than a sample is one mark
+    marks = t[index]
     k = np.round((marks - marks[0]) / period).astype(int)
     repeated = np.flatnonzero(np.diff(k) == 0)
     if repeated.size:
-        raise DataError(f"{record.path}: column keyphasor: two marks within one revolution at lines "
-                        f"{index[repeated[0]] + 2} and {index[repeated[0] + 1] + 2} (period {period:.5f} s)")
+        first, second = record.line(index[repeated[0]]), record.line(index[repeated[0] + 1])
+        raise DataError(f"{record.path}: column keyphasor: two marks within one revolution at lines {first} and "
+                        f"{second} (period {period:.5f} s)")
     if k.size < 2:
         raise DataError(f"{record.path}: column keyphasor: only one mark; a phase reference needs a mark per "
                         "revolution")
@@ -276,7 +282,7 @@ def phase_origin(record: Record, speed: SpeedEstimate) -> PhaseOrigin:
     residual = marks - (intercept + slope * k)
     off = np.flatnonzero(np.abs(residual) > 0.25 * period)
     if off.size:
-        raise DataError(f"{record.path}: column keyphasor: mark at line {index[off[0]] + 2} is "
+        raise DataError(f"{record.path}: column keyphasor: mark at line {record.line(index[off[0]])} is "
                         f"{residual[off[0]]:+.4f} s off the once-per-turn sequence (period {slope:.5f} s)")
     k_c = int(np.round((0.5 * (t[0] + t[-1]) - intercept) / slope))
     t_c = intercept + slope * k_c
