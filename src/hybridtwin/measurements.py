@@ -40,6 +40,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from .record_columns import keyphasor_column, listed, numeric_column, time_problems, uniform_time_base
+
 Array = np.ndarray
 
 SHEET_COLUMNS = ("run", "rpm", "eccentric_mass_g", "path", "role")
@@ -64,12 +66,6 @@ SENSOR_RESOLUTION_MM = 1e-3
 KG_LOOKING_MASS_G = 0.1
 #: fewest whole revolutions a record must hold (at its nominal speed) to be analysed
 MIN_REVOLUTIONS = 5
-#: a time stamp further than this fraction of a step (plus the rounding of the written stamps) off the uniform
-#: time base t0 + n dt is "non-uniform"; closer, it is timing jitter of a uniformly sampled record
-#: (``_time_problems`` says why 5 %)
-UNIFORM_TOLERANCE = 0.05
-#: a time step longer than this many median steps is a gap (missing samples)
-GAP_FACTOR = 1.5
 #: saturation: at least this many consecutive samples at a channel's extreme value form a flat top
 FLAT_TOP_SAMPLES = 3
 #: ... and at least this many samples sit at that extreme value (or on the sensor's rail) in all
@@ -82,9 +78,6 @@ CLIP_PILEUP = 3.0
 #: the rail: samples within max(RAIL_RESOLUTIONS resolutions, RAIL_FRACTION of the range) of +-range
 RAIL_RESOLUTIONS = 10.0
 RAIL_FRACTION = 0.002
-_MAX_LISTED = 8  # problems listed per category before "... and N more"
-_MISSING_WORDS = ("nan", "na", "n/a", "null", "none")
-_NUMBER_WITH_UNIT = r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?\s*[A-Za-z%]+"
 
 
 class DataError(ValueError):
@@ -335,7 +328,7 @@ def read_text_table(path: str | Path, sep: str, known: Sequence[str] | None = No
              if len(cells) < len(header) or (len(cells) > len(header) and any(cells[len(header):]))]
     if wrong:
         hint = "a decimal comma? use a point: 0.25" if sep == "," else "a missing tab, or spaces instead of a tab?"
-        problems += _listed(f"not {len(header)} cells as in the header ({hint})", [n for n, _ in wrong],
+        problems += listed(f"not {len(header)} cells as in the header ({hint})", [n for n, _ in wrong],
                             [f"{k} cells" for _, k in wrong])
     cells = [c[:len(header)] for _, c in body]
     for i, name in enumerate(header):
@@ -410,7 +403,7 @@ def read_runs(path: str | Path, check_files: bool = True, require_path: bool = T
         raise DataError(f"{path}: the runs sheet has no runs (only a header)")
     problems: list[str] = []
     runs = table["run"]
-    problems += _listed("column run: empty (every run needs an id)", line[(runs == "").to_numpy()],
+    problems += listed("column run: empty (every run needs an id)", line[(runs == "").to_numpy()],
                         ["''"] * int((runs == "").sum()))
     bad_id = ~runs.str.fullmatch(RUN_ID.pattern) & (runs != "")
     problems += [f"line {n}, column run: {v!r} is not a valid run id (letters, digits, '-', '_' only: it becomes "
@@ -425,10 +418,10 @@ def read_runs(path: str | Path, check_files: bool = True, require_path: bool = T
         if len(ids) > 1:
             problems.append(f"lines {', '.join(map(str, lines))}, column run: run ids {ids} differ only in case "
                             "(their files clash on case-insensitive file systems)")
-    rpm, found = _numeric_column(table["rpm"], "rpm", line, allow_empty=False)
+    rpm, found = numeric_column(table["rpm"], "rpm", line, allow_empty=False)
     problems += found
     problems += [f"line {n}, column rpm: {v:g} is not a positive speed" for n, v in zip(line, rpm) if v <= 0]
-    mass, found = _numeric_column(table["eccentric_mass_g"], "eccentric_mass_g", line, allow_empty=not require_mass,
+    mass, found = numeric_column(table["eccentric_mass_g"], "eccentric_mass_g", line, allow_empty=not require_mass,
                                   empty_hint="the libraries are built per speed and eccentric mass: write 0 "
                                              "for no added mass")
     problems += found
@@ -445,7 +438,7 @@ def read_runs(path: str | Path, check_files: bool = True, require_path: bool = T
     sensors = {}
     for column in SENSOR_COLUMNS:
         if column in table:
-            sensors[column], found = _numeric_column(table[column], column, line, allow_empty=True)
+            sensors[column], found = numeric_column(table[column], column, line, allow_empty=True)
             problems += found + [f"line {n}, column {column}: {v:g} mm is not positive"
                                  for n, v in zip(line, sensors[column]) if v <= 0]
     rel = table["path"]
@@ -541,12 +534,12 @@ def read_record(path: str | Path, sensors=None) -> Record:
     <sensor>_m, e.g. x_mm/y_mm), no column of an unknown sensor; every cell
     numeric and present (no NaN, no empty cell, no decimal comma); time
     strictly increasing and uniform (no gaps: a step > 1.5 median steps; every
-    stamp within its rounding plus 5 % of a step of t0 + n dt, ``_time_problems``);
+    stamp within its rounding plus 5 % of a step of t0 + n dt, ``record_columns.time_problems``);
     a keyphasor column, if any, a two-level signal (0/1, true/false, 0/5 V, ...)
     with at least one rising edge. Raises ``DataError`` naming the file, lines
     and columns. The record's time_s is the least-squares uniform base t0 + n dt
     (``uniform_time_base``), free of the stamps' rounding and jitter; its
-    keyphasor is True on the rising edges (``keyphasor_marks``).
+    keyphasor is True on the rising edges (``record_columns.keyphasor_marks``).
     Plausibility of the values (units, range, speed) is
     ``hybridtwin.plausibility``'s.
     """
@@ -559,15 +552,15 @@ def read_record(path: str | Path, sensors=None) -> Record:
     problems: list[str] = []
     values = {}
     for column in (time_col, *(c for c, _ in chosen.values())):
-        values[column], found = _numeric_column(table[column], column, line, allow_empty=False)
+        values[column], found = numeric_column(table[column], column, line, allow_empty=False)
         problems += found
     keyphasor = None
     if "keyphasor" in table:
-        keyphasor, found = _keyphasor(table["keyphasor"], line)
+        keyphasor, found = keyphasor_column(table["keyphasor"], line)
         problems += found
     if problems:
         raise DataError(_format(path, problems))
-    problems = _time_problems(values[time_col], line)
+    problems = time_problems(values[time_col], line)
     if problems:
         raise DataError(_format(path, problems))
     time_s = uniform_time_base(values[time_col])  # the written stamps less their rounding and jitter
@@ -704,158 +697,6 @@ def _record_columns(path: Path, columns: Sequence[str], names: Sequence[str] = D
         raise DataError(f"{path}: line 1 (header): " + "; ".join(problems) + f"; the header has {list(columns)}"
                         + sensors)
     return "time_s", chosen
-
-
-def _numeric_column(cells: pd.Series, column: str, line: Array, allow_empty: bool,
-                    empty_hint: str = "") -> tuple[Array, list[str]]:
-    """Parse a column of stripped strings as floats; problems name line and column."""
-    text = cells.astype(str)
-    values = pd.to_numeric(text, errors="coerce").to_numpy(float)
-    empty = (text == "").to_numpy()
-    missing_word = text.str.lower().isin(_MISSING_WORDS).to_numpy()
-    comma = text.str.contains(",", regex=False).to_numpy()
-    with_unit = text.str.fullmatch(_NUMBER_WITH_UNIT).to_numpy(bool) & ~missing_word
-    other = np.isnan(values) & ~empty & ~missing_word & ~comma & ~with_unit
-    raw = text.to_numpy()
-    gaps = (empty | missing_word) if not allow_empty else missing_word
-    hint = f"; {empty_hint}" if empty_hint else ""
-    problems = []
-    for mask, what in ((comma, "decimal comma or thousands separator (write 25.9, or 1000)"),
-                       (with_unit, "a unit inside the number (write the number only: the unit is in the column "
-                                   "name)"),
-                       (other, "not a number"), (gaps, f"missing value (empty or NaN{hint})"),
-                       (np.isinf(values), "not finite")):
-        problems += _listed(f"column {column}: {what}", line[mask], [repr(v) for v in raw[mask]])
-    return values, problems
-
-
-def _keyphasor(cells: pd.Series, line: Array) -> tuple[Array | None, list[str]]:
-    """The marks of a keyphasor column: True on the first sample of each high pulse (``keyphasor_marks``).
-
-    Any two-level signal is a keyphasor: 0/1 written as integers or floats, true/false (any case), a 0/5 V
-    TTL signal or any other low/high pair of numbers; the higher level is "high". A cell that is neither a
-    finite number nor true/false, or more than two levels (an analogue tach signal), is a problem.
-    """
-    text = cells.astype(str).str.strip()
-    words = text.str.lower().map({"true": 1.0, "false": 0.0})
-    levels = pd.to_numeric(text, errors="coerce").to_numpy(float)
-    levels = np.where(words.notna().to_numpy(), words.to_numpy(float), levels)
-    accepted = ("a two-level signal: 0/1 (or 0.0/1.0, true/false), 0/5 V or any other low/high pair of numbers, "
-                "the marks at its rising edges")
-    bad = ~np.isfinite(levels)
-    if bad.any():
-        return None, _listed(f"column keyphasor: not a level of {accepted}", line[bad],
-                             [repr(v) for v in text.to_numpy()[bad]])
-    distinct = np.unique(levels)
-    if distinct.size > 2:
-        first = np.sort(np.unique(levels, return_index=True)[1])[:3]  # the first three levels in the file
-        shown = ", ".join(f"{text.iloc[i]!r} (line {line[i]})" for i in first)
-        return None, [f"column keyphasor: {distinct.size} distinct levels ({shown}, ...), an analogue signal; a "
-                      f"keyphasor column holds {accepted} (threshold an analogue tach signal into 0/1)"]
-    if distinct.size < 2:
-        return None, [f"column keyphasor: no mark (one level, {text.iloc[0]!r}, throughout) in the whole record; "
-                      "drop the column if there is no keyphasor"]
-    marks = keyphasor_marks(levels > distinct[0])
-    if not marks.any():
-        return None, ["column keyphasor: no mark (no rising edge: only a pulse already high on the first sample) in "
-                      "the whole record; drop the column if there is no keyphasor"]
-    return marks, []
-
-
-def keyphasor_marks(high: Array) -> Array:
-    """The once-per-turn marks of a two-level keyphasor signal: True on the first sample of each high pulse.
-
-    high: (N,) bool, the signal at its high level. A pulse already high on the first sample began before
-    the record unless it is as wide as the record's other pulses (their median width; kept when it is the
-    only pulse): its rising edge was not recorded and it is left out (a missed mark, which the phase
-    origin's regression tolerates). Marks written one sample wide (0/1) are their own rising edges.
-    """
-    high = np.asarray(high, bool)
-    edges = np.diff(np.concatenate(([0], high.astype(np.int8), [0])))
-    starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
-    marks = np.zeros(high.size, bool)
-    marks[starts] = True
-    if starts.size > 1 and starts[0] == 0 and stops[0] - starts[0] < np.median(stops[1:] - starts[1:]):
-        marks[0] = False
-    return marks
-
-
-def _time_problems(t: Array, line: Array) -> list[str]:
-    """Problems of a record's time stamps: not increasing, gaps, or steps not uniform (``uniform_time_base``).
-
-    A record is uniformly sampled when every stamp lies within the tolerance of ``uniform_time_base``: half
-    a unit of the last decimal the stamps are written with (``time_resolution``: 0.00039 s and 0.0004 s
-    are both 1/2560 s written with 5 decimals) plus UNIFORM_TOLERANCE = 5 % of a step of random timing
-    jitter. Why 5 %: a missing or extra sample moves every later stamp by a whole step and a gap is a step
-    longer than GAP_FACTOR = 1.5 steps, so jitter within 5 % is never mistaken for either; and the analysis
-    then uses the uniform base, so if the samples really were taken at the jittered instants each errs by
-    at most 5 % of the signal's change over one step, at random: noise, not a bias of the harmonics (jitter
-    within +-5 % has sigma_t <= 2.9 % of a step; harmonic h is attenuated by exp(-(h Omega sigma_t)^2 / 2),
-    1 - 3e-4 for 5X at 3000 RPM sampled at 2 kHz).
-    A gap is a step longer than GAP_FACTOR median steps plus the stamps' resolution.
-    """
-    step = np.diff(t)
-    bad = np.flatnonzero(step <= 0)
-    if bad.size:
-        return _listed("column time_s: not increasing", line[bad + 1],
-                       [f"{t[i + 1]:.9g} s after {t[i]:.9g} s" for i in bad])
-    median = float(np.median(step))
-    resolution = time_resolution(t)
-    gap = np.flatnonzero(step > GAP_FACTOR * median + resolution)
-    if gap.size:  # the uniformity is judged once the gaps are mended (a gap shifts every later stamp)
-        return _listed("column time_s: gap (missing samples)", line[gap + 1],
-                       [f"{step[i]:.6g} s = {step[i] / median:.1f} steps after {t[i]:.9g} s" for i in gap])
-    base = uniform_time_base(t)
-    dt = (base[-1] - base[0]) / (t.size - 1)
-    tolerance = 0.5 * resolution + UNIFORM_TOLERANCE * dt
-    off = t - base
-    jitter = np.flatnonzero(np.abs(off) > tolerance)
-    rounding = f"half a unit of the last decimal written, {0.5 * resolution:.3g} s, plus " if resolution else ""
-    return _listed(f"column time_s: non-uniform step (dt {dt:.6g} s, the least-squares fit t0 + n dt; tolerance "
-                   f"{rounding}{100 * UNIFORM_TOLERANCE:g} % of a step: {tolerance:.3g} s)", line[jitter],
-                   [f"{t[i]:.9g} s is {off[i]:+.3g} s = {100 * off[i] / dt:+.1f} % of a step off" for i in jitter])
-
-
-def time_resolution(t: Array) -> float:
-    """The unit of the last decimal the time stamps are written with [s], inferred from their values.
-
-    The largest 10^-d such that every stamp is a whole multiple of it (to the stamps' floating-point
-    precision): stamps written with 5 decimals give 1e-5 s (their rounding is at most half of it). Stamps
-    that need more decimals than a double resolves give that precision (about 1e-15 s for stamps of
-    seconds).
-    """
-    t = np.asarray(t, float)
-    size = float(np.abs(t).max(initial=0.0))
-    for decimals in range(0, 19):
-        scaled = t * 10.0**decimals
-        precision = 4 * np.finfo(float).eps * size * 10.0**decimals
-        if np.all(np.abs(scaled - np.rint(scaled)) <= max(precision, 1e-9)):
-            return 10.0**-decimals
-    return 0.0
-
-
-def uniform_time_base(t: Array) -> Array:
-    """The uniform time base t0 + n dt (n = 0 .. N-1) nearest to the time stamps t in least squares [s].
-
-    A uniformly sampled record's stamps differ from it by their rounding and timing jitter only; the
-    analysis uses it in their place (``read_record``). Computed about the first stamp, so that stamps of
-    epoch seconds keep their precision.
-    """
-    n = np.arange(t.size, dtype=float)
-    n_mean = n.mean()
-    since = t - t[0]
-    dt = float(np.dot(n - n_mean, since - since.mean()) / np.dot(n - n_mean, n - n_mean))
-    return t[0] + (since.mean() + dt * (n - n_mean))
-
-
-def _listed(problem: str, lines: Array, details: Sequence[str]) -> list[str]:
-    """One message for a problem found on several lines (the first few listed, the count given)."""
-    lines = list(lines)
-    if not lines:
-        return []
-    shown = ", ".join(f"line {n} ({d})" for n, d in zip(lines[:_MAX_LISTED], details))
-    more = f" ... and {len(lines) - _MAX_LISTED} more" if len(lines) > _MAX_LISTED else ""
-    return [f"{problem} on {len(lines)} line(s): {shown}{more}"]
 
 
 def _duplicates(values: pd.Series, line: Array) -> list[tuple[str, list[int]]]:

@@ -57,7 +57,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .measurements import UNITS, DataError, DataWarning, Record, Sensor, _format, _listed
+from .measurements import UNITS, DataError, DataWarning, Record, Sensor, _format
+from .record_columns import listed
 
 Array = np.ndarray
 
@@ -138,7 +139,7 @@ def check_magnitudes(record: Record, sensor: Sensor) -> None:
                                 f"range {range_mm}: wrong units, a wrong zero, or a sensor of larger range "
                                 "(set sensor_range_mm)")
             else:
-                problems += _listed(f"column {column}: beyond the sensor range {range_mm} (wrong units, or a sensor "
+                problems += listed(f"column {column}: beyond the sensor range {range_mm} (wrong units, or a sensor "
                                     "of larger range: set sensor_range_mm)", record.line(beyond),
                                     [f"{values[i] * 1e3:+.3f} mm" for i in beyond])
         elif unit == "mm" and np.ptp(values) > 0 and peak <= sensor.range_m * 1e-3:
@@ -343,7 +344,7 @@ def response_flags(record: Record, harmonics: Array, sigma: Array, residual: Arr
                 lines = record.line(spikes)
                 flags.append(Flag(record.path, name, "spikes", f"{name} spike(s) at line(s) "
                                   f"{', '.join(map(str, lines[:4]))}{' ...' if spikes.size > 4 else ''}",
-                                  _listed(f"channel {name}: spike(s) more than {SPIKE_SIGMAS:g} noise standard "
+                                  listed(f"channel {name}: spike(s) more than {SPIKE_SIGMAS:g} noise standard "
                                           f"deviations ({robust * 1e3:.3g} mm) off the synchronous waveform",
                                           lines, [f"{r[k] * 1e3:+.3f} mm" for k in spikes])[0]
                                   + " (remove or repair the samples)"))

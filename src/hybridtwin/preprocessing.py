@@ -65,9 +65,10 @@ from scipy.optimize import minimize_scalar
 
 from .measurements import (
     DEFAULT_CHANNELS, MIN_REVOLUTIONS, SENSOR_RANGE_MM, SENSOR_RESOLUTION_MM, DataError, DataWarning, Record, Saturation, Sensor,
-    check_coverage, check_length, check_sampling, detect_saturation, keyphasor_marks, read_record, read_runs,
+    check_coverage, check_length, check_sampling, detect_saturation, read_record, read_runs,
 )
 from .plausibility import SPEED_TOLERANCE, Flag, check_magnitudes, check_speed, response_flags
+from .record_columns import keyphasor_marks
 
 Array = np.ndarray
 CHANNELS = DEFAULT_CHANNELS  # the VARM's channels (a record's own: ``Record.names``)
