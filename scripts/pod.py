@@ -4,15 +4,17 @@ params and output."""
 import sys
 
 from hybridtwin import config as cfg
+from hybridtwin import measured
 from hybridtwin.pod import ThinLibraryError, pod_of_runs
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "pod")
 variant = cfg.variant(smk.params.model, smk.wildcards.variant)  # its spec, the machine, the effects files
 options = smk.params.offline
+kept_out = measured.kept_out(measured.read_harmonics(smk.input.harmonics))["run"].tolist()
 try:
-    table = pod_of_runs(smk.input[0], smk.output.store, variant.model.shaft, options["sensor_range_mm"] * 1e-3,
-                        options["pod_energy_tolerance"])
+    table = pod_of_runs(smk.input.snapshots, smk.output.store, variant.model.shaft, options["sensor_range_mm"] * 1e-3,
+                        options["pod_energy_tolerance"], kept_out)
 except ThinLibraryError as err:
     log.error("%s", err)
     sys.exit(f"pod: error: variant {variant.name}: too few usable scenarios for a library at "

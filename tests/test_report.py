@@ -534,7 +534,8 @@ def test_report_made_before_the_end_says_so_instead_of_failing(reported):
     assert "results/summary.png" not in _embedded(pages["early"], "results")
 
 
-@pytest.mark.parametrize("harmonics, panels", [(1, ["1X at the sensor"]), (3, ["1X at the sensor", "3X at the sensor"])])
+@pytest.mark.parametrize("harmonics, panels", [(1, ["1X at the sensor"]),
+                                               (3, ["1X at the sensor", "3X at the sensor"])])
 def test_whitebox_sweep_figure_has_a_panel_per_harmonic_it_can_draw(harmonics, panels):
     """With H = 1 the sweep table has no 3X: one panel, not a blank half figure (probe)."""
     from hybridtwin.plots import plot_sweep

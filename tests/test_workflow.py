@@ -141,6 +141,20 @@ def test_a_run_with_too_few_usable_scenarios_is_named_with_its_counts_before_any
     assert len(caught.value.lines) == len(table) + 1 and caught.value.lines[0].startswith(f"run {table.index[0]} (")
     assert "offline.enrichment" in caught.value.lines[-1]
     assert not (tmp_path / "pod.zarr").exists()  # nothing half written
+    # the same runs kept out of the fit by the data checks (a clipped record): their libraries are never fitted
+    # to, so they take every steady scenario and the variant's libraries are built
+    from hybridtwin.pod import load_pod
+
+    table = pod_of_runs(str(workdir / "results" / "geometric" / "snapshots.zarr"), str(tmp_path / "kept.zarr"),
+                        shaft, sensor_range, 1e-10, kept_out=list(caught.value.runs["run"]))
+    for run in solved.runs:
+        r = solved.run_index(run)
+        _, usable = load_pod(str(tmp_path / "kept.zarr"), run)
+        measurable = solved.steady[r] & (peaks[r] <= sensor_range)
+        expected = solved.steady[r] if run in set(caught.value.runs["run"]) else measurable
+        np.testing.assert_array_equal(usable, expected)
+        first = solved.design == "hypercube"  # the observable share stays the measurable one
+        assert table.set_index("run").loc[run, "observable_fraction"] == pytest.approx(measurable[first].mean())
 
 
 def test_chunks_hold_exactly_the_sampled_scenarios(workdir):

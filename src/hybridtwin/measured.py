@@ -53,6 +53,13 @@ def read_harmonics(path: str | Path) -> pd.DataFrame:
     return pd.read_csv(path, sep="\t", dtype={"run": str})
 
 
+def kept_out(table: pd.DataFrame) -> pd.DataFrame:
+    """The rows of the runs the data checks kept out of the fit (results/data/harmonics.tsv's usable false, as
+    written: True/False)."""
+    usable = table["usable"].astype(str).str.lower().isin(("true", "1"))
+    return table.loc[~usable].reset_index(drop=True)
+
+
 def table_harmonics(table: pd.DataFrame) -> int:
     """Highest harmonic H present in a harmonics table for every channel (columns x1_re_m, ... on the VARM)."""
     channels = table_channels(table)

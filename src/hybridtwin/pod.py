@@ -10,6 +10,7 @@ q = Phi alpha with alpha = Phi^T q its reduced coordinates.
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from dataclasses import dataclass
 
 import numpy as np
@@ -39,7 +40,10 @@ class ThinLibraryError(ValueError):
             f"training and {row.usable_validation} of {row.validation} validation scenarios usable (a library needs "
             f"{MIN_TRAIN} and {MIN_VALIDATION}); the others: {row.beyond_range} beyond the sensor range "
             f"({sensor_range_m * 1e3:.6g} mm), {row.unstable} unstable, {row.failed} without a solution; observable "
-            f"share of the first design {row.observable_share:.0%}" for row in runs.itertuples()]
+            f"share of the first design {row.observable_share:.0%}"
+            + ("; the data checks keep this run out of the fit and even its steady scenarios are too few: "
+               "leave it out of the runs sheet" if getattr(row, "kept_out", False) else "")
+            for row in runs.itertuples()]
         self.lines.append(
             "the variant's ranges put these runs' responses out of what can be measured or solved for most "
             "scenarios (near a resonance, typically). Either: more scenarios where these runs can be measured "
@@ -107,8 +111,12 @@ def pod(features: Array, energy_tolerance: float = 1e-10, max_modes: int | None 
 
 
 def pod_of_runs(snapshots_path: str, out_path: str, shaft: Shaft, sensor_range_m: float,
-                energy_tolerance: float) -> pd.DataFrame:
+                energy_tolerance: float, kept_out: Collection[str] = ()) -> pd.DataFrame:
     """POD per run of the observable (converged, stable, inside the sensor range) training snapshots.
+
+    A run of ``kept_out`` (the data checks kept it out of the fit: its library is never fitted to) whose
+    observable snapshots are too few takes every steady one instead, so that the variant's libraries are
+    built; any other run with too few is a ``ThinLibraryError`` (``_check_enough``).
 
     Writes a zarr v3 group per run (modes, singular_values, usable mask), the store's
     manifest last (``hybridtwin.stores``), and returns the summary table: training
@@ -118,9 +126,14 @@ def pod_of_runs(snapshots_path: str, out_path: str, shaft: Shaft, sensor_range_m
     singular value ratios.
     """
     snaps = snapshots.load(snapshots_path)
-    usable_all = [snaps.steady[r] & observable(snaps.harmonics[r], shaft, sensor_range_m)
+    measurable = [snaps.steady[r] & observable(snaps.harmonics[r], shaft, sensor_range_m)
                   for r in range(len(snaps.runs))]
-    _check_enough(snaps, usable_all, sensor_range_m)
+    usable_all = list(measurable)
+    thin = set(_too_few(snaps, usable_all)["run"])
+    for r, run in enumerate(snaps.runs):
+        if run in thin and run in set(kept_out):
+            usable_all[r] = snaps.steady[r]  # not fitted: beyond the sensor range is no reason to leave it out
+    _check_enough(snaps, usable_all, sensor_range_m, kept_out)
     store = zarr.open_group(out_path, mode="w")
     rows = []
     first_design, solved = snaps.design == "hypercube", snaps.solved
@@ -135,7 +148,7 @@ def pod_of_runs(snapshots_path: str, out_path: str, shaft: Shaft, sensor_range_m
         group.attrs["energy_tolerance"] = energy_tolerance
         ratios = np.pad(basis.ratios, (0, 3))
         rows.append({"run": run, "n_snapshots": int(train.sum()), "n_enriched": int((train & ~first_design).sum()),
-                     "observable_fraction": float(usable[first_design].mean()),
+                     "observable_fraction": float(measurable[r][first_design].mean()),
                      "n_failed": int((~snaps.success[r] & solved[r]).sum()),
                      "n_unstable": int((snaps.success[r] & ~snaps.stable[r]).sum()), "n_modes": basis.n_modes,
                      "sigma2_over_sigma1": ratios[1], "sigma3_over_sigma1": ratios[2],
@@ -144,9 +157,18 @@ def pod_of_runs(snapshots_path: str, out_path: str, shaft: Shaft, sensor_range_m
     return pd.DataFrame(rows)
 
 
-def _check_enough(snaps: snapshots.Snapshots, usable: list[Array], sensor_range_m: float) -> None:
+def _check_enough(snaps: snapshots.Snapshots, usable: list[Array], sensor_range_m: float,
+                  kept_out: Collection[str] = ()) -> None:
     """ThinLibraryError naming every run with fewer than MIN_TRAIN usable training or MIN_VALIDATION validation
     scenarios (among those solved at the run), with where the others went and what to change."""
+    rows = _too_few(snaps, usable)
+    if len(rows):
+        rows["kept_out"] = rows["run"].isin(list(kept_out))
+        raise ThinLibraryError(rows, sensor_range_m)
+
+
+def _too_few(snaps: snapshots.Snapshots, usable: list[Array]) -> pd.DataFrame:
+    """The runs with fewer than MIN_TRAIN usable training or MIN_VALIDATION validation scenarios: their counts."""
     rows = []
     first = snaps.design == "hypercube"
     for r, run in enumerate(snaps.runs):
@@ -162,8 +184,9 @@ def _check_enough(snaps: snapshots.Snapshots, usable: list[Array], sensor_range_
                      "unstable": int((fitting & snaps.success[r] & ~snaps.stable[r]).sum()),
                      "failed": int((fitting & ~snaps.success[r]).sum()),
                      "observable_share": float(usable[r][first].mean())})
-    if rows:
-        raise ThinLibraryError(pd.DataFrame(rows), sensor_range_m)
+    return pd.DataFrame(rows, columns=["run", "rpm", "eccentric_mass_g", "usable_train", "train",
+                                       "usable_validation", "validation", "beyond_range", "unstable", "failed",
+                                       "observable_share"])
 
 
 def load_pod(path: str, run: str) -> tuple[POD, Array]:

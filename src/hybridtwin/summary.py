@@ -28,6 +28,7 @@ import pandas as pd
 from matplotlib.colors import LogNorm
 from scipy import stats
 
+from . import measured
 from .plots import plt
 from .report import ALPHA, NOISE_FLOOR, VALIDATION_STYLE
 
@@ -266,8 +267,7 @@ def _failures(variant: str, table: pd.DataFrame) -> str:
 
 def kept_out(harmonics: pd.DataFrame) -> pd.DataFrame:
     """The runs the data checks kept out (results/data/harmonics.tsv's usable false): run, role, note."""
-    usable = harmonics["usable"].astype(str).str.lower().isin(("true", "1"))
-    return harmonics.loc[~usable, ["run", "role", "note"]].reset_index(drop=True)
+    return measured.kept_out(harmonics)[["run", "role", "note"]]
 
 
 def _kept_out_line(runs: pd.DataFrame) -> str:

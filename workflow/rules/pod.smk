@@ -3,7 +3,8 @@
 
 rule pod:
     input:
-        "results/{variant}/snapshots.zarr",
+        snapshots="results/{variant}/snapshots.zarr",
+        harmonics="results/data/harmonics.tsv",  # the runs the data checks kept out (usable false)
         effects=variant_effects,  # their contents build the variant (params.model has only the paths)
     output:
         store=directory("results/{variant}/pod.zarr"),
