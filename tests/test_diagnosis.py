@@ -8,6 +8,7 @@ code paths as the workflow's diagnose rule.
 from dataclasses import replace
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from hybridtwin import diagnosis as dg
@@ -534,3 +535,27 @@ def test_an_estimates_text_shows_its_interval(value, low, high):
     d = dg._digits(value, high - low)
     texts = [f"{x:.{d}g}" for x in (low, value, high)]
     assert len(set(texts)) == 3 and d >= 4
+
+
+def test_a_plan_too_thin_to_decide_says_so_instead_of_no_missing_effect():
+    """One fit run (12 numbers for 5 parameters and a phase) holding the hidden slope force: the base fit absorbs
+    it (its chi^2 is within the noise), and no candidate is significant: the conclusion must not read as a clean
+    bill ("no missing effect"), but say these runs cannot rule one out, and why (the degrees of freedom; a
+    parameter the fit leaves undetermined, from the parameter table's flags)."""
+    values = TRUTH | {"k_w": 324.2, "k_z": 301.1}
+    data = _data(["slope_spring"], values, seed=5)[:1]
+    base = _base_fit(data)
+    result = dg.diagnose(base, _candidates(["slope_spring", "expansion_k4"]))
+    assert not result.summary["misfit"] and result.summary["base_dof"] < dg.MIN_DOF
+    assert result.conclusion.startswith("no missing effect found, but these fit runs cannot rule one out")
+    assert f"only {result.summary['base_dof']} degrees of freedom" in result.conclusion
+    assert "only 1 fit run;" in result.conclusion
+    # four runs at 500-850 RPM: enough to decide, no such caveat (test_no_false_alarm_without_a_hidden_effect)
+    four = _base_fit(_data([], TRUTH, seed=3))
+    assert dg._thin_plan(four, st.score_tests(four, _candidates(["expansion_k4"]))) == []
+    table = pd.DataFrame({"parameter": ["k_b", "zeta_s", "q_x", "q_x", "phase"], "run": ["all", "all", "a", "b", "a"],
+                          "kind": ["shared", "shared", "per_run", "per_run", "nuisance"],
+                          "identifiable": [False, True, True, True, False],
+                          "at_bound": [False, True, "False", "True", False]})
+    assert st.undetermined_parameters(table) == ("k_b (not identifiable)", "zeta_s (at a range edge)",
+                                                 "q_x (at a range edge)")

@@ -57,6 +57,12 @@ from .variants import Variant
 Array = np.ndarray
 
 #: the ``diagnosis:`` section's defaults (config/config.yaml; schema in workflow/schemas)
+#: a base fit with fewer degrees of freedom cannot rule a missing effect out (a chi^2 of 10 dof spans 0.26-2.3
+#: times its mean at 99 %: an effect's share of it is lost in that spread)
+MIN_DOF = 10
+#: ... nor fewer fit runs than this, nor fit runs whose speeds span no more than this fraction of the fastest
+MIN_FIT_RUNS, SPEED_SPREAD = 3, 0.05
+
 DEFAULTS: dict = {
     "candidates": None,  # names to test (built in or from effects_files); None: every built-in candidate
     "confirm": "all",  # candidates refitted: every significant one, or the n best by score (+ any within
@@ -662,6 +668,14 @@ def _recommend(base: BaseFit, scores: Scores, best: Confirmation | None, confoun
                share: float, misfit: bool, base_ratio: float, o: Mapping) -> tuple[str, str]:
     variant = base.variant
     if best is None:
+        weak = _thin_plan(base, scores)
+        if weak and base.undetermined:
+            weak.append(f"the fit leaves {', '.join(base.undetermined)}")
+        if not misfit and weak:
+            return ("no missing effect found, but these fit runs cannot rule one out: "
+                    f"{'; '.join(weak)}, where an effect can hide (chi^2/dof {base_ratio:.3g}, no candidate "
+                    "significant); fit runs at more speeds and unbalance masses decide, and the validation runs "
+                    "tell whether the model predicts (results/ledger.tsv)"), ""
         if not misfit:
             return ("no missing effect: the model fits the data to within the noise "
                     f"(chi^2/dof {base_ratio:.3g}) and no candidate is significant"), ""
@@ -689,6 +703,22 @@ def _recommend(base: BaseFit, scores: Scores, best: Confirmation | None, confoun
                       f"(only the new variant is built) and compare in results/ledger.tsv:\n\n"
                       f"{variant_lines(new_name, variant_spec(variant, best.candidate, best.ranges))}\n")
     return conclusion, recommendation
+
+
+def _thin_plan(base: BaseFit, scores: Scores) -> list[str]:
+    """Why the fit runs cannot rule a missing effect out, whatever their chi^2 (empty: they can): fewer than
+    MIN_FIT_RUNS runs, one speed (within SPEED_SPREAD), or fewer than MIN_DOF degrees of freedom. An effect's
+    signature is how the response changes with speed and unbalance; with too few, the base's parameters (a bow
+    per run, k_b) absorb it."""
+    rpm = np.array([d.rpm for d in base.data])
+    why = []
+    if len(rpm) < MIN_FIT_RUNS:
+        why.append(f"only {len(rpm)} fit run{'s' if len(rpm) > 1 else ''}")
+    elif rpm.max() - rpm.min() <= SPEED_SPREAD * rpm.max():
+        why.append(f"every fit run at one speed ({rpm.min():.0f}-{rpm.max():.0f} RPM)")
+    if scores.base_dof < MIN_DOF:
+        why.append(f"only {scores.base_dof} degrees of freedom")
+    return why
 
 
 def settings(config: Mapping) -> dict:

@@ -47,6 +47,9 @@ class BaseFit:
     theta: Array
     data: list[RunData]
     harmonics: int
+    #: the fit's parameters the data left undetermined (not identifiable, or at a range edge), each with why:
+    #: where a missing effect can hide (the diagnosis then cannot rule one out)
+    undetermined: tuple[str, ...] = ()
 
     @property
     def X(self) -> Array:
@@ -68,7 +71,19 @@ class BaseFit:
         if theta is None:
             raise ValueError("the parameter table lacks an entry or has a non-finite estimate: the fit failed, "
                              "nothing to diagnose")
-        return cls(variant, layout, theta, list(data), harmonics)
+        return cls(variant, layout, theta, list(data), harmonics, undetermined_parameters(fitted))
+
+
+def undetermined_parameters(table: pd.DataFrame) -> tuple[str, ...]:
+    """Each physical or per-run parameter of a parameter table (``Identification.table``, phases left out) that
+    its fit left undetermined: "k_b (not identifiable)", "zeta_s (at a range edge)", once per parameter."""
+    out: dict[str, str] = {}
+    for row in table[table["kind"] != "nuisance"].itertuples():
+        why = [text for flag, text in (("identifiable", "not identifiable"), ("at_bound", "at a range edge"))
+               if flag in table and (str(getattr(row, flag)).lower() in ("true", "1")) != (flag == "identifiable")]
+        if why and row.parameter not in out:
+            out[row.parameter] = f"{row.parameter} ({', '.join(why)})"
+    return tuple(out.values())
 
 
 def extend(variant: Variant, candidates: Sequence[Candidate], ranges: Mapping[str, tuple[float, float]] | None = None
