@@ -551,3 +551,24 @@ def test_whitebox_sweep_figure_has_a_panel_per_harmonic_it_can_draw(harmonics, p
     assert [ax.get_title() for ax in fig.axes if ax.get_visible()] == panels
     assert all(ax.lines for ax in fig.axes)
     report.plt.close(fig)
+
+
+def test_error_map_without_validation_runs_says_so_and_draws_no_empty_legend_entry():
+    """A plan with fit runs only: the title says 'no validation run' (it printed 'validation runs nan (error nan
+    %)') and the legend of the speed panel has no validation entry (probe)."""
+    errors = _errors({"a": 1.1, "b": 2.0, "c": 0.9}, beyond={"b"}, validation=())
+    fig = report.plot_error_map(errors, "fit only")
+    assert "no validation run" in fig._suptitle.get_text() and "nan" not in fig._suptitle.get_text()
+    assert "validation" not in [t.get_text() for t in fig.axes[1].get_legend().get_texts()]  # the speed panel
+    report.plt.close(fig)
+    with_v = report.plot_error_map(_errors({"a": 1.1, "v": 3.0}, beyond=set()), "with one")
+    assert "validation runs 3" in with_v._suptitle.get_text()
+    report.plt.close(with_v)
+
+
+def test_first_page_counts_one_run_in_the_singular():
+    errors = {"one": _errors({"a": 1.0}, beyond=set(), validation=())}
+    ledger = report.ledger_table([report.ledger_row("one", "", {"n_data": 12, "dof": 6, "chi2": 6.0},
+                                                    errors["one"])])
+    page = summary.landing_rst(summary.summary_table(ledger, errors, {}, {"one": {"effects": []}}), errors)
+    assert "on its 1 fit run (1 = the noise floor)" in page

@@ -550,8 +550,9 @@ def plot_error_map(errors: pd.DataFrame, variant: str) -> plt.Figure:
         sub = sub.sort_values("rpm")
         ax_speed.plot(sub["rpm"], sub["chi2_dof"], "o-", color=colours[mass], label=f"{mass:g} g")
     val = errors[errors["role"] == "validate"]
-    ax_speed.plot(val["rpm"], val["chi2_dof"], ls="none", mfc="none", label="validation",
-                  **{k: VALIDATION_STYLE[k] for k in ("marker", "color", "ms")})
+    if len(val):
+        ax_speed.plot(val["rpm"], val["chi2_dof"], ls="none", mfc="none", label="validation",
+                      **{k: VALIDATION_STYLE[k] for k in ("marker", "color", "ms")})
     ax_speed.axhline(NOISE_FLOOR, color="g", lw=1.5, label="noise floor")
     ax_speed.set_yscale("log")
     ax_speed.set_xlabel("speed [RPM]")
@@ -560,9 +561,10 @@ def plot_error_map(errors: pd.DataFrame, variant: str) -> plt.Figure:
     ax_speed.grid(alpha=0.3, which="both")
     ax_speed.legend(fontsize=7)
     fit, val_pooled = pooled(errors[errors["role"] == "fit"]), pooled(val)
+    validation = (f"validation runs {val_pooled['chi2_dof']:.3g} (error {val_pooled['error_pct']:.2g} %)"
+                  if len(val) else "no validation run")
     fig.suptitle(f"variant {variant}: where the model fails. Fit runs chi^2/dof = {fit['chi2_dof']:.3g} "
-                 f"(error {fit['error_pct']:.2g} %); validation runs {val_pooled['chi2_dof']:.3g} "
-                 f"(error {val_pooled['error_pct']:.2g} %)", fontsize=10)
+                 f"(error {fit['error_pct']:.2g} %); {validation}", fontsize=10)
     fig.tight_layout()
     return fig
 

@@ -212,6 +212,10 @@ def _list_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
     return "\n".join(lines)
 
 
+def _runs(n: int, role: str) -> str:
+    return f"{n} {role} run{'' if n == 1 else 's'}"
+
+
 def _headline(summary: pd.DataFrame) -> str:
     best = best_variant(summary)
     p = float(best["p_value"])
@@ -219,10 +223,10 @@ def _headline(summary: pd.DataFrame) -> str:
             else f"beyond the noise ({_p_value(p)}): the model still misses something")
     which = f"Best of the {len(summary)} variants** (lowest BIC)" if len(summary) > 1 else "The only variant**"
     text = (f"**{which}: **{_text(best['variant'])}**, chi^2/dof "
-            f"{_number(best['chi2_dof'])} on its {int(best['fit_runs'])} fit runs (1 = the noise floor), {fits}")
+            f"{_number(best['chi2_dof'])} on its {_runs(int(best['fit_runs']), 'fit')} (1 = the noise floor), {fits}")
     if best["validation_runs"]:
         n = int(best["validation_runs"])
-        text += (f"; {_number(best['validation_chi2_dof'])} on its {n} validation run{'s' if n > 1 else ''} "
+        text += (f"; {_number(best['validation_chi2_dof'])} on its {_runs(n, 'validation')} "
                  f"(predicted, never fitted), {int(best['validation_runs_beyond_noise'])} beyond the noise")
     return text + "."
 
