@@ -39,7 +39,9 @@ for path in smk.input.libraries:
         row = val.predict_run(model, data, values, error)
         predictions.append(val.PredictedRun.from_prediction(row, name, data.channels))
         row.pop("fitted")
-        row.update({"model": name, **{f"{p}_used": v for p, v in values.items()}, "note": "ok"})
+        outside = row["outside_range"]  # predicted at the range's edge: the values' law left the range there
+        note = f"{outside} beyond its range: predicted at the range's edge" if outside else "ok"
+        row.update({"model": name, **{f"{p}_used": v for p, v in values.items()}, "note": note})
         rows.append(row)
         log.info("%s (%s): relative error %.3g, chi^2 per residual %.3g", data.run, name, row["error_rel"],
                  row["chi2_per_residual"])

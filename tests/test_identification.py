@@ -541,3 +541,32 @@ def test_solver_model_answers_nan_for_a_nan_parameter_set():
         M, dM = model.evaluate(x, jacobian=jacobian)
         assert np.isfinite(M[0]).all() and np.isnan(M[1]).all()
     assert np.isfinite(dM[0]).all() and np.isnan(dM[1]).all()
+
+
+def test_the_bow_law_uses_only_the_terms_the_fit_runs_vary():
+    """q = c0 + c1 Omega^2 + c2 Omega^2 m_e (eq. 35-37, first order), fitted on per-run bows made by that law
+    exactly (the reference): with runs over speeds and masses every term is recovered and a validation run is
+    predicted exactly; with every run at one speed the speed term is not fitted (c1 = 0: the runs never varied
+    it; before, the least-squares split of two nearly collinear columns doubled the bow at 900 RPM), the runs
+    themselves still predicted exactly; with one mass the unbalance term is 0; with one run the mean."""
+    c_true = np.array([1.5e-3, 7e-8, -1.5e-6])
+
+    def table(rpm, mass_g):
+        o2 = (np.asarray(rpm, float) * 2 * np.pi / 60) ** 2
+        q = c_true[0] + c_true[1] * o2 + c_true[2] * o2 * np.asarray(mass_g, float) * 1e-3
+        return pd.DataFrame({"rpm": rpm, "eccentric_mass_g": mass_g, "value": q, "stderr": 1e-5})
+
+    full = table([400, 600, 800, 500, 700, 900], [25.9, 25.9, 25.9, 14.8, 14.8, 0.0])
+    coef, predict = val.bow_law(full, "q_x")
+    np.testing.assert_allclose(coef, c_true, rtol=1e-6)
+    assert float(predict(750.0, 20.0)) == pytest.approx(float(table([750.0], [20.0])["value"].iloc[0]), rel=1e-9)
+    one_speed = table([600.0, 600.5, 599.5, 600.0], [0.0, 7.0, 14.8, 25.9])
+    coef, predict = val.bow_law(one_speed, "q_x")
+    assert coef[1] == 0 and coef[2] != 0
+    np.testing.assert_allclose(predict(one_speed["rpm"], one_speed["eccentric_mass_g"]), one_speed["value"],
+                               rtol=1e-3)  # the runs' own bows, but for the speed term over their 0.2 % spread
+    # of speed (c1 Omega^2 is 18 % of q; 0.33 % of Omega^2 of it: 6e-4 of q at most), which is not fitted
+    coef, _ = val.bow_law(table([400, 600, 800, 1000], [14.8] * 4), "q_x")
+    assert coef[2] == 0 and coef[1] != 0
+    coef, predict = val.bow_law(table([600.0], [14.8]), "q_x")
+    assert coef[1] == coef[2] == 0 and float(predict(900.0, 20.0)) == pytest.approx(coef[0])

@@ -28,24 +28,42 @@ def bow_law(table: pd.DataFrame, parameter: str, law: str = "law"
 
     law "law": weighted least squares of q = c0 + c1 Omega^2 + c2 Omega^2 m_e (the
     first-order form of the paper's eq. 35-37: bow grows with speed, and with the
-    unbalance when there is one); "mean": the weighted mean. Needs rows with
-    rpm, eccentric_mass_g, value, stderr. Returns (coefficients, predict(rpm, mass_g)).
+    unbalance when there is one), with the terms the runs can determine only: the
+    speed term when their Omega^2 span LAW_SPREAD of its largest, the unbalance
+    term when their masses do (fit runs at one speed, or at one mass, made
+    the law extrapolate along a direction they never varied: a validation run at
+    900 RPM from runs at 600 RPM got twice the fitted bows), and a run more than
+    the terms; else (and "mean") the weighted mean. The coefficients of the
+    terms not used are 0. Needs rows with rpm, eccentric_mass_g, value, stderr.
+    Returns (coefficients c0, c1, c2, predict(rpm, mass_g)).
     """
     omega2 = (np.asarray(table["rpm"], float) * 2 * np.pi / 60) ** 2
     mass = np.asarray(table["eccentric_mass_g"], float) * 1e-3
     stderr = np.asarray(table["stderr"], float)
     w = 1.0 / np.where(np.isfinite(stderr) & (stderr > 0), stderr, np.nanmax(np.append(stderr, 1.0))) ** 2
     y = np.asarray(table["value"], float)
-    if law == "law" and len(y) >= 4:
-        A = np.column_stack([np.ones_like(omega2), omega2, omega2 * mass])
-        coef = np.linalg.lstsq(A * np.sqrt(w)[:, None], y * np.sqrt(w), rcond=None)[0]
+    terms = [np.ones_like(omega2), omega2, omega2 * mass]
+    used = [0] + [k for k, varied in ((1, omega2), (2, mass)) if _spans(varied)]
+    coef = np.zeros(3)
+    if law == "law" and len(used) > 1 and len(y) >= max(4, len(used) + 1):
+        A = np.column_stack([terms[k] for k in used])
+        coef[used] = np.linalg.lstsq(A * np.sqrt(w)[:, None], y * np.sqrt(w), rcond=None)[0]
+    else:
+        coef[0] = float((w * y).sum() / w.sum())
 
-        def predict(rpm: Array, mass_g: Array) -> Array:
-            o2 = (np.asarray(rpm, float) * 2 * np.pi / 60) ** 2
-            return coef[0] + coef[1] * o2 + coef[2] * o2 * np.asarray(mass_g, float) * 1e-3
-        return coef, predict
-    mean = float((w * y).sum() / w.sum())
-    return np.array([mean]), lambda rpm, mass_g: np.full(np.shape(rpm), mean)
+    def predict(rpm: Array, mass_g: Array) -> Array:
+        o2 = (np.asarray(rpm, float) * 2 * np.pi / 60) ** 2
+        return coef[0] + coef[1] * o2 + coef[2] * o2 * np.asarray(mass_g, float) * 1e-3
+    return coef, predict
+
+
+#: a bow-law term is fitted when the runs' values of it span at least this fraction of the largest (``bow_law``)
+LAW_SPREAD = 0.1
+
+
+def _spans(values: Array) -> bool:
+    top = float(np.max(np.abs(values), initial=0.0))
+    return top > 0 and float(np.ptp(values)) >= LAW_SPREAD * top
 
 
 def _with_dc(z: Array, fill: float = 0.0) -> Array:
