@@ -212,6 +212,19 @@ def test_drift_test_recovers_a_slope_and_flags_a_drift():
     assert report.drift_test(5 + step + 0.05 * rng.standard_normal(13), np.full(13, 0.05), rpm)["drifts"]
 
 
+def test_drift_test_reads_no_slope_into_runs_at_one_speed():
+    """Runs all at about 600 RPM (refined speeds 598.9-601.0, masses differing): no slope is tested (there is no
+    speed to slope along: the probe's k_b 'slope' of -387 +- 153 per RPM, p = 0.011, was noise over 2 RPM); the
+    constancy test still is. The same values over 400-1000 RPM: the slope is tested."""
+    rpm = np.array([598.9, 600.2, 601.0, 599.6])
+    value = np.array([3.0, 2.6, 2.4, 2.8])
+    one_speed = report.drift_test(value, np.full(4, 0.3), rpm)
+    assert np.isnan(one_speed["slope_per_rpm"]) and np.isnan(one_speed["slope_p_value"])
+    assert np.isfinite(one_speed["p_value"]) and not one_speed["drifts"]
+    spread = report.drift_test(value, np.full(4, 0.3), np.array([400.0, 600.0, 1000.0, 800.0]))
+    assert np.isfinite(spread["slope_per_rpm"]) and np.isfinite(spread["slope_p_value"])
+
+
 def test_drift_test_false_alarm_rate_on_constants_with_noise():
     """Constants with Gaussian noise of the stated sigma: flagged at most ALPHA of the time (Bonferroni over the
     two tests, so between ALPHA / 2 and ALPHA); 4000 series, bounds at 3 binomial standard deviations."""

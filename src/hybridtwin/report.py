@@ -265,6 +265,10 @@ def waveform_noise(sigma: Array) -> Array:
 # --- drift of the per-run estimates -----------------------------------------------------
 
 
+#: the per-run estimates' slope along speed is tested only when their runs' speeds span this fraction of the fastest
+SLOPE_SPEED_SPREAD = 0.05
+
+
 def drift_test(value: Array, sigma: Array, rpm: Array, alpha: float = ALPHA) -> dict[str, float | bool]:
     """Do the estimates v (n,) with uncertainties s (n,) at speeds rpm (n,) share one value? (module docstring)
 
@@ -280,11 +284,14 @@ def drift_test(value: Array, sigma: Array, rpm: Array, alpha: float = ALPHA) -> 
     dof = v.size - 1
     p = float(stats.chi2.sf(chi2, dof)) if dof > 0 else math.nan
     centre = (w * x).sum() / w.sum()
-    sxx = float((w * (x - centre) ** 2).sum())
+    # a slope along speed needs speeds to slope along: runs within SLOPE_SPEED_SPREAD of one speed have none (a
+    # "slope" over their 0.3 % of refined speed is noise read as a trend)
+    spread = float(np.ptp(x)) >= SLOPE_SPEED_SPREAD * float(np.max(np.abs(x), initial=0.0))
+    sxx = float((w * (x - centre) ** 2).sum()) if spread else 0.0
     slope = float((w * (x - centre) * (v - mean)).sum() / sxx) if sxx > 0 else math.nan
     slope_stderr = 1.0 / math.sqrt(sxx) if sxx > 0 else math.nan
     t = slope / slope_stderr
-    p_slope = float(2.0 * stats.norm.sf(abs(t))) if v.size > 2 else math.nan
+    p_slope = float(2.0 * stats.norm.sf(abs(t))) if v.size > 2 and math.isfinite(t) else math.nan
     drifts = bool(np.nanmin([p, p_slope, 1.0]) < 0.5 * alpha)
     return {"weighted_mean": mean, "weighted_mean_stderr": float(1.0 / math.sqrt(w.sum())), "chi2": chi2,
             "dof": dof, "chi2_dof": chi2 / dof if dof > 0 else math.nan, "p_value": p, "slope_per_rpm": slope,
@@ -626,8 +633,9 @@ def _drift_title(stat: Any) -> str:
     if not np.isfinite(stat.chi2_dof):
         return f"{stat.parameter}: {stat.verdict}"
     flag = "  DRIFTS" if stat.flagged else ("  (per run)" if stat.kind != "shared" else "")
-    return (f"{stat.parameter}: chi^2/dof {stat.chi2_dof:.2g} (p {stat.p_value:.2g}), "
-            f"slope t {stat.slope_t:.2g} (p {stat.slope_p_value:.2g}){flag}")
+    slope = (f"slope t {stat.slope_t:.2g} (p {stat.slope_p_value:.2g})" if np.isfinite(stat.slope_p_value)
+             else "no slope (one speed)")
+    return f"{stat.parameter}: chi^2/dof {stat.chi2_dof:.2g} (p {stat.p_value:.2g}), {slope}{flag}"
 
 
 def plot_ledger(ledger: pd.DataFrame, errors: Mapping[str, pd.DataFrame]) -> plt.Figure:
