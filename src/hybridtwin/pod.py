@@ -111,12 +111,13 @@ def pod(features: Array, energy_tolerance: float = 1e-10, max_modes: int | None 
 
 
 def pod_of_runs(snapshots_path: str, out_path: str, shaft: Shaft, sensor_range_m: float,
-                energy_tolerance: float, kept_out: Collection[str] = ()) -> pd.DataFrame:
+                energy_tolerance: float, kept_out: Collection[str] = (), for_libraries: bool = True) -> pd.DataFrame:
     """POD per run of the observable (converged, stable, inside the sensor range) training snapshots.
 
     A run of ``kept_out`` (the data checks kept it out of the fit: its library is never fitted to) whose
     observable snapshots are too few takes every steady one instead, so that the variant's libraries are
-    built; any other run with too few is a ``ThinLibraryError`` (``_check_enough``).
+    built; any other run with too few is a ``ThinLibraryError`` (``_check_enough``). ``for_libraries`` False:
+    the POD alone, which needs 2 snapshots per run (``pod``), no library's minimum.
 
     Writes a zarr v3 group per run (modes, singular_values, usable mask), the store's
     manifest last (``hybridtwin.stores``), and returns the summary table: training
@@ -133,7 +134,8 @@ def pod_of_runs(snapshots_path: str, out_path: str, shaft: Shaft, sensor_range_m
     for r, run in enumerate(snaps.runs):
         if run in thin and run in set(kept_out):
             usable_all[r] = snaps.steady[r]  # not fitted: beyond the sensor range is no reason to leave it out
-    _check_enough(snaps, usable_all, sensor_range_m, kept_out)
+    if for_libraries:
+        _check_enough(snaps, usable_all, sensor_range_m, kept_out)
     store = zarr.open_group(out_path, mode="w")
     rows = []
     first_design, solved = snaps.design == "hypercube", snaps.solved
