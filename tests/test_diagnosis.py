@@ -123,6 +123,9 @@ def test_hidden_slope_force_is_ranked_first_and_confirmed(slope_base):
     assert Variant.from_spec(recommended["name"], recommended["spec"]).unknown_names[-1] in table.loc[0, "parameters"]
     markdown = dgr.markdown(result)
     assert result.conclusion in markdown and "| rank |" in markdown
+    # candidates not refitted have no confirmed chi^2/dof or Delta BIC: blank cells, never "nan"
+    assert table["confirmed_chi2_dof"].isna().any() and "nan" not in markdown
+    assert f"{len(result.summary['runs'])} fit runs, " in markdown
     dgr.plot(result)
 
 

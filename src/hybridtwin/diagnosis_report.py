@@ -3,6 +3,8 @@ fingerprint, candidates) and a figure; the paper's sparse route side by side."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pandas as pd
 from scipy import stats
@@ -45,6 +47,14 @@ def _sparse_markdown(sparse: pd.DataFrame, name: str) -> str:
     return "\n".join(lines)
 
 
+def _cell(value) -> str:
+    """A table cell: numbers to 4 digits, blank where there is none (a candidate not refitted has no confirmed
+    chi^2/dof or Delta BIC: the markdown printed "nan")."""
+    if isinstance(value, float):
+        return f"{value:.4g}" if math.isfinite(value) else ""
+    return str(value)
+
+
 def markdown(result: Diagnosis, sparse: pd.DataFrame | None = None, sparse_name: str = "") -> str:
     """The conclusion, the recommendation (config lines), the ranked table and, when given, the paper's route
     (``sparse_route`` of variant ``sparse_name``), as Markdown."""
@@ -53,7 +63,7 @@ def markdown(result: Diagnosis, sparse: pd.DataFrame | None = None, sparse_name:
                "delta_bic", "estimate", "verdict"]
     rows = ["| " + " | ".join(columns) + " |", "|" + "---|" * len(columns)]
     for r in result.table[columns].itertuples(index=False):
-        rows.append("| " + " | ".join(f"{v:.4g}" if isinstance(v, float) else str(v) for v in r) + " |")
+        rows.append("| " + " | ".join(_cell(v) for v in r) + " |")
     recommendation = f"\n## What to do\n\n{result.recommendation}" if result.recommendation else ""
     if recommendation:
         recommendation = recommendation.replace("\n\n  ", "\n\n```yaml\n  ", 1) + "```\n"
@@ -67,7 +77,8 @@ def markdown(result: Diagnosis, sparse: pd.DataFrame | None = None, sparse_name:
                 "others at the extended fit; it stops when nothing significant is left.\n\n" + "\n".join(steps)
                 + "\n" + _sharing_markdown(s.get("sharing")))
     return (f"# Diagnosis of variant {s['variant']}\n\n"
-            f"{len(s['runs'])} fit runs, {s['n_data']} data; chi^2/dof {s['base_chi2_dof']:.3g} "
+            f"{len(s['runs'])} fit run{'' if len(s['runs']) == 1 else 's'}, {s['n_data']} data; chi^2/dof "
+            f"{s['base_chi2_dof']:.3g} "
             f"(goodness-of-fit p = {s['base_gof_p_value']:.3g}); {len(s['candidates'])} candidates tested, "
             f"{len(s['refitted'])} refitted.\n\n**{result.conclusion}**\n{recommendation}{path}\n"
             + (f"## What the residual looks like\n\n{result.fingerprint.summary()}\n\n"
