@@ -16,16 +16,22 @@ MASSES_G = (20.0, 10.0)
 K_A, C_B = 2.5e7, 600.0  # the "fitted" values, away from the machine's nominal ones (2e7, 500)
 
 
-@pytest.fixture(scope="module")
-def linear():
-    """The stepped rotor's linear variant, a joint table with its two unknowns shared, fit runs at two masses
-    around the critical speeds (~3800-4100 RPM), and the dense response over them (41 speeds)."""
+def _fitted_linear():
+    """The stepped rotor, its linear variant and a joint table with the two unknowns shared at K_A, C_B."""
     machine = stepped_machine()
     fx = machine.effects()
     variant = Variant("linear", Model([fx[e] for e in LINEAR_EFFECTS], machine),
                       {"k_a": (1e7, 4e7), "c_b": (100.0, 1000.0)})
     joint = pd.DataFrame({"parameter": ["k_a", "c_b"], "run": ["all", "all"], "kind": ["shared", "shared"],
                           "value": [K_A, C_B]})
+    return machine, variant, joint
+
+
+@pytest.fixture(scope="module")
+def linear():
+    """The stepped rotor's linear variant, a joint table with its two unknowns shared, fit runs at two masses
+    around the critical speeds (~3800-4100 RPM), and the dense response over them (41 speeds)."""
+    machine, variant, joint = _fitted_linear()
     runs = pd.DataFrame({"run": [f"r{rpm}_m{m:g}" for m in MASSES_G for rpm in (3000, 3900, 4600)],
                          "rpm": [float(rpm) for _ in MASSES_G for rpm in (3000, 3900, 4600)],
                          "eccentric_mass_g": [m for m in MASSES_G for _ in range(3)]})
@@ -166,12 +172,7 @@ def test_the_dense_grid_resolves_the_resonance_peaks():
     speed (1X crossing of the damped whirl frequency) lies within 1 % of the response's peak speed at these
     damping ratios (a few %); the refined curve's peak within 1 % of the true one, the coarse 41-speed grid's
     further (the premise)."""
-    machine = stepped_machine()
-    fx = machine.effects()
-    variant = Variant("linear", Model([fx[e] for e in LINEAR_EFFECTS], machine),
-                      {"k_a": (1e7, 4e7), "c_b": (100.0, 1000.0)})
-    joint = pd.DataFrame({"parameter": ["k_a", "c_b"], "run": ["all", "all"], "kind": ["shared", "shared"],
-                          "value": [K_A, C_B]})
+    machine, variant, joint = _fitted_linear()
     runs = pd.DataFrame({"run": ["r6000", "r7800"], "rpm": [6000.0, 7800.0], "eccentric_mass_g": [20.0, 20.0]})
     coarse = rp.dense_speeds(runs["rpm"], 41)
     fine = np.linspace(coarse[0], coarse[-1], 4001)
