@@ -52,6 +52,7 @@ from .candidates import Candidate
 from .fingerprint import Fingerprint, fingerprint
 from .refit import Confirmation, confirm, shared, without
 from .score_test import BaseFit, Scores, by_score, extend, nested, score_tests
+from .validation import spans
 from .variants import Variant
 
 Array = np.ndarray
@@ -714,7 +715,7 @@ def _thin_plan(base: BaseFit, scores: Scores) -> list[str]:
     why = []
     if len(rpm) < MIN_FIT_RUNS:
         why.append(f"only {len(rpm)} fit run{'s' if len(rpm) > 1 else ''}")
-    elif rpm.max() - rpm.min() <= SPEED_SPREAD * rpm.max():
+    elif not spans(rpm, SPEED_SPREAD):
         why.append(f"every fit run at one speed ({rpm.min():.0f}-{rpm.max():.0f} RPM)")
     if scores.base_dof < MIN_DOF:
         why.append(f"only {scores.base_dof} degrees of freedom")

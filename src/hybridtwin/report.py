@@ -286,8 +286,7 @@ def drift_test(value: Array, sigma: Array, rpm: Array, alpha: float = ALPHA) -> 
     centre = (w * x).sum() / w.sum()
     # a slope along speed needs speeds to slope along: runs within SLOPE_SPEED_SPREAD of one speed have none (a
     # "slope" over their 0.3 % of refined speed is noise read as a trend)
-    spread = float(np.ptp(x)) >= SLOPE_SPEED_SPREAD * float(np.max(np.abs(x), initial=0.0))
-    sxx = float((w * (x - centre) ** 2).sum()) if spread else 0.0
+    sxx = float((w * (x - centre) ** 2).sum()) if val.spans(x, SLOPE_SPEED_SPREAD) else 0.0
     slope = float((w * (x - centre) * (v - mean)).sum() / sxx) if sxx > 0 else math.nan
     slope_stderr = 1.0 / math.sqrt(sxx) if sxx > 0 else math.nan
     t = slope / slope_stderr

@@ -43,7 +43,7 @@ def bow_law(table: pd.DataFrame, parameter: str, law: str = "law"
     w = 1.0 / np.where(np.isfinite(stderr) & (stderr > 0), stderr, np.nanmax(np.append(stderr, 1.0))) ** 2
     y = np.asarray(table["value"], float)
     terms = [np.ones_like(omega2), omega2, omega2 * mass]
-    used = [0] + [k for k, varied in ((1, omega2), (2, mass)) if _spans(varied)]
+    used = [0] + [k for k, varied in ((1, omega2), (2, mass)) if spans(varied, LAW_SPREAD)]
     coef = np.zeros(3)
     if law == "law" and len(used) > 1 and len(y) >= max(4, len(used) + 1):
         A = np.column_stack([terms[k] for k in used])
@@ -61,9 +61,12 @@ def bow_law(table: pd.DataFrame, parameter: str, law: str = "law"
 LAW_SPREAD = 0.1
 
 
-def _spans(values: Array) -> bool:
+def spans(values: Array, fraction: float) -> bool:
+    """Whether the runs' ``values`` (speeds, Omega^2, masses) span at least ``fraction`` of the largest: what a
+    law along them (the bow law), a slope (the drift test) or a diagnosis needs; all at one value do not."""
+    values = np.asarray(values, float)
     top = float(np.max(np.abs(values), initial=0.0))
-    return top > 0 and float(np.ptp(values)) >= LAW_SPREAD * top
+    return top > 0 and float(np.ptp(values)) >= fraction * top
 
 
 def _with_dc(z: Array, fill: float = 0.0) -> Array:
