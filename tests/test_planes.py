@@ -52,20 +52,28 @@ def varm_reference() -> dict:
             "jacobian_local": ev.Jl[0].ravel().tolist()}
 
 
+#: How far the VARM path may move across machines (issue 42), measured by running ``varm_reference`` under each
+#: OpenBLAS kernel this machine runs (OPENBLAS_CORETYPE=Haswell, Zen, Prescott) against the reference, written on a
+#: SkylakeX kernel: the record's columns (least squares on the samples) <= 8.7e-10 relative; the residuals <= 3.4e-10
+#: and the Jacobian's local block <= 2.9e-10 of their largest entry (the harmonic-balance solution is converged to
+#: ||r|| <= 1e-10 ||x||, solver.solve's tol, and the kernels move its last iterate within that); the shared block
+#: <= 3.3e-8 of its largest (derivatives of that solution through the near-resonant continuation). Each tolerance
+#: keeps a margin of ~30 over its measured spread; a change of the path itself (a unit, a sign, a harmonic, a
+#: convention, a bow in another place) moves these numbers by 1e-4 to 1.
+KERNEL_SPREAD = {"columns": 3e-8, "residual": 1e-8, "jacobian_local": 1e-8, "jacobian_shared": 1e-6}
+
+
 def test_the_varm_path_is_unchanged():
     """Records of x_mm, y_mm at node 1: the preprocessed row and the identification's residuals and Jacobian are
-    those of the code before the change. The same operations on the same numbers in the same order: equal to
-    round-off; 1e-12 relative allows only a different summation order inside a threaded BLAS. The Jacobian's
-    entries are compared to 1e-12 of its largest: the sensitivities sum dK Q, dC Q, dM Q in another order since
-    d2c6104, which moves the entries that are round-off themselves (~1e-13 against ~1e3) and nothing else."""
+    those of the code before the change, to the spread that BLAS kernels of other CPUs give (KERNEL_SPREAD)."""
     reference = json.loads(REFERENCE.read_text())
     now = varm_reference()
     assert list(now["columns"]) == list(reference["columns"])  # same columns, same order
     for key in ("residual", "jacobian_shared", "jacobian_local"):
-        scale = 0.0 if key == "residual" else 1e-12 * np.abs(reference[key]).max()
-        np.testing.assert_allclose(now[key], reference[key], rtol=1e-12, atol=scale, err_msg=key)
+        scale = KERNEL_SPREAD[key] * np.abs(reference[key]).max()
+        np.testing.assert_allclose(now[key], reference[key], rtol=0, atol=scale, err_msg=key)
     got, want = np.array(list(now["columns"].values())), np.array(list(reference["columns"].values()))
-    np.testing.assert_allclose(got, want, rtol=1e-12, atol=0, equal_nan=True)
+    np.testing.assert_allclose(got, want, rtol=KERNEL_SPREAD["columns"], atol=0, equal_nan=True)
 
 
 def _machine(sensors=TWO_PLANES):
