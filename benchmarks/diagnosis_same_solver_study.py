@@ -52,15 +52,15 @@ import pandas as pd
 from scipy import optimize, stats
 from threadpoolctl import threadpool_limits
 
-from hybridtwin import diagnosis as dg
-from hybridtwin import forward as fwd
-from hybridtwin import identification as idn
-from hybridtwin import lm
-from hybridtwin import score_test as st
-from hybridtwin import uncertainty as unc
-from hybridtwin.candidates import builtin_candidates
-from hybridtwin.protocol import ProtocolOptions
-from hybridtwin.variants import BUILTIN_VARIANTS, Variant
+from hybridtwin.diagnose import diagnosis as dg
+from hybridtwin.identify import forward as fwd
+from hybridtwin.identify import identification as idn
+from hybridtwin.identify import lm
+from hybridtwin.diagnose import score_test as st
+from hybridtwin.identify import uncertainty as unc
+from hybridtwin.model.candidates import builtin_candidates
+from hybridtwin.identify.protocol import ProtocolOptions
+from hybridtwin.model.variants import BUILTIN_VARIANTS, Variant
 
 SIGMA = 8e-7  # m per real/imaginary part, the bundled records' (results/data/harmonics.tsv: 6-10e-7)
 RUNS = [("r350_m25p9", 350.0, 25.9), ("r500_m25p9", 500.0, 25.9), ("r650_m25p9", 650.0, 25.9),

@@ -34,17 +34,17 @@ from scipy.optimize import least_squares
 from threadpoolctl import threadpool_limits
 from workflow_run import timed_snakemake
 
-from hybridtwin import forward as fwd
-from hybridtwin import identification as idn
-from hybridtwin import lm
-from hybridtwin import polish as pol
-from hybridtwin.library import Library, build_library, relative_sensor_error
-from hybridtwin.pod import pod, to_features
-from hybridtwin.protocol import ProtocolOptions, random_starts
-from hybridtwin.rig import RigSpec, generate, read_plan
-from hybridtwin.scenarios import default_n_scenarios, sample_scenarios
-from hybridtwin.sensor import observable, sensor_dofs
-from hybridtwin.variants import Variant
+from hybridtwin.identify import forward as fwd
+from hybridtwin.identify import identification as idn
+from hybridtwin.identify import lm
+from hybridtwin.identify import polish as pol
+from hybridtwin.offline.library import Library, build_library, relative_sensor_error
+from hybridtwin.offline.pod import pod, to_features
+from hybridtwin.identify.protocol import ProtocolOptions, random_starts
+from hybridtwin.data.rig import RigSpec, generate, read_plan
+from hybridtwin.offline.scenarios import default_n_scenarios, sample_scenarios
+from hybridtwin.model.sensor import observable, sensor_dofs
+from hybridtwin.model.variants import Variant
 
 ROOT = Path(__file__).resolve().parents[1]
 GEOMETRIC = ["centrifugal_softening", "structural_damping", "upper_housing", "lower_bearing", "unbalance",

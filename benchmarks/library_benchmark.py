@@ -6,7 +6,7 @@ pod.zarr, library/*.zarr) and, on the SAME training / validation / test scenario
 measures:
 
 1. Surrogates, per run: the sPGD library exactly as the workflow builds it
-   (hybridtwin.library.build_library on the run's POD, the config's offline.spgd options) against two
+   (hybridtwin.offline.library.build_library on the run's POD, the config's offline.spgd options) against two
    peers a user would pick, both fitted to the SAME targets, the run's POD coefficients
    alpha = Phi^T q (the sensor response is then Phi_sensor alpha for all three):
    - scikit-learn GaussianProcessRegressor, C * Matern(ARD, nu=2.5) + WhiteKernel, normalize_y=True,
@@ -15,14 +15,14 @@ measures:
      training set;
    - scipy.interpolate.RBFInterpolator, thin-plate spline, degree 1, inputs scaled to [-1, 1], the
      smoothing chosen on the validation set (the sPGD chooses its size on the same set).
-   Metric: hybridtwin.library.relative_sensor_error on the test scenarios (median, p95); fit time;
+   Metric: hybridtwin.offline.library.relative_sensor_error on the test scenarios (median, p95); fit time;
    evaluation time per parameter set in batches of 1000 (sPGD with its exact Jacobian; the peers have
    none, so they are also timed with a forward-difference Jacobian, d + 1 evaluations); the full solver
    (variant.solve at the run's rpm and eccentric mass, batched over the run's test scenarios) per scenario.
    Targets: sPGD error <= 2x the GP's, sPGD evaluation with Jacobian <= 10 us per set, >= 100x faster
    than the full solver.
 2. Library scope: "per run" (the workflow's libraries, one per run) vs "global" (offline.scope: global,
-   hybridtwin.library.build_global_library: ONE sPGD over the unknown parameters plus rpm and eccentric
+   hybridtwin.offline.library.build_global_library: ONE sPGD over the unknown parameters plus rpm and eccentric
    mass, fitted on the stacked snapshots of the fit runs of the runs sheet, POD over all of them, each run
    served by its slice at its operating point), scored on the test scenarios of every run; the validation
    runs (role "validate") are operating points the global library never saw. For those, the per-run scope is also
@@ -54,11 +54,12 @@ import pandas as pd
 import yaml
 
 from hybridtwin import config as cfg
-from hybridtwin import snapshots
-from hybridtwin.library import Library, build_global_library, build_library, mode_scaling_kinks, relative_sensor_error
-from hybridtwin.pod import load_pod, to_features
-from hybridtwin.sensor import observable, sensor_dofs
-from hybridtwin.variants import BUILTIN_VARIANTS, Variant, builtin_variant
+from hybridtwin.offline import snapshots
+from hybridtwin.offline.library import Library, build_global_library, build_library, mode_scaling_kinks, relative_sensor_error
+from hybridtwin.offline.pod import load_pod, to_features
+from hybridtwin.model.sensor import observable, sensor_dofs
+from hybridtwin.model.variants import BUILTIN_VARIANTS, Variant, builtin_variant
+from hybridtwin.solvers.solver import solve_variant
 
 DEFAULT_RPMS = (350, 700, 850, 900, 950)  # the default subset: a representative spread of speeds
 BATCH = 1000  # parameter sets per evaluation batch
@@ -228,7 +229,7 @@ def solve_full(setup: Setup, rpm: float, mass_g: float, values: np.ndarray):
     overrides["m_e"] = np.full(values.shape[0], mass_g * 1e-3)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return setup.variant.solve(rpm, overrides, harmonics=setup.n_harmonics - 1)
+        return solve_variant(setup.variant, rpm, overrides, harmonics=setup.n_harmonics - 1)
 
 
 def best_time(function, repeats: int) -> float:
@@ -480,7 +481,7 @@ def scope_comparison(setup: Setup, args) -> dict:
     if args.global_max_terms:
         options["max_terms"] = args.global_max_terms
     snaps = snapshots.load(setup.store)
-    print("  global library: fitting (hybridtwin.library.build_global_library, as offline.scope: global) ...",
+    print("  global library: fitting (hybridtwin.offline.library.build_global_library, as offline.scope: global) ...",
           flush=True)
     with Clock() as fit_clock:
         glib = build_global_library(snaps, fit_runs, setup.lower, setup.upper, setup.shaft, setup.sensor_range_m,

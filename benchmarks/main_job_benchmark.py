@@ -181,9 +181,9 @@ def protocol_comparison(folder: Path, variant_name: str, runs: list[str]) -> pd.
     from dataclasses import replace
 
     import yaml
-    from hybridtwin import forward as fwd
-    from hybridtwin import identification as idn
-    from hybridtwin.library import Library
+    from hybridtwin.identify import forward as fwd
+    from hybridtwin.identify import identification as idn
+    from hybridtwin.offline.library import Library
 
     config = yaml.safe_load((folder / "config" / "config.yaml").read_text())
     options = idn.settings(config, variant_name)
@@ -213,9 +213,9 @@ def joint_comparison(folder: Path, variant_name: str) -> dict:
     import yaml
 
     from hybridtwin import config as cfg
-    from hybridtwin import identification as idn
-    from hybridtwin.library import Library
-    from hybridtwin.run_fits import fit_joint
+    from hybridtwin.identify import identification as idn
+    from hybridtwin.offline.library import Library
+    from hybridtwin.identify.run_fits import fit_joint
 
     config = yaml.safe_load((folder / "config" / "config.yaml").read_text())
     variant = cfg.variant(config, variant_name, folder / "config")
@@ -246,7 +246,7 @@ _SOLVE = """
 import pickle, sys, time
 import pandas as pd, yaml
 from hybridtwin import config as cfg
-from hybridtwin.scenarios import solve_runs
+from hybridtwin.offline.scenarios import solve_runs
 folder, variant_name, n, out = sys.argv[1], sys.argv[2], int(sys.argv[3]), sys.argv[4]
 config = yaml.safe_load(open(f"{folder}/config/config.yaml"))
 variant = cfg.variant(config, variant_name, __import__("pathlib").Path(folder) / "config")
@@ -295,7 +295,7 @@ def results_comparison(old: Path, new: Path) -> None:
     diagnosis recommends the same effects (diagnosis.yaml) and says so in the same words."""
     import yaml
 
-    from hybridtwin.identification import read_parameters
+    from hybridtwin.identify.identification import read_parameters
 
     ledgers = [pd.read_csv(folder / "results" / "ledger.tsv", sep="\t") for folder in (old, new)]
     numeric = [c for c in ledgers[0].columns if pd.api.types.is_numeric_dtype(ledgers[0][c])]
@@ -329,7 +329,7 @@ def library_and_protocol_change(old: Path, new: Path, variant: str) -> str:
     of each run's median and 95th percentile, and the largest per-run ratio new/old), and how far the paper's
     per-run protocol moved (runs/*/parameters.tsv: every per-run estimate's change over its old Monte Carlo
     spread; median, 90th percentile, largest)."""
-    from hybridtwin.identification import read_parameters
+    from hybridtwin.identify.identification import read_parameters
 
     errors = [pd.read_csv(folder / "results" / variant / "library_validation.tsv", sep="\t").set_index("run")
               for folder in (old, new)]

@@ -27,9 +27,9 @@ import numpy as np
 import pandas as pd
 from threadpoolctl import threadpool_limits
 
-from hybridtwin.forward import SolverModel, run_up
-from hybridtwin.solver import sensitivity
-from hybridtwin.variants import builtin_variant
+from hybridtwin.identify.forward import SolverModel, run_up
+from hybridtwin.solvers.solver import sensitivity
+from hybridtwin.model.variants import builtin_variant
 
 ROOT = Path(__file__).resolve().parents[1]
 

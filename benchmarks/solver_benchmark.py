@@ -9,7 +9,7 @@ Draws Latin-hypercube scenarios of the Geometric model over its unknown ranges
    rate and the failures grouped by reason (``SteadyState.message`` with its
    numbers masked), with BLAS limited to 1 thread and with the default;
 2. for a sample of converged scenarios, integrates eq. 29 in time from rest
-   (``hybridtwin.transient``, Radau) until the node-1 response (x = u1, y = v1)
+   (``hybridtwin.solvers.transient``, Radau) until the node-1 response (x = u1, y = v1)
    agrees with the HB steady state to the target accuracy (max abs error over
    a period / max amplitude <= 1e-4, as in tests/test_transient.py), sustained
    over 3 periods, and reports the wall time that took and the ratio to the HB
@@ -42,8 +42,8 @@ import numpy as np
 from scipy.stats import qmc
 
 from hybridtwin import solve
-from hybridtwin import transient as tr
-from hybridtwin.variants import builtin_variant
+from hybridtwin.solvers import transient as tr
+from hybridtwin.model.variants import builtin_variant
 
 try:
     from threadpoolctl import threadpool_info, threadpool_limits

@@ -38,12 +38,13 @@ from numpy.polynomial import chebyshev
 from threadpoolctl import threadpool_limits
 
 from hybridtwin import config as cfg
-from hybridtwin.library import build_library, relative_sensor_error
-from hybridtwin.model import Model
-from hybridtwin.pod import pod, to_features
-from hybridtwin.scenarios import sample_scenarios
-from hybridtwin.sensor import observable, sensor_dofs
-from hybridtwin.variants import Variant, builtin_variant
+from hybridtwin.offline.library import build_library, relative_sensor_error
+from hybridtwin.model.model import Model
+from hybridtwin.offline.pod import pod, to_features
+from hybridtwin.offline.scenarios import sample_scenarios
+from hybridtwin.model.sensor import observable, sensor_dofs
+from hybridtwin.model.variants import Variant, builtin_variant
+from hybridtwin.solvers.solver import solve_variant
 
 ROOT = Path(__file__).resolve().parents[1]
 UNBALANCE_NODE = 5  # the node nearest z_me, where the eccentric mass sits
@@ -84,7 +85,7 @@ def chebyshev_decay(variant: Variant, rpm: float, mass_g: float, degree: int = 2
         overrides = {k: values[:, i] for i, k in enumerate(names)} | {"m_e": np.full(points, mass_g * 1e-3)}
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            result = variant.solve(rpm, overrides, harmonics=5)
+            result = solve_variant(variant, rpm, overrides, harmonics=5)
         u = result.harmonics[:, 1, sensor_dofs(variant.model.shaft)[0]]
         c = chebyshev.chebfit(x, np.c_[u.real, u.imag], degree)
         decay = np.abs(c).max(axis=1) / np.abs(u).max()
@@ -103,7 +104,7 @@ def surrogate_errors(variant: Variant, rpm: float, mass_g: float, n: int, seed: 
     overrides = {k: values[:, i] for i, k in enumerate(names)} | {"m_e": np.full(len(table), mass_g * 1e-3)}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        result = variant.solve(rpm, overrides, harmonics=5)
+        result = solve_variant(variant, rpm, overrides, harmonics=5)
     shaft = variant.model.shaft
     usable = result.success & observable(result.harmonics, shaft, 14e-3)
     split = table["split"].to_numpy()

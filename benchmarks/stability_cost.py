@@ -1,4 +1,4 @@
-"""Extra cost of the stability check (Floquet multipliers, ``hybridtwin.floquet``) in the chunk jobs' solver call.
+"""Extra cost of the stability check (Floquet multipliers, ``hybridtwin.solvers.floquet``) in the chunk jobs' solver call.
 
     python benchmarks/stability_cost.py [--variant geometric] [--scenarios 64] [--repeats 2]
 
@@ -20,7 +20,7 @@ import yaml
 from threadpoolctl import threadpool_limits
 
 from hybridtwin import config as cfg
-from hybridtwin import scenarios
+from hybridtwin.offline import scenarios
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -9,8 +9,8 @@ import warnings
 
 from snakemake.utils import validate
 
-from hybridtwin.measurements import DataError, DataWarning, read_runs
-from hybridtwin.preprocessing import check_data, has_usable_fit_run, write_tsv
+from hybridtwin.data.measurements import DataError, DataWarning, read_runs
+from hybridtwin.data.preprocessing import check_data, has_usable_fit_run, write_tsv
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 logging.basicConfig(filename=smk.log[0], level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s")

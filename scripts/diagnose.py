@@ -5,11 +5,11 @@ import pandas as pd
 import yaml
 
 from hybridtwin import config as cfg
-from hybridtwin import diagnosis as dg
-from hybridtwin import diagnosis_report as dgr
-from hybridtwin import identification as idn
-from hybridtwin import score_test as st
-from hybridtwin.candidates import candidates_for
+from hybridtwin.diagnose import diagnosis as dg
+from hybridtwin.diagnose import diagnosis_report as dgr
+from hybridtwin.identify import identification as idn
+from hybridtwin.diagnose import score_test as st
+from hybridtwin.model.candidates import candidates_for
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "diagnose")

@@ -1,7 +1,7 @@
 """Rule gather_snapshots: chunks -> one snapshot store, failures listed (thin wrapper).
 
 A chunk store that fails its manifest check (a file missing, changed or unlisted, or no
-manifest: see hybridtwin.snapshots) is removed and the job fails naming it, so the next
+manifest: see hybridtwin.offline.snapshots) is removed and the job fails naming it, so the next
 `snakemake` run solves that chunk again instead of gathering zeros.
 """
 
@@ -11,8 +11,8 @@ import sys
 import pandas as pd
 
 from hybridtwin import config as cfg
-from hybridtwin.snapshots import gather
-from hybridtwin.stores import CorruptStoreError
+from hybridtwin.offline.snapshots import gather
+from hybridtwin.offline.stores import CorruptStoreError
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "gather_snapshots")

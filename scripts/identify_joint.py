@@ -1,5 +1,5 @@
 """Rule identify_joint: all fit runs at once, shared physical parameters, per-run ones (thin wrapper of
-hybridtwin.run_fits.fit_joint).
+hybridtwin.identify.run_fits.fit_joint).
 
 The library protocol finds the optimum (random trials + a start from the per-run fits), the full solver
 polishes it when asked (identification: polish: joint), and the per-run fits are gathered into the drift
@@ -12,10 +12,10 @@ import pandas as pd
 import yaml
 
 from hybridtwin import config as cfg
-from hybridtwin import identification as idn
-from hybridtwin import validation as val
-from hybridtwin.library import Library
-from hybridtwin.run_fits import fit_joint, write_fit
+from hybridtwin.identify import identification as idn
+from hybridtwin.identify import validation as val
+from hybridtwin.offline.library import Library
+from hybridtwin.identify.run_fits import fit_joint, write_fit
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "identify_joint")

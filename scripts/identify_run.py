@@ -1,5 +1,5 @@
 """Rule identify_run: every fit run of a variant alone on its library by the paper's protocol, in one job
-(thin wrapper of hybridtwin.run_fits).
+(thin wrapper of hybridtwin.identify.run_fits).
 
 Outputs per run: parameters.tsv (value, normalised, stderr, 95 % interval, at_bound, ...), history.tsv (loss of
 every trial after each iteration, on the measured data), fit.zarr (measured and fitted response). Reads only the
@@ -9,9 +9,9 @@ rule's input, params and output.
 import pandas as pd
 
 from hybridtwin import config as cfg
-from hybridtwin import identification as idn
-from hybridtwin.library import Library
-from hybridtwin.run_fits import fit_run, write_run_fit
+from hybridtwin.identify import identification as idn
+from hybridtwin.offline.library import Library
+from hybridtwin.identify.run_fits import fit_run, write_run_fit
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "identify_run")

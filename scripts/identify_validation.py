@@ -8,10 +8,10 @@ Reads only the rule's input, params and output.
 import pandas as pd
 
 from hybridtwin import config as cfg
-from hybridtwin import forward as fwd
-from hybridtwin import identification as idn
-from hybridtwin import validation as val
-from hybridtwin.library import Library
+from hybridtwin.identify import forward as fwd
+from hybridtwin.identify import identification as idn
+from hybridtwin.identify import validation as val
+from hybridtwin.offline.library import Library
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "predict_validation")

@@ -4,7 +4,7 @@ import pandas as pd
 import yaml
 
 from hybridtwin import config as cfg
-from hybridtwin import report
+from hybridtwin.report import report
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "ledger")

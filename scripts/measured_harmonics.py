@@ -5,7 +5,7 @@ import sys
 
 import pandas as pd
 
-from hybridtwin.preprocessing import write_tsv
+from hybridtwin.data.preprocessing import write_tsv
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 logging.basicConfig(filename=smk.log[0], level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s")

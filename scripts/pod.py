@@ -4,8 +4,8 @@ params and output."""
 import sys
 
 from hybridtwin import config as cfg
-from hybridtwin import measured
-from hybridtwin.pod import ThinLibraryError, pod_of_runs
+from hybridtwin.data import measured
+from hybridtwin.offline.pod import ThinLibraryError, pod_of_runs
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "pod")

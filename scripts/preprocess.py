@@ -9,8 +9,8 @@ import sys
 
 import math
 
-from hybridtwin.measurements import DataError, read_record
-from hybridtwin.preprocessing import preprocess_run, spectrum, write_tsv
+from hybridtwin.data.measurements import DataError, read_record
+from hybridtwin.data.preprocessing import preprocess_run, spectrum, write_tsv
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 logging.basicConfig(filename=smk.log[0], level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s")

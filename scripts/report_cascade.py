@@ -1,13 +1,13 @@
 """Rule report_cascade: the measured full spectra of every run as a cascade (thin wrapper;
-hybridtwin.response_plots.plot_cascade). Reads only the rule's input and output."""
+hybridtwin.report.response_plots.plot_cascade). Reads only the rule's input and output."""
 
 from pathlib import Path
 
 import pandas as pd
 
 from hybridtwin import config as cfg
-from hybridtwin import identification as idn
-from hybridtwin import response_plots as rp
+from hybridtwin.identify import identification as idn
+from hybridtwin.report import response_plots as rp
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "report_cascade")

@@ -9,9 +9,9 @@ import pandas as pd
 import yaml
 
 from hybridtwin import config as cfg
-from hybridtwin import identification as idn
-from hybridtwin import report
-from hybridtwin import validation as val
+from hybridtwin.identify import identification as idn
+from hybridtwin.report import report
+from hybridtwin.identify import validation as val
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "report_harmonics")

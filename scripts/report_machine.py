@@ -1,5 +1,5 @@
 """Rule report_machine: the Campbell diagram (run speeds marked) and the mode shapes of a variant's fitted model on
-the config's machine (thin wrapper; hybridtwin.machine_plots). Reads only the rule's input, params and output.
+the config's machine (thin wrapper; hybridtwin.report.machine_plots). Reads only the rule's input, params and output.
 
 The model's values: the joint fit's estimates, each per-run parameter's median over the runs, the eccentric mass
 the runs' median; the mode shapes at the runs' median speed.
@@ -9,8 +9,8 @@ import numpy as np
 import pandas as pd
 
 from hybridtwin import config as cfg
-from hybridtwin import identification as idn
-from hybridtwin import machine_plots as mp
+from hybridtwin.identify import identification as idn
+from hybridtwin.report import machine_plots as mp
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "report_machine")

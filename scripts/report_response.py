@@ -1,5 +1,5 @@
 """Rule report_response: Bode and polar plots with the fitted model as dense curves by continuation (run-up and
-run-down per eccentric mass) and the measured runs on top (thin wrapper; hybridtwin.response_plots). Reads only
+run-down per eccentric mass) and the measured runs on top (thin wrapper; hybridtwin.report.response_plots). Reads only
 the rule's input, params and output.
 
 The model's values: the joint fit's shared estimates, each per-run parameter (the bow) from its law over the
@@ -9,9 +9,9 @@ fitted runs (identification.validation_bow), as for the validation runs.
 import pandas as pd
 
 from hybridtwin import config as cfg
-from hybridtwin import identification as idn
-from hybridtwin import report
-from hybridtwin import response_plots as rp
+from hybridtwin.identify import identification as idn
+from hybridtwin.report import report
+from hybridtwin.report import response_plots as rp
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "report_response")

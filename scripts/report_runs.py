@@ -5,7 +5,7 @@ from pathlib import Path
 import pandas as pd
 
 from hybridtwin import config as cfg
-from hybridtwin import report
+from hybridtwin.report import report
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "report_runs")

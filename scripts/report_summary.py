@@ -4,8 +4,8 @@ import pandas as pd
 import yaml
 
 from hybridtwin import config as cfg
-from hybridtwin import summary
-from hybridtwin.measured import read_harmonics
+from hybridtwin.report import summary
+from hybridtwin.data.measured import read_harmonics
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "report_summary")

@@ -3,9 +3,9 @@
 import logging
 from pathlib import Path
 
-from hybridtwin.machine import Machine
-from hybridtwin.rig import RigSpec, generate, peak_columns, read_plan
-from hybridtwin.variants import load_effects_file
+from hybridtwin.model.machine import Machine
+from hybridtwin.data.rig import RigSpec, generate, peak_columns, read_plan
+from hybridtwin.model.variants import load_effects_file
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 logging.basicConfig(filename=smk.log[0], level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s")

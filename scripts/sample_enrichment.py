@@ -3,15 +3,15 @@
 Reads the first design's chunk stores (verified against their manifests), finds the runs
 where fewer than offline.enrichment.observable_below of the fitting scenarios are observable,
 and samples offline.enrichment.n_scenarios more per eccentric mass of such runs
-(hybridtwin.scenarios.sample_enrichment). Reads only the rule's input, params and output.
+(hybridtwin.offline.scenarios.sample_enrichment). Reads only the rule's input, params and output.
 """
 
 import pandas as pd
 
 from hybridtwin import config as cfg
-from hybridtwin.scenarios import sample_enrichment
-from hybridtwin.sensor import observable
-from hybridtwin.snapshots import read_chunks
+from hybridtwin.offline.scenarios import sample_enrichment
+from hybridtwin.model.sensor import observable
+from hybridtwin.offline.snapshots import read_chunks
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "sample_enrichment")

@@ -2,7 +2,7 @@
 params and output."""
 
 from hybridtwin import config as cfg
-from hybridtwin.scenarios import sample_scenarios
+from hybridtwin.offline.scenarios import sample_scenarios
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "sample_scenarios")

@@ -7,8 +7,8 @@ import numpy as np
 import pandas as pd
 
 from hybridtwin import config as cfg
-from hybridtwin.scenarios import solve_enrichment
-from hybridtwin.snapshots import write_chunk
+from hybridtwin.offline.scenarios import solve_enrichment
+from hybridtwin.offline.snapshots import write_chunk
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "solve_enrichment")

@@ -2,7 +2,7 @@
 Reads only the rule's input, params and output."""
 
 from hybridtwin import config as cfg
-from hybridtwin.library import build_variant_global_library, pieces_note
+from hybridtwin.offline.library import build_variant_global_library, pieces_note
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "spgd_global")

@@ -2,8 +2,10 @@
 threads (processes), or sliced from the global library (offline.scope) (thin wrapper). Reads only the rule's input,
 params and output."""
 
+from functools import partial
+
 from hybridtwin import config as cfg
-from hybridtwin.library import build_run_libraries, global_run_library, pieces_note
+from hybridtwin.offline.library import build_run_libraries, global_run_library, pieces_note
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "spgd_library")
@@ -15,7 +17,7 @@ if options["scope"] == "global":
         log.info("run %s: the global library at %s (%d POD modes, %d sPGD terms)", run,
                  library.info["operating_point"], library.n_modes, library.model.n_terms)
 else:
-    infos = build_run_libraries(smk.params.model, smk.wildcards.variant, smk.params.runs, smk.input.snapshots,
+    infos = build_run_libraries(partial(cfg.variant, smk.params.model, smk.wildcards.variant), smk.params.runs, smk.input.snapshots,
                                 smk.input.pod, list(smk.output), options["sensor_range_mm"] * 1e-3, options["spgd"],
                                 options["pieces"], workers=smk.threads)
     for run, info in zip(smk.params.runs, infos):

@@ -2,7 +2,7 @@
 input, params and output."""
 
 from hybridtwin import config as cfg
-from hybridtwin.library import Library, validate_libraries
+from hybridtwin.offline.library import Library, validate_libraries
 from hybridtwin.plots import plot_parity
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)

@@ -3,7 +3,7 @@ params and output."""
 
 from hybridtwin import config as cfg
 from hybridtwin.plots import plot_sweep
-from hybridtwin.scenarios import solve_operating_points
+from hybridtwin.offline.scenarios import solve_operating_points
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "whitebox_sweep")

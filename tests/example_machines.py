@@ -6,7 +6,7 @@ Model, no effect, no harmonic balance: the independent path the commands are com
 import numpy as np
 import yaml
 
-from hybridtwin.machine import Bearing, Disk, Machine, Sensor, ShaftSegment, UnbalancePlane
+from hybridtwin.model.machine import Bearing, Disk, Machine, Sensor, ShaftSegment, UnbalancePlane
 
 STEPPED_YAML = """\
 machine:

@@ -27,9 +27,9 @@ import pytest
 
 from hybridtwin.cli import main
 from hybridtwin.config import run_plan
-from hybridtwin.identification import run_data, runs_with_role
-from hybridtwin.measurements import DataError, DataWarning, read_runs, sheet_entry
-from hybridtwin.preprocessing import check_data, preprocess_run
+from hybridtwin.identify.identification import run_data, runs_with_role
+from hybridtwin.data.measurements import DataError, DataWarning, read_runs, sheet_entry
+from hybridtwin.data.preprocessing import check_data, preprocess_run
 
 sys.path.insert(0, str(Path(__file__).parent))
 from test_workflow import SNAKEMAKE, _copy_workflow  # noqa: E402

@@ -1,4 +1,4 @@
-"""Candidate effects at a machine's named bearings, sized to each bearing (src/hybridtwin/bearing_candidates.py):
+"""Candidate effects at a machine's named bearings, sized to each bearing (src/hybridtwin/model/bearing_candidates.py):
 offered by the machine, none on the VARM (its defaults unchanged), their physics against an independent model,
 and the config's use of them (a one-line entry under diagnosis: candidates; the default on a machine of your own).
 """
@@ -10,8 +10,8 @@ import yaml
 from example_machines import STEPPED_YAML
 
 from hybridtwin import config as cfg
-from hybridtwin.machine import Machine
-from hybridtwin.model import Model
+from hybridtwin.model.machine import Machine
+from hybridtwin.model.model import Model
 
 
 def _machine(k_b: float = 1e7) -> Machine:

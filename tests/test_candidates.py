@@ -14,10 +14,11 @@ import scipy.linalg
 import yaml
 
 from hybridtwin import solve
-from hybridtwin.candidates import Candidate, builtin_candidates, candidates_for
-from hybridtwin.effects import builtin_effects
-from hybridtwin.model import rpm_to_rad_s
-from hybridtwin.variants import BASE, BUILTIN_VARIANTS, Variant, load_effects_files
+from hybridtwin.model.candidates import Candidate, builtin_candidates, candidates_for
+from hybridtwin.model.effects import builtin_effects
+from hybridtwin.model.model import rpm_to_rad_s
+from hybridtwin.model.variants import BASE, BUILTIN_VARIANTS, Variant, load_effects_files
+from hybridtwin.solvers.solver import solve_variant
 
 GEOMETRIC = BUILTIN_VARIANTS["geometric"]
 # the bundled data's values (rig.DEFAULT_TRUTH), two scenarios with different masses and speeds
@@ -285,8 +286,8 @@ def test_harmonic_excitation_forces_harmonic_h_only_with_the_direct_solve_amplit
     np.testing.assert_allclose([F[u0].real, F[v0].real], [f_c, f_s], rtol=1e-15)
     np.testing.assert_allclose([(1j * F[u0]).real, (1j * F[v0]).real], [-f_s, f_c], rtol=1e-15)
     assert np.count_nonzero(F) == 2
-    result = variant.solve(rpm, {**LINEAR, **params}, harmonics=5)
-    base = variant.solve(rpm, LINEAR, harmonics=5)
+    result = solve_variant(variant, rpm, {**LINEAR, **params}, harmonics=5)
+    base = solve_variant(variant, rpm, LINEAR, harmonics=5)
     assert result.success.all() and base.success.all()
     others = [k for k in range(6) if k != h]
     np.testing.assert_array_equal(result.harmonics[:, others], base.harmonics[:, others])
@@ -317,10 +318,10 @@ def test_inertial_2x_law_is_the_constant_force_times_omega_squared(rpm):
 
 def test_absent_excitation_leaves_no_harmonic_so_low_H_still_solves():
     variant = _linear("excitation_3x")
-    result = variant.solve(500.0, {**LINEAR, "f3_c": 0.0, "f3_s": 0.0}, harmonics=1)
+    result = solve_variant(variant, 500.0, {**LINEAR, "f3_c": 0.0, "f3_s": 0.0}, harmonics=1)
     assert result.success.all()
     with pytest.raises(ValueError, match="raise H"):
-        variant.solve(500.0, {**LINEAR, "f3_c": 0.1, "f3_s": 0.0}, harmonics=1)
+        solve_variant(variant, 500.0, {**LINEAR, "f3_c": 0.1, "f3_s": 0.0}, harmonics=1)
 
 
 # --- user candidates ---------------------------------------------------------------------
@@ -382,7 +383,7 @@ def test_a_user_candidate_from_an_effects_file(tmp_path):
 
 
 def test_a_user_coupling_excitation_elsewhere_coexists_with_the_builtin_one():
-    from hybridtwin.effects import HarmonicExcitation
+    from hybridtwin.model.effects import HarmonicExcitation
 
     coupling = HarmonicExcitation(name="coupling_2x", meaning="2X force of a misaligned coupling at the motor",
                                   harmonic=2, node=10, bounds=(-0.5, 0.5))

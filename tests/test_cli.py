@@ -157,11 +157,11 @@ def test_a_failed_direct_solve_falls_back_to_continuation(capsys):
 
 @pytest.mark.slow
 def test_the_fallbacks_steady_state_is_the_time_integrated_one(capsys):
-    """Independent reference: eq. 29 integrated in time from rest (Radau, hybridtwin.transient, no harmonic
+    """Independent reference: eq. 29 integrated in time from rest (Radau, hybridtwin.solvers.transient, no harmonic
     balance) until its harmonics settle; about 40 periods, ~10 s."""
-    from hybridtwin import transient
-    from hybridtwin.sensor import sensor_dofs
-    from hybridtwin.variants import builtin_variant
+    from hybridtwin.solvers import transient
+    from hybridtwin.model.sensor import sensor_dofs
+    from hybridtwin.model.variants import builtin_variant
 
     code, out, err = _run(capsys, *ISSUE_22_ARGS)
     assert code == 0, err
@@ -322,8 +322,8 @@ def test_version_and_help_name_every_command(capsys):
 
 def test_the_package_leaves_the_matplotlib_backend_to_the_caller():
     """No matplotlib.use at import: a script's own choice stands (and without a display matplotlib picks Agg)."""
-    code = ("import matplotlib; matplotlib.use('svg'); import hybridtwin.plots, hybridtwin.report, "
-            "hybridtwin.diagnosis_report as d, hybridtwin.validation; print(matplotlib.get_backend())")
+    code = ("import matplotlib; matplotlib.use('svg'); import hybridtwin.plots, hybridtwin.report.report, "
+            "hybridtwin.diagnose.diagnosis_report as d, hybridtwin.identify.validation; print(matplotlib.get_backend())")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip() == "svg"
@@ -380,11 +380,11 @@ def test_simulate_on_a_longer_varm_shaft(capsys, tmp_path):
     """The VARM's own description in the config (Machine.varm().to_mapping()) prints byte for byte what a config
     without machine: prints; the same machine with a longer shaft gives another response, the one the Python API's model
     on that machine gives."""
-    from hybridtwin.machine import Machine
-    from hybridtwin.solver import solve
-    from hybridtwin.variants import builtin_variant
+    from hybridtwin.model.machine import Machine
+    from hybridtwin.solvers.solver import solve
+    from hybridtwin.model.variants import builtin_variant
 
-    from hybridtwin.variants import BUILTIN_VARIANTS
+    from hybridtwin.model.variants import BUILTIN_VARIANTS
 
     args = [*PAPER_ARGS, "--variant", "geometric", "--harmonics", "3"]
     plain = {"variants": {"geometric": BUILTIN_VARIANTS["geometric"]}}

@@ -12,7 +12,7 @@ import pytest
 import yaml
 from snakemake.utils import update_config
 
-from hybridtwin import identification as idn
+from hybridtwin.identify import identification as idn
 from hybridtwin.config import ConfigError, check
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -208,7 +208,8 @@ def test_snakemake_stops_before_any_job_with_the_one_line_error(tmp_path):
 
 def _library_defaults() -> dict:
     """Every default the library fills in, by config section (the one place each is set)."""
-    from hybridtwin import diagnosis, identification
+    from hybridtwin.diagnose import diagnosis
+    from hybridtwin.identify import identification
     from hybridtwin.config import OFFLINE_DEFAULTS
 
     return {"effects_files": [],  # hybridtwin.config.user_effects: no key, no effects files
@@ -311,7 +312,8 @@ def test_snakemake_filling_in_the_schema_defaults_changes_no_option(overlay):
     from snakemake.utils import validate
 
     from hybridtwin import config as cfg
-    from hybridtwin import diagnosis, identification
+    from hybridtwin.diagnose import diagnosis
+    from hybridtwin.identify import identification
 
     config = _merged_text(SMALL, overlay)
     config["runs"] = str(ROOT / "data" / "default" / "runs.tsv")
@@ -344,12 +346,12 @@ def test_the_bundled_config_writes_out_the_defaults():
 
 
 def test_the_offline_spgd_defaults_are_the_sparse_pgds():
-    """offline.spgd's defaults but the degree candidates are hybridtwin.spgd.SparsePGD's own (the workflow's
+    """offline.spgd's defaults but the degree candidates are hybridtwin.offline.spgd.SparsePGD's own (the workflow's
     libraries and an sPGD built in Python fit alike)."""
     import inspect
 
     from hybridtwin.config import OFFLINE_DEFAULTS
-    from hybridtwin.spgd import SparsePGD
+    from hybridtwin.offline.spgd import SparsePGD
 
     signature = inspect.signature(SparsePGD).parameters
     for key, value in OFFLINE_DEFAULTS["spgd"].items():

@@ -11,19 +11,20 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from hybridtwin import diagnosis as dg
-from hybridtwin import diagnosis_report as dgr
-from hybridtwin import forward as fwd
-from hybridtwin import identification as idn
-from hybridtwin import lm, variants
-from hybridtwin import refit as rf
-from hybridtwin import score_test as st
-from hybridtwin import uncertainty as unc
-from hybridtwin.candidates import Candidate, builtin_candidates
-from hybridtwin.effect_base import Parameter, PolynomialBearing, Term
-from hybridtwin.protocol import ProtocolOptions
-from hybridtwin.run_fits import theta_from_nested
-from hybridtwin.variants import BUILTIN_VARIANTS, Variant
+from hybridtwin.diagnose import diagnosis as dg
+from hybridtwin.diagnose import diagnosis_report as dgr
+from hybridtwin.identify import forward as fwd
+from hybridtwin.identify import identification as idn
+from hybridtwin.identify import lm
+from hybridtwin.model import variants
+from hybridtwin.diagnose import refit as rf
+from hybridtwin.diagnose import score_test as st
+from hybridtwin.identify import uncertainty as unc
+from hybridtwin.model.candidates import Candidate, builtin_candidates
+from hybridtwin.model.effect_base import Parameter, PolynomialBearing, Term
+from hybridtwin.identify.protocol import ProtocolOptions
+from hybridtwin.identify.run_fits import theta_from_nested
+from hybridtwin.model.variants import BUILTIN_VARIANTS, Variant
 
 H = 3
 SIGMA = 8e-7  # m, the bundled records' harmonic sigma (results/data/harmonics.tsv: 6-10e-7)
@@ -259,7 +260,7 @@ def test_theta_from_nested_maps_the_shared_values_and_copies_the_runs():
     the bow and phases copied run by run, anything else from the fallback table."""
     import pandas as pd
 
-    from hybridtwin.variants import builtin_variant
+    from hybridtwin.model.variants import builtin_variant
 
     geometric, expansion = builtin_variant("geometric"), builtin_variant("expansion")
     names = list(expansion.unknown)

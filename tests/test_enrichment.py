@@ -1,4 +1,4 @@
-"""Adaptive enrichment of the scenario design (hybridtwin.scenarios.sample_enrichment, solve_enrichment)."""
+"""Adaptive enrichment of the scenario design (hybridtwin.offline.scenarios.sample_enrichment, solve_enrichment)."""
 
 import warnings
 
@@ -8,10 +8,10 @@ import pytest
 import zarr
 from scipy.stats import qmc
 
-from hybridtwin.scenarios import NOT_SOLVED, sample_enrichment, solve_enrichment, solve_runs
-from hybridtwin import snapshots
-from hybridtwin.snapshots import read_chunks, write_chunk
-from hybridtwin.variants import builtin_variant
+from hybridtwin.offline.scenarios import NOT_SOLVED, sample_enrichment, solve_enrichment, solve_runs
+from hybridtwin.offline import snapshots
+from hybridtwin.offline.snapshots import read_chunks, write_chunk
+from hybridtwin.model.variants import builtin_variant
 
 RUNS = pd.DataFrame({"run": ["a950", "a1000", "b700"], "rpm": [950.0, 1000.0, 700.0],
                      "eccentric_mass_g": [0.0, 0.0, 14.8]})

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from hybridtwin.fingerprint import Fingerprint, chi2_sf, fingerprint
+from hybridtwin.diagnose.fingerprint import Fingerprint, chi2_sf, fingerprint
 
 H = 3
 SIGMA = 1e-6  # m

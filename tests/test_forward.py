@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 from threadpoolctl import threadpool_limits
 
-from hybridtwin.forward import SolverModel, StabilityWarning, check_stability, floquet_radii
-from hybridtwin.variants import builtin_variant
+from hybridtwin.identify.forward import SolverModel, StabilityWarning, check_stability, floquet_radii
+from hybridtwin.model.variants import builtin_variant
 
 GEOMETRIC = builtin_variant("geometric")
 NAMES = list(GEOMETRIC.unknown)
@@ -89,10 +89,10 @@ def test_an_lm_fit_with_warm_starts_ends_where_the_cold_one_does():
     case (the data have a softer lower bearing the model lacks, so the fit ends far from the data): warm
     starts accepted too loosely (0.5 of the predicted change + 1e-2 of the state) sent this fit elsewhere
     (chi^2/dof 4312 against 3697)."""
-    from hybridtwin import identification as idn
-    from hybridtwin import lm
-    from hybridtwin.protocol import ProtocolOptions
-    from hybridtwin.variants import Variant
+    from hybridtwin.identify import identification as idn
+    from hybridtwin.identify import lm
+    from hybridtwin.identify.protocol import ProtocolOptions
+    from hybridtwin.model.variants import Variant
 
     truth = Variant.from_spec("truth", {"effects": [e.name for e in GEOMETRIC.model.effects] + ["lower_bearing_compliance"],
                                         "unknown": {"dk_lo": (-1e9, 1e9)}})
@@ -123,7 +123,7 @@ LIGHT = {"k_b": 2331.5, "zeta_s": 0.01, "zeta_bup": 0.0, "q_x": 0.005, "q_y": 0.
 
 def _run_up_radius(variant, values, rpm, mass_g, harmonics=5):
     """The reference: the Floquet radius of the solver's own run-up to ``rpm`` (stability assessed there)."""
-    from hybridtwin.continuation import solve_sweep
+    from hybridtwin.solvers.continuation import solve_sweep
 
     full = variant.values({**values, "m_e": mass_g * 1e-3})
     speeds = np.append(np.arange(300.0, rpm, 25.0), rpm)
@@ -154,10 +154,10 @@ def test_the_reported_state_carries_the_stability_of_the_run_up_it_stands_for(rp
 def test_an_unstable_optimum_is_flagged_on_the_fit_and_never_reported_as_converged():
     """A full-solver fit of two runs whose optimum has an unstable steady state at one of them (866 RPM, above):
     the check names that run on the fit's message, in its notes and in a warning; the stable run is not named."""
-    from hybridtwin import identification as idn
-    from hybridtwin import lm
-    from hybridtwin.protocol import ProtocolOptions
-    from hybridtwin.variants import Variant
+    from hybridtwin.identify import identification as idn
+    from hybridtwin.identify import lm
+    from hybridtwin.identify.protocol import ProtocolOptions
+    from hybridtwin.model.variants import Variant
 
     variant = Variant.from_spec("light", {"effects": [e.name for e in GEOMETRIC.model.effects],
                                           "unknown": {"k_b": (2300.0, 2360.0), "zeta_s": (0.009, 0.011)},
@@ -195,7 +195,7 @@ def test_an_unstable_optimum_is_flagged_on_the_fit_and_never_reported_as_converg
     assert fit.message.count("unstable") == 1 and len(fit.uncertainty.notes) == len(set(fit.uncertainty.notes))
     # the full-solver polish, which every joint fit of the workflow and every per-run polish ends with, checks its
     # own optimum the same way: the same run named, the stable one not
-    from hybridtwin.polish import polish
+    from hybridtwin.identify.polish import polish
 
     with threadpool_limits(1), pytest.warns(StabilityWarning, match=r"run\(s\) r866 \("):
         polished = polish(fit, models, random_starts=0)
@@ -212,7 +212,7 @@ def test_the_lockstep_run_ups_are_each_runs_own_run_up_bit_for_bit():
     the solver treats scenarios independently and each set keeps its own ramp from 300 RPM, so the states
     (and the jump flags) are the same numbers, not just close. Speeds below, at and above the ramp's start,
     both sides of the resonance, the three eccentric masses."""
-    from hybridtwin.forward import run_up, run_ups
+    from hybridtwin.identify.forward import run_up, run_ups
 
     variant = builtin_variant("geometric")
     rng = np.random.default_rng(3)

@@ -10,6 +10,7 @@ upper-bearing damping identifiable next to a per-run bow: with free phases its i
 (benchmarks/identification_benchmark.py shows both at full scale).
 """
 
+from functools import partial
 import shutil
 import subprocess
 import sys
@@ -24,13 +25,13 @@ import yaml
 import zarr
 from scipy.optimize import least_squares
 
-from hybridtwin import forward as fwd
-from hybridtwin import identification as idn
-from hybridtwin import lm
-from hybridtwin import polish as pol
-from hybridtwin import protocol
-from hybridtwin import validation as val
-from hybridtwin.rig import RigSpec, generate, read_plan
+from hybridtwin.identify import forward as fwd
+from hybridtwin.identify import identification as idn
+from hybridtwin.identify import lm
+from hybridtwin.identify import polish as pol
+from hybridtwin.identify import protocol
+from hybridtwin.identify import validation as val
+from hybridtwin.data.rig import RigSpec, generate, read_plan
 
 ROOT = Path(__file__).resolve().parents[1]
 GEOMETRIC = ["centrifugal_softening", "structural_damping", "upper_housing", "lower_bearing", "unbalance",
@@ -406,7 +407,7 @@ def test_validation_runs_all_kept_out_still_give_a_full_validation_table(geometr
     import runpy
     from types import SimpleNamespace
 
-    from hybridtwin.identification import rule_settings
+    from hybridtwin.identify.identification import rule_settings
 
     work, _ = geometric_truth
     config = yaml.safe_load((work / "config" / "config.yaml").read_text())
@@ -433,7 +434,7 @@ def test_validation_runs_all_kept_out_still_give_a_full_validation_table(geometr
 
 def test_batched_surrogate_equals_the_library(geometric_truth):
     """SensorSurrogate (sPGD projected on the sensor once, d + 1 products) is Library.sensor, h >= 1."""
-    from hybridtwin.library import Library
+    from hybridtwin.offline.library import Library
 
     work, _ = geometric_truth
     library = Library.load(work / "results" / "geometric" / "library" / f"{FIT[0]}.zarr")
@@ -451,7 +452,7 @@ def test_libraries_fitted_in_parallel_are_each_runs_own(geometric_truth, tmp_pat
     the one its run gets alone in this process (same arrays bit for bit, at the same path), and the runs'
     order in the outputs is theirs, not the order of completion."""
     from hybridtwin import config as cfg
-    from hybridtwin.library import Library, build_run_libraries
+    from hybridtwin.offline.library import Library, build_run_libraries
 
     work, _ = geometric_truth
     config = yaml.safe_load((work / "config" / "config.yaml").read_text())
@@ -459,7 +460,7 @@ def test_libraries_fitted_in_parallel_are_each_runs_own(geometric_truth, tmp_pat
     runs = [FIT[-1], FIT[0]]
     paths = [str(tmp_path / f"{run}.zarr") for run in runs]
     results = work / "results" / "geometric"
-    infos = build_run_libraries(config, "geometric", runs, str(results / "snapshots.zarr"), str(results / "pod.zarr"),
+    infos = build_run_libraries(partial(cfg.variant, config, "geometric"), runs, str(results / "snapshots.zarr"), str(results / "pod.zarr"),
                                 paths, options["sensor_range_mm"] * 1e-3, options["spgd"], options["pieces"],
                                 workers=1)
     for run, path, info in zip(runs, paths, infos):
@@ -531,7 +532,7 @@ def test_next_best_trials_are_distinct_finite_and_ordered():
 
 def test_solver_model_answers_nan_for_a_nan_parameter_set():
     """A NaN parameter set (a failed LM step) is NaN out, not an exception from the eigen-solver."""
-    from hybridtwin.variants import builtin_variant
+    from hybridtwin.model.variants import builtin_variant
 
     variant = builtin_variant("geometric")
     lower, upper = zip(*variant.unknown.values())

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from hybridtwin import identification as idn
-from hybridtwin import lm
+from hybridtwin.identify import identification as idn
+from hybridtwin.identify import lm
 
 SIGMA = 1e-6  # [m] per real/imaginary part
 U = np.array([[1.0 + 0.5j, -0.3 + 0.2j]]) * 1e-4  # (H = 1, 2 channels): response to a = 1 [m]

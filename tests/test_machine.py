@@ -1,4 +1,4 @@
-"""The machine description (src/hybridtwin/machine.py): the VARM as the bundled default machine, bit for bit
+"""The machine description (src/hybridtwin/model/machine.py): the VARM as the bundled default machine, bit for bit
 the model built on the uniform ``Shaft``; stepped shafts, disks, rotary and polar inertia against closed-form
 integrals; effects placed at named nodes; sensors; the Campbell data.
 
@@ -11,13 +11,14 @@ import scipy.linalg
 import yaml
 from example_machines import STEPPED_YAML as MACHINE_YAML  # the stepped rotor's config section, shared
 
-from hybridtwin.effects import Unbalance, builtin_effects, candidate_effects
-from hybridtwin.machine import Bearing, Disk, Machine, Sensor, ShaftSegment, UnbalancePlane
-from hybridtwin.model import Model, campbell
-from hybridtwin.sensor import sensor_dofs
-from hybridtwin.shaft import Shaft
-from hybridtwin.solver import solve
-from hybridtwin.variants import BUILTIN_VARIANTS, Variant, builtin_variant
+from hybridtwin.model.effects import Unbalance, builtin_effects, candidate_effects
+from hybridtwin.model.machine import Bearing, Disk, Machine, Sensor, ShaftSegment, UnbalancePlane
+from hybridtwin.model.model import Model, campbell
+from hybridtwin.model.sensor import sensor_dofs
+from hybridtwin.model.shaft import Shaft
+from hybridtwin.solvers.solver import solve
+from hybridtwin.model.variants import BUILTIN_VARIANTS, Variant, builtin_variant
+from hybridtwin.solvers.solver import solve_variant
 
 STEEL = dict(E=211e9, rho=7810.0)
 
@@ -83,7 +84,7 @@ def test_varm_models_are_bit_for_bit_those_of_the_shaft(name):
         _systems_equal(reference, other.system(rpm, overrides))
     expected = solve(reference, 5)
     for other in (on_machine, by_default):
-        result = other.solve(rpm, overrides, harmonics=5)
+        result = solve_variant(other, rpm, overrides, harmonics=5)
         assert np.array_equal(result.harmonics, expected.harmonics)
         assert np.array_equal(result.status, expected.status)
 
@@ -181,7 +182,7 @@ def test_gyroscopic_stiffening_of_a_spinning_disk():
     # (1e-11 of the disk's) are negligible; its far node is clamped by stiff springs
     machine = Machine("disk", [ShaftSegment(0.01, 1e-3, 1e3, 7800.0)], disks=[Disk(0, 1.0, I_p, I_d)])
 
-    from hybridtwin.effect_base import Effect, Parameter
+    from hybridtwin.model.effect_base import Effect, Parameter
 
     class Holder(Effect):
         name, meaning = "holder", "translation held, tilt on a spring k_t"
@@ -270,7 +271,7 @@ def test_records_read_with_the_configs_sensors_have_the_machines_channel_order(t
     from the Machine: both must give the channels in the same order, or the fit compares one probe's measurement
     with another's model (a sorted-keys config, x1 x2 y1 y2; a config with probes that have no partner). The
     record's file columns are in yet another order: channels are found by name."""
-    from hybridtwin.measurements import read_record, record_channels
+    from hybridtwin.data.measurements import read_record, record_channels
 
     nodes = {"x1": (8, "x"), "y1": (8, "y"), "x2": (16, "x"), "y2": (16, "y"), "y3": (12, "y")}
     spec = yaml.safe_load(MACHINE_YAML)["machine"]
@@ -294,7 +295,7 @@ def test_sensor_names_in_capitals_read_their_columns_in_any_case(tmp_path):
     """Sensors X1, Y1 (the schema allows capitals): their records' columns X1_mm, Y1_mm (as the rig writes them)
     or x1_mm, y1_mm (headers are read in any case) are their channels, named as the machine names them; two
     sensors whose names differ only in case are an error, since no record could tell their columns apart."""
-    from hybridtwin.measurements import read_record
+    from hybridtwin.data.measurements import read_record
 
     spec = yaml.safe_load(MACHINE_YAML)["machine"]
     spec["sensors"] = {"X1": {"node": 8, "direction": "x"}, "Y1": {"node": 8, "direction": "y"}}
@@ -460,7 +461,7 @@ def test_bad_machine_sections_are_one_line_each(project, edit, expected):
 ])
 def test_machine_from_mapping_names_the_bad_key(spec, message):
     """The Python path (without the schema) says where in the section the problem is, in one line."""
-    from hybridtwin.machine import MachineSpecError
+    from hybridtwin.model.machine import MachineSpecError
 
     with pytest.raises(MachineSpecError) as err:
         Machine.from_mapping(spec)
@@ -477,7 +478,7 @@ def test_machine_from_mapping_of_nothing_is_the_varm():
 
 def _spinning_disk(I_p, I_d, k_t):
     """The rigid disk on a tilt spring of test_gyroscopic_stiffening_of_a_spinning_disk, as a model."""
-    from hybridtwin.effect_base import Effect, Parameter
+    from hybridtwin.model.effect_base import Effect, Parameter
 
     machine = Machine("disk", [ShaftSegment(0.01, 1e-3, 1e3, 7800.0)], disks=[Disk(0, 1.0, I_p, I_d)])
 
@@ -498,7 +499,7 @@ def _spinning_disk(I_p, I_d, k_t):
 def test_critical_speeds_of_a_spinning_disk():
     """The 1X line crosses I_d w^2 -+ I_p w Omega = k_t at w = Omega: forward at sqrt(k_t / (I_d - I_p)),
     backward at sqrt(k_t / (I_d + I_p))."""
-    from hybridtwin.machine_plots import critical_speeds
+    from hybridtwin.report.machine_plots import critical_speeds
 
     I_p, I_d, k_t = 0.05, 0.1, 4.0e4
     rpm = np.linspace(0.0, 12000.0, 401)
@@ -516,7 +517,7 @@ def test_campbell_figure_of_the_varm(tmp_path):
     table's branches, the 1X-3X lines and each run speed."""
     import matplotlib
 
-    from hybridtwin.machine_plots import campbell_figure
+    from hybridtwin.report.machine_plots import campbell_figure
 
     variant = builtin_variant("geometric")
     values = {k: float(v) for k, v in variant.values({"zeta_s": 0.0, "zeta_bup": 0.0, "zeta_blo": 0.0}).items()}
@@ -542,7 +543,7 @@ def test_campbell_figure_of_the_varm(tmp_path):
 
 
 def test_campbell_figure_of_a_stepped_rotor_separates_forward_and_backward():
-    from hybridtwin.machine_plots import campbell_figure
+    from hybridtwin.report.machine_plots import campbell_figure
 
     machine = _stepped()
     fx = machine.effects()

@@ -4,7 +4,7 @@ The stepped rotor of tests/example_machines.py (two disks, bearings a and b insi
 with a hardening cubic spring at bearing b, F_x = -c_r u^3, F_y = -c_r v^3 (not isotropic, so a circular orbit
 still makes 3X), c_r = 1e17 N/m^3: at the 3-8 um the bearing moves near the critical speeds (~3800-4100 RPM)
 the cubic force is 10-40 % of the linear one, and it cuts bearing b's 1X amplitude by 40 %. The harmonic-balance
-steady state (H = 7) is integrated in time (hybridtwin.transient: scipy's Radau on the first-order form, none of
+steady state (H = 7) is integrated in time (hybridtwin.solvers.transient: scipy's Radau on the first-order form, none of
 the harmonic-balance code) for 20 periods from its own Fourier series at t = 0; a true periodic solution stays
 on its orbit.
 
@@ -20,10 +20,10 @@ import numpy as np
 import pytest
 
 from example_machines import LINEAR_EFFECTS, SENSOR_NODE, stepped_machine
-from hybridtwin import transient as tr
-from hybridtwin.effect_base import Parameter, PolynomialBearing, Term
-from hybridtwin.model import Model
-from hybridtwin.solver import solve
+from hybridtwin.solvers import transient as tr
+from hybridtwin.model.effect_base import Parameter, PolynomialBearing, Term
+from hybridtwin.model.model import Model
+from hybridtwin.solvers.solver import solve
 
 H, C_R, PERIODS, TOLERANCE = 7, 1e17, 20, 2e-4
 CUBIC = PolynomialBearing(

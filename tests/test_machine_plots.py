@@ -1,4 +1,4 @@
-"""Mode shapes and operating deflected shapes (hybridtwin.machine_plots) against references computed another way:
+"""Mode shapes and operating deflected shapes (hybridtwin.report.machine_plots) against references computed another way:
 the x-plane eigenproblem the model solves for its first mode, the pinned-pinned beam's closed form, the spinning
 disk's gyroscopic frequencies, the solver's sensor output and the stepped rotor's response solved by hand.
 
@@ -9,15 +9,16 @@ import numpy as np
 import pytest
 
 from example_machines import LINEAR_EFFECTS, SENSOR_NODE, linear_response, stepped_machine
-from hybridtwin.effect_base import Effect, Parameter
-from hybridtwin.machine import Bearing, Disk, Machine, Sensor, ShaftSegment
-from hybridtwin.machine_plots import (
+from hybridtwin.model.effect_base import Effect, Parameter
+from hybridtwin.model.machine import Bearing, Disk, Machine, Sensor, ShaftSegment
+from hybridtwin.report.machine_plots import (
     deflection, mode_shape_figure, mode_shapes, ods_figure, operating_deflection, undamped_modes,
 )
-from hybridtwin.model import Model
-from hybridtwin.sensor import sensor_harmonics
-from hybridtwin.solver import solve
-from hybridtwin.variants import builtin_variant
+from hybridtwin.model.model import Model
+from hybridtwin.model.sensor import sensor_harmonics
+from hybridtwin.solvers.solver import solve
+from hybridtwin.model.variants import builtin_variant
+from hybridtwin.solvers.solver import solve_variant
 
 UNDAMPED = {"zeta_s": 0.0, "zeta_bup": 0.0, "zeta_blo": 0.0}
 
@@ -107,8 +108,8 @@ def test_campbell_branches_start_at_rest_where_they_go_on_an_anisotropic_support
     jumped between 0 and the next speed. Now each planar mode takes its sense at the nearest speed: the split at 0
     RPM is that at 1 RPM, and every branch's frequency moves by less than 0.1 % from 0 to 1 RPM (a speed change
     of 1 RPM shifts the gyroscopic splitting by a few 1e-4 Hz: continuity)."""
-    from hybridtwin.machine_plots import branches
-    from hybridtwin.model import campbell
+    from hybridtwin.report.machine_plots import branches
+    from hybridtwin.model.model import campbell
 
     machine = stepped_machine()
     fx = machine.effects()
@@ -190,7 +191,7 @@ def test_operating_deflection_of_the_varm_at_the_probes_is_the_sensor_output():
     """A nonlinear steady state (the paper's Geometric model): the ODS at node 1 is the solver's sensor output,
     for 1X and 3X (to the last bit of abs and angle)."""
     variant = builtin_variant("geometric")
-    result = variant.solve(700.0, {"m_e": 0.0148, "k_b": 2411.3, "q_x": 0.004}, harmonics=3)
+    result = solve_variant(variant, 700.0, {"m_e": 0.0148, "k_b": 2411.3, "q_x": 0.004}, harmonics=3)
     U, V = sensor_harmonics(result.harmonics, variant.model.shaft)
     for h in (1, 3):
         row = operating_deflection(result, variant.model.shaft, harmonic=h).query("node == 1").iloc[0]
@@ -205,7 +206,7 @@ def _parameter_table(rows):
     """A parameters.tsv (Identification.table's columns) holding only the rows (parameter, run, kind, value)."""
     import pandas as pd
 
-    from hybridtwin import identification as idn
+    from hybridtwin.identify import identification as idn
 
     table = pd.DataFrame([dict(zip(("parameter", "run", "kind", "value"), row)) for row in rows])
     for column in idn.TABLE_COLUMNS:
@@ -228,10 +229,10 @@ def test_report_machine_script_draws_the_fitted_model(tmp_path, machine):
 
     from example_machines import stepped_config
     from hybridtwin import config as cfg
-    from hybridtwin import identification as idn
-    from hybridtwin.machine_plots import branches, report_speeds
-    from hybridtwin.model import campbell
-    from hybridtwin.variants import BUILTIN_VARIANTS
+    from hybridtwin.identify import identification as idn
+    from hybridtwin.report.machine_plots import branches, report_speeds
+    from hybridtwin.model.model import campbell
+    from hybridtwin.model.variants import BUILTIN_VARIANTS
 
     if machine == "varm":
         model = {"variants": {"geometric": BUILTIN_VARIANTS["geometric"]}, "machine": None, "effects_files": []}

@@ -10,11 +10,11 @@ import pandas as pd
 import pytest
 
 from hybridtwin.cli import main
-from hybridtwin.measurements import (
+from hybridtwin.data.measurements import (
     SATURATED_SAMPLES, DataError, DataWarning, Record, check_coverage, check_length, detect_saturation, read_record,
     read_runs, sheet_entry,
 )
-from hybridtwin.preprocessing import analyse_record
+from hybridtwin.data.preprocessing import analyse_record
 
 RPM = 600.0
 
@@ -395,7 +395,7 @@ def test_keyphasor_with_more_than_two_levels_is_an_analogue_signal_and_an_error(
 
 
 def test_keyphasor_pulse_already_high_on_the_first_sample(tmp_path):
-    from hybridtwin.record_columns import keyphasor_marks
+    from hybridtwin.data.record_columns import keyphasor_marks
     wide = np.array([1, 1, 0, 0, 0, 1, 1, 1, 0, 0, 0, 1, 1, 1, 0], bool)
     assert np.flatnonzero(keyphasor_marks(wide)).tolist() == [5, 11]  # its rising edge came before the record
     whole = np.array([1, 1, 1, 0, 0, 1, 1, 1, 0, 0, 1, 1, 1, 0], bool)

@@ -9,9 +9,10 @@ import pytest
 import scipy.linalg
 
 from hybridtwin import Effect, Parameter, PolynomialBearing, Term
-from hybridtwin.effects import geometric_spring
-from hybridtwin.model import rpm_to_rad_s
-from hybridtwin.variants import Variant, builtin_variant, load_effects_file
+from hybridtwin.model.effects import geometric_spring
+from hybridtwin.model.model import rpm_to_rad_s
+from hybridtwin.model.variants import Variant, builtin_variant, load_effects_file
+from hybridtwin.solvers.solver import solve_variant
 
 PAPER = dict(k_b=2411.3, zeta_s=0.024, zeta_bup=0.016, q_x=0.004, q_y=0.006, m_e=0.0148)
 
@@ -204,9 +205,9 @@ def test_user_effect_from_own_file_changes_the_response(tmp_path):
     spec = {"effects": builtin_variant("geometric").model.effects, "unknown": {}}
     names = [e.name for e in spec["effects"]] + ["tilt_spring"]
     variant = Variant.from_spec("geometric_tilt", {"effects": names}, user)
-    base = builtin_variant("geometric").solve(600, PAPER)
-    zero = variant.solve(600, {**PAPER, "k_t": 0.0})
-    tilted = variant.solve(600, {**PAPER, "k_t": 300.0})
+    base = solve_variant(builtin_variant("geometric"), 600, PAPER)
+    zero = solve_variant(variant, 600, {**PAPER, "k_t": 0.0})
+    tilted = solve_variant(variant, 600, {**PAPER, "k_t": 300.0})
     np.testing.assert_allclose(zero.harmonics, base.harmonics, rtol=1e-12, atol=1e-18)
     assert np.abs(tilted.harmonics[0, 1] - base.harmonics[0, 1]).max() > 1e-3 * np.abs(base.harmonics[0, 1]).max()
     # the linear slope term is a non-symmetric stiffness K[u0, du0] = k_t
@@ -244,7 +245,7 @@ def test_solve_runs_keeps_an_unknown_eccentric_mass():
     """m_e given per scenario (the sixth unknown) is not overwritten by the run's mass."""
     import pandas as pd
 
-    from hybridtwin.scenarios import solve_runs
+    from hybridtwin.offline.scenarios import solve_runs
 
     variant = builtin_variant("geometric")
     runs = pd.DataFrame({"run": ["a"], "rpm": [500.0], "eccentric_mass_g": [25.9]})
@@ -261,7 +262,7 @@ def test_solve_runs_gives_each_mass_the_result_of_its_own_run_up():
     (to the bit: the solver treats scenarios independently) what a plan of its mass alone gives."""
     import pandas as pd
 
-    from hybridtwin.scenarios import solve_runs
+    from hybridtwin.offline.scenarios import solve_runs
 
     variant = builtin_variant("geometric")
     runs = pd.DataFrame({"run": ["a", "b", "c", "d"], "rpm": [400.0, 800.0, 450.0, 900.0],
@@ -280,7 +281,7 @@ def test_first_mode_of_a_scenario_does_not_depend_on_its_batch():
     """k_w = 0 leaves K at rest symmetric (Cholesky + eigh), k_w > 0 does not (general eigenproblem).
     In one batch each scenario must still get the mode it gets alone, to the bit; and a speed's
     system from the reused rest stages (``system_at``) must equal the one assembled from scratch."""
-    from hybridtwin.model import _first_mode
+    from hybridtwin.model.model import _first_mode
 
     variant = builtin_variant("final")
     values = variant.values({"k_w": np.array([0.0, 500.0]), "k_z": np.array([0.0, 300.0])})
@@ -326,7 +327,7 @@ def test_simpler_models_embed_exactly_in_the_expansion_model(parent, values, exp
     """docs/model.md: the Geometric model is the Expansion model at k1 = k_b, k3 = 2 k_b, k7 = -4 k_b
     (eq. 22-24); the Final one (eq. 38-39) at k1 = k_b, k3 = 2 k_b, k4 = k_w, k6 = k_z. The mapped values
     must also give the same stiffness matrix and nonlinear bearing force as the simpler model's effects."""
-    from hybridtwin.variants import contains, embed
+    from hybridtwin.model.variants import contains, embed
 
     small, expansion = builtin_variant(parent), builtin_variant("expansion")
     assert contains(expansion, small) and not contains(small, expansion)
@@ -344,7 +345,7 @@ def test_simpler_models_embed_exactly_in_the_expansion_model(parent, values, exp
 
 def test_embedding_reports_what_cannot_be_matched():
     """A term the smaller model lacks (k4: a slope force) or a range too narrow leaves a mismatch > 0."""
-    from hybridtwin.variants import Variant, embed
+    from hybridtwin.model.variants import Variant, embed
 
     geometric, expansion = builtin_variant("geometric"), builtin_variant("expansion")
     values = {"k1": 2400.0, "k2": 0.0, "k3": 4800.0, "k4": 300.0, "k5": 0.0, "k6": 0.0, "k7": -9600.0}
@@ -358,7 +359,7 @@ def test_embedding_reports_what_cannot_be_matched():
 def test_nested_parents_are_the_simplest_contained_variants():
     """Expansion contains Geometric, Final and Geometric + slope; only the first two contain no other variant
     (their fits wait for no other), so the Expansion polish starts from them."""
-    from hybridtwin.variants import BUILTIN_VARIANTS, Variant, contains, nested_parents
+    from hybridtwin.model.variants import BUILTIN_VARIANTS, Variant, contains, nested_parents
 
     specs = dict(BUILTIN_VARIANTS)
     specs["geometric_slope"] = {**specs["geometric"], "effects": specs["geometric"]["effects"] + ["expansion_k4"],
@@ -377,7 +378,7 @@ def test_nested_parents_are_the_simplest_contained_variants():
 def test_the_first_mode_of_repeated_pencils_is_each_ones_own():
     """Pencils repeated in a batch (runs' copies, a perturbed damping) are solved once: each scenario's mode is
     bit for bit the one it has alone, symmetric and non-symmetric stiffness alike (against a batch of one)."""
-    from hybridtwin.model import _first_mode
+    from hybridtwin.model.model import _first_mode
 
     rng = np.random.default_rng(0)
     n = 12

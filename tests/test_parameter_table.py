@@ -10,8 +10,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from hybridtwin import identification as idn
-from hybridtwin import protocol
+from hybridtwin.identify import identification as idn
+from hybridtwin.identify import protocol
 from test_identification import ToyModel, toy_data
 
 
@@ -80,7 +80,7 @@ def test_a_run_left_out_has_a_table_that_reads_back(fits, tmp_path):
     note; read back, a joint start from it is None and the reader keeps the note out of the estimates."""
     from types import SimpleNamespace
 
-    from hybridtwin.run_fits import excluded_table, start_from_runs
+    from hybridtwin.identify.run_fits import excluded_table, start_from_runs
 
     data = toy_data([0.0, 0.0, 0.0], 0.0, run="007")
     library = SimpleNamespace(parameters=ToyModel.parameters, lower=ToyModel.lower, upper=ToyModel.upper)
@@ -97,7 +97,7 @@ def test_a_run_left_out_has_a_table_that_reads_back(fits, tmp_path):
 def test_start_from_runs_takes_the_median_and_each_runs_own_entries(fits):
     """Per-run fits read back from their tables: shared entries at the median of the runs' normalised
     estimates, c (per run) and the phase from each run's own fit."""
-    from hybridtwin.run_fits import start_from_runs
+    from hybridtwin.identify.run_fits import start_from_runs
 
     joint = fits["joint"]
     runs = {}

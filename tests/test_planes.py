@@ -28,11 +28,11 @@ def varm_reference() -> dict:
     """The VARM path's numbers (module docstring), with the APIs the code had before and has after the change."""
     import pandas as pd
 
-    import hybridtwin.forward as fwd
-    import hybridtwin.identification as idn
-    from hybridtwin.measurements import read_runs
-    from hybridtwin.preprocessing import preprocess_run
-    from hybridtwin.variants import builtin_variant
+    import hybridtwin.identify.forward as fwd
+    import hybridtwin.identify.identification as idn
+    from hybridtwin.data.measurements import read_runs
+    from hybridtwin.data.preprocessing import preprocess_run
+    from hybridtwin.model.variants import builtin_variant
 
     runs = read_runs(ROOT / "data" / "default" / "runs.tsv", require_mass=True)
     rows = [runs[runs["run"] == r].iloc[0].to_dict() for r in ("r600_m25p9", "r750_m14p8")]
@@ -101,7 +101,7 @@ def _write(path: Path, header: str, rows: int = 400) -> Path:
 def test_a_record_holds_a_channel_per_sensor_named_after_it(tmp_path):
     import pytest
 
-    from hybridtwin.measurements import DataError, read_record
+    from hybridtwin.data.measurements import DataError, read_record
 
     _, machine = _machine()
     record = read_record(_write(tmp_path / "a.csv", "time_s,x1_mm,y1_mm,x2_m,y2_mm"), machine)
@@ -136,8 +136,8 @@ def test_order_analysis_gives_each_channel_its_harmonics_with_one_speed_and_one_
     import pandas as pd
     import pytest
 
-    from hybridtwin.measurements import DataWarning, Record
-    from hybridtwin.preprocessing import analyse_record, harmonic_column, run_row, table_channels
+    from hybridtwin.data.measurements import DataWarning, Record
+    from hybridtwin.data.preprocessing import analyse_record, harmonic_column, run_row, table_channels
 
     rng = np.random.default_rng(5)
     rpm, fs = 3000.0, 2000.0
@@ -181,7 +181,7 @@ def test_order_analysis_gives_each_channel_its_harmonics_with_one_speed_and_one_
     assert harmonic_column("x1", 2, "re") == "x1_2_re_m" and harmonic_column("x", 2, "re") == "x2_re_m"
     assert {"noise_x2_m", "offset_y2_m", "y2_2_sigma_m"} <= set(row.columns)
     # the fits read a run's channels by the model's sensor names, in the model's order, whatever the table's order
-    from hybridtwin.measured import run_data
+    from hybridtwin.data.measured import run_data
 
     row = row.assign(run="r1", rpm=rpm, eccentric_mass_g=20.0)
     data = run_data(row, "r1")
@@ -206,15 +206,15 @@ def test_two_planes_see_the_overhung_disks_bearing_that_one_plane_barely_sees(tm
     import pandas as pd
     import yaml
 
-    import hybridtwin.forward as fwd
-    import hybridtwin.identification as idn
-    from hybridtwin import lm
+    import hybridtwin.identify.forward as fwd
+    import hybridtwin.identify.identification as idn
+    from hybridtwin.identify import lm
     from hybridtwin.cli import main
     from hybridtwin.config import variant as config_variant
-    from hybridtwin.measurements import read_runs
-    from hybridtwin.preprocessing import preprocess_run
-    from hybridtwin.protocol import ProtocolOptions
-    from hybridtwin.rig import RigSpec, generate
+    from hybridtwin.data.measurements import read_runs
+    from hybridtwin.data.preprocessing import preprocess_run
+    from hybridtwin.identify.protocol import ProtocolOptions
+    from hybridtwin.data.rig import RigSpec, generate
 
     config, machine = _machine()
     truth = {"k_b": 1.1e7, "c_b": 450.0}
@@ -271,9 +271,9 @@ def test_predictions_comparisons_figures_and_fingerprint_follow_the_channels(tmp
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from hybridtwin import report
-    from hybridtwin import validation as val
-    from hybridtwin.fingerprint import fingerprint
+    from hybridtwin.report import report
+    from hybridtwin.identify import validation as val
+    from hybridtwin.diagnose.fingerprint import fingerprint
 
     rng = np.random.default_rng(1)
     channels = ("x1", "y1", "x2", "y2")
@@ -304,7 +304,7 @@ def test_predictions_comparisons_figures_and_fingerprint_follow_the_channels(tmp
 
     import pandas as pd
 
-    from hybridtwin.response_plots import plot_cascade
+    from hybridtwin.report.response_plots import plot_cascade
 
     f = np.linspace(0.0, 300.0, 50)
     spectra = {"v1": pd.DataFrame({"frequency_hz": f, "order": f / 66.7,
@@ -335,7 +335,7 @@ def test_the_run_figure_draws_an_orbit_for_each_plane_the_machine_declares_and_n
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from hybridtwin import report
+    from hybridtwin.report import report
 
     sensors = {"yb": {"node": 4, "direction": "y"}, "x1": {"node": 9, "direction": "x"},
                "xa": {"node": 2, "direction": "x"}, "y1": {"node": 9, "direction": "y"}}
@@ -363,9 +363,9 @@ def test_a_library_and_its_surrogate_give_every_sensor_in_declared_order():
     """A library with four sensor DOFs (two planes, declared out of DOF order): Library.sensor is its own field at
     those DOFs in that order, and the identification's SensorSurrogate (h >= 1, normalised parameters) the same
     numbers; exact algebra on the same amplitudes, so round-off only (1e-12 relative)."""
-    from hybridtwin.forward import SensorSurrogate
-    from hybridtwin.library import Library
-    from hybridtwin.spgd import SparsePGD
+    from hybridtwin.identify.forward import SensorSurrogate
+    from hybridtwin.offline.library import Library
+    from hybridtwin.offline.spgd import SparsePGD
 
     rng = np.random.default_rng(7)
 

@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from hybridtwin import identification as idn
-from hybridtwin import polish as pol
-from hybridtwin.protocol import ProtocolOptions
+from hybridtwin.identify import identification as idn
+from hybridtwin.identify import polish as pol
+from hybridtwin.identify.protocol import ProtocolOptions
 
 TRUTH = 0.8
 SCALE = 1e-3  # [m]
@@ -106,7 +106,7 @@ def test_polish_starts_add_the_parents_refit_with_the_added_effect_only():
     never another effect's refit; a parent that did not refit the effect adds nothing and says so."""
     import pandas as pd
 
-    from hybridtwin.run_fits import polish_starts
+    from hybridtwin.identify.run_fits import polish_starts
 
     fit = _library_fit()
     refits = pd.DataFrame({"effect": ["other", "speed_damping", "speed_damping"], "parameter": ["a", "a", "phase"],

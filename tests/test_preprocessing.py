@@ -7,13 +7,13 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from hybridtwin.measurements import Record, read_record, read_runs
-from hybridtwin.plausibility import LINE_SIGNIFICANCE, SIGNIFICANCE, dominant_rpm
-from hybridtwin.preprocessing import (
+from hybridtwin.data.measurements import Record, read_record, read_runs
+from hybridtwin.data.plausibility import LINE_SIGNIFICANCE, SIGNIFICANCE, dominant_rpm
+from hybridtwin.data.preprocessing import (
     PhaseOrigin, SpeedEstimate, analyse_record, fit_phase, order_analysis, phase_aligned_residuals, phase_origin,
     preprocess_run, quantisation_sigma, waveforms,
 )
-from hybridtwin.rig import Imperfections, RigSpec, generate
+from hybridtwin.data.rig import Imperfections, RigSpec, generate
 
 H = 5
 PLAN = pd.DataFrame({
@@ -94,7 +94,7 @@ def test_speed_of_a_long_record_found_in_bounded_memory():
     of known frequency with noise; the estimate within 4 of its stated sigma (as the rig records above)."""
     import tracemalloc
 
-    from hybridtwin.preprocessing import refine_speed
+    from hybridtwin.data.preprocessing import refine_speed
 
     rng = np.random.default_rng(3)
     rpm_true, fs, duration = 603.7, 2000.0, 60.0
@@ -243,7 +243,7 @@ def test_per_run_table_and_two_cycle_waveforms(plain, tmp_path):
     assert table["sheet_record"].iloc[0] == "take 1" and "record" not in table
 
 
-# --- plausibility (hybridtwin.plausibility, docs/data-checks.md) -------------------------
+# --- plausibility (hybridtwin.data.plausibility, docs/data-checks.md) -------------------------
 
 
 def test_rig_records_raise_no_flag_and_their_strongest_line_is_the_true_speed(plain, with_keyphasor):

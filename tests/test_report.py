@@ -1,5 +1,5 @@
-"""The report stage (hybridtwin.report): the numbers the figures and the ledger show, on synthetic fits with known
-harmonics, and that every figure is written (seconds, no solver); the report's first page (hybridtwin.summary) on
+"""The report stage (hybridtwin.report.report): the numbers the figures and the ledger show, on synthetic fits with known
+harmonics, and that every figure is written (seconds, no solver); the report's first page (hybridtwin.report.summary) on
 known tables; and `snakemake --report report.html` on a small run of the workflow (about a minute)."""
 
 import html as htmllib
@@ -18,10 +18,11 @@ import pytest
 import yaml
 from scipy import stats
 
-from hybridtwin import identification as idn
-from hybridtwin import report, summary
-from hybridtwin import validation as val
-from hybridtwin.run_fits import write_fit
+from hybridtwin.identify import identification as idn
+from hybridtwin.report import report
+from hybridtwin.report import summary
+from hybridtwin.identify import validation as val
+from hybridtwin.identify.run_fits import write_fit
 
 ROOT = Path(__file__).resolve().parents[1]
 H = 3
@@ -339,7 +340,7 @@ def test_two_fit_runs_and_no_validation_run(synthetic, tmp_path):
         report.plt.close(figure)
 
 
-# --- the report's first page (hybridtwin.summary) ---------------------------------------------------------
+# --- the report's first page (hybridtwin.report.summary) ---------------------------------------------------------
 
 
 def _errors(chi2_dof: dict[str, float], beyond: set[str], validation: tuple[str, ...] = ("v",)) -> pd.DataFrame:

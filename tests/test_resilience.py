@@ -26,8 +26,8 @@ import pandas as pd
 import pytest
 import zarr
 
-from hybridtwin import snapshots
-from hybridtwin.stores import MANIFEST, CorruptStoreError, verify_store, write_manifest
+from hybridtwin.offline import snapshots
+from hybridtwin.offline.stores import MANIFEST, CorruptStoreError, verify_store, write_manifest
 from workflow_helpers import RUNS, SMALL, SNAKEMAKE, compare_results, copy_workflow, snakemake
 
 GEOMETRIC_KB = "k_b: [2000, 3500], zeta_s: [0.01, 0.05], zeta_bup: [0.0, 0.05]"

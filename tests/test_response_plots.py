@@ -1,4 +1,4 @@
-"""The dense model response of the report (hybridtwin.response_plots): the sweeps against the linear rotor solved by
+"""The dense model response of the report (hybridtwin.report.response_plots): the sweeps against the linear rotor solved by
 hand, the table's reader against its writer, the multi-valued band, and the Bode and polar figures."""
 
 import matplotlib
@@ -7,10 +7,10 @@ import pandas as pd
 import pytest
 
 from example_machines import LINEAR_EFFECTS, SENSOR_NODE, linear_response, stepped_machine
-from hybridtwin import response_plots as rp
-from hybridtwin.model import Model
-from hybridtwin.report import RunComparison
-from hybridtwin.variants import Variant
+from hybridtwin.report import response_plots as rp
+from hybridtwin.model.model import Model
+from hybridtwin.report.report import RunComparison
+from hybridtwin.model.variants import Variant
 
 MASSES_G = (20.0, 10.0)
 K_A, C_B = 2.5e7, 600.0  # the "fitted" values, away from the machine's nominal ones (2e7, 500)
@@ -221,8 +221,8 @@ def test_spectrum_gives_each_sinusoids_amplitude_and_order():
     3X, each at an exact frequency bin of the 4 s record: the spectrum's peaks are the amplitudes (0-peak, the
     window's gain divided out; np.hanning is the symmetric window, whose leakage at an exact bin is of order
     1/N = 1e-4 relative) at the right orders; the offset is gone."""
-    from hybridtwin.measurements import Record
-    from hybridtwin.preprocessing import spectrum
+    from hybridtwin.data.measurements import Record
+    from hybridtwin.data.preprocessing import spectrum
 
     fs, n, rpm = 2000.0, 8000, 900.0  # 4 s; bins every 0.25 Hz; 1X = 15 Hz
     t = np.arange(n) / fs
@@ -251,7 +251,7 @@ def test_every_plane_of_a_two_plane_machine_gets_its_curves():
     """Probes at d1 (node 8) and at the overhung disk d2 (node 16): the dense table has the four channels in
     declared order, each the linear rotor's response solved by hand at its own node (1e-9 of the largest, as
     above), and the Bode figure draws both sweeps per mass in each channel's amplitude panel (8 rows)."""
-    from hybridtwin.machine import Sensor
+    from hybridtwin.model.machine import Sensor
 
     machine = stepped_machine()
     machine = type(machine)(machine.name, machine.segments, machine.disks, machine.bearings,

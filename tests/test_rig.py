@@ -12,9 +12,9 @@ import pytest
 import yaml
 
 from hybridtwin.cli import main
-from hybridtwin.machine import Machine
-from hybridtwin.measurements import DataWarning, detect_saturation, read_record, read_runs
-from hybridtwin.rig import (
+from hybridtwin.model.machine import Machine
+from hybridtwin.data.measurements import DataWarning, detect_saturation, read_record, read_runs
+from hybridtwin.data.rig import (
     DEFAULT_TRUTH, Imperfections, RigError, RigSpec, RigWarning, Truth, generate, read_plan,
 )
 

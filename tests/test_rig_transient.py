@@ -1,5 +1,5 @@
 """The virtual rig's time integrator (RigSpec.integrator "time"): records made by integrating eq. 29 in time
-(hybridtwin.transient, no harmonic-balance code) carry the same truth as the harmonic-balance rig's, with every
+(hybridtwin.solvers.transient, no harmonic-balance code) carry the same truth as the harmonic-balance rig's, with every
 nuisance still applied, and the choice is recorded and validated.
 
 Tolerance of the comparison with harmonic balance (HB), max_h |X_time - X_HB| / max_h |X_HB| per run and
@@ -16,13 +16,13 @@ import pandas as pd
 import pytest
 import yaml
 
-from hybridtwin import transient as tr
+from hybridtwin.solvers import transient as tr
 from hybridtwin.cli import main
-from hybridtwin.measurements import read_record, read_runs
-from hybridtwin.rig import (
+from hybridtwin.data.measurements import read_record, read_runs
+from hybridtwin.data.rig import (
     TIME_UNIQUE_TOLERANCE, Imperfections, RigError, RigSpec, Truth, generate,
 )
-from hybridtwin.sensor import sensor_dofs
+from hybridtwin.model.sensor import sensor_dofs
 
 H = 7
 TOLERANCE = 2e-5

@@ -17,9 +17,9 @@ import warnings
 import numpy as np
 import pytest
 
-from hybridtwin.machine import Bearing, Disk, Machine, Sensor, ShaftSegment, UnbalancePlane
-from hybridtwin.model import Model, campbell, rpm_to_rad_s
-from hybridtwin.solver import solve
+from hybridtwin.model.machine import Bearing, Disk, Machine, Sensor, ShaftSegment, UnbalancePlane
+from hybridtwin.model.model import Model, campbell, rpm_to_rad_s
+from hybridtwin.solvers.solver import solve
 
 E, RHO = 211e9, 7810.0
 SEGMENTS = [(0.2, 0.04, 4), (0.5, 0.05, 10), (0.3, 0.035, 6)]  # length, d_out [m], elements: nodes 0..20

@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 
 from hybridtwin import solve
-from hybridtwin.solver import sensitivity
-from hybridtwin.variants import Variant, builtin_variant
+from hybridtwin.solvers.solver import sensitivity
+from hybridtwin.model.variants import Variant, builtin_variant
 
 FINAL = builtin_variant("final")
 #: every candidate-effect kind on top of the Final model (slope force: the local force acts on slopes too)

@@ -1,4 +1,4 @@
-"""FE shaft (hybridtwin.shaft) against closed forms of Euler-Bernoulli beam theory.
+"""FE shaft (hybridtwin.model.shaft) against closed forms of Euler-Bernoulli beam theory.
 
 References used here are independent of the package: the natural frequencies of a
 simply supported uniform beam, omega_n = (n pi / L)^2 sqrt(EI / m), and the

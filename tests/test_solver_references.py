@@ -1,4 +1,4 @@
-"""Harmonic-balance solver (hybridtwin.solver) against independent references.
+"""Harmonic-balance solver (hybridtwin.solvers.solver) against independent references.
 
 Every test compares the solver with something it does not share code with:
 closed forms (linear frequency response, the H = 1 Duffing amplitude equation,
@@ -20,10 +20,10 @@ from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 
 from hybridtwin import Effect, LocalForce, Model, Parameter, PolynomialBearing, System, Term, solve, solve_sweep
-from hybridtwin.effects import K_B, base_effects
-import hybridtwin.solver as solver_module
-from hybridtwin.solver import _backtrack, _Condensed
-from hybridtwin.variants import builtin_variant
+from hybridtwin.model.effects import K_B, base_effects
+import hybridtwin.solvers.solver as solver_module
+from hybridtwin.solvers.solver import _backtrack, _Condensed
+from hybridtwin.model.variants import builtin_variant
 
 GEOMETRIC = builtin_variant("geometric")
 SHAFT = GEOMETRIC.model.shaft

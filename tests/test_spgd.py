@@ -6,9 +6,9 @@ import warnings
 import numpy as np
 import pytest
 
-from hybridtwin.library import Library
-from hybridtwin.pod import from_features, pod, to_features
-from hybridtwin.spgd import (PiecewiseSPGD, SparsePGD, _term_change, chebyshev_basis, chebyshev_derivative_basis,
+from hybridtwin.offline.library import Library
+from hybridtwin.offline.pod import from_features, pod, to_features
+from hybridtwin.offline.spgd import (PiecewiseSPGD, SparsePGD, _term_change, chebyshev_basis, chebyshev_derivative_basis,
                              fit_piecewise, fit_spgd)
 
 RNG = np.random.default_rng(7)
@@ -276,7 +276,7 @@ def test_library_save_load_round_trip(tmp_path):
 
 def test_evaluation_in_blocks_with_projected_amplitudes_matches_the_plain_sum():
     """evaluate(): blocks of _CHUNK rows, and the model projected on a few outputs, give sum_k a_k prod_j F_j^k."""
-    from hybridtwin import spgd
+    from hybridtwin.offline import spgd
 
     X, Y, X_val, Y_val = _split(rank_three)
     model = SparsePGD(degree=5, max_terms=6).fit(X, Y, X_val, Y_val)
@@ -338,7 +338,7 @@ def test_library_sensor_equals_the_field_at_the_sensor_dofs():
 
 
 def test_sensor_weights_are_the_inverse_squared_sensor_signal_norm():
-    from hybridtwin.library import sensor_signal_norm, sensor_weights
+    from hybridtwin.offline.library import sensor_signal_norm, sensor_weights
 
     Q = RNG.standard_normal((50, 6, 44)) + 1j * RNG.standard_normal((50, 6, 44))
     Q[0] *= 1e-6  # a near-cancelling scenario: floored
@@ -460,8 +460,8 @@ def test_the_geometric_mode_scaling_switches_node_along_k_b_alone():
     """mode_scaling_kinks against the model itself: just below the switch it finds, the first mode's largest
     entry sits at one node, just above at another, whatever the other unknowns (k_b alone sets the
     stiffness at rest of the Geometric model); the Final model's switch depends on k_b and k_w: no pieces."""
-    from hybridtwin.library import mode_scaling_kinks
-    from hybridtwin.variants import builtin_variant
+    from hybridtwin.offline.library import mode_scaling_kinks
+    from hybridtwin.model.variants import builtin_variant
 
     for name, expected in (("geometric", "k_b"), ("final", None)):
         variant = builtin_variant(name)
@@ -486,7 +486,7 @@ def test_the_geometric_mode_scaling_switches_node_along_k_b_alone():
 def test_a_kink_that_leaves_a_piece_too_few_scenarios_is_not_split():
     """library._fit: a piece needs MIN_PIECE training and validation scenarios; at x = 0.99 the upper piece
     would hold ~2 of 400 training points, so one sPGD is fitted; at 0.3 two pieces."""
-    from hybridtwin.library import MIN_PIECE, _fit
+    from hybridtwin.offline.library import MIN_PIECE, _fit
 
     X = np.random.default_rng(17).uniform(-1, 1, (520, 3))
     Y = kinked(X)
@@ -502,7 +502,7 @@ def test_a_thin_piece_is_served_by_the_whole_box_spgd_where_that_validates_bette
     """fit_piecewise(alone=n): each piece with fewer than n training points keeps its own sPGD or the
     whole-box one, whichever has the lower validation error on the piece's validation points; a piece served
     by the whole-box sPGD is evaluated in global coordinates (value and Jacobian equal to that sPGD's)."""
-    from hybridtwin.spgd import relative_error
+    from hybridtwin.offline.spgd import relative_error
 
     def smooth(X):
         return np.outer(np.cos(2 * X[:, 1]) * (1 + X[:, 0]) + X[:, 2], [1.0, 0.3])

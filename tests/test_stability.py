@@ -1,9 +1,9 @@
-"""Stability of steady states (hybridtwin.floquet, solver.assess_stability) against independent references.
+"""Stability of steady states (hybridtwin.solvers.floquet, solver.assess_stability) against independent references.
 
 - Linear: a local *linear* spring entered as the nonlinear force (so the Floquet machinery runs: J(t) is
   constant) and the plain linear system; the reference is the closed form, the eigenvalues lambda of the
   88-state first-order matrix of M, C, K + the spring (numpy), radius exp(max Re lambda T).
-- Nonlinear: orbits of the geometric model checked by time integration (hybridtwin.transient, which shares
+- Nonlinear: orbits of the geometric model checked by time integration (hybridtwin.solvers.transient, which shares
   no code with the solver or floquet): a deviation from an unstable orbit grows by the largest multiplier
   per period, one from a stable orbit decays.
 - The flag travels: solve_runs -> chunk store -> gathered store -> failures and POD (left out, counted),
@@ -14,15 +14,17 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from hybridtwin import cli, floquet, snapshots
-from hybridtwin import transient as tr
-from hybridtwin.model import LocalForce
-from hybridtwin.pod import pod_of_runs
-from hybridtwin.scenarios import solve_runs
-from hybridtwin.snapshots import read_chunks, write_chunk
-from hybridtwin.continuation import solve_sweep
-from hybridtwin.solver import solve
-from hybridtwin.variants import BUILTIN_VARIANTS, Variant
+from hybridtwin import cli
+from hybridtwin.solvers import floquet
+from hybridtwin.offline import snapshots
+from hybridtwin.solvers import transient as tr
+from hybridtwin.model.model import LocalForce
+from hybridtwin.offline.pod import pod_of_runs
+from hybridtwin.offline.scenarios import solve_runs
+from hybridtwin.offline.snapshots import read_chunks, write_chunk
+from hybridtwin.solvers.continuation import solve_sweep
+from hybridtwin.solvers.solver import solve
+from hybridtwin.model.variants import BUILTIN_VARIANTS, Variant
 
 GEOMETRIC = Variant.from_spec("geometric", BUILTIN_VARIANTS["geometric"], {})
 BEARING = np.array([0, 22])  # u0, v0: where the geometric spring acts
@@ -195,7 +197,7 @@ def test_the_pod_leaves_unstable_points_out_and_counts_them(mixed):
                           for_libraries=False)
     # 10 training scenarios (0-7, 9, 10) of which 2 unstable: 8 snapshots at each run; 3 unstable in all
     assert summary["n_unstable"].tolist() == [3, 3] and summary["n_snapshots"].tolist() == [8, 8]
-    from hybridtwin.pod import load_pod
+    from hybridtwin.offline.pod import load_pod
 
     _, usable = load_pod(str(folder / "pod.zarr"), RUNS["run"][0])
     np.testing.assert_array_equal(usable, (table["zeta_s"] > 0).to_numpy())
@@ -241,7 +243,7 @@ def test_a_jump_that_lands_on_an_unstable_branch_goes_on_to_a_stable_one(monkeyp
     converges to the unstable middle branch at 965 RPM, the linear response to the stable lower one. The jump
     reports the stable one, the solution the run-down reaches by continuation (the reference); with the
     unstable start alone, the unstable landing is kept, flagged."""
-    import hybridtwin.continuation as continuation
+    import hybridtwin.solvers.continuation as continuation
 
     down = solve_sweep(_bistable, np.arange(1000.0, 959.0, -5.0), 1, harmonics=5, direction="down")
     at = dict(zip(down.rpm, down.results))
@@ -288,8 +290,8 @@ def test_a_linear_machines_radius_from_eigenvalues_equals_the_monodromy_matrix_r
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from example_machines import LINEAR_EFFECTS, stepped_machine
 
-    from hybridtwin import floquet
-    from hybridtwin.model import Model
+    from hybridtwin.solvers import floquet
+    from hybridtwin.model.model import Model
 
     machine = stepped_machine()
     fx = machine.effects()

@@ -1,5 +1,5 @@
 """Every kind of zarr store the workflow writes and reads carries a checksum manifest that its reader checks
-(hybridtwin.stores): a deleted chunk never reads as zeros, a truncated one never as a bare codec error; the
+(hybridtwin.offline.stores): a deleted chunk never reads as zeros, a truncated one never as a bare codec error; the
 error is one line naming the store and the chunk. Stores: snapshot chunks, gathered snapshots, POD bases,
 sPGD libraries, fits (joint / per run, and the not-fitted run's store). Synthetic contents, no solver: seconds.
 """
@@ -12,14 +12,15 @@ import pandas as pd
 import pytest
 import zarr
 
-from hybridtwin import report, snapshots
-from hybridtwin.library import Library
-from hybridtwin.pod import load_pod, pod_of_runs
-from hybridtwin.run_fits import write_fit, write_run_fit
-from hybridtwin.scenarios import RunSolutions
-from hybridtwin.shaft import Shaft
-from hybridtwin.spgd import SparsePGD
-from hybridtwin.stores import MANIFEST, CorruptStoreError, check_store, verify_store, write_manifest
+from hybridtwin.report import report
+from hybridtwin.offline import snapshots
+from hybridtwin.offline.library import Library
+from hybridtwin.offline.pod import load_pod, pod_of_runs
+from hybridtwin.identify.run_fits import write_fit, write_run_fit
+from hybridtwin.offline.scenarios import RunSolutions
+from hybridtwin.model.shaft import Shaft
+from hybridtwin.offline.spgd import SparsePGD
+from hybridtwin.offline.stores import MANIFEST, CorruptStoreError, check_store, verify_store, write_manifest
 
 RNG = np.random.default_rng(11)  # library and fit contents (any values)
 RUNS = ["r500", "r700"]

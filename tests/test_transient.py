@@ -1,6 +1,6 @@
-"""The harmonic-balance solver against an independent time integration (hybridtwin.transient).
+"""The harmonic-balance solver against an independent time integration (hybridtwin.solvers.transient).
 
-hybridtwin.transient integrates eq. 29 of the paper,
+hybridtwin.solvers.transient integrates eq. 29 of the paper,
 M q'' + C q' + K q = Re(sum_h F_h exp(i h Omega t)) + F_nl(q), with scipy's Radau
 on the first-order form; it shares the System (matrices, forcing, local forces)
 with the solver but none of the harmonic-balance code. The Geometric model with
@@ -27,8 +27,9 @@ import numpy as np
 import pytest
 
 from hybridtwin import solve_sweep
-from hybridtwin import transient as tr
-from hybridtwin.variants import builtin_variant
+from hybridtwin.solvers import transient as tr
+from hybridtwin.model.variants import builtin_variant
+from hybridtwin.solvers.solver import solve_variant
 
 GEOMETRIC = builtin_variant("geometric")
 SHAFT = GEOMETRIC.model.shaft
@@ -63,7 +64,7 @@ def steady_state(rpm: float):
         result = sweep.results[-1]
         assert sweep.rpm[-1] == 900.0 and result.branch[0].startswith("run-down")
     else:
-        result = GEOMETRIC.solve(rpm, PAPER, harmonics=H)
+        result = solve_variant(GEOMETRIC, rpm, PAPER, harmonics=H)
     assert result.success[0], result.message[0]
     return build(rpm, np.arange(1)), result
 

@@ -19,8 +19,8 @@ import pandas as pd
 import pytest
 import zarr
 
-from hybridtwin import snapshots
-from hybridtwin.scenarios import NOT_SOLVED
+from hybridtwin.offline import snapshots
+from hybridtwin.offline.scenarios import NOT_SOLVED
 
 ROOT = Path(__file__).resolve().parents[1]
 SNAKEMAKE = [sys.executable, "-m", "snakemake"]
@@ -93,7 +93,7 @@ def test_offline_stage_builds_and_scores_libraries(workdir):
         assert table.loc[table["run"] == "r400_m25p9", "median_error_pct"].item() < allowed
         # each run's speed is the one its library was solved at (offline.speed: measured, refined from the
         # record), not the sheet's nominal one
-        from hybridtwin import snapshots
+        from hybridtwin.offline import snapshots
 
         solved = snapshots.load(str(workdir / "results" / variant / "snapshots.zarr"))
         speeds = np.array([solved.rpm[solved.run_index(run)] for run in RUNS])
@@ -110,9 +110,9 @@ def test_a_run_with_too_few_usable_scenarios_is_named_with_its_counts_before_any
     """A run whose responses leave the sensor range for nearly the whole box (near a resonance) cannot have a
     library: the pod stage says which run, how many scenarios were usable and where the others went, for every
     such run at once, instead of a traceback in the middle of a variant's sPGD job."""
-    from hybridtwin.pod import MIN_TRAIN, ThinLibraryError, pod_of_runs
-    from hybridtwin.sensor import peak_displacement
-    from hybridtwin.shaft import Shaft
+    from hybridtwin.offline.pod import MIN_TRAIN, ThinLibraryError, pod_of_runs
+    from hybridtwin.model.sensor import peak_displacement
+    from hybridtwin.model.shaft import Shaft
 
     solved = snapshots.load(str(workdir / "results" / "geometric" / "snapshots.zarr"))
     shaft = Shaft()  # the VARM's shaft: the sensors the SMALL config reads
@@ -143,7 +143,7 @@ def test_a_run_with_too_few_usable_scenarios_is_named_with_its_counts_before_any
     assert not (tmp_path / "pod.zarr").exists()  # nothing half written
     # the same runs kept out of the fit by the data checks (a clipped record): their libraries are never fitted
     # to, so they take every steady scenario and the variant's libraries are built
-    from hybridtwin.pod import load_pod
+    from hybridtwin.offline.pod import load_pod
 
     table = pod_of_runs(str(workdir / "results" / "geometric" / "snapshots.zarr"), str(tmp_path / "kept.zarr"),
                         shaft, sensor_range, 1e-10, kept_out=list(caught.value.runs["run"]))
@@ -360,8 +360,8 @@ def test_killed_run_resumes_with_the_same_results(workdir, tmp_path):
 def test_global_scope_serves_every_run_from_one_library(workdir, tmp_path):
     """offline.scope: global: one sPGD over the unknowns, rpm and eccentric mass, fitted on the fit runs only;
     every run's library (the validation run's too) is its slice at the run's operating point."""
-    from hybridtwin.library import Library
-    from hybridtwin.snapshots import load
+    from hybridtwin.offline.library import Library
+    from hybridtwin.offline.snapshots import load
 
     work = tmp_path / "global"
     shutil.copytree(workdir, work, symlinks=True)

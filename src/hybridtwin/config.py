@@ -22,11 +22,11 @@ import pandas as pd
 import yaml
 from threadpoolctl import threadpool_limits
 
-from .bearing_candidates import at_bearing
-from .effects import Effect
-from .machine import Machine, MachineSpecError
-from .scenarios import default_n_scenarios
-from .variants import EffectsFileError, Variant, load_effects_files
+from .model.bearing_candidates import at_bearing
+from .model.effects import Effect
+from .model.machine import Machine, MachineSpecError
+from .offline.scenarios import default_n_scenarios
+from .model.variants import EffectsFileError, Variant, load_effects_files
 
 CONFIG_DIR = Path("config")
 CONFIG_FILE = CONFIG_DIR / "config.yaml"
@@ -73,7 +73,7 @@ def candidate_names(names: Sequence[str] | None, config: Mapping) -> list[str] |
 
 
 def machine(config: Mapping) -> Machine:
-    """The rotor of the ``machine:`` section (hybridtwin.machine; absent: the VARM)."""
+    """The rotor of the ``machine:`` section (hybridtwin.model.machine; absent: the VARM)."""
     return Machine.from_mapping(config.get("machine"))
 
 
@@ -88,7 +88,7 @@ def variant(config: Mapping, name: str, config_dir: Path = CONFIG_DIR) -> Varian
 
 # The ``offline:`` options' defaults (as identification.DEFAULTS and diagnosis.DEFAULTS for their sections): the
 # schema's ``default:`` entries copy them (tests/test_config.py checks they agree). n_scenarios: per variant, else
-# scenarios.default_n_scenarios; the sPGD options but degree are hybridtwin.spgd.SparsePGD's defaults.
+# scenarios.default_n_scenarios; the sPGD options but degree are hybridtwin.offline.spgd.SparsePGD's defaults.
 OFFLINE_DEFAULTS: dict = {
     "seed": 1, "speed": "measured", "n_scenarios": {}, "n_test": 200, "validation_fraction": 0.2,
     "chunks": 4, "scope": "run", "pieces": "mode_scaling",
@@ -157,7 +157,7 @@ def run_plan(source: Mapping | str | Path, measured: str | Path | None = None) -
     sheet it has as input). With ``measured`` (the preprocessed table, results/data/harmonics.tsv) each run's
     rpm is the true speed refined from its record (rpm_true) instead of the nominal one.
     """
-    from .measurements import read_runs  # the one reader of runs sheets (check-data's): every problem named
+    from .data.measurements import read_runs  # the one reader of runs sheets (check-data's): every problem named
 
     path = source["runs"] if isinstance(source, Mapping) else source
     sheet = read_runs(path, require_mass=True)
@@ -374,9 +374,9 @@ def _schema_problems(config: Mapping, schema: Mapping) -> Iterable[Problem]:
 
 
 def _name_problems(config: Mapping, config_dir: Path) -> Iterable[Problem]:
-    from .candidates import candidates_for
-    from .effects import builtin_effects
-    from .rig import RigSpec
+    from .model.candidates import candidates_for
+    from .model.effects import builtin_effects
+    from .data.rig import RigSpec
 
     runs = config.get("runs")
     if runs is not None and not Path(runs).is_file():

@@ -7,10 +7,10 @@ import pandas as pd
 from snakemake.utils import validate
 
 from hybridtwin.config import CONFIG_DIR, effects_files_used, offline, offline_for, run_plan, variant as config_variant
-from hybridtwin.diagnosis import settings as diagnosis_settings
-from hybridtwin.identification import settings as identification_settings
-from hybridtwin.measurements import DataError, read_runs
-from hybridtwin.variants import nested_parents, parent_variant
+from hybridtwin.diagnose.diagnosis import settings as diagnosis_settings
+from hybridtwin.identify.identification import settings as identification_settings
+from hybridtwin.data.measurements import DataError, read_runs
+from hybridtwin.model.variants import nested_parents, parent_variant
 
 
 validate(config, "../schemas/config.schema.yaml")
@@ -19,7 +19,7 @@ VARIANTS = list(config["variants"])
 OFFLINE = offline(config)
 CHUNKS = [f"{i:03d}" for i in range(OFFLINE["chunks"])]
 ENRICHMENT_CHUNKS = [f"{i:03d}" for i in range(OFFLINE["enrichment"]["chunks"] if OFFLINE["enrichment"]["n_scenarios"] else 0)]
-# The runs sheet, read at parse time by the reader check-data uses (hybridtwin.measurements.read_runs, also behind
+# The runs sheet, read at parse time by the reader check-data uses (hybridtwin.data.measurements.read_runs, also behind
 # run_plan, runs_with_role and sheet_entry): white space, case, BOM, CRLF handled one way; any problem (a missing
 # column, an unknown role, an empty mass, a missing record...) stops here in one message naming file, line, column.
 try:

@@ -3,8 +3,8 @@
 # physical parameters, per-run bow), polished with the full solver; validation runs only predicted.
 # The scripts read only their input, params and output: what a job uses of the config is in its params (a
 # change reruns only the jobs that use it).
-from hybridtwin.identification import runs_with_role
-from hybridtwin.identification import rule_settings
+from hybridtwin.identify.identification import runs_with_role
+from hybridtwin.identify.identification import rule_settings
 
 
 FIT_RUNS = runs_with_role(config["runs"], "fit")

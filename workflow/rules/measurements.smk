@@ -5,7 +5,7 @@
 import os
 
 from hybridtwin.config import data_check_settings
-from hybridtwin.measurements import read_runs, sheet_entry
+from hybridtwin.data.measurements import read_runs, sheet_entry
 
 RUNS_SHEET = config.get("runs", "data/default/runs.tsv")
 # The records' channels are the machine's sensors, one column each named after it (issue 24), a param of the rules

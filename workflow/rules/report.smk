@@ -92,7 +92,7 @@ rule report_overview:
 
 rule report_response:
     """Bode and polar plots of 1X-3X: the fitted model as dense curves by continuation (run-up and run-down per
-    eccentric mass) with the fit and validation runs on top (hybridtwin.response_plots)."""
+    eccentric mass) with the fit and validation runs on top (hybridtwin.report.response_plots)."""
     input:
         table="results/{variant}/report/harmonics.tsv",
         parameters="results/{variant}/parameters.tsv",
@@ -127,7 +127,7 @@ rule report_response:
 
 
 rule report_cascade:
-    """The measured full spectra of every run as a cascade (hybridtwin.response_plots.plot_cascade)."""
+    """The measured full spectra of every run as a cascade (hybridtwin.report.response_plots.plot_cascade)."""
     input:
         spectra=lambda wildcards: expand("results/data/runs/{run}/spectrum.tsv", run=read_runs(RUNS_SHEET)["run"]),
         harmonics="results/data/harmonics.tsv",
@@ -149,7 +149,7 @@ rule report_cascade:
 
 rule report_machine:
     """The machine the variant runs on: Campbell diagram of the fitted model with the run speeds, and its mode
-    shapes (hybridtwin.machine_plots)."""
+    shapes (hybridtwin.report.machine_plots)."""
     input:
         parameters="results/{variant}/parameters.tsv",
         effects=variant_effects,  # their contents build the variant (params.model has only the paths)

@@ -1,0 +1,183 @@
+"""What the commands share: the config they read (as the workflow reads it), the variants and effects it declares,
+and the parsing of numbers on the command line. Every bad value ends in a ``UsageError`` (exit status 2)."""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Mapping, Sequence
+from importlib import metadata
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from ..model.effect_base import Effect
+from ..model.effects import builtin_effects
+from ..model.machine import Machine, MachineSpecError, default_machine
+from ..model.variants import BUILTIN_VARIANTS, EffectsFileError, Variant, load_effects_files
+
+#: the config read when --config is not given and the command runs from the project root
+PROJECT_CONFIG = Path("config") / "config.yaml"
+#: where simulate's own run-up starts when the direct solve fails (the rig's and forward.run_up's start)
+RUN_UP_FROM_RPM = 300.0
+#: a run-down for the other branch starts this much above the point (at least RUNDOWN_MARGIN_RPM)
+RUNDOWN_FACTOR, RUNDOWN_MARGIN_RPM = 1.5, 300.0
+#: two branches at a point are different steady states when their harmonics differ by more than this,
+#: relative to the largest (the solver converges to ~1e-10 relative; a second branch differs at O(1))
+SAME_BRANCH_RTOL = 1e-6
+#: most samples --time-series writes (about 10^7 rows, 0.5 GB of CSV)
+MAX_SAMPLES = 10_000_000
+
+
+class UsageError(Exception):
+    """Bad input from the user: printed as one clear line, exit status 2."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with its errors on one line (no usage block before them), exit status 2."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see `{self.prog} --help`)\n")
+
+
+def _version() -> str:
+    try:
+        return metadata.version("hybridtwin")
+    except metadata.PackageNotFoundError:
+        return "unknown (not installed)"
+
+
+
+
+def _parameter(text: str) -> tuple[str, float]:
+    name, sep, value = text.partition("=")
+    if not sep or not name.strip():
+        raise argparse.ArgumentTypeError(f"expected NAME=VALUE (e.g. k_b=2411.3), got {text!r}")
+    return name.strip(), _number(value, name.strip())
+
+
+def _number(text: str, name: str = "") -> float:
+    """A finite float, or an argparse error (naming the parameter ``name`` when given)."""
+    what = f"value of {name} is " if name else ""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{what}not a number: {text!r}") from None
+    if not np.isfinite(value):
+        raise argparse.ArgumentTypeError(f"{what}not a finite number: {text!r}")
+    return value
+
+
+def _positive(text: str) -> float:
+    value = _number(text)
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"must be positive, got {text}")
+    return value
+
+
+def _non_negative(text: str) -> float:
+    value = _number(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
+    return value
+
+
+def _harmonics(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
+    return value
+
+
+# --- variants and effects: built in, from a config, from effect files -------------------------------
+
+
+def config_file(config: Path | None) -> Path | None:
+    """--config, or ./config/config.yaml when run from the project root, or None (built-in variants)."""
+    if config is not None:
+        return config
+    return PROJECT_CONFIG if PROJECT_CONFIG.is_file() else None
+
+
+def read_config(config: Path) -> Mapping:
+    """The mapping of a config file, or a one-line UsageError naming it."""
+    if not config.is_file():
+        raise UsageError(f"config file {config} does not exist")
+    try:
+        data = yaml.safe_load(config.read_text()) or {}
+    except yaml.YAMLError as err:
+        raise UsageError(f"config file {config} is not valid YAML: {' '.join(str(err).split())}") from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise UsageError(f"config file {config} cannot be read: {err}") from None
+    if not isinstance(data, Mapping):
+        raise UsageError(f"config file {config}: expected a mapping of keys (variants:, effects_files:, ...)")
+    return data
+
+
+def config_machine(config: Path | None, data: Mapping | None = None) -> Machine:
+    """The rotor of a config file's ``machine:`` section (hybridtwin.config.machine; none: the VARM)."""
+    if config is None:
+        return default_machine()
+    data = read_config(config) if data is None else data
+    try:
+        return Machine.from_mapping(data.get("machine"))
+    except MachineSpecError as err:
+        raise UsageError(f"config file {config}: {err}") from None
+
+
+def load_catalog(config: Path | None, effects_files: Sequence[Path]
+                 ) -> tuple[dict[str, Mapping], dict[str, Effect], Machine]:
+    """Variant specs, user effects and the machine: from a config file (``variants:``, ``effects_files:``,
+    ``machine:``; the built-in variants when it declares none, the VARM when it has no machine) and effect
+    files."""
+    specs: dict[str, Mapping] = dict(BUILTIN_VARIANTS)
+    files = list(effects_files)
+    machine = default_machine()
+    if config is not None:
+        data = read_config(config)
+        specs = dict(data.get("variants") or specs)
+        files += [config.parent / f for f in data.get("effects_files") or []]
+        machine = config_machine(config, data)
+    try:
+        user = load_effects_files(files)
+    except EffectsFileError as err:
+        raise UsageError(str(err)) from None
+    return specs, user, machine
+
+
+def build_variant(name: str, specs: Mapping[str, Mapping], user: Mapping[str, Effect], source: Path | None,
+                  add: Sequence[str] = (), machine: Machine | None = None) -> Variant:
+    """Variant ``name`` of ``specs`` built on ``machine`` (default the VARM), with the effects ``add`` (built in,
+    from effect files or placed on the machine, e.g. ``linear_bearing@drive_end``) added."""
+    if name not in specs:
+        raise UsageError(f"unknown variant {name!r} (available: {', '.join(sorted(specs))}"
+                         f"{'' if source is None else f' in {source}'})")
+    machine = default_machine() if machine is None else machine
+    user = dict(user) | machine.effects()  # as hybridtwin.config.variant
+    spec = dict(specs[name])
+    if add:
+        registry = builtin_effects() | user
+        present = list(spec.get("effects", []))
+        for effect in add:
+            if effect not in registry:
+                raise UsageError(f"--add-effect {effect}: no such effect (available: {', '.join(sorted(registry))})")
+            if effect in present:
+                raise UsageError(f"--add-effect {effect}: variant {name!r} has it already")
+            present.append(effect)
+        spec["effects"] = present
+    try:
+        return Variant.from_spec(name if not add else "+".join([name, *add]), spec, user, shaft=machine)
+    except ValueError as err:
+        raise UsageError(f"{source or 'built-in variants'}: {err}") from None
+
+
+def load_variants(config: Path | None, effects_files: Sequence[Path]) -> tuple[dict[str, Variant], dict[str, Effect]]:
+    """Every variant (built on the config's machine) and the user effects (``load_catalog``)."""
+    specs, user, machine = load_catalog(config, effects_files)
+    return {name: build_variant(name, specs, user, config, machine=machine) for name in specs}, user
+
+
+# --- the parser -----------------------------------------------------------------------------------

@@ -1,0 +1,697 @@
+"""Measured runs: read and check the runs sheet and the records (docs/measurement-format.md, docs/data-checks.md).
+
+A data set is a runs sheet (TSV, one row per run: run, rpm, eccentric_mass_g,
+path, role; optional sensor_range_mm, sensor_resolution_mm; extra columns
+carried through) and one record (CSV) per run: time_s, one displacement
+column per sensor of the machine named after it, <sensor>_mm or <sensor>_m
+(the VARM's sensors are x and y: time_s, x_mm, y_mm), and an optional
+keyphasor column.
+
+Both files go through one text reader (``read_text_table``), so every reader of
+a sheet (``hybridtwin check-data``, the workflow at parse time, every script)
+treats a file the same way: UTF-8 with or without a byte-order mark (UTF-16
+with a BOM too), CRLF or LF line ends, blank lines (also at the end) skipped
+with line numbers kept, cells and headers stripped of white space and of one
+pair of enclosing double quotes, known column names matched case-insensitively.
+Everything else that is ambiguous is an error, never a guess: a file that is
+not text or not UTF-8, the wrong separator, a line with more or fewer cells
+than the header, a decimal comma, a unit inside a number, a duplicated column.
+
+Every check names the file, the line (the header is line 1) and the column,
+and the problem. Problems that make a file unusable raise ``DataError`` (all
+problems of a file at once, not just the first). Problems that leave a run
+readable but not fit for a fit (a flat or clipped channel, see also
+``hybridtwin.data.plausibility``) are returned as findings and also emitted as a
+``DataWarning``, so the caller flags the run and says so; nothing is dropped
+silently.
+
+Inside, everything is SI: ``read_record`` converts millimetres to metres.
+"""
+
+from __future__ import annotations
+
+import difflib
+import re
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from ..model.sensor import DEFAULT_CHANNELS, machine_order, sensor_pairs  # noqa: F401 (re-exported)
+from .record_columns import keyphasor_column, listed, numeric_column, time_problems, uniform_time_base
+
+Array = np.ndarray
+
+SHEET_COLUMNS = ("run", "rpm", "eccentric_mass_g", "path", "role")
+REQUIRED_SHEET_COLUMNS = ("run", "rpm", "eccentric_mass_g", "path")  # role defaults to "fit"
+#: optional per-run facts of the displacement sensor (empty cell: the configured or built-in default)
+SENSOR_COLUMNS = ("sensor_range_mm", "sensor_resolution_mm")
+ROLES = ("fit", "validate")
+RUN_ID = re.compile(r"^[A-Za-z0-9_-]+$")
+#: run ids that pandas reads as missing values (its default NA strings that are valid ids): they would vanish from
+#: the result tables
+MISSING_LOOKING_IDS = ("NA", "NULL", "NaN", "None", "nan", "null")
+UNITS = {"mm": 1e-3, "m": 1.0}  # displacement column suffix -> metres per unit
+RECORD_COLUMNS = ("time_s", "keyphasor")
+
+#: the paper's lasers: +-14 mm measuring range (sensor_range_mm) ...
+SENSOR_RANGE_MM = 14.0
+#: ... and the smallest displacement step they resolve (sensor_resolution_mm)
+SENSOR_RESOLUTION_MM = 1e-3
+#: an eccentric mass below this [g] (but above 0) looks like kilograms written in the grams column
+KG_LOOKING_MASS_G = 0.1
+#: fewest whole revolutions a record must hold (at its nominal speed) to be analysed
+MIN_REVOLUTIONS = 5
+#: saturation: at least this many consecutive samples at a channel's extreme value form a flat top
+FLAT_TOP_SAMPLES = 3
+#: ... and at least this many samples sit at that extreme value (or on the sensor's rail) in all
+SATURATED_SAMPLES = 5
+#: ... and, on a channel written at a coarse resolution, more than this many times the samples of the next level
+#: inward: a clipped top piles samples up at one level; a sine's unclipped peak holds at most ~1.7 times the next
+#: level's samples (its time within one step of the peak, sqrt(2), against the next step's, 2 - sqrt(2)); a sine
+#: clipped at 99.5 % of its amplitude, written in steps of 1/470 of it, holds 4.7 times
+CLIP_PILEUP = 3.0
+#: the rail: samples within max(RAIL_RESOLUTIONS resolutions, RAIL_FRACTION of the range) of +-range
+RAIL_RESOLUTIONS = 10.0
+RAIL_FRACTION = 0.002
+
+
+class DataError(ValueError):
+    """Invalid measured data; the message names the file, line or column and the problem."""
+
+
+class DataWarning(UserWarning):
+    """A run that is kept but flagged (not used in a fit); the message says what and why."""
+
+
+@dataclass(frozen=True)
+class Sensor:
+    """What the displacement sensor can report: +-range_m and the smallest step resolution_m [m]."""
+
+    range_m: float = SENSOR_RANGE_MM * 1e-3
+    resolution_m: float = SENSOR_RESOLUTION_MM * 1e-3
+
+    @property
+    def rail_band_m(self) -> float:
+        """Samples within this of +-range are on the rail (saturated), beyond range + band impossible."""
+        return max(RAIL_RESOLUTIONS * self.resolution_m, RAIL_FRACTION * self.range_m)
+
+    @classmethod
+    def for_run(cls, row, range_m: float | None = None, resolution_m: float | None = None) -> Sensor:
+        """The sensor of one runs-sheet row: its sensor_* cells, else the given defaults, else the built-in."""
+        def value(column: str, default: float | None, builtin: float) -> float:
+            cell = row.get(column) if hasattr(row, "get") else None
+            if cell is not None and not pd.isna(cell):
+                return float(cell) * 1e-3
+            return float(default) if default is not None else builtin
+
+        return cls(value("sensor_range_mm", range_m, cls.range_m),
+                   value("sensor_resolution_mm", resolution_m, cls.resolution_m))
+
+
+@dataclass(frozen=True)
+class Record:
+    """One run's record in SI units.
+
+    time_s: (N,); channels: {sensor name: (N,) displacement [m]} in the
+    machine's sensor order (the VARM: x, y); keyphasor: (N,) bool or None when
+    the file has no keyphasor column; units: the displacement unit of each
+    channel in the file ("mm" or "m"; one string: every channel's); lines: (N,)
+    the file line of each sample (None for a record made in memory: line =
+    index + 2); pairs: (x channel index, y channel index) of each probe pair at
+    one node (its orbit; the backward-whirl check reads the first), default the
+    pair (x, y) when both are channels.
+    """
+
+    path: Path
+    time_s: Array
+    channels: Mapping[str, Array]
+    keyphasor: Array | None
+    units: Mapping[str, str] | str
+    lines: Array | None = None
+    pairs: tuple[tuple[int, int], ...] | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "channels", dict(self.channels))
+        if isinstance(self.units, str):
+            object.__setattr__(self, "units", {name: self.units for name in self.channels})
+        if self.pairs is None:
+            names = list(self.channels)
+            pairs = ((names.index("x"), names.index("y")),) if {"x", "y"} <= set(names) else ()
+            object.__setattr__(self, "pairs", pairs)
+
+    @classmethod
+    def xy(cls, path, time_s: Array, x_m: Array, y_m: Array, keyphasor: Array | None = None, unit: str = "m",
+           lines: Array | None = None) -> "Record":
+        """A record of the two channels x and y (the VARM's)."""
+        return cls(path, time_s, {"x": x_m, "y": y_m}, keyphasor, unit, lines)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """The channels' names, in order."""
+        return tuple(self.channels)
+
+    @property
+    def data(self) -> Array:
+        """Every channel as columns, (N, C) [m]."""
+        return np.column_stack([self.channels[name] for name in self.channels])
+
+    @property
+    def x_m(self) -> Array:
+        return self.channel("x")
+
+    @property
+    def y_m(self) -> Array:
+        return self.channel("y")
+
+    @property
+    def unit(self) -> str:
+        """The file's displacement unit: "mm" or "m", or each channel's joined by "/" when they differ."""
+        units = list(self.units.values())
+        return units[0] if len(set(units)) == 1 else "/".join(units)
+
+    @property
+    def n_samples(self) -> int:
+        return int(self.time_s.size)
+
+    @property
+    def dt_s(self) -> float:
+        """Median sampling step [s]."""
+        return float(np.median(np.diff(self.time_s)))
+
+    @property
+    def sample_rate_hz(self) -> float:
+        return 1.0 / self.dt_s
+
+    @property
+    def duration_s(self) -> float:
+        """Time covered by the samples, N * dt [s] (each sample stands for one step)."""
+        return self.n_samples * self.dt_s
+
+    def channel(self, name: str) -> Array:
+        """The displacement channel of sensor ``name`` [m]."""
+        try:
+            return self.channels[name]
+        except KeyError:
+            raise KeyError(f"{self.path}: no channel {name!r} (channels: {', '.join(self.channels)})") from None
+
+    def channel_unit(self, name: str) -> str:
+        """The unit of channel ``name`` in the file ("mm" or "m")."""
+        return self.units[name]
+
+    def line(self, index) -> Array:
+        """File line number(s) of sample index(es)."""
+        index = np.asarray(index)
+        return self.lines[index] if self.lines is not None else index + 2
+
+
+def record_channels(sensors=None) -> tuple[tuple[str, ...], tuple[tuple[int, int], ...] | None]:
+    """(channel names, probe pairs) a record must hold for ``sensors``: None, the VARM's x and y; a ``Machine``
+    (its sensors' names and ``sensor_pairs``); the config form {name: {node, direction}} (a ``machine:``
+    section's ``sensors``); a sequence of sensor names (pairs: x, y when both are there); or of objects with
+    ``name``, ``node``, ``direction`` (a machine's sensors)."""
+    if sensors is None:
+        return DEFAULT_CHANNELS, None
+    if hasattr(sensors, "sensors"):  # a Machine
+        sensors = sensors.sensors
+    if isinstance(sensors, Mapping):
+        from types import SimpleNamespace
+
+        sensors = [SimpleNamespace(name=str(name), node=spec.get("node"), direction=spec.get("direction"))
+                   for name, spec in sensors.items()]
+    items = list(sensors)
+    if all(isinstance(item, str) for item in items):
+        return tuple(items), None
+    items = [items[i] for i in machine_order(items)]  # the machine's channel order, however they were declared
+    return tuple(str(item.name) for item in items), tuple(sensor_pairs(items))
+
+
+@dataclass(frozen=True)
+class Saturation:
+    """A flat or clipped channel of a record.
+
+    kind: "flat" (the whole channel is constant, within the sensor's resolution:
+    no signal) or "clipped" (flat tops at the channel's extreme value, or
+    samples on the sensor's rail: the sensor saturated there).
+    level_m: the constant / clipping value; n_samples: samples at that value;
+    n_flat_tops: separate runs of >= FLAT_TOP_SAMPLES consecutive samples there.
+    """
+
+    path: Path
+    channel: str
+    kind: str
+    level_m: float
+    n_samples: int
+    n_flat_tops: int
+    total_samples: int
+
+    def describe(self) -> str:
+        if self.kind == "flat":
+            return (f"{self.path}: channel {self.channel} is flat (constant {self.level_m * 1e3:.4f} mm over all "
+                    f"{self.total_samples} samples): no signal, the sensor is dead or disconnected; the run is "
+                    "kept out of the fit")
+        share = 100.0 * self.n_samples / self.total_samples
+        return (f"{self.path}: channel {self.channel} is clipped at {self.level_m * 1e3:+.4f} mm: {self.n_samples} "
+                f"samples ({share:.1f} %) in {self.n_flat_tops} flat top(s); the sensor saturated, so the "
+                "harmonics of this run are biased; the run is kept out of the fit")
+
+    @property
+    def short(self) -> str:
+        if self.kind == "flat":
+            return f"{self.channel} flat"
+        return f"{self.channel} clipped at {self.level_m * 1e3:+.3f} mm ({self.n_samples} samples)"
+
+
+# --- one text reader for sheets and records ----------------------------------------------
+
+
+def read_text_table(path: str | Path, sep: str, known: Sequence[str] | None = None) -> tuple[pd.DataFrame, Array]:
+    """A delimited text file as (cells as stripped strings, file line number of each row).
+
+    The conventions of the module docstring: encoding, line ends, blank lines,
+    white space, quotes; header names in ``known`` (None: all) matched
+    case-insensitively and returned in lower case. Raises ``DataError`` for a
+    missing, empty, binary or non-UTF-8 file, the wrong separator, duplicated
+    or unnamed columns and lines whose number of cells differs from the header's.
+    """
+    path = Path(path)
+    kind = "TSV (tab-separated)" if sep == "\t" else "CSV (comma-separated)"
+    if path.is_dir():
+        raise DataError(f"{path}: is a folder, not a file")
+    if not path.is_file():
+        raise DataError(f"{path}: file does not exist")
+    lines = _decode(path, path.read_bytes()).replace("\r\n", "\n").replace("\r", "\n").split("\n")
+    rows = [(n, [_clean(c) for c in text.split(sep)]) for n, text in enumerate(lines, start=1)]
+    rows = [(n, cells) for n, cells in rows if any(cells)]  # blank lines (also "\t\t", ",,") carry nothing
+    if not rows:
+        raise DataError(f"{path}: file is empty (no header row)")
+    (header_line, header), body = rows[0], rows[1:]
+    if len(header) == 1:
+        used = next((name for s, name in ((",", "commas"), (";", "semicolons"), ("\t", "tabs"), ("|", "bars"))
+                     if s != sep and s in lines[header_line - 1]), "spaces" if " " in header[0] else None)
+        found = f"its columns are separated by {used}" if used else "it has a single column"
+        raise DataError(f"{path}: line {header_line} (header): not {kind}: {found}; save it as {kind}")
+    lowered = {c.lower() for c in known} if known is not None else None
+    header = [h.lower() if lowered is None or h.lower() in lowered else h for h in header]
+    problems = []
+    for name in sorted({h for h in header if h and header.count(h) > 1}):
+        where = [i + 1 for i, h in enumerate(header) if h == name]
+        problems.append(f"line {header_line} (header): column {name!r} appears {len(where)} times "
+                        f"(columns {', '.join(map(str, where))})")
+    wrong = [(n, len(cells)) for n, cells in body
+             if len(cells) < len(header) or (len(cells) > len(header) and any(cells[len(header):]))]
+    if wrong:
+        hint = "a decimal comma? use a point: 0.25" if sep == "," else "a missing tab, or spaces instead of a tab?"
+        problems += listed(f"not {len(header)} cells as in the header ({hint})", [n for n, _ in wrong],
+                            [f"{k} cells" for _, k in wrong])
+    cells = [c[:len(header)] for _, c in body]
+    for i, name in enumerate(header):
+        if not name and any(row[i] for row in cells if len(row) > i):
+            problems.append(f"line {header_line} (header): column {i + 1} has no name but holds values")
+    if problems:
+        raise DataError(_format(path, problems))
+    keep = [i for i, name in enumerate(header) if name]  # an unnamed, empty column: trailing separators
+    table = pd.DataFrame([[row[i] for i in keep] for row in cells], columns=[header[i] for i in keep], dtype=str)
+    return table, np.array([n for n, _ in body], dtype=int)
+
+
+def _decode(path: Path, raw: bytes) -> str:
+    if raw.startswith((b"\xff\xfe", b"\xfe\xff")):
+        try:
+            return raw.decode("utf-16")
+        except UnicodeDecodeError:
+            raise DataError(f"{path}: starts as UTF-16 text but does not decode as UTF-16; save it as UTF-8") from None
+    if raw.startswith(b"\xef\xbb\xbf"):
+        raw = raw[3:]  # the UTF-8 byte-order mark some spreadsheets write
+    if raw.startswith(b"PK\x03\x04"):
+        raise DataError(f"{path}: is a zip archive (an Excel or OpenDocument workbook?), not a text file; export it "
+                        "as text (tab-separated for a runs sheet, comma-separated for a record)")
+    if b"\x00" in raw:
+        line = raw[:raw.index(b"\x00")].count(b"\n") + 1
+        raise DataError(f"{path}: line {line}: binary content (NUL bytes), not a text file")
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as err:
+        line = raw[:err.start].count(b"\n") + 1
+        raise DataError(f"{path}: line {line}: byte 0x{raw[err.start]:02x} is not UTF-8 text (Latin-1 or "
+                        "Windows-1252?); save the file as UTF-8") from None
+
+
+def _clean(cell: str) -> str:
+    cell = cell.strip()
+    if len(cell) >= 2 and cell[0] == cell[-1] == '"':
+        cell = cell[1:-1].strip()
+    return cell
+
+
+# --- the runs sheet ---------------------------------------------------------------------
+
+
+def read_runs(path: str | Path, check_files: bool = True, require_path: bool = True,
+              require_mass: bool = False) -> pd.DataFrame:
+    """Read and validate a runs sheet (docs/measurement-format.md, "The runs sheet"; docs/data-checks.md).
+
+    Returns the sheet with ``rpm`` and ``eccentric_mass_g`` as floats (NaN where
+    the mass is unknown), ``role`` lower-case and "fit" where empty or absent,
+    the sensor_* columns (if any) as floats, and an added column ``record``
+    with each record's path resolved against the sheet's folder. Extra columns
+    are kept. ``attrs["lines"]`` holds each row's line in the file.
+
+    Raises ``DataError`` listing every problem: missing or duplicated columns,
+    bad or duplicate run ids (also differing only in case), non-numeric,
+    non-finite or out-of-range speeds and masses (negative, or a mass that
+    looks like kilograms), unknown roles, bad sensor facts, empty or shared
+    record paths and (with ``check_files``) records that do not exist. With
+    ``require_mass`` an empty mass is an error (the workflow and check-data: the
+    libraries are built per speed and mass). With ``require_path`` False the
+    sheet may be a bare run plan without a path column (the virtual rig's input).
+    """
+    path = Path(path)
+    table, line = read_text_table(path, "\t", SHEET_COLUMNS + SENSOR_COLUMNS)
+    required = REQUIRED_SHEET_COLUMNS if require_path else REQUIRED_SHEET_COLUMNS[:3]
+    _require_columns(path, table.columns, required, SHEET_COLUMNS + SENSOR_COLUMNS,
+                     "a runs sheet needs the columns run, rpm, eccentric_mass_g, path (and optionally role)")
+    if "path" not in table:
+        table["path"] = ""
+    if table.empty:
+        raise DataError(f"{path}: the runs sheet has no runs (only a header)")
+    problems: list[str] = []
+    runs = table["run"]
+    problems += listed("column run: empty (every run needs an id)", line[(runs == "").to_numpy()],
+                        ["''"] * int((runs == "").sum()))
+    bad_id = ~runs.str.fullmatch(RUN_ID.pattern) & (runs != "")
+    problems += [f"line {n}, column run: {v!r} is not a valid run id (letters, digits, '-', '_' only: it becomes "
+                 "a file name)" for n, v in zip(line[bad_id], runs[bad_id])]
+    missing_looking = runs.isin(MISSING_LOOKING_IDS)
+    problems += [f"line {n}, column run: {v!r} reads as a missing value in the result tables (a pandas default): "
+                 f"name the run otherwise" for n, v in zip(line[missing_looking.to_numpy()], runs[missing_looking])]
+    for run_id, lines in _duplicates(runs[runs != ""], line[(runs != "").to_numpy()]):
+        problems.append(f"lines {', '.join(map(str, lines))}, column run: duplicate run id {run_id!r}")
+    for key, lines in _duplicates(runs[runs != ""].str.lower(), line[(runs != "").to_numpy()]):
+        ids = sorted({runs.iloc[i] for i in np.flatnonzero(runs.str.lower() == key)})
+        if len(ids) > 1:
+            problems.append(f"lines {', '.join(map(str, lines))}, column run: run ids {ids} differ only in case "
+                            "(their files clash on case-insensitive file systems)")
+    rpm, found = numeric_column(table["rpm"], "rpm", line, allow_empty=False)
+    problems += found
+    problems += [f"line {n}, column rpm: {v:g} is not a positive speed" for n, v in zip(line, rpm) if v <= 0]
+    mass, found = numeric_column(table["eccentric_mass_g"], "eccentric_mass_g", line, allow_empty=not require_mass,
+                                  empty_hint="the libraries are built per speed and eccentric mass: write 0 "
+                                             "for no added mass")
+    problems += found
+    problems += [f"line {n}, column eccentric_mass_g: {v:g} g is negative" for n, v in zip(line, mass) if v < 0]
+    problems += [f"line {n}, column eccentric_mass_g: {v:g} g looks like kilograms ({v * 1e3:g} g?); the column "
+                 "is in grams" for n, v in zip(line, mass) if 0 < v < KG_LOOKING_MASS_G]
+    role = table["role"].str.lower() if "role" in table else pd.Series("", index=table.index)
+    role = role.where(role != "", "fit")
+    bad_role = ~role.isin(ROLES)
+    for n, v in zip(line[bad_role], table["role"][bad_role] if "role" in table else []):
+        close = difflib.get_close_matches(v.lower(), ROLES, n=1, cutoff=0.5)
+        hint = f" (did you mean {close[0]!r}?)" if close else ""
+        problems.append(f"line {n}, column role: {v!r} is not a role: use {' or '.join(ROLES)}{hint}")
+    sensors = {}
+    for column in SENSOR_COLUMNS:
+        if column in table:
+            sensors[column], found = numeric_column(table[column], column, line, allow_empty=True)
+            problems += found + [f"line {n}, column {column}: {v:g} mm is not positive"
+                                 for n, v in zip(line, sensors[column]) if v <= 0]
+    rel = table["path"]
+    if require_path:
+        problems += [f"line {n}, column path: empty (the record of run {r!r} is not given)"
+                     for n, r, p in zip(line, runs, rel) if not p]
+        # the same file however it is spelled (./records/a.csv, records//a.csv, a link to it)
+        same_file = pd.Series([str((path.parent / p).resolve()) for p in rel], index=rel.index)
+        given = rel != ""
+        for shared, lines in _duplicates(same_file[given], line[given.to_numpy()]):
+            spelled = sorted(set(rel[same_file == shared]))
+            problems.append(f"lines {', '.join(map(str, lines))}, column path: runs "
+                            f"{runs[same_file == shared].tolist()} share the record "
+                            f"{' = '.join(repr(s) for s in spelled)}")
+    record = [path.parent / p if p else None for p in rel]
+    if check_files:
+        for n, r, p, f in zip(line, runs, rel, record):
+            if p and f.is_dir():
+                problems.append(f"line {n}, column path: {p!r} of run {r!r} is a folder, not a record ({f})")
+            elif p and not f.is_file():
+                problems.append(f"line {n}, column path: record {p!r} of run {r!r} does not exist (looked for {f})")
+    if problems:
+        raise DataError(_format(path, problems))
+    out = table.rename(columns={"record": "sheet_record"})  # a column of the user's: kept, under another name
+    out["run"], out["rpm"], out["eccentric_mass_g"], out["path"], out["role"] = runs, rpm, mass, rel, role
+    for column, values in sensors.items():
+        out[column] = values
+    out["record"] = [str(f) if f is not None else "" for f in record]
+    out.attrs.update(lines=line.tolist(), source=str(path))
+    return out
+
+
+def sheet_entry(sheet: str | Path, run: str) -> dict:
+    """One run's row of a runs sheet (read as the workflow does) as a plain dict (``record`` resolved,
+    NaN -> None), or ``DataError``."""
+    runs = read_runs(sheet, require_mass=True)
+    rows = runs[runs["run"] == run]
+    if rows.empty:
+        raise DataError(f"{sheet}: no run {run!r} (runs: {', '.join(runs['run'])})")
+    return {k: (None if pd.isna(v) else (v.item() if hasattr(v, "item") else v)) for k, v in rows.iloc[0].items()}
+
+
+def runs_with_role(sheet: str | Path, role: str) -> list[str]:
+    """Runs of a runs sheet with this role, read as check-data reads it (no role column: every run fits)."""
+    runs = read_runs(sheet, require_mass=True)
+    return runs.loc[runs["role"] == role, "run"].tolist()
+
+
+def check_coverage(runs: pd.DataFrame, rpm_range: Sequence[float] | None = None,
+                   mass_range_g: Sequence[float] | None = None, source: str | Path = "runs sheet",
+                   range_names: tuple[str, str] = ("rpm range", "eccentric mass range")) -> None:
+    """Raise ``DataError`` for runs whose speed or eccentric mass lies outside the covered ranges.
+
+    rpm_range, mass_range_g: [low, high] that the configured model libraries
+    cover (inclusive); None skips that check. A range given high first is an
+    error of the setting (named by ``range_names``), not of the data. A run with
+    an unknown mass (NaN) is reported too when a mass range is given: it cannot
+    be shown to be covered.
+    """
+    checks = (("rpm", rpm_range, "RPM", "speed", range_names[0]),
+              ("eccentric_mass_g", mass_range_g, "g", "eccentric mass", range_names[1]))
+    for _, bounds, unit, _, name in checks:
+        if bounds is not None and (len(bounds) != 2 or not float(bounds[0]) <= float(bounds[1])):
+            raise DataError(f"{name}: {list(bounds)} {unit} is not [low, high] with low <= high (a setting, not "
+                            "the data: swap the two values)")
+    problems = []
+    line = runs.attrs.get("lines", list(np.arange(len(runs)) + 2))
+    for column, bounds, unit, what, _ in checks:
+        if bounds is None:
+            continue
+        lo, hi = (float(b) for b in bounds)
+        for n, run_id, value in zip(line, runs["run"], runs[column].to_numpy(float)):
+            if np.isnan(value):
+                problems.append(f"line {n}, run {run_id!r}: {what} unknown, cannot check it lies in "
+                                f"[{lo:g}, {hi:g}] {unit}")
+            elif not lo <= value <= hi:
+                problems.append(f"line {n}, run {run_id!r}: {what} {value:g} {unit} is outside the covered "
+                                f"range [{lo:g}, {hi:g}] {unit}")
+    if problems:
+        raise DataError(_format(Path(source), problems))
+
+
+# --- a record ---------------------------------------------------------------------------
+
+
+def read_record(path: str | Path, sensors=None) -> Record:
+    """Read and validate one record (docs/measurement-format.md, "A record").
+
+    sensors: the machine whose sensors name the channels (a ``Machine``, its
+    sensors, or their names; ``record_channels``); None: the VARM's x and y.
+    Checks: the file exists and parses (``read_text_table``); a time_s column
+    and one displacement column per sensor with a known unit (<sensor>_mm or
+    <sensor>_m, e.g. x_mm/y_mm), no column of an unknown sensor; every cell
+    numeric and present (no NaN, no empty cell, no decimal comma); time
+    strictly increasing and uniform (no gaps: a step > 1.5 median steps; every
+    stamp within its rounding plus 5 % of a step of t0 + n dt, ``record_columns.time_problems``);
+    a keyphasor column, if any, a two-level signal (0/1, true/false, 0/5 V, ...)
+    with at least one rising edge. Raises ``DataError`` naming the file, lines
+    and columns. The record's time_s is the least-squares uniform base t0 + n dt
+    (``uniform_time_base``), free of the stamps' rounding and jitter; its
+    keyphasor is True on the rising edges (``record_columns.keyphasor_marks``).
+    Plausibility of the values (units, range, speed) is
+    ``hybridtwin.data.plausibility``'s.
+    """
+    path = Path(path)
+    names, pairs = record_channels(sensors)
+    table, line = read_text_table(path, ",")
+    time_col, chosen = _record_columns(path, table.columns, names)
+    if len(table) < 3:
+        raise DataError(f"{path}: only {len(table)} sample(s); a record needs many revolutions of samples")
+    problems: list[str] = []
+    values = {}
+    for column in (time_col, *(c for c, _ in chosen.values())):
+        values[column], found = numeric_column(table[column], column, line, allow_empty=False)
+        problems += found
+    keyphasor = None
+    if "keyphasor" in table:
+        keyphasor, found = keyphasor_column(table["keyphasor"], line)
+        problems += found
+    if problems:
+        raise DataError(_format(path, problems))
+    problems = time_problems(values[time_col], line)
+    if problems:
+        raise DataError(_format(path, problems))
+    time_s = uniform_time_base(values[time_col])  # the written stamps less their rounding and jitter
+    channels = {name: values[column] * UNITS[unit] for name, (column, unit) in chosen.items()}
+    return Record(path, time_s, channels, keyphasor, {name: unit for name, (_, unit) in chosen.items()}, line,
+                  pairs)
+
+
+def check_length(record: Record, rpm: float, min_revolutions: float = MIN_REVOLUTIONS) -> None:
+    """Raise ``DataError`` when the record holds fewer than ``min_revolutions`` revolutions at ``rpm``."""
+    revolutions = record.duration_s * rpm / 60.0
+    if revolutions < min_revolutions:
+        raise DataError(
+            f"{record.path}: too short: {record.n_samples} samples, {record.duration_s:.3g} s = "
+            f"{revolutions:.1f} revolution(s) at {rpm:g} RPM nominal; at least {min_revolutions:g} are needed "
+            "for the synchronous analysis")
+
+
+def check_sampling(record: Record, rpm: float, harmonics: int) -> None:
+    """Raise ``DataError`` when the sampling cannot resolve harmonic ``harmonics`` at ``rpm``.
+
+    The per-revolution fit of harmonics 0..H needs more than 2H + 1 samples per
+    revolution (and HX below the Nyquist frequency, fs / 2).
+    """
+    per_revolution = record.sample_rate_hz * 60.0 / rpm
+    if per_revolution <= 2 * harmonics + 1:
+        raise DataError(
+            f"{record.path}: {record.sample_rate_hz:g} Hz sampling gives {per_revolution:.1f} samples per "
+            f"revolution at {rpm:g} RPM, too few to resolve {harmonics}X (need > {2 * harmonics + 1})")
+
+
+def detect_saturation(record: Record, sensor_range_m: float | None = None,
+                      resolution_m: float | None = None) -> list[Saturation]:
+    """Flat and clipped channels of a record, each also emitted as a ``DataWarning``.
+
+    Flat: the whole channel spans no more than the sensor's resolution (exactly
+    constant when no resolution is given). Clipped, at either extreme of a
+    channel: at least SATURATED_SAMPLES samples equal to that extreme (within
+    1e-7 of the channel's span) including at least one run of FLAT_TOP_SAMPLES
+    consecutive ones (noise makes an unsaturated peak practically never repeat
+    its exact value), and more than CLIP_PILEUP times the samples at the next
+    level inward (the step between the channel's written values: a quiet
+    channel written in coarse steps repeats its peak values without being
+    clipped); or, with ``sensor_range_m``, at least SATURATED_SAMPLES
+    samples on the rail, within ``Sensor.rail_band_m`` of +-range: a saturated
+    laser whose output still carries a little noise.
+    """
+    sensor = Sensor(sensor_range_m or SENSOR_RANGE_MM * 1e-3, resolution_m or 0.0)
+    found = []
+    for name in record.names:
+        values = record.channel(name)
+        spread = float(np.ptp(values))
+        if spread <= max(1e-12 * max(1.0, float(np.abs(values).max())), resolution_m or 0.0):
+            found.append(Saturation(record.path, name, "flat", float(np.median(values)), values.size, 1,
+                                    values.size))
+            continue
+        tol = 1e-7 * spread
+        levels = np.unique(values)
+        step = float(np.min(np.diff(levels)))  # the written resolution, where the values are quantised
+        for sign, extreme in ((1.0, float(values.max())), (-1.0, float(values.min()))):
+            at = np.abs(values - extreme) <= tol
+            tops = _flat_tops(at)
+            inward = int(np.sum(np.abs(values - (extreme - sign * step)) <= tol)) if step > 2 * tol else 0
+            if at.sum() >= SATURATED_SAMPLES and tops > 0 and at.sum() > CLIP_PILEUP * inward:
+                found.append(Saturation(record.path, name, "clipped", extreme, int(at.sum()), tops, values.size))
+                continue
+            if sensor_range_m is None:
+                continue
+            rail = sign * values >= sensor.range_m - sensor.rail_band_m
+            if rail.sum() >= SATURATED_SAMPLES or (rail.any() and abs(extreme) >= sensor.range_m):
+                found.append(Saturation(record.path, name, "clipped", float(np.median(values[rail])),
+                                        int(rail.sum()), _flat_tops(rail), values.size))
+    for item in found:
+        warnings.warn(item.describe(), DataWarning, stacklevel=2)
+    return found
+
+
+# --- helpers ----------------------------------------------------------------------------
+
+
+def _require_columns(path: Path, have: Sequence[str], required: Sequence[str], known: Sequence[str],
+                     what: str) -> None:
+    missing = [c for c in required if c not in have]
+    if missing:
+        hints = []
+        for column in missing:
+            close = difflib.get_close_matches(column, [h for h in have if h not in known], n=1, cutoff=0.5)
+            hints.append(f"{column!r} (found {close[0]!r}: misnamed?)" if close else repr(column))
+        raise DataError(f"{path}: line 1 (header): missing column(s) {', '.join(hints)}; {what}; "
+                        f"the header has {list(have)}")
+
+
+def _record_columns(path: Path, columns: Sequence[str], names: Sequence[str] = DEFAULT_CHANNELS
+                    ) -> tuple[str, dict[str, tuple[str, str]]]:
+    """(time column, {sensor name: (its column, unit)}) of a record header, or DataError."""
+    listed, varm = ", ".join(names), tuple(names) == DEFAULT_CHANNELS
+    expected = ("time_s, x_mm and y_mm (or x_m and y_m)" if varm else
+                f"time_s and one column <sensor>_mm (or <sensor>_m) for each of the machine's sensors {listed}")
+    _require_columns(path, columns, ("time_s",), RECORD_COLUMNS, f"a record needs {expected}, optionally keyphasor")
+    problems, chosen = [], {}
+    own = {}
+    for axis in names:  # headers are read in lower case (read_text_table): a sensor X1's column X1_mm is x1_mm
+        low = axis.lower()
+        candidates = [(c, c[len(low) + 1:]) for c in columns if c.startswith(f"{low}_") and c not in RECORD_COLUMNS]
+        # a column of another sensor whose name starts with this one's (x and x_b): not this sensor's
+        own[axis] = [(c, u) for c, u in candidates
+                     if not any(c.startswith(f"{other.lower()}_") and len(other) > len(axis) for other in names)]
+    claimed = {c for found in own.values() for c, _ in found}
+    for axis in names:
+        known = [(c, u) for c, u in own[axis] if u in UNITS]
+        unknown = [c for c, u in own[axis] if u not in UNITS]
+        if unknown and not known:
+            problems.append(f"column {unknown[0]!r}: unknown unit {unknown[0][len(axis) + 1:]!r} "
+                            f"(use {axis}_mm or {axis}_m)")
+        elif len(known) > 1:
+            problems.append(f"columns {[c for c, _ in known]}: more than one {axis} displacement column")
+        elif not known:
+            close = difflib.get_close_matches(f"{axis.lower()}_mm", [c for c in columns if c not in claimed], n=1,
+                                              cutoff=0.5)
+            hint = f" (found {close[0]!r}: misnamed?)" if close and close[0] not in RECORD_COLUMNS else ""
+            problems.append(f"missing column {axis}_mm (or {axis}_m){hint}")
+        else:
+            chosen[axis] = known[0]
+    extra = [c for c in columns if c not in RECORD_COLUMNS and c not in claimed]
+    if extra:
+        has = ("time_s, x_mm, y_mm or x_m, y_m, keyphasor" if varm else
+               f"time_s, a column <sensor>_mm or <sensor>_m for each of the machine's sensors {listed}, keyphasor")
+        problems.append(f"unexpected column(s) {extra} (a record has {has})")
+    if varm and any(c.rsplit("_", 1)[-1] in UNITS for c in extra):
+        problems.append("displacement columns of other sensors than the VARM's x and y: the record of a machine "
+                        "of your own? Its channels are read by its config's sensors (check-data --config FILE)")
+    if problems:
+        sensors = "" if varm else f"; the machine's sensors {listed}"
+        raise DataError(f"{path}: line 1 (header): " + "; ".join(problems) + f"; the header has {list(columns)}"
+                        + sensors)
+    return "time_s", chosen
+
+
+def _duplicates(values: pd.Series, line: Array) -> list[tuple[str, list[int]]]:
+    out = []
+    for value, group in pd.Series(line, index=values.to_numpy()).groupby(level=0, sort=False):
+        if len(group) > 1:
+            out.append((str(value), group.tolist()))
+    return out
+
+
+def _flat_tops(at: Array) -> int:
+    """Number of runs of >= FLAT_TOP_SAMPLES consecutive True values."""
+    edges = np.diff(np.concatenate(([0], at.astype(np.int8), [0])))
+    starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    return int(np.sum(stops - starts >= FLAT_TOP_SAMPLES))
+
+
+def _format(path: Path, problems: Sequence[str]) -> str:
+    if len(problems) == 1:
+        return f"{path}: {problems[0]}"
+    return f"{path}: {len(problems)} problems:\n" + "\n".join(f"  - {p}" for p in problems)

@@ -1,0 +1,568 @@
+"""Forward models: a run's sensor harmonics h = 1..H as a function of the unknown parameters.
+
+Two kinds share one interface (``HarmonicModel``: ``parameters``, ``lower``,
+``upper``, ``H``, ``evaluate(x (N, d), jacobian)`` -> M (N, H, C) complex [m]
+and dM/dx (N, H, C, d), x the parameters normalised to [-1, 1], C the machine's
+sensors in the machine's order, ``sensor.sensor_dofs``: x, y on the VARM):
+
+- ``SensorSurrogate``: a run's sPGD library (microseconds per evaluation,
+  exact Jacobian of the surrogate);
+- ``SolverModel``: the full harmonic-balance solver (no surrogate error).
+
+Used by the identification, its full-solver polish, the validation
+predictions and the diagnosis.
+
+Stability: the LM iterations solve without the Floquet check (``stability=False``,
+30-40 % of a solve saved per evaluation); the steady states a fit reports are
+checked afterwards (``floquet_radii``, ``SolverModel.floquet_radius``;
+``check_stability`` for a fit's optimum: an unstable one is flagged on the fit
+and warned about, never reported as a plain converged fit).
+"""
+
+from __future__ import annotations
+
+import logging
+import warnings
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from ..offline.library import Library
+from ..offline.pod import feature_index
+from ..solvers.continuation import padded_speeds
+from ..offline.scenarios import intermediate_speeds
+
+Array = np.ndarray
+
+class HarmonicModel(Protocol):
+    """A run's sensor harmonics h = 1..H as a function of its parameters normalised to [-1, 1]."""
+
+    parameters: list[str]
+    lower: Array
+    upper: Array
+    H: int
+
+    def evaluate(self, x: Array, jacobian: bool = True) -> tuple[Array, Array | None]:
+        """x (N, d) -> M (N, H, C) complex [m] and dM/dx (N, H, C, d)."""
+
+
+class SensorSurrogate:
+    """A library's sensor harmonics h = 1..H and exact derivatives, evaluated for many trials at once.
+
+    Same numbers as ``Library.sensor`` (the sPGD of eq. 6-7 on the POD basis,
+    projected on the sensor DOFs once): y = (prod_j F_j(x_j)) A_s with
+    A_s = amplitudes Phi_sensor^T, evaluated by ``SparsePGD.evaluate``, here in
+    normalised coordinates and without the mean (h = 0).
+    """
+
+    def __init__(self, library: Library, harmonics: int | None = None):
+        H_lib = library.n_harmonics - 1
+        self.H = H_lib if harmonics is None else min(int(harmonics), H_lib)
+        if self.H < 1:
+            raise ValueError(f"library {library.run} has no harmonic h >= 1")
+        h = np.arange(1, self.H + 1)
+        rows = [feature_index(h, dof, library.n_harmonics, library.n_dof, imaginary)
+                for imaginary in (False, True) for dof in library.sensor_dofs]
+        self.C = len(library.sensor_dofs)  # channels: the sensors (x, y on the VARM)
+        sensor_modes = library.modes[np.concatenate(rows)]  # (2CH, m): Re of each sensor, then Im of each
+        self.model = library.model.projected(sensor_modes.T)  # outputs Re x, Re y, Im x, Im y (2CH)
+        self.parameters = list(library.parameters)
+        self.lower, self.upper = np.asarray(library.lower, float), np.asarray(library.upper, float)
+        self.run = library.run
+
+    def evaluate(self, x: Array, jacobian: bool = True) -> tuple[Array, Array | None]:
+        """M (N, H, C) complex and dM/dx (N, H, C, d) at normalised x (N, d) in [-1, 1]."""
+        x = np.clip(np.atleast_2d(x), -1.0, 1.0)
+        y, J = self.model.evaluate(x, jacobian=jacobian)
+        if not jacobian:
+            return self._complex(y), None
+        N, d = x.shape
+        out = self._complex(J.reshape(d * N, -1)).reshape(d, N, self.H, self.C)
+        return self._complex(y), np.moveaxis(out, 0, -1)
+
+    def _complex(self, features: Array) -> Array:
+        """(N, 2CH) [Re x, Re y, Im x, Im y] -> (N, H, C) complex."""
+        parts = features.reshape(features.shape[0], 2, self.C, self.H)  # (N, Re/Im, channel, h)
+        return np.swapaxes(parts[:, 0] + 1j * parts[:, 1], 1, 2)
+
+
+
+def run_up(variant, rpm: Sequence[float], values: Mapping[str, Array | float], harmonics: int,
+           start_rpm: float = 300.0, step_rpm: float = 50.0, jumps: bool = False) -> list:
+    """Steady states of S parameter sets at each of ``rpm``, reached by one run-up from ``start_rpm``.
+
+    values: parameter values [SI], scalars or (S,) arrays, m_e included (unlike
+    ``scenarios.solve_runs``, which sets m_e from the run plan, an unknown m_e
+    keeps each set's own value). Steps between speeds are at most ``step_rpm``
+    (the offline stage's run-up). Returns the ``SteadyState`` at each of ``rpm``;
+    with ``jumps``, also (S,) flags: True for a set whose run-up jumped between
+    branches at any step up to the highest of ``rpm`` (a fold crossed on the way).
+    """
+    from ..solvers.continuation import solve_sweep
+
+    base = variant.values(values)
+    S = max(np.size(v) for v in base.values())
+    arrays = {k: np.broadcast_to(np.asarray(v, float), (S,)) for k, v in base.items()}
+    targets = np.asarray(rpm, float)
+    points = np.unique(np.append(targets, min(start_rpm, targets.min())))
+    grid = intermediate_speeds(points, step_rpm)
+    rest = variant.model.at_rest(arrays)  # the speed-independent stages, once for the whole run-up
+    # stability=False: the fits use the response only (as before the Floquet check, which would add ~30-40 %)
+    sweep = solve_sweep(lambda speed, rows: variant.model.system_at(rest.rows(rows), speed),
+                        grid, S, harmonics=harmonics, direction="up", stability=False)
+    by_rpm = dict(zip(sweep.rpm, sweep.results))
+    states = [by_rpm[r] for r in targets]
+    if not jumps:
+        return states
+    jumped = np.zeros(S, bool)
+    for speed, result in zip(sweep.rpm, sweep.results):
+        if speed <= targets.max():
+            jumped |= np.array(["jump" in str(b) for b in result.branch])
+    return states, jumped
+
+
+def run_ups(variant, rpm: Array, values: Mapping[str, Array], harmonics: int, start_rpm: float = 300.0,
+            step_rpm: float = 50.0) -> tuple:
+    """Steady states of S parameter sets, set s at its own speed ``rpm[s]``, each reached by its own run-up
+    from ``start_rpm`` as in ``run_up`` (the same speed steps, so the same states), all solved in lockstep
+    (``solve_sweep`` with per-scenario speeds): one batched sweep instead of one per run.
+
+    values: complete parameter values [SI], each (S,). Returns the ``SteadyState`` of the S sets and (S,)
+    flags: True for a set whose run-up jumped between branches on the way (a fold crossed)."""
+    from ..solvers.continuation import solve_sweep
+    from ..solvers.solver import SteadyState
+
+    rpm = np.asarray(rpm, float)
+    S = rpm.size
+    ramps = [intermediate_speeds(np.unique([min(start_rpm, r), r]), step_rpm) for r in rpm]
+    speeds = padded_speeds(ramps)
+    rest = variant.model.at_rest({k: np.broadcast_to(np.asarray(v, float), (S,)) for k, v in values.items()}, S)
+    sweep = solve_sweep(lambda speed, rows: variant.model.system_at(rest.rows(rows), speed),
+                        speeds, S, harmonics=harmonics, direction="up", stability=False)
+    last = np.array([len(r) for r in ramps]) - 1
+    jumped = np.zeros(S, bool)
+    parts, order = [], []
+    for step, result in enumerate(sweep.results):
+        active = np.flatnonzero(last >= step)
+        jumped[active] |= np.array(["jump" in str(result.branch[a]) for a in active], bool)
+        here = np.flatnonzero(last == step)
+        if here.size:
+            parts.append(result.take(here))
+            order.append(here)
+    return SteadyState.concatenate(parts, np.argsort(np.concatenate(order))), jumped
+
+
+#: a warm start is kept when Newton's solution lies within this fraction of the predicted change of the
+#: condensed state (plus ``WARM_FLOOR`` of its size) from the predictor: a solution farther away means the
+#: continuation in the parameters left the branch the run-up reaches (a fold in between)
+WARM_TOLERANCE = 0.25
+WARM_FLOOR = 1e-3
+#: steady states kept for warm starts per model (a few LM trials' worth of iterates)
+CACHE_SIZE = 256
+#: the assembly's central-difference step of the analytic sensitivities, as a fraction of each range
+#: (``solver.sensitivity``: exact for parameters entering linearly; smaller steps meet round-off)
+SENSITIVITY_STEP = 1e-4
+
+
+class SolverModel:
+    """A run's sensor harmonics from the full harmonic-balance solver.
+
+    Same interface as ``SensorSurrogate``: evaluate(x (N, d)) -> M (N, H, C), dM/dx (N, H, C, d), C the
+    machine's sensors (``sensor.sensor_dofs``).
+    The response at a parameter set is the steady state a run-up from 300 RPM reaches (the rig's
+    history, ``run_up``). Two things make repeated evaluations (an LM's iterates) cheap:
+
+    - warm starts (``warm``): a set close to one solved before continues from it, Newton started at
+      the first-order predictor x_old + dx/dp (p - p_old) (the condensed state's sensitivity), no
+      run-up. The continued solution is kept only if Newton converges within ``WARM_TOLERANCE`` of
+      the predicted change and the earlier set's run-up never jumped between branches; otherwise
+      (a fold in between, a lost branch) the set is solved by a run-up as before;
+    - analytic sensitivities (``analytic``): dM/dp of the converged steady state by the implicit
+      function theorem (``solver.sensitivity``), one linear solve per set for all parameters,
+      instead of d forward-difference solves (``analytic=False``: forward differences of step
+      ``step`` in normalised units, the former method).
+
+    m_e is the run's eccentric mass unless it is one of the parameters. Counters: ``n_solves``
+    sets solved, ``n_warm`` of them by a warm start, ``n_run_ups`` by a run-up.
+
+    ``evaluate`` does not assess stability (the LM needs the response only); ``floquet_radius(x)``
+    does, for the states ``evaluate`` reports at x (``check_stability``: a fit's optimum).
+    """
+
+    def __init__(self, variant, run: str, rpm: float, eccentric_mass_g: float, parameters: Sequence[str],
+                 lower: Array, upper: Array, harmonics: int, step: float = 1e-5, *, warm: bool = True,
+                 analytic: bool = True, cache_size: int = CACHE_SIZE):
+        self.variant, self.run = variant, run
+        self.rpm, self.eccentric_mass_g = float(rpm), float(eccentric_mass_g)
+        self.parameters = list(parameters)
+        self.lower, self.upper = np.asarray(lower, float), np.asarray(upper, float)
+        self.harmonics = int(harmonics)
+        self.H = self.harmonics
+        self.step = float(step)
+        self.warm, self.analytic, self.cache_size = bool(warm), bool(analytic), int(cache_size)
+        self.n_solves = self.n_warm = self.n_run_ups = 0
+        d = len(self.parameters)
+        self._x = np.zeros((0, d))  # cached normalised points, their condensed states and derivatives
+        self._state = None
+        self._dstate = None
+
+    # --- parameter values and systems -------------------------------------------------------
+
+    @property
+    def half_range(self) -> Array:
+        """dp/dx [SI per normalised unit] of each parameter."""
+        return 0.5 * (self.upper - self.lower)
+
+    def _values(self, x: Array) -> dict[str, Array]:
+        """Complete parameter values [SI], each (N,), at normalised x (N, d)."""
+        values = {"m_e": self.eccentric_mass_g * 1e-3}
+        values |= {p: self.lower[j] + (x[:, j] + 1) * self.half_range[j] for j, p in enumerate(self.parameters)}
+        base = self.variant.values(values)
+        return {k: np.broadcast_to(np.asarray(v, float), (x.shape[0],)).copy() for k, v in base.items()}
+
+    # --- solves -------------------------------------------------------------------------------
+
+    def _remember(self, x: Array, result, dstate: Array, jumped: Array) -> None:
+        """Cache the converged sets whose run-up never jumped (warm starts continue only on that branch)."""
+        keep = result.success & ~jumped & np.isfinite(dstate).reshape(len(x), -1).all(1)
+        if not keep.any():
+            return
+        if self._state is None:
+            self._state, self._dstate = result.state[keep], dstate[keep]
+        else:
+            self._state = np.concatenate([self._state, result.state[keep]])[-self.cache_size:]
+            self._dstate = np.concatenate([self._dstate, dstate[keep]])[-self.cache_size:]
+        self._x = np.concatenate([self._x, x[keep]])[-self.cache_size:]
+
+    @property
+    def C(self) -> int:
+        """Channels: the machine's sensors (x, y on the VARM)."""
+        from ..model.sensor import sensor_dofs
+
+        return len(sensor_dofs(self.variant.model.shaft))
+
+    def _sensor(self, harmonics: Array) -> Array:
+        """Every sensor's harmonics h = 1..H (..., H, C) from full harmonics (..., H+1, n)."""
+        from ..model.sensor import sensor_channels
+
+        return sensor_channels(harmonics, self.variant.model.shaft)[..., 1:, :]
+
+    def _solve(self, x: Array) -> Array:
+        """Sensor harmonics (N, H, C) at normalised x (N, d) by the run-up alone (the differences' path)."""
+        result = run_up(self.variant, [self.rpm], self._values(x), self.harmonics)[0]
+        self.n_solves += x.shape[0]
+        self.n_run_ups += x.shape[0]
+        M = self._sensor(result.harmonics)
+        M[~result.success] = np.nan
+        return M
+
+    def evaluate(self, x: Array, jacobian: bool = True) -> tuple[Array, Array | None]:
+        """M (N, H, C) complex [m] and dM/dx (N, H, C, d) at normalised x (N, d); NaN where there is no
+        steady state (or x is NaN)."""
+        x = np.atleast_2d(np.asarray(x, float))
+        N, d = x.shape
+        finite = np.flatnonzero(np.isfinite(x).all(axis=1))
+        if finite.size == 0:
+            return (np.full((N, self.harmonics, self.C), np.nan + 0j),
+                    np.full((N, self.harmonics, self.C, d), np.nan + 0j) if jacobian else None)
+        if self.analytic:  # the batched path with one run: warm starts and exact sensitivities
+            return SolverModel.evaluate_together([self], [x], jacobian)[0]
+        M_finite, J = self._differences(x[finite], jacobian)
+        M = np.full((N, self.harmonics, M_finite.shape[2]), np.nan + 0j)
+        M[finite] = M_finite
+        dM = None
+        if jacobian:
+            dM = np.full((N, self.harmonics, M_finite.shape[2], d), np.nan + 0j)
+            dM[finite] = J
+        return M, dM
+
+    def floquet_radius(self, x: Array) -> Array:
+        """The largest |Floquet multiplier| (N,) of the steady states ``evaluate(x)`` reports at normalised x
+        (N, d): the same states (warm start from the cache or run-up), each checked once (``floquet_radii``).
+        Below 1: stable; NaN where there is no steady state."""
+        return floquet_radii([self], [x])[0]
+
+    @staticmethod
+    def evaluate_together(models: Sequence["SolverModel"], xs: Sequence[Array], jacobian: bool = True
+                          ) -> list[tuple[Array, Array | None]]:
+        """``evaluate`` of several runs' models (one variant, same parameters, analytic) in one batched solve
+        and one sensitivity call (``evaluate_runs``)."""
+        from ..solvers.solver import sensitivity
+
+        first = models[0]
+        H, d, C = first.harmonics, len(first.parameters), first.C
+        batch = SolverModel._steady_states(models, xs)
+        if batch is None:  # no finite parameter set at all
+            return [(np.full((x.shape[0], H, C), np.nan + 0j),
+                     np.full((x.shape[0], H, C, d), np.nan + 0j) if jacobian else None) for x in _as_2d(xs)]
+        result, values, rpm, offsets = batch.result, batch.values, batch.rpm, batch.offsets
+        S = result.n_scenarios
+        M_all = first._sensor(result.harmonics)
+        M_all[~result.success] = np.nan
+        if jacobian:
+            # the sensitivity drops failed sets from the values it assembles: build at the speeds of the others
+            ok = np.flatnonzero(result.success)
+            steps = SENSITIVITY_STEP * (first.upper - first.lower)
+            dQ_ok, dstate_ok = sensitivity(lambda v: batch.build(v, rpm[ok]), {k_: v[ok] for k_, v in values.items()},
+                                           first.parameters, result.take(ok), steps,
+                                           condensed=True)
+            dQ = np.full((S,) + dQ_ok.shape[1:], np.nan + 0j)
+            dstate = np.full((S,) + dstate_ok.shape[1:], np.nan)
+            dQ[ok], dstate[ok] = dQ_ok, dstate_ok
+            dM_all = np.moveaxis(first._sensor(dQ) * first.half_range[None, :, None, None], 1, -1)
+        out = []
+        for k, (m, x, r) in enumerate(zip(models, batch.xs, batch.rows)):
+            sl = slice(offsets[k], offsets[k + 1])
+            M = np.full((x.shape[0], H, C), np.nan + 0j)
+            M[r] = M_all[sl]
+            dM = None
+            if jacobian:
+                dM = np.full((x.shape[0], H, C, d), np.nan + 0j)
+                dM[r] = dM_all[sl]
+                if m.warm and r.size:
+                    own = result.take(np.arange(offsets[k], offsets[k + 1]))
+                    m._remember(x[r], own, dstate[sl], batch.jumped[sl])
+            out.append((M, dM))
+        return out
+
+    @staticmethod
+    def _steady_states(models: Sequence["SolverModel"], xs: Sequence[Array]) -> "_Batch | None":
+        """The steady states ``evaluate_together`` reports at xs (each model's finite rows, stacked run after
+        run): warm starts where a cached neighbour allows, run-ups for the others; None if no row is finite.
+        Their stability is not assessed (``stability=False``: the LM iterations need the response only)."""
+        from ..solvers.solver import SteadyState, solve
+
+        first = models[0]
+        H = first.harmonics
+        xs = _as_2d(xs)
+        rows = [np.flatnonzero(np.isfinite(x).all(axis=1)) for x in xs]
+        counts = [r.size for r in rows]
+        offsets = np.concatenate([[0], np.cumsum(counts)])
+        values_k = [m._values(x[r]) for m, x, r in zip(models, xs, rows)]
+        keys = list(values_k[0])
+        values = {key: np.concatenate([v[key] for v in values_k]) for key in keys}
+        rpm = np.concatenate([np.full(c, m.rpm) for m, c in zip(models, counts)])
+        S = int(offsets[-1])
+
+        def build_at(v: Mapping[str, Array], speeds: Array):
+            """The systems of sets ``v`` (n,), n a multiple of len(speeds) (the sensitivity's stacked copies)."""
+            n = max(np.size(a) for a in v.values())
+            rest = first.variant.model.at_rest(v, n)
+            return first.variant.model.system_at(rest, np.tile(speeds, n // speeds.size))
+
+        # warm starts of every run in one solve, for the sets with a cached neighbour
+        predicted, old, change = (np.full((S,) + _state_shape(models), np.nan) for _ in range(3))
+        has_cache = np.zeros(S, bool)
+        for k, (m, x, r) in enumerate(zip(models, xs, rows)):
+            if m.warm and len(m._x) and r.size:
+                sl = slice(offsets[k], offsets[k + 1])
+                nearest = np.abs(x[r][:, None, :] - m._x[None]).max(-1).argmin(1)
+                old[sl] = m._state[nearest]
+                change[sl] = np.einsum("npcj,np->ncj", m._dstate[nearest], (x[r] - m._x[nearest]) * m.half_range)
+                has_cache[sl] = True
+        predicted = old + change
+        kept = np.zeros(S, bool)
+        parts, order = [], []
+        if has_cache.any():
+            where = np.flatnonzero(has_cache)
+            result = solve(build_at({k_: v[where] for k_, v in values.items()}, rpm[where]), H,
+                           initial=predicted[where], stall_window=8, stability=False)
+            gap = np.linalg.norm((result.state - predicted[where]).reshape(where.size, -1), axis=1)
+            allowed = (WARM_TOLERANCE * np.linalg.norm(change[where].reshape(where.size, -1), axis=1)
+                       + WARM_FLOOR * np.linalg.norm(old[where].reshape(where.size, -1), axis=1))
+            good = result.success & (gap <= allowed)
+            kept[where[good]] = True
+            if good.any():
+                parts.append(result.take(np.flatnonzero(good)))
+                order.append(where[good])
+        jumped = np.zeros(S, bool)
+        for k, m in enumerate(models):
+            cold = np.flatnonzero(~kept[offsets[k]:offsets[k + 1]])
+            m.n_solves += counts[k]
+            m.n_warm += counts[k] - cold.size
+            m.n_run_ups += cold.size
+        cold = np.flatnonzero(~kept)
+        if cold.size:  # every run's cold sets in one lockstep sweep, each on its own run's run-up
+            states, jump = run_ups(first.variant, rpm[cold], {k_: v[cold] for k_, v in values.items()}, H)
+            parts.append(states)
+            order.append(cold)
+            jumped[cold] = jump
+        if not parts:
+            return None
+        result = SteadyState.concatenate(parts, np.argsort(np.concatenate(order)))
+        return _Batch(result, values, rpm, offsets, rows, xs, jumped, build_at)
+
+    def _differences(self, x: Array, jacobian: bool) -> tuple[Array, Array | None]:
+        """Forward differences of run-up solves (the method before the analytic sensitivities)."""
+        N, d = x.shape
+        if not jacobian:
+            return self._solve(x), None
+        steps = np.where(x + self.step <= 1.0, self.step, -self.step)  # (N, d), backwards at the upper bound
+        shifted = np.repeat(x[:, None, :], d, axis=1)
+        shifted[:, np.arange(d), np.arange(d)] += steps
+        M_all = self._solve(np.concatenate([x, shifted.reshape(N * d, d)]))
+        M = M_all[:N]
+        M_shifted = M_all[N:].reshape(N, d, *M.shape[1:])
+        # a shifted solve that fails (next to a fold, say) while the point itself solves: step the other way
+        failed = ~np.isfinite(M_shifted).all(axis=(2, 3)) & np.isfinite(M).all(axis=(1, 2))[:, None]
+        if failed.any():
+            n, j = np.nonzero(failed)
+            steps[n, j] = -steps[n, j]
+            retry = x[n].copy()
+            retry[np.arange(n.size), j] += steps[n, j]
+            M_shifted[n, j] = self._solve(retry)
+        dM = (M_shifted - M[:, None]) / steps[:, :, None, None]
+        return M, np.moveaxis(dM, 1, -1)
+
+
+class StabilityWarning(UserWarning):
+    """A fit whose reported steady state is unstable at some run (the machine would not stay on it)."""
+
+
+@dataclass
+class _Batch:
+    """Steady states of several runs' models solved together (``SolverModel._steady_states``)."""
+
+    result: object  # solver.SteadyState of every finite row, stacked run after run
+    values: dict[str, Array]  # complete parameter values [SI] of those rows
+    rpm: Array
+    offsets: Array  # run k's rows are offsets[k]:offsets[k + 1]
+    rows: list[Array]  # each run's finite rows of its x
+    xs: list[Array]
+    jumped: Array
+    build: Callable  # build(values, speeds) -> System
+
+
+def floquet_radii(models: Sequence[HarmonicModel], xs: Sequence[Array]) -> list[Array | None]:
+    """Each model's largest |Floquet multiplier| (N_k,) at normalised xs[k] (N_k, d), for the steady states its
+    ``evaluate`` reports there; None for a model without a steady state of its own (a library).
+
+    The LM iterations solve without the stability check (``stability=False``: 30-40 % of a solve saved per
+    evaluation); this is the check, for the points a fit reports: the steady states solved again as
+    ``evaluate`` does (a warm start from the cached state at the same point converges at once, on the same
+    branch) and one Floquet analysis of each (``solver.assess_stability``). Models of one variant with the
+    same parameters are solved together, as in ``evaluate_runs``.
+    """
+    from ..solvers.solver import assess_stability
+
+    out: list[Array | None] = [None] * len(models)
+    groups: dict[tuple, list[int]] = {}
+    for k, model in enumerate(models):
+        if isinstance(model, SolverModel):
+            groups.setdefault((id(model.variant), tuple(model.parameters)), []).append(k)
+    for members in groups.values():
+        batch = SolverModel._steady_states([models[k] for k in members], [xs[k] for k in members])
+        if batch is None:
+            for k in members:
+                out[k] = np.full(np.atleast_2d(xs[k]).shape[0], np.nan)
+            continue
+        result = batch.result
+        ok = np.flatnonzero(result.success)
+        if ok.size:
+            assess_stability(batch.build({key: v[ok] for key, v in batch.values.items()}, batch.rpm[ok]), result, ok)
+        for j, k in enumerate(members):
+            radius = np.full(batch.xs[j].shape[0], np.nan)
+            radius[batch.rows[j]] = result.floquet_radius[batch.offsets[j]:batch.offsets[j + 1]]
+            out[k] = radius
+    return out
+
+
+@dataclass
+class StabilityCheck:
+    """The stability of the steady states a fit reports: per run, the largest |Floquet multiplier| at the
+    returned parameters (``floquet_radii``); NaN for a run without a steady state there, or whose model is a
+    library (no steady state of its own to check)."""
+
+    runs: list[str]
+    floquet_radius: Array  # (R,)
+
+    @property
+    def stable(self) -> Array:
+        """(R,) a steady state with every multiplier inside the unit circle."""
+        return np.nan_to_num(self.floquet_radius, nan=np.inf) < 1.0
+
+    @property
+    def unstable_runs(self) -> list[str]:
+        """Runs whose reported steady state is unstable (radius >= 1)."""
+        return [r for r, mu in zip(self.runs, self.floquet_radius) if np.isfinite(mu) and mu >= 1.0]
+
+    def note(self) -> str | None:
+        """One sentence for the fit's notes and the log when some run is unstable, else None."""
+        bad = [(r, mu) for r, mu in zip(self.runs, self.floquet_radius) if np.isfinite(mu) and mu >= 1.0]
+        if not bad:
+            return None
+        listed = ", ".join(f"{r} (|mu| = {mu:.4g})" for r, mu in bad)
+        return (f"unstable steady state at run(s) {listed}: at the fitted parameters the model's periodic "
+                "solution there has a Floquet multiplier outside the unit circle, a state the machine would "
+                "leave, so the fit does not describe a steady state the rig can hold")
+
+
+def check_stability(fit) -> StabilityCheck | None:
+    """The stability check of a full-solver fit's optimum (``fit``: ``identification.Identification``), made
+    visible on the fit when some run's steady state is unstable.
+
+    Each run's steady state at the returned parameters (``fit.theta``, the point ``identification.conclude``
+    evaluated) gets its Floquet radius (``floquet_radii``). When one is unstable, the fit is never left
+    looking like a plain converged one: its ``message`` starts with "unstable steady state at run(s) ...",
+    the same sentence joins ``fit.uncertainty.notes`` (the summary's notes; the per-run parameter table's
+    note column), and a ``StabilityWarning`` naming the runs is issued and logged (logger
+    ``hybridtwin.identify.forward``: the rule's log). Returns None for a fit without any ``SolverModel`` (a library
+    fit: its surrogate has no steady state of its own; a fit read back from a table), else the check.
+    """
+    models = [] if fit.problem is None else fit.problem.models  # a fit read back from its table has no models
+    if not any(isinstance(m, SolverModel) for m in models):
+        return None
+    theta = np.asarray(fit.theta, float)[None]
+    xs = [fit.layout.run_parameters(theta, k)[0] for k in range(fit.layout.n_runs)]
+    radii = floquet_radii(models, xs)
+    check = StabilityCheck(list(fit.layout.runs),
+                           np.array([np.nan if r is None else float(r[0]) for r in radii]))
+    note = check.note()
+    if note is not None:
+        if not fit.message.startswith("unstable steady state"):
+            fit.message = f"unstable steady state at run(s) {', '.join(check.unstable_runs)}; {fit.message}"
+        if note not in fit.uncertainty.notes:
+            fit.uncertainty.notes.append(note)
+        logging.getLogger(__name__).warning("%s", note)
+        warnings.warn(note, StabilityWarning, stacklevel=2)
+    return check
+
+
+def _as_2d(xs: Sequence[Array]) -> list[Array]:
+    return [np.atleast_2d(np.asarray(x, float)) for x in xs]
+
+
+def evaluate_runs(models: Sequence[HarmonicModel], xs: Sequence[Array], jacobian: bool = True
+                  ) -> list[tuple[Array, Array | None]]:
+    """Each model's ``evaluate(xs[k], jacobian)``, batched across runs where that pays.
+
+    SolverModels of one variant with the same parameters and analytic sensitivities are solved together:
+    their warm starts in one batched Newton solve and their sensitivities in one call (each run at its own
+    speed and eccentric mass; the solver treats scenarios independently, so the numbers are those of the
+    models one by one). The fixed cost of a solve and of a sensitivity (assembly, first mode, condensation)
+    is then paid once per evaluation instead of once per run: 19 runs of the bundled plan cost about as
+    much as 3. Other models (libraries) are evaluated one by one.
+    """
+    batched = [k for k, m in enumerate(models) if isinstance(m, SolverModel) and m.analytic]
+    if len(batched) < 2 or len({id(models[k].variant) for k in batched}) > 1 or len(
+            {tuple(models[k].parameters) for k in batched}) > 1:
+        batched = []
+    out: list = [None] * len(models)
+    for k, model in enumerate(models):
+        if k not in batched:
+            out[k] = model.evaluate(xs[k], jacobian)
+    if batched:
+        for k, value in zip(batched, SolverModel.evaluate_together([models[k] for k in batched],
+                                                                   [xs[k] for k in batched], jacobian)):
+            out[k] = value
+    return out
+
+
+def _state_shape(models: Sequence["SolverModel"]) -> tuple[int, ...]:
+    """Shape (c, 2H+1) of one condensed state (from a cache, else from the condensation of the first model)."""
+    for m in models:
+        if m._state is not None:
+            return m._state.shape[1:]
+    return (0, 2 * models[0].harmonics + 1)

@@ -1,0 +1,310 @@
+"""The identification stage's two fits (paper sec. 4.1), what the workflow's rules identify_run and
+identify_joint run, and their files.
+
+Per run: each fit run identified alone on its library by the paper's protocol. One run's fit (tau = 50
+trials, n_MC = 1000 repeats, ``hybridtwin.identify.protocol``) takes about a second, less than a workflow job's
+start-up (Python, numpy, the package: 1-2 s), so the workflow fits every run of a variant in one job, run
+after run, each written to its own files: results/{variant}/runs/{run}/parameters.tsv, history.tsv, fit.zarr.
+
+Joint: all fit runs at once, shared physical parameters and per-run ones (``fit_joint``): the library
+protocol from random trials and a start from the per-run fits, then, when asked, the full solver's polish
+from the library optimum, the next-best trials, the parent variant's diagnosis refit and the joint fits of
+the simpler variants nested in this one.
+
+``options`` are the rule's (``identification.rule_settings``): a job reads nothing else of the config.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from . import forward as fwd
+from . import identification as idn
+from . import polish as pol
+from ..offline.library import Library
+from ..model.variants import Variant, embed
+
+Array = np.ndarray
+
+#: a simpler variant's joint fit is a polish start when this variant reproduces it to this coefficient
+#: mismatch (``variants.embed``; round-off: ~1e-16)
+NESTED_MISMATCH = 1e-6
+#: polish.tsv's columns (an empty table when there was no polish)
+COMPARISON_COLUMNS = ["parameter", "run", "unit", "library_value", "solver_value", "difference", "difference_rel",
+                      "difference_in_stderr", "stderr"]
+#: polish_starts.tsv's columns
+STARTS_COLUMNS = ["start", "chi2_start", "chi2", "chi2_dof", "iterations", "status", "selected"]
+
+
+@dataclass
+class RunFit:
+    """One run's per-run fit: the parameter table (``Identification.table`` plus a note), the loss history,
+    the identification (None for a run that is not usable), and the lines for the log."""
+
+    run: str
+    parameters: pd.DataFrame
+    history: pd.DataFrame
+    fit: idn.Identification | None
+    data: idn.RunData
+    messages: list[str]
+    warnings: list[str]
+
+
+def fit_run(variant: Variant, options: Mapping, library: Library, data: idn.RunData,
+            validation: pd.DataFrame | None, harmonics: int) -> RunFit:
+    """``data``'s run alone on its ``library`` by the paper's protocol (``options``: ``identification.rule_settings``
+    for rule "run"), polished with the full solver when ``options["polish"]`` (its iterations; False: no polish).
+    A run that is not usable is not fitted: its table holds NaN and the reason."""
+    run, units = data.run, idn.units(variant)
+    if not data.usable:
+        empty = pd.DataFrame(columns=["trial", "iteration", "loss", "selected"])
+        return RunFit(run, excluded_table(data, library, units), empty, None, data, [],
+                      [f"run {run} is not usable ({data.note}): not fitted"])
+    errors = idn.model_errors(validation, [run], options["model_error"])
+    start = time.perf_counter()
+    fit = idn.identify([fwd.SensorSurrogate(library)], [data], (), idn.protocol_options(options), errors,
+                       units=units)
+    messages = [f"run {run}: {len(fit.protocol.trials.loss)} trials x (1 + {len(fit.protocol.monte_carlo)} Monte "
+                f"Carlo repeats), {fit.protocol.n_lm} LM problems in {time.perf_counter() - start:.2f} s; best loss "
+                f"{fit.loss:.4g} (chi^2/dof {fit.chi2_dof:.3g}, {fit.message}); {fit.summary()['trials_at_best']} "
+                f"of {len(fit.protocol.trials.loss)} trials reached it"]
+    if options["polish"]:
+        solver = [fwd.SolverModel(variant, run, data.rpm, data.eccentric_mass_g, library.parameters, library.lower,
+                                  library.upper, harmonics)]
+        exact = pol.polish(fit, solver, int(options["polish"]))
+        messages += [f"polish {row.parameter}: library {row.library_value:.6g}, solver {row.solver_value:.6g} "
+                     f"({row.difference_in_stderr:.2g} stderr)" for row in pol.compare_polish(fit, exact).itertuples()]
+        fit = exact
+    table = fit.table()
+    table["note"] = "; ".join(fit.uncertainty.notes) or "ok"
+    return RunFit(run, table, fit.history_table(), fit, data, messages,
+                  [f"run {run}: {note}" for note in fit.uncertainty.notes])
+
+
+def write_run_fit(result: RunFit, parameters: str, history: str, fit: str) -> None:
+    """A run's three files: parameters.tsv, history.tsv and fit.zarr (``write_fit``; for a run
+    that was not fitted, a group naming the reason)."""
+    idn.write_parameters(result.parameters, parameters)
+    result.history.to_csv(history, sep="\t", index=False, float_format="%.9g")
+    if result.fit is not None:
+        write_fit(fit, result.fit, [result.data.rpm])
+        return
+    import zarr
+
+    from ..offline.stores import write_manifest
+
+    zarr.open_group(fit, mode="w").attrs.update({"runs": [result.run], "note": result.data.note})
+    write_manifest(fit)  # its checksums, as every store's (hybridtwin.offline.stores)
+
+
+@dataclass
+class JointFit:
+    """The joint fit of a variant: ``fit`` the final one (the full solver's polish when asked and it solved,
+    else the library's), ``library_fit`` the library protocol's, ``comparison`` library vs solver per entry
+    (polish.tsv; empty without a polish), ``summary`` (summary.yaml: library, solver, final), the runs fitted,
+    and the lines for the log."""
+
+    fit: idn.Identification
+    library_fit: idn.Identification
+    comparison: pd.DataFrame
+    summary: dict
+    data: list[idn.RunData]
+    messages: list[str]
+    warnings: list[str]
+
+    def starts_table(self) -> pd.DataFrame:
+        """The polish's starts and where each ended (polish_starts.tsv; empty without a polish)."""
+        return self.fit.starts if self.fit.starts is not None else pd.DataFrame(columns=STARTS_COLUMNS)
+
+    def runs(self) -> pd.DataFrame:
+        """The runs fitted: run, rpm, eccentric_mass_g."""
+        return pd.DataFrame({"run": [d.run for d in self.data], "rpm": [d.rpm for d in self.data],
+                             "eccentric_mass_g": [d.eccentric_mass_g for d in self.data]})
+
+
+def fit_joint(variant: Variant, options: Mapping, libraries: Sequence[Library], harmonics_table: pd.DataFrame,
+              per_run: Mapping[str, pd.DataFrame], validation: pd.DataFrame | None, harmonics: int,
+              parent_refit: tuple[str, str, pd.DataFrame] | None = None,
+              nested: Sequence[tuple[Variant, pd.DataFrame]] = ()) -> JointFit:
+    """All usable fit runs of ``variant`` at once (``options``: ``identification.rule_settings`` for rule
+    "joint"): the parameters in ``options["per_run"]`` per run, the others shared.
+
+    The library protocol (``options["joint"]``'s trials and repeats) adds one start to its random trials: the
+    per-run fits (``per_run``: each run's parameter table; ``start_from_runs``). With ``options["polish"]``
+    (its iterations; False: none) the full solver (``harmonics`` harmonics) polishes the library optimum from
+    these starts (``polish_starts``): the optimum, the next-best trials, ``parent_refit`` (the variant this
+    one extends by one effect, that effect, and the parent's diagnosis_refits.tsv: its refit with the effect
+    is already a full-solver fit of this model) and the joint fit of each ``nested`` variant (a simpler
+    variant this one contains, with its parameters.tsv) mapped onto this variant's parameters. When the
+    solver has no periodic solution at any start, the library's estimate is kept, with a note.
+    """
+    messages: list[str] = []
+    warnings: list[str] = []
+    data, models = [], []
+    for library in libraries:
+        run = idn.run_data(harmonics_table, library.run, keyphasor=options["keyphasor"],
+                           channels=variant.channels)
+        if not run.usable:
+            warnings.append(f"run {run.run} left out of the joint fit: {run.note}")
+            continue
+        data.append(run)
+        models.append(fwd.SensorSurrogate(library))
+    if not data:
+        raise ValueError(f"variant {variant.name}: no usable fit run for the joint identification")
+    errors = idn.model_errors(validation, [d.run for d in data], options["model_error"])
+    parameters, lower, upper = models[0].parameters, models[0].lower, models[0].upper
+    layout = idn.Layout.for_data(parameters, lower, upper, data, options["per_run"])
+    start_theta = start_from_runs(layout, {d.run: idn.Identification.from_table(per_run[d.run]) for d in data
+                                           if d.run in per_run})
+    start = time.perf_counter()
+    fit = idn.identify(models, data, options["per_run"], idn.protocol_options(options, joint=True), errors,
+                       extra_starts=start_theta, units=idn.units(variant))
+    messages.append(f"joint fit of {len(data)} runs ({layout.n} unknowns): {fit.protocol.n_lm} LM problems in "
+                    f"{time.perf_counter() - start:.1f} s, loss {fit.loss:.4g}, chi^2/dof {fit.chi2_dof:.3g} "
+                    f"({fit.message})")
+    library_fit, summary = fit, {"library": fit.summary()}
+    comparison = pd.DataFrame(columns=COMPARISON_COLUMNS)
+    if options["polish"]:
+        solver = [fwd.SolverModel(variant, d.run, d.rpm, d.eccentric_mass_g, parameters, lower, upper, harmonics)
+                  for d in data]
+        start = time.perf_counter()
+        starts, labels = polish_starts(fit, variant, parent_refit, nested, messages)
+        exact = pol.polish(fit, solver, int(options["polish"]), starts, labels, seed=int(options["seed"]))
+        if np.isfinite(exact.loss):
+            comparison = pol.compare_polish(fit, exact)
+            exact.protocol.monte_carlo = fit.protocol.monte_carlo  # the library's Monte Carlo spread, for reference
+            best = exact.starts["start"][exact.protocol.best]
+            summary["solver"] = exact.summary() | {"seconds": time.perf_counter() - start,
+                                                   "solves": int(sum(m.n_solves for m in solver)),
+                                                   "starts": exact.starts["start"].tolist(), "best_start": best}
+            messages += [f"polish start {row.start:<40} solver chi^2 {row.chi2_start:.6g} -> {row.chi2:.6g} "
+                         f"(chi^2/dof {row.chi2_dof:.4g}, {row.iterations} iterations)"
+                         f"{' <- selected' if row.selected else ''}" for row in exact.starts.itertuples()]
+            messages.append(f"polished with the full solver in {time.perf_counter() - start:.1f} s from "
+                            f"{len(exact.starts)} starts, the best from {best}: loss {fit.loss:.4g} -> "
+                            f"{exact.loss:.4g}, chi^2/dof {exact.chi2_dof:.3g} ({exact.message})")
+            fit = exact
+        else:
+            note = ("the full solver has no periodic solution at the library's best trials (a fold or an unstable "
+                    "region next to them): the library's estimate is kept, with the library's error in its weights")
+            fit.uncertainty.notes.append(note)
+            summary["solver"] = {"failed": note, "seconds": time.perf_counter() - start}
+            warnings.append(f"polish failed: {note}")
+    summary["final"] = fit.summary()
+    warnings += list(fit.uncertainty.notes)
+    return JointFit(fit, library_fit, comparison, summary, data, messages, warnings)
+
+
+def polish_starts(fit: idn.Identification, variant: Variant, parent_refit: tuple[str, str, pd.DataFrame] | None,
+                  nested: Sequence[tuple[Variant, pd.DataFrame]], messages: list[str]) -> tuple[Array, list[str]]:
+    """The polish's extra starts after the library optimum (``fit_joint``), theta (k, n) and a label each:
+    the next-best library trials; the parent's diagnosis refit with the added effect, when there; each nested
+    variant's joint fit mapped onto ``variant`` (entries it lacks from ``fit``) when ``variant`` reproduces it
+    (mismatch below ``NESTED_MISMATCH``). What was found or left out is appended to ``messages``."""
+    starts = pol.next_best_trials(fit)
+    labels = ["library optimum"] + [f"library trial {i + 2}" for i in range(len(starts))]
+    if parent_refit is not None:  # this variant adds one effect to another: its diagnosis refit is a start
+        parent, extra, refits = parent_refit
+        refit = idn.theta_from_table(refits[refits["effect"] == extra], fit.layout)
+        messages.append(f"polish also starts from {parent}'s diagnosis refit with {extra}: "
+                        f"{'found' if refit is not None else 'not there (not refitted)'}")
+        if refit is not None:
+            starts = np.vstack([starts, refit[None]])
+            labels.append(f"{parent}'s diagnosis refit with {extra}")
+    own = fit.table()  # entries a nested fit does not give
+    for simpler, table in nested:
+        theta, mismatch = theta_from_nested(table, simpler, variant, fit.layout, own)
+        usable = theta is not None and mismatch < NESTED_MISMATCH
+        verdict = ("a polish start" if usable else "not nested exactly, not used" if theta is not None
+                   else "an entry is missing, not used")
+        messages.append(f"{simpler.name}'s joint fit mapped onto {variant.name}'s parameters: coefficient mismatch "
+                        f"{mismatch:.2g}, {verdict}")
+        if usable:
+            starts = np.vstack([starts, theta[None]])
+            labels.append(f"{simpler.name}'s joint fit")
+    return starts, labels
+
+
+
+def excluded_table(data: idn.RunData, library: Library, units: Mapping[str, str]) -> pd.DataFrame:
+    """The parameter table of a run that cannot be fitted (not usable): ``Identification.table``'s rows and
+    columns with NaN estimates, and the reason as its note."""
+    rows = [{"parameter": p, "run": data.run, "kind": "physical", "unit": units.get(p, ""), "value": np.nan,
+             "lower": float(lo), "upper": float(hi)} for p, lo, hi in zip(library.parameters, library.lower,
+                                                                          library.upper)]
+    rows.append({"parameter": "phase", "run": data.run, "kind": "nuisance", "unit": "rad", "value": np.nan,
+                 "lower": -np.pi, "upper": np.pi})
+    table = pd.DataFrame(rows).reindex(columns=list(idn.TABLE_COLUMNS))
+    table[["at_bound", "identifiable"]] = False
+    table["source"], table["note"] = "library", data.note
+    return table
+
+
+def start_from_runs(layout: idn.Layout, per_run: Mapping[str, idn.Identification]) -> np.ndarray | None:
+    """A joint start from the per-run fits (read back with ``Identification.from_table``): shared entries at
+    the median of the runs' estimates, local ones and phases from each run's own fit (None when a run has no
+    usable fit)."""
+    theta = np.zeros(layout.n)
+    for i, (p, run) in enumerate(layout.entries()):
+        if run == "all":
+            values = [v for v in (fit.theta[fit.entry(p)] for fit in per_run.values()) if np.isfinite(v)]
+            if not values:
+                return None
+            theta[i] = float(np.median(values))
+        elif run in per_run:
+            theta[i] = per_run[run].theta[per_run[run].entry(p, run)]
+        else:
+            return None
+    return theta if np.isfinite(theta).all() else None
+
+
+def theta_from_nested(table: pd.DataFrame, parent: Variant, variant: Variant, layout: idn.Layout,
+                      fallback: pd.DataFrame) -> tuple[Array | None, float]:
+    """A start for ``variant`` from the joint fit (parameter table) of a variant nested in it: the shared values
+    mapped onto ``variant``'s unknowns (``hybridtwin.model.variants.embed``), the per-run entries (bow, phases) copied
+    run by run, and any entry neither gives taken from ``fallback`` (a table of ``variant``'s own fit). The
+    theta (None when an entry is still missing) and the mapping's coefficient mismatch (0: exact)."""
+    shared = table[table["run"] == "all"]
+    values, mismatch = embed(parent, variant, dict(zip(shared["parameter"], shared["value"].astype(float))))
+    mapped = pd.DataFrame({"parameter": list(values), "run": "all", "value": list(values.values())})
+    columns = ["parameter", "run", "value"]
+    rows = pd.concat([fallback[columns], table.loc[table["run"] != "all", columns], mapped])
+    return idn.theta_from_table(rows.drop_duplicates(["parameter", "run"], keep="last"), layout), mismatch
+
+
+def write_fit(path: str | Path, fit: idn.Identification, rpm: Sequence[float], cycles: int = 2,
+              n_time: int = 200) -> None:
+    """The fitted response for plotting (zarr v3): per run, measured and fitted harmonics h = 1..H in the
+    record's frame, sigmas, and two revolutions of every channel (x, y on the VARM; measured synchronous average
+    and fitted); the channels' names in the attribute ``channels``."""
+    import zarr
+
+    group = zarr.open_group(str(path), mode="w")
+    channels = list(fit.data[0].channels) if getattr(fit, "data", None) else list(idn.CHANNELS)
+    fitted = fit.fitted()
+    H = fit.X.shape[1]
+    angle = np.linspace(0, 2 * np.pi * cycles, n_time, endpoint=False)
+    wave = np.exp(1j * np.outer(angle, np.arange(1, H + 1)))  # (T, H)
+    arrays = {
+        "harmonic": np.arange(1, H + 1), "angle_rad": angle,
+        "measured_re_m": fit.X.real, "measured_im_m": fit.X.imag,
+        "fitted_re_m": fitted.real, "fitted_im_m": fitted.imag,
+        "sigma_m": fit.problem.sigma,
+        "measured_wave_m": np.einsum("th,rhc->rtc", wave, fit.X).real,
+        "fitted_wave_m": np.einsum("th,rhc->rtc", wave, fitted).real,
+    }
+    for name, data in arrays.items():
+        group.create_array(name, data=np.asarray(data, float))
+    group.attrs.update({"runs": list(fit.layout.runs), "rpm": [float(v) for v in rpm],
+                        "channels": channels, "chi2_dof": float(fit.chi2_dof),
+                        "values": {k: float(v) for k, v in fit.values().items()},
+                        "layout": "arrays (run, harmonic, channel); waves (run, time, channel); angle = Omega t"})
+    from ..offline.stores import write_manifest  # the store's checksums, last: readers verify them (hybridtwin.offline.stores)
+
+    write_manifest(path)

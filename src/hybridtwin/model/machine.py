@@ -1,0 +1,672 @@
+"""Your own machine: the rotor (shaft segments, rigid disks) and where its bearings, unbalance planes and
+sensors are (docs/model.md, "Describing your machine").
+
+A ``Machine`` is both the description and its finite-element discretisation: it has the interface of
+``Shaft`` (``n``, ``dof``, ``translational``, ``node_at``, ``matrices``, ...), so a ``Model`` built on it
+assembles its shaft, disks and (optionally) the sections' rotary inertia as the structure's M and K, and the
+effects act on its DOFs. Nodes are numbered along the shaft from 0 at z = 0, each segment contributing
+``n_elements`` equal elements; DOF names and ordering are those of ``Shaft`` (``u3``, ``dv7``, x plane
+first).
+
+Bearings, unbalance planes and sensors are named nodes. The effects that act there are placed by name:
+``machine.place(effect, "drive_end")`` or, by name in a variant's effect list, ``"linear_bearing@drive_end"``,
+``"lower_bearing@drive_end"``, ``"unbalance@disk"``, ... (``Machine.effects``). Gyroscopic coupling is the
+effect ``gyroscopic`` (Omega G in the damping, from the disks' polar inertia and the shaft's distributed one);
+the VARM's variants leave it out, as the paper does.
+
+``Machine.varm()`` is the bundled default, the paper's rig: one uniform segment with Table 1's I and m,
+bearings ``upper`` (node 0) and ``lower`` (node 10), the unbalance plane ``eccentric_mass`` (node 5),
+sensors ``x`` and ``y`` at node 1. A model built on it is bit for bit the one built on ``Shaft()``.
+
+Sensors: any number of probes, each at a node in direction x or y; a record holds one channel per sensor,
+named after it (docs/measurement-format.md). At least one node needs both an x and a y probe
+(``sensor_node``, the orbit the plots and checks show).
+"""
+
+from __future__ import annotations
+
+import copy
+import re
+import dataclasses
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+
+from .bearing_candidates import at_bearing
+from .effect_base import Context, Effect, Parameter
+from .effects import Unbalance, builtin_effects
+from .sensor import machine_order, sensor_pairs
+from .shaft import DofCounts, Shaft, beam_element, slope_element
+
+Array = np.ndarray
+
+
+@dataclass(frozen=True)
+class ShaftSegment:
+    """A uniform piece of the shaft: ``n_elements`` equal beam elements.
+
+    length, d_out, d_in [m], E [Pa], rho [kg/m^3]. The bending stiffness uses I = pi (d_out^4 - d_in^4) / 64
+    and the mass per unit length rho A, unless ``I`` [m^4] or ``m`` [kg/m] give them directly (the VARM's
+    Table 1 values). The sections' rotary and polar inertia always come from the diameters and rho.
+    """
+
+    length: float
+    d_out: float
+    E: float
+    rho: float
+    d_in: float = 0.0
+    n_elements: int = 1
+    I: float | None = None
+    m: float | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("length", "d_out", "E", "rho"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and value > 0):
+                raise ValueError(f"shaft segment: {name} must be a positive number, got {value!r}")
+        if not 0.0 <= self.d_in < self.d_out:
+            raise ValueError(f"shaft segment: d_in must be in [0, d_out = {self.d_out}), got {self.d_in!r}")
+        if isinstance(self.n_elements, bool) or not isinstance(self.n_elements, (int, np.integer)) \
+                or self.n_elements < 1:
+            raise ValueError(f"shaft segment: n_elements must be a positive integer, got {self.n_elements!r}")
+        for name in ("I", "m"):
+            value = getattr(self, name)
+            if value is not None and not value > 0:
+                raise ValueError(f"shaft segment: {name} must be positive when given, got {value!r}")
+
+    @property
+    def area(self) -> float:
+        """Cross-section area pi (d_out^2 - d_in^2) / 4 [m^2]."""
+        return np.pi * (self.d_out**2 - self.d_in**2) / 4
+
+    @property
+    def section_I(self) -> float:
+        """Second moment of area of the annulus, pi (d_out^4 - d_in^4) / 64 [m^4]."""
+        return np.pi * (self.d_out**4 - self.d_in**4) / 64
+
+    @property
+    def bending_I(self) -> float:
+        """The I of the bending stiffness: ``I`` when given, else ``section_I`` [m^4]."""
+        return self.section_I if self.I is None else self.I
+
+    @property
+    def mass_per_length(self) -> float:
+        """``m`` when given, else rho A [kg/m]."""
+        return self.rho * self.area if self.m is None else self.m
+
+    @property
+    def h(self) -> float:
+        """Element length [m]."""
+        return self.length / self.n_elements
+
+
+@dataclass(frozen=True)
+class Disk:
+    """A rigid disk at a node: mass [kg], polar I_p and transverse (diametral) I_d inertia [kg m^2]."""
+
+    node: int
+    mass: float
+    I_p: float = 0.0
+    I_d: float = 0.0
+    name: str = ""
+
+
+@dataclass(frozen=True)
+class Bearing:
+    """A named bearing position. ``k`` [N/m], ``c`` [N s/m]: nominal isotropic coefficients of the effect
+    ``linear_bearing@<name>`` (offered only when ``k`` is given)."""
+
+    name: str
+    node: int
+    k: float | None = None
+    c: float = 0.0
+
+
+@dataclass(frozen=True)
+class UnbalancePlane:
+    """A named plane (node) where an eccentric mass can be fixed."""
+
+    name: str
+    node: int
+
+
+@dataclass(frozen=True)
+class Sensor:
+    """A displacement probe: ``name`` (its channel), ``node``, ``direction`` "x" or "y"."""
+
+    name: str
+    node: int
+    direction: str
+
+    def __post_init__(self) -> None:
+        if self.direction not in ("x", "y"):
+            raise ValueError(f"sensor {self.name!r}: direction must be 'x' or 'y', got {self.direction!r}")
+
+
+def _tuple(items: Iterable, kind: type) -> tuple:
+    out = tuple(items)
+    for item in out:
+        if not isinstance(item, kind):
+            raise TypeError(f"expected {kind.__name__} objects, got {type(item).__name__}")
+    return out
+
+
+#: the VARM's words for where a built-in effect acts, and what they become where it is placed at a bearing
+_VARM_PLACES = ((r"at node 0\b", "at node {node}"), (r"at the lowest node", "at node {node}"),
+                (r"\b(the )?upper bearing\b", "bearing {at}"), (r"\b(the )?lower bearing\b", "bearing {at}"))
+
+
+def placed_meaning(meaning: str, at: str, node: int) -> str:
+    """A built-in effect's meaning with the VARM's place (its upper or lower bearing, node 0, the lowest node)
+    replaced by the bearing ``at`` and its ``node`` ("2X rotating force at bearing nde")."""
+    for pattern, place in _VARM_PLACES:
+        meaning = re.sub(pattern, place.format(at=at, node=node), meaning)
+    return meaning
+
+
+@dataclass(frozen=True, eq=False)
+class Machine(DofCounts):
+    """A rotor described by segments and disks, with named bearings, unbalance planes and sensors.
+
+    ``rotary_inertia``: add the sections' rotary inertia rho I (a Rayleigh beam); off for the VARM, whose
+    model leaves it out (docs/model.md, "Shaft"). ``sensors`` are kept plane by plane, each plane's x probe then
+    its y probe (planes in order of first appearance), probes without a partner after them: the records'
+    channel order.
+    """
+
+    name: str
+    segments: Sequence[ShaftSegment]
+    disks: Sequence[Disk] = ()
+    bearings: Sequence[Bearing] = ()
+    unbalance_planes: Sequence[UnbalancePlane] = ()
+    sensors: Sequence[Sensor] = ()
+    rotary_inertia: bool = False
+    _names: dict[str, int] = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        where = f"machine {self.name!r}"
+        for attr, kind in (("segments", ShaftSegment), ("disks", Disk), ("bearings", Bearing),
+                           ("unbalance_planes", UnbalancePlane), ("sensors", Sensor)):
+            try:
+                object.__setattr__(self, attr, _tuple(getattr(self, attr), kind))
+            except TypeError as err:
+                raise ValueError(f"{where}: {attr}: {err}") from None
+        if not self.segments:
+            raise ValueError(f"{where}: the shaft needs at least one segment")
+        # the channel order (measurements.machine_order, also the records' as read with the config's sensors): plane
+        # by plane (in order of first appearance) its x probe, then its y probe; probes without a partner after them,
+        # as declared. The whirl checks read channels 0 and 1 as the first plane's x and y; a config written with
+        # sorted keys (x1, x2, y1, y2) would otherwise have them read x1 and x2.
+        object.__setattr__(self, "sensors", tuple(self.sensors[i] for i in machine_order(self.sensors)))
+        n_nodes = sum(s.n_elements for s in self.segments) + 1
+        names: dict[str, int] = {}
+        for kind, items in (("disk", self.disks), ("bearing", self.bearings),
+                            ("unbalance plane", self.unbalance_planes), ("sensor", self.sensors)):
+            for item in items:
+                label = f"{kind} {item.name!r}" if item.name else kind
+                if isinstance(item.node, bool) or not isinstance(item.node, (int, np.integer)) \
+                        or not 0 <= item.node < n_nodes:
+                    raise ValueError(f"{where}: {label} at node {item.node!r}: nodes are the integers 0..{n_nodes - 1}")
+                if kind == "disk":
+                    continue
+                if not item.name or not str(item.name).isidentifier():
+                    raise ValueError(f"{where}: {kind} name {item.name!r} must be a non-empty identifier")
+                if item.name in names:
+                    raise ValueError(f"{where}: the name {item.name!r} is used twice")
+                names[item.name] = int(item.node)
+        lowered = [str(s.name).lower() for s in self.sensors]
+        clash = sorted({s.name for s in self.sensors if lowered.count(str(s.name).lower()) > 1})
+        if clash:  # a record's header is read in any case: X1_mm and x1_mm are one column
+            raise ValueError(f"{where}: sensors {', '.join(map(repr, clash))} differ only in case; records cannot "
+                             "tell their columns apart")
+        for disk in self.disks:
+            if not (disk.mass >= 0 and disk.I_p >= 0 and disk.I_d >= 0):
+                raise ValueError(f"{where}: disk at node {disk.node}: mass, I_p and I_d must be >= 0")
+        for bearing in self.bearings:
+            if bearing.k is not None and not (bearing.k >= 0 and bearing.c >= 0):
+                raise ValueError(f"{where}: bearing {bearing.name!r}: k and c must be >= 0")
+        object.__setattr__(self, "_names", names)
+
+    # --- the bundled default -------------------------------------------------------------------------
+
+    @classmethod
+    def varm(cls) -> "Machine":
+        """The paper's Vertical Axis Rotating Machine (Table 1, docs/model.md).
+
+        One bronze segment of 0.85 m in 10 elements, d = 2 r = 6.35 mm, with Table 1's I = 79.81e-11 m^4 and
+        m = 0.35 kg/m given directly (see the note on I); rho = m / A makes the sections' rotary and polar
+        inertia consistent with that m (neither is used by the paper's model). No disk: the bearing housings
+        and the eccentric mass are the effects' point masses.
+        """
+        shaft = Shaft()
+        d = 2 * 0.003175
+        rho = shaft.m / (np.pi * d**2 / 4)
+        return cls(
+            name="varm",
+            segments=(ShaftSegment(length=shaft.L, d_out=d, E=shaft.E, rho=rho, n_elements=shaft.n, I=shaft.I,
+                                   m=shaft.m),),
+            bearings=(Bearing("upper", 0), Bearing("lower", shaft.n)),
+            unbalance_planes=(UnbalancePlane("eccentric_mass", shaft.node_at(0.425)),),
+            sensors=(Sensor("x", 1, "x"), Sensor("y", 1, "y")),
+        )
+
+    @classmethod
+    def from_mapping(cls, spec: Mapping | None) -> "Machine":
+        """A machine from its config form (``machine:`` in config/config.yaml; None: the VARM)::
+
+            name: test_rig
+            segments:                       # along z, from node 0
+              - {length: 0.2, d_out: 0.04, E: 2.11e+11, rho: 7810, n_elements: 4}   # d_in, I, m optional
+            disks: [{node: 8, mass: 15.3, I_p: 0.12, I_d: 0.062, name: impeller}]
+            bearings: {drive_end: {node: 2, k: 2.0e+7, c: 800}, free_end: {node: 16}}
+            unbalance_planes: {impeller: 8}
+            sensors: {x1: {node: 8, direction: x}, y1: {node: 8, direction: y}}
+            rotary_inertia: false
+
+        A problem raises ``MachineSpecError`` (one line; ``path``: where in the section).
+        """
+        if spec is None:
+            return cls.varm()
+        if not isinstance(spec, Mapping):
+            raise MachineSpecError((), f"must be a mapping, got {spec!r}")
+        _known(spec, (), {"name", "segments", "disks", "bearings", "unbalance_planes", "sensors", "rotary_inertia"})
+        segments = [_build(ShaftSegment, item, ("segments", i), {"length", "d_out", "E", "rho"},
+                           {"d_in", "n_elements", "I", "m"}) for i, item in enumerate(_sequence(spec, "segments"))]
+        disks = [_build(Disk, item, ("disks", i), {"node", "mass"}, {"I_p", "I_d", "name"})
+                 for i, item in enumerate(_sequence(spec, "disks"))]
+        bearings = [_build(Bearing, {"name": name, **_mapping(item, ("bearings", name))}, ("bearings", name),
+                           {"name", "node"}, {"k", "c"}) for name, item in _mapping(spec.get("bearings"),
+                                                                                    ("bearings",)).items()]
+        planes = [_build(UnbalancePlane, {"name": name, "node": node}, ("unbalance_planes", name), {"name", "node"},
+                         set()) for name, node in _mapping(spec.get("unbalance_planes"), ("unbalance_planes",)).items()]
+        sensors = [_build(Sensor, {"name": name, **_mapping(item, ("sensors", name))}, ("sensors", name),
+                          {"name", "node", "direction"}, set())
+                   for name, item in _mapping(spec.get("sensors"), ("sensors",)).items()]
+        try:
+            return cls(str(spec.get("name", "machine")), segments, disks, bearings, planes, sensors,
+                       bool(spec.get("rotary_inertia", False)))
+        except ValueError as err:
+            raise MachineSpecError((), str(err)) from None
+
+    # --- discretisation: the interface of Shaft ------------------------------------------------------
+
+    @cached_property
+    def _segment_of_element(self) -> np.ndarray:
+        return np.repeat(np.arange(len(self.segments)), [s.n_elements for s in self.segments])
+
+    @property
+    def n(self) -> int:
+        """Number of beam elements."""
+        return int(sum(s.n_elements for s in self.segments))
+
+    @property
+    def L(self) -> float:
+        """Shaft length [m], the sum of the segments' lengths."""
+        return float(sum(s.length for s in self.segments))
+
+    @cached_property
+    def z(self) -> np.ndarray:
+        """Node positions [m]: each segment's nodes at its start + i h."""
+        parts, start = [np.zeros(1)], 0.0
+        for segment in self.segments:
+            local = np.arange(1, segment.n_elements + 1) * segment.h
+            parts.append(start + local)
+            start = start + segment.length
+        return np.concatenate(parts)
+
+    @property
+    def element_lengths(self) -> np.ndarray:
+        """Length of each element [m], (n,)."""
+        return np.array([self.segments[s].h for s in self._segment_of_element])
+
+    def node_at(self, z: float) -> int:
+        """Index of the node nearest to axial position ``z`` [m]."""
+        if not 0.0 <= z <= self.L * (1 + 1e-12):
+            raise ValueError(f"machine {self.name!r}: position z = {z} m lies outside the shaft [0, {self.L}] m")
+        return int(np.argmin(np.abs(self.z - z)))
+
+    dof = Shaft.dof
+    translational = Shaft.translational
+
+    @cached_property
+    def _plane(self) -> tuple[np.ndarray, np.ndarray]:
+        K = np.zeros((self.n_plane, self.n_plane))
+        M = np.zeros_like(K)
+        for e, s in enumerate(self._segment_of_element):
+            segment = self.segments[s]
+            K_e, M_e = beam_element(segment.h, segment.E * segment.bending_I, segment.mass_per_length)
+            sl = slice(2 * e, 2 * e + 4)
+            K[sl, sl] += K_e
+            M[sl, sl] += M_e
+            if self.rotary_inertia:
+                M[sl, sl] += slope_element(segment.h, segment.rho * segment.section_I)
+        for disk in self.disks:
+            M[2 * disk.node, 2 * disk.node] += disk.mass
+            M[2 * disk.node + 1, 2 * disk.node + 1] += disk.I_d
+        K.flags.writeable = M.flags.writeable = False
+        return K, M
+
+    def plane_matrices(self) -> tuple[np.ndarray, np.ndarray]:
+        """Stiffness and mass of one bending plane (2(n+1) square), free ends: shaft elements, the sections'
+        rotary inertia (with ``rotary_inertia``), the disks' mass and transverse inertia."""
+        K, M = self._plane
+        return K.copy(), M.copy()
+
+    def matrices(self) -> tuple[np.ndarray, np.ndarray]:
+        """Stiffness and mass of both planes (uncoupled blocks), n_dof square."""
+        K_p, M_p = self.plane_matrices()
+        zero = np.zeros_like(K_p)
+        return np.block([[K_p, zero], [zero, K_p]]), np.block([[M_p, zero], [zero, M_p]])
+
+    @cached_property
+    def _gyroscopic(self) -> np.ndarray:
+        R = np.zeros((self.n_plane, self.n_plane))
+        for e, s in enumerate(self._segment_of_element):
+            segment = self.segments[s]
+            sl = slice(2 * e, 2 * e + 4)
+            R[sl, sl] += slope_element(segment.h, 2.0 * segment.rho * segment.section_I)  # rho I_p = 2 rho I
+        for disk in self.disks:
+            R[2 * disk.node + 1, 2 * disk.node + 1] += disk.I_p
+        zero = np.zeros_like(R)
+        G = np.block([[zero, R], [-R, zero]])
+        G.flags.writeable = False
+        return G
+
+    def gyroscopic_matrix(self) -> np.ndarray:
+        """G of the gyroscopic force -Omega G q' (n_dof square, skew-symmetric), Omega about +z (the shaft
+        turning from +x towards +y): G[du_i, dv_j] = +R_ij, G[dv_i, du_j] = -R_ij, R the polar inertia
+        distributed over the slopes (shaft: rho I_p N'^T N' per element; disk: I_p on its node's slope).
+        Derivation: docs/model.md, "Describing your machine"."""
+        return self._gyroscopic.copy()
+
+    # --- names ---------------------------------------------------------------------------------------
+
+    def node(self, name: str) -> int:
+        """The node of a named bearing, unbalance plane or sensor."""
+        try:
+            return self._names[name]
+        except KeyError:
+            raise ValueError(f"machine {self.name!r} has no bearing, unbalance plane or sensor named {name!r} "
+                             f"(names: {sorted(self._names)})") from None
+
+    def sensor_dofs(self) -> list[int]:
+        """Global DOF index of each sensor, in the order of ``sensors``."""
+        return [self.dof(f"{'u' if s.direction == 'x' else 'v'}{s.node}") for s in self.sensors]
+
+    @property
+    def sensor_planes(self) -> list[int]:
+        """The nodes that carry sensors, in order of first appearance."""
+        return list(dict.fromkeys(s.node for s in self.sensors))
+
+    @property
+    def sensor_node(self) -> int:
+        """The node of the first x, y probe pair (the first node, in the machine's order, with both an x and a y
+        probe): the plane whose orbit the plots, the whirl checks and ``hybridtwin simulate`` show. A one-line
+        error when no node has both. Records carry every sensor (``sensor_dofs``); this is only the orbit."""
+        for node in self.sensor_planes:
+            if {s.direction for s in self.sensors if s.node == node} == {"x", "y"}:
+                return node
+        raise ValueError(f"machine {self.name!r}: sensors {[(s.name, s.node, s.direction) for s in self.sensors]}"
+                         " have no node with both an x and a y probe; at least one x, y pair is needed (its orbit)")
+
+    @property
+    def sensor_pairs(self) -> list[tuple[int, int]]:
+        """(index of the x probe, index of the y probe) in ``sensors`` for each node with exactly one of each,
+        in order of the nodes' first appearance: the orbits the records show (``measurements.sensor_pairs``);
+        (0, 1), (2, 3), ... since the machine orders its sensors so."""
+        return sensor_pairs(self.sensors)
+
+    # --- effects at named places ---------------------------------------------------------------------
+
+    def place(self, effect: Effect, at: str, name: str | None = None) -> Effect:
+        """A copy of ``effect`` acting at the node named ``at``, named ``name`` (default ``effect@at``).
+
+        Works for effects that act at one node they declare (``node``): the polynomial bearings
+        (geometric, radial and slope springs, expansion terms), the harmonic excitations, upper_housing,
+        lower_bearing, and this module's linear_bearing and plane unbalance.
+        """
+        node = self.node(at)
+        name = name or f"{effect.name}@{at}"
+        if not hasattr(effect, "node"):
+            raise ValueError(f"effect {effect.name!r} acts at a fixed place and cannot be placed at {at!r}")
+        if isinstance(effect, LinearBearing):
+            return dataclasses.replace(effect, node=node, name=name, bearing=at)
+        if dataclasses.is_dataclass(effect):
+            placed = dataclasses.replace(effect, node=node, name=name)
+        else:
+            placed = copy.copy(effect)
+            placed.node, placed.name = node, name
+        if isinstance(getattr(effect, "meaning", None), str):  # its words for the place, the place's (frozen too)
+            object.__setattr__(placed, "meaning", placed_meaning(effect.meaning, at, node))
+        return placed
+
+    def effects(self) -> dict[str, Effect]:
+        """The effects this machine adds to the built-in ones, by name (for a variant's effect list):
+        ``gyroscopic``; ``linear_bearing@<bearing>`` for each bearing with nominal coefficients, and the
+        candidates sized to them (``bearing_candidates.at_bearing``: bearing_anisotropy, cross_coupled_stiffness,
+        cross_coupled_damping); every placeable built-in effect at every bearing, ``<effect>@<bearing>``; ``unbalance@<plane>`` for each
+        unbalance plane (the run's eccentric mass m_e at that plane)."""
+        out: dict[str, Effect] = {"gyroscopic": Gyroscopic()}
+        placeable = [e for e in builtin_effects().values() if hasattr(e, "node")]
+        for bearing in self.bearings:
+            if bearing.k is not None:
+                out[f"linear_bearing@{bearing.name}"] = LinearBearing(
+                    name=f"linear_bearing@{bearing.name}", bearing=bearing.name, node=bearing.node,
+                    k=bearing.k, c=bearing.c)
+            for effect in placeable:
+                placed = self.place(effect, bearing.name)
+                out[placed.name] = placed
+            for candidate in at_bearing(bearing.name, bearing.k, bearing.c):  # sized to the bearing's k, c
+                out[candidate.name] = candidate
+        for plane in self.unbalance_planes:
+            out[f"unbalance@{plane.name}"] = PlaneUnbalance(name=f"unbalance@{plane.name}", node=plane.node)
+        return out
+
+    def candidates(self) -> dict[str, Effect]:
+        """The effects of ``effects()`` the diagnosis can test (those declaring ``switches``): the candidates sized
+        to each bearing with nominal k, and the placeable built-in candidates at every bearing, by name."""
+        return {name: e for name, e in self.effects().items() if e.switches}
+
+    def to_mapping(self) -> dict:
+        """The config form of this machine (``from_mapping``'s input, plain numbers and strings, ready for
+        YAML): ``Machine.from_mapping(m.to_mapping())`` builds the same machine. Optional keys at their
+        defaults are left out."""
+        segments = []
+        for s in self.segments:
+            item = {"length": float(s.length), "d_out": float(s.d_out), "E": float(s.E), "rho": float(s.rho)}
+            item |= {"d_in": float(s.d_in)} if s.d_in else {}
+            item["n_elements"] = int(s.n_elements)
+            item |= {k: float(getattr(s, k)) for k in ("I", "m") if getattr(s, k) is not None}
+            segments.append(item)
+        out = {"name": self.name, "segments": segments}
+        if self.disks:
+            out["disks"] = [{"node": int(d.node), "mass": float(d.mass), "I_p": float(d.I_p), "I_d": float(d.I_d)}
+                            | ({"name": d.name} if d.name else {}) for d in self.disks]
+        if self.bearings:
+            out["bearings"] = {b.name: {"node": int(b.node)} | ({"k": float(b.k)} if b.k is not None else {})
+                               | ({"c": float(b.c)} if b.k is not None or b.c else {}) for b in self.bearings}
+        if self.unbalance_planes:
+            out["unbalance_planes"] = {p.name: int(p.node) for p in self.unbalance_planes}
+        if self.sensors:
+            out["sensors"] = {s.name: {"node": int(s.node), "direction": s.direction} for s in self.sensors}
+        if self.rotary_inertia:
+            out["rotary_inertia"] = True
+        return out
+
+    @property
+    def is_varm(self) -> bool:
+        """Whether this is the bundled default machine, the VARM (the same description as ``Machine.varm()``)."""
+        return self is _VARM or self.to_mapping() == _VARM.to_mapping()
+
+    def describe(self) -> str:
+        """Multi-line summary: segments, disks, named nodes."""
+        lines = [f"machine {self.name}: {self.n} elements, {self.n_nodes} nodes, L = {self.L:g} m"]
+        node = 0
+        for i, s in enumerate(self.segments):
+            lines.append(f"  segment {i}: nodes {node}..{node + s.n_elements}, length {s.length:g} m, "
+                         f"d_out {s.d_out:g} m, d_in {s.d_in:g} m, E {s.E:g} Pa, rho {s.rho:g} kg/m^3"
+                         + (f", I {s.I:g} m^4" if s.I is not None else "")
+                         + (f", m {s.m:g} kg/m" if s.m is not None else ""))
+            node += s.n_elements
+        for d in self.disks:
+            lines.append(f"  disk {d.name or ''} at node {d.node}: mass {d.mass:g} kg, I_p {d.I_p:g}, "
+                         f"I_d {d.I_d:g} kg m^2")
+        for b in self.bearings:
+            lines.append(f"  bearing {b.name} at node {b.node}"
+                         + (f": k {b.k:g} N/m, c {b.c:g} N s/m" if b.k is not None else ""))
+        for p in self.unbalance_planes:
+            lines.append(f"  unbalance plane {p.name} at node {p.node}")
+        for s in self.sensors:
+            lines.append(f"  sensor {s.name} at node {s.node}, direction {s.direction}")
+        return "\n".join(lines)
+
+
+class MachineSpecError(ValueError):
+    """A bad ``machine:`` section: ``path`` (keys inside the section) and a one-line message."""
+
+    def __init__(self, path: tuple, message: str):
+        self.path, self.message = tuple(path), message
+        where = "machine" + "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in self.path)
+        super().__init__(f"{where}: {message}")
+
+
+def _mapping(value, path: tuple) -> Mapping:
+    if value is None:
+        return {}
+    if not isinstance(value, Mapping):
+        raise MachineSpecError(path, f"must be a mapping, got {value!r}")
+    return value
+
+
+def _sequence(spec: Mapping, key: str) -> list:
+    value = spec.get(key)
+    if value is None:
+        return []
+    if isinstance(value, (str, bytes, Mapping)) or not isinstance(value, Sequence):
+        raise MachineSpecError((key,), f"must be a list, got {value!r}")
+    return list(value)
+
+
+def _known(spec: Mapping, path: tuple, allowed: set[str]) -> None:
+    stray = sorted(set(map(str, spec)) - allowed)
+    if stray:
+        raise MachineSpecError(path, f"unknown key(s) {stray} (allowed: {', '.join(sorted(allowed))})")
+
+
+def _build(kind: type, item, path: tuple, required: set[str], optional: set[str]):
+    item = _mapping(item, path)
+    _known(item, path, required | optional)
+    missing = sorted(required - set(item))
+    if missing:
+        raise MachineSpecError(path, f"missing key(s) {missing}")
+    for key, value in item.items():
+        if key not in ("name", "direction") and (isinstance(value, bool) or not isinstance(value, (int, float))):
+            raise MachineSpecError(path + (key,), f"must be a number, got {value!r}")
+    try:
+        return kind(**item)
+    except ValueError as err:
+        raise MachineSpecError(path, str(err)) from None
+
+
+# --- effects of a described machine ---------------------------------------------------------------------
+
+
+def _structure(ctx: Context, what: str):
+    if not isinstance(ctx.shaft, Machine):
+        raise ValueError(f"effect {what!r} needs a Machine (its polar inertia or named places), "
+                         f"the model is built on a {type(ctx.shaft).__name__}")
+    return ctx.shaft
+
+
+class Gyroscopic(Effect):
+    """Gyroscopic coupling Omega G q' (G from ``Machine.gyroscopic_matrix``): disks and shaft sections."""
+
+    name = "gyroscopic"
+    meaning = ("gyroscopic coupling of the spinning disks and shaft sections, Omega G in the damping "
+               "(off in the paper's VARM model)")
+
+    def damping(self, ctx: Context) -> Array:
+        G = _structure(ctx, self.name).gyroscopic_matrix()
+        return ctx.Omega[:, None, None] * G[None]
+
+
+@dataclass(eq=False)
+class LinearBearing(Effect):
+    """An isotropic linear bearing at a node: spring k and damper c on both translational DOFs.
+
+    Parameters ``k_<bearing>`` [N/m] and ``c_<bearing>`` [N s/m], nominal the machine's values, default
+    range a factor 2 either side (k, c never negative).
+    """
+
+    name: str = "linear_bearing"
+    bearing: str = ""
+    node: int = 0
+    k: float = 0.0
+    c: float = 0.0
+    meaning: str = field(init=False)
+    parameters: tuple[Parameter, ...] = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.meaning = f"linear isotropic bearing {self.bearing or self.node}: spring k and damper c at node {self.node}"
+        suffix = self.bearing or str(self.node)
+        self._k, self._c = f"k_{suffix}", f"c_{suffix}"
+        self.parameters = (
+            Parameter(self._k, "N/m", (0.5 * self.k, 2.0 * self.k), self.k, f"stiffness of bearing {suffix}",
+                      (0.0, np.inf)),
+            Parameter(self._c, "N s/m", (0.5 * self.c, 2.0 * self.c), self.c, f"damping of bearing {suffix}",
+                      (0.0, np.inf)),
+        )
+
+    def _point(self, ctx: Context, value: Array) -> Array:
+        out = ctx.zeros()
+        for i in (ctx.dof(f"u{self.node}"), ctx.dof(f"v{self.node}")):
+            out[:, i, i] = value
+        return out
+
+    def stiffness(self, ctx: Context) -> Array:
+        return self._point(ctx, ctx.p[self._k])
+
+    def damping(self, ctx: Context) -> Array:
+        return self._point(ctx, ctx.p[self._c])
+
+
+_M_E, _R_ME = Unbalance.parameters[0], Unbalance.parameters[1]
+
+
+@dataclass(eq=False)
+class PlaneUnbalance(Effect):
+    """The eccentric mass m_e at radius r_me fixed at a node (an unbalance plane): its point mass and the
+    rotating force m_e r_me Omega^2, F_1 = m_e r_me Omega^2 in x and -i m_e r_me Omega^2 in y (as
+    ``Unbalance``, whose parameters m_e and r_me it shares, with the node instead of z_me)."""
+
+    name: str = "unbalance_plane"
+    node: int = 0
+    meaning: str = field(init=False)
+    parameters: tuple[Parameter, ...] = (_M_E, _R_ME)
+
+    def __post_init__(self) -> None:
+        self.meaning = (f"eccentric mass at node {self.node}: its point mass and the rotating force "
+                        "m_e r_me Omega^2 (eq. 14-15)")
+
+    def mass(self, ctx: Context) -> Array:
+        out = ctx.zeros()
+        for i in (ctx.dof(f"u{self.node}"), ctx.dof(f"v{self.node}")):
+            out[:, i, i] = ctx.p.m_e
+        return out
+
+    def forcing(self, ctx: Context) -> dict[int, Array]:
+        f = ctx.zero_vector()
+        amplitude = ctx.p.m_e * ctx.p.r_me * ctx.Omega**2
+        f[:, ctx.dof(f"u{self.node}")] = amplitude
+        f[:, ctx.dof(f"v{self.node}")] = -1j * amplitude
+        return {1: f}
+
+
+def default_machine() -> Machine:
+    """The bundled default machine, the VARM."""
+    return _VARM
+
+
+_VARM = Machine.varm()

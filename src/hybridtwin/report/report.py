@@ -1,0 +1,673 @@
+"""Comparing model and measurements: where a variant fails (the "report" stage).
+
+Everything here starts from the identification outputs of a variant: the joint
+fit (``identification/fit.zarr``, ``parameters.tsv``, ``identification/summary.yaml``),
+the per-run fits (``identification/per_run.tsv``) and the validation runs, which
+are predicted with the joint estimates, never fitted (``validation.tsv``, their
+harmonics in ``validation_harmonics.tsv``: the report does not predict again). The
+figures and tables show, per run and over runs, how far the model is from the
+measurements in units of the measurement noise, and whether a constant of the
+model has to change from run to run to fit.
+
+Conventions (stated once):
+
+- Model frame. Without a keyphasor each record has an arbitrary time origin,
+  estimated as the run's phase phi (``parameters.tsv``, parameter ``phase``):
+  record = exp(i h phi) model for harmonic h. The measured harmonics are
+  rotated back, X_h exp(-i h phi), so that measured and model phases compare
+  and t = 0 is when the unbalance points to +x (README conventions).
+- Whirl. z(t) = x(t) + i y(t) = sum_h F_h exp(i h Omega t) + B_h exp(-i h Omega t)
+  with F_h = (X_h + i Y_h) / 2 (forward, turning with the shaft) and
+  B_h = conj(X_h - i Y_h) / 2 (backward); a harmonic's noise alone has an
+  RMS magnitude sqrt((s_x^2 + s_y^2) / 2) in each (``whirl_noise``).
+- Normalised error chi^2 / dof, with chi^2 = sum |X - M|^2 / s^2 over h = 1..H
+  and the C channels (the residuals of the fit, each real and imaginary part
+  weighted by its standard uncertainty s): 1 is the noise floor. A fit run's
+  dof is its share of the joint fit's, 2 C H dof / n_data, so the runs' chi^2
+  and dof add up to the joint fit's; a validation run has 2 C H - 1 (only its
+  phase aligned). ``p_value``: the probability of a chi^2 at least as large if
+  the model were right and the sigmas correct; below ``ALPHA`` the run is
+  "beyond noise".
+- Relative error: ||X - M|| / ||X|| over h = 1..H and all channels, the
+  relative L2 error of the signals' periodic part (Parseval).
+- Drift of a constant (``drift_test``): the per-run estimates v_r with
+  uncertainties s_r (the Monte Carlo spread of each per-run fit, which the
+  linearised standard error misrepresents in the per-run problems' flat
+  valleys; the standard error when there is no Monte Carlo) are tested for
+  one common value, chi^2 = sum (v_r - mean_w)^2 / s_r^2 on n - 1 dof, and
+  for a trend, the weighted least-squares slope against speed and its
+  t = slope / stderr; it drifts when either p-value is below ALPHA / 2
+  (Bonferroni: at most ALPHA false alarms per parameter).
+- BIC = chi^2 + k ln n, n = n_data real residuals, k = n_data - dof the
+  fitted entries (shared and per-run parameters and phases not held at a
+  bound).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from matplotlib.colors import LogNorm
+from scipy import stats
+
+from ..identify import identification as idn
+from ..data import measurements as meas
+from ..identify import validation as val
+from ..plots import plt
+
+Array = np.ndarray
+
+#: false-alarm rate of one test (a run beyond noise, a drifting parameter)
+ALPHA = 0.01
+#: chi^2 / dof of a model that explains the data to within the noise
+NOISE_FLOOR = 1.0
+#: harmonics shown in the Bode and polar plots
+ORDERS = (1, 2, 3)
+#: marker and colour of the validation runs in every figure
+VALIDATION_STYLE = {"marker": "*", "color": "m", "ms": 11}
+#: columns of ``error_table`` (errors.tsv, validation_errors.tsv)
+ERROR_COLUMNS = ["run", "rpm", "eccentric_mass_g", "role", "source", "chi2", "dof", "chi2_dof", "p_value",
+                 "beyond_noise", "error_pct", "signal_m"]
+
+
+# --- one run: measured and model harmonics ---------------------------------------------
+
+
+@dataclass(frozen=True)
+class RunComparison:
+    """A run's measured and model harmonics h = 1..H in the model's frame (module docstring).
+
+    measured, model: (H, C) complex [m], one column per channel (``channels``, the
+    sensors: x, y on the VARM); sigma: (H, C) [m], standard uncertainty of each real
+    and imaginary part (the weights of the fit); dof: the run's degrees of freedom;
+    role: ``fit`` or ``validate``; source: the response model (``solver`` or
+    ``library``). The run's figure (``plot_run``) draws each consecutive pair of
+    channels as an orbit: a plane's x, y probes when the machine declares them so.
+    """
+
+    run: str
+    role: str
+    rpm: float
+    eccentric_mass_g: float
+    measured: Array
+    model: Array
+    sigma: Array
+    dof: float
+    source: str
+    channels: tuple[str, ...] = idn.CHANNELS
+
+    @property
+    def H(self) -> int:
+        return self.measured.shape[0]
+
+    def select(self, channels: Sequence[str]) -> "RunComparison":
+        """The run with only ``channels``, in that order, taken by name; a name it lacks is a ValueError."""
+        missing = [name for name in channels if name not in self.channels]
+        if missing:
+            raise ValueError(f"run {self.run}: channel(s) {', '.join(missing)} not among its channels "
+                             f"{', '.join(self.channels)}")
+        cols = [self.channels.index(name) for name in channels]
+        return replace(self, measured=self.measured[:, cols], model=self.model[:, cols], sigma=self.sigma[:, cols],
+                       channels=tuple(channels))
+
+    @property
+    def residual(self) -> Array:
+        return self.measured - self.model
+
+    @property
+    def chi2(self) -> float:
+        return float((np.abs(self.residual / self.sigma) ** 2).sum())
+
+    @property
+    def chi2_dof(self) -> float:
+        return self.chi2 / self.dof
+
+    @property
+    def signal_m(self) -> float:
+        """||X|| over h = 1..H and every channel [m]."""
+        return float(np.linalg.norm(self.measured))
+
+    @property
+    def error_rel(self) -> float:
+        return float(np.linalg.norm(self.residual)) / self.signal_m
+
+
+def to_model_frame(X: Array, phase_rad: float) -> Array:
+    """Harmonics (H, ...) in a record's frame rotated to the model's: X_h exp(-i h phi)."""
+    h = np.arange(1, X.shape[0] + 1).reshape((-1,) + (1,) * (X.ndim - 1))
+    return X * np.exp(-1j * h * phase_rad)
+
+
+def fit_comparisons(fit_path: str | Path, parameters: pd.DataFrame, summary: Mapping,
+                    harmonics: pd.DataFrame) -> list[RunComparison]:
+    """The fit runs of a joint fit (``run_fits.write_fit``'s store), in the model's frame.
+
+    parameters: the joint table (parameters.tsv, for the phases and the source);
+    summary: the final block of summary.yaml (n_data, dof); harmonics: the
+    preprocessed table (for the eccentric masses).
+    """
+    from ..offline.stores import open_verified
+
+    group = open_verified(fit_path, "fit store")
+    measured = group["measured_re_m"][:] + 1j * group["measured_im_m"][:]
+    model = group["fitted_re_m"][:] + 1j * group["fitted_im_m"][:]
+    sigma = group["sigma_m"][:]
+    phases = parameters[parameters["parameter"] == "phase"].set_index("run")["value"]
+    masses = harmonics.set_index("run")["eccentric_mass_g"]
+    source = str(parameters["source"].iloc[0])
+    channels = tuple(group.attrs.get("channels", idn.CHANNELS))
+    dof = 2 * measured.shape[2] * measured.shape[1] * summary["dof"] / summary["n_data"]  # a run's share
+    return [RunComparison(run, "fit", float(rpm), float(masses[run]), to_model_frame(measured[k], phases[run]),
+                          to_model_frame(model[k], phases[run]), sigma[k], dof, source, channels)
+            for k, (run, rpm) in enumerate(zip(group.attrs["runs"], group.attrs["rpm"]))]
+
+
+def validation_comparison(prediction: val.PredictedRun, data: idn.RunData, model_error: float) -> RunComparison:
+    """A validation run as the predict_validation rule predicted it (``validation.PredictedRun``, read from
+    validation_harmonics.tsv: joint values, only the phase aligned), in the model's frame."""
+    H = prediction.harmonics.shape[0]
+    phase = prediction.phase_rad
+    return RunComparison(data.run, "validate", data.rpm, data.eccentric_mass_g, to_model_frame(data.X[:H], phase),
+                         to_model_frame(prediction.harmonics, phase), idn.total_sigma(data, model_error)[:H],
+                         2 * prediction.harmonics.size - 1, prediction.model, tuple(data.channels))
+
+
+def comparison_table(comparisons: Sequence[RunComparison]) -> pd.DataFrame:
+    """Long table, one row per run, harmonic and channel (results/{variant}/report/harmonics.tsv)."""
+    rows = []
+    for c in comparisons:
+        for h in range(c.H):
+            for j, channel in enumerate(c.channels):
+                rows.append({"run": c.run, "role": c.role, "rpm": c.rpm, "eccentric_mass_g": c.eccentric_mass_g,
+                             "source": c.source, "dof": c.dof, "harmonic": h + 1, "channel": channel,
+                             "measured_re_m": c.measured[h, j].real, "measured_im_m": c.measured[h, j].imag,
+                             "model_re_m": c.model[h, j].real, "model_im_m": c.model[h, j].imag,
+                             "sigma_m": c.sigma[h, j]})
+    return pd.DataFrame(rows)
+
+
+def read_comparisons(table: pd.DataFrame) -> list[RunComparison]:
+    """``comparison_table``'s rows back to RunComparison (runs in the table's order)."""
+    out = []
+    for run, rows in table.groupby("run", sort=False):
+        channels, rows = val.channel_order(rows)  # the table's order: the sensors'
+        first = rows.iloc[0]
+        C = len(channels)
+        out.append(RunComparison(str(run), str(first["role"]), float(first["rpm"]),
+                                 float(first["eccentric_mass_g"]),
+                                 _grid(rows, "measured_re_m", C) + 1j * _grid(rows, "measured_im_m", C),
+                                 _grid(rows, "model_re_m", C) + 1j * _grid(rows, "model_im_m", C),
+                                 _grid(rows, "sigma_m", C), float(first["dof"]), str(first["source"]), channels))
+    return out
+
+
+def _grid(rows: pd.DataFrame, column: str, channels: int) -> Array:
+    """A column of one run's rows (sorted by harmonic, channel) as (H, C)."""
+    return rows[column].to_numpy(float).reshape(-1, channels)
+
+
+# --- errors per run ---------------------------------------------------------------------
+
+
+def error_table(comparisons: Sequence[RunComparison]) -> pd.DataFrame:
+    """Per-run errors: run, rpm, eccentric_mass_g, role, source, chi2, dof, chi2_dof, p_value, beyond_noise,
+    error_pct (relative error, %), signal_m (||X||, to pool relative errors); module docstring."""
+    rows = []
+    for c in comparisons:
+        p = float(stats.chi2.sf(c.chi2, c.dof))
+        rows.append({"run": c.run, "rpm": c.rpm, "eccentric_mass_g": c.eccentric_mass_g, "role": c.role,
+                     "source": c.source, "chi2": c.chi2, "dof": c.dof, "chi2_dof": c.chi2_dof, "p_value": p,
+                     "beyond_noise": p < ALPHA, "error_pct": 100.0 * c.error_rel, "signal_m": c.signal_m})
+    return pd.DataFrame(rows, columns=ERROR_COLUMNS)
+
+
+def pooled(errors: pd.DataFrame) -> dict[str, float]:
+    """chi^2 / dof and relative error (%) of several runs taken together (sum chi^2 / sum dof, ||X - M|| / ||X||)."""
+    if errors.empty:
+        return {"chi2_dof": math.nan, "error_pct": math.nan}
+    residual = (errors["error_pct"] * errors["signal_m"]) ** 2
+    return {"chi2_dof": float(errors["chi2"].sum() / errors["dof"].sum()),
+            "error_pct": float(np.sqrt(residual.sum() / (errors["signal_m"] ** 2).sum()))}
+
+
+# --- spectra and waveforms --------------------------------------------------------------
+
+
+def whirl(Z: Array) -> tuple[Array, Array]:
+    """Forward and backward components (H,) of z = x + i y from harmonics Z (H, 2) [m] (module docstring)."""
+    x, y = Z[:, 0], Z[:, 1]
+    return 0.5 * (x + 1j * y), 0.5 * np.conj(x - 1j * y)
+
+
+def whirl_noise(sigma: Array) -> Array:
+    """RMS magnitude (H,) of a forward or backward component made of noise alone, sqrt((s_x^2 + s_y^2) / 2)."""
+    return np.sqrt(0.5 * (sigma[:, 0] ** 2 + sigma[:, 1] ** 2))
+
+
+def waveform(Z: Array, revolutions: float = 2.0, n_time: int = 240) -> tuple[Array, Array]:
+    """x, y over ``revolutions`` from harmonics Z (H, 2): angle Omega t (T,) [rad] and signals (T, 2) [m]."""
+    angle = np.linspace(0.0, 2 * np.pi * revolutions, n_time)
+    wave = np.exp(1j * np.outer(angle, np.arange(1, Z.shape[0] + 1)))
+    return angle, (wave @ Z).real
+
+
+def waveform_noise(sigma: Array) -> Array:
+    """Standard deviation (2,) of x(t), y(t) rebuilt from harmonics with independent noise: sqrt(sum_h s_h^2)."""
+    return np.sqrt((sigma**2).sum(0))
+
+
+# --- drift of the per-run estimates -----------------------------------------------------
+
+
+#: the per-run estimates' slope along speed is tested only when their runs' speeds span this fraction of the fastest
+SLOPE_SPEED_SPREAD = 0.05
+
+
+def drift_test(value: Array, sigma: Array, rpm: Array, alpha: float = ALPHA) -> dict[str, float | bool]:
+    """Do the estimates v (n,) with uncertainties s (n,) at speeds rpm (n,) share one value? (module docstring)
+
+    Returns weighted_mean, weighted_mean_stderr, chi2, dof, chi2_dof, p_value,
+    slope_per_rpm (the weighted line passes through the weighted means of value
+    and speed, slope_centre_rpm), slope_stderr_per_rpm, slope_t, slope_p_value
+    and drifts.
+    """
+    v, s, x = (np.asarray(a, float) for a in (value, sigma, rpm))
+    w = 1.0 / s**2
+    mean = float((w * v).sum() / w.sum())
+    chi2 = float((w * (v - mean) ** 2).sum())
+    dof = v.size - 1
+    p = float(stats.chi2.sf(chi2, dof)) if dof > 0 else math.nan
+    centre = (w * x).sum() / w.sum()
+    # a slope along speed needs speeds to slope along: runs within SLOPE_SPEED_SPREAD of one speed have none (a
+    # "slope" over their 0.3 % of refined speed is noise read as a trend)
+    sxx = float((w * (x - centre) ** 2).sum()) if val.spans(x, SLOPE_SPEED_SPREAD) else 0.0
+    slope = float((w * (x - centre) * (v - mean)).sum() / sxx) if sxx > 0 else math.nan
+    slope_stderr = 1.0 / math.sqrt(sxx) if sxx > 0 else math.nan
+    t = slope / slope_stderr
+    p_slope = float(2.0 * stats.norm.sf(abs(t))) if v.size > 2 and math.isfinite(t) else math.nan
+    drifts = bool(np.nanmin([p, p_slope, 1.0]) < 0.5 * alpha)
+    return {"weighted_mean": mean, "weighted_mean_stderr": float(1.0 / math.sqrt(w.sum())), "chi2": chi2,
+            "dof": dof, "chi2_dof": chi2 / dof if dof > 0 else math.nan, "p_value": p, "slope_per_rpm": slope,
+            "slope_centre_rpm": float(centre),
+            "slope_stderr_per_rpm": slope_stderr, "slope_t": t, "slope_p_value": p_slope, "drifts": drifts}
+
+
+def drift_sigma(per_run: pd.DataFrame) -> tuple[pd.Series, pd.Series]:
+    """Uncertainty of each per-run estimate: the Monte Carlo spread (mc_std) where there is one, else the
+    linearised standard error; and its source ("monte_carlo" or "linearised")."""
+    mc = per_run["mc_std"] if "mc_std" in per_run else pd.Series(np.nan, index=per_run.index)
+    has_mc = np.isfinite(mc) & (mc > 0)
+    return mc.where(has_mc, per_run["stderr"]), pd.Series(np.where(has_mc, "monte_carlo", "linearised"),
+                                                           index=per_run.index)
+
+
+def drift_usable(per_run: pd.DataFrame) -> pd.Series:
+    """Estimates a drift test can use: finite, not at a range edge (a pile-up at a bound is not Gaussian),
+    with a positive finite uncertainty."""
+    sigma, _ = drift_sigma(per_run)
+    return np.isfinite(per_run["value"]) & ~per_run["at_bound"].astype(bool) & np.isfinite(sigma) & (sigma > 0)
+
+
+#: columns of ``drift_statistics`` (drift.tsv); the test's are NaN where too few estimates are usable
+DRIFT_COLUMNS = ["parameter", "unit", "kind", "n_runs", "n_used", "n_at_bound", "sigma_source", "joint_value",
+                 "weighted_mean", "weighted_mean_stderr", "chi2", "dof", "chi2_dof", "p_value", "slope_per_rpm",
+                 "slope_centre_rpm", "slope_stderr_per_rpm", "slope_t", "slope_p_value", "drifts", "flagged",
+                 "verdict"]
+
+
+def drift_statistics(per_run: pd.DataFrame, joint: pd.DataFrame, alpha: float = ALPHA) -> pd.DataFrame:
+    """One row per physical parameter of the per-run fits (identification/per_run.tsv): ``drift_test`` on
+    its usable estimates, with the joint fit's kind (shared constant or per run) and value.
+
+    ``flagged``: a constant of the joint model (kind shared) that drifts, i.e. the model misses something;
+    a per-run parameter (the bow) is allowed to vary and never flagged.
+    """
+    sigma, source = drift_sigma(per_run)
+    usable = drift_usable(per_run)
+    kinds = joint[joint["kind"] != "nuisance"].groupby("parameter")["kind"].first()
+    shared = joint[joint["run"] == "all"].set_index("parameter")["value"]
+    rows = []
+    for p, group in per_run.groupby("parameter", sort=False):
+        ok = usable[group.index]
+        kind = str(kinds.get(p, "fixed"))
+        row = {"parameter": p, "unit": group["unit"].iloc[0], "kind": kind, "n_runs": len(group),
+               "n_used": int(ok.sum()), "n_at_bound": int(group["at_bound"].astype(bool).sum()),
+               "sigma_source": ",".join(sorted(set(source[group.index][ok]))),
+               "joint_value": float(shared.get(p, math.nan))}
+        if ok.sum() >= 3:
+            row |= drift_test(group["value"][ok], sigma[group.index][ok], group["rpm"][ok], alpha)
+        else:
+            row["drifts"] = False
+        row["flagged"] = bool(row["drifts"] and kind == "shared")
+        row["verdict"] = _drift_verdict(row, kind)
+        rows.append(row)
+    return pd.DataFrame(rows, columns=DRIFT_COLUMNS)
+
+
+def _drift_verdict(row: Mapping, kind: str) -> str:
+    if row["n_used"] < 3:
+        return "too few usable per-run estimates to test"
+    if kind != "shared":
+        return "estimated per run in the joint fit (allowed to vary)"
+    if row["flagged"]:
+        return "drifts: a constant of the model changes from run to run, the model misses something"
+    return "constant within the per-run uncertainties"
+
+
+# --- the ledger -------------------------------------------------------------------------
+
+
+def bic(chi2: float, n_data: int, dof: int) -> float:
+    """Bayesian information criterion chi^2 + k ln n, k = n_data - dof fitted entries (module docstring)."""
+    return float(chi2 + (n_data - dof) * math.log(n_data))
+
+
+#: the ledger's columns (results/ledger.tsv; workflow/report/ledger.rst), then chi2_dof_{run} per run
+LEDGER_COLUMNS = ["variant", "description", "source", "n_data", "k", "dof", "chi2", "chi2_dof",
+                  "excess_over_noise_pct", "bic", "delta_bic", "error_pct", "run_chi2_dof_median",
+                  "run_chi2_dof_max", "worst_run", "runs_beyond_noise", "validation_chi2_dof",
+                  "validation_error_pct", "worst_validation_run"]
+
+
+def ledger_row(variant: str, description: str, summary: Mapping, errors: pd.DataFrame) -> dict:
+    """One variant's ledger row (``LEDGER_COLUMNS`` but delta_bic, then ``chi2_dof_{run}`` per run).
+
+    summary: the final block of summary.yaml (n_data, dof, chi2); errors: the
+    variant's ``error_table`` (fit and validation runs).
+    """
+    fit, validate = errors[errors["role"] == "fit"], errors[errors["role"] == "validate"]
+    n, dof, chi2 = int(summary["n_data"]), int(summary["dof"]), float(summary["chi2"])
+    row = {"variant": variant, "description": description, "source": _source(errors), "n_data": n,
+           "k": n - dof, "dof": dof, "chi2": chi2, "chi2_dof": chi2 / dof,
+           "excess_over_noise_pct": 100.0 * (chi2 / dof / NOISE_FLOOR - 1.0), "bic": bic(chi2, n, dof),
+           "error_pct": pooled(fit)["error_pct"], "run_chi2_dof_median": float(fit["chi2_dof"].median()),
+           "run_chi2_dof_max": float(fit["chi2_dof"].max()), "worst_run": _worst(fit),
+           "runs_beyond_noise": int(fit["beyond_noise"].sum()),
+           "validation_chi2_dof": pooled(validate)["chi2_dof"], "validation_error_pct": pooled(validate)["error_pct"],
+           "worst_validation_run": _worst(validate)}
+    return row | {f"chi2_dof_{r.run}": r.chi2_dof for r in errors.itertuples()}
+
+
+def _source(errors: pd.DataFrame) -> str:
+    return ",".join(dict.fromkeys(errors["source"].astype(str))) if len(errors) else ""
+
+
+def _worst(errors: pd.DataFrame) -> str:
+    return str(errors.loc[errors["chi2_dof"].idxmax(), "run"]) if len(errors) else ""
+
+
+def ledger_table(rows: Sequence[Mapping]) -> pd.DataFrame:
+    """The ledger (results/ledger.tsv), variants in the given (config) order, delta_bic to the lowest BIC."""
+    table = pd.DataFrame(list(rows))
+    table["delta_bic"] = table["bic"] - table["bic"].min()
+    per_run = [c for c in table if c not in LEDGER_COLUMNS]
+    return table[LEDGER_COLUMNS + per_run]
+
+
+# --- figures ----------------------------------------------------------------------------
+
+MICRO = 1e6  # m -> um
+MILLI = 1e3  # m -> mm
+
+
+def mass_colours(masses: Iterable[float]) -> dict[float, str]:
+    """One colour per eccentric mass, heaviest first (C0, C1, ...; magenta is kept for validation runs)."""
+    masses = sorted(set(masses), reverse=True)
+    palette = [f"C{i}" for i in range(10) if i != 6]  # C6 (pink) is too close to the validation magenta
+    return {m: palette[i % len(palette)] for i, m in enumerate(masses)}
+
+
+def _run_title(c: RunComparison) -> str:
+    return (f"{c.run} ({'validation, predicted' if c.role == 'validate' else 'fit'}): {c.rpm:.1f} RPM, "
+            f"{c.eccentric_mass_g:g} g; chi^2/dof = {c.chi2_dof:.3g}, error {100 * c.error_rel:.2g} %")
+
+
+def plot_run(c: RunComparison, variant: str, pairs: Sequence[tuple[str, str]] | None = None) -> plt.Figure:
+    """One run: orbit, x and y over two revolutions with the residual, and the residual whirl spectrum; a row per
+    plane with an x and a y probe (``pairs``: the channels' names, ``sensor_pair_names``; None: consecutive
+    channels, the VARM's x, y, one row). A probe without a partner has no orbit: it is in the run's rows of
+    harmonics.tsv and in its chi^2, and the title says so."""
+    pairs = probe_pairs(c, pairs)
+    fig = plt.figure(figsize=(14, 6.2 * len(pairs)))
+    grid = fig.add_gridspec(2 * len(pairs), 3, width_ratios=(1.0, 1.5, 1.3), height_ratios=(1.4, 1.0) * len(pairs))
+    for k, pair in enumerate(pairs):
+        _orbit(fig.add_subplot(grid[2 * k:2 * k + 2, 0]), pair)
+        signals = fig.add_subplot(grid[2 * k, 1])
+        _signals(signals, fig.add_subplot(grid[2 * k + 1, 1], sharex=signals), pair)
+        _spectrum(fig.add_subplot(grid[2 * k:2 * k + 2, 2]), pair)
+    left = [name for name in c.channels if not any(name in pair.channels for pair in pairs)]
+    shown = "" if not left else (f"\nnot drawn: channel{'s' if len(left) > 1 else ''} {', '.join(left)} (no pair); "
+                                 f"chi^2 and error over all {len(c.channels)}: {', '.join(c.channels)}")
+    fig.suptitle(f"variant {variant}, {_run_title(c)}{shown}", fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
+def probe_pairs(c: RunComparison, pairs: Sequence[tuple[str, str]] | None = None) -> list[RunComparison]:
+    """Each plane's (x, y) probes as a RunComparison of those two channels. pairs: the channels' names
+    (``sensor_pair_names`` of the machine); None: consecutive channels (0, 1), (2, 3), ..., which are the planes
+    only when every probe has a partner (the VARM's x, y). A name the run lacks is a ValueError."""
+    if pairs is None:
+        pairs = [tuple(c.channels[j:j + 2]) for j in range(0, len(c.channels) - 1, 2)]
+    return [c.select(pair) for pair in pairs]
+
+
+def sensor_pair_names(sensors=None) -> list[tuple[str, str]] | None:
+    """The (x, y) channel names of each plane with one probe of each for ``sensors`` (a machine's sensors in any
+    form ``measurements.record_channels`` takes: the config's {name: {node, direction}}, a Machine); None for the
+    VARM (its x, y)."""
+    names, pairs = meas.record_channels(sensors)
+    return None if pairs is None else [(names[i], names[j]) for i, j in pairs]
+
+
+def _orbit(ax: plt.Axes, c: RunComparison) -> None:
+    for Z, label, style in ((c.measured, "measured", {"color": "k", "lw": 2.2}),
+                            (c.model, "model", {"color": "C3", "lw": 1.3, "ls": "--"})):
+        _, xy = waveform(Z, 1.0)
+        ax.plot(xy[:, 0] * MILLI, xy[:, 1] * MILLI, label=label, **style)
+        ax.plot(xy[0, 0] * MILLI, xy[0, 1] * MILLI, "o", color=style["color"], ms=5)
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel(f"{c.channels[0]} [mm]")
+    ax.set_ylabel(f"{c.channels[1]} [mm]")
+    ax.set_title("orbit (h = 1..H, DC removed); dot: t = 0", fontsize=9)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+
+
+def _signals(ax: plt.Axes, ax_residual: plt.Axes, c: RunComparison) -> None:
+    angle, measured = waveform(c.measured)
+    _, model = waveform(c.model)
+    turns = angle / (2 * np.pi)
+    noise = waveform_noise(c.sigma)
+    for j, channel in enumerate(c.channels[:2]):
+        colour = f"C{j}"
+        ax.plot(turns, measured[:, j] * MILLI, color=colour, lw=2, label=f"{channel} measured")
+        ax.plot(turns, model[:, j] * MILLI, color="k", lw=1, ls="--" if j == 0 else ":", label=f"{channel} model")
+        ax_residual.plot(turns, (measured[:, j] - model[:, j]) * MICRO, color=colour, label=f"{channel}")
+        ax_residual.axhspan(-2 * noise[j] * MICRO, 2 * noise[j] * MICRO, color=colour, alpha=0.12)
+    ax.set_ylabel("displacement [mm]")
+    ax.set_title("synchronous average over two revolutions (model frame)", fontsize=9)
+    ax.legend(fontsize=7, ncol=2)
+    ax.grid(alpha=0.3)
+    ax.tick_params(labelbottom=False)
+    ax_residual.set_xlabel("revolutions (Omega t / 2 pi)")
+    ax_residual.set_ylabel("residual [um]")
+    ax_residual.set_title("measured - model; bands: +-2 sigma of the noise", fontsize=9)
+    ax_residual.legend(fontsize=7)
+    ax_residual.grid(alpha=0.3)
+
+
+def _spectrum(ax: plt.Axes, c: RunComparison) -> None:
+    """Bars of |measured|, |model|, |residual| per whirl component (-H..-1 backward, 1..H forward), noise RMS."""
+    H = c.H
+    order = np.concatenate([-np.arange(H, 0, -1), np.arange(1, H + 1)])
+    noise = whirl_noise(c.sigma)
+    noise = np.concatenate([noise[::-1], noise]) * MICRO
+
+    def signed(Z: Array) -> Array:
+        forward, backward = whirl(Z)
+        return np.abs(np.concatenate([backward[::-1], forward])) * MICRO
+    floor = 0.05 * noise.min()
+    position = np.arange(2 * H)
+    for offset, (values, label, colour) in zip((-0.27, 0.0, 0.27), (
+            (signed(c.measured), "measured", "0.55"), (signed(c.model), "model", "C3"),
+            (signed(c.residual), "residual", "C2"))):
+        ax.bar(position + offset, np.maximum(values, floor), width=0.27, bottom=0, color=colour, label=label)
+    ax.hlines(noise, position - 0.45, position + 0.45, color="k", lw=1.5, label="noise RMS")
+    ax.set_yscale("log")
+    ax.set_ylim(bottom=floor)
+    ax.set_xticks(position, [f"{h:+d}X" for h in order])
+    ax.axvline(H - 0.5, color="k", lw=0.8)
+    ax.set_ylabel("|component| of z = x + i y [um]")
+    ax.set_title("whirl spectrum: backward (-h) | forward (+h)", fontsize=9)
+    ax.legend(fontsize=7)
+    ax.grid(axis="y", which="both", alpha=0.3)
+
+
+def plot_error_map(errors: pd.DataFrame, variant: str) -> plt.Figure:
+    """Where the model fails: chi^2/dof per run on speed x unbalance mass (colour, log scale, value written),
+    runs beyond noise (p < ALPHA) outlined, validation runs as stars; and chi^2/dof vs speed per mass."""
+    fig, (ax, ax_speed) = plt.subplots(1, 2, figsize=(14, 5.2), gridspec_kw={"width_ratios": (1.25, 1)})
+    values = errors["chi2_dof"].clip(lower=1e-2)
+    norm = LogNorm(vmin=min(values.min(), 0.5), vmax=max(values.max(), 10.0))
+    points = []
+    for role, marker, size in (("fit", "s", 420), ("validate", VALIDATION_STYLE["marker"], 700)):
+        sub = errors[errors["role"] == role]
+        edge = np.where(sub["beyond_noise"], "k", "none")
+        points += [ax.scatter(sub["rpm"], sub["eccentric_mass_g"], c=values[sub.index], norm=norm, cmap="RdYlGn_r",
+                              marker=marker, s=size, edgecolors=edge, linewidths=1.5, label=role)]
+        for r in sub.itertuples():
+            ax.annotate(f"{r.chi2_dof:.3g}", (r.rpm, r.eccentric_mass_g), xytext=(0, -17), textcoords="offset points",
+                        ha="center", fontsize=7)
+    fig.colorbar(points[0], ax=ax, label="chi^2 / dof (1 = noise floor)")
+    ax.set_xlabel("speed [RPM]")
+    ax.set_ylabel("eccentric mass [g]")
+    ax.margins(0.08, 0.15)
+    ax.set_title(f"normalised error per run; black edge: beyond noise (p < {ALPHA:g})", fontsize=9)
+    ax.grid(alpha=0.3)
+    colours = mass_colours(errors.loc[errors["role"] == "fit", "eccentric_mass_g"])
+    for mass, sub in errors[errors["role"] == "fit"].groupby("eccentric_mass_g"):
+        sub = sub.sort_values("rpm")
+        ax_speed.plot(sub["rpm"], sub["chi2_dof"], "o-", color=colours[mass], label=f"{mass:g} g")
+    val = errors[errors["role"] == "validate"]
+    if len(val):
+        ax_speed.plot(val["rpm"], val["chi2_dof"], ls="none", mfc="none", label="validation",
+                      **{k: VALIDATION_STYLE[k] for k in ("marker", "color", "ms")})
+    ax_speed.axhline(NOISE_FLOOR, color="g", lw=1.5, label="noise floor")
+    ax_speed.set_yscale("log")
+    ax_speed.set_xlabel("speed [RPM]")
+    ax_speed.set_ylabel("chi^2 / dof")
+    ax_speed.set_title("normalised error vs speed", fontsize=9)
+    ax_speed.grid(alpha=0.3, which="both")
+    ax_speed.legend(fontsize=7)
+    fit, val_pooled = pooled(errors[errors["role"] == "fit"]), pooled(val)
+    validation = (f"validation runs {val_pooled['chi2_dof']:.3g} (error {val_pooled['error_pct']:.2g} %)"
+                  if len(val) else "no validation run")
+    fig.suptitle(f"variant {variant}: where the model fails. Fit runs chi^2/dof = {fit['chi2_dof']:.3g} "
+                 f"(error {fit['error_pct']:.2g} %); {validation}", fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
+def plot_drift(per_run: pd.DataFrame, statistics: pd.DataFrame, joint: pd.DataFrame, variant: str) -> plt.Figure:
+    """Per-run estimates vs speed (1 sigma bars: ``drift_sigma``; open: at a range edge, not tested), the
+    weighted mean and slope, the joint value (line for a shared parameter, crosses for a per-run one);
+    titles give the drift statistic, flagged constants in red."""
+    names = list(statistics["parameter"])
+    n = max(len(names), 1)
+    rows = math.ceil(n / 4)
+    columns = math.ceil(n / rows)
+    fig, axes = plt.subplots(rows, columns, figsize=(4.3 * columns, 3.6 * rows), squeeze=False)
+    sigma, _ = drift_sigma(per_run)
+    usable = drift_usable(per_run)
+    colours = mass_colours(per_run["eccentric_mass_g"])
+    for ax, stat in zip(axes.flat, statistics.itertuples()):
+        group = per_run[per_run["parameter"] == stat.parameter]
+        for mass, colour in colours.items():
+            sub = group[group["eccentric_mass_g"] == mass]
+            ok = usable[sub.index]
+            ax.errorbar(sub["rpm"][ok], sub["value"][ok], yerr=sigma[sub.index][ok], fmt="o", ms=4, color=colour,
+                        capsize=2, label=f"{mass:g} g")
+            ax.plot(sub["rpm"][~ok], sub["value"][~ok], "o", ms=4, mfc="none", color=colour)
+        _drift_lines(ax, group, stat)
+        local = joint[(joint["parameter"] == stat.parameter) & (joint["run"] != "all")].merge(
+            group[["run", "rpm"]], on="run")
+        ax.plot(local["rpm"], local["value"], "k+", ms=7, label="joint fit" if len(local) else None)
+        lo, hi = float(group["lower"].iloc[0]), float(group["upper"].iloc[0])
+        ax.set_ylim(lo - 0.05 * (hi - lo), hi + 0.05 * (hi - lo))
+        ax.set_title(_drift_title(stat), fontsize=8, color="r" if stat.flagged else "k")
+        ax.set_xlabel("speed [RPM]")
+        ax.set_ylabel(f"{stat.parameter} [{stat.unit}]")
+        ax.grid(alpha=0.3)
+    for ax in axes.flat[len(names):]:
+        ax.set_visible(False)
+    axes[0, 0].legend(fontsize=7)
+    fig.suptitle(f"variant {variant}: per-run estimates vs speed and their drift (1 sigma bars, open: at a range "
+                 f"edge, not tested); red: a constant of the model that drifts (either p < {ALPHA / 2:g})", fontsize=9)
+    fig.tight_layout()
+    return fig
+
+
+def _drift_lines(ax: plt.Axes, group: pd.DataFrame, stat: Any) -> None:
+    """The joint value, weighted mean and weighted slope of one parameter (``stat``: a drift_statistics row)."""
+    if np.isfinite(stat.joint_value):
+        ax.axhline(stat.joint_value, color="k", lw=1.2, label="joint fit")
+    mean = stat.weighted_mean
+    if np.isfinite(mean):
+        rpm = np.array([group["rpm"].min(), group["rpm"].max()])
+        ax.axhline(mean, color="0.5", lw=1, ls=":", label="weighted mean")
+        if np.isfinite(stat.slope_per_rpm):
+            ax.plot(rpm, mean + stat.slope_per_rpm * (rpm - stat.slope_centre_rpm), "--", color="0.4",
+                    label="weighted slope")
+
+
+def _drift_title(stat: Any) -> str:
+    """The drift statistic of one parameter in a line (``stat``: a drift_statistics row)."""
+    if not np.isfinite(stat.chi2_dof):
+        return f"{stat.parameter}: {stat.verdict}"
+    flag = "  DRIFTS" if stat.flagged else ("  (per run)" if stat.kind != "shared" else "")
+    slope = (f"slope t {stat.slope_t:.2g} (p {stat.slope_p_value:.2g})" if np.isfinite(stat.slope_p_value)
+             else "no slope (one speed)")
+    return f"{stat.parameter}: chi^2/dof {stat.chi2_dof:.2g} (p {stat.p_value:.2g}), {slope}{flag}"
+
+
+def plot_ledger(ledger: pd.DataFrame, errors: Mapping[str, pd.DataFrame]) -> plt.Figure:
+    """The error from variant to variant (config order) toward the noise floor: chi^2/dof of the fit runs
+    (overall, black; per run, grey), of the validation runs (magenta); and BIC - min BIC."""
+    fig, (ax, ax_bic) = plt.subplots(2, 1, figsize=(max(6.0, 1.9 * len(ledger) + 3), 8), sharex=True,
+                                     gridspec_kw={"height_ratios": (2.2, 1)})
+    position = np.arange(len(ledger))
+    for i, variant in enumerate(ledger["variant"]):
+        table = errors[variant]
+        fit, val = table[table["role"] == "fit"], table[table["role"] == "validate"]
+        jitter = np.linspace(-0.15, 0.15, max(len(fit), 1))[: len(fit)]
+        ax.plot(i + jitter, fit["chi2_dof"], "o", ms=3.5, color="0.6", label="fit run" if i == 0 else None)
+        ax.plot(np.full(len(val), i + 0.25), val["chi2_dof"], ls="none", mfc="none",
+                label="validation run" if i == 0 else None,
+                **{k: VALIDATION_STYLE[k] for k in ("marker", "color")}, ms=8)
+    ax.plot(position, ledger["chi2_dof"], "ks-", ms=8, lw=2, label="all fit runs")
+    ax.plot(position + 0.25, ledger["validation_chi2_dof"], "--", color=VALIDATION_STYLE["color"], lw=1.5,
+            label="all validation runs")
+    ax.axhspan(NOISE_FLOOR, 1.1 * NOISE_FLOOR, color="g", alpha=0.25, label="within 10 % of the noise floor")
+    ax.axhline(NOISE_FLOOR, color="g", lw=1.5)
+    for i, r in enumerate(ledger.itertuples()):
+        ax.annotate(f"{r.chi2_dof:.3g}", (i, r.chi2_dof), xytext=(8, 4), textcoords="offset points", fontsize=8)
+    ax.set_yscale("log")
+    ax.set_ylabel("chi^2 / dof (1 = noise floor)")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=7)
+    ax.set_title("normalised error per variant, in config order", fontsize=10)
+    ax_bic.bar(position, ledger["delta_bic"], color="0.5")
+    for i, value in enumerate(ledger["delta_bic"]):
+        ax_bic.annotate(f"{value:.0f}", (i, value), ha="center", va="bottom", fontsize=8)
+    ax_bic.set_ylabel("BIC - min BIC")
+    ax_bic.set_xticks(position, ledger["variant"])
+    ax_bic.grid(axis="y", alpha=0.3)
+    fig.tight_layout()
+    return fig

@@ -1,0 +1,303 @@
+"""The answer first: the page ``snakemake --report report.html`` opens on (the "report" stage, after the ledger).
+
+A user who opens the report wants three things before any figure of one run: how the error falls from
+variant to variant (the ledger), what the diagnosis recommends, and where each variant still fails. This
+module turns the ledger (``results/ledger.tsv``), each variant's per-run errors (``report/errors.tsv``,
+``report/validation_errors.tsv``) and its diagnosis (``diagnosis.yaml``) into
+
+- ``summary_table``: one row per variant (``results/summary.tsv``, columns ``SUMMARY_COLUMNS``);
+- ``plot_summary``: one figure (``results/summary.png``): chi^2/dof variant by variant, and per run and
+  variant the normalised error, runs beyond the noise in bold;
+- ``landing_rst``: the reStructuredText the report's first page includes (``results/summary.rst``, see
+  ``workflow/report/workflow.rst``): the best variant, the ledger as a table, the recommendations, and per
+  variant its runs beyond the noise, each linked to its figure in the report.
+
+Numbers follow ``hybridtwin.report.report`` (chi^2/dof with 1 the noise floor, "beyond noise" at p < ALPHA, BIC).
+Nothing is recomputed here: the page shows what the tables say.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+from collections.abc import Mapping, Sequence
+from urllib.parse import quote
+
+import numpy as np
+import pandas as pd
+from matplotlib.colors import LogNorm
+from scipy import stats
+
+from ..data import measured
+from ..plots import plt
+from .report import ALPHA, NOISE_FLOOR, VALIDATION_STYLE
+
+#: columns of ``summary_table`` (results/summary.tsv)
+SUMMARY_COLUMNS = ["variant", "chi2_dof", "p_value", "validation_chi2_dof", "delta_bic", "fit_runs", "fit_runs_beyond_noise",
+                   "validation_runs", "validation_runs_beyond_noise", "worst_run", "worst_run_chi2_dof",
+                   "conclusion", "recommended_variant", "recommended_in_config"]
+#: the band above the noise floor drawn in the figure (as in the ledger's)
+NEAR_NOISE = 1.1
+
+
+def _finite(value) -> float:
+    """A float, NaN for a missing value."""
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return math.nan
+
+
+def matching_variant(spec: Mapping | None, variants: Mapping[str, Mapping]) -> str:
+    """The config variant with exactly the effects of a recommended variant's ``spec`` ("" when none has)."""
+    if not spec:
+        return ""
+    wanted = set(spec.get("effects", ()))
+    return next((name for name, other in variants.items() if set(other.get("effects", ())) == wanted), "")
+
+
+def summary_table(ledger: pd.DataFrame, errors: Mapping[str, pd.DataFrame], diagnoses: Mapping[str, Mapping],
+                  variants: Mapping[str, Mapping]) -> pd.DataFrame:
+    """One row per variant of the ledger (config order): its chi^2/dof, Delta BIC, how many fit and validation
+    runs are beyond the noise and the worst, the diagnosis's conclusion and recommended variant, and which
+    config variant already has that variant's effects.
+
+    ledger: results/ledger.tsv; errors: per variant, its fit and validation runs (``report.error_table``);
+    diagnoses: per variant, diagnosis.yaml; variants: the config's ``variants:``.
+    """
+    rows = []
+    for r in ledger.itertuples():
+        table = errors[r.variant]
+        fit, val = table[table["role"] == "fit"], table[table["role"] == "validate"]
+        worst = table.loc[table["chi2_dof"].idxmax()] if len(table) else None
+        diagnosis = diagnoses.get(r.variant) or {}
+        recommended = diagnosis.get("recommended_variant") or {}
+        rows.append({"variant": r.variant, "chi2_dof": r.chi2_dof, "p_value": float(stats.chi2.sf(r.chi2, r.dof)),
+                     "validation_chi2_dof": r.validation_chi2_dof,
+                     "delta_bic": r.delta_bic, "fit_runs": len(fit),
+                     "fit_runs_beyond_noise": int(fit["beyond_noise"].sum()), "validation_runs": len(val),
+                     "validation_runs_beyond_noise": int(val["beyond_noise"].sum()),
+                     "worst_run": "" if worst is None else str(worst["run"]),
+                     "worst_run_chi2_dof": math.nan if worst is None else float(worst["chi2_dof"]),
+                     "conclusion": str(diagnosis.get("conclusion", "")),
+                     "recommended_variant": str(recommended.get("name", "")),
+                     "recommended_in_config": matching_variant(recommended.get("spec"), variants)})
+    return pd.DataFrame(rows, columns=SUMMARY_COLUMNS)
+
+
+def best_variant(summary: pd.DataFrame) -> pd.Series:
+    """The variant with the lowest BIC (Delta BIC 0), the first in config order on a tie."""
+    return summary.loc[summary["delta_bic"].astype(float).idxmin()]
+
+
+def run_order(errors: Mapping[str, pd.DataFrame]) -> pd.DataFrame:
+    """Every run of any variant once: run, rpm, eccentric_mass_g, role; fit runs by mass (heaviest first) and
+    speed, then the validation runs by speed."""
+    runs = pd.concat([table[["run", "rpm", "eccentric_mass_g", "role"]] for table in errors.values()])
+    runs = runs.drop_duplicates("run")
+    runs["order"] = (runs["role"] != "fit").astype(int)
+    return runs.sort_values(["order", "eccentric_mass_g", "rpm"], ascending=[True, False, True]).drop(
+        columns="order").reset_index(drop=True)
+
+
+def _short(value: float) -> str:
+    """A chi^2/dof for a small cell: two significant digits, whole numbers from 100 on."""
+    return f"{value:.0f}" if value >= 100 else f"{value:.2g}"
+
+
+def plot_summary(ledger: pd.DataFrame, errors: Mapping[str, pd.DataFrame]) -> plt.Figure:
+    """Top: chi^2/dof of the fit runs (black) and of the validation runs (magenta) variant by variant, in config
+    order, against the noise floor. Bottom: per run (rows) and variant (columns) the run's chi^2/dof, colour
+    on a log scale, the value written, bold where the run is beyond the noise (p < ALPHA); validation runs
+    marked with a star. Narrow (5.6 in) to sit in the report's first page."""
+    variants = list(ledger["variant"])
+    runs = run_order(errors)
+    grid = np.full((len(runs), len(variants)), np.nan)
+    beyond = np.zeros(grid.shape, bool)
+    for j, variant in enumerate(variants):
+        table = errors[variant].set_index("run")
+        for i, run in enumerate(runs["run"]):
+            if run in table.index:
+                grid[i, j] = table.at[run, "chi2_dof"]
+                beyond[i, j] = bool(table.at[run, "beyond_noise"])
+    height = 2.6 + 0.24 * len(runs)
+    fig, (ax, ax_runs) = plt.subplots(2, 1, figsize=(5.6, height + 2.4),
+                                      gridspec_kw={"height_ratios": (2.4, height)})
+    position = np.arange(len(variants))
+    ax.plot(position, ledger["chi2_dof"], "ks-", ms=7, lw=2, label="fit runs")
+    if np.isfinite(ledger["validation_chi2_dof"].astype(float)).any():
+        ax.plot(position, ledger["validation_chi2_dof"], "--", color=VALIDATION_STYLE["color"], lw=1.5,
+                marker=VALIDATION_STYLE["marker"], ms=9, label="validation runs (never fitted)")
+    ax.axhspan(NOISE_FLOOR, NEAR_NOISE * NOISE_FLOOR, color="g", alpha=0.25)
+    ax.axhline(NOISE_FLOOR, color="g", lw=1.5, label="noise floor")
+    for i, value in enumerate(ledger["chi2_dof"]):
+        ax.annotate(f"{value:.3g}", (i, value), xytext=(6, 4), textcoords="offset points", fontsize=8)
+    ax.set_yscale("log")
+    ax.set_xticks(position, variants, fontsize=8, rotation=20)
+    ax.set_xlim(-0.5, len(variants) - 0.5)
+    ax.set_ylabel("chi^2 / dof")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=7)
+    ax.set_title("the error, variant by variant (1 = noise floor)", fontsize=9)
+
+    finite = grid[np.isfinite(grid)]
+    top = max(float(finite.max()) if finite.size else 10.0, 10.0)
+    image = ax_runs.imshow(np.clip(grid, 0.1, None), cmap="RdYlGn_r", aspect="auto",
+                           norm=LogNorm(vmin=0.3, vmax=top))
+    norm = image.norm
+    for (i, j), value in np.ndenumerate(grid):
+        if np.isfinite(value):
+            dark = not 0.2 < norm(max(value, 0.1)) < 0.8  # white text on the scale's dark ends
+            ax_runs.text(j, i, _short(value), ha="center", va="center", fontsize=7,
+                         color="w" if dark else "k", fontweight="bold" if beyond[i, j] else "normal")
+    labels = [f"{'* ' if r.role != 'fit' else ''}{r.run}  ({r.rpm:.0f} RPM, {r.eccentric_mass_g:g} g)"
+              for r in runs.itertuples()]
+    ax_runs.set_yticks(np.arange(len(runs)), labels, fontsize=7)
+    ax_runs.set_xticks(position, variants, fontsize=8, rotation=20, ha="left")
+    ax_runs.xaxis.tick_top()
+    fig.colorbar(image, ax=ax_runs, label="chi^2 / dof of the run", fraction=0.06, pad=0.02)
+    ax_runs.set_xlabel(f"where each variant fails: chi^2/dof per run, bold beyond the noise (p < {ALPHA:g});\n"
+                       "* validation run (predicted, never fitted)", fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
+def png_bytes(fig: plt.Figure, dpi: int = 100) -> bytes:
+    """The figure as PNG bytes (results/summary.png)."""
+    stream = io.BytesIO()
+    fig.savefig(stream, format="png", dpi=dpi)
+    return stream.getvalue()
+
+
+# --- the first page (reStructuredText) --------------------------------------------------------------
+#
+# Snakemake's report centres its first page vertically in the window: a page taller than the window loses its
+# top, where the answer is, out of reach of the scroll bar. So the page is short (no inline figure, bold leads
+# instead of section titles, at most MAX_RUN_LINKS runs per variant) and points to summary.png for the rest.
+
+#: the failing runs linked per variant on the first page (the worst; the error map shows them all)
+MAX_RUN_LINKS = 3
+
+
+def _text(value: str) -> str:
+    """Plain text safe inside reStructuredText inline markup (backslash before the markup characters)."""
+    return "".join("\\" + c if c in "\\`*_|<>[]" else c for c in str(value))
+
+
+def _number(value: float) -> str:
+    """Three significant digits, whole numbers from 1000 on, 'none' for a missing value."""
+    value = _finite(value)
+    return "none" if not np.isfinite(value) else f"{value:.0f}" if abs(value) >= 1000 else f"{value:.3g}"
+
+
+def _p_value(p: float) -> str:
+    return f"p = {p:.2g}" if p >= 1e-15 else "p < 1e-15"
+
+
+def result_link(label: str, path: str) -> str:
+    """An anonymous link that opens ``path`` (a file of the report) in Snakemake's report, as its own
+    ``file.png``_ links do."""
+    return f"`{_text(label)} <javascript:app.showResultInfo('{quote(path)}')>`__"
+
+
+def run_figure(variant: str, run: str) -> str:
+    """The per-run figure of ``run`` in variant ``variant`` (rule report_runs)."""
+    return f"results/{variant}/report/runs/{run}.png"
+
+
+def _list_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    lines = [".. list-table::", "   :header-rows: 1", ""]
+    for row in [header, *rows]:
+        lines += [f"   * - {row[0]}"] + [f"     - {cell}" for cell in row[1:]]
+    return "\n".join(lines)
+
+
+def _runs(n: int, role: str) -> str:
+    return f"{n} {role} run{'' if n == 1 else 's'}"
+
+
+def _headline(summary: pd.DataFrame) -> str:
+    best = best_variant(summary)
+    p = float(best["p_value"])
+    fits = (f"within the noise ({_p_value(p)})" if p >= ALPHA
+            else f"beyond the noise ({_p_value(p)}): the model still misses something")
+    which = f"Best of the {len(summary)} variants** (lowest BIC)" if len(summary) > 1 else "The only variant**"
+    text = (f"**{which}: **{_text(best['variant'])}**, chi^2/dof "
+            f"{_number(best['chi2_dof'])} on its {_runs(int(best['fit_runs']), 'fit')} (1 = the noise floor), {fits}")
+    if best["validation_runs"]:
+        n = int(best["validation_runs"])
+        text += (f"; {_number(best['validation_chi2_dof'])} on its {_runs(n, 'validation')} "
+                 f"(predicted, never fitted), {int(best['validation_runs_beyond_noise'])} beyond the noise")
+    return text + "."
+
+
+def _ledger_rows(summary: pd.DataFrame) -> list[list[str]]:
+    rows = []
+    for r in summary.itertuples():
+        worst = (result_link(f"{r.worst_run} ({_number(r.worst_run_chi2_dof)})", run_figure(r.variant, r.worst_run))
+                 if r.worst_run else "none")
+        rows.append([_text(r.variant), _number(r.chi2_dof), _number(r.validation_chi2_dof),
+                     f"{float(r.delta_bic):.0f}", worst])
+    return rows
+
+
+def verdict(conclusion: str) -> str:
+    """A diagnosis's conclusion up to its first colon ("add expansion_k4", "no missing effect"): the evidence
+    that follows is in diagnosis.md, and the first page has to stay short."""
+    return conclusion.split(":", 1)[0].strip()
+
+
+def _recommendation(r) -> str:
+    line = f"**{_text(r.variant)}**: {_text(verdict(r.conclusion)) or 'no diagnosis'}"
+    if r.recommended_variant and r.recommended_in_config:
+        return line + f" (in the config as **{_text(r.recommended_in_config)}**)"
+    if r.recommended_variant:
+        return (line + f" (variant {_text(r.recommended_variant)}: "
+                + result_link("diagnosis.md", f"results/{r.variant}/diagnosis.md") + ")")
+    return line
+
+
+def _failures(variant: str, table: pd.DataFrame) -> str:
+    beyond = table[table["beyond_noise"]].sort_values("chi2_dof", ascending=False)
+    error_map = result_link("error map", f"results/{variant}/report/error_map.png")
+    if beyond.empty:
+        return f"**{_text(variant)}**: every run within the noise ({error_map})."
+    runs = [result_link(f"{r.run}{' (validation)' if r.role != 'fit' else ''} {_number(r.chi2_dof)}",
+                        run_figure(variant, r.run)) for r in beyond.head(MAX_RUN_LINKS).itertuples()]
+    more = f" and {len(beyond) - MAX_RUN_LINKS} more" if len(beyond) > MAX_RUN_LINKS else ""
+    return (f"**{_text(variant)}**: {len(beyond)} of {len(table)} runs: " + ", ".join(runs) + more
+            + f" ({error_map}).")
+
+
+def kept_out(harmonics: pd.DataFrame) -> pd.DataFrame:
+    """The runs the data checks kept out (results/data/harmonics.tsv's usable false): run, role, note."""
+    return measured.kept_out(harmonics)[["run", "role", "note"]]
+
+
+def _kept_out_line(runs: pd.DataFrame) -> str:
+    if runs.empty:
+        return ""
+    listed = "; ".join(f"{_text(r.run)} ({_text(r.role)}: {_text(str(r.note))})" for r in runs.itertuples())
+    n = len(runs)
+    return (f"**{n} run{'s' if n > 1 else ''} kept out by the data checks** (neither fitted nor scored; "
+            f"results/data/check.tsv): {listed}.")
+
+
+def landing_rst(summary: pd.DataFrame, errors: Mapping[str, pd.DataFrame],
+                excluded: pd.DataFrame | None = None) -> str:
+    """The report's first page: the best variant, the runs the data checks kept out (``excluded``: ``kept_out``),
+    the ledger, what the diagnoses recommend and where each variant fails, with links that open the figures in
+    the report. reStructuredText, included by workflow/report/workflow.rst; short, to fit a window (see above)."""
+    excluded = excluded if excluded is not None else pd.DataFrame(columns=["run", "role", "note"])
+    return "\n\n".join(part for part in [
+        _headline(summary), _kept_out_line(excluded),
+        "**The ledger** (Delta BIC: lower is better, above 10 is strong evidence; all columns: "
+        + result_link("ledger.tsv", "results/ledger.tsv") + "):",
+        _list_table(["variant", "chi^2/dof", "validation", "Delta BIC", "worst run"], _ledger_rows(summary)),
+        "**What the diagnosis recommends** (the evidence and the lines to paste are in each variant's diagnosis.md):",
+        "\n".join(f"- {_recommendation(r)}" for r in summary.itertuples()),
+        (f"**Where each variant fails**: runs beyond the noise (p < {ALPHA:g}), worst first, with their "
+         "chi^2/dof; a link opens the run's figure:"),
+        "\n".join(f"- {_failures(r.variant, errors[r.variant])}" for r in summary.itertuples()),
+        "Every run of every variant in one figure: " + result_link("summary.png", "results/summary.png") + "."]
+        if part) + "\n"

@@ -1,0 +1,125 @@
+"""The package's layout reads like the method (issue 37): one subpackage per stage, imports that run downward only.
+
+Stages, from the bottom: the shared plotting helper (``plots``), then model -> solvers -> offline -> data ->
+identify -> diagnose -> report, and on top the front door (``config``) and the command line (``cli``). A module may
+import from its own stage and from the stages below it, never from a later one; an import inside a function counts
+too (it runs back up just the same); only imports under ``if TYPE_CHECKING:`` (annotations, never executed) are
+left out. The test reads the source (ast), so it needs no import to succeed to say what is wrong."""
+
+import ast
+from pathlib import Path
+
+PACKAGE = Path(__file__).resolve().parents[1] / "src" / "hybridtwin"
+ORDER = ["plots", "model", "solvers", "offline", "data", "identify", "diagnose", "report", "config", "cli"]
+
+
+def _stage(module: str) -> str:
+    """'hybridtwin.data.rig' -> 'data'; 'hybridtwin' (the package's face) -> ''."""
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else ""
+
+
+def _module_name(path: Path) -> str:
+    rel = path.relative_to(PACKAGE.parent).with_suffix("")
+    parts = list(rel.parts)
+    if parts[-1] == "__init__":
+        parts = parts[:-1]
+    return ".".join(parts)
+
+
+def _type_checking_lines(tree: ast.AST) -> set[int]:
+    lines = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+            for child in node.body:
+                lines.update(range(child.lineno, (child.end_lineno or child.lineno) + 1))
+    return lines
+
+
+def imports(path: Path) -> list[tuple[int, str]]:
+    """(line, absolute module imported) for every hybridtwin import in the file."""
+    name = _module_name(path)
+    package = name if path.name == "__init__.py" else name.rsplit(".", 1)[0]
+    tree = ast.parse(path.read_text())
+    skip = _type_checking_lines(tree)
+    out = []
+    for node in ast.walk(tree):
+        if node.lineno in skip if hasattr(node, "lineno") else False:
+            continue
+        if isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")
+                base = base[: len(base) - (node.level - 1)]
+                target = ".".join(base + ([node.module] if node.module else []))
+            else:
+                target = node.module or ""
+            if not target.startswith("hybridtwin"):
+                continue
+            if node.module is None or target.count(".") == 1 and target.split(".")[1] in ORDER[1:8]:
+                # "from . import x" / "from ..data import rig": the names are modules of that package
+                out += [(node.lineno, f"{target}.{a.name}") for a in node.names]
+            else:
+                out.append((node.lineno, target))
+        elif isinstance(node, ast.Import):
+            out += [(node.lineno, a.name) for a in node.names if a.name.startswith("hybridtwin")]
+    return out
+
+
+def test_every_module_lives_in_a_stage_folder():
+    loose = sorted(p.name for p in PACKAGE.glob("*.py")) 
+    assert loose == ["__init__.py", "config.py", "plots.py"], loose
+    assert sorted(p.name for p in PACKAGE.iterdir() if p.is_dir() and p.name != "__pycache__") == sorted(
+        ["model", "solvers", "offline", "data", "identify", "diagnose", "report", "cli"])
+
+
+def test_imports_run_downward_only():
+    wrong = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        here = _stage(_module_name(path))
+        if not here:  # the package's face re-exports the public names
+            continue
+        for line, target in imports(path):
+            there = _stage(target)
+            if there and ORDER.index(there) > ORDER.index(here):
+                wrong.append(f"{path.relative_to(PACKAGE)}:{line} ({here}) imports {target} ({there})")
+    assert not wrong, "imports that run back up:\n" + "\n".join(wrong)
+
+
+def test_no_module_is_over_800_lines():
+    long = {str(p.relative_to(PACKAGE)): n for p in PACKAGE.rglob("*.py")
+            if (n := len(p.read_text().splitlines())) > 800}
+    assert not long, long
+
+
+def test_the_public_names_come_from_the_package_itself():
+    import hybridtwin
+
+    for name in ("Machine", "Model", "Variant", "Effect", "Parameter", "Shaft", "solve", "solve_sweep",
+                 "builtin_effects", "builtin_variant"):
+        assert hasattr(hybridtwin, name), name
+
+
+def test_no_import_circles():
+    """No module imports, directly or through others, a module that imports it (at module level or inside a
+    function: either runs at some point)."""
+    graph = {}
+    for path in PACKAGE.rglob("*.py"):
+        name = _module_name(path)
+        modules = {_module_name(p) for p in PACKAGE.rglob("*.py")}
+        graph[name] = {t for _, t in imports(path) if t in modules and t != name and not name.startswith(t + ".")
+                       and not t == name.rsplit(".", 1)[0]}
+    circles, state = [], {}
+
+    def visit(node, stack):
+        state[node] = 1
+        for nxt in sorted(graph.get(node, ())):
+            if state.get(nxt) == 1:
+                circles.append(" -> ".join(stack[stack.index(nxt):] + [nxt]))
+            elif nxt not in state:
+                visit(nxt, stack + [nxt])
+        state[node] = 2
+
+    for node in sorted(graph):
+        if node not in state:
+            visit(node, [node])
+    assert not circles, "\n".join(circles)
