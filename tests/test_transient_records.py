@@ -1,0 +1,154 @@
+"""Transient records as speed bands (issue 38, hybridtwin.data.transient), against closed-form swept signals.
+
+The reference: a record written from a known rotor angle theta(t) (a speed profile that is not linear), a known
+response per harmonic as a function of speed (a one-mode resonance, quasi-steady by construction: the signal at
+t is U(Omega(t)) e^{i h theta(t)}), a runout vector at 1X and 2X and white noise. The band estimates must agree
+with U at the band's mean speed to within their own sigmas, the runout be removed, and bad inputs be refused with
+the file named.
+"""
+
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from hybridtwin.data.measurements import DataError, Record
+from hybridtwin.data.transient import BandPlan, expand_bands, slowroll_runout, speed_profile, track_record
+
+FS = 5000.0
+WN = 2 * np.pi * 16.0  # a resonance at 960 RPM
+ZETA = 0.03
+RUNOUT = {1: 20e-6 * np.exp(0.7j), 2: 8e-6 * np.exp(-1.1j)}
+
+
+def U1(omega, gain=2e-6):
+    """A one-mode unbalance response [m]: gain (Omega / wn)^2 wn^2 / (wn^2 - Omega^2 + 2 i zeta wn Omega)."""
+    r = omega / WN
+    return gain * 50 * r**2 / (1 - r**2 + 2j * ZETA * r)
+
+
+def U3(omega):
+    return 1e-6 * (omega / WN) ** 3
+
+
+def rpm_profile(t, duration, lo, hi):
+    """A run-up that is not linear: slow at first (the slow roll), faster later, with a wobble of the drive."""
+    return lo + (hi - lo) * (t / duration) ** 1.4 + 2.0 * np.sin(2 * np.pi * t / 7.0) * (t / duration)
+
+
+def swept_record(path, duration=60.0, lo=100.0, hi=1100.0, noise=2e-6, runout=True, seed=0, keyphasor=True,
+                 kind_profile=rpm_profile):
+    rng = np.random.default_rng(seed)
+    t = np.arange(int(duration * FS)) / FS
+    rpm = kind_profile(t, duration, lo, hi)
+    omega = rpm * np.pi / 30
+    theta = np.concatenate(([0.0], np.cumsum(0.5 * (omega[1:] + omega[:-1]) / FS))) + 0.3
+    signals = {}
+    for name, angle in (("x", 0.0), ("y", -np.pi / 2)):
+        u = 1e-4 + np.real(U1(omega) * np.exp(1j * (theta + angle))) + np.real(U3(omega) * np.exp(3j * (theta + angle)))
+        if runout:
+            u = u + sum(np.real(R * np.exp(1j * h * theta)) for h, R in RUNOUT.items())
+        signals[name] = u + noise * rng.standard_normal(t.size)
+    marks = np.zeros(t.size, bool)
+    k = np.arange(math.ceil(theta[0] / (2 * np.pi)), theta[-1] / (2 * np.pi))
+    marks[np.searchsorted(theta, 2 * np.pi * k)] = True  # the sample at or just after theta = 2 pi k
+    return Record(path, t, signals, marks if keyphasor else None, "m"), omega
+
+
+ROW = {"run": "up", "kind": "runup", "rpm_start": 100.0, "rpm_end": 1100.0, "eccentric_mass_g": 10.0,
+       "role": "fit", "path": "up.csv", "record": "up.csv"}
+
+
+def test_bands_are_known_from_the_sheet_alone():
+    plan = BandPlan.of(ROW)
+    assert plan.slowroll == (100.0, 200.0)  # the lowest 10 % of the span
+    assert plan.bands[0] == (200.0, 220.0) and plan.bands[-1] == (1080.0, 1100.0) and len(plan.bands) == 45
+    sheet = pd.DataFrame([ROW, {"run": "s1", "kind": "steady", "rpm": 500.0, "eccentric_mass_g": 10.0,
+                                "role": "validate", "path": "s1.csv", "record": "s1.csv"}])
+    runs = expand_bands(sheet)
+    assert list(runs["run"][:2]) == ["up_b0210", "up_b0230"] and runs["run"].iloc[-1] == "s1"
+    assert (runs["parent_run"][:-1] == "up").all() and runs["parent_run"].iloc[-1] == ""
+    assert runs["rpm"].iloc[0] == 210.0 and (runs["role"][:-1] == "fit").all()
+    clash = pd.concat([sheet, pd.DataFrame([{"run": "up_b0210", "kind": "steady", "rpm": 210.0}])])
+    with pytest.raises(DataError, match="up_b0210"):
+        expand_bands(clash)
+
+
+def test_band_harmonics_match_the_closed_form_within_their_sigma(tmp_path):
+    record, omega = swept_record(tmp_path / "up.csv")
+    tracked = track_record(record, ROW, harmonics=3)
+    bands = tracked.bands
+    assert bands["usable"].all() and (bands["n_revolutions"] >= 5).all()
+    z = []
+    for _, b in bands.iterrows():
+        w = b["rpm_true"] * np.pi / 30
+        for name, angle in (("x", 0.0), ("y", -np.pi / 2)):
+            for h, U in ((1, U1(w)), (3, U3(w))):
+                want = U * np.exp(1j * h * angle)
+                got = complex(b[f"{name}{h}_re_m"], b[f"{name}{h}_im_m"])
+                z += [(got - want).real / b[f"{name}{h}_sigma_m"], (got - want).imag / b[f"{name}{h}_sigma_m"]]
+    z = np.array(z)
+    # unbiased with honest sigmas: the normalised errors of 360 parts (45 bands x 2 channels x 2 harmonics x re/im)
+    # have a standard deviation near 1 (its own sampling sd is 1/sqrt(2 x 360) = 0.04: 0.8-1.25 is > 5 of them)
+    # and none beyond 4.5 (p = 7e-6 each; 2.4e-3 for all 360)
+    assert 0.8 < z.std() < 1.25 and np.abs(z).max() < 4.5, (z.std(), np.abs(z).max())
+    # the speed per band is the keyphasor's: within 0.05 % of the true mean (the marks sit on samples: 1/5000 s
+    # in a revolution of >= 1/18 s is <= 0.4 % per mark, averaged over >= 5 marks with the interpolation)
+    assert (bands["rpm_true"].between(bands["band_lo_rpm"], bands["band_hi_rpm"])).all()
+
+
+def test_the_runout_is_removed_and_reported(tmp_path):
+    record, _ = swept_record(tmp_path / "up.csv", noise=2e-6)
+    tracked = track_record(record, ROW, harmonics=3)
+    runout = tracked.runout
+    for j, h in enumerate((1, 2)):
+        # x reads the runout as it is; y (90 degrees later) reads it with the same vector: the closed form
+        # writes the runout on both channels alike. Within 4 sigma of the truth, and sigma well below the runout
+        for i in range(2):
+            assert abs(runout.R[i, j] - RUNOUT[h]) < 4 * math.sqrt(2) * runout.sigma[i, j] + 1e-12, (h, i)
+            assert runout.sigma[i, j] < 0.1 * abs(RUNOUT[h])
+    # the dynamics in the slow-roll band (100-200 RPM, 1X grows as Omega^2 there) are found and kept apart
+    assert np.abs(runout.dynamic[:, 0]).max() > 0
+    table = runout.table(("x", "y"))
+    assert list(table["harmonic"]) == [1, 2, 1, 2] and (table["band_hi_rpm"] == 200.0).all()
+    # without compensation the 2X of every band holds the runout (8 um, many sigma); with it, none does
+    off = track_record(record, ROW, harmonics=3, slowroll=False).bands
+    assert (np.hypot(off["x2_re_m"], off["x2_im_m"]) > 5e-6).all()
+    assert (np.hypot(tracked.bands["x2_re_m"], tracked.bands["x2_im_m"]) < 5 * tracked.bands["x2_sigma_m"]).mean() > 0.9
+
+
+def test_bad_transient_records_are_refused_with_the_file_named(tmp_path):
+    record, _ = swept_record(tmp_path / "up.csv", duration=20.0)
+    with pytest.raises(DataError, match=r"up\.csv: a runup record needs a keyphasor column"):
+        track_record(Record(record.path, record.time_s, record.channels, None, "m"), ROW, 3)
+    missed = record.keyphasor.copy()
+    missed[np.flatnonzero(missed)[40]] = False
+    with pytest.raises(DataError, match="missed keyphasor mark"):
+        speed_profile(Record(record.path, record.time_s, record.channels, missed, "m"), "runup")
+    double = record.keyphasor.copy()
+    k = np.flatnonzero(double)
+    double[(k[40] + k[41]) // 2] = True
+    with pytest.raises(DataError, match="double keyphasor mark"):
+        speed_profile(Record(record.path, record.time_s, record.channels, double, "m"), "runup")
+    with pytest.raises(DataError, match="reverses"):  # a run-up that slows down
+        speed_profile(record, "coastdown")
+    flat, _ = swept_record(tmp_path / "flat.csv", duration=20.0,
+                           kind_profile=lambda t, d, lo, hi: 600.0 + 0 * t)
+    with pytest.raises(DataError, match="never leaves one speed"):
+        track_record(flat, ROW, 3)
+    late = {**ROW, "slowroll_rpm": 101.0}  # a slow-roll band the record barely holds
+    with pytest.raises(DataError, match="slow-roll band"):
+        track_record(record, late, 3)
+
+
+def test_slowroll_runout_without_dynamics_keeps_no_omega_term(tmp_path):
+    """A record whose response in the slow-roll band is nil: the fit keeps R alone (no Omega^2 term)."""
+    record, _ = swept_record(tmp_path / "up.csv", duration=30.0)
+    quiet = {n: c - np.real(U1(0 * c)) for n, c in record.channels.items()}  # unchanged: U1(0) = 0
+    profile = speed_profile(Record(record.path, record.time_s, quiet, record.keyphasor, "m"), "runup")
+    data = np.column_stack([np.real(RUNOUT[1] * np.exp(1j * profile.theta)) + 1e-6 * np.random.default_rng(1)
+                            .standard_normal(record.time_s.size) for _ in range(2)])
+    runout = slowroll_runout(np.nan_to_num(data), record.time_s, profile, (100.0, 200.0), 3, "r")
+    assert np.all(runout.dynamic == 0)
+    assert np.all(np.abs(runout.R[:, 0] - RUNOUT[1]) < 4 * math.sqrt(2) * runout.sigma[:, 0])
