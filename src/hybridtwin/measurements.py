@@ -41,6 +41,7 @@ import numpy as np
 import pandas as pd
 
 from .record_columns import keyphasor_column, listed, numeric_column, time_problems, uniform_time_base
+from .run_kinds import SWEEP_COLUMNS, has_sweep_columns, sweep_cells
 
 Array = np.ndarray
 
@@ -381,7 +382,11 @@ def read_runs(path: str | Path, check_files: bool = True, require_path: bool = T
     the mass is unknown), ``role`` lower-case and "fit" where empty or absent,
     the sensor_* columns (if any) as floats, and an added column ``record``
     with each record's path resolved against the sheet's folder. Extra columns
-    are kept. ``attrs["lines"]`` holds each row's line in the file.
+    are kept. ``attrs["lines"]`` holds each row's line in the file. A sheet with
+    any of the columns kind, rpm_start, rpm_end (transient records:
+    ``run_kinds``) also gets ``kind`` ("steady" where empty) and ``rpm_start``,
+    ``rpm_end`` as floats (NaN on steady rows); ``rpm`` may then be empty (NaN)
+    on runup and coastdown rows. Without them nothing is added.
 
     Raises ``DataError`` listing every problem: missing or duplicated columns,
     bad or duplicate run ids (also differing only in case), non-numeric,
@@ -393,9 +398,11 @@ def read_runs(path: str | Path, check_files: bool = True, require_path: bool = T
     sheet may be a bare run plan without a path column (the virtual rig's input).
     """
     path = Path(path)
-    table, line = read_text_table(path, "\t", SHEET_COLUMNS + SENSOR_COLUMNS)
+    table, line = read_text_table(path, "\t", SHEET_COLUMNS + SENSOR_COLUMNS + SWEEP_COLUMNS)
     required = REQUIRED_SHEET_COLUMNS if require_path else REQUIRED_SHEET_COLUMNS[:3]
-    _require_columns(path, table.columns, required, SHEET_COLUMNS + SENSOR_COLUMNS,
+    if "kind" in table.columns:  # a sheet of transient records (run_kinds) may leave out rpm
+        required = tuple(c for c in required if c != "rpm")
+    _require_columns(path, table.columns, required, SHEET_COLUMNS + SENSOR_COLUMNS + SWEEP_COLUMNS,
                      "a runs sheet needs the columns run, rpm, eccentric_mass_g, path (and optionally role)")
     if "path" not in table:
         table["path"] = ""
@@ -418,7 +425,7 @@ def read_runs(path: str | Path, check_files: bool = True, require_path: bool = T
         if len(ids) > 1:
             problems.append(f"lines {', '.join(map(str, lines))}, column run: run ids {ids} differ only in case "
                             "(their files clash on case-insensitive file systems)")
-    rpm, found = numeric_column(table["rpm"], "rpm", line, allow_empty=False)
+    kind, rpm, rpm_start, rpm_end, found = sweep_cells(table, line)  # rpm as before on a sheet of steady runs
     problems += found
     problems += [f"line {n}, column rpm: {v:g} is not a positive speed" for n, v in zip(line, rpm) if v <= 0]
     mass, found = numeric_column(table["eccentric_mass_g"], "eccentric_mass_g", line, allow_empty=not require_mass,
@@ -466,6 +473,8 @@ def read_runs(path: str | Path, check_files: bool = True, require_path: bool = T
     out["run"], out["rpm"], out["eccentric_mass_g"], out["path"], out["role"] = runs, rpm, mass, rel, role
     for column, values in sensors.items():
         out[column] = values
+    if has_sweep_columns(table.columns):  # kind, rpm_start, rpm_end: only on a sheet that has one of them
+        out["kind"], out["rpm_start"], out["rpm_end"] = kind, rpm_start, rpm_end
     out["record"] = [str(f) if f is not None else "" for f in record]
     out.attrs.update(lines=line.tolist(), source=str(path))
     return out
