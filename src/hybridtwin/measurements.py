@@ -4,8 +4,9 @@ A data set is a runs sheet (TSV, one row per run: run, rpm, eccentric_mass_g,
 path, role; optional sensor_range_mm, sensor_resolution_mm; extra columns
 carried through) and one record (CSV) per run: time_s, one displacement
 column per sensor of the machine named after it, <sensor>_mm or <sensor>_m
-(the VARM's sensors are x and y: time_s, x_mm, y_mm), and an optional
-keyphasor column.
+(also <sensor>_um, <sensor>_mils) (the VARM's sensors are x and y: time_s, x_mm,
+y_mm), and an optional keyphasor column (required for a runup or coastdown:
+``run_kinds``, ``order_tracking``).
 
 Both files go through one text reader (``read_text_table``), so every reader of
 a sheet (``hybridtwin check-data``, the workflow at parse time, every script)
@@ -25,7 +26,7 @@ readable but not fit for a fit (a flat or clipped channel, see also
 ``DataWarning``, so the caller flags the run and says so; nothing is dropped
 silently.
 
-Inside, everything is SI: ``read_record`` converts millimetres to metres.
+Inside, everything is SI: ``read_record`` converts millimetres (micrometres, mils) to metres.
 """
 
 from __future__ import annotations
@@ -54,7 +55,8 @@ RUN_ID = re.compile(r"^[A-Za-z0-9_-]+$")
 #: run ids that pandas reads as missing values (its default NA strings that are valid ids): they would vanish from
 #: the result tables
 MISSING_LOOKING_IDS = ("NA", "NULL", "NaN", "None", "nan", "null")
-UNITS = {"mm": 1e-3, "m": 1.0}  # displacement column suffix -> metres per unit
+#: displacement column suffix -> metres per unit (a mil is a thousandth of an inch, 25.4 um)
+UNITS = {"mm": 1e-3, "m": 1.0, "um": 1e-6, "mils": 25.4e-6}
 RECORD_COLUMNS = ("time_s", "keyphasor")
 #: the channels of a record when no machine says otherwise: the VARM's sensors x and y
 DEFAULT_CHANNELS = ("x", "y")
@@ -121,7 +123,7 @@ class Record:
     time_s: (N,); channels: {sensor name: (N,) displacement [m]} in the
     machine's sensor order (the VARM: x, y); keyphasor: (N,) bool or None when
     the file has no keyphasor column; units: the displacement unit of each
-    channel in the file ("mm" or "m"; one string: every channel's); lines: (N,)
+    channel in the file ("mm", "m", "um" or "mils"; one string: every channel's); lines: (N,)
     the file line of each sample (None for a record made in memory: line =
     index + 2); pairs: (x channel index, y channel index) of each probe pair at
     one node (its orbit; the backward-whirl check reads the first), default the
@@ -201,7 +203,7 @@ class Record:
             raise KeyError(f"{self.path}: no channel {name!r} (channels: {', '.join(self.channels)})") from None
 
     def channel_unit(self, name: str) -> str:
-        """The unit of channel ``name`` in the file ("mm" or "m")."""
+        """The unit of channel ``name`` in the file (a key of ``UNITS``: "mm", "m", "um", "mils")."""
         return self.units[name]
 
     def line(self, index) -> Array:
@@ -683,7 +685,7 @@ def _record_columns(path: Path, columns: Sequence[str], names: Sequence[str] = D
         unknown = [c for c, u in own[axis] if u not in UNITS]
         if unknown and not known:
             problems.append(f"column {unknown[0]!r}: unknown unit {unknown[0][len(axis) + 1:]!r} "
-                            f"(use {axis}_mm or {axis}_m)")
+                            f"(use {axis}_mm or {axis}_m); micrometres {axis}_um, mils {axis}_mils")
         elif len(known) > 1:
             problems.append(f"columns {[c for c, _ in known]}: more than one {axis} displacement column")
         elif not known:
