@@ -24,8 +24,12 @@ In each window every channel is fitted in least squares on [1, tau, cos(h theta)
 (tau: time from the window's middle over its length, a linear drift), giving U_h = A_h - i B_h, so that
 u(t) = Re(sum_h U_h exp(i h theta(t))) (0-peak amplitudes, the steady harmonics' convention), and its 1-sigma
 uncertainty per part from that window's own residual (white noise: s^2 (X^T X)^-1, s^2 = RSS / (n - p)) plus the
-keyphasor's quantisation (each mark within +-dt/2: a window-mean phase error of Omega dt / sqrt(12 N), moving U_h
-by h |U_h| times it, perpendicular to U_h; added as (h |U_h| sigma_phase)^2 / 2 per part). The residual is
+keyphasor's timing noise (each mark within +-dt/2, ``SpeedProfile.sigma_t_s``) propagated through the fit
+(``_jitter_variance``: the window-mean phase error turns U_h by h phi; the per-revolution scatter of the marks
+leaks a strong order into its neighbours, a 1X of 125 um at a resonance into the 2X by ~0.5 um at 5 kHz; the
+mean of the two parts' variances is the sigma). A vector that changes within the window (through a resonance)
+leaks too, as a bias ~ its change / (pi N) into the neighbouring orders: the whiteness flag below marks such
+windows, and N is the trade-off (``benchmarks/order_tracking_window.py``). The residual is
 checked for content the model does not resolve (a line that is not an order, orders above H, coloured noise):
 its variance against half the mean square of its first differences (both the noise variance for white noise);
 a ratio above 1 + 5 sqrt(5 / n) (5 standard errors) sets ``unresolved_<c>``: the sigma of that window and
