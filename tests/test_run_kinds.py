@@ -101,3 +101,17 @@ def test_rig_plan_without_path_accepts_transient_rows(tmp_path):
     runs = read_runs(sheet, check_files=False, require_path=False)
     assert runs["kind"].tolist() == ["coastdown"] and runs["rpm_start"].tolist() == [1000.0]
     assert isinstance(runs, pd.DataFrame)
+
+
+def test_row_schema_accepts_transient_rows_and_requires_their_sweep():
+    import yaml
+    from jsonschema import validators
+
+    schema = yaml.safe_load((Path(__file__).parents[1] / "workflow" / "schemas" / "runs.schema.yaml").read_text())
+    validator = validators.validator_for(schema)(schema)
+    base = {"run": "a", "eccentric_mass_g": 14.8, "path": "a.csv"}
+    assert not list(validator.iter_errors({**base, "rpm": 600.0}))  # a steady row as before
+    assert not list(validator.iter_errors({**base, "kind": "runup", "rpm_start": 300.0, "rpm_end": 1000.0}))
+    assert list(validator.iter_errors({**base, "kind": "runup", "rpm_start": 300.0}))  # rpm_end missing
+    assert list(validator.iter_errors(base))  # a steady row without rpm
+    assert list(validator.iter_errors({**base, "kind": "ramp", "rpm": 600.0}))
