@@ -391,6 +391,9 @@ RECORD_CASES = {
                                        ("column y_mm: every value lies within", "look like metres")),
     "micrometres under x_mm": signal_case("error", lambda t, x, y, r: (t, x * 1e3, y * 1e3),
                                           ("column x_mm: DC offset (median) 3", "mm, beyond the sensor range")),
+    "micrometres under x_mm, about zero": signal_case("error", lambda t, x, y, r: (t, 50.0 * (x - 0.3), y),
+                                                      ("column x_mm: beyond the sensor range", "look like um written as mm",
+                                                       "name the column x_um")),
     "500 mm DC offset": signal_case("error", lambda t, x, y, r: (t, x + 500.0, y),
                                     ("column x_mm: DC offset (median) 500.3 mm, beyond the sensor range +-14 mm",)),
     "an excursion beyond the range": signal_case("error", lambda t, x, y, r: (t, np.where(

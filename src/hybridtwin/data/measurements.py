@@ -4,8 +4,9 @@ A data set is a runs sheet (TSV, one row per run: run, rpm, eccentric_mass_g,
 path, role; optional sensor_range_mm, sensor_resolution_mm; extra columns
 carried through) and one record (CSV) per run: time_s, one displacement
 column per sensor of the machine named after it, <sensor>_mm or <sensor>_m
-(the VARM's sensors are x and y: time_s, x_mm, y_mm), and an optional
-keyphasor column.
+(also <sensor>_um, <sensor>_mils) (the VARM's sensors are x and y: time_s, x_mm,
+y_mm), and an optional keyphasor column (required for a runup or coastdown:
+``run_kinds``, ``order_tracking``).
 
 Both files go through one text reader (``read_text_table``), so every reader of
 a sheet (``hybridtwin check-data``, the workflow at parse time, every script)
@@ -25,7 +26,7 @@ readable but not fit for a fit (a flat or clipped channel, see also
 ``DataWarning``, so the caller flags the run and says so; nothing is dropped
 silently.
 
-Inside, everything is SI: ``read_record`` converts millimetres to metres.
+Inside, everything is SI: ``read_record`` converts millimetres (micrometres, mils) to metres.
 """
 
 from __future__ import annotations
@@ -42,6 +43,7 @@ import pandas as pd
 
 from ..model.sensor import DEFAULT_CHANNELS, machine_order, sensor_pairs  # noqa: F401 (re-exported)
 from .record_columns import keyphasor_column, listed, numeric_column, time_problems, uniform_time_base
+from .run_kinds import SWEEP_COLUMNS, has_sweep_columns, sweep_cells
 
 Array = np.ndarray
 
@@ -54,7 +56,8 @@ RUN_ID = re.compile(r"^[A-Za-z0-9_-]+$")
 #: run ids that pandas reads as missing values (its default NA strings that are valid ids): they would vanish from
 #: the result tables
 MISSING_LOOKING_IDS = ("NA", "NULL", "NaN", "None", "nan", "null")
-UNITS = {"mm": 1e-3, "m": 1.0}  # displacement column suffix -> metres per unit
+#: displacement column suffix -> metres per unit (a mil is a thousandth of an inch, 25.4 um)
+UNITS = {"mm": 1e-3, "m": 1.0, "um": 1e-6, "mils": 25.4e-6}
 RECORD_COLUMNS = ("time_s", "keyphasor")
 
 #: the paper's lasers: +-14 mm measuring range (sensor_range_mm) ...
@@ -119,7 +122,7 @@ class Record:
     time_s: (N,); channels: {sensor name: (N,) displacement [m]} in the
     machine's sensor order (the VARM: x, y); keyphasor: (N,) bool or None when
     the file has no keyphasor column; units: the displacement unit of each
-    channel in the file ("mm" or "m"; one string: every channel's); lines: (N,)
+    channel in the file ("mm", "m", "um" or "mils"; one string: every channel's); lines: (N,)
     the file line of each sample (None for a record made in memory: line =
     index + 2); pairs: (x channel index, y channel index) of each probe pair at
     one node (its orbit; the backward-whirl check reads the first), default the
@@ -199,7 +202,7 @@ class Record:
             raise KeyError(f"{self.path}: no channel {name!r} (channels: {', '.join(self.channels)})") from None
 
     def channel_unit(self, name: str) -> str:
-        """The unit of channel ``name`` in the file ("mm" or "m")."""
+        """The unit of channel ``name`` in the file (a key of ``UNITS``: "mm", "m", "um", "mils")."""
         return self.units[name]
 
     def line(self, index) -> Array:
@@ -358,7 +361,11 @@ def read_runs(path: str | Path, check_files: bool = True, require_path: bool = T
     the mass is unknown), ``role`` lower-case and "fit" where empty or absent,
     the sensor_* columns (if any) as floats, and an added column ``record``
     with each record's path resolved against the sheet's folder. Extra columns
-    are kept. ``attrs["lines"]`` holds each row's line in the file.
+    are kept. ``attrs["lines"]`` holds each row's line in the file. A sheet with
+    any of the columns kind, rpm_start, rpm_end (transient records:
+    ``run_kinds``) also gets ``kind`` ("steady" where empty) and ``rpm_start``,
+    ``rpm_end`` as floats (NaN on steady rows); ``rpm`` may then be empty (NaN)
+    on runup and coastdown rows. Without them nothing is added.
 
     Raises ``DataError`` listing every problem: missing or duplicated columns,
     bad or duplicate run ids (also differing only in case), non-numeric,
@@ -370,9 +377,11 @@ def read_runs(path: str | Path, check_files: bool = True, require_path: bool = T
     sheet may be a bare run plan without a path column (the virtual rig's input).
     """
     path = Path(path)
-    table, line = read_text_table(path, "\t", SHEET_COLUMNS + SENSOR_COLUMNS)
+    table, line = read_text_table(path, "\t", SHEET_COLUMNS + SENSOR_COLUMNS + SWEEP_COLUMNS)
     required = REQUIRED_SHEET_COLUMNS if require_path else REQUIRED_SHEET_COLUMNS[:3]
-    _require_columns(path, table.columns, required, SHEET_COLUMNS + SENSOR_COLUMNS,
+    if "kind" in table.columns:  # a sheet of transient records (run_kinds) may leave out rpm
+        required = tuple(c for c in required if c != "rpm")
+    _require_columns(path, table.columns, required, SHEET_COLUMNS + SENSOR_COLUMNS + SWEEP_COLUMNS,
                      "a runs sheet needs the columns run, rpm, eccentric_mass_g, path (and optionally role)")
     if "path" not in table:
         table["path"] = ""
@@ -395,7 +404,7 @@ def read_runs(path: str | Path, check_files: bool = True, require_path: bool = T
         if len(ids) > 1:
             problems.append(f"lines {', '.join(map(str, lines))}, column run: run ids {ids} differ only in case "
                             "(their files clash on case-insensitive file systems)")
-    rpm, found = numeric_column(table["rpm"], "rpm", line, allow_empty=False)
+    kind, rpm, rpm_start, rpm_end, found = sweep_cells(table, line)  # rpm as before on a sheet of steady runs
     problems += found
     problems += [f"line {n}, column rpm: {v:g} is not a positive speed" for n, v in zip(line, rpm) if v <= 0]
     mass, found = numeric_column(table["eccentric_mass_g"], "eccentric_mass_g", line, allow_empty=not require_mass,
@@ -443,6 +452,8 @@ def read_runs(path: str | Path, check_files: bool = True, require_path: bool = T
     out["run"], out["rpm"], out["eccentric_mass_g"], out["path"], out["role"] = runs, rpm, mass, rel, role
     for column, values in sensors.items():
         out[column] = values
+    if has_sweep_columns(table.columns):  # kind, rpm_start, rpm_end: only on a sheet that has one of them
+        out["kind"], out["rpm_start"], out["rpm_end"] = kind, rpm_start, rpm_end
     out["record"] = [str(f) if f is not None else "" for f in record]
     out.attrs.update(lines=line.tolist(), source=str(path))
     return out
@@ -651,7 +662,7 @@ def _record_columns(path: Path, columns: Sequence[str], names: Sequence[str] = D
         unknown = [c for c, u in own[axis] if u not in UNITS]
         if unknown and not known:
             problems.append(f"column {unknown[0]!r}: unknown unit {unknown[0][len(axis) + 1:]!r} "
-                            f"(use {axis}_mm or {axis}_m)")
+                            f"(use {axis}_mm or {axis}_m); micrometres {axis}_um, mils {axis}_mils")
         elif len(known) > 1:
             problems.append(f"columns {[c for c, _ in known]}: more than one {axis} displacement column")
         elif not known:

@@ -6,8 +6,10 @@ checks that its numbers can be what the sensor measured on this machine:
 - **Magnitudes** (``check_magnitudes``, an error): no sample beyond the sensor's
   range (+-``Sensor.range_m``, plus the rail band): millimetres under an
   ``x_m`` header, a DC offset of hundreds of millimetres, micrometres under
-  ``x_mm`` that exceed the range land there (a few micrometres under ``x_mm``
-  read as a few mm inside the range cannot be told from millimetres); and not
+  ``x_mm`` that exceed the range land there (named "look like um written as
+  mm" when the values in um would lie inside the range and the bulk of the
+  signal, its 1 %..99 % span, exceeds the whole range +-range; a few micrometres under ``x_mm`` read as a few mm inside the
+  range cannot be told from millimetres); and not
   every value of an ``x_mm`` channel inside +-range expressed in metres (+-0.014
   for the paper's lasers): metres under an ``x_mm`` header, or a vibration of
   micrometres measured by a sensor of smaller range than the one given (the
@@ -131,16 +133,23 @@ def check_magnitudes(record: Record, sensor: Sensor) -> None:
         if peak > limit:
             beyond = np.flatnonzero(np.abs(values) > limit)
             median = float(np.median(values))
+            # micrometres under x_mm: in um the values would lie inside the range, and the bulk of the signal (its
+            # 1 %..99 % span, blind to a spike) spans more than the whole range, +-range: a DC offset, a wrong zero
+            # or a few wild samples do not
+            body = float(np.diff(np.percentile(values, [1.0, 99.0]))[0])
+            micrometres = unit == "mm" and peak * 1e-3 <= limit and body > 2 * sensor.range_m
+            um_hint = (f"they look like um written as mm (micrometres: name the column {name}_um); or "
+                       if micrometres else "")
             if unit == "m" and peak * 1e-3 <= limit:
                 problems.append(f"column {column}: values up to {peak:g} m, beyond the sensor range {range_mm}: "
                                 f"they look like millimetres (name the column {name}_mm)")
             elif abs(median) > limit:
                 problems.append(f"column {column}: DC offset (median) {median * 1e3:.1f} mm, beyond the sensor "
-                                f"range {range_mm}: wrong units, a wrong zero, or a sensor of larger range "
+                                f"range {range_mm}: {um_hint}wrong units, a wrong zero, or a sensor of larger range "
                                 "(set sensor_range_mm)")
             else:
-                problems += listed(f"column {column}: beyond the sensor range {range_mm} (wrong units, or a sensor "
-                                    "of larger range: set sensor_range_mm)", record.line(beyond),
+                problems += listed(f"column {column}: beyond the sensor range {range_mm} ({um_hint}wrong units, or a "
+                                    "sensor of larger range: set sensor_range_mm)", record.line(beyond),
                                     [f"{values[i] * 1e3:+.3f} mm" for i in beyond])
         elif unit == "mm" and np.ptp(values) > 0 and peak <= sensor.range_m * 1e-3:
             problems.append(f"column {column}: every value lies within +-{sensor.range_m:g} (the sensor range "

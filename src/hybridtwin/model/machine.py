@@ -37,6 +37,7 @@ import numpy as np
 from .bearing_candidates import at_bearing
 from .effect_base import Context, Effect, Parameter
 from .effects import Unbalance, builtin_effects
+from .probes import DEFAULT_ANGLE_DEG, check_pair
 from .sensor import machine_order, sensor_pairs
 from .shaft import DofCounts, Shaft, beam_element, slope_element
 
@@ -134,15 +135,31 @@ class UnbalancePlane:
 
 @dataclass(frozen=True)
 class Sensor:
-    """A displacement probe: ``name`` (its channel), ``node``, ``direction`` "x" or "y"."""
+    """A displacement probe: ``name`` (its channel), ``node``, ``direction`` "x" or "y" (its place in its plane's
+    pair: the x probe, the y probe), ``angle_deg`` its mounting angle in the cross-section from +x towards +y
+    (the direction of rotation; default 0 for direction x, 90 for y: along the model's x, y). A probe reads
+    x cos(a) + y sin(a) (``hybridtwin.model.probes``)."""
 
     name: str
     node: int
     direction: str
+    angle_deg: float | None = None
 
     def __post_init__(self) -> None:
         if self.direction not in ("x", "y"):
             raise ValueError(f"sensor {self.name!r}: direction must be 'x' or 'y', got {self.direction!r}")
+        if self.angle_deg is None:
+            object.__setattr__(self, "angle_deg", DEFAULT_ANGLE_DEG[self.direction])
+        elif isinstance(self.angle_deg, bool) or not np.isfinite(self.angle_deg):
+            raise ValueError(f"sensor {self.name!r}: angle_deg must be a finite number of degrees, got "
+                             f"{self.angle_deg!r}")
+        else:
+            object.__setattr__(self, "angle_deg", float(self.angle_deg))
+
+    @property
+    def rotated(self) -> bool:
+        """Whether the probe stands at another angle than its direction's default (0 for x, 90 for y)."""
+        return self.angle_deg != DEFAULT_ANGLE_DEG[self.direction]
 
 
 def _tuple(items: Iterable, kind: type) -> tuple:
@@ -216,6 +233,9 @@ class Machine(DofCounts):
                 if item.name in names:
                     raise ValueError(f"{where}: the name {item.name!r} is used twice")
                 names[item.name] = int(item.node)
+        for ix, iy in sensor_pairs(self.sensors):  # the two probes of a plane must give its x and y
+            check_pair(self.sensors[ix].angle_deg, self.sensors[iy].angle_deg,
+                       (self.sensors[ix].name, self.sensors[iy].name))
         lowered = [str(s.name).lower() for s in self.sensors]
         clash = sorted({s.name for s in self.sensors if lowered.count(str(s.name).lower()) > 1})
         if clash:  # a record's header is read in any case: X1_mm and x1_mm are one column
@@ -262,9 +282,12 @@ class Machine(DofCounts):
             disks: [{node: 8, mass: 15.3, I_p: 0.12, I_d: 0.062, name: impeller}]
             bearings: {drive_end: {node: 2, k: 2.0e+7, c: 800}, free_end: {node: 16}}
             unbalance_planes: {impeller: 8}
-            sensors: {x1: {node: 8, direction: x}, y1: {node: 8, direction: y}}
+            sensors: {x1: {node: 8, direction: x}, y1: {node: 8, direction: y}}   # angle_deg optional
             rotary_inertia: false
 
+        A section that gives only ``sensors`` (and optionally ``name``) is the VARM's shaft, bearings and
+        unbalance plane with those sensors (probes at other angles or nodes of the VARM, e.g.
+        ``{x: {node: 1, direction: x, angle_deg: 45}, y: {node: 1, direction: y, angle_deg: 135}}``).
         A problem raises ``MachineSpecError`` (one line; ``path``: where in the section).
         """
         if spec is None:
@@ -272,6 +295,12 @@ class Machine(DofCounts):
         if not isinstance(spec, Mapping):
             raise MachineSpecError((), f"must be a mapping, got {spec!r}")
         _known(spec, (), {"name", "segments", "disks", "bearings", "unbalance_planes", "sensors", "rotary_inertia"})
+        sensors = [_build(Sensor, {"name": name, **_mapping(item, ("sensors", name))}, ("sensors", name),
+                          {"name", "node", "direction"}, {"angle_deg"})
+                   for name, item in _mapping(spec.get("sensors"), ("sensors",)).items()]
+        if "sensors" in spec and set(map(str, spec)) <= {"name", "sensors"}:  # the VARM with these sensors
+            varm = cls.varm()
+            spec = {**varm.to_mapping(), "name": spec.get("name", varm.name)}
         segments = [_build(ShaftSegment, item, ("segments", i), {"length", "d_out", "E", "rho"},
                            {"d_in", "n_elements", "I", "m"}) for i, item in enumerate(_sequence(spec, "segments"))]
         disks = [_build(Disk, item, ("disks", i), {"node", "mass"}, {"I_p", "I_d", "name"})
@@ -281,9 +310,6 @@ class Machine(DofCounts):
                                                                                     ("bearings",)).items()]
         planes = [_build(UnbalancePlane, {"name": name, "node": node}, ("unbalance_planes", name), {"name", "node"},
                          set()) for name, node in _mapping(spec.get("unbalance_planes"), ("unbalance_planes",)).items()]
-        sensors = [_build(Sensor, {"name": name, **_mapping(item, ("sensors", name))}, ("sensors", name),
-                          {"name", "node", "direction"}, set())
-                   for name, item in _mapping(spec.get("sensors"), ("sensors",)).items()]
         try:
             return cls(str(spec.get("name", "machine")), segments, disks, bearings, planes, sensors,
                        bool(spec.get("rotary_inertia", False)))
@@ -490,7 +516,8 @@ class Machine(DofCounts):
         if self.unbalance_planes:
             out["unbalance_planes"] = {p.name: int(p.node) for p in self.unbalance_planes}
         if self.sensors:
-            out["sensors"] = {s.name: {"node": int(s.node), "direction": s.direction} for s in self.sensors}
+            out["sensors"] = {s.name: {"node": int(s.node), "direction": s.direction}
+                              | ({"angle_deg": float(s.angle_deg)} if s.rotated else {}) for s in self.sensors}
         if self.rotary_inertia:
             out["rotary_inertia"] = True
         return out
@@ -519,7 +546,8 @@ class Machine(DofCounts):
         for p in self.unbalance_planes:
             lines.append(f"  unbalance plane {p.name} at node {p.node}")
         for s in self.sensors:
-            lines.append(f"  sensor {s.name} at node {s.node}, direction {s.direction}")
+            lines.append(f"  sensor {s.name} at node {s.node}, direction {s.direction}"
+                         + (f", angle {s.angle_deg:g} deg" if s.rotated else ""))
         return "\n".join(lines)
 
 

@@ -1,0 +1,145 @@
+"""Slow-roll compensation of an order table (``order_tracking``): the runout read at the lowest speeds and
+subtracted as a vector from every window (docs/data-checks.md, "Transient records").
+
+At slow roll the rotor barely responds: what a probe reads at 1X and 2X there is runout (mechanical: a bent or
+eccentric journal; electrical: the probe track's conductivity), a vector fixed to the shaft that every speed
+carries unchanged. ``runout`` estimates it per channel and harmonic from the windows of the slow-roll band and
+``compensate`` subtracts it; ``slow_roll_compensation`` does both and can be switched off.
+
+- **The band**: windows whose mean speed lies in ``band_rpm`` = [low, high], by default up to the record's
+  lowest window speed + BAND_FRACTION (10 %) of its speed span, and at least MIN_WINDOWS (3) windows (the
+  lowest three when the default band holds fewer). Fewer windows than that in the record (or in a given band)
+  is a ``TrackingError`` naming the file.
+- **The estimate**: per channel and harmonic the weighted (1/sigma^2) least-squares fit a + b Omega^2 of the
+  band's vectors (complex a, b); the runout is a, the vector at Omega -> 0, free of the dynamic response's
+  leading Omega^2 part (an unbalance response grows as Omega^2 well below the first critical speed; a plain
+  mean of the band would carry about half of it). Its sigma per part from the fit's covariance.
+- **The check** that what is there is runout, not dynamics: the dynamic part at the band's top,
+  |b| Omega_top^2, is flagged when it is both significant (above DYNAMIC_SIGMAS times its own sigma) and not
+  small against the runout (above DYNAMIC_FRACTION of |a|): then the band reaches speeds where the rotor
+  responds, the runout rests on the extrapolation, and a lower band (or a slower start) is better. Not flagged
+  when either is small (a dynamic part within the noise says nothing; against a runout near zero any dynamic
+  part is a large fraction). The flag names the probe and is emitted as a ``SlowRollWarning``.
+- **The subtraction**: U_h - a from every window, sigma^2 + sigma_a^2 per part. The runout's own error is then
+  common to every window of the record (a correlation between windows of sigma_a^2 / (sigma^2 + sigma_a^2); the
+  table's attrs carry the runout table so the caller can weigh it).
+
+The runout table (``RUNOUT_COLUMNS``): channel, harmonic, runout_re_m, runout_im_m, runout_amp_m,
+runout_sigma_m (per part), band_rpm_low, band_rpm_high, n_windows, dynamic_m (|b| Omega_top^2), dynamic_sigma_m,
+flagged (bool), note (the flag's message, or "").
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Sequence
+
+import numpy as np
+import pandas as pd
+
+from .order_tracking import TrackingError, _harmonic_column, table_channels
+
+#: the default band: up to the lowest window speed + this fraction of the record's speed span ...
+BAND_FRACTION = 0.10
+#: ... and at least this many windows
+MIN_WINDOWS = 3
+#: the runout's harmonics by default (1X and 2X)
+RUNOUT_HARMONICS = (1, 2)
+#: the dynamic part at the band's top is flagged above this fraction of |runout| ...
+DYNAMIC_FRACTION = 0.10
+#: ... when it is also above this many of its own sigmas
+DYNAMIC_SIGMAS = 3.0
+RUNOUT_COLUMNS = ["channel", "harmonic", "runout_re_m", "runout_im_m", "runout_amp_m", "runout_sigma_m",
+                  "band_rpm_low", "band_rpm_high", "n_windows", "dynamic_m", "dynamic_sigma_m", "flagged", "note"]
+
+
+class SlowRollWarning(UserWarning):
+    """A slow-roll band whose response looks like dynamics, not runout (the message names the probe)."""
+
+
+def slow_roll_band(table: pd.DataFrame, band_rpm: Sequence[float] | None = None,
+                   min_windows: int = MIN_WINDOWS) -> np.ndarray:
+    """The indexes (rows) of the windows of the slow-roll band (module docstring), or ``TrackingError``."""
+    path = table.attrs.get("path", "record")
+    rpm = table["rpm"].to_numpy(float)
+    if band_rpm is None:
+        if rpm.size < min_windows:
+            raise TrackingError(f"{path}: {rpm.size} window(s) of {table.attrs.get('revolutions', '?')} revolutions, "
+                                f"fewer than the {min_windows} a slow-roll band needs: the record is too short for "
+                                "the slow-roll compensation (a longer record, shorter windows, or compensation off)")
+        top = rpm.min() + BAND_FRACTION * (rpm.max() - rpm.min())
+        inside = np.flatnonzero(rpm <= top)
+        if inside.size < min_windows:
+            inside = np.argsort(rpm, kind="stable")[:min_windows]
+        return np.sort(inside)
+    low, high = (float(v) for v in band_rpm)
+    if not low < high:
+        raise ValueError(f"slow-roll band {list(band_rpm)} RPM is not [low, high] with low < high")
+    inside = np.flatnonzero((rpm >= low) & (rpm <= high))
+    if inside.size < min_windows:
+        raise TrackingError(f"{path}: {inside.size} window(s) in the slow-roll band [{low:g}, {high:g}] RPM (the "
+                            f"record's windows span {rpm.min():.1f}-{rpm.max():.1f} RPM), fewer than {min_windows}: "
+                            "the record is too short for the band, or the band misses the record's slowest speeds")
+    return inside
+
+
+def runout(table: pd.DataFrame, band_rpm: Sequence[float] | None = None,
+           harmonics: Sequence[int] = RUNOUT_HARMONICS, min_windows: int = MIN_WINDOWS) -> pd.DataFrame:
+    """The runout table of an order table (module docstring): one row per channel and harmonic."""
+    path = table.attrs.get("path", "record")
+    rows = table.iloc[slow_roll_band(table, band_rpm, min_windows)]
+    omega2 = (2 * np.pi * rows["rpm"].to_numpy(float) / 60.0) ** 2
+    low, high = float(rows["rpm"].min()), float(rows["rpm"].max())
+    top = omega2.max()
+    X = np.column_stack([np.ones_like(omega2), omega2 / top])  # b scaled to the band's top: b' = b Omega_top^2
+    out = []
+    for channel in table_channels(table):
+        for h in harmonics:
+            U = (rows[_harmonic_column(channel, h, "re")].to_numpy(float)
+                 + 1j * rows[_harmonic_column(channel, h, "im")].to_numpy(float))
+            sigma = rows[_harmonic_column(channel, h, "sigma")].to_numpy(float)
+            w = 1.0 / sigma**2
+            cov = np.linalg.inv(X.T @ (w[:, None] * X))  # per part
+            a, dynamic = cov @ (X.T @ (w * U))
+            sigma_a, sigma_dyn = np.sqrt(np.diag(cov))
+            # |b'|: for a complex b' of per-part sigma s, its modulus has sigma ~ s (both parts' errors project)
+            flagged = bool(abs(dynamic) > DYNAMIC_SIGMAS * sigma_dyn and abs(dynamic) > DYNAMIC_FRACTION * abs(a))
+            note = ""
+            if flagged:
+                note = (f"{path}: probe {channel}, {h}X: the slow-roll band {low:.0f}-{high:.0f} RPM holds a dynamic "
+                        f"response, {abs(dynamic) * 1e6:.3g} um at its top ({abs(dynamic) / sigma_dyn:.1f} sigma, "
+                        f"{100 * abs(dynamic) / max(abs(a), 1e-300):.0f} % of the runout {abs(a) * 1e6:.3g} um): "
+                        "not runout alone; the runout is its Omega -> 0 extrapolation (a lower band is safer)")
+                warnings.warn(note, SlowRollWarning, stacklevel=2)
+            out.append({"channel": channel, "harmonic": int(h), "runout_re_m": a.real, "runout_im_m": a.imag,
+                        "runout_amp_m": abs(a), "runout_sigma_m": float(sigma_a), "band_rpm_low": low,
+                        "band_rpm_high": high, "n_windows": int(len(rows)), "dynamic_m": abs(dynamic),
+                        "dynamic_sigma_m": float(sigma_dyn), "flagged": flagged, "note": note})
+    return pd.DataFrame(out, columns=RUNOUT_COLUMNS)
+
+
+def compensate(table: pd.DataFrame, runout_table: pd.DataFrame) -> pd.DataFrame:
+    """The order table less the runout: U_h - a for each row of ``runout_table``, sigma combined in quadrature,
+    amplitude recomputed; other columns unchanged. attrs: the table's, plus ``runout`` (the runout table)."""
+    out = table.copy()
+    for row in runout_table.itertuples(index=False):
+        re, im = _harmonic_column(row.channel, row.harmonic, "re"), _harmonic_column(row.channel, row.harmonic, "im")
+        out[re] = table[re] - row.runout_re_m
+        out[im] = table[im] - row.runout_im_m
+        out[_harmonic_column(row.channel, row.harmonic, "amp")] = np.hypot(out[re], out[im])
+        sigma = _harmonic_column(row.channel, row.harmonic, "sigma")
+        out[sigma] = np.hypot(table[sigma], row.runout_sigma_m)
+    out.attrs.update(table.attrs)
+    out.attrs["runout"] = runout_table
+    return out
+
+
+def slow_roll_compensation(table: pd.DataFrame, enabled: bool = True, band_rpm: Sequence[float] | None = None,
+                           harmonics: Sequence[int] = RUNOUT_HARMONICS,
+                           min_windows: int = MIN_WINDOWS) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """(the compensated order table, the runout table); ``enabled`` False: (the table unchanged, an empty runout
+    table), nothing estimated or subtracted."""
+    if not enabled:
+        return table, pd.DataFrame(columns=RUNOUT_COLUMNS)
+    found = runout(table, band_rpm, harmonics, min_windows)
+    return compensate(table, found), found
