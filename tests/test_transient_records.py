@@ -71,7 +71,7 @@ def test_bands_are_known_from_the_sheet_alone():
     assert (runs["parent_run"][:-1] == "up").all() and runs["parent_run"].iloc[-1] == ""
     assert runs["rpm"].iloc[0] == 210.0 and (runs["role"][:-1] == "fit").all()
     clash = pd.concat([sheet, pd.DataFrame([{"run": "up_b0210", "kind": "steady", "rpm": 210.0}])])
-    with pytest.raises(DataError, match="up_b0210"):
+    with pytest.raises(ValueError, match="up_b0210"):
         expand_bands(clash)
 
 

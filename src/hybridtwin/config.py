@@ -151,16 +151,18 @@ def n_scenarios(config: Mapping, variant_: Variant) -> int:
 
 
 def run_plan(source: Mapping | str | Path, measured: str | Path | None = None) -> pd.DataFrame:
-    """The runs the libraries are built for: run, rpm, eccentric_mass_g, role (from the runs sheet).
+    """The runs the libraries are built for: run, rpm, eccentric_mass_g, role (from the runs sheet; a transient
+    record's speed bands, ``run_kinds.expand_bands``, each a run at the band's centre).
 
     ``source`` is the runs sheet's path, or a config naming it under ``runs:`` (a workflow script passes the
     sheet it has as input). With ``measured`` (the preprocessed table, results/data/harmonics.tsv) each run's
     rpm is the true speed refined from its record (rpm_true) instead of the nominal one.
     """
     from .data.measurements import read_runs  # the one reader of runs sheets (check-data's): every problem named
+    from .data.run_kinds import expand_bands
 
     path = source["runs"] if isinstance(source, Mapping) else source
-    sheet = read_runs(path, require_mass=True)
+    sheet = expand_bands(read_runs(path, require_mass=True))  # a run-up's speed bands are runs (data/transient)
     if measured is not None:
         speeds = pd.read_csv(measured, sep="\t", dtype={"run": str}).set_index("run")["rpm_true"]
         missing = sorted(set(sheet["run"]) - set(speeds.index))

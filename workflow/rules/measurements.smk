@@ -6,6 +6,7 @@ import os
 
 from hybridtwin.config import data_check_settings
 from hybridtwin.data.measurements import read_runs, sheet_entry
+from hybridtwin.data.run_kinds import is_transient_row
 
 RUNS_SHEET = config.get("runs", "data/default/runs.tsv")
 # The records' channels are the machine's sensors, one column each named after it (issue 24), a param of the rules
@@ -14,6 +15,17 @@ RUNS_SHEET = config.get("runs", "data/default/runs.tsv")
 SENSOR_PARAMS = {"sensors": config["machine"].get("sensors")} if config.get("machine") else {}
 # what the data checks take from the config, derived once (as `hybridtwin check-data` derives its defaults)
 CHECK_SETTINGS = data_check_settings(config)
+
+
+def steady_runs():
+    """The sheet's steady runs (each preprocessed alone); the others are run-ups and coast-downs (track_record)."""
+    return [r["run"] for r in read_runs(RUNS_SHEET).to_dict("records") if not is_transient_row(r)]
+
+
+def measured_tables(wildcards):
+    """Each sheet row's harmonics table, in the sheet's order: a steady run's, or a transient record's bands."""
+    return [f"results/data/records/{r['run']}/bands.tsv" if is_transient_row(r)
+            else f"results/data/runs/{r['run']}/harmonics.tsv" for r in read_runs(RUNS_SHEET).to_dict("records")]
 
 
 rule check_data:
@@ -66,10 +78,39 @@ rule preprocess:
         "../../scripts/preprocess.py"
 
 
+rule track_record:
+    """One run-up or coast-down (issue 38): its speed profile from the keyphasor, the slow-roll runout removed, the
+    order vectors of windows of a few revolutions (Bode and polar points), and one row per speed band of the
+    harmonics table (a pseudo-run <run>_b<RPM>, hybridtwin.data.transient)."""
+    input:
+        check="results/data/check.tsv",
+        record=lambda wildcards: sheet_entry(RUNS_SHEET, wildcards.run)["record"],
+    wildcard_constraints:
+        run="[A-Za-z0-9_-]+",
+    output:
+        bands="results/data/records/{run}/bands.tsv",
+        orders="results/data/records/{run}/orders.tsv",
+        runout="results/data/records/{run}/runout.tsv",
+        speed="results/data/records/{run}/speed.tsv",
+    params:
+        row=lambda wildcards: sheet_entry(RUNS_SHEET, wildcards.run),
+        harmonics=CHECK_SETTINGS["harmonics"],
+        sensor_range_mm=CHECK_SETTINGS["sensor_range_mm"],
+        **SENSOR_PARAMS,
+    log:
+        "logs/data/track_record/{run}.log",
+    benchmark:
+        "results/benchmarks/data/track_record/{run}.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
+    script:
+        "../../scripts/track_record.py"
+
+
 rule measured_harmonics:
     """All runs' preprocessing results in one table, in the sheet's order."""
     input:
-        runs=lambda wildcards: expand("results/data/runs/{run}/harmonics.tsv", run=read_runs(RUNS_SHEET)["run"]),
+        runs=measured_tables,
     output:
         table="results/data/harmonics.tsv",
     log:

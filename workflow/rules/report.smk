@@ -129,7 +129,7 @@ rule report_response:
 rule report_cascade:
     """The measured full spectra of every run as a cascade (hybridtwin.report.response_plots.plot_cascade)."""
     input:
-        spectra=lambda wildcards: expand("results/data/runs/{run}/spectrum.tsv", run=read_runs(RUNS_SHEET)["run"]),
+        spectra=lambda wildcards: expand("results/data/runs/{run}/spectrum.tsv", run=steady_runs()),
         harmonics="results/data/harmonics.tsv",
     output:
         cascade=report(

@@ -31,6 +31,8 @@ Inside, everything is SI: ``read_record`` converts millimetres (micrometres, mil
 
 from __future__ import annotations
 
+import math
+
 import difflib
 import re
 import warnings
@@ -43,7 +45,7 @@ import pandas as pd
 
 from ..model.sensor import DEFAULT_CHANNELS, machine_order, sensor_pairs  # noqa: F401 (re-exported)
 from .record_columns import keyphasor_column, listed, numeric_column, time_problems, uniform_time_base
-from .run_kinds import SWEEP_COLUMNS, has_sweep_columns, sweep_cells
+from .run_kinds import SWEEP_COLUMNS, BandPlan, expand_bands, has_sweep_columns, is_transient_row, sweep_cells
 
 Array = np.ndarray
 
@@ -470,8 +472,9 @@ def sheet_entry(sheet: str | Path, run: str) -> dict:
 
 
 def runs_with_role(sheet: str | Path, role: str) -> list[str]:
-    """Runs of a runs sheet with this role, read as check-data reads it (no role column: every run fits)."""
-    runs = read_runs(sheet, require_mass=True)
+    """Runs of a runs sheet with this role, read as check-data reads it (no role column: every run fits); a
+    transient record's runs are its speed bands (``run_kinds.expand_bands``), with the record's role."""
+    runs = expand_bands(read_runs(sheet, require_mass=True))
     return runs.loc[runs["role"] == role, "run"].tolist()
 
 
@@ -498,7 +501,14 @@ def check_coverage(runs: pd.DataFrame, rpm_range: Sequence[float] | None = None,
         if bounds is None:
             continue
         lo, hi = (float(b) for b in bounds)
-        for n, run_id, value in zip(line, runs["run"], runs[column].to_numpy(float)):
+        values = runs[column].to_numpy(float, copy=True)
+        if column == "rpm" and "kind" in runs:  # a transient row: the speeds of its fitted bands, both ends
+            for i, row in enumerate(runs.to_dict("records")):
+                if is_transient_row(row):
+                    plan = BandPlan.of(row)
+                    ends = (plan.bands[0][0], plan.bands[-1][1]) if plan.bands else (math.nan, math.nan)
+                    values[i] = ends[0] if not lo <= ends[0] <= hi else ends[1]
+        for n, run_id, value in zip(line, runs["run"], values):
             if np.isnan(value):
                 problems.append(f"line {n}, run {run_id!r}: {what} unknown, cannot check it lies in "
                                 f"[{lo:g}, {hi:g}] {unit}")

@@ -55,6 +55,8 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+
+from .record_columns import harmonic_column as _harmonic_column
 from scipy.interpolate import PchipInterpolator
 
 Array = np.ndarray
@@ -258,12 +260,6 @@ def order_columns(channels, harmonics: int = DEFAULT_HARMONICS) -> list[str]:
         for h in range(1, harmonics + 1):
             out += [from_steady(c, h, part) for part in ("re", "im", "amp", "sigma")]
     return out
-
-
-def _harmonic_column(channel: str, h: int, part: str) -> str:
-    """preprocessing.harmonic_column (the steady harmonics table's names: x1_re_m, x1_1_re_m for channel x1),
-    restated so that this module imports numpy, scipy and pandas only (tests check the two agree)."""
-    return f"{channel}{'_' if channel[-1:].isdigit() else ''}{h}_{part}_m"
 
 
 def track_orders(record, harmonics: int = DEFAULT_HARMONICS, revolutions: int = DEFAULT_REVOLUTIONS,

@@ -66,7 +66,9 @@ from .measurements import (
     check_coverage, check_length, check_sampling, detect_saturation, read_record, read_runs,
 )
 from .plausibility import SPEED_TOLERANCE, Flag, check_magnitudes, check_speed, response_flags
-from .record_columns import keyphasor_marks
+from .record_columns import carried_columns as _carried, harmonic_column, harmonic_stem, keyphasor_marks  # noqa: F401
+from .run_kinds import is_transient_row
+from .transient import summary_row, track_record
 
 Array = np.ndarray
 CHANNELS = DEFAULT_CHANNELS  # the VARM's channels (a record's own: ``Record.names``)
@@ -397,17 +399,6 @@ def analyse_record(record: Record, rpm_nominal: float, harmonics: int = 5, senso
     return analysis
 
 
-def harmonic_column(channel: str, h: int, part: str) -> str:
-    """The harmonics table's column of channel ``channel``, harmonic ``h``, ``part`` re, im, amp or sigma [m]:
-    x1_re_m for channel x (the VARM's), x1_1_re_m for channel x1 (an underscore when the name ends in a digit)."""
-    return f"{harmonic_stem(channel, h)}_{part}_m"
-
-
-def harmonic_stem(channel: str, h: int) -> str:
-    """Channel ``channel``'s harmonic ``h`` in column names: x1 for channel x, x1_1 for channel x1."""
-    return f"{channel}{'_' if channel[-1:].isdigit() else ''}{h}"
-
-
 def table_channels(table: pd.DataFrame) -> tuple[str, ...]:
     """The channels of a harmonics table (``run_row``'s columns), in order: the names c with a column
     noise_<c>_m and the 1X of c (its real part or amplitude); ("x", "y") for the VARM's, also for a table
@@ -525,13 +516,6 @@ def preprocess_run(sheet_row: Mapping, harmonics: int = 5, sensor_range_m: float
     return pd.DataFrame([_carried(sheet_row, analysed) | analysed]), waveforms(analysis)
 
 
-def _carried(sheet_row: Mapping, analysed: Iterable[str]) -> dict:
-    """The runs sheet's columns carried into a result row: all but the resolved record path, and one named like a
-    column of the analysis (note, usable, unit, keyphasor, status, ...) as sheet_<name>, not overwritten."""
-    taken = set(analysed)
-    return {(f"sheet_{k}" if k in taken else k): v for k, v in sheet_row.items() if k != "record"}
-
-
 def summarise_runs(runs: pd.DataFrame, harmonics: int = 5, sensor_range_m: float | None = None,
                    min_revolutions: float = MIN_REVOLUTIONS, sensor_resolution_m: float | None = None, sensors=None
                    ) -> tuple[pd.DataFrame, dict[str, str]]:
@@ -550,6 +534,11 @@ def summarise_runs(runs: pd.DataFrame, harmonics: int = 5, sensor_range_m: float
             with warnings.catch_warnings():
                 warnings.simplefilter("always", DataWarning)  # every flagged run is reported, not just the first
                 record = read_record(sheet_row["record"], sensors)
+                if is_transient_row(sheet_row):  # a run-up or coast-down: its speed bands (data/transient.py)
+                    tracked = track_record(record, sheet_row, harmonics, sensor.range_m)
+                    analysed = summary_row(tracked, record.names)
+                    rows.append(_carried(sheet_row, analysed) | analysed)
+                    continue
                 analysis = analyse_record(record, float(sheet_row["rpm"]), harmonics, sensor.range_m,
                                           min_revolutions, sensor.resolution_m)
             analysed = run_row(analysis, harmonics, complex_parts=False) | {"status": analysis.note}

@@ -10,7 +10,7 @@ keyphasor: any two-level signal, its marks at the rising edges (``keyphasor_mark
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -186,3 +186,24 @@ def listed(problem: str, lines: Array, details: Sequence[str]) -> list[str]:
     shown = ", ".join(f"line {n} ({d})" for n, d in zip(lines[:_MAX_LISTED], details))
     more = f" ... and {len(lines) - _MAX_LISTED} more" if len(lines) > _MAX_LISTED else ""
     return [f"{problem} on {len(lines)} line(s): {shown}{more}"]
+
+
+# --- the names of the harmonics table's columns, and the sheet's columns carried into it -----------------
+
+
+def harmonic_column(channel: str, h: int, part: str) -> str:
+    """The harmonics table's column of channel ``channel``, harmonic ``h``, ``part`` re, im, amp or sigma [m]:
+    x1_re_m for channel x (the VARM's), x1_1_re_m for channel x1 (an underscore when the name ends in a digit)."""
+    return f"{harmonic_stem(channel, h)}_{part}_m"
+
+
+def harmonic_stem(channel: str, h: int) -> str:
+    """Channel ``channel``'s harmonic ``h`` in column names: x1 for channel x, x1_1 for channel x1."""
+    return f"{channel}{'_' if channel[-1:].isdigit() else ''}{h}"
+
+
+def carried_columns(sheet_row: Mapping, analysed: Iterable[str]) -> dict:
+    """The runs sheet's columns carried into a result row: all but the resolved record path, and one named like a
+    column of the analysis (note, usable, unit, keyphasor, status, ...) as sheet_<name>, not overwritten."""
+    taken = set(analysed)
+    return {(f"sheet_{k}" if k in taken else k): v for k, v in sheet_row.items() if k != "record"}

@@ -16,6 +16,9 @@ before (the same ``rpm`` check, the same messages, no column added). ``sheet_kin
 from __future__ import annotations
 
 import difflib
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
@@ -108,3 +111,86 @@ def sheet_kinds(runs: pd.DataFrame) -> pd.Series:
 def is_transient(kind: str) -> bool:
     """Whether a row of this kind is a transient record (runup, coastdown)."""
     return str(kind) in TRANSIENT_KINDS
+
+
+# --- a transient row's speed bands: the pseudo-runs the workflow plans (hybridtwin.data.transient) ----------
+
+#: speed band of a pseudo-run [RPM] unless the sheet's band_rpm says otherwise: narrow enough that the response
+#: changes nearly linearly across it (the VARM's resonance is ~36 RPM wide at half power; the band fit carries a
+#: linear term), wide enough to hold >= MIN_BAND_REVOLUTIONS at the sweep rates of a rig (10-20 RPM/s)
+DEFAULT_BAND_RPM = 20.0
+#: the slow-roll band, unless the sheet's slowroll_rpm gives its top: the lowest 10 % of the sweep's span
+SLOWROLL_SHARE = 0.1
+
+
+def is_transient_row(row: Mapping) -> bool:
+    """Whether a runs-sheet row is a run-up or coast-down (its ``kind``; steady when absent or empty)."""
+    kind = row.get("kind", "steady")
+    return isinstance(kind, str) and kind.strip().lower() in TRANSIENT_KINDS
+
+
+def _number(row: Mapping, key: str, default: float) -> float:
+    value = row.get(key, default)
+    try:
+        value = float(value)
+    except (TypeError, ValueError):
+        return default
+    return default if math.isnan(value) else value
+
+
+@dataclass(frozen=True)
+class BandPlan:
+    """A transient row's speed bands [RPM]: the slow-roll band and the fitted bands (lo, hi) in rising order."""
+
+    run: str
+    slowroll: tuple[float, float]
+    bands: tuple[tuple[float, float], ...]
+
+    @staticmethod
+    def band_id(run: str, lo: float, hi: float) -> str:
+        return f"{run}_b{int(round(0.5 * (lo + hi))):04d}"
+
+    @property
+    def ids(self) -> list[str]:
+        return [self.band_id(self.run, lo, hi) for lo, hi in self.bands]
+
+    @classmethod
+    def of(cls, row: Mapping) -> "BandPlan":
+        """From a transient row: rpm_start, rpm_end, and optionally band_rpm and slowroll_rpm."""
+        start, end = _number(row, "rpm_start", math.nan), _number(row, "rpm_end", math.nan)
+        lo, hi = min(start, end), max(start, end)
+        width = _number(row, "band_rpm", DEFAULT_BAND_RPM)
+        top = _number(row, "slowroll_rpm", lo + SLOWROLL_SHARE * (hi - lo))
+        if not (math.isfinite(lo) and hi > lo and width > 0 and lo <= top < hi):
+            raise ValueError(f"run {row.get('run')}: no speed bands in rpm_start {start}, rpm_end {end}, "
+                             f"band_rpm {width}, slowroll_rpm {top}")
+        n = int(math.floor((hi - top) / width + 1e-9))
+        bands = tuple((top + k * width, top + (k + 1) * width) for k in range(n))
+        return cls(str(row["run"]), (lo, top), bands)
+
+
+def expand_bands(sheet: pd.DataFrame) -> pd.DataFrame:
+    """The runs the workflow plans: steady rows as they are, each transient row replaced by its speed bands.
+
+    A band row keeps the sheet row's columns (mass, role, path, record, extras), with ``run`` its id, ``rpm`` its
+    centre, and ``parent_run``, ``band_lo_rpm``, ``band_hi_rpm`` added; steady rows get empty ones. A band id
+    that is also a run of the sheet is an error."""
+    if "kind" not in sheet or not sheet.apply(is_transient_row, axis=1).any():
+        return sheet
+    rows = []
+    for _, row in sheet.iterrows():
+        row = row.to_dict()
+        if not is_transient_row(row):
+            rows.append(row | {"parent_run": "", "band_lo_rpm": math.nan, "band_hi_rpm": math.nan})
+            continue
+        plan = BandPlan.of(row)
+        for (lo, hi), run in zip(plan.bands, plan.ids):
+            rows.append(row | {"run": run, "rpm": 0.5 * (lo + hi), "parent_run": row["run"], "band_lo_rpm": lo,
+                               "band_hi_rpm": hi})
+    out = pd.DataFrame(rows)
+    clash = sorted(set(out["run"][out["parent_run"] != ""]) & set(sheet["run"]))
+    if clash:
+        raise ValueError(f"run(s) {clash} of the runs sheet have the id of a transient record's speed band "
+                        "(<run>_b<RPM>): rename them")
+    out.attrs = dict(sheet.attrs)
+    return out

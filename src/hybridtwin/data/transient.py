@@ -39,94 +39,15 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 from .measurements import DataError, Record
+from .record_columns import carried_columns, harmonic_column
+from .run_kinds import DEFAULT_BAND_RPM, SLOWROLL_SHARE, BandPlan, expand_bands, is_transient_row  # noqa: F401
 from .order_tracking import SpeedProfile, TrackingError, speed_profile, track_orders
 from .slow_roll import SlowRollWarning, compensate, runout as slow_roll_runout
 
 Array = np.ndarray
 
-KINDS = ("steady", "runup", "coastdown")
-TRANSIENT_KINDS = ("runup", "coastdown")
-#: speed band of a pseudo-run [RPM] unless the sheet's band_rpm says otherwise: narrow enough that the response
-#: changes nearly linearly across it (the VARM's resonance is ~36 RPM wide at half power; the band fit carries a
-#: linear term), wide enough to hold >= MIN_BAND_REVOLUTIONS at the sweep rates of a rig (10-20 RPM/s)
-DEFAULT_BAND_RPM = 20.0
-#: the slow-roll band, unless the sheet's slowroll_rpm gives its top: the lowest 10 % of the sweep's span
-SLOWROLL_SHARE = 0.1
-#: fewest whole revolutions a band (or the slow-roll band) must hold to be fitted
+#: fewest whole revolutions a band must hold to be fitted
 MIN_BAND_REVOLUTIONS = 5
-
-
-def is_transient(row: Mapping) -> bool:
-    """Whether a runs-sheet row is a run-up or coast-down (its ``kind``; steady when absent or empty)."""
-    kind = row.get("kind", "steady")
-    return isinstance(kind, str) and kind.strip().lower() in TRANSIENT_KINDS
-
-
-def _number(row: Mapping, key: str, default: float) -> float:
-    value = row.get(key, default)
-    try:
-        value = float(value)
-    except (TypeError, ValueError):
-        return default
-    return default if math.isnan(value) else value
-
-
-@dataclass(frozen=True)
-class BandPlan:
-    """A transient row's speed bands [RPM]: the slow-roll band and the fitted bands (lo, hi) in rising order."""
-
-    run: str
-    slowroll: tuple[float, float]
-    bands: tuple[tuple[float, float], ...]
-
-    @staticmethod
-    def band_id(run: str, lo: float, hi: float) -> str:
-        return f"{run}_b{int(round(0.5 * (lo + hi))):04d}"
-
-    @property
-    def ids(self) -> list[str]:
-        return [self.band_id(self.run, lo, hi) for lo, hi in self.bands]
-
-    @classmethod
-    def of(cls, row: Mapping) -> "BandPlan":
-        """From a transient row: rpm_start, rpm_end, and optionally band_rpm and slowroll_rpm."""
-        start, end = _number(row, "rpm_start", math.nan), _number(row, "rpm_end", math.nan)
-        lo, hi = min(start, end), max(start, end)
-        width = _number(row, "band_rpm", DEFAULT_BAND_RPM)
-        top = _number(row, "slowroll_rpm", lo + SLOWROLL_SHARE * (hi - lo))
-        if not (math.isfinite(lo) and hi > lo and width > 0 and lo <= top < hi):
-            raise ValueError(f"run {row.get('run')}: no speed bands in rpm_start {start}, rpm_end {end}, "
-                             f"band_rpm {width}, slowroll_rpm {top}")
-        n = int(math.floor((hi - top) / width + 1e-9))
-        bands = tuple((top + k * width, top + (k + 1) * width) for k in range(n))
-        return cls(str(row["run"]), (lo, top), bands)
-
-
-def expand_bands(sheet: pd.DataFrame) -> pd.DataFrame:
-    """The runs the workflow plans: steady rows as they are, each transient row replaced by its speed bands.
-
-    A band row keeps the sheet row's columns (mass, role, path, record, extras), with ``run`` its id, ``rpm`` its
-    centre, and ``parent_run``, ``band_lo_rpm``, ``band_hi_rpm`` added; steady rows get empty ones. A band id
-    that is also a run of the sheet is an error."""
-    if "kind" not in sheet or not sheet.apply(is_transient, axis=1).any():
-        return sheet
-    rows = []
-    for _, row in sheet.iterrows():
-        row = row.to_dict()
-        if not is_transient(row):
-            rows.append(row | {"parent_run": "", "band_lo_rpm": math.nan, "band_hi_rpm": math.nan})
-            continue
-        plan = BandPlan.of(row)
-        for (lo, hi), run in zip(plan.bands, plan.ids):
-            rows.append(row | {"run": run, "rpm": 0.5 * (lo + hi), "parent_run": row["run"], "band_lo_rpm": lo,
-                               "band_hi_rpm": hi})
-    out = pd.DataFrame(rows)
-    clash = sorted(set(out["run"][out["parent_run"] != ""]) & set(sheet["run"]))
-    if clash:
-        raise DataError(f"run(s) {clash} of the runs sheet have the id of a transient record's speed band "
-                        "(<run>_b<RPM>): rename them")
-    out.attrs = dict(sheet.attrs)
-    return out
 
 
 # --- harmonics of a band -------------------------------------------------------------------------------------
@@ -222,8 +143,6 @@ class TrackedRecord:
 def band_row(fit: BandFit | None, names: Sequence[str], harmonics: int, note: str, sample_rate_hz: float,
              unit: str, sigma_t_s: float) -> dict:
     """A band's row in the columns of ``preprocessing.run_row`` (NaN where not fitted), plus the band's own."""
-    from .preprocessing import harmonic_column
-
     nan = math.nan
     row = {"n_samples": fit.n_samples if fit else 0,
            "duration_s": (fit.t_end_s - fit.t_start_s) if fit else nan, "sample_rate_hz": sample_rate_hz,
@@ -259,8 +178,6 @@ def track_record(record: Record, sheet_row: Mapping, harmonics: int, sensor_rang
     record that cannot be tracked (no keyphasor, missed or double marks, a reversing profile, a record too short for
     its slow-roll band, a sweep that never leaves one speed)."""
     import warnings
-
-    from .preprocessing import _carried
 
     kind = str(sheet_row.get("kind", "")).strip().lower()
     where = str(record.path)
@@ -306,10 +223,32 @@ def track_record(record: Record, sheet_row: Mapping, harmonics: int, sensor_rang
                 note = f"clipped: {int(clipped[take].sum())} sample(s) at the sensor's range in this band"
         analysed = band_row(fit, names, harmonics, note, record.sample_rate_hz, record.unit, profile.sigma_t_s)
         carried = {k: v for k, v in sheet_row.items() if k != "record"}
-        base = _carried(carried | {"run": run, "rpm": 0.5 * (lo + hi)}, analysed)
+        base = carried_columns(carried | {"run": run, "rpm": 0.5 * (lo + hi)}, analysed)
         rows.append(base | {"parent_run": sheet_row["run"], "band_lo_rpm": lo, "band_hi_rpm": hi,
                             "slowroll_compensated": bool(slowroll)} | analysed)
     bands = pd.DataFrame(rows)
     if slowroll and not runout.empty:
         bands = compensate(bands, runout)
     return TrackedRecord(bands, runout, profile.table(), orders, tuple(caught))
+
+
+def summary_row(tracked: TrackedRecord, names: Sequence[str]) -> dict:
+    """check-data's line for a transient record: its measured speed range, how many bands are usable, the noise
+    (median over the bands) and the runout removed per probe (1X), and the status ("ok" or why it is kept out)."""
+    bands = tracked.bands
+    usable = bands["usable"].astype(bool)
+    out = {"n_revolutions": int(bands["n_revolutions"].sum()), "rpm_measured_low": float(tracked.speed["rpm"].min()),
+           "rpm_measured_high": float(tracked.speed["rpm"].max()), "n_bands": len(bands),
+           "n_bands_usable": int(usable.sum()), "keyphasor": True}
+    for name in names:
+        out[f"noise_{name}_m"] = float(bands[f"noise_{name}_m"].median())
+    if not tracked.runout.empty:
+        for row in tracked.runout[tracked.runout["harmonic"] == 1].itertuples():
+            out[f"runout_{row.channel}1_amp_m"] = row.runout_amp_m
+    kept = bands.loc[~usable, "note"]
+    status = "ok" if usable.all() else (f"{int((~usable).sum())} of {len(bands)} bands kept out: "
+                                        + "; ".join(dict.fromkeys(n.split(":")[0] for n in kept)))
+    if not usable.any():
+        status = "excluded: no usable band (" + status + ")"
+    return out | {"usable": bool(usable.any()), "note": status, "status": status,
+                  "warnings": " | ".join(tracked.warnings)}
