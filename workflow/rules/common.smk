@@ -10,6 +10,7 @@ from hybridtwin.config import CONFIG_DIR, effects_files_used, offline, offline_f
 from hybridtwin.diagnose.diagnosis import settings as diagnosis_settings
 from hybridtwin.identify.identification import settings as identification_settings
 from hybridtwin.data.measurements import DataError, read_runs
+from hybridtwin.data.run_kinds import is_transient_row
 from hybridtwin.model.variants import nested_parents, parent_variant
 
 
@@ -144,3 +145,14 @@ def library_input(wildcards):
     if offline_for(config, wildcards.variant)["scope"] == "global":
         return inputs | {"global_library": f"results/{wildcards.variant}/library_global.zarr"}
     return inputs | {"pod": f"results/{wildcards.variant}/pod.zarr"}
+
+
+def steady_runs():
+    """The sheet's steady runs (each preprocessed alone); the others are run-ups and coast-downs (track_record)."""
+    return [r["run"] for r in read_runs(config.get("runs", "data/default/runs.tsv")).to_dict("records") if not is_transient_row(r)]
+
+
+def measured_tables(wildcards):
+    """Each sheet row's harmonics table, in the sheet's order: a steady run's, or a transient record's bands."""
+    return [f"results/data/records/{r['run']}/bands.tsv" if is_transient_row(r)
+            else f"results/data/runs/{r['run']}/harmonics.tsv" for r in read_runs(config.get("runs", "data/default/runs.tsv")).to_dict("records")]

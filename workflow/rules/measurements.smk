@@ -6,7 +6,6 @@ import os
 
 from hybridtwin.config import data_check_settings
 from hybridtwin.data.measurements import read_runs, sheet_entry
-from hybridtwin.data.run_kinds import is_transient_row
 
 RUNS_SHEET = config.get("runs", "data/default/runs.tsv")
 # The records' channels are the machine's sensors, one column each named after it (issue 24), a param of the rules
@@ -16,16 +15,6 @@ SENSOR_PARAMS = {"sensors": config["machine"].get("sensors")} if config.get("mac
 # what the data checks take from the config, derived once (as `hybridtwin check-data` derives its defaults)
 CHECK_SETTINGS = data_check_settings(config)
 
-
-def steady_runs():
-    """The sheet's steady runs (each preprocessed alone); the others are run-ups and coast-downs (track_record)."""
-    return [r["run"] for r in read_runs(RUNS_SHEET).to_dict("records") if not is_transient_row(r)]
-
-
-def measured_tables(wildcards):
-    """Each sheet row's harmonics table, in the sheet's order: a steady run's, or a transient record's bands."""
-    return [f"results/data/records/{r['run']}/bands.tsv" if is_transient_row(r)
-            else f"results/data/runs/{r['run']}/harmonics.tsv" for r in read_runs(RUNS_SHEET).to_dict("records")]
 
 
 rule check_data:
