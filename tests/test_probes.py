@@ -130,3 +130,24 @@ def test_schema_accepts_sensors_alone_with_angles_and_refuses_other_keys():
     bad = {"sensors": {"x": {"node": 1, "direction": "x", "angle": -45}}}
     assert list(validator.iter_errors(bad))
     assert list(validator.iter_errors({"segments": []}))  # sensors required
+
+
+def test_a_record_of_rotated_probes_is_read_as_the_planes_x_and_y(tmp_path):
+    """The record holds the probes' readings (at 45 and 135 degrees); read with the machine's angles it gives the
+    plane's x and y, which the analysis and the model compare (to the written digits: 1e-7 mm)."""
+    from hybridtwin.data.measurements import read_record
+
+    t = np.arange(400) / 2000.0
+    x, y = 0.3 * np.cos(2 * np.pi * 10 * t), 0.2 * np.sin(2 * np.pi * 10 * t + 0.4)
+    a1, a2 = np.radians(45.0), np.radians(135.0)
+    p1, p2 = x * np.cos(a1) + y * np.sin(a1), x * np.cos(a2) + y * np.sin(a2)
+    path = tmp_path / "r.csv"
+    np.savetxt(path, np.column_stack([t, p1, p2]), delimiter=",", header="time_s,x_mm,y_mm", comments="",
+               fmt=["%.6f", "%.7f", "%.7f"])
+    sensors = {"x": {"node": 1, "direction": "x", "angle_deg": 45.0},
+               "y": {"node": 1, "direction": "y", "angle_deg": 135.0}}
+    record = read_record(path, sensors)
+    np.testing.assert_allclose(record.channel("x"), 1e-3 * x, atol=2e-10)
+    np.testing.assert_allclose(record.channel("y"), 1e-3 * y, atol=2e-10)
+    plain = read_record(path, {"x": {"node": 1, "direction": "x"}, "y": {"node": 1, "direction": "y"}})
+    np.testing.assert_array_equal(plain.channel("x"), 1e-3 * np.loadtxt(path, delimiter=",", skiprows=1)[:, 1])

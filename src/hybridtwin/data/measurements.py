@@ -234,6 +234,43 @@ def record_channels(sensors=None) -> tuple[tuple[str, ...], tuple[tuple[int, int
     return tuple(str(item.name) for item in items), tuple(sensor_pairs(items))
 
 
+def probe_angles(sensors=None) -> dict[str, float]:
+    """Each sensor's mounting angle [deg] where it is given (``angle_deg`` of a ``Machine``'s sensors or of the
+    config form); a sensor without one stands along its direction (absent from the result)."""
+    if sensors is None or isinstance(sensors, str):
+        return {}
+    if hasattr(sensors, "sensors"):
+        sensors = sensors.sensors
+    if isinstance(sensors, Mapping):
+        return {str(n): float(spec["angle_deg"]) for n, spec in sensors.items()
+                if isinstance(spec, Mapping) and spec.get("angle_deg") is not None}
+    return {str(s.name): float(s.angle_deg) for s in sensors
+            if not isinstance(s, str) and getattr(s, "angle_deg", None) is not None}
+
+
+def _plane_xy_channels(channels: dict, pairs, angles: Mapping[str, float], path: Path) -> dict:
+    """The channels with each rotated probe pair turned into its plane's x and y (``model.probes.plane_xy``): the
+    analysis and the model then read x and y; the channels keep the probes' names (docs/measurement-format.md,
+    "Probe angles"). Pairs at the default angles (0, 90) are left as read, bit for bit."""
+    if not angles or not pairs:
+        return channels
+    from ..model.probes import DEFAULT_ANGLE_DEG, ProbeAngleError, plane_xy
+
+    names = list(channels)
+    out = dict(channels)
+    for i, j in pairs:
+        a, b = names[i], names[j]
+        ai, aj = angles.get(a, DEFAULT_ANGLE_DEG["x"]), angles.get(b, DEFAULT_ANGLE_DEG["y"])
+        if (ai, aj) == (DEFAULT_ANGLE_DEG["x"], DEFAULT_ANGLE_DEG["y"]):
+            continue
+        try:
+            plane = plane_xy(channels[a], channels[b], ai, aj, names=(a, b))
+        except ProbeAngleError as err:
+            raise DataError(f"{path}: {err}") from None
+        out[a], out[b] = plane.x, plane.y
+    return out
+
+
 @dataclass(frozen=True)
 class Saturation:
     """A flat or clipped channel of a record.
@@ -563,6 +600,7 @@ def read_record(path: str | Path, sensors=None) -> Record:
         raise DataError(_format(path, problems))
     time_s = uniform_time_base(values[time_col])  # the written stamps less their rounding and jitter
     channels = {name: values[column] * UNITS[unit] for name, (column, unit) in chosen.items()}
+    channels = _plane_xy_channels(channels, pairs, probe_angles(sensors), path)
     return Record(path, time_s, channels, keyphasor, {name: unit for name, (_, unit) in chosen.items()}, line,
                   pairs)
 
