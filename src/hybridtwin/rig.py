@@ -99,6 +99,8 @@ TIME_ATOL_RELATIVE = 3e-6
 TIME_UNIQUE_TOLERANCE = 1e-3
 #: a record is "inside the range" when |response + offset| + this many noise sigmas stays below the range
 RANGE_SIGMAS = 4.0
+#: record displacement units: metres per unit and the written format (0.1 um resolution, 10 nm in m)
+UNIT_SCALES = {"mm": (1e-3, "%.4f"), "m": (1.0, "%.8f"), "um": (1e-6, "%.1f"), "mils": (25.4e-6, "%.5f")}
 
 
 class RigError(ValueError):
@@ -122,7 +124,17 @@ class Imperfections:
     keyphasor: bool = False  # write a keyphasor column
     clip: bool = True  # clip at +-sensor_range_mm like a saturated laser micrometer
     sensor_range_mm: float = 14.0  # the laser micrometers' range
-    unit: str = "mm"  # displacement columns x_mm, y_mm ("mm") or x_m, y_m ("m")
+    unit: str = "mm"  # displacement columns x_mm, y_mm ("mm"), x_m ("m"), x_um ("um") or x_mils ("mils")
+    # run-ups and coast-downs only (plan rows of kind runup / coastdown; hybridtwin.rig_sweep): SWEEP_FIELDS
+    sweep_rate_rpm_s: float = 10.0  # nominal |rpm'| of the sweep: its duration is |rpm_end - rpm_start| / rate
+    sweep_shape: str = "linear"  # the rate's shape: "linear" (constant) or "exponential" (approach to the end)
+    sweep_wobble: float = 0.1  # the rate wobbles smoothly by +-this fraction of itself (seeded; < 1: no reversal)
+    sweep_ramp_s: float = 0.5  # the acceleration's smooth onset and end (at most a quarter of the sweep)
+    dwell_start_s: float = 2.0  # the record starts this long at rpm_start (a slow-roll band on a run-up) ...
+    dwell_end_s: float = 1.0  # ... and ends this long at rpm_end
+    sweep_sample_rate_hz: float = 5000.0  # sample rate of transient records
+    runout_um: tuple[float, float] = (10.0, 3.0)  # slow-roll runout size at 1X, 2X per probe [um] (x U(0.5, 1))
+    probe_angles_deg: Mapping = field(default_factory=dict)  # {sensor: angle from +x towards +y}; x 0, y 90
 
     def __post_init__(self) -> None:
         lo, hi = self.noise_mm
@@ -133,8 +145,11 @@ class Imperfections:
             (0 <= lo <= hi, f"noise_mm must be [low, high] with 0 <= low <= high, got {self.noise_mm}"),
             (self.offset_mm >= 0, f"offset_mm must be >= 0, got {self.offset_mm}"),
             (self.sensor_range_mm > 0, f"sensor_range_mm must be positive, got {self.sensor_range_mm}"),
-            (self.unit in ("mm", "m"), f"unit must be 'mm' or 'm', got {self.unit!r}"),
+            (self.unit in UNIT_SCALES, f"unit must be one of {list(UNIT_SCALES)}, got {self.unit!r}"),
         ]
+        from .rig_sweep import sweep_field_problems  # the run-up / coast-down fields
+
+        checks += sweep_field_problems(self)
         for ok, message in checks:
             if not ok:
                 raise RigError(f"imperfections: {message}")
@@ -153,12 +168,22 @@ class Imperfections:
             if len(noise) != 2:
                 raise RigError(f"imperfections: noise_mm must be one value or [low, high], got {values['noise_mm']}")
             values["noise_mm"] = (float(noise[0]), float(noise[1]))
-        return cls(**values)
+        from .rig_sweep import sweep_fields_from_mapping
 
-    def to_mapping(self) -> dict:
+        return cls(**sweep_fields_from_mapping(values))
+
+    def to_mapping(self, sweep: bool | None = None) -> dict:
+        """The config form; the run-up / coast-down fields (rig_sweep.SWEEP_FIELDS) only with ``sweep`` True,
+        or (None) when one differs from its default: a steady data set's answer key reads as before."""
+        from .rig_sweep import SWEEP_FIELDS
+
         out = asdict(self)
         out["noise_mm"] = list(self.noise_mm)
-        return out
+        out["runout_um"], out["probe_angles_deg"] = list(self.runout_um), dict(self.probe_angles_deg)
+        default = Imperfections()
+        if sweep is None:
+            sweep = any(getattr(self, f) != getattr(default, f) for f in SWEEP_FIELDS)
+        return out if sweep else {k: v for k, v in out.items() if k not in SWEEP_FIELDS}
 
 
 @dataclass
@@ -255,21 +280,27 @@ class RigSpec:
                    **{k: (int(v) if k in ("seed", "harmonics") else float(v)) for k, v in options.items()},
                    **({"integrator": spec["integrator"]} if "integrator" in spec else {}))
 
-    def to_mapping(self) -> dict:
-        """The answer key's form (truth.yaml); ``machine`` (its config form) only when it is not the VARM."""
+    def to_mapping(self, sweep: bool | None = None) -> dict:
+        """The answer key's form (truth.yaml); ``machine`` (its config form) only when it is not the VARM;
+        ``sweep``: with the run-up / coast-down imperfections (``Imperfections.to_mapping``)."""
         machine = self.truth.machine
         other = isinstance(machine, Machine) and not machine.is_varm  # a plain Shaft is the VARM's structure
         return {"seed": self.seed, "harmonics": self.harmonics, "start_rpm": self.start_rpm,
                 "step_rpm": self.step_rpm, "rundown_margin_rpm": self.rundown_margin_rpm,
                 "integrator": self.integrator, **({"machine": machine.to_mapping()} if other else {}),
-                "truth": self.truth.to_mapping(), "imperfections": self.imperfections.to_mapping()}
+                "truth": self.truth.to_mapping(), "imperfections": self.imperfections.to_mapping(sweep)}
 
 
 # --- the steps --------------------------------------------------------------------------
 
 
 def read_plan(path: str | Path) -> pd.DataFrame:
-    """A run plan (run, rpm, eccentric_mass_g[, role, ...]); a runs sheet's path column is ignored."""
+    """A run plan (run, rpm, eccentric_mass_g[, role, ...]); a runs sheet's path column is ignored. A plan with
+    the columns kind, rpm_start, rpm_end (run-ups and coast-downs) is read by ``rig_sweep.read_sweep_plan``."""
+    from .rig_sweep import has_sweep_columns, read_sweep_plan
+
+    if has_sweep_columns(path):
+        return read_sweep_plan(path)
     plan = read_runs(path, check_files=False, require_path=False)
     unknown = plan["eccentric_mass_g"].isna()
     if unknown.any():
@@ -453,9 +484,10 @@ def synthesise(Z: Array, rpm_true: float, conditions: Mapping[str, float], imper
 
 def write_record(path: Path, record: Mapping[str, Array | None], unit: str = "mm",
                  channels: Sequence[str] = ("x", "y")) -> None:
-    """Write time_s, <c>_{unit} for each channel c (x_mm, y_mm on the VARM)[, keyphasor] as CSV (0.1 um
-    resolution in mm, 10 nm in m)."""
-    scale, fmt = (1e3, "%.4f") if unit == "mm" else (1.0, "%.8f")
+    """Write time_s, <c>_{unit} for each channel c (x_mm, y_mm on the VARM)[, keyphasor] as CSV (UNIT_SCALES:
+    0.1 um resolution in mm and um, 10 nm in m, 0.01 um in mils)."""
+    scale, fmt = (1e3, "%.4f") if unit == "mm" else (1.0, "%.8f") if unit == "m" else (
+        1.0 / UNIT_SCALES[unit][0], UNIT_SCALES[unit][1])
     columns = [record["time_s"], *(record[f"{c}_m"] * scale for c in channels)]
     header = ["time_s", *(f"{c}_{unit}" for c in channels)]
     formats = ["%.6f"] + [fmt] * len(channels)
@@ -478,6 +510,26 @@ def generate(plan: pd.DataFrame, spec: RigSpec, out_dir: str | Path) -> pd.DataF
     """
     out_dir = Path(out_dir)
     channels = sensor_names(spec.truth.variant.model.shaft)  # one per sensor of the truth's machine
+    from .rig_sweep import check_sweep_plan, sweep_records, sweep_rows
+
+    sweeps = sweep_rows(plan)  # run-ups and coast-downs (hybridtwin.rig_sweep); the others as always
+    check_sweep_plan(plan, sweeps, spec)
+    truth = _steady_records(plan[~sweeps], spec, out_dir, channels) if not sweeps.all() else None
+    if sweeps.any():
+        truth = sweep_records(plan, sweeps, truth, spec, out_dir, channels)
+    sheet = plan.copy()
+    sheet["path"] = [f"records/{r}.csv" for r in plan["run"]]
+    columns = ["run", "rpm", "eccentric_mass_g", "path", "role"]
+    sheet = sheet[columns + [c for c in sheet.columns if c not in columns]]
+    sheet.to_csv(out_dir / "runs.tsv", sep="\t", index=False, float_format="%.10g")
+    truth.to_csv(out_dir / "truth.tsv", sep="\t", index=False, float_format="%.9e")
+    with open(out_dir / "truth.yaml", "w") as stream:
+        yaml.safe_dump(spec.to_mapping(True if sweeps.any() else None), stream, sort_keys=False)
+    return truth
+
+
+def _steady_records(plan: pd.DataFrame, spec: RigSpec, out_dir: Path, channels: Sequence[str]) -> pd.DataFrame:
+    """The steady runs of ``generate``: conditions, the truth's steady states, records; their truth table."""
     conditions = draw_conditions(plan, spec.imperfections, spec.seed, channels)
     runs = plan.reset_index(drop=True).join(conditions.drop(columns="run"))
     response = solve_truth(spec.truth, runs, spec.harmonics, spec.start_rpm, spec.step_rpm, spec.rundown_margin_rpm,
@@ -493,14 +545,6 @@ def generate(plan: pd.DataFrame, spec: RigSpec, out_dir: str | Path) -> pd.DataF
         write_record(out_dir / "records" / f"{row['run']}.csv", record, spec.imperfections.unit, channels)
         truth.loc[i, "clipped_samples"] = int(record["clipped"].sum())
     _warn(truth, spec.imperfections)
-    sheet = plan.copy()
-    sheet["path"] = [f"records/{r}.csv" for r in plan["run"]]
-    columns = ["run", "rpm", "eccentric_mass_g", "path", "role"]
-    sheet = sheet[columns + [c for c in sheet.columns if c not in columns]]
-    sheet.to_csv(out_dir / "runs.tsv", sep="\t", index=False, float_format="%.10g")
-    truth.to_csv(out_dir / "truth.tsv", sep="\t", index=False, float_format="%.9e")
-    with open(out_dir / "truth.yaml", "w") as stream:
-        yaml.safe_dump(spec.to_mapping(), stream, sort_keys=False)
     return truth
 
 
@@ -625,8 +669,9 @@ def add_rig_command(sub) -> None:
                     "(Geometric + slope spring, Table 5) with the bundled data's bow, 4 s at 2 kHz, 0.1 % speed "
                     "error, 0.05 mm noise, +-0.5 mm offsets, no keyphasor, clipping at +-14 mm.")
     parser.add_argument("--plan", type=Path, default=None,
-                        help="run plan TSV (run, rpm, eccentric_mass_g[, role]); a runs sheet works too "
-                             "(default: the spec's plan)")
+                        help="run plan TSV (run, rpm, eccentric_mass_g[, role]; a row of kind runup or coastdown "
+                             "with rpm_start, rpm_end and rpm empty is a transient record made by time "
+                             "integration along a speed profile); a runs sheet works too (default: the spec's plan)")
     parser.add_argument("--out", type=Path, required=True, help="output folder")
     parser.add_argument("--spec", type=Path, default=None,
                         help="YAML with truth: {effects, values}, imperfections: {...}, seed, harmonics "
@@ -659,7 +704,11 @@ def add_rig_command(sub) -> None:
     group.add_argument("--clip", action=argparse.BooleanOptionalAction, default=None,
                        help="clip at +-sensor range like a saturated sensor (default yes)")
     group.add_argument("--sensor-range-mm", type=float, default=None, help="sensor range [mm] (default 14)")
-    group.add_argument("--unit", choices=("mm", "m"), default=None, help="displacement unit of the records")
+    group.add_argument("--unit", choices=tuple(UNIT_SCALES), default=None, help="displacement unit of the records")
+    group.add_argument("--sweep-rate-rpm-s", type=float, default=None,
+                       help="run-ups and coast-downs (plan rows of kind runup/coastdown): nominal rate (default 10)")
+    group.add_argument("--sweep-sample-rate-hz", type=float, default=None,
+                       help="run-ups and coast-downs: sample rate [Hz] (default 5000)")
     parser.set_defaults(handler=rig_command)
 
 
@@ -681,8 +730,9 @@ def rig_command(args) -> int:
     except (RigError, DataError) as err:
         print(f"hybridtwin rig: error: {err}", file=sys.stderr)
         return 1
+    sweep = {c: truth[c] for c in ("kind", "rpm_start", "rpm_end") if c in truth}  # run-ups and coast-downs
     report = pd.DataFrame({
-        "run": truth["run"], "rpm": truth["rpm"], "eccentric_mass_g": truth["eccentric_mass_g"],
+        "run": truth["run"], "rpm": truth["rpm"], **sweep, "eccentric_mass_g": truth["eccentric_mass_g"],
         "rpm_true": truth["rpm_true"].round(3), "unique": truth["unique"], "stable": truth["stable"],
         "updown_diff_rel": truth["updown_difference_rel"].map(lambda v: f"{v:.1e}"),
         **{f"{c[:-2]}_mm": (1e3 * truth[c]).round(3) for c in peak_columns(truth)},
@@ -712,7 +762,8 @@ def _override(spec: RigSpec, args) -> RigSpec:
                             {e.name: e for e in spec.truth.variant.model.effects}, spec.truth.machine)
     names = {"duration_s": "duration_s", "sample_rate_hz": "sample_rate_hz", "speed_error": "speed_error",
              "offset_mm": "offset_mm", "keyphasor": "keyphasor", "random_phase": "random_phase", "clip": "clip",
-             "sensor_range_mm": "sensor_range_mm", "unit": "unit"}
+             "sensor_range_mm": "sensor_range_mm", "unit": "unit", "sweep_rate_rpm_s": "sweep_rate_rpm_s",
+             "sweep_sample_rate_hz": "sweep_sample_rate_hz"}
     imperfections = spec.imperfections.to_mapping()
     imperfections.update({key: getattr(args, arg) for arg, key in names.items() if getattr(args, arg) is not None})
     if args.noise_mm is not None:
