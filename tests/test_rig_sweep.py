@@ -154,7 +154,7 @@ def test_steady_rows_of_a_mixed_plan_are_written_as_without_transient_rows(made,
     ({"sweep_wobble": 1.2}, "sweep_wobble must be in"),
     ({"sweep_rate_rpm_s": 0}, "sweep_rate_rpm_s must be positive"),
     ({"sweep_shape": "s-curve"}, "sweep_shape must be"),
-    ({"unit": "inch"}, "unit must be one of"),
+    ({"unit": "inch"}, "unit must be 'mm' or 'm', or 'um' or 'mils'"),
     ({"runout_um": [1, 2, 3]}, "runout_um must be"),
     ({"probe_angles_deg": [45, -45]}, "probe_angles_deg must be a mapping"),
 ])

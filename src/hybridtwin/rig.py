@@ -145,7 +145,7 @@ class Imperfections:
             (0 <= lo <= hi, f"noise_mm must be [low, high] with 0 <= low <= high, got {self.noise_mm}"),
             (self.offset_mm >= 0, f"offset_mm must be >= 0, got {self.offset_mm}"),
             (self.sensor_range_mm > 0, f"sensor_range_mm must be positive, got {self.sensor_range_mm}"),
-            (self.unit in UNIT_SCALES, f"unit must be one of {list(UNIT_SCALES)}, got {self.unit!r}"),
+            (self.unit in UNIT_SCALES, f"unit must be 'mm' or 'm', or 'um' or 'mils', got {self.unit!r}"),
         ]
         from .rig_sweep import sweep_field_problems  # the run-up / coast-down fields
 
