@@ -12,7 +12,8 @@ import pandas as pd
 
 from ..data.measurements import DataError
 from ..data.rig import (
-    INTEGRATORS, Imperfections, RigError, RigSpec, RigWarning, Truth, generate, load_spec, peak_columns, read_plan,
+    INTEGRATORS, UNIT_SCALES, Imperfections, RigError, RigSpec, RigWarning, Truth, generate, load_spec, peak_columns,
+    read_plan,
 )
 from .common import config_file, load_catalog
 
@@ -30,8 +31,9 @@ def add_rig_command(sub) -> None:
                     "(Geometric + slope spring, Table 5) with the bundled data's bow, 4 s at 2 kHz, 0.1 % speed "
                     "error, 0.05 mm noise, +-0.5 mm offsets, no keyphasor, clipping at +-14 mm.")
     parser.add_argument("--plan", type=Path, default=None,
-                        help="run plan TSV (run, rpm, eccentric_mass_g[, role]); a runs sheet works too "
-                             "(default: the spec's plan)")
+                        help="run plan TSV (run, rpm, eccentric_mass_g[, role]; a row of kind runup or coastdown "
+                             "with rpm_start, rpm_end and rpm empty is a transient record made by time "
+                             "integration along a speed profile); a runs sheet works too (default: the spec's plan)")
     parser.add_argument("--out", type=Path, required=True, help="output folder")
     parser.add_argument("--spec", type=Path, default=None,
                         help="YAML with truth: {effects, values}, imperfections: {...}, seed, harmonics "
@@ -64,7 +66,11 @@ def add_rig_command(sub) -> None:
     group.add_argument("--clip", action=argparse.BooleanOptionalAction, default=None,
                        help="clip at +-sensor range like a saturated sensor (default yes)")
     group.add_argument("--sensor-range-mm", type=float, default=None, help="sensor range [mm] (default 14)")
-    group.add_argument("--unit", choices=("mm", "m"), default=None, help="displacement unit of the records")
+    group.add_argument("--unit", choices=tuple(UNIT_SCALES), default=None, help="displacement unit of the records")
+    group.add_argument("--sweep-rate-rpm-s", type=float, default=None,
+                       help="run-ups and coast-downs (plan rows of kind runup/coastdown): nominal rate (default 10)")
+    group.add_argument("--sweep-sample-rate-hz", type=float, default=None,
+                       help="run-ups and coast-downs: sample rate [Hz] (default 5000)")
     parser.set_defaults(handler=rig_command)
 
 
@@ -84,8 +90,9 @@ def rig_command(args) -> int:
     except (RigError, DataError) as err:
         print(f"hybridtwin rig: error: {err}", file=sys.stderr)
         return 1
+    sweep = {c: truth[c] for c in ("kind", "rpm_start", "rpm_end") if c in truth}  # run-ups and coast-downs
     report = pd.DataFrame({
-        "run": truth["run"], "rpm": truth["rpm"], "eccentric_mass_g": truth["eccentric_mass_g"],
+        "run": truth["run"], "rpm": truth["rpm"], **sweep, "eccentric_mass_g": truth["eccentric_mass_g"],
         "rpm_true": truth["rpm_true"].round(3), "unique": truth["unique"], "stable": truth["stable"],
         "updown_diff_rel": truth["updown_difference_rel"].map(lambda v: f"{v:.1e}"),
         **{f"{c[:-2]}_mm": (1e3 * truth[c]).round(3) for c in peak_columns(truth)},
@@ -115,7 +122,8 @@ def _override(spec: RigSpec, args) -> RigSpec:
                             {e.name: e for e in spec.truth.variant.model.effects}, spec.truth.machine)
     names = {"duration_s": "duration_s", "sample_rate_hz": "sample_rate_hz", "speed_error": "speed_error",
              "offset_mm": "offset_mm", "keyphasor": "keyphasor", "random_phase": "random_phase", "clip": "clip",
-             "sensor_range_mm": "sensor_range_mm", "unit": "unit"}
+             "sensor_range_mm": "sensor_range_mm", "unit": "unit", "sweep_rate_rpm_s": "sweep_rate_rpm_s",
+             "sweep_sample_rate_hz": "sweep_sample_rate_hz"}
     imperfections = spec.imperfections.to_mapping()
     imperfections.update({key: getattr(args, arg) for arg, key in names.items() if getattr(args, arg) is not None})
     if args.noise_mm is not None:

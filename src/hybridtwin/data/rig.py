@@ -53,7 +53,6 @@ not change when other runs are added to the plan.
 from __future__ import annotations
 
 import warnings
-import zlib
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
@@ -65,6 +64,7 @@ import yaml
 from ..model.effects import Effect
 from ..model.machine import Machine, default_machine
 from .measurements import read_runs
+from .rig_base import RANGE_SIGMAS, UNIT_SCALES, RigError, RigWarning, _rng, write_record  # noqa: F401 (re-exported)
 from ..model.model import rpm_to_rad_s
 from ..model.sensor import sensor_dofs, sensor_names
 from ..solvers.continuation import solve_sweep
@@ -95,16 +95,6 @@ TIME_ATOL_RELATIVE = 3e-6
 #: "time": run-up and run-down agreeing to this relative difference are the same steady state; each is within
 #: ~1e-5 of the periodic orbit (above), distinct branches differ by 1e-2 or more (0.5 in tests/test_rig.py)
 TIME_UNIQUE_TOLERANCE = 1e-3
-#: a record is "inside the range" when |response + offset| + this many noise sigmas stays below the range
-RANGE_SIGMAS = 4.0
-
-
-class RigError(ValueError):
-    """A rig specification or plan that cannot be run, with the reason."""
-
-
-class RigWarning(UserWarning):
-    """A generated run whose steady state is not unique or unstable, or which leaves the sensor range."""
 
 
 @dataclass(frozen=True)
@@ -120,7 +110,17 @@ class Imperfections:
     keyphasor: bool = False  # write a keyphasor column
     clip: bool = True  # clip at +-sensor_range_mm like a saturated laser micrometer
     sensor_range_mm: float = 14.0  # the laser micrometers' range
-    unit: str = "mm"  # displacement columns x_mm, y_mm ("mm") or x_m, y_m ("m")
+    unit: str = "mm"  # displacement columns x_mm, y_mm ("mm"), x_m ("m"), x_um ("um") or x_mils ("mils")
+    # run-ups and coast-downs only (plan rows of kind runup / coastdown; hybridtwin.data.rig_sweep): SWEEP_FIELDS
+    sweep_rate_rpm_s: float = 10.0  # nominal |rpm'| of the sweep: its duration is |rpm_end - rpm_start| / rate
+    sweep_shape: str = "linear"  # the rate's shape: "linear" (constant) or "exponential" (approach to the end)
+    sweep_wobble: float = 0.1  # the rate wobbles smoothly by +-this fraction of itself (seeded; < 1: no reversal)
+    sweep_ramp_s: float = 0.5  # the acceleration's smooth onset and end (at most a quarter of the sweep)
+    dwell_start_s: float = 2.0  # the record starts this long at rpm_start (a slow-roll band on a run-up) ...
+    dwell_end_s: float = 1.0  # ... and ends this long at rpm_end
+    sweep_sample_rate_hz: float = 5000.0  # sample rate of transient records
+    runout_um: tuple[float, float] = (10.0, 3.0)  # slow-roll runout size at 1X, 2X per probe [um] (x U(0.5, 1))
+    probe_angles_deg: Mapping = field(default_factory=dict)  # {sensor: angle from +x towards +y}; x 0, y 90
 
     def __post_init__(self) -> None:
         lo, hi = self.noise_mm
@@ -131,8 +131,11 @@ class Imperfections:
             (0 <= lo <= hi, f"noise_mm must be [low, high] with 0 <= low <= high, got {self.noise_mm}"),
             (self.offset_mm >= 0, f"offset_mm must be >= 0, got {self.offset_mm}"),
             (self.sensor_range_mm > 0, f"sensor_range_mm must be positive, got {self.sensor_range_mm}"),
-            (self.unit in ("mm", "m"), f"unit must be 'mm' or 'm', got {self.unit!r}"),
+            (self.unit in UNIT_SCALES, f"unit must be 'mm' or 'm', or 'um' or 'mils', got {self.unit!r}"),
         ]
+        from .rig_sweep import sweep_field_problems  # the run-up / coast-down fields
+
+        checks += sweep_field_problems(self)
         for ok, message in checks:
             if not ok:
                 raise RigError(f"imperfections: {message}")
@@ -151,12 +154,22 @@ class Imperfections:
             if len(noise) != 2:
                 raise RigError(f"imperfections: noise_mm must be one value or [low, high], got {values['noise_mm']}")
             values["noise_mm"] = (float(noise[0]), float(noise[1]))
-        return cls(**values)
+        from .rig_sweep import sweep_fields_from_mapping
 
-    def to_mapping(self) -> dict:
+        return cls(**sweep_fields_from_mapping(values))
+
+    def to_mapping(self, sweep: bool | None = None) -> dict:
+        """The config form; the run-up / coast-down fields (rig_sweep.SWEEP_FIELDS) only with ``sweep`` True,
+        or (None) when one differs from its default: a steady data set's answer key reads as before."""
+        from .rig_sweep import SWEEP_FIELDS
+
         out = asdict(self)
         out["noise_mm"] = list(self.noise_mm)
-        return out
+        out["runout_um"], out["probe_angles_deg"] = list(self.runout_um), dict(self.probe_angles_deg)
+        default = Imperfections()
+        if sweep is None:
+            sweep = any(getattr(self, f) != getattr(default, f) for f in SWEEP_FIELDS)
+        return out if sweep else {k: v for k, v in out.items() if k not in SWEEP_FIELDS}
 
 
 @dataclass
@@ -253,21 +266,27 @@ class RigSpec:
                    **{k: (int(v) if k in ("seed", "harmonics") else float(v)) for k, v in options.items()},
                    **({"integrator": spec["integrator"]} if "integrator" in spec else {}))
 
-    def to_mapping(self) -> dict:
-        """The answer key's form (truth.yaml); ``machine`` (its config form) only when it is not the VARM."""
+    def to_mapping(self, sweep: bool | None = None) -> dict:
+        """The answer key's form (truth.yaml); ``machine`` (its config form) only when it is not the VARM;
+        ``sweep``: with the run-up / coast-down imperfections (``Imperfections.to_mapping``)."""
         machine = self.truth.machine
         other = isinstance(machine, Machine) and not machine.is_varm  # a plain Shaft is the VARM's structure
         return {"seed": self.seed, "harmonics": self.harmonics, "start_rpm": self.start_rpm,
                 "step_rpm": self.step_rpm, "rundown_margin_rpm": self.rundown_margin_rpm,
                 "integrator": self.integrator, **({"machine": machine.to_mapping()} if other else {}),
-                "truth": self.truth.to_mapping(), "imperfections": self.imperfections.to_mapping()}
+                "truth": self.truth.to_mapping(), "imperfections": self.imperfections.to_mapping(sweep)}
 
 
 # --- the steps --------------------------------------------------------------------------
 
 
 def read_plan(path: str | Path) -> pd.DataFrame:
-    """A run plan (run, rpm, eccentric_mass_g[, role, ...]); a runs sheet's path column is ignored."""
+    """A run plan (run, rpm, eccentric_mass_g[, role, ...]); a runs sheet's path column is ignored. A plan with
+    the columns kind, rpm_start, rpm_end (run-ups and coast-downs) is read by ``rig_sweep.read_sweep_plan``."""
+    from .rig_sweep import has_sweep_columns, read_sweep_plan
+
+    if has_sweep_columns(path):
+        return read_sweep_plan(path)
     plan = read_runs(path, check_files=False, require_path=False)
     unknown = plan["eccentric_mass_g"].isna()
     if unknown.any():
@@ -449,22 +468,6 @@ def synthesise(Z: Array, rpm_true: float, conditions: Mapping[str, float], imper
     return out | {"keyphasor": keyphasor, "clipped": clipped}
 
 
-def write_record(path: Path, record: Mapping[str, Array | None], unit: str = "mm",
-                 channels: Sequence[str] = ("x", "y")) -> None:
-    """Write time_s, <c>_{unit} for each channel c (x_mm, y_mm on the VARM)[, keyphasor] as CSV (0.1 um
-    resolution in mm, 10 nm in m)."""
-    scale, fmt = (1e3, "%.4f") if unit == "mm" else (1.0, "%.8f")
-    columns = [record["time_s"], *(record[f"{c}_m"] * scale for c in channels)]
-    header = ["time_s", *(f"{c}_{unit}" for c in channels)]
-    formats = ["%.6f"] + [fmt] * len(channels)
-    if record.get("keyphasor") is not None:
-        columns.append(record["keyphasor"])
-        header.append("keyphasor")
-        formats.append("%d")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    np.savetxt(path, np.column_stack(columns), fmt=formats, delimiter=",", header=",".join(header), comments="")
-
-
 def generate(plan: pd.DataFrame, spec: RigSpec, out_dir: str | Path) -> pd.DataFrame:
     """Generate a data set (runs.tsv, records/, truth.tsv, truth.yaml) in ``out_dir``; returns the truth table.
 
@@ -476,6 +479,26 @@ def generate(plan: pd.DataFrame, spec: RigSpec, out_dir: str | Path) -> pd.DataF
     """
     out_dir = Path(out_dir)
     channels = sensor_names(spec.truth.variant.model.shaft)  # one per sensor of the truth's machine
+    from .rig_sweep import check_sweep_plan, sweep_records, sweep_rows
+
+    sweeps = sweep_rows(plan)  # run-ups and coast-downs (hybridtwin.data.rig_sweep); the others as always
+    check_sweep_plan(plan, sweeps, spec)
+    truth = _steady_records(plan[~sweeps], spec, out_dir, channels) if not sweeps.all() else None
+    if sweeps.any():
+        truth = sweep_records(plan, sweeps, truth, spec, out_dir, channels)
+    sheet = plan.copy()
+    sheet["path"] = [f"records/{r}.csv" for r in plan["run"]]
+    columns = ["run", "rpm", "eccentric_mass_g", "path", "role"]
+    sheet = sheet[columns + [c for c in sheet.columns if c not in columns]]
+    sheet.to_csv(out_dir / "runs.tsv", sep="\t", index=False, float_format="%.10g")
+    truth.to_csv(out_dir / "truth.tsv", sep="\t", index=False, float_format="%.9e")
+    with open(out_dir / "truth.yaml", "w") as stream:
+        yaml.safe_dump(spec.to_mapping(True if sweeps.any() else None), stream, sort_keys=False)
+    return truth
+
+
+def _steady_records(plan: pd.DataFrame, spec: RigSpec, out_dir: Path, channels: Sequence[str]) -> pd.DataFrame:
+    """The steady runs of ``generate``: conditions, the truth's steady states, records; their truth table."""
     conditions = draw_conditions(plan, spec.imperfections, spec.seed, channels)
     runs = plan.reset_index(drop=True).join(conditions.drop(columns="run"))
     response = solve_truth(spec.truth, runs, spec.harmonics, spec.start_rpm, spec.step_rpm, spec.rundown_margin_rpm,
@@ -491,23 +514,10 @@ def generate(plan: pd.DataFrame, spec: RigSpec, out_dir: str | Path) -> pd.DataF
         write_record(out_dir / "records" / f"{row['run']}.csv", record, spec.imperfections.unit, channels)
         truth.loc[i, "clipped_samples"] = int(record["clipped"].sum())
     _warn(truth, spec.imperfections)
-    sheet = plan.copy()
-    sheet["path"] = [f"records/{r}.csv" for r in plan["run"]]
-    columns = ["run", "rpm", "eccentric_mass_g", "path", "role"]
-    sheet = sheet[columns + [c for c in sheet.columns if c not in columns]]
-    sheet.to_csv(out_dir / "runs.tsv", sep="\t", index=False, float_format="%.10g")
-    truth.to_csv(out_dir / "truth.tsv", sep="\t", index=False, float_format="%.9e")
-    with open(out_dir / "truth.yaml", "w") as stream:
-        yaml.safe_dump(spec.to_mapping(), stream, sort_keys=False)
     return truth
 
 
 # --- helpers ----------------------------------------------------------------------------
-
-
-def _rng(seed: int, run_id: str, stream: int) -> np.random.Generator:
-    """The generator of one run's draws (stream 0: conditions, 1: noise), independent of the plan's order."""
-    return np.random.default_rng([int(seed), zlib.crc32(str(run_id).encode()), stream])
 
 
 def _grid(start: float, speeds: Array, step: float) -> Array:

@@ -153,6 +153,9 @@ class Effect:
     (e.g. l_i) keep their values. Their ranges are those of their ``Parameter``s. Empty: not
     declared; a built-in effect is then no candidate, and an effect of a user's effects file
     named as a candidate has all its parameters tested.
+
+    ``inertial``: True for an effect whose forcing is the inertia of a mass turning with the shaft (its
+    Omega^2 coefficient A_h then becomes A_h (Omega^2 - i Omega' / h) at variable speed, ``hybridtwin.solvers.sweep``).
     """
 
     name: str = ""
@@ -161,6 +164,9 @@ class Effect:
     dofs: tuple[str, ...] = ()
     degree: int | None = None
     switches: tuple[str, ...] = ()
+    #: its forcing is the inertia of a rotating mass (unbalance, bow): at variable speed its Omega^2 term gets the
+    #: tangential term too, A (Omega^2 - i Omega' / h) (hybridtwin.solvers.sweep); other forces read Omega(t) only
+    inertial: bool = False
 
     def mass(self, ctx: Context) -> Array | None:
         return None

@@ -121,6 +121,7 @@ class Unbalance(Effect):
         Parameter("r_me", "m", (0.0, 0.1), 0.040, "eccentricity of the eccentric mass"),
         Parameter("z_me", "m", (0.0, 0.85), 0.425, "axial position of the eccentric mass"),
     )
+    inertial = True  # the force is the mass's inertia: at variable speed also m_e r_me Omega' (hybridtwin.solvers.sweep)
 
     def mass(self, ctx: Context) -> Array:
         out = ctx.zeros()
@@ -151,6 +152,7 @@ class ShaftBow(Effect):
         Parameter("q_y", "m", (0.001, 0.01), 0.005, "bow amplitude along the first mode, y"),
         Parameter("m_el", "kg", (0.01, 0.05), 0.0281, "mass of one shaft element used in the bow force"),
     )
+    inertial = True  # the bent shaft's mass turning with it: at variable speed also the Omega' term
 
     def forcing(self, ctx: Context) -> dict[int, Array]:
         f = ctx.zero_vector()

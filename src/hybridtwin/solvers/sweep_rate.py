@@ -1,0 +1,129 @@
+"""How fast is too fast: when a run-up or coast-down is no longer quasi-steady (issue 38, item 5).
+
+A swept rotor lags the steady response near a resonance and flattens it. For one mode the rotating-frame
+amplitude X of the modal coordinate z = X exp(i theta) obeys, for the model at variable speed (hybridtwin.solvers.sweep:
+K - Omega^2 M, the unbalance's inertia a (Omega^2 - i Omega'))::
+
+    X'' + (2 i Omega + c) X' + (i Omega' + D(Omega)) X = Omega^2 - i Omega',   D = omega_n^2 - (1 + s) Omega^2 + i c Omega
+
+with c = 2 zeta omega_n (zeta the damping ratio at rest), s = 1 with the centrifugal softening (the resonance where
+Omega = omega_n / sqrt(2)), s = 0 without. Its quasi-steady solution is X0 = Omega^2 / D, and the first
+correction in the slow rate (the adiabatic expansion; tests/test_sweep.py checks it against time integration)
+
+    X1 = (-i Omega' - (2 i Omega + c) dX0/dOmega Omega' - i Omega' X0) / D
+
+is the expected difference between the transient and the quasi-steady order vector. ``sweep_rate_check``
+gives, per speed band, max |X1| / max |X0| over the record (the vector error relative to the peak) and
+compares it with the noise-to-amplitude ratio of the measured order vector: "ok" where the quasi-steady model is
+within the noise, "too fast" where it is not (then model the transient, or keep the band out). Near the
+resonance |X1| / |X0| ~ Omega' / (zeta^2 Omega_c^2) up to a factor of order one: the classical dimensionless sweep
+rate eta = Omega' / omega^2 against zeta^2 (``dimensionless_rate``). First order only: past ~20 % it
+underestimates the flattening, and the verdict there is "too fast" anyway.
+
+Measured on the rig (the VARM's default truth, benchmarks/sweep_rate_study.py; table in benchmarks/README.md):
+the predicted error against the time-integrated transient's, per rate and band.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+Array = np.ndarray
+
+
+def quasi_steady(Omega: Array, omega_n: float, zeta: float, centrifugal: bool = True) -> Array:
+    """X0 = Omega^2 / D(Omega) of a unit unbalance on the mode (module docstring)."""
+    Omega = np.asarray(Omega, dtype=float)
+    s = 1.0 if centrifugal else 0.0
+    return Omega ** 2 / (omega_n ** 2 - (1.0 + s) * Omega ** 2 + 2j * zeta * omega_n * Omega)
+
+
+def adiabatic_correction(Omega: Array, Omega_dot: Array | float, omega_n: float, zeta: float,
+                         centrifugal: bool = True) -> Array:
+    """X1, the first-order lag of the swept response (module docstring), for a unit unbalance."""
+    Omega = np.asarray(Omega, dtype=float)
+    Omega_dot = np.broadcast_to(np.asarray(Omega_dot, dtype=float), Omega.shape)
+    s = 1.0 if centrifugal else 0.0
+    c = 2.0 * zeta * omega_n
+    D = omega_n ** 2 - (1.0 + s) * Omega ** 2 + 1j * c * Omega
+    X0 = Omega ** 2 / D
+    dX0 = (2.0 * Omega * D - Omega ** 2 * (-2.0 * (1.0 + s) * Omega + 1j * c)) / D ** 2
+    return (-1j * Omega_dot - (2j * Omega + c) * dX0 * Omega_dot - 1j * Omega_dot * X0) / D
+
+
+def crossing_speed(omega_n: float, centrifugal: bool = True) -> float:
+    """The speed [rad/s] where the 1X forcing meets the mode: omega_n / sqrt(2) with the centrifugal softening."""
+    return omega_n / math.sqrt(2.0) if centrifugal else omega_n
+
+
+def dimensionless_rate(sweep_rate_rpm_s: float, omega_n: float, zeta: float, centrifugal: bool = True) -> float:
+    """eta / zeta^2 = Omega' / (zeta^2 Omega_c^2) at the crossing: << 1 quasi-steady, ~1 and above the peak
+    lags and flattens (the classical passage-through-resonance parameter)."""
+    Omega_c = crossing_speed(omega_n, centrifugal)
+    return abs(sweep_rate_rpm_s) * math.pi / 30.0 / (zeta ** 2 * Omega_c ** 2)
+
+
+@dataclass(frozen=True)
+class BandCheck:
+    """One speed band of a record: the expected relative error of the quasi-steady order vector (max |X1| in
+    the band over max |X0| in the record, the worst mode), the noise-to-amplitude ratio it is compared with,
+    and the verdict."""
+
+    rpm_low: float
+    rpm_high: float
+    expected_error: float
+    noise_to_amplitude: float
+
+    @property
+    def ok(self) -> bool:
+        return self.expected_error <= self.noise_to_amplitude
+
+    @property
+    def verdict(self) -> str:
+        return "ok" if self.ok else "too fast"
+
+
+def sweep_rate_check(modes: list[tuple[float, float]], sweep_rate_rpm_s: float, noise_to_amplitude: float,
+                     rpm_low: float, rpm_high: float, band_rpm: float = 50.0, centrifugal: bool = True,
+                     points_per_band: int = 50) -> list[BandCheck]:
+    """Per band of ``band_rpm`` between rpm_low and rpm_high: is the quasi-steady model within the noise?
+
+    modes: (omega_n [rad/s], zeta) of each mode at rest (e.g. ``model.campbell`` at 0 RPM, or the first mode
+    of ``Model.at_rest`` with its damping ratio); sweep_rate_rpm_s: the record's rate |rpm'| (its largest, to be
+    safe); noise_to_amplitude: the standard deviation of a measured order vector over the record's largest
+    order amplitude (e.g. noise sigma sqrt(2 / samples per window) / peak). Each mode is scaled to its own
+    peak (the worst case: the record dominated by that mode). Returns one ``BandCheck`` per band.
+    """
+    if not rpm_high > rpm_low > 0:
+        raise ValueError(f"sweep_rate_check: needs 0 < rpm_low < rpm_high, got {rpm_low}, {rpm_high}")
+    if not band_rpm > 0 or not noise_to_amplitude >= 0:
+        raise ValueError("sweep_rate_check: band_rpm must be positive and noise_to_amplitude >= 0")
+    for omega_n, zeta in modes:
+        if not (omega_n > 0 and zeta > 0):
+            raise ValueError(f"sweep_rate_check: a mode needs omega_n > 0 and zeta > 0, got ({omega_n}, {zeta})")
+    edges = np.arange(rpm_low, rpm_high + 1e-9, band_rpm)
+    if edges[-1] < rpm_high - 1e-9:
+        edges = np.append(edges, rpm_high)
+    rate = abs(sweep_rate_rpm_s) * math.pi / 30.0
+    fine = np.linspace(rpm_low, rpm_high, max(2001, int(points_per_band * (edges.size - 1)))) * math.pi / 30.0
+    errors = np.zeros(edges.size - 1)
+    for omega_n, zeta in modes:
+        peak = np.abs(quasi_steady(fine, omega_n, zeta, centrifugal)).max()
+        for i, (a, b) in enumerate(zip(edges[:-1], edges[1:])):
+            Omega = np.linspace(a, b, points_per_band) * math.pi / 30.0
+            X1 = adiabatic_correction(Omega, rate, omega_n, zeta, centrifugal)
+            errors[i] = max(errors[i], float(np.abs(X1).max() / peak))
+    return [BandCheck(float(a), float(b), float(e), float(noise_to_amplitude))
+            for a, b, e in zip(edges[:-1], edges[1:], errors)]
+
+
+def largest_quasi_steady_rate(modes: list[tuple[float, float]], noise_to_amplitude: float, rpm_low: float,
+                              rpm_high: float, centrifugal: bool = True) -> float:
+    """The sweep rate [RPM/s] below which every band is "ok": X1 is proportional to the rate, so the rate at
+    which the worst band's expected error equals the noise-to-amplitude ratio."""
+    worst = max(c.expected_error for c in sweep_rate_check(modes, 1.0, 0.0, rpm_low, rpm_high,
+                                                           band_rpm=rpm_high - rpm_low, centrifugal=centrifugal))
+    return noise_to_amplitude / worst if worst > 0 else math.inf
