@@ -115,8 +115,10 @@ def main(argv: list[str] | None = None) -> int:
                               "noise_ratio": noise_ratio,
                               "measured_verdict": "ok" if measured <= noise_ratio else "too fast",
                               "predicted_verdict": b.verdict})
+            last = rows[-1]
             print(f"# {direction} {rate:g} RPM/s: {r['revolutions']:.0f} revolutions, {r['steps']} Radau steps, "
-                  f"{r['cpu']:.1f} s CPU", flush=True)
+                  f"{r['cpu']:.1f} s CPU; " + ", ".join(f"{k} {v:.4g}" for k, v in last.items()
+                                                       if isinstance(v, float)), flush=True)
     table = pd.DataFrame(rows)
     with pd.option_context("display.width", 200, "display.max_columns", 30):
         print(table.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
