@@ -562,3 +562,133 @@ def test_a_plan_too_thin_to_decide_says_so_instead_of_no_missing_effect():
                           "at_bound": [False, True, "False", "True", False]})
     assert st.undetermined_parameters(table) == ("k_b (not identifiable)", "zeta_s (at a range edge)",
                                                  "q_x (at a range edge)")
+
+
+def _stand_in_then_k4(base: st.BaseFit) -> tuple[st.Scores, dict, list]:
+    """A forward path that took a stand-in first (as in test_backward_elimination_drops_a_stand_in_made_redundant_by
+    _a_later_effect): cross-coupled stiffness refitted at ``base``, then expansion_k4 at base + stand-in."""
+    scores = st.score_tests(base, _candidates(["cross_coupled_stiffness", "expansion_k4"]))
+    by_name = {s.candidate.name: s for s in scores.scores}
+    stand_in = rf.confirm(base, by_name["cross_coupled_stiffness"], scores, starts=0, widen=0, far=False)
+    extended = st.BaseFit(st.extend(base.variant, [stand_in.candidate], stand_in.ranges), stand_in.fit.layout,
+                          stand_in.fit.theta, base.data, base.harmonics)
+    k4 = rf.confirm(extended, st.score_tests(extended, _candidates(["expansion_k4"])).scores[0],
+                    st.score_tests(extended, _candidates(["expansion_k4"])), starts=0, widen=0, far=False)
+    excess = dg._excess(scores)
+    path = [dg.Step("cross_coupled_stiffness", scores.base_chi2 / scores.base_dof, stand_in.chi2 / stand_in.dof,
+                    stand_in.delta_bic, (scores.base_chi2 - stand_in.chi2) / excess, stand_in),
+            dg.Step("expansion_k4", stand_in.chi2 / stand_in.dof, k4.chi2 / k4.dof, k4.delta_bic,
+                    (scores.base_chi2 - k4.chi2) / excess, k4)]
+    return scores, {"cross_coupled_stiffness": stand_in}, path
+
+
+@pytest.fixture(scope="module")
+def every_path(slope_data, slope_base):
+    """A Diagnosis from each way the diagnosis can end, by its own code (``diagnose``, or its tail
+    ``diagnosis._finish`` on a path built here where the full loop would not take that path on these data)."""
+    out = {}
+    scores, confirmations, path = _stand_in_then_k4(slope_base)
+    alpha = dg.DEFAULTS["alpha"] / len(scores.scores)
+    data = _data(["slope_spring", "excitation_2x"], TRUTH | {"k_w": 324.2, "k_z": 301.1, "f2_c": 0.1, "f2_s": -0.05},
+                 seed=7)  # as test_two_hidden_effects_are_both_found_by_forward_selection
+    out["forward"] = dg.diagnose(_base_fit(data), _candidates(["slope_spring", "excitation_2x"]))
+    first = dg._conclude(slope_base, scores, confirmations, dg.DEFAULTS, alpha)
+    out["backward elimination"] = dg._finish(first, slope_base, scores, list(path), dg.DEFAULTS)
+    tilt = PolynomialBearing(name="tilt_force", meaning="force on the shaft tilt (a user's duplicate of k4 u')",
+                             parameters=(Parameter("k_t", "N", (-1000.0, 1000.0), 0.0, "tilt stiffness"),),
+                             terms=(Term(lambda p: p.k_t, (0, 0, 1, 0), "k_t u'"),))
+    out["confounded"] = dg.diagnose(slope_base, _candidates(["expansion_k4"]) + [Candidate(tilt, ("k_t",))])
+    per_run = _base_fit(slope_data, per_run=("q_x", "q_y"))
+    one, scores, result = _one_step_path(per_run, "expansion_k4")
+    result = dg._conclude(per_run, scores, {"expansion_k4": one[0].confirmation}, dg.DEFAULTS, dg.DEFAULTS["alpha"])
+    out["sharing"] = dg._finish(result, per_run, scores, one, dg.DEFAULTS)
+    data = _data(["excitation_3x"], TRUTH | {"f3_c": 0.3, "f3_s": -0.2}, seed=4)
+    out["unexplained"] = dg.diagnose(_base_fit(data), _candidates(["cross_coupled_stiffness", "speed_damping"]))
+    return out
+
+
+def _not_plain(value, where="summary") -> list[str]:
+    """Where ``value`` holds anything but dict (str keys), list, str, int, float, bool or None (exact types)."""
+    if isinstance(value, dict):
+        return [f"{where}: key {k!r}" for k in value if type(k) is not str] + \
+            [w for k, v in value.items() for w in _not_plain(v, f"{where}.{k}")]
+    if type(value) is list:
+        return [w for i, v in enumerate(value) for w in _not_plain(v, f"{where}[{i}]")]
+    return [] if value is None or type(value) in (str, int, float, bool) else [f"{where}: {type(value).__name__}"]
+
+
+def _same(a, b) -> bool:
+    """Equal, NaN equal to NaN (a summary read back from YAML)."""
+    if isinstance(a, dict):
+        return isinstance(b, dict) and a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
+    if isinstance(a, list):
+        return isinstance(b, list) and len(a) == len(b) and all(map(_same, a, b))
+    if isinstance(a, float) and isinstance(b, float) and np.isnan(a) and np.isnan(b):
+        return True
+    return a == b and type(a) is type(b)
+
+
+PATHS = ["forward", "backward elimination", "confounded", "sharing", "unexplained"]
+
+
+@pytest.mark.slow  # the module fixture every_path runs five diagnoses: ~35 s CPU
+@pytest.mark.parametrize("path", PATHS)
+def test_every_path_builds_its_summary_from_plain_types(every_path, path):
+    """Each way the diagnosis ends (it did end each way: checked first) leaves a summary of plain Python types at
+    the source, before any writer: on the backward-elimination path a numpy float (Delta BIC of keeping the dropped
+    effect) reached yaml.safe_dump and the workflow died writing diagnosis.yaml."""
+    result = every_path[path]
+    s = result.summary
+    took = {"forward": len(result.path) == 2 and not s.get("eliminated"),
+            "backward elimination": [e["effect"] for e in s.get("eliminated", [])] == ["cross_coupled_stiffness"],
+            "confounded": bool(s["confounded"]) and "cannot tell them apart" in result.conclusion,
+            "sharing": bool(s.get("sharing", {}).get("shared")),
+            "unexplained": result.conclusion.startswith("unexplained")}
+    assert took[path], (path, result.conclusion)
+    assert _not_plain(s) == []
+
+
+@pytest.mark.slow  # the module fixture every_path runs five diagnoses: ~35 s CPU
+@pytest.mark.parametrize("path", PATHS)
+def test_every_diagnosis_output_reads_back(every_path, path, tmp_path):
+    """diagnosis.yaml, .tsv and .md as the workflow writes them (diagnosis_report.write), read back: the YAML
+    equals the summary (plain types, NaN as NaN), the TSV the table (numbers to the 6 digits written: relative
+    5e-6 at most, 1e-5 allowed), the Markdown holds the conclusion and no nan or numpy repr."""
+    import yaml
+
+    result = every_path[path]
+    files = [tmp_path / name for name in ("diagnosis.tsv", "diagnosis.md", "diagnosis.yaml")]
+    dgr.write(result, *files)
+    read = yaml.safe_load(files[2].read_text())
+    assert _same(read, result.summary)
+    table = pd.read_csv(files[0], sep="\t")
+    assert list(table.columns) == list(result.table.columns)
+    for column in result.table:
+        if pd.api.types.is_numeric_dtype(result.table[column]) and not pd.api.types.is_bool_dtype(result.table[column]):
+            np.testing.assert_allclose(table[column], result.table[column].astype(float), rtol=1e-5, equal_nan=True)
+        else:
+            written = table[column].astype(object).where(table[column].notna(), "")
+            assert written.astype(str).tolist() == result.table[column].astype(str).tolist()
+    markdown = files[1].read_text()
+    assert result.conclusion in markdown and "nan" not in markdown and "np." not in markdown
+
+
+@pytest.mark.slow  # the module fixture every_path runs five diagnoses: ~35 s CPU
+def test_the_writer_converts_a_stray_numpy_number_and_names_what_it_cannot(every_path, tmp_path):
+    """The writer's safety net: a numpy number left in the summary is written as a number; an object that is no
+    number is refused with the file and the key."""
+    import yaml
+
+    result = every_path["unexplained"]
+    files = [tmp_path / name for name in ("d.tsv", "d.md", "d.yaml")]
+    saved = dict(result.summary)
+    try:
+        result.summary["stray"] = {"x": np.float64(6.106), "n": np.int64(3), "pair": (np.float32(0.5), 1)}
+        dgr.write(result, *files)
+        assert yaml.safe_load(files[2].read_text())["stray"] == {"x": 6.106, "n": 3, "pair": [0.5, 1]}
+        result.summary["stray"] = {"x": object()}
+        with pytest.raises(ValueError, match=r"d\.yaml.*summary\.stray\.x is a object"):
+            dgr.write(result, *files)
+    finally:
+        result.summary.clear()
+        result.summary.update(saved)

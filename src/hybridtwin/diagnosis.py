@@ -64,6 +64,28 @@ MIN_DOF = 10
 #: ... nor fewer fit runs than this, nor fit runs whose speeds span no more than this fraction of the fastest
 MIN_FIT_RUNS, SPEED_SPREAD = 3, 0.05
 
+def plain(value, where: str = "summary"):
+    """``value`` as plain Python types (dict with str keys, list, str, int, float, bool, None), what
+    ``yaml.safe_dump`` and the diagnosis's other outputs take: numpy scalars become int, float or bool, arrays and
+    tuples lists. Anything else is refused, naming where it sits (``where``: its key path), never written as a
+    tagged object or a crash at the writer's end (a numpy float in the backward elimination's figures did that)."""
+    if value is None or type(value) in (str, int, float, bool):
+        return value
+    if isinstance(value, Mapping):
+        return {str(k): plain(v, f"{where}.{k}") for k, v in value.items()}
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return [plain(v, f"{where}[{i}]") for i, v in enumerate(value)]
+    if isinstance(value, (np.bool_, bool)):
+        return bool(value)
+    if isinstance(value, (np.integer, int)):
+        return int(value)
+    if isinstance(value, (np.floating, float)):
+        return float(value)
+    if isinstance(value, str):  # a str subclass (np.str_)
+        return str(value)
+    raise TypeError(f"{where} is a {type(value).__name__} ({value!r}), not a plain number, text or list")
+
+
 DEFAULTS: dict = {
     "candidates": None,  # names to test (built in or from effects_files); None: every built-in candidate
     "confirm": "all",  # candidates refitted: every significant one, or the n best by score (+ any within
@@ -128,9 +150,9 @@ class Step:
     confirmation: Confirmation
 
     def row(self) -> dict:
-        return {"step": None, "effect": self.effect, "chi2_dof_before": self.chi2_dof_before,
-                "chi2_dof_after": self.chi2_dof_after, "delta_bic": self.delta_bic,
-                "explained_pct": 100 * self.share, "estimate": _estimate_text(self.confirmation)}
+        return {"step": None, "effect": self.effect, "chi2_dof_before": float(self.chi2_dof_before),
+                "chi2_dof_after": float(self.chi2_dof_after), "delta_bic": float(self.delta_bic),
+                "explained_pct": float(100 * self.share), "estimate": _estimate_text(self.confirmation)}
 
 
 def _quick_refits(base: BaseFit, scores: Scores, o: Mapping, alpha_each: float) -> tuple[list, dict]:
@@ -268,16 +290,22 @@ def diagnose(base: BaseFit, candidates: Sequence[Candidate], options: Mapping | 
         if log:
             log.info("forward selection, step %d at %s: %s", len(path) + 1, current.variant.name,
                      "nothing significant left" if best is None else f"best {best.candidate.name}")
-    path = _backward(base, path, scores, o, first, log)
-    path = _sharing(base, path, scores, o, first, log)
-    first.path = path
-    _conclude_path(first, base, scores, o)
-    first.fingerprint = residual_fingerprint(base, path[-1].confirmation.fit.fun if path else scores.residual)
-    first.summary["fingerprint"] = first.fingerprint.summary()
-    if first.conclusion.startswith("unexplained"):
-        first.conclusion += f". What the residual looks like: {first.fingerprint.summary()}"
-        first.summary["conclusion"] = first.conclusion
-    return first
+    return _finish(first, base, scores, path, o, log)
+
+
+def _finish(result: Diagnosis, base: BaseFit, scores: Scores, path: list[Step], o: Mapping, log=None) -> Diagnosis:
+    """After the forward selection's ``path``: backward elimination, the sharing check, the conclusion from the
+    path and the residual's fingerprint."""
+    path = _backward(base, path, scores, o, result, log)
+    path = _sharing(base, path, scores, o, result, log)
+    result.path = path
+    _conclude_path(result, base, scores, o)
+    result.fingerprint = residual_fingerprint(base, path[-1].confirmation.fit.fun if path else scores.residual)
+    result.summary["fingerprint"] = result.fingerprint.summary()
+    if result.conclusion.startswith("unexplained"):
+        result.conclusion += f". What the residual looks like: {result.fingerprint.summary()}"
+        result.summary["conclusion"] = result.conclusion
+    return result
 
 
 def _backward(base: BaseFit, path: list[Step], scores: Scores, o: Mapping, result: Diagnosis, log=None
@@ -314,7 +342,8 @@ def _backward(base: BaseFit, path: list[Step], scores: Scores, o: Mapping, resul
         dropped = path[i].effect
         others = [step.effect for j, step in enumerate(path) if j != i]
         result.summary.setdefault("eliminated", []).append(
-            {"effect": dropped, "chi2_without": cf.chi2, "chi2_with": final.chi2, "delta_bic": -lr + k * np.log(n)})
+            {"effect": dropped, "chi2_without": float(cf.chi2), "chi2_with": float(final.chi2),
+             "delta_bic": float(-lr + k * np.log(n))})
         rows = result.table.index[result.table["effect"] == dropped]
         result.table.loc[rows, "verdict"] = (f"dropped by backward elimination: not needed once {', '.join(others)} "
                                              f"{'is' if len(others) == 1 else 'are'} in (removing it changes chi^2 "
@@ -356,9 +385,10 @@ def _sharing(base: BaseFit, path: list[Step], scores: Scores, o: Mapping, result
     p_value, delta_bic = float(stats.chi2.sf(max(lr, 0.0), k)), float(-lr + k * np.log(n))
     keep = (p_value < o["alpha"] and delta_bic < o["bic_threshold"]) or bool(cf.unstable_runs) or \
         not _fits_the_noise(cf, o)
-    result.summary["sharing"] = {"parameters": local, "chi2_per_run": final.chi2, "dof_per_run": final.dof,
-                                 "chi2_shared": cf.chi2, "dof_shared": cf.dof, "lr": float(lr), "lr_dof": k,
-                                 "lr_p_value": p_value, "delta_bic_per_run": delta_bic, "shared": not keep}
+    result.summary["sharing"] = plain({"parameters": local, "chi2_per_run": final.chi2, "dof_per_run": final.dof,
+                                       "chi2_shared": cf.chi2, "dof_shared": cf.dof, "lr": lr, "lr_dof": k,
+                                       "lr_p_value": p_value, "delta_bic_per_run": delta_bic, "shared": not keep},
+                                      "summary.sharing")
     if log:
         log.info("sharing check: %s shared chi^2 %.4g (dof %d) vs per run %.4g (dof %d): likelihood ratio %.3g on %d "
                  "dof, Delta BIC of per-run values %.3g: %s", ", ".join(local), cf.chi2, cf.dof, final.chi2,
@@ -399,7 +429,7 @@ def residual_fingerprint(base: BaseFit, r: Array) -> Fingerprint:
 def _excess(scores: Scores) -> float:
     """chi^2 - dof, floored at one standard deviation of chi^2(dof), sqrt(2 dof): shares of an excess within
     the noise are not meaningful (a base at the noise floor would otherwise divide by ~0)."""
-    return max(scores.base_chi2 - scores.base_dof, np.sqrt(2.0 * scores.base_dof))
+    return float(max(scores.base_chi2 - scores.base_dof, np.sqrt(2.0 * scores.base_dof)))
 
 
 def _is_confirmed(cf: Confirmation, o: Mapping, alpha_each: float) -> bool:
@@ -468,7 +498,7 @@ def _conclude(base: BaseFit, scores: Scores, confirmations: Mapping[str, Confirm
                             if s.p_value < alpha_each else "not significant")
     table = _table(scores, confirmations, verdicts, confirmed)
     conclusion, recommendation = _recommend(base, scores, best, confounded, share, misfit, base_ratio, o)
-    summary = {"variant": base.variant.name, "runs": list(base.layout.runs), "n_data": scores.n_data,
+    summary = plain({"variant": base.variant.name, "runs": list(base.layout.runs), "n_data": scores.n_data,
                "base_chi2": scores.base_chi2, "base_dof": scores.base_dof, "base_chi2_dof": base_ratio,
                "base_gof_p_value": float(stats.chi2.sf(scores.base_chi2, scores.base_dof)),
                "misfit": bool(misfit), "alpha_per_candidate": alpha_each,
@@ -478,7 +508,7 @@ def _conclude(base: BaseFit, scores: Scores, confirmations: Mapping[str, Confirm
                    "name": _variant_name([base.variant.name, best.candidate.name]),
                    "spec": variant_spec(base.variant, best.candidate, best.ranges)},
                "refit_seconds": float(sum(cf.seconds for cf in confirmations.values())),
-               "confounded": list(confounded)}
+               "confounded": list(confounded)})
     return Diagnosis(table, conclusion, recommendation, summary, dict(confirmations), best)
 
 
@@ -486,9 +516,8 @@ def _conclude_path(result: Diagnosis, base: BaseFit, scores: Scores, o: Mapping)
     """The conclusion, verdict of the first effect and recommendation from the forward-selection path: "add"
     only for effects that together explain the discrepancy; otherwise "unexplained", the path as evidence."""
     path = result.path
-    result.summary["path"] = [dict(step.row(), step=i + 1, ranges={k: list(v) for k, v in
-                                                                   step.confirmation.ranges.items()})
-                              for i, step in enumerate(path)]
+    result.summary["path"] = plain([dict(step.row(), step=i + 1, ranges=step.confirmation.ranges)
+                                    for i, step in enumerate(path)], "summary.path")
     if not path:
         return
     final, share = path[-1].confirmation, path[-1].share

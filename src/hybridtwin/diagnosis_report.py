@@ -4,12 +4,14 @@ fingerprint, candidates) and a figure; the paper's sparse route side by side."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import yaml
 from scipy import stats
 
-from .diagnosis import Diagnosis
+from .diagnosis import Diagnosis, plain
 from .variants import Variant
 
 
@@ -126,3 +128,19 @@ def plot(result: Diagnosis):
     right.legend(loc="lower right", fontsize=8)
     fig.tight_layout()
     return fig
+
+
+def write(result: Diagnosis, table_path, markdown_path, summary_path, sparse: pd.DataFrame | None = None,
+          sparse_name: str = "") -> None:
+    """The diagnosis's outputs: the ranked table (``diagnosis.tsv``), the Markdown (``markdown``) and the summary
+    (``diagnosis.yaml``). The summary is built from plain types (``diagnosis.plain``); it is converted once more
+    here, so a value that slipped through is written as a number rather than stop the workflow, and one that is no
+    number at all is refused with the file and the key it sits at."""
+    try:
+        summary = plain(result.summary)
+    except TypeError as error:
+        raise ValueError(f"{summary_path}: cannot write the diagnosis summary: {error}") from None
+    result.table.to_csv(table_path, sep="\t", index=False, float_format="%.6g")
+    Path(markdown_path).write_text(markdown(result, sparse, sparse_name))
+    with open(summary_path, "w") as stream:
+        yaml.safe_dump(summary, stream, sort_keys=False)
