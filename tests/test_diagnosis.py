@@ -692,3 +692,31 @@ def test_the_writer_converts_a_stray_numpy_number_and_names_what_it_cannot(every
     finally:
         result.summary.clear()
         result.summary.update(saved)
+
+
+@pytest.mark.slow  # ~25 s: a diagnosis with two thorough refits (7 starts, widening)
+def test_a_candidate_stalled_at_its_range_edge_in_the_quick_refit_is_added_at_step_1():
+    """Cross-coupled stiffness k_xy = 500 N/m hidden, 2.5 times its candidate's range edge (+-200; at 560 N/m the
+    truth's own steady state is unstable at 850 RPM, so 2.5 is as far as these runs allow). The score test ranks it
+    first, but its quick refit (no widening) stops at the edge, behind a partial stand-in's quick refit; with
+    ``thorough: 1`` (the many-candidates case: the stand-ins fill the thorough slots) it used never to be refitted
+    thoroughly and step 1 added the stand-in. Now it is promoted to the thorough refits, widens, and is step 1's
+    effect, with the truth in its interval."""
+    base = _base_fit(_data(["cross_coupled_stiffness"], TRUTH | {"k_xy": 500.0}, seed=11))
+    candidates = _candidates(["cross_coupled_stiffness", "upper_bearing_anisotropy", "cross_coupled_damping",
+                              "speed_damping"])
+    o = dg.DEFAULTS | {"thorough": 1, "max_effects": 1}
+    scores = st.score_tests(base, candidates)
+    chosen, quick = dg._quick_refits(base, scores, o, o["alpha"] / len(candidates))
+    # the premise: ranked first by the score test, stalled at the edge, behind a stand-in by the quick refits
+    assert sorted(chosen, key=st.by_score)[0].candidate.name == "cross_coupled_stiffness"
+    assert quick["cross_coupled_stiffness"].at_limit == ["k_xy"]  # at 200, its physical limit 2000 far
+    stand_in = min(quick.values(), key=lambda cf: cf.delta_bic)
+    assert stand_in.candidate.name != "cross_coupled_stiffness"
+    result = dg.diagnose(base, candidates, o)
+    assert [step.effect for step in result.path] == ["cross_coupled_stiffness"]
+    final = result.path[0].confirmation
+    assert final.chi2 / final.dof < 1 + 3 * np.sqrt(2 / final.dof)  # at the noise floor (3 sigma of chi^2(dof))
+    row = final.estimates.set_index("parameter").loc["k_xy"]
+    assert final.ranges["k_xy"][1] > 500.0 and row["ci_low"] < 500.0 < row["ci_high"]
+    assert result.conclusion.startswith("add cross_coupled_stiffness")

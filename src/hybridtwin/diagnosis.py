@@ -179,7 +179,8 @@ def _refit_significant(base: BaseFit, scores: Scores, o: Mapping, alpha_each: fl
     any whose predicted drop is within ``confounded_bic`` of the best's (maybe confounded).
 
     Two passes: a quick refit of each (from beta = 0 and the linear estimate, ``quick_iterations``, ranges as
-    given) ranks them by Delta BIC; the ``thorough`` best, and any within ``confounded_bic`` of the best, are
+    given) ranks them by Delta BIC; the ``thorough`` best, any within ``confounded_bic`` of the best, and any
+    of the ``thorough`` best by score whose quick refit stopped at a range edge it could widen, are
     refitted again (only those within ``confounded_bic`` when the best quick refit fits to the noise already)
     from every start (``starts`` across the range) with range widening (``widen``) and, until one
     of them fits to the noise, the far side (``refit.confirm``'s profile: for a refit that needed a wider range,
@@ -193,6 +194,13 @@ def _refit_significant(base: BaseFit, scores: Scores, o: Mapping, alpha_each: fl
     settled = bool(ranked) and _fits_the_noise(quick[ranked[0].candidate.name], o)
     deep = {s.candidate.name for i, s in enumerate(ranked) if (i < int(o["thorough"]) and not settled)
             or quick[s.candidate.name].delta_bic - best_bic < o["confounded_bic"]}
+    # a candidate the score test ranks among the ``thorough`` best whose quick refit stopped at a range edge (its
+    # truth may lie beyond the range, which a quick refit does not widen) is refitted thoroughly too: ranked by
+    # its quick refit alone it fell behind a stand-in (k_xy = 600 N/m against a range of +-200: quick chi^2 1.5e5,
+    # upper_bearing_anisotropy's 3.4e4; its thorough refit, widened, fits to the noise)
+    if not settled:
+        deep |= {s.candidate.name for s in sorted(chosen, key=by_score)[: int(o["thorough"])]
+                 if quick[s.candidate.name].widenable}
     confirmations, fitted = {}, False
     for s in ranked:
         name = s.candidate.name
