@@ -49,6 +49,7 @@ import pandas as pd
 from scipy import stats
 
 from .candidates import Candidate
+from .diagnosis_status import NEARLY_EXPLAINED, Status, negligible_step, opening, plain, share_text
 from .fingerprint import Fingerprint, fingerprint
 from .refit import Confirmation, confirm, shared, without
 from .score_test import BaseFit, Scores, by_score, extend, nested, score_tests
@@ -63,28 +64,6 @@ Array = np.ndarray
 MIN_DOF = 10
 #: ... nor fewer fit runs than this, nor fit runs whose speeds span no more than this fraction of the fastest
 MIN_FIT_RUNS, SPEED_SPREAD = 3, 0.05
-
-def plain(value, where: str = "summary"):
-    """``value`` as plain Python types (dict with str keys, list, str, int, float, bool, None), what
-    ``yaml.safe_dump`` and the diagnosis's other outputs take: numpy scalars become int, float or bool, arrays and
-    tuples lists. Anything else is refused, naming where it sits (``where``: its key path), never written as a
-    tagged object or a crash at the writer's end (a numpy float in the backward elimination's figures did that)."""
-    if value is None or type(value) in (str, int, float, bool):
-        return value
-    if isinstance(value, Mapping):
-        return {str(k): plain(v, f"{where}.{k}") for k, v in value.items()}
-    if isinstance(value, (list, tuple, np.ndarray)):
-        return [plain(v, f"{where}[{i}]") for i, v in enumerate(value)]
-    if isinstance(value, (np.bool_, bool)):
-        return bool(value)
-    if isinstance(value, (np.integer, int)):
-        return int(value)
-    if isinstance(value, (np.floating, float)):
-        return float(value)
-    if isinstance(value, str):  # a str subclass (np.str_)
-        return str(value)
-    raise TypeError(f"{where} is a {type(value).__name__} ({value!r}), not a plain number, text or list")
-
 
 DEFAULTS: dict = {
     "candidates": None,  # names to test (built in or from effects_files); None: every built-in candidate
@@ -118,6 +97,7 @@ class Diagnosis:
     best: Confirmation | None = None  # the first step's best confirmed effect
     path: list = field(default_factory=list)  # forward selection, a Step per effect added
     fingerprint: Fingerprint | None = None  # of the residual left at the end of the path (or of the base)
+    status: Status | None = None  # the overall outcome, a code (``summary["status"]``): act on it, not on the text
 
     def estimates(self) -> pd.DataFrame:
         """The path's effects' parameters (``Identification.table`` rows, with ``effect``) at the path's final
@@ -294,7 +274,19 @@ def diagnose(base: BaseFit, candidates: Sequence[Candidate], options: Mapping | 
         refits = _refit_significant(current, step_scores, o, step_alpha, log, (chosen, quick))
         confirmed = [cf for cf in refits.values() if _is_confirmed(cf, o, step_alpha)]
         before = best.chi2 / best.dof
-        best = min(confirmed, key=lambda cf: cf.delta_bic) if confirmed else None
+        previous, best = best, min(confirmed, key=lambda cf: cf.delta_bic) if confirmed else None
+        negligible = best and negligible_step(best, previous.chi2, excess)
+        if negligible:  # a step too small to matter is not taken to absorb a misfit the candidates do not capture
+            first.summary["negligible_step"] = plain(negligible, "summary.negligible_step")
+            rows = first.table.index[first.table["effect"] == best.candidate.name]
+            first.table.loc[rows, "verdict"] = (
+                f"not added at step {len(path) + 1}: negligible (its estimate "
+                f"{100 * negligible['estimate_fraction_of_range']:.2g} % of its range, its chi^2 drop "
+                f"{negligible['share_of_excess']:.2g} of the excess chi^2)")
+            if log:
+                log.info("forward selection stops before step %d: %s is negligible (%s)", len(path) + 1,
+                         best.candidate.name, negligible)
+            best = None
         if log:
             log.info("forward selection, step %d at %s: %s", len(path) + 1, current.variant.name,
                      "nothing significant left" if best is None else f"best {best.candidate.name}")
@@ -310,7 +302,7 @@ def _finish(result: Diagnosis, base: BaseFit, scores: Scores, path: list[Step], 
     _conclude_path(result, base, scores, o)
     result.fingerprint = residual_fingerprint(base, path[-1].confirmation.fit.fun if path else scores.residual)
     result.summary["fingerprint"] = result.fingerprint.summary()
-    if result.conclusion.startswith("unexplained"):
+    if result.status in (Status.UNEXPLAINED, Status.ADD_NEARLY):
         result.conclusion += f". What the residual looks like: {result.fingerprint.summary()}"
         result.summary["conclusion"] = result.conclusion
     return result
@@ -505,24 +497,26 @@ def _conclude(base: BaseFit, scores: Scores, confirmations: Mapping[str, Confirm
         verdicts.setdefault(s.candidate.name, "significant, not refitted (ranked below the refitted ones)"
                             if s.p_value < alpha_each else "not significant")
     table = _table(scores, confirmations, verdicts, confirmed)
-    conclusion, recommendation = _recommend(base, scores, best, confounded, share, misfit, base_ratio, o)
+    status, conclusion, recommendation = _recommend(base, scores, best, confounded, share, misfit, base_ratio, o)
     summary = plain({"variant": base.variant.name, "runs": list(base.layout.runs), "n_data": scores.n_data,
                "base_chi2": scores.base_chi2, "base_dof": scores.base_dof, "base_chi2_dof": base_ratio,
                "base_gof_p_value": float(stats.chi2.sf(scores.base_chi2, scores.base_dof)),
                "misfit": bool(misfit), "alpha_per_candidate": alpha_each,
                "candidates": [s.candidate.name for s in scores.scores], "refitted": list(confirmations),
-               "conclusion": conclusion, "score_seconds": scores.seconds,
+               "status": status.value, "conclusion": conclusion, "score_seconds": scores.seconds,
                "recommended_variant": None if best is None else {
                    "name": _variant_name([base.variant.name, best.candidate.name]),
                    "spec": variant_spec(base.variant, best.candidate, best.ranges)},
                "refit_seconds": float(sum(cf.seconds for cf in confirmations.values())),
                "confounded": list(confounded)})
-    return Diagnosis(table, conclusion, recommendation, summary, dict(confirmations), best)
+    return Diagnosis(table, conclusion, recommendation, summary, dict(confirmations), best, status=status)
 
 
 def _conclude_path(result: Diagnosis, base: BaseFit, scores: Scores, o: Mapping) -> None:
     """The conclusion, verdict of the first effect and recommendation from the forward-selection path: "add"
-    only for effects that together explain the discrepancy; otherwise "unexplained", the path as evidence."""
+    for effects that together explain the discrepancy, or that carry nearly all of it (NEARLY_EXPLAINED of the
+    excess chi^2: the small misfit left is reported as a form the candidates do not quite capture, with its
+    fingerprint); otherwise "unexplained", the path as evidence."""
     path = result.path
     result.summary["path"] = plain([dict(step.row(), step=i + 1, ranges=step.confirmation.ranges)
                                     for i, step in enumerate(path)], "summary.path")
@@ -532,6 +526,7 @@ def _conclude_path(result: Diagnosis, base: BaseFit, scores: Scores, o: Mapping)
     # "add" only for effects that bring the fit to the noise: a large share of a huge excess can leave a misfit
     # many times the noise (an effect outside the candidates, half-mimicked by several of them)
     explains = _fits_the_noise(final, o)
+    nearly = not explains and share >= NEARLY_EXPLAINED
     names = [step.effect for step in path]
     first = result.table.index[result.table["effect"] == names[0]][0]
     base_ratio = scores.base_chi2 / scores.base_dof
@@ -545,20 +540,33 @@ def _conclude_path(result: Diagnosis, base: BaseFit, scores: Scores, o: Mapping)
         return  # _conclude's verdict and recommendation stand
     dropped = (f"; {', '.join(eliminated)} dropped by backward elimination (not needed once "
                f"{' and '.join(names)} {'is' if len(names) == 1 else 'are'} in)") if eliminated else ""
-    if explains:
+    if explains or nearly:
         together, steps = " and ".join(names), len(path) + len(eliminated)
         confounded = result.summary.get("confounded") or []
-        if len(path) == 1 and confounded and not eliminated:  # the first step's tie stands (the sharing check only)
-            head = (f"add {together} or {', '.join(confounded)}: these data cannot tell them apart; {together} "
+        if nearly:
+            result.status = Status.ADD_NEARLY
+            head = opening(result.status, effects=together, they="it" if len(names) == 1 else "together they",
+                           share=share_text(share), after=f"{final.chi2 / final.dof:.3g}")
+            result.table.loc[first, "verdict"] = (
+                f"add{', with ' + ', '.join(names[1:]) if len(names) > 1 else ''}: carries the discrepancy "
+                f"({share_text(share)} of the excess chi^2); a small misfit remains")
+        elif len(path) == 1 and confounded and not eliminated:  # the first step's tie stands (the sharing check only)
+            result.status = Status.ADD_CONFOUNDED
+            head = (f"{opening(result.status, effects=together)} or {', '.join(confounded)}: these data cannot "
+                    f"tell them apart; {together} "
                     "explains the discrepancy")
         elif len(path) == 1:
+            result.status = Status.ADD
             result.table.loc[first, "verdict"] = "add: explains the discrepancy"
-            head = f"add {together}: it explains the discrepancy"
+            head = f"{opening(result.status, effects=together)}: it explains the discrepancy"
         else:
+            result.status = Status.ADD
             result.table.loc[first, "verdict"] = (f"add, with {', '.join(names[1:])}: together they explain the "
                                                   f"discrepancy ({100 * share:.0f} % of the excess chi^2)")
-            head = f"add {together}: together they explain the discrepancy"
-        result.conclusion = (f"{head} ({100 * share:.0f} % of the excess chi^2); chi^2/dof {base_ratio:.3g} -> "
+            head = f"{opening(result.status, effects=together)}: together they explain the discrepancy"
+        if not nearly:
+            head += f" ({100 * share:.0f} % of the excess chi^2)"
+        result.conclusion = (f"{head}; chi^2/dof {base_ratio:.3g} -> "
                              f"{final.chi2 / final.dof:.3g} (forward selection, {steps} step{'s' if steps != 1 else ''}"
                              f"{dropped}{sharing}); {estimates}")
         candidates = [step.confirmation.candidate for step in path]
@@ -570,18 +578,20 @@ def _conclude_path(result: Diagnosis, base: BaseFit, scores: Scores, o: Mapping)
                                  f"\n\n{variant_lines(name, spec)}\n")
         result.summary["recommended_variant"] = {"name": name, "spec": spec}
     else:
+        result.status = Status.UNEXPLAINED
         left = result.summary.get("path_stopped") or "nothing significant is left among the others"
         result.table.loc[first, "verdict"] = (f"explains only {100 * path[0].share:.0f} % of the excess chi^2: "
                                               "part of an unexplained discrepancy")
         helps = (f"the candidate that helps most, {names[0]}, removes" if len(names) == 1 else
                  f"the candidates that help most, {', then '.join(names)}, remove")
         leave = "leaves" if len(names) == 1 else "leave"
-        result.conclusion = (f"unexplained discrepancy: {helps} {100 * share:.0f} % of the excess chi^2 but {leave} "
+        result.conclusion = (f"{opening(result.status)}: {helps} {100 * share:.0f} % of the excess chi^2 but {leave} "
                              f"chi^2/dof {final.chi2 / final.dof:.3g} (from {base_ratio:.3g}; the noise gives about "
                              f"1), and {left}: the missing physics is not among the candidates (evidence: "
                              f"{estimates})")
         result.recommendation = ""
         result.summary["recommended_variant"] = None
+    result.summary["status"] = result.status.value
     result.summary["conclusion"] = result.conclusion
 
 
@@ -703,36 +713,45 @@ def variant_lines(name: str, spec: Mapping) -> str:
 
 
 def _recommend(base: BaseFit, scores: Scores, best: Confirmation | None, confounded: Sequence[str],
-               share: float, misfit: bool, base_ratio: float, o: Mapping) -> tuple[str, str]:
+               share: float, misfit: bool, base_ratio: float, o: Mapping) -> tuple[Status, str, str]:
+    """The first step's outcome (a Status), its conclusion (opening from the status) and recommendation."""
     variant = base.variant
     if best is None:
         weak = _thin_plan(base, scores)
         if weak and base.undetermined:
             weak.append(f"the fit leaves {', '.join(base.undetermined)}")
         if not misfit and weak:
-            return ("no missing effect found, but these fit runs cannot rule one out: "
+            return Status.CANNOT_RULE_OUT, (f"{opening(Status.CANNOT_RULE_OUT)}: "
                     f"{'; '.join(weak)}, where an effect can hide (chi^2/dof {base_ratio:.3g}, no candidate "
                     "significant); fit runs at more speeds and unbalance masses decide, and the validation runs "
                     "tell whether the model predicts (results/ledger.tsv)"), ""
         if not misfit:
-            return ("no missing effect: the model fits the data to within the noise "
+            return Status.NO_MISSING_EFFECT, (f"{opening(Status.NO_MISSING_EFFECT)}: the model fits the data to "
+                    "within the noise "
                     f"(chi^2/dof {base_ratio:.3g}) and no candidate is significant"), ""
         top = max(scores.scores, key=lambda s: s.statistic)
-        return (f"unexplained discrepancy: chi^2/dof {base_ratio:.3g} is well above the noise floor (1), and no "
+        return Status.UNEXPLAINED, (f"{opening(Status.UNEXPLAINED)}: chi^2/dof {base_ratio:.3g} is well above the "
+                "noise floor (1), and no "
                 f"candidate is confirmed (the best, {top.candidate.name}, would remove "
                 f"{100 * top.statistic / _excess(scores):.0f} % of the excess chi^2 to first order); the missing "
                 "physics is not among the candidates: look at the residual spectrum and the error map, and add "
                 "your own candidate effects"), ""
     name = best.candidate.name
     if confounded:
-        head = (f"add {name} or {', '.join(confounded)}: these data cannot tell them apart (measure where their "
+        status = Status.ADD_CONFOUNDED
+        head = (f"{opening(status, effects=name)} or {', '.join(confounded)}: these data cannot tell them apart "
+                "(measure where their "
                 "responses differ, e.g. more speeds or unbalance masses, to decide)")
     elif share >= o["explained"]:
-        head = f"add {name}: it explains the discrepancy ({100 * share:.0f} % of the excess chi^2)"
+        status = Status.ADD
+        head = f"{opening(status, effects=name)}: it explains the discrepancy ({100 * share:.0f} % of the excess chi^2)"
     elif share >= 0.5:
-        head = f"add {name}: it explains {100 * share:.0f} % of the excess chi^2; a discrepancy remains"
+        status = Status.ADD_PART
+        head = (f"{opening(status, effects=name)}: it explains {100 * share:.0f} % of the excess chi^2; a "
+                "discrepancy remains")
     else:
-        head = (f"unexplained discrepancy: the best confirmed candidate, {name}, explains only "
+        status = Status.UNEXPLAINED
+        head = (f"{opening(status)}: the best confirmed candidate, {name}, explains only "
                 f"{100 * share:.0f} % of the excess chi^2")
     conclusion = (f"{head}; chi^2/dof {base_ratio:.3g} -> {best.chi2 / best.dof:.3g} with it, "
                   f"Delta BIC {best.delta_bic:.1f}; {_estimate_text(best)}")
@@ -740,7 +759,7 @@ def _recommend(base: BaseFit, scores: Scores, best: Confirmation | None, confoun
     recommendation = (f"Add this variant under `variants:` in config/config.yaml, then run `snakemake --cores 2` "
                       f"(only the new variant is built) and compare in results/ledger.tsv:\n\n"
                       f"{variant_lines(new_name, variant_spec(variant, best.candidate, best.ranges))}\n")
-    return conclusion, recommendation
+    return status, conclusion, recommendation
 
 
 def _thin_plan(base: BaseFit, scores: Scores) -> list[str]:

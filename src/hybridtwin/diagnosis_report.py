@@ -12,6 +12,7 @@ import yaml
 from scipy import stats
 
 from .diagnosis import Diagnosis, plain
+from .diagnosis_status import Status
 from .variants import Variant
 
 
@@ -84,7 +85,7 @@ def markdown(result: Diagnosis, sparse: pd.DataFrame | None = None, sparse_name:
             f"(goodness-of-fit p = {s['base_gof_p_value']:.3g}); {len(s['candidates'])} candidates tested, "
             f"{len(s['refitted'])} refitted.\n\n**{result.conclusion}**\n{recommendation}{path}\n"
             + (f"## What the residual looks like\n\n{result.fingerprint.summary()}\n\n"
-               if result.fingerprint and "What the residual looks like" not in result.conclusion else "")
+               if result.fingerprint and result.status not in (Status.UNEXPLAINED, Status.ADD_NEARLY) else "")
             + "## Candidates\n\n" + "\n".join(rows) + "\n"
             + ("" if sparse is None else _sparse_markdown(sparse, sparse_name)))
 
