@@ -786,6 +786,10 @@ def test_effects_that_carry_nearly_all_the_excess_are_added_and_the_small_misfit
     assert {"excitation_2x", "expansion_k4"} <= set(spec["effects"])
     Variant.from_spec(result.summary["recommended_variant"]["name"], spec)  # a valid config entry
     assert result.table.set_index("effect").loc["excitation_2x", "verdict"].startswith("add")
+    # the misfit left makes the intervals optimistic: the summary and the report say so
+    intervals = result.summary["intervals"]
+    assert intervals["optimistic"] and intervals["scaled_by"] == pytest.approx(np.sqrt(final.chi2 / final.dof))
+    assert "The intervals may be optimistic" in dgr.markdown(result)
 
 
 @pytest.mark.slow  # ~15 s CPU: a diagnosis of two hidden effects
@@ -808,3 +812,28 @@ def test_the_forward_selection_does_not_take_a_negligible_step(monkeypatch):
     verdict = result.table.set_index("effect").loc[refused["effect"], "verdict"]
     assert verdict.startswith("not added at step 2: negligible")
     assert result.status is ds.Status.UNEXPLAINED  # step 1 alone leaves a misfit it cannot call small
+
+
+def test_intervals_grow_with_the_misfit_and_the_report_says_when_they_may_be_optimistic():
+    """uncertainty.analyse_uncertainty scales the covariance by chi^2/dof when that exceeds 1 (never below 1):
+    on a linear problem the standard errors are sqrt(diag((J^T J)^-1)) (the independent reference, to rounding)
+    times sqrt(max(1, chi^2/dof)). diagnosis_status.interval_note flags a significant chi^2 (at alpha) as a misfit
+    that can make them optimistic, and the report's paragraph appears only then."""
+    from types import SimpleNamespace
+
+    from hybridtwin.diagnosis_status import interval_note
+
+    rng = np.random.default_rng(3)
+    J = rng.standard_normal((40, 2))
+    layout = SimpleNamespace(n=2, entries=lambda: [("a", "all"), ("b", "all")], is_phase=np.zeros(2, bool),
+                             scale=lambda: np.ones(2), bounds=lambda: (np.full(2, -1.0), np.full(2, 1.0)))
+    reference = np.sqrt(np.diag(np.linalg.inv(J.T @ J)))
+    for chi2_dof in (0.5, 1.0, 4.0):
+        r = rng.standard_normal(40)
+        r *= np.sqrt(chi2_dof * 38 / (r @ r))  # chi^2 / (40 - 2) = chi2_dof
+        u = unc.analyse_uncertainty(J, r, np.zeros(2), layout)
+        np.testing.assert_allclose(u.stderr, reference * np.sqrt(max(1.0, chi2_dof)), rtol=1e-9)
+    misfit, noise = interval_note(300.0, 40, 0.01), interval_note(45.0, 40, 0.01)
+    assert misfit["optimistic"] and misfit["scaled_by"] == pytest.approx(np.sqrt(7.5))
+    assert not noise["optimistic"] and noise["scaled_by"] == pytest.approx(np.sqrt(45 / 40))
+    assert "may be optimistic" in dgr._intervals_markdown(misfit) and dgr._intervals_markdown(noise) == ""

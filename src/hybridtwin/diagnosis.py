@@ -49,7 +49,8 @@ import pandas as pd
 from scipy import stats
 
 from .candidates import Candidate
-from .diagnosis_status import NEARLY_EXPLAINED, Status, negligible_step, opening, plain, share_text
+from .diagnosis_status import (NEARLY_EXPLAINED, Status, interval_note, negligible_step, opening, plain,
+                               share_text)
 from .fingerprint import Fingerprint, fingerprint
 from .refit import Confirmation, confirm, shared, without
 from .score_test import BaseFit, Scores, by_score, extend, nested, score_tests
@@ -300,6 +301,9 @@ def _finish(result: Diagnosis, base: BaseFit, scores: Scores, path: list[Step], 
     path = _sharing(base, path, scores, o, result, log)
     result.path = path
     _conclude_path(result, base, scores, o)
+    if path:  # how far the estimates' intervals can be trusted with the misfit the path leaves
+        final = path[-1].confirmation
+        result.summary["intervals"] = interval_note(final.chi2, final.dof, o["alpha"])
     result.fingerprint = residual_fingerprint(base, path[-1].confirmation.fit.fun if path else scores.residual)
     result.summary["fingerprint"] = result.fingerprint.summary()
     if result.status in (Status.UNEXPLAINED, Status.ADD_NEARLY):

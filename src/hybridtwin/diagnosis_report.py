@@ -78,7 +78,7 @@ def markdown(result: Diagnosis, sparse: pd.DataFrame | None = None, sparse_name:
                   f"{r.explained_pct:.0f} % | {r.estimate} |" for r in result.path_table().itertuples()]
         path = ("\n## Forward selection\n\nEach step adds the best confirmed effect, then scores and refits the "
                 "others at the extended fit; it stops when nothing significant is left.\n\n" + "\n".join(steps)
-                + "\n" + _sharing_markdown(s.get("sharing")))
+                + "\n" + _sharing_markdown(s.get("sharing")) + _intervals_markdown(s.get("intervals")))
     return (f"# Diagnosis of variant {s['variant']}\n\n"
             f"{len(s['runs'])} fit run{'' if len(s['runs']) == 1 else 's'}, {s['n_data']} data; chi^2/dof "
             f"{s['base_chi2_dof']:.3g} "
@@ -88,6 +88,18 @@ def markdown(result: Diagnosis, sparse: pd.DataFrame | None = None, sparse_name:
                if result.fingerprint and result.status not in (Status.UNEXPLAINED, Status.ADD_NEARLY) else "")
             + "## Candidates\n\n" + "\n".join(rows) + "\n"
             + ("" if sparse is None else _sparse_markdown(sparse, sparse_name)))
+
+
+def _intervals_markdown(intervals: dict | None) -> str:
+    """A warning when a misfit remains at the path's end (``diagnosis_status.interval_note``): the intervals are
+    scaled by sqrt(chi^2/dof) but a misfit of form also biases the estimates: they may be optimistic."""
+    if not intervals or not intervals["optimistic"]:
+        return ""
+    return (f"\n**The intervals may be optimistic**: the final fit leaves chi^2/dof {intervals['chi2_dof']:.3g}, a "
+            f"misfit beyond the noise. The 95 % intervals are widened by sqrt(chi^2/dof) = "
+            f"{intervals['scaled_by']:.3g}, which covers residuals larger than the stated noise but not always the "
+            "bias of a model whose form differs slightly from the data's: the truth can lie outside them "
+            "(benchmarks/README.md).\n")
 
 
 def _sharing_markdown(sharing: dict | None) -> str:
