@@ -60,6 +60,7 @@ from hybridtwin.identify import lm
 from hybridtwin.identify import polish as pol
 from hybridtwin.diagnose import score_test as st
 from hybridtwin.model.candidates import candidates_for
+from hybridtwin.diagnose.diagnosis_status import Status
 from hybridtwin.model.effects import Parameter, PolynomialBearing, Term
 from hybridtwin.data.measurements import read_runs
 from hybridtwin.data.preprocessing import preprocess_run
@@ -142,6 +143,12 @@ def base_fit(data: list, config: dict, trials: int, seed: int, harmonics: int) -
     return st.BaseFit(variant, fit.layout, fit.theta, fit.data, harmonics), fit
 
 
+#: the diagnosis's outcome codes each expected conclusion accepts
+OUTCOMES = {"no missing effect": {Status.NO_MISSING_EFFECT, Status.CANNOT_RULE_OUT},
+            "unexplained": {Status.UNEXPLAINED},
+            "add": {Status.ADD, Status.ADD_CONFOUNDED, Status.ADD_PART, Status.ADD_NEARLY}}
+
+
 def judge(case: str, result: dg.Diagnosis) -> tuple[str, bool]:
     """(top-1, correct) per the module docstring."""
     effects, _, expected = CASES[case]
@@ -151,10 +158,10 @@ def judge(case: str, result: dg.Diagnosis) -> tuple[str, bool]:
         # the base fits these data to the noise: the hidden effect is invisible at this strength (absorbed by the
         # base's own parameters or below the noise), and no method could name it; the right answer is then
         # "no missing effect" (a claim of more would be a false alarm), and the row is marked invisible
-        return top, result.conclusion.startswith("no missing effect")
+        return top, result.status in OUTCOMES["no missing effect"]
     if isinstance(expected, str):
-        return top, result.conclusion.startswith(expected)
-    adds = result.conclusion.startswith("add")
+        return top, result.status in OUTCOMES[expected]
+    adds = result.status in OUTCOMES["add"]
     if len(effects) > 1:
         return top, adds and all(any(name in path for name in group) for group in expected)
     return top, adds and top in expected
@@ -231,7 +238,8 @@ def main() -> int:
         top, correct = judge(case, result)
         after = result.path[-1].chi2_dof_after if result.path else result.summary["base_chi2_dof"]
         rows.append({"case": case, "top1": top, "correct": correct, "visible": bool(result.summary["misfit"]),
-                     "verdict": result.conclusion.split(":")[0], "chi2_dof_before": result.summary["base_chi2_dof"],
+                     "verdict": result.conclusion.split(":")[0], "status": result.status.value,
+                     "chi2_dof_before": result.summary["base_chi2_dof"],
                      "chi2_dof_after": after, "path": " + ".join(s.effect for s in result.path),
                      "estimate_vs_truth": estimates(case, result), "rig_s": rig_s, "fit_s": fit_s,
                      "diagnose_s": diagnose_s, "diagnose_cpu_s": diagnose_cpu_s, "refits": len(result.summary["refitted"]),

@@ -2,7 +2,6 @@
 the rule's input, params and output."""
 
 import pandas as pd
-import yaml
 
 from hybridtwin import config as cfg
 from hybridtwin.diagnose import diagnosis as dg
@@ -27,18 +26,14 @@ candidates = candidates_for([e.name for e in variant.model.effects], cfg.candida
 log.info("diagnosing %s on %d fit runs: %d candidates (%s)", variant.name, len(data), len(candidates),
          ", ".join(c.name for c in candidates))
 result = dg.diagnose(base, candidates, options, log)
-result.table.to_csv(smk.output.table, sep="\t", index=False, float_format="%.6g")
 sparse, sparse_name = None, options["sparse_variant"]
 if "sparse" in smk.input.keys():
     sparse = dgr.sparse_route(pd.read_csv(smk.input.sparse, sep="\t", dtype={"run": str}),
                              cfg.variant(model, sparse_name))
     result.summary["sparse_route"] = {"variant": sparse_name,
                                       "active": sparse.loc[sparse["active"], "parameter"].tolist()}
-with open(smk.output.recommendation, "w") as stream:
-    stream.write(dgr.markdown(result, sparse, sparse_name))
+dgr.write(result, smk.output.table, smk.output.recommendation, smk.output.summary, sparse, sparse_name)
 result.fingerprint.table().to_csv(smk.output.fingerprint, sep="\t", index=False, float_format="%.9g")
 dg.refits_table(result).to_csv(smk.output.refits, sep="\t", index=False, float_format="%.12g")
-with open(smk.output.summary, "w") as stream:
-    yaml.safe_dump(result.summary, stream, sort_keys=False)
 dgr.plot(result).savefig(smk.output.plot, dpi=120)
 log.info("%s", result.conclusion)

@@ -49,6 +49,8 @@ import pandas as pd
 from scipy import stats
 
 from ..model.candidates import Candidate
+from .diagnosis_status import (NEARLY_EXPLAINED, Status, interval_note, negligible_step, opening, plain,
+                               share_text)
 from .fingerprint import Fingerprint, fingerprint
 from .refit import Confirmation, confirm, shared, without
 from .score_test import BaseFit, Scores, by_score, extend, nested, score_tests
@@ -96,6 +98,7 @@ class Diagnosis:
     best: Confirmation | None = None  # the first step's best confirmed effect
     path: list = field(default_factory=list)  # forward selection, a Step per effect added
     fingerprint: Fingerprint | None = None  # of the residual left at the end of the path (or of the base)
+    status: Status | None = None  # the overall outcome, a code (``summary["status"]``): act on it, not on the text
 
     def estimates(self) -> pd.DataFrame:
         """The path's effects' parameters (``Identification.table`` rows, with ``effect``) at the path's final
@@ -128,9 +131,9 @@ class Step:
     confirmation: Confirmation
 
     def row(self) -> dict:
-        return {"step": None, "effect": self.effect, "chi2_dof_before": self.chi2_dof_before,
-                "chi2_dof_after": self.chi2_dof_after, "delta_bic": self.delta_bic,
-                "explained_pct": 100 * self.share, "estimate": _estimate_text(self.confirmation)}
+        return {"step": None, "effect": self.effect, "chi2_dof_before": float(self.chi2_dof_before),
+                "chi2_dof_after": float(self.chi2_dof_after), "delta_bic": float(self.delta_bic),
+                "explained_pct": float(100 * self.share), "estimate": _estimate_text(self.confirmation)}
 
 
 def _quick_refits(base: BaseFit, scores: Scores, o: Mapping, alpha_each: float) -> tuple[list, dict]:
@@ -157,7 +160,8 @@ def _refit_significant(base: BaseFit, scores: Scores, o: Mapping, alpha_each: fl
     any whose predicted drop is within ``confounded_bic`` of the best's (maybe confounded).
 
     Two passes: a quick refit of each (from beta = 0 and the linear estimate, ``quick_iterations``, ranges as
-    given) ranks them by Delta BIC; the ``thorough`` best, and any within ``confounded_bic`` of the best, are
+    given) ranks them by Delta BIC; the ``thorough`` best, any within ``confounded_bic`` of the best, and any
+    of the ``thorough`` best by score whose quick refit stopped at a range edge it could widen, are
     refitted again (only those within ``confounded_bic`` when the best quick refit fits to the noise already)
     from every start (``starts`` across the range) with range widening (``widen``) and, until one
     of them fits to the noise, the far side (``refit.confirm``'s profile: for a refit that needed a wider range,
@@ -171,6 +175,13 @@ def _refit_significant(base: BaseFit, scores: Scores, o: Mapping, alpha_each: fl
     settled = bool(ranked) and _fits_the_noise(quick[ranked[0].candidate.name], o)
     deep = {s.candidate.name for i, s in enumerate(ranked) if (i < int(o["thorough"]) and not settled)
             or quick[s.candidate.name].delta_bic - best_bic < o["confounded_bic"]}
+    # a candidate the score test ranks among the ``thorough`` best whose quick refit stopped at a range edge (its
+    # truth may lie beyond the range, which a quick refit does not widen) is refitted thoroughly too: ranked by
+    # its quick refit alone it fell behind a stand-in (k_xy = 600 N/m against a range of +-200: quick chi^2 1.5e5,
+    # upper_bearing_anisotropy's 3.4e4; its thorough refit, widened, fits to the noise)
+    if not settled:
+        deep |= {s.candidate.name for s in sorted(chosen, key=by_score)[: int(o["thorough"])]
+                 if quick[s.candidate.name].widenable}
     confirmations, fitted = {}, False
     for s in ranked:
         name = s.candidate.name
@@ -264,20 +275,41 @@ def diagnose(base: BaseFit, candidates: Sequence[Candidate], options: Mapping | 
         refits = _refit_significant(current, step_scores, o, step_alpha, log, (chosen, quick))
         confirmed = [cf for cf in refits.values() if _is_confirmed(cf, o, step_alpha)]
         before = best.chi2 / best.dof
-        best = min(confirmed, key=lambda cf: cf.delta_bic) if confirmed else None
+        previous, best = best, min(confirmed, key=lambda cf: cf.delta_bic) if confirmed else None
+        negligible = best and negligible_step(best, previous.chi2, excess)
+        if negligible:  # a step too small to matter is not taken to absorb a misfit the candidates do not capture
+            first.summary["negligible_step"] = plain(negligible, "summary.negligible_step")
+            rows = first.table.index[first.table["effect"] == best.candidate.name]
+            first.table.loc[rows, "verdict"] = (
+                f"not added at step {len(path) + 1}: negligible (its estimate "
+                f"{100 * negligible['estimate_fraction_of_range']:.2g} % of its range, its chi^2 drop "
+                f"{negligible['share_of_excess']:.2g} of the excess chi^2)")
+            if log:
+                log.info("forward selection stops before step %d: %s is negligible (%s)", len(path) + 1,
+                         best.candidate.name, negligible)
+            best = None
         if log:
             log.info("forward selection, step %d at %s: %s", len(path) + 1, current.variant.name,
                      "nothing significant left" if best is None else f"best {best.candidate.name}")
-    path = _backward(base, path, scores, o, first, log)
-    path = _sharing(base, path, scores, o, first, log)
-    first.path = path
-    _conclude_path(first, base, scores, o)
-    first.fingerprint = residual_fingerprint(base, path[-1].confirmation.fit.fun if path else scores.residual)
-    first.summary["fingerprint"] = first.fingerprint.summary()
-    if first.conclusion.startswith("unexplained"):
-        first.conclusion += f". What the residual looks like: {first.fingerprint.summary()}"
-        first.summary["conclusion"] = first.conclusion
-    return first
+    return _finish(first, base, scores, path, o, log)
+
+
+def _finish(result: Diagnosis, base: BaseFit, scores: Scores, path: list[Step], o: Mapping, log=None) -> Diagnosis:
+    """After the forward selection's ``path``: backward elimination, the sharing check, the conclusion from the
+    path and the residual's fingerprint."""
+    path = _backward(base, path, scores, o, result, log)
+    path = _sharing(base, path, scores, o, result, log)
+    result.path = path
+    _conclude_path(result, base, scores, o)
+    if path:  # how far the estimates' intervals can be trusted with the misfit the path leaves
+        final = path[-1].confirmation
+        result.summary["intervals"] = interval_note(final.chi2, final.dof, o["alpha"])
+    result.fingerprint = residual_fingerprint(base, path[-1].confirmation.fit.fun if path else scores.residual)
+    result.summary["fingerprint"] = result.fingerprint.summary()
+    if result.status in (Status.UNEXPLAINED, Status.ADD_NEARLY):
+        result.conclusion += f". What the residual looks like: {result.fingerprint.summary()}"
+        result.summary["conclusion"] = result.conclusion
+    return result
 
 
 def _backward(base: BaseFit, path: list[Step], scores: Scores, o: Mapping, result: Diagnosis, log=None
@@ -314,7 +346,8 @@ def _backward(base: BaseFit, path: list[Step], scores: Scores, o: Mapping, resul
         dropped = path[i].effect
         others = [step.effect for j, step in enumerate(path) if j != i]
         result.summary.setdefault("eliminated", []).append(
-            {"effect": dropped, "chi2_without": cf.chi2, "chi2_with": final.chi2, "delta_bic": -lr + k * np.log(n)})
+            {"effect": dropped, "chi2_without": float(cf.chi2), "chi2_with": float(final.chi2),
+             "delta_bic": float(-lr + k * np.log(n))})
         rows = result.table.index[result.table["effect"] == dropped]
         result.table.loc[rows, "verdict"] = (f"dropped by backward elimination: not needed once {', '.join(others)} "
                                              f"{'is' if len(others) == 1 else 'are'} in (removing it changes chi^2 "
@@ -356,9 +389,10 @@ def _sharing(base: BaseFit, path: list[Step], scores: Scores, o: Mapping, result
     p_value, delta_bic = float(stats.chi2.sf(max(lr, 0.0), k)), float(-lr + k * np.log(n))
     keep = (p_value < o["alpha"] and delta_bic < o["bic_threshold"]) or bool(cf.unstable_runs) or \
         not _fits_the_noise(cf, o)
-    result.summary["sharing"] = {"parameters": local, "chi2_per_run": final.chi2, "dof_per_run": final.dof,
-                                 "chi2_shared": cf.chi2, "dof_shared": cf.dof, "lr": float(lr), "lr_dof": k,
-                                 "lr_p_value": p_value, "delta_bic_per_run": delta_bic, "shared": not keep}
+    result.summary["sharing"] = plain({"parameters": local, "chi2_per_run": final.chi2, "dof_per_run": final.dof,
+                                       "chi2_shared": cf.chi2, "dof_shared": cf.dof, "lr": lr, "lr_dof": k,
+                                       "lr_p_value": p_value, "delta_bic_per_run": delta_bic, "shared": not keep},
+                                      "summary.sharing")
     if log:
         log.info("sharing check: %s shared chi^2 %.4g (dof %d) vs per run %.4g (dof %d): likelihood ratio %.3g on %d "
                  "dof, Delta BIC of per-run values %.3g: %s", ", ".join(local), cf.chi2, cf.dof, final.chi2,
@@ -399,7 +433,7 @@ def residual_fingerprint(base: BaseFit, r: Array) -> Fingerprint:
 def _excess(scores: Scores) -> float:
     """chi^2 - dof, floored at one standard deviation of chi^2(dof), sqrt(2 dof): shares of an excess within
     the noise are not meaningful (a base at the noise floor would otherwise divide by ~0)."""
-    return max(scores.base_chi2 - scores.base_dof, np.sqrt(2.0 * scores.base_dof))
+    return float(max(scores.base_chi2 - scores.base_dof, np.sqrt(2.0 * scores.base_dof)))
 
 
 def _is_confirmed(cf: Confirmation, o: Mapping, alpha_each: float) -> bool:
@@ -467,34 +501,36 @@ def _conclude(base: BaseFit, scores: Scores, confirmations: Mapping[str, Confirm
         verdicts.setdefault(s.candidate.name, "significant, not refitted (ranked below the refitted ones)"
                             if s.p_value < alpha_each else "not significant")
     table = _table(scores, confirmations, verdicts, confirmed)
-    conclusion, recommendation = _recommend(base, scores, best, confounded, share, misfit, base_ratio, o)
-    summary = {"variant": base.variant.name, "runs": list(base.layout.runs), "n_data": scores.n_data,
+    status, conclusion, recommendation = _recommend(base, scores, best, confounded, share, misfit, base_ratio, o)
+    summary = plain({"variant": base.variant.name, "runs": list(base.layout.runs), "n_data": scores.n_data,
                "base_chi2": scores.base_chi2, "base_dof": scores.base_dof, "base_chi2_dof": base_ratio,
                "base_gof_p_value": float(stats.chi2.sf(scores.base_chi2, scores.base_dof)),
                "misfit": bool(misfit), "alpha_per_candidate": alpha_each,
                "candidates": [s.candidate.name for s in scores.scores], "refitted": list(confirmations),
-               "conclusion": conclusion, "score_seconds": scores.seconds,
+               "status": status.value, "conclusion": conclusion, "score_seconds": scores.seconds,
                "recommended_variant": None if best is None else {
                    "name": _variant_name([base.variant.name, best.candidate.name]),
                    "spec": variant_spec(base.variant, best.candidate, best.ranges)},
                "refit_seconds": float(sum(cf.seconds for cf in confirmations.values())),
-               "confounded": list(confounded)}
-    return Diagnosis(table, conclusion, recommendation, summary, dict(confirmations), best)
+               "confounded": list(confounded)})
+    return Diagnosis(table, conclusion, recommendation, summary, dict(confirmations), best, status=status)
 
 
 def _conclude_path(result: Diagnosis, base: BaseFit, scores: Scores, o: Mapping) -> None:
     """The conclusion, verdict of the first effect and recommendation from the forward-selection path: "add"
-    only for effects that together explain the discrepancy; otherwise "unexplained", the path as evidence."""
+    for effects that together explain the discrepancy, or that carry nearly all of it (NEARLY_EXPLAINED of the
+    excess chi^2: the small misfit left is reported as a form the candidates do not quite capture, with its
+    fingerprint); otherwise "unexplained", the path as evidence."""
     path = result.path
-    result.summary["path"] = [dict(step.row(), step=i + 1, ranges={k: list(v) for k, v in
-                                                                   step.confirmation.ranges.items()})
-                              for i, step in enumerate(path)]
+    result.summary["path"] = plain([dict(step.row(), step=i + 1, ranges=step.confirmation.ranges)
+                                    for i, step in enumerate(path)], "summary.path")
     if not path:
         return
     final, share = path[-1].confirmation, path[-1].share
     # "add" only for effects that bring the fit to the noise: a large share of a huge excess can leave a misfit
     # many times the noise (an effect outside the candidates, half-mimicked by several of them)
     explains = _fits_the_noise(final, o)
+    nearly = not explains and share >= NEARLY_EXPLAINED
     names = [step.effect for step in path]
     first = result.table.index[result.table["effect"] == names[0]][0]
     base_ratio = scores.base_chi2 / scores.base_dof
@@ -508,20 +544,33 @@ def _conclude_path(result: Diagnosis, base: BaseFit, scores: Scores, o: Mapping)
         return  # _conclude's verdict and recommendation stand
     dropped = (f"; {', '.join(eliminated)} dropped by backward elimination (not needed once "
                f"{' and '.join(names)} {'is' if len(names) == 1 else 'are'} in)") if eliminated else ""
-    if explains:
+    if explains or nearly:
         together, steps = " and ".join(names), len(path) + len(eliminated)
         confounded = result.summary.get("confounded") or []
-        if len(path) == 1 and confounded and not eliminated:  # the first step's tie stands (the sharing check only)
-            head = (f"add {together} or {', '.join(confounded)}: these data cannot tell them apart; {together} "
+        if nearly:
+            result.status = Status.ADD_NEARLY
+            head = opening(result.status, effects=together, they="it" if len(names) == 1 else "together they",
+                           share=share_text(share), after=f"{final.chi2 / final.dof:.3g}")
+            result.table.loc[first, "verdict"] = (
+                f"add{', with ' + ', '.join(names[1:]) if len(names) > 1 else ''}: carries the discrepancy "
+                f"({share_text(share)} of the excess chi^2); a small misfit remains")
+        elif len(path) == 1 and confounded and not eliminated:  # the first step's tie stands (the sharing check only)
+            result.status = Status.ADD_CONFOUNDED
+            head = (f"{opening(result.status, effects=together)} or {', '.join(confounded)}: these data cannot "
+                    f"tell them apart; {together} "
                     "explains the discrepancy")
         elif len(path) == 1:
+            result.status = Status.ADD
             result.table.loc[first, "verdict"] = "add: explains the discrepancy"
-            head = f"add {together}: it explains the discrepancy"
+            head = f"{opening(result.status, effects=together)}: it explains the discrepancy"
         else:
+            result.status = Status.ADD
             result.table.loc[first, "verdict"] = (f"add, with {', '.join(names[1:])}: together they explain the "
                                                   f"discrepancy ({100 * share:.0f} % of the excess chi^2)")
-            head = f"add {together}: together they explain the discrepancy"
-        result.conclusion = (f"{head} ({100 * share:.0f} % of the excess chi^2); chi^2/dof {base_ratio:.3g} -> "
+            head = f"{opening(result.status, effects=together)}: together they explain the discrepancy"
+        if not nearly:
+            head += f" ({100 * share:.0f} % of the excess chi^2)"
+        result.conclusion = (f"{head}; chi^2/dof {base_ratio:.3g} -> "
                              f"{final.chi2 / final.dof:.3g} (forward selection, {steps} step{'s' if steps != 1 else ''}"
                              f"{dropped}{sharing}); {estimates}")
         candidates = [step.confirmation.candidate for step in path]
@@ -533,18 +582,20 @@ def _conclude_path(result: Diagnosis, base: BaseFit, scores: Scores, o: Mapping)
                                  f"\n\n{variant_lines(name, spec)}\n")
         result.summary["recommended_variant"] = {"name": name, "spec": spec}
     else:
+        result.status = Status.UNEXPLAINED
         left = result.summary.get("path_stopped") or "nothing significant is left among the others"
         result.table.loc[first, "verdict"] = (f"explains only {100 * path[0].share:.0f} % of the excess chi^2: "
                                               "part of an unexplained discrepancy")
         helps = (f"the candidate that helps most, {names[0]}, removes" if len(names) == 1 else
                  f"the candidates that help most, {', then '.join(names)}, remove")
         leave = "leaves" if len(names) == 1 else "leave"
-        result.conclusion = (f"unexplained discrepancy: {helps} {100 * share:.0f} % of the excess chi^2 but {leave} "
+        result.conclusion = (f"{opening(result.status)}: {helps} {100 * share:.0f} % of the excess chi^2 but {leave} "
                              f"chi^2/dof {final.chi2 / final.dof:.3g} (from {base_ratio:.3g}; the noise gives about "
                              f"1), and {left}: the missing physics is not among the candidates (evidence: "
                              f"{estimates})")
         result.recommendation = ""
         result.summary["recommended_variant"] = None
+    result.summary["status"] = result.status.value
     result.summary["conclusion"] = result.conclusion
 
 
@@ -666,36 +717,45 @@ def variant_lines(name: str, spec: Mapping) -> str:
 
 
 def _recommend(base: BaseFit, scores: Scores, best: Confirmation | None, confounded: Sequence[str],
-               share: float, misfit: bool, base_ratio: float, o: Mapping) -> tuple[str, str]:
+               share: float, misfit: bool, base_ratio: float, o: Mapping) -> tuple[Status, str, str]:
+    """The first step's outcome (a Status), its conclusion (opening from the status) and recommendation."""
     variant = base.variant
     if best is None:
         weak = _thin_plan(base, scores)
         if weak and base.undetermined:
             weak.append(f"the fit leaves {', '.join(base.undetermined)}")
         if not misfit and weak:
-            return ("no missing effect found, but these fit runs cannot rule one out: "
+            return Status.CANNOT_RULE_OUT, (f"{opening(Status.CANNOT_RULE_OUT)}: "
                     f"{'; '.join(weak)}, where an effect can hide (chi^2/dof {base_ratio:.3g}, no candidate "
                     "significant); fit runs at more speeds and unbalance masses decide, and the validation runs "
                     "tell whether the model predicts (results/ledger.tsv)"), ""
         if not misfit:
-            return ("no missing effect: the model fits the data to within the noise "
+            return Status.NO_MISSING_EFFECT, (f"{opening(Status.NO_MISSING_EFFECT)}: the model fits the data to "
+                    "within the noise "
                     f"(chi^2/dof {base_ratio:.3g}) and no candidate is significant"), ""
         top = max(scores.scores, key=lambda s: s.statistic)
-        return (f"unexplained discrepancy: chi^2/dof {base_ratio:.3g} is well above the noise floor (1), and no "
+        return Status.UNEXPLAINED, (f"{opening(Status.UNEXPLAINED)}: chi^2/dof {base_ratio:.3g} is well above the "
+                "noise floor (1), and no "
                 f"candidate is confirmed (the best, {top.candidate.name}, would remove "
                 f"{100 * top.statistic / _excess(scores):.0f} % of the excess chi^2 to first order); the missing "
                 "physics is not among the candidates: look at the residual spectrum and the error map, and add "
                 "your own candidate effects"), ""
     name = best.candidate.name
     if confounded:
-        head = (f"add {name} or {', '.join(confounded)}: these data cannot tell them apart (measure where their "
+        status = Status.ADD_CONFOUNDED
+        head = (f"{opening(status, effects=name)} or {', '.join(confounded)}: these data cannot tell them apart "
+                "(measure where their "
                 "responses differ, e.g. more speeds or unbalance masses, to decide)")
     elif share >= o["explained"]:
-        head = f"add {name}: it explains the discrepancy ({100 * share:.0f} % of the excess chi^2)"
+        status = Status.ADD
+        head = f"{opening(status, effects=name)}: it explains the discrepancy ({100 * share:.0f} % of the excess chi^2)"
     elif share >= 0.5:
-        head = f"add {name}: it explains {100 * share:.0f} % of the excess chi^2; a discrepancy remains"
+        status = Status.ADD_PART
+        head = (f"{opening(status, effects=name)}: it explains {100 * share:.0f} % of the excess chi^2; a "
+                "discrepancy remains")
     else:
-        head = (f"unexplained discrepancy: the best confirmed candidate, {name}, explains only "
+        status = Status.UNEXPLAINED
+        head = (f"{opening(status)}: the best confirmed candidate, {name}, explains only "
                 f"{100 * share:.0f} % of the excess chi^2")
     conclusion = (f"{head}; chi^2/dof {base_ratio:.3g} -> {best.chi2 / best.dof:.3g} with it, "
                   f"Delta BIC {best.delta_bic:.1f}; {_estimate_text(best)}")
@@ -703,7 +763,7 @@ def _recommend(base: BaseFit, scores: Scores, best: Confirmation | None, confoun
     recommendation = (f"Add this variant under `variants:` in config/config.yaml, then run `snakemake --cores 2` "
                       f"(only the new variant is built) and compare in results/ledger.tsv:\n\n"
                       f"{variant_lines(new_name, variant_spec(variant, best.candidate, best.ranges))}\n")
-    return conclusion, recommendation
+    return status, conclusion, recommendation
 
 
 def _thin_plan(base: BaseFit, scores: Scores) -> list[str]:

@@ -4,12 +4,15 @@ fingerprint, candidates) and a figure; the paper's sparse route side by side."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import yaml
 from scipy import stats
 
-from .diagnosis import Diagnosis
+from .diagnosis import Diagnosis, plain
+from .diagnosis_status import Status
 from ..model.variants import Variant
 
 
@@ -75,16 +78,28 @@ def markdown(result: Diagnosis, sparse: pd.DataFrame | None = None, sparse_name:
                   f"{r.explained_pct:.0f} % | {r.estimate} |" for r in result.path_table().itertuples()]
         path = ("\n## Forward selection\n\nEach step adds the best confirmed effect, then scores and refits the "
                 "others at the extended fit; it stops when nothing significant is left.\n\n" + "\n".join(steps)
-                + "\n" + _sharing_markdown(s.get("sharing")))
+                + "\n" + _sharing_markdown(s.get("sharing")) + _intervals_markdown(s.get("intervals")))
     return (f"# Diagnosis of variant {s['variant']}\n\n"
             f"{len(s['runs'])} fit run{'' if len(s['runs']) == 1 else 's'}, {s['n_data']} data; chi^2/dof "
             f"{s['base_chi2_dof']:.3g} "
             f"(goodness-of-fit p = {s['base_gof_p_value']:.3g}); {len(s['candidates'])} candidates tested, "
             f"{len(s['refitted'])} refitted.\n\n**{result.conclusion}**\n{recommendation}{path}\n"
             + (f"## What the residual looks like\n\n{result.fingerprint.summary()}\n\n"
-               if result.fingerprint and "What the residual looks like" not in result.conclusion else "")
+               if result.fingerprint and result.status not in (Status.UNEXPLAINED, Status.ADD_NEARLY) else "")
             + "## Candidates\n\n" + "\n".join(rows) + "\n"
             + ("" if sparse is None else _sparse_markdown(sparse, sparse_name)))
+
+
+def _intervals_markdown(intervals: dict | None) -> str:
+    """A warning when a misfit remains at the path's end (``diagnosis_status.interval_note``): the intervals are
+    scaled by sqrt(chi^2/dof) but a misfit of form also biases the estimates: they may be optimistic."""
+    if not intervals or not intervals["optimistic"]:
+        return ""
+    return (f"\n**The intervals may be optimistic**: the final fit leaves chi^2/dof {intervals['chi2_dof']:.3g}, a "
+            f"misfit beyond the noise. The 95 % intervals are widened by sqrt(chi^2/dof) = "
+            f"{intervals['scaled_by']:.3g}, which covers residuals larger than the stated noise but not always the "
+            "bias of a model whose form differs slightly from the data's: the truth can lie outside them "
+            "(benchmarks/README.md).\n")
 
 
 def _sharing_markdown(sharing: dict | None) -> str:
@@ -126,3 +141,19 @@ def plot(result: Diagnosis):
     right.legend(loc="lower right", fontsize=8)
     fig.tight_layout()
     return fig
+
+
+def write(result: Diagnosis, table_path, markdown_path, summary_path, sparse: pd.DataFrame | None = None,
+          sparse_name: str = "") -> None:
+    """The diagnosis's outputs: the ranked table (``diagnosis.tsv``), the Markdown (``markdown``) and the summary
+    (``diagnosis.yaml``). The summary is built from plain types (``diagnosis.plain``); it is converted once more
+    here, so a value that slipped through is written as a number rather than stop the workflow, and one that is no
+    number at all is refused with the file and the key it sits at."""
+    try:
+        summary = plain(result.summary)
+    except TypeError as error:
+        raise ValueError(f"{summary_path}: cannot write the diagnosis summary: {error}") from None
+    result.table.to_csv(table_path, sep="\t", index=False, float_format="%.6g")
+    Path(markdown_path).write_text(markdown(result, sparse, sparse_name))
+    with open(summary_path, "w") as stream:
+        yaml.safe_dump(summary, stream, sort_keys=False)

@@ -69,6 +69,12 @@ class Confirmation:
         edge = self.estimates["at_bound"].astype(bool) & (self.estimates["value"].abs() > 0)
         return self.estimates.loc[edge, "parameter"].tolist()
 
+    @property
+    def widenable(self) -> bool:
+        """Whether an estimate sits at a range edge away from zero that widening (``_widened``) would move: the
+        truth may lie beyond the range (a quick refit, which does not widen, stops there)."""
+        return bool(_widened(self.ranges, self.estimates, self.candidate))
+
 
 def _refit_starts(theta0: Array, cols: list[int], step: Array, n_points: int, seed: int, quick: bool = False
                   ) -> Array:
