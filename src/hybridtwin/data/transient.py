@@ -229,7 +229,63 @@ def track_record(record: Record, sheet_row: Mapping, harmonics: int, sensor_rang
     bands = pd.DataFrame(rows)
     if slowroll and not runout.empty:
         bands = compensate(bands, runout)
+    bands = check_sweep_rate(bands, names, plan)
     return TrackedRecord(bands, runout, profile.table(), orders, tuple(caught))
+
+
+#: a band is too fast for the quasi-steady model where the sweep's expected lag exceeds this many of its sigmas
+SWEEP_LAG_SIGMAS = 2.0
+
+
+def check_sweep_rate(bands: pd.DataFrame, names: Sequence[str], plan: BandPlan) -> pd.DataFrame:
+    """The bands where the sweep is too fast for the quasi-steady model kept out, with a note (issue 38 item 5).
+
+    The mode is the record's own: its 1X peak (the band of the largest 1X amplitude, any channel) and the
+    damping ratio from the peak's half-power width (zeta = width / (2 peak speed)); the expected lag of the swept
+    response per band is the first-order adiabatic correction (``solvers.sweep_rate.sweep_rate_check``, measured
+    against time integration on the rig: benchmarks/README.md, "Sweep rate") at the record's fastest rate,
+    scaled to the peak amplitude, and a band is kept out where it exceeds SWEEP_LAG_SIGMAS of the band's 1X
+    sigma. A record whose peak lies at an end of its bands (no resonance crossed) is left as it is. Columns
+    added: sweep_lag_m (the expected lag), sweep_check ("ok", "too fast" or "no resonance crossed")."""
+    from ..solvers.sweep_rate import sweep_rate_check
+
+    out = bands.copy()
+    amp = np.column_stack([np.hypot(out[harmonic_column(c, 1, "re")], out[harmonic_column(c, 1, "im")]) for c in names])
+    sigma = np.column_stack([out[harmonic_column(c, 1, "sigma")] for c in names])
+    usable = out["usable"].astype(bool).to_numpy() & np.isfinite(amp).all(1)
+    out["sweep_lag_m"], out["sweep_check"] = math.nan, "no resonance crossed"
+    if usable.sum() < 5:
+        return out
+    peak_amp = np.where(usable[:, None], amp, -np.inf).max(1)
+    k = int(np.argmax(peak_amp))
+    rpm = out["rpm_true"].to_numpy(float)
+    first, last = np.flatnonzero(usable)[[0, -1]]
+    if k in (first, last):
+        return out
+    half = usable & (peak_amp >= peak_amp[k] / math.sqrt(2.0))
+    lo_i, hi_i = k, k
+    while lo_i - 1 >= 0 and half[lo_i - 1]:
+        lo_i -= 1
+    while hi_i + 1 < len(half) and half[hi_i + 1]:
+        hi_i += 1
+    width = max(rpm[hi_i] - rpm[lo_i], out["band_hi_rpm"].iloc[k] - out["band_lo_rpm"].iloc[k])
+    zeta = max(width / (2.0 * rpm[k]), 1e-3)
+    rate = float(np.nanmax(np.abs(out["sweep_rpm_per_s"].to_numpy(float))))
+    width_rpm = plan.bands[0][1] - plan.bands[0][0]
+    checks = sweep_rate_check([(rpm[k] * math.pi / 30.0, zeta)], rate, 0.0, plan.bands[0][0], plan.bands[-1][1],
+                              band_rpm=width_rpm, centrifugal=False)
+    lag = np.array([c.expected_error for c in checks])[: len(out)] * peak_amp[k]
+    band_sigma = np.nanmax(sigma, axis=1)
+    too_fast = usable & (lag > SWEEP_LAG_SIGMAS * band_sigma)
+    out["sweep_lag_m"] = lag
+    out["sweep_check"] = np.where(too_fast, "too fast", "ok")
+    for i in np.flatnonzero(too_fast):
+        out.loc[i, "usable"] = False
+        out.loc[i, "note"] = (f"sweep too fast for a quasi-steady model: expected lag {1e6 * lag[i]:.1f} um against "
+                              f"a 1X sigma of {1e6 * band_sigma[i]:.2f} um at {rate:.1f} RPM/s near the resonance at "
+                              f"{rpm[k]:.0f} RPM (zeta {zeta:.3f} from the data): kept out")
+        out.loc[i, "flags"] = "sweep_too_fast"
+    return out
 
 
 def summary_row(tracked: TrackedRecord, names: Sequence[str]) -> dict:
