@@ -141,7 +141,8 @@ def test_a_band_the_record_never_reaches_is_kept_with_its_reason(tmp_path):
     bands = track_record(record, ROW, harmonics=3).bands
     late = bands[bands["band_lo_rpm"] >= 905]
     assert len(late) > 0 and not late["usable"].any() and late["note"].str.startswith("not reached").all()
-    assert bands[bands["band_hi_rpm"] <= 880]["usable"].all()
+    early = bands[bands["band_hi_rpm"] <= 880]  # usable, or out only as too fast near the resonance's flank
+    assert (early["usable"] | (early["sweep_check"] == "too fast")).all()
 
 
 def test_bands_where_the_sweep_is_too_fast_are_kept_out_with_a_note(tmp_path):

@@ -138,6 +138,9 @@ class Record:
     units: Mapping[str, str] | str
     lines: Array | None = None
     pairs: tuple[tuple[int, int], ...] | None = None
+    #: the probes' own readings where a rotated pair was turned into x, y (``read_record``): what the sensors
+    #: saw, for the checks that read a probe (its range, its flat tops); None where channels are the readings
+    readings: Mapping[str, Array] | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "channels", dict(self.channels))
@@ -600,9 +603,10 @@ def read_record(path: str | Path, sensors=None) -> Record:
         raise DataError(_format(path, problems))
     time_s = uniform_time_base(values[time_col])  # the written stamps less their rounding and jitter
     channels = {name: values[column] * UNITS[unit] for name, (column, unit) in chosen.items()}
+    readings = channels
     channels = _plane_xy_channels(channels, pairs, probe_angles(sensors), path)
     return Record(path, time_s, channels, keyphasor, {name: unit for name, (_, unit) in chosen.items()}, line,
-                  pairs)
+                  pairs, None if channels is readings else readings)
 
 
 def check_length(record: Record, rpm: float, min_revolutions: float = MIN_REVOLUTIONS) -> None:

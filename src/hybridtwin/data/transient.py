@@ -205,8 +205,9 @@ def track_record(record: Record, sheet_row: Mapping, harmonics: int, sensor_rang
     names = record.names
     data = np.column_stack([record.channels[n] for n in names])
     clipped = np.zeros(record.time_s.shape, bool)
-    if sensor_range_m:
-        clipped = np.any(np.abs(data) >= 0.999 * sensor_range_m, axis=1)
+    if sensor_range_m:  # on what the probes read (before a rotated pair is turned into x, y)
+        seen = record.readings or record.channels
+        clipped = np.any(np.abs(np.column_stack([seen[n] for n in names])) >= 0.999 * sensor_range_m, axis=1)
     rows = []
     for (lo, hi), run in zip(plan.bands, plan.ids):
         take, n_rev = _revolution_samples(profile, record.time_s, lo, hi)
@@ -240,13 +241,12 @@ SWEEP_LAG_SIGMAS = 2.0
 def check_sweep_rate(bands: pd.DataFrame, names: Sequence[str], plan: BandPlan) -> pd.DataFrame:
     """The bands where the sweep is too fast for the quasi-steady model kept out, with a note (issue 38 item 5).
 
-    The mode is the record's own: its 1X peak (the band of the largest 1X amplitude, any channel) and the
-    damping ratio from the peak's half-power width (zeta = width / (2 peak speed)); the expected lag of the swept
-    response per band is the first-order adiabatic correction (``solvers.sweep_rate.sweep_rate_check``, measured
-    against time integration on the rig: benchmarks/README.md, "Sweep rate") at the record's fastest rate,
-    scaled to the peak amplitude, and a band is kept out where it exceeds SWEEP_LAG_SIGMAS of the band's 1X
-    sigma. A record whose peak lies at an end of its bands (no resonance crossed) is left as it is. Columns
-    added: sweep_lag_m (the expected lag), sweep_check ("ok", "too fast" or "no resonance crossed")."""
+    The mode is the record's own (``one_mode_fit``: the strongest channel's 1X over the bands, a resonance seen
+    whole or only on its flank); the expected lag of the swept response per band is the first-order adiabatic
+    correction (``solvers.sweep_rate.sweep_rate_check``, measured against time integration on the rig:
+    benchmarks/README.md, "Sweep rate") at the record's fastest rate, scaled to the mode's peak, and a band is
+    kept out where it exceeds SWEEP_LAG_SIGMAS of the band's 1X sigma. Columns added: sweep_lag_m (the expected
+    lag), sweep_check ("ok", "too fast", or "no mode found" where no resonance is in sight)."""
     from ..solvers.sweep_rate import sweep_rate_check
 
     out = bands.copy()
@@ -256,25 +256,22 @@ def check_sweep_rate(bands: pd.DataFrame, names: Sequence[str], plan: BandPlan) 
     out["sweep_lag_m"], out["sweep_check"] = math.nan, "no resonance crossed"
     if usable.sum() < 5:
         return out
-    peak_amp = np.where(usable[:, None], amp, -np.inf).max(1)
-    k = int(np.argmax(peak_amp))
     rpm = out["rpm_true"].to_numpy(float)
-    first, last = np.flatnonzero(usable)[[0, -1]]
-    if k in (first, last):
+    c = int(np.argmax(np.nanmax(np.where(usable[:, None], amp, -np.inf), axis=0)))  # the strongest channel
+    X1 = (out[harmonic_column(names[c], 1, "re")] + 1j * out[harmonic_column(names[c], 1, "im")]).to_numpy()
+    mode = one_mode_fit(rpm[usable] * math.pi / 30.0, X1[usable], sigma[usable, c])
+    if mode is None:
+        out["sweep_check"] = "no mode found"
         return out
-    half = usable & (peak_amp >= peak_amp[k] / math.sqrt(2.0))
-    lo_i, hi_i = k, k
-    while lo_i - 1 >= 0 and half[lo_i - 1]:
-        lo_i -= 1
-    while hi_i + 1 < len(half) and half[hi_i + 1]:
-        hi_i += 1
-    width = max(rpm[hi_i] - rpm[lo_i], out["band_hi_rpm"].iloc[k] - out["band_lo_rpm"].iloc[k])
-    zeta = max(width / (2.0 * rpm[k]), 1e-3)
+    omega_n, zeta, gain = mode
+    # sweep_rate_check scales each band's lag to the mode's largest response over the record's bands: in metres
+    fine = np.linspace(plan.bands[0][0], plan.bands[-1][1], 4001) * math.pi / 30.0
+    peak = gain * float(np.abs(fine**2 / (omega_n**2 - fine**2 + 2j * zeta * omega_n * fine)).max())
     rate = float(np.nanmax(np.abs(out["sweep_rpm_per_s"].to_numpy(float))))
     width_rpm = plan.bands[0][1] - plan.bands[0][0]
-    checks = sweep_rate_check([(rpm[k] * math.pi / 30.0, zeta)], rate, 0.0, plan.bands[0][0], plan.bands[-1][1],
+    checks = sweep_rate_check([(omega_n, zeta)], rate, 0.0, plan.bands[0][0], plan.bands[-1][1],
                               band_rpm=width_rpm, centrifugal=False)
-    lag = np.array([c.expected_error for c in checks])[: len(out)] * peak_amp[k]
+    lag = np.array([ch.expected_error for ch in checks])[: len(out)] * peak
     band_sigma = np.nanmax(sigma, axis=1)
     too_fast = usable & (lag > SWEEP_LAG_SIGMAS * band_sigma)
     out["sweep_lag_m"] = lag
@@ -283,7 +280,7 @@ def check_sweep_rate(bands: pd.DataFrame, names: Sequence[str], plan: BandPlan) 
         out.loc[i, "usable"] = False
         out.loc[i, "note"] = (f"sweep too fast for a quasi-steady model: expected lag {1e6 * lag[i]:.1f} um against "
                               f"a 1X sigma of {1e6 * band_sigma[i]:.2f} um at {rate:.1f} RPM/s near the resonance at "
-                              f"{rpm[k]:.0f} RPM (zeta {zeta:.3f} from the data): kept out")
+                              f"{omega_n * 30 / math.pi:.0f} RPM (zeta {zeta:.3f}, fitted to the record): kept out")
         out.loc[i, "flags"] = "sweep_too_fast"
     return out
 
@@ -308,3 +305,39 @@ def summary_row(tracked: TrackedRecord, names: Sequence[str]) -> dict:
         status = "excluded: no usable band (" + status + ")"
     return out | {"usable": bool(usable.any()), "note": status, "status": status,
                   "warnings": " | ".join(tracked.warnings)}
+
+
+def one_mode_fit(omega: Array, X: Array, sigma: Array) -> tuple[float, float, float] | None:
+    """(omega_n [rad/s], zeta, |A| [m]) of the one-mode quasi-steady 1X that best fits the bands:
+    X = A Omega^2 / (omega_n^2 - Omega^2 + 2 i zeta omega_n Omega) + B, complex A and B by linear least squares
+    for each (omega_n, zeta) (variable projection), weighted by sigma. The mode may lie up to 1.5 times beyond
+    the highest band (a record ending on the resonance's flank). None where no resonance is in sight (the best
+    zeta at its bound, or omega_n beyond that reach): then no band is kept out."""
+    from scipy.optimize import least_squares
+
+    if omega.size < 6:
+        return None
+    w = 1.0 / sigma
+
+    def residual(p):
+        wn, z = p
+        basis = omega**2 / (wn**2 - omega**2 + 2j * z * wn * omega)
+        A = np.column_stack([basis, np.ones_like(basis)]) * w[:, None]
+        coef, *_ = np.linalg.lstsq(A, X * w, rcond=None)
+        r = A @ coef - X * w
+        return np.concatenate([r.real, r.imag])
+
+    hi = 1.5 * omega.max()
+    best = None
+    for wn0 in np.linspace(omega.min(), hi, 12)[1:]:
+        for z0 in (0.01, 0.05, 0.2):
+            fit = least_squares(residual, [wn0, z0], bounds=([omega.min(), 1e-3], [hi, 0.5]))
+            if best is None or fit.cost < best.cost:
+                best = fit
+    wn, z = best.x
+    if z >= 0.49 or wn >= 0.99 * hi:
+        return None
+    basis = omega**2 / (wn**2 - omega**2 + 2j * z * wn * omega)
+    A = np.column_stack([basis, np.ones_like(basis)]) * w[:, None]
+    coef, *_ = np.linalg.lstsq(A, X * w, rcond=None)
+    return float(wn), float(z), float(abs(coef[0]))
