@@ -123,3 +123,22 @@ def test_no_import_circles():
         if node not in state:
             visit(node, [node])
     assert not circles, "\n".join(circles)
+
+
+def test_every_module_imports():
+    """Every module of the package imports (a relative import left pointing into the wrong folder fails here, not
+    in the middle of a workflow run)."""
+    import importlib
+    import pkgutil
+
+    import hybridtwin
+
+    failed = {}
+    for info in pkgutil.walk_packages(hybridtwin.__path__, "hybridtwin."):
+        if info.name.endswith("__main__"):
+            continue
+        try:
+            importlib.import_module(info.name)
+        except Exception as err:  # noqa: BLE001 (every failure is reported)
+            failed[info.name] = repr(err)
+    assert not failed, failed

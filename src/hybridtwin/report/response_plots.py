@@ -27,7 +27,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from . import validation as val  # noqa: E402
+from ..identify import validation as val  # noqa: E402
 from ..identify.identification import wrap  # noqa: E402
 from .report import MICRO, ORDERS, VALIDATION_STYLE, RunComparison, mass_colours  # noqa: E402
 from ..model.sensor import sensor_channels, sensor_names  # noqa: E402
