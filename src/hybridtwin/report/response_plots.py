@@ -393,9 +393,12 @@ def plot_cascade(spectra: dict[str, pd.DataFrame], runs: pd.DataFrame, orders: S
             rows = group.index.to_numpy()
             for h in orders:
                 ax.plot(h * group["rpm"].to_numpy() / 60.0, rows, "--", color="w", lw=0.7, alpha=0.8)
-        for h in orders:
+        for h in orders if len(ordered) else ():  # no steady run (only run-ups / coast-downs): an empty cascade
             ax.annotate(f"{h}X", (h * ordered["rpm"].iloc[-1] / 60.0, len(ordered) - 0.5), color="k", fontsize=8,
                         ha="center", va="bottom", annotation_clip=False)
+        if not len(ordered):
+            ax.text(0.5, 0.5, "no steady run: a run-up's or coast-down's orders are in\n"
+                    "results/data/records/<run>/orders.tsv", transform=ax.transAxes, ha="center", va="center")
         ax.set_xlabel("frequency [Hz]")
         ax.set_title(f"{channel}: amplitude [dB re 1 um, 0-peak]", fontsize=9)
     for row in range(n_rows):
