@@ -53,7 +53,7 @@ absolute phases are physical and can be compared directly.
 from __future__ import annotations
 
 import warnings
-from collections.abc import Iterable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -66,7 +66,9 @@ from .measurements import (
     check_coverage, check_length, check_sampling, detect_saturation, read_record, read_runs,
 )
 from .plausibility import SPEED_TOLERANCE, Flag, check_magnitudes, check_speed, response_flags
-from .record_columns import carried_columns as _carried, harmonic_column, harmonic_stem, keyphasor_marks  # noqa: F401
+from .record_columns import (  # noqa: F401 (harmonic_column, harmonic_stem re-exported)
+    carried_columns as _carried, harmonic_column, harmonic_columns, harmonic_stem, keyphasor_marks,
+)
 from .run_kinds import is_transient_row
 from .transient import summary_row, track_record
 
@@ -432,19 +434,8 @@ def run_row(analysis: RunAnalysis, harmonics: int, complex_parts: bool = True) -
     row["phase_origin_s"] = origin.time_s if origin else nan
     row["phase_origin_sigma_s"] = origin.sigma_s if origin else nan
     row["n_revolutions"] = orders.n_revolutions if orders else 0
-    names = record.names
-    for i, name in enumerate(names):
-        row[f"noise_{name}_m"] = orders.noise_m[i] if orders else nan
-    for i, name in enumerate(names):
-        row[f"offset_{name}_m"] = orders.harmonics[i, 0].real if orders else nan
-        row[f"offset_{name}_sigma_m"] = orders.sigma[i, 0] if orders else nan
-    for i, name in enumerate(names):
-        for h in range(1, harmonics + 1):
-            X = orders.harmonics[i, h] if orders else complex(nan, nan)
-            if complex_parts:
-                row[harmonic_column(name, h, "re")], row[harmonic_column(name, h, "im")] = X.real, X.imag
-            row[harmonic_column(name, h, "amp")] = abs(X)
-            row[harmonic_column(name, h, "sigma")] = orders.sigma[i, h] if orders else nan
+    row |= harmonic_columns(record.names, harmonics, orders.harmonics if orders else None,
+                            orders.sigma if orders else None, orders.noise_m if orders else None, complex_parts)
     row["flat"], row["saturated"], row["usable"], row["note"] = (
         analysis.flat, analysis.saturated, analysis.usable, analysis.note)
     row["flags"] = ",".join(dict.fromkeys(f.kind for f in analysis.findings))

@@ -207,3 +207,24 @@ def carried_columns(sheet_row: Mapping, analysed: Iterable[str]) -> dict:
     column of the analysis (note, usable, unit, keyphasor, status, ...) as sheet_<name>, not overwritten."""
     taken = set(analysed)
     return {(f"sheet_{k}" if k in taken else k): v for k, v in sheet_row.items() if k != "record"}
+
+
+def harmonic_columns(names: Sequence[str], harmonics: int, X, sigma, noise, complex_parts: bool = True) -> dict:
+    """The harmonics table's per-channel columns of one row (``preprocessing.run_row``, a transient band's row):
+    noise_<c>_m, offset_<c>_m, offset_<c>_sigma_m, then per harmonic h = 1..H its real and imaginary part
+    (``complex_parts``), amplitude and sigma. X, sigma: (C, H+1) (h = 0 the offset), noise (C,); None: NaN."""
+    nan = float("nan")
+    row = {}
+    for i, name in enumerate(names):
+        row[f"noise_{name}_m"] = noise[i] if X is not None else nan
+    for i, name in enumerate(names):
+        row[f"offset_{name}_m"] = X[i, 0].real if X is not None else nan
+        row[f"offset_{name}_sigma_m"] = sigma[i, 0] if X is not None else nan
+    for i, name in enumerate(names):
+        for h in range(1, harmonics + 1):
+            value = X[i, h] if X is not None else complex(nan, nan)
+            if complex_parts:
+                row[harmonic_column(name, h, "re")], row[harmonic_column(name, h, "im")] = value.real, value.imag
+            row[harmonic_column(name, h, "amp")] = abs(value)
+            row[harmonic_column(name, h, "sigma")] = sigma[i, h] if X is not None else nan
+    return row

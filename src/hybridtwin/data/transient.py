@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 from .measurements import DataError, Record
-from .record_columns import carried_columns, harmonic_column
+from .record_columns import carried_columns, harmonic_column, harmonic_columns
 from .run_kinds import DEFAULT_BAND_RPM, SLOWROLL_SHARE, BandPlan, expand_bands, is_transient_row  # noqa: F401
 from .order_tracking import SpeedProfile, TrackingError, speed_profile, track_orders
 from .slow_roll import SlowRollWarning, compensate, runout as slow_roll_runout
@@ -153,17 +153,8 @@ def band_row(fit: BandFit | None, names: Sequence[str], harmonics: int, note: st
            # the marks' timing noise (order_tracking.SpeedProfile.sigma_t_s: at least dt / sqrt(12))
            "phase_origin_sigma_s": sigma_t_s, "n_revolutions": fit.n_revolutions if fit
            else 0}
-    for i, name in enumerate(names):
-        row[f"noise_{name}_m"] = fit.noise[i] if fit else nan
-    for i, name in enumerate(names):
-        row[f"offset_{name}_m"] = fit.X[i, 0].real if fit else nan
-        row[f"offset_{name}_sigma_m"] = fit.sigma[i, 0] if fit else nan
-    for i, name in enumerate(names):
-        for h in range(1, harmonics + 1):
-            X = fit.X[i, h] if fit else complex(nan, nan)
-            row[harmonic_column(name, h, "re")], row[harmonic_column(name, h, "im")] = X.real, X.imag
-            row[harmonic_column(name, h, "amp")] = abs(X)
-            row[harmonic_column(name, h, "sigma")] = fit.sigma[i, h] if fit else nan
+    row |= harmonic_columns(names, harmonics, fit.X if fit else None, fit.sigma if fit else None,
+                            fit.noise if fit else None)
     usable = fit is not None and note == "ok"
     row |= {"flat": False, "saturated": note.startswith("clipped"), "usable": usable, "note": note,
             "flags": "" if usable else note.split(":")[0].replace(" ", "_"),

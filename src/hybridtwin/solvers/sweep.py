@@ -54,7 +54,7 @@ from scipy.interpolate import CubicSpline, PPoly
 
 from ..model.model import LocalForce, Model, System, rpm_to_rad_s
 from .transient import (ATOL_FLOOR, DEFAULT_ATOL_RELATIVE, DEFAULT_RTOL, DEFAULT_VELOCITY_SCALE, FirstOrder,
-                        NotSettledError, PolynomialForce, harmonic_initial_state, settle, state_tolerance)
+                        NotSettledError, PolynomialForce, local_forces, settle, state_tolerance)
 
 Array = np.ndarray
 
@@ -432,19 +432,7 @@ class SweepFirstOrder:
         return out
 
     def local_force(self, q: Array, jacobian: bool) -> tuple[Array, Array | None]:
-        c = len(self.dofs)
-        F = np.zeros(c)
-        J = np.zeros((c, c)) if jacobian else None
-        for force, loc, polynomial in zip(self.system.forces, self.local, self.polynomials):
-            if polynomial is not None:
-                f, j = polynomial(q[force.dofs], jacobian)
-            else:
-                f, j = force.evaluate(q[force.dofs][None, :, None], self.system.rows)
-                f, j = f[0, :, 0], j[0, :, :, 0]
-            F[loc] += f
-            if jacobian:
-                J[loc[:, None], loc[None, :]] += j
-        return F, J
+        return local_forces(self.system, self.local, self.polynomials, len(self.dofs), q, jacobian)
 
     def rhs(self, t: float, y: Array) -> Array:
         self.n_rhs += 1

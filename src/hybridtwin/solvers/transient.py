@@ -143,20 +143,7 @@ class FirstOrder:
 
     def local_force(self, q: Array, jacobian: bool) -> tuple[Array, Array | None]:
         """F_nl (c,) at the nonlinear DOFs and dF_nl/dq (c, c), from the forces' ``evaluate``."""
-        c = len(self.dofs)
-        F = np.zeros(c)
-        J = np.zeros((c, c)) if jacobian else None
-        for i, (force, loc) in enumerate(zip(self.system.forces, self.local)):
-            polynomial = self.polynomials[i] if self.polynomials else None
-            if polynomial is not None:
-                f, j = polynomial(q[force.dofs], jacobian)
-            else:
-                f, j = force.evaluate(q[force.dofs][None, :, None], self.system.rows)
-                f, j = f[0, :, 0], j[0, :, :, 0]
-            F[loc] += f
-            if jacobian:
-                J[loc[:, None], loc[None, :]] += j
-        return F, J
+        return local_forces(self.system, self.local, self.polynomials, len(self.dofs), q, jacobian)
 
     def excitation(self, t: float) -> Array:
         """M^-1 f(t), f(t) = Re(sum_h F_h exp(i h Omega t))."""
@@ -182,6 +169,26 @@ class FirstOrder:
             _, dF = self.local_force(y[:n], jacobian=True)
             J[n:, self.dofs] += self.B @ dF
         return J
+
+
+def local_forces(system, local: Sequence[Array], polynomials: Sequence | None, c: int, q: Array,
+                 jacobian: bool) -> tuple[Array, Array | None]:
+    """F_nl (c,) at the c nonlinear DOFs and dF_nl/dq (c, c) of one scenario's ``system.forces`` at q: each force's
+    identified monomials (``PolynomialForce``) where there are, else its ``evaluate``; ``local`` places each
+    force's DOFs among the c. Shared by the steady (``FirstOrder``) and swept (``solvers.sweep``) integrations."""
+    F = np.zeros(c)
+    J = np.zeros((c, c)) if jacobian else None
+    for i, (force, loc) in enumerate(zip(system.forces, local)):
+        polynomial = polynomials[i] if polynomials else None
+        if polynomial is not None:
+            f, j = polynomial(q[force.dofs], jacobian)
+        else:
+            f, j = force.evaluate(q[force.dofs][None, :, None], system.rows)
+            f, j = f[0, :, 0], j[0, :, :, 0]
+        F[loc] += f
+        if jacobian:
+            J[loc[:, None], loc[None, :]] += j
+    return F, J
 
 
 class PolynomialForce:
