@@ -99,28 +99,36 @@ def _first_mode(K: Array, M: Array) -> tuple[Array, Array]:
     _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
     K, M = K[first], M[first]
     symmetric = np.isclose(K, np.swapaxes(K, -1, -2), rtol=1e-12, atol=0.0).all(axis=(-2, -1))
-    lam1, phi = np.empty(K.shape[0]), np.empty(K.shape[:2])
+    lam1, phi, top = np.empty(K.shape[0]), np.empty(K.shape[:2]), np.empty(K.shape[0])
     for rows, mode in ((np.flatnonzero(symmetric), _symmetric_mode), (np.flatnonzero(~symmetric), _general_mode)):
         if rows.size:
-            lam1[rows], phi[rows] = mode(K[rows], M[rows])
-    return np.sqrt(np.where(lam1 > 0, lam1, np.nan))[inverse], phi[inverse]
+            lam1[rows], phi[rows], top[rows] = mode(K[rows], M[rows])
+    # a zero eigenvalue (a mechanism: no spring where the structure needs one) comes out as +- its round-off,
+    # eps times the largest eigenvalue: its sign would follow the BLAS kernel (issue 42). Below REST_TOLERANCE
+    # times the largest it counts as zero, i.e. not positive: unstable at rest. The VARM's first eigenvalue is
+    # 1.5e-6 of its largest (four orders above), a zero one's round-off ~1e-16 of it (six below).
+    return np.sqrt(np.where(lam1 > REST_TOLERANCE * top, lam1, np.nan))[inverse], phi[inverse]
 
 
-def _symmetric_mode(K: Array, M: Array) -> tuple[Array, Array]:
-    """Lowest eigenvalue and its vector of symmetric pencils: Cholesky reduction L^-1 K L^-T, eigh."""
+#: the smallest eigenvalue of (K, M), relative to the largest, that counts as positive (``_first_mode``)
+REST_TOLERANCE = 1e-10
+
+
+def _symmetric_mode(K: Array, M: Array) -> tuple[Array, Array, Array]:
+    """Lowest eigenvalue, its vector and the largest |eigenvalue| of symmetric pencils: L^-1 K L^-T, eigh."""
     L = np.linalg.cholesky(M)
     Linv = np.linalg.inv(L)
     A = Linv @ K @ np.swapaxes(Linv, -1, -2)
     lam, vec = np.linalg.eigh(0.5 * (A + np.swapaxes(A, -1, -2)))
-    return lam[:, 0], (np.swapaxes(Linv, -1, -2) @ vec[:, :, :1])[:, :, 0]
+    return lam[:, 0], (np.swapaxes(Linv, -1, -2) @ vec[:, :, :1])[:, :, 0], np.abs(lam).max(axis=1)
 
 
-def _general_mode(K: Array, M: Array) -> tuple[Array, Array]:
-    """The eigenvalue of least real part of M^-1 K and its vector (real parts)."""
+def _general_mode(K: Array, M: Array) -> tuple[Array, Array, Array]:
+    """The eigenvalue of least real part of M^-1 K, its vector (real parts) and the largest |eigenvalue|."""
     lam, vec = np.linalg.eig(np.linalg.solve(M, K))
     first = np.argmin(lam.real, axis=1)
     rows = np.arange(K.shape[0])
-    return lam[rows, first].real, vec[rows, :, first].real
+    return lam[rows, first].real, vec[rows, :, first].real, np.abs(lam).max(axis=1)
 
 
 class Model:
