@@ -621,8 +621,19 @@ def has_usable_fit_run(summary: pd.DataFrame) -> bool:
 
 def format_summary(summary: pd.DataFrame, harmonics: int) -> str:
     """The check-data printout: one line per run (figures in mm), then the harmonic amplitudes."""
+    sweeps = ""
+    if "n_bands" in summary:  # run-ups and coast-downs: their own lines (data/transient.summary_row)
+        rows = summary[summary["n_bands"].notna()]
+        summary = summary[summary["n_bands"].isna()]
+        sweeps = "\n\nrun-ups and coast-downs (speed bands, data/transient.py):\n" + pd.DataFrame({
+            "run": rows["run"], "kind": rows["kind"], "rpm_low": rows["rpm_measured_low"].round(1),
+            "rpm_high": rows["rpm_measured_high"].round(1), "revs": rows["n_revolutions"],
+            "bands_usable": rows["n_bands_usable"].astype(int).astype(str) + "/" + rows["n_bands"].astype(int).astype(str),
+            "status": rows["status"]}).to_string(index=False)
+        if summary.empty:
+            return sweeps.lstrip("\n")
     if "rpm_true" not in summary:
-        return summary[["run", "rpm", "status"]].to_string(index=False)
+        return summary[["run", "rpm", "status"]].to_string(index=False) + sweeps
     mm = 1e3
     channels = table_channels(summary)
     view = pd.DataFrame({
@@ -642,4 +653,4 @@ def format_summary(summary: pd.DataFrame, harmonics: int) -> str:
     sigma = mm * summary[[harmonic_column(c, 1, "sigma") for c in channels]].max(axis=1)
     amplitudes["sigma_1X_mm"] = sigma.map(lambda v: f"{v:.1e}")
     return (view.to_string(index=False, na_rep="-") + "\n\nharmonic amplitudes, 0-peak [mm] (sigma_1X_mm: standard "
-            "uncertainty of the 1X real/imaginary parts):\n" + amplitudes.to_string(index=False, na_rep="-"))
+            "uncertainty of the 1X real/imaginary parts):\n" + amplitudes.to_string(index=False, na_rep="-") + sweeps)
