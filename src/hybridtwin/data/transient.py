@@ -263,7 +263,7 @@ def check_sweep_rate(bands: pd.DataFrame, names: Sequence[str], plan: BandPlan) 
     checks = sweep_rate_check([(omega_n, zeta)], rate, 0.0, plan.bands[0][0], plan.bands[-1][1],
                               band_rpm=width_rpm, centrifugal=False)
     lag = np.array([ch.expected_error for ch in checks])[: len(out)] * peak
-    band_sigma = np.nanmax(sigma, axis=1)
+    band_sigma = np.where(np.isfinite(sigma), sigma, 0.0).max(axis=1)  # a band not fitted: 0 (not usable, never marked)
     too_fast = usable & (lag > SWEEP_LAG_SIGMAS * band_sigma)
     out["sweep_lag_m"] = lag
     out["sweep_check"] = np.where(too_fast, "too fast", "ok")
