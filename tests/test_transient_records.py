@@ -14,7 +14,8 @@ import pandas as pd
 import pytest
 
 from hybridtwin.data.measurements import DataError, Record
-from hybridtwin.data.transient import BandPlan, expand_bands, track_record
+from hybridtwin.data.run_kinds import BandPlan, expand_bands
+from hybridtwin.data.transient import track_record
 
 FS = 5000.0
 WN = 2 * np.pi * 16.0  # a resonance at 960 RPM

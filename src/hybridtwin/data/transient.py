@@ -7,7 +7,7 @@ cut into speed **bands** of ``band_rpm`` (a sheet column, default DEFAULT_BAND_R
 downstream (libraries, identification, validation, diagnosis, report) then reads a band as it reads a run; the
 model's response at a band is the steady state reached by continuation, as the rotor reaches it along the sweep.
 
-- **Bands are known from the sheet alone** (``expand_bands``): ids ``<run>_b<centre RPM>``, centres from the top
+- **Bands are known from the sheet alone** (``run_kinds.expand_bands``): ids ``<run>_b<centre RPM>``, centres from the top
   of the slow-roll band to the sweep's highest nominal speed. The workflow plans its jobs from them before any
   record is read; a band the record never reaches is written unusable with its reason, never dropped.
 - **The speed and the phase come from the keyphasor** (``speed_profile``): the rotor angle theta(t) interpolates
@@ -40,7 +40,7 @@ import numpy as np
 import pandas as pd
 from .measurements import DataError, Record
 from .record_columns import carried_columns, harmonic_column, harmonic_columns
-from .run_kinds import DEFAULT_BAND_RPM, SLOWROLL_SHARE, BandPlan, expand_bands, is_transient_row  # noqa: F401
+from .run_kinds import BandPlan
 from .order_tracking import SpeedProfile, TrackingError, speed_profile, track_orders
 from .slow_roll import SlowRollWarning, compensate, runout as slow_roll_runout
 
