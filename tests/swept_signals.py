@@ -92,8 +92,8 @@ def swept_record(sweep: Sweep | None = None, response: Response | None = None, f
                  noise_m: float = 5e-6, seed: int = 0, harmonics: int = 2, shift: float | None = None,
                  path: str = "swept.csv") -> SweptRecord:
     """Samples at t0 + n / fs (t0 a random fraction of a step unless ``shift``), x and y from ``response`` along
-    ``sweep`` plus offset, drift and white noise; the keyphasor True on the first sample at or after each whole
-    turn (its rising edge)."""
+    ``sweep`` plus offset, drift and white noise; the keyphasor True on the sample nearest each whole turn (the
+    sample where the mark passes, docs/measurement-format.md)."""
     sweep, response = sweep or Sweep(), response or Response()
     rng = np.random.default_rng(seed)
     t0 = (rng.uniform(0, 1) if shift is None else shift) / fs
@@ -107,5 +107,8 @@ def swept_record(sweep: Sweep | None = None, response: Response | None = None, f
         out.append(u + noise_m * rng.standard_normal(t.size))
     turns = np.floor(theta / TWO_PI)
     keyphasor = np.zeros(t.size, bool)
-    keyphasor[1:] = turns[1:] > turns[:-1]
+    after = np.flatnonzero(turns[1:] > turns[:-1]) + 1  # first sample at or after each whole turn
+    turn_time = sweep.time_of_turn(turns[after])
+    nearest = np.where(t[after] - turn_time > 0.5 / fs, after - 1, after)  # the sample nearer the turn
+    keyphasor[nearest[nearest > 0]] = True
     return SweptRecord(Path(path), t, {"x": out[0], "y": out[1]}, keyphasor, sweep, response, noise_m)

@@ -34,7 +34,7 @@ def true_turns(record, profile):
 def test_marks_are_the_turns_to_half_a_sample(record):
     profile = speed_profile(record)
     error = profile.marks_s - true_turns(record, profile)
-    # each mark lies between the last sample before the turn and the first after: midway, within dt/2
+    # each mark is the sample nearest the turn (the sample where the mark passes): within dt/2
     assert np.abs(error).max() <= 0.5 * DT * (1 + 1e-6)
     # unbiased: the mean of K errors uniform in +-dt/2 has sigma dt / sqrt(12 K); 5 of those
     assert abs(error.mean()) < 5 * DT / np.sqrt(12 * error.size)

@@ -2,10 +2,12 @@
 1X..HX vectors of every channel as functions of speed (docs/measurement-format.md, docs/data-checks.md).
 
 **Speed profile** (``speed_profile``). The keyphasor's marks are its rising edges (``record_columns.
-keyphasor_marks``: the first high sample of each pulse). Each mark's instant is refined by linear interpolation
-of the two-level signal between the last low and the first high sample, at its half level: midway between the
-two samples, t_k - dt/2 (unbiased when the edge falls anywhere within the step; the first high sample itself is
-late by dt/2 on average). Revolution k runs from mark k to mark k+1, its speed 60 / (t_{k+1} - t_k) RPM; the
+keyphasor_marks``: the first high sample of each pulse), and each mark's instant is that sample's time: the sample
+where the once-per-turn mark passes (docs/measurement-format.md), as a steady run's phase origin reads it
+(``preprocessing.phase_origin``), so that a steady run and a sweep of the same machine agree to the phase. A
+keyphasor written on the sample nearest the mark is then within +-dt/2 of it, unbiased; one latched on the first
+sample after the mark is late by dt/2 on average (a phase lag of h Omega dt / 2, 0.01 rad at 1000 RPM and 5 kHz).
+Revolution k runs from mark k to mark k+1, its speed 60 / (t_{k+1} - t_k) RPM; the
 shaft angle theta(t) is the monotone (PCHIP) interpolation of theta(t_k) = 2 pi k, so theta = 0 at the first
 mark and every mark is a whole turn (the unbalance points to +x there). Refused, with a message naming the file
 and the keyphasor's lines: a missed mark (a revolution MISSED_RATIO or more times the median of its neighbours,
@@ -108,21 +110,19 @@ def mark_instants(time_s: Array, keyphasor: Array) -> tuple[Array, Array]:
 
     keyphasor: (N,) bool marks (True on the first high sample of each pulse, as ``Record.keyphasor``) or the
     two-level signal itself (numbers): its rising crossings of the half level between its lowest and highest
-    value. Each instant is the linear interpolation of the signal between the last low and the first high
-    sample at the half level (for a two-level signal: midway between them)."""
+    value. Each instant is the time of the mark's first high sample (module docstring: the sample where the mark
+    passes, the steady runs' convention). A mark on the record's first sample has no low sample before it (the
+    record may start inside a pulse): it is not a mark."""
     t = np.asarray(time_s, float)
     kp = np.asarray(keyphasor)
     if kp.dtype == bool:
         index = np.flatnonzero(kp)
-        index = index[index > 0]  # a mark on the first sample has no low sample before it: its edge is unknown
-        return t[index] - 0.5 * (t[index] - t[index - 1]), index
-    level = kp.astype(float)
-    half = 0.5 * (np.nanmin(level) + np.nanmax(level))
-    high = level > half
-    index = np.flatnonzero(high[1:] & ~high[:-1]) + 1
-    a, b = level[index - 1], level[index]
-    fraction = (half - a) / (b - a)
-    return t[index - 1] + fraction * (t[index] - t[index - 1]), index
+    else:
+        level = kp.astype(float)
+        high = level > 0.5 * (np.nanmin(level) + np.nanmax(level))
+        index = np.flatnonzero(high[1:] & ~high[:-1]) + 1
+    index = index[index > 0]
+    return t[index], index
 
 
 @dataclass(frozen=True)

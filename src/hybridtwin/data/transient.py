@@ -150,9 +150,11 @@ def band_row(fit: BandFit | None, names: Sequence[str], harmonics: int, note: st
            "rpm_true_sigma": fit.rpm_sigma if fit else nan, "speed_deviation_rel": nan,
            "rpm_keyphasor": fit.rpm if fit else nan, "phase_reference": "keyphasor" if fit else "",
            "phase_origin_s": fit.t_start_s if fit else nan,
-           # the marks' timing noise (order_tracking.SpeedProfile.sigma_t_s: at least dt / sqrt(12))
-           "phase_origin_sigma_s": sigma_t_s, "n_revolutions": fit.n_revolutions if fit
-           else 0}
+           # the band's phase origin: the mean of its n marks, each with the marks' timing noise (order_tracking.
+           # SpeedProfile.sigma_t_s, at least dt / sqrt(12)), independent: sigma_t / sqrt(n), the share fit_band
+           # adds to the sigmas and measured.run_data takes out again for the phase prior
+           "phase_origin_sigma_s": sigma_t_s / math.sqrt(fit.n_revolutions) if fit and fit.n_revolutions > 0
+           else nan, "n_revolutions": fit.n_revolutions if fit else 0}
     row |= harmonic_columns(names, harmonics, fit.X if fit else None, fit.sigma if fit else None,
                             fit.noise if fit else None)
     usable = fit is not None and note == "ok"
