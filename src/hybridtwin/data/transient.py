@@ -190,7 +190,7 @@ def track_record(record: Record, sheet_row: Mapping, harmonics: int, sensor_rang
             with warnings.catch_warnings(record=True) as found:
                 warnings.simplefilter("always", SlowRollWarning)
                 runout = slow_roll_runout(orders, band_rpm=(min(plan.slowroll[0], float(profile.rpm.min())),
-                                                            plan.slowroll[1]))
+                                                            plan.slowroll[1]), mode=record_mode(orders, record.names))
             caught = [str(w.message) for w in found]
             orders = compensate(orders, runout)
     except TrackingError as err:
@@ -298,6 +298,19 @@ def summary_row(tracked: TrackedRecord, names: Sequence[str]) -> dict:
         status = "excluded: no usable band (" + status + ")"
     return out | {"usable": bool(usable.any()), "note": status, "status": status,
                   "warnings": " | ".join(tracked.warnings)}
+
+
+def record_mode(orders: pd.DataFrame, names: Sequence[str]) -> tuple[float, float] | None:
+    """(omega_n [rad/s], zeta) of a record's first resonance from its order table before the runout is removed
+    (``one_mode_fit`` of the strongest channel's 1X over the windows: its constant term takes the runout), for the
+    slow-roll estimate's dynamic shape (``slow_roll.runout``); None where no resonance is in sight."""
+    amp = [np.nanmax(np.hypot(orders[harmonic_column(c, 1, "re")], orders[harmonic_column(c, 1, "im")])) for c in names]
+    c = names[int(np.argmax(amp))]
+    X = (orders[harmonic_column(c, 1, "re")] + 1j * orders[harmonic_column(c, 1, "im")]).to_numpy()
+    sigma = orders[harmonic_column(c, 1, "sigma")].to_numpy(float)
+    keep = np.isfinite(X) & np.isfinite(sigma) & (sigma > 0)
+    mode = one_mode_fit(orders["rpm"].to_numpy(float)[keep] * math.pi / 30.0, X[keep], sigma[keep])
+    return None if mode is None else mode[:2]
 
 
 def one_mode_fit(omega: Array, X: Array, sigma: Array) -> tuple[float, float, float] | None:

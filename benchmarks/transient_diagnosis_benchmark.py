@@ -1,0 +1,150 @@
+"""Diagnosis benchmark on transient records: run-ups and coast-downs made by time integration, every nuisance on.
+
+    python benchmarks/transient_diagnosis_benchmark.py [--cases none,slope_spring,...] [--seed 38] [--trials 4]
+                                                       [--out results/benchmarks/transient_diagnosis_benchmark.tsv]
+                                                       [--data results/benchmarks/transient_diagnosis_data]
+
+The transient counterpart of ``benchmarks/diagnosis_benchmark.py`` (same cases, same judging, same base fit with
+the full solver from random starts, same ``diagnosis.diagnose``); what differs is the data:
+
+- the plan is the run-up example's fit records (``examples/runup/runs.tsv``, role fit: a run-up at 14.8 g to 900
+  RPM, a run-up without added mass to 1000 RPM, a coast-down at 25.9 g from 650 RPM);
+- the virtual rig (``hybridtwin.data.rig.generate``) integrates the equations of motion in time along each
+  record's speed profile with the example's nuisances (``examples/runup/config/config.yaml``, rig: runup): a
+  keyphasor, probes at 45 and 135 degrees, micrometres, slow-roll runout at 1X and 2X, offsets, noise, a drive
+  whose rate wobbles around 10 RPM/s; the truth is the Geometric model plus the case's hidden effect(s);
+- the records are read and tracked as the workflow's ``track_record`` rule does (``transient.track_record``: the
+  speed from the keyphasor, probes turned into x and y, runout subtracted, 20-RPM speed bands, the bands where
+  the sweep is too fast for a quasi-steady model kept out with their note); the usable bands are the fit's runs;
+- the bow is shared by every band and record (the example's ``identification: per_run: []``).
+
+Printed per case as the steady benchmark prints: top-1, verdict, chi^2/dof before and after, each hidden value
+against its 95 % interval, the times. The noise floor is the "none" case's base chi^2/dof.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import pandas as pd
+import yaml
+from threadpoolctl import threadpool_limits
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from diagnosis_benchmark import CASES, MIDSPAN_CUBIC, TRUTH, base_fit, estimates, judge  # noqa: E402
+
+from hybridtwin.data.measured import run_data  # noqa: E402
+from hybridtwin.data.measurements import read_record, read_runs  # noqa: E402
+from hybridtwin.data.rig import RigSpec, generate, read_plan  # noqa: E402
+from hybridtwin.data.transient import track_record  # noqa: E402
+from hybridtwin.diagnose import diagnosis as dg  # noqa: E402
+from hybridtwin.model.candidates import candidates_for  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLE = ROOT / "examples/runup"
+log = logging.getLogger("transient_diagnosis_benchmark")
+
+
+def make_data(case: str, out: Path, seed: int, harmonics: int, runs: list[str] | None = None,
+              imperfections: dict | None = None) -> tuple[list, float, int]:
+    """The case's transient fit records (rig, time integration) tracked into usable speed bands (RunData), the
+    rig's seconds and the number of bands kept out. ``runs``: which of the example's records (default: its fit
+    records); ``imperfections``: overrides of the example rig's nuisances."""
+    effects, values, _ = CASES[case]
+    example = yaml.safe_load((EXAMPLE / "config/config.yaml").read_text())
+    rig = example["rig"]["runup"]
+    base_effects = [e for e in rig["truth"]["effects"] if e != "slope_spring"]
+    spec = {"seed": seed, "harmonics": rig["harmonics"],
+            "truth": {"description": case, "effects": base_effects + effects, "values": TRUTH | values},
+            "imperfections": rig["imperfections"] | dict(imperfections or {})}
+    plan = read_plan(EXAMPLE / "runs.tsv")
+    plan = plan[plan["run"].isin(runs) if runs else plan["role"] == "fit"].reset_index(drop=True)
+    start = time.perf_counter()
+    if not (out / "runs.tsv").is_file():  # records kept from an earlier run (--data) are reused
+        generate(plan, RigSpec.from_mapping(spec, {"midspan_cubic": MIDSPAN_CUBIC}), out)
+    seconds = time.perf_counter() - start
+    sheet = read_runs(out / "runs.tsv")
+    sensors = example["machine"]["sensors"]
+    bands = []
+    for _, row in sheet.iterrows():
+        record = read_record(row["record"], sensors)
+        bands.append(track_record(record, row.to_dict(), harmonics).bands)
+    table = pd.concat(bands, ignore_index=True)
+    data = [run_data(table, run, harmonics) for run in table["run"]]
+    usable = [d for d in data if d.usable]
+    return usable, seconds, len(data) - len(usable)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--cases", default=",".join(CASES), help="comma-separated subset of: " + ", ".join(CASES))
+    parser.add_argument("--seed", type=int, default=38)
+    parser.add_argument("--trials", type=int, default=4, help="random starts of the base fit")
+    parser.add_argument("--harmonics", type=int, default=3)
+    parser.add_argument("--out", default=str(ROOT / "results/benchmarks/transient_diagnosis_benchmark.tsv"))
+    parser.add_argument("--data", default=None,
+                        help="keep each case's rig records in DATA/seed{seed}/{case} and reuse them when present "
+                             "(default: a temporary directory, made anew)")
+    args = parser.parse_args()
+    cases = [c.strip() for c in args.cases.split(",") if c.strip()]
+    unknown = sorted(set(cases) - set(CASES))
+    if unknown:
+        parser.error(f"unknown case(s) {unknown}; known: {', '.join(CASES)}")
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s", stream=sys.stderr)
+    config = yaml.safe_load((ROOT / "config/config.yaml").read_text())
+    config["identification"]["per_run"] = []  # the bow is the shaft's: shared by every band and record
+    options = dg.settings(config)
+    rows = []
+    for case in cases:
+        with tempfile.TemporaryDirectory() as tmp, threadpool_limits(1):
+            where = Path(args.data) / f"seed{args.seed}" / case if args.data else Path(tmp)
+            where.mkdir(parents=True, exist_ok=True)
+            data, rig_s, kept_out = make_data(case, where, args.seed, args.harmonics)
+            start = time.perf_counter()
+            base, fit = base_fit(data, config, args.trials, args.seed, args.harmonics)
+            fit_s = time.perf_counter() - start
+            log.info("[%s] %d usable bands (%d kept out); base fit %.0f s: chi^2/dof %.4g; polish starts:\n%s",
+                     case, len(data), kept_out, fit_s, fit.chi2_dof, fit.starts.to_string(index=False))
+            candidates = candidates_for([e.name for e in base.variant.model.effects])
+            start, cpu = time.perf_counter(), time.process_time()
+            result = dg.diagnose(base, candidates, options, log)
+            diagnose_s, diagnose_cpu_s = time.perf_counter() - start, time.process_time() - cpu
+        top, correct = judge(case, result)
+        after = result.path[-1].chi2_dof_after if result.path else result.summary["base_chi2_dof"]
+        rows.append({"case": case, "bands": len(data), "bands_kept_out": kept_out, "top1": top, "correct": correct,
+                     "visible": bool(result.summary["misfit"]), "verdict": result.conclusion.split(":")[0],
+                     "status": result.status.value, "chi2_dof_before": result.summary["base_chi2_dof"],
+                     "chi2_dof_after": after, "path": " + ".join(s.effect for s in result.path),
+                     "estimate_vs_truth": estimates(case, result), "rig_s": rig_s, "fit_s": fit_s,
+                     "diagnose_s": diagnose_s, "diagnose_cpu_s": diagnose_cpu_s,
+                     "refits": len(result.summary["refitted"]),
+                     "fingerprint": result.summary.get("fingerprint", "") if not result.path else "",
+                     "conclusion": result.conclusion})
+        row = rows[-1]
+        print(f"[{case}] top-1 {top} ({'correct' if correct else 'WRONG'}), {row['verdict']}; chi^2/dof "
+              f"{row['chi2_dof_before']:.3g} -> {after:.3g}; {row['estimate_vs_truth']}; {len(data)} bands; rig "
+              f"{rig_s:.0f} s, base fit {fit_s:.0f} s, diagnosis {diagnose_s:.0f} s wall, {diagnose_cpu_s:.0f} s CPU",
+              flush=True)
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+        pd.DataFrame(rows).to_csv(args.out, sep="\t", index=False, float_format="%.6g")  # after every case
+    table = pd.DataFrame(rows)
+    floor = table.loc[table["case"] == "none", "chi2_dof_before"]
+    if len(floor):
+        table["after_over_floor"] = table["chi2_dof_after"] / float(floor.iloc[0])
+    table.to_csv(args.out, sep="\t", index=False, float_format="%.6g")
+    pd.set_option("display.width", 250)
+    pd.set_option("display.max_colwidth", 70)
+    shown = [c for c in ["case", "bands", "top1", "correct", "verdict", "chi2_dof_before", "chi2_dof_after",
+                         "after_over_floor", "estimate_vs_truth", "rig_s", "fit_s", "diagnose_s"] if c in table]
+    print(table[shown].to_string(index=False, float_format=lambda v: f"{v:.3g}"))
+    print(f"\ncorrect: {int(table['correct'].sum())} of {len(table)}; table written to {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
