@@ -168,3 +168,29 @@ def test_bands_where_the_sweep_is_too_fast_are_kept_out_with_a_note(tmp_path):
     noisy, _ = swept_record(tmp_path / "noisy.csv", noise=2e-4)
     loud = track_record(noisy, ROW, harmonics=3).bands
     assert (loud["sweep_check"] == "too fast").sum() < (bands["sweep_check"] == "too fast").sum()
+
+
+def test_a_bands_sigma_keeps_its_noise_when_read_for_the_fit(tmp_path):
+    """The keyphasor's share in a band's sigma is that of the mean of its n marks (phase error Omega sigma_t /
+    sqrt n, ``transient.band_row``'s phase_origin_sigma_s); ``measured.run_data`` takes exactly that share out for
+    the phase prior. Taking out the per-mark share instead (n times larger in variance) collapsed the sigma of
+    strong bands to 1e-3 of their noise (the bug this guards: chi^2/dof in the millions on correct data). Every
+    usable band keeps at least half its table sigma (the share is a small part of it below the resonance)."""
+    from hybridtwin.data.measured import run_data
+
+    record, _ = swept_record(tmp_path / "up.csv")
+    bands = track_record(record, ROW, harmonics=3).bands
+    usable = bands[bands["usable"].astype(bool)]
+    assert len(usable) > 15
+    # the per-mark share, h Omega sigma_t |X_h| / sqrt 2, exceeds the 1X's whole sigma in strong bands: taking it out
+    # is what collapsed them (so this test tells the two apart)
+    per_mark = (usable["rpm_true"] * np.pi / 30 * usable["phase_origin_sigma_s"] * np.sqrt(usable["n_revolutions"])
+                * usable["x1_amp_m"] / math.sqrt(2))
+    assert (per_mark > usable["x1_sigma_m"]).sum() >= 3
+    for _, b in usable.iterrows():
+        data = run_data(bands, b["run"], 3)
+        table_sigma = np.array([[b[f"{c}{h}_sigma_m"] for c in ("x", "y")] for h in (1, 2, 3)])
+        assert np.all(data.sigma >= 0.5 * table_sigma) and np.all(data.sigma <= table_sigma * (1 + 1e-12))
+        omega = b["rpm_true"] * np.pi / 30
+        assert math.isclose(data.phase_sigma, omega * b["phase_origin_sigma_s"], rel_tol=1e-9)
+        assert b["phase_origin_sigma_s"] < 1.0 / FS / math.sqrt(12) / math.sqrt(b["n_revolutions"]) * 1.5
