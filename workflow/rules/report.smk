@@ -255,3 +255,92 @@ rule report_summary:
         "../envs/hybridtwin.yaml"
     script:
         "../../scripts/report_summary.py"
+
+
+# Run-ups and coast-downs (issue 38, item 7): the pictures engineers read of each transient record of the sheet.
+from hybridtwin.report.transient_plots import settings as transient_settings
+
+TRANSIENT_DISPLAY = transient_settings(config)  # config report: transient: (frame, amplitude, phase, orbit_rpm)
+
+
+def transient_records():
+    """The sheet's run-ups and coast-downs (``kind`` runup or coastdown), in its order, as plain rows."""
+    return [{"run": str(r["run"]), "kind": str(r["kind"]).strip().lower(), "role": str(r.get("role") or "fit"),
+             "eccentric_mass_g": float(r["eccentric_mass_g"]), "record": str(r["record"])}
+            for r in read_runs(RUNS_SHEET, require_mass=True).to_dict("records") if is_transient_row(r)]
+
+
+def transient_input(wildcards):
+    """Each transient record's tracking outputs and the record itself (its orbits), in the sheet's order."""
+    runs = [r["run"] for r in transient_records()]
+    return {name: expand(f"results/data/records/{{run}}/{name}.tsv", run=runs)
+            for name in ("orders", "bands", "runout")} | {"records": [r["record"] for r in transient_records()]}
+
+
+rule report_transient:
+    """Per transient record: Bode and polar plots of its tracked order vectors with the fitted twin on top and the
+    residual in units of the noise, and its orbits at chosen speeds (hybridtwin.report.transient_plots)."""
+    input:
+        unpack(transient_input),
+        parameters="results/{variant}/parameters.tsv",
+        effects=variant_effects,  # their contents build the variant (params.model has only the paths)
+    output:
+        figures=report(
+            directory("results/{variant}/report/transient"),
+            patterns=["{run}/{figure}.png"],
+            caption="../report/report_transient.rst",
+            category="Transient records",
+            subcategory="{variant}",
+            labels={"variant": "{variant}", "record": "{run}", "figure": "{figure}"},
+        ),
+        table=report(
+            "results/{variant}/report/transient.tsv",
+            caption="../report/report_transient_table.rst",
+            category="Transient records",
+            subcategory="{variant}",
+        ),
+    params:
+        model=variant_model,
+        runs=lambda wildcards: run_plan(config)[["run", "rpm", "eccentric_mass_g"]].to_dict("list"),  # the bow's law
+        records=lambda wildcards: [{k: r[k] for k in ("run", "kind", "role", "eccentric_mass_g")}
+                                   for r in transient_records()],
+        harmonics=config["harmonics"],
+        law=lambda wildcards: rule_settings(config, wildcards.variant, "validation")["validation_bow"],
+        display=TRANSIENT_DISPLAY,
+        **SENSOR_PARAMS,
+    log:
+        "logs/{variant}/report_transient.log",
+    benchmark:
+        "results/benchmarks/{variant}/report_transient.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
+    script:
+        "../../scripts/report_transient.py"
+
+
+rule report_waterfall:
+    """The waterfall of one transient record: its short-time spectra against the keyphasor's speed, per probe
+    (hybridtwin.report.transient_plots.waterfall)."""
+    input:
+        record=lambda wildcards: sheet_entry(RUNS_SHEET, wildcards.run)["record"],
+        speed="results/data/records/{run}/speed.tsv",
+    wildcard_constraints:
+        run="[A-Za-z0-9_-]+",
+    output:
+        waterfall=report(
+            "results/data/report/records/{run}/waterfall.png",
+            caption="../report/report_waterfall.rst",
+            category="Measurements",
+            labels={"record": "{run}", "figure": "waterfall"},
+        ),
+    params:
+        display={k: TRANSIENT_DISPLAY[k] for k in ("frame", "amplitude")},
+        **SENSOR_PARAMS,
+    log:
+        "logs/data/report_waterfall/{run}.log",
+    benchmark:
+        "results/benchmarks/data/report_waterfall/{run}.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
+    script:
+        "../../scripts/report_waterfall.py"
