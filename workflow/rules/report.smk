@@ -257,26 +257,8 @@ rule report_summary:
         "../../scripts/report_summary.py"
 
 
-# Run-ups and coast-downs (issue 38, item 7): the pictures engineers read of each transient record of the sheet.
-from hybridtwin.report.transient_plots import settings as transient_settings
-
-TRANSIENT_DISPLAY = transient_settings(config)  # config report: transient: (frame, amplitude, phase, orbit_rpm)
-
-
-def transient_records():
-    """The sheet's run-ups and coast-downs (``kind`` runup or coastdown), in its order, as plain rows."""
-    return [{"run": str(r["run"]), "kind": str(r["kind"]).strip().lower(), "role": str(r.get("role") or "fit"),
-             "eccentric_mass_g": float(r["eccentric_mass_g"]), "record": str(r["record"])}
-            for r in read_runs(RUNS_SHEET, require_mass=True).to_dict("records") if is_transient_row(r)]
-
-
-def transient_input(wildcards):
-    """Each transient record's tracking outputs and the record itself (its orbits), in the sheet's order."""
-    runs = [r["run"] for r in transient_records()]
-    return {name: expand(f"results/data/records/{{run}}/{name}.tsv", run=runs)
-            for name in ("orders", "bands", "runout")} | {"records": [r["record"] for r in transient_records()]}
-
-
+# Run-ups and coast-downs (issue 38, item 7): the pictures engineers read of each transient record of the sheet
+# (transient_records, transient_input and TRANSIENT_DISPLAY in common.smk).
 rule report_transient:
     """Per transient record: Bode and polar plots of its tracked order vectors with the fitted twin on top and the
     residual in units of the noise, and its orbits at chosen speeds (hybridtwin.report.transient_plots)."""
