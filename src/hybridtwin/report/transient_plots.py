@@ -41,6 +41,7 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+import matplotlib.ticker  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
@@ -255,11 +256,12 @@ def _kept_spans(table: pd.DataFrame) -> list[tuple[float, float, str]]:
 # --- the figures ---------------------------------------------------------------------------------------------
 
 
-def _title(table: pd.DataFrame, what: str, variant: str, display: Display) -> str:
+def _title(table: pd.DataFrame, what: str, variant: str, display: Display,
+           marks: str = "points, 2 sigma bars; hollow: kept out of the fit, shaded") -> str:
     r = table.iloc[0]
     frame = "each probe as it reads (at its angle)" if r["frame"] == "probes" else "the plane's x and y"
     return (f"{r['run']} ({r['kind']}, {r['eccentric_mass_g']:g} g, {r['role']}): {what}, variant {variant}\n"
-            f"measured order vectors (points, 2 sigma bars; hollow: kept out of the fit, shaded) vs the twin along "
+            f"measured order vectors ({marks}) vs the twin along "
             f"the {'run-down' if str(r['kind']) == 'coastdown' else 'run-up'} (line); {frame}; "
             f"{display.amplitude}, phase {display.phase}")
 
@@ -308,9 +310,11 @@ def plot_bode(table: pd.DataFrame, variant: str, display: Display = Display(), o
                 ax.grid(alpha=0.3, which="both")
                 for lo, hi, label in spans:
                     ax.axvspan(lo, hi, color="0.85", zorder=0)
-            for lo, hi, label in spans:
-                amp.annotate(label.replace("_", " "), (0.5 * (lo + hi), 1.0), xycoords=("data", "axes fraction"),
-                             ha="center", va="top", fontsize=7, color="0.35")
+            for lo, hi, label in spans:  # each kept-out span named, upright along its left edge
+                amp.annotate(label.replace("_", " "), (lo, 0.98), xycoords=("data", "axes fraction"), rotation=90,
+                             ha="left", va="top", fontsize=7, color="0.35")
+            res.yaxis.set_major_formatter(matplotlib.ticker.FuncFormatter(lambda v, _: f"{v:g}"))
+            res.yaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
         axes[-1, col].set_xlabel("speed [RPM]")
     _legend(fig, [axes[0, 0], axes[2, 0]])
     fig.suptitle(_title(table, "Bode plot", variant, display), fontsize=9)
@@ -326,7 +330,8 @@ def plot_polar(table: pd.DataFrame, variant: str, display: Display = Display(), 
     channels = list(dict.fromkeys(table["channel"]))
     orders = [h for h in orders if h <= int(table["harmonic"].max())]
     fig, axes = plt.subplots(len(channels), len(orders), squeeze=False, subplot_kw={"projection": "polar"},
-                             figsize=(max(4.8 * len(orders), 10.0), 4.9 * len(channels)))
+                             figsize=(max(5.6 * len(orders), 10.0), 5.2 * len(channels)))
+    fig.subplots_adjust(wspace=0.45, hspace=0.35, left=0.04, right=0.86, bottom=0.1, top=0.86)
     lo, hi = float(table["rpm"].min()), float(table["rpm"].max())
     scatter = None
     for col, h in enumerate(orders):
@@ -345,10 +350,12 @@ def plot_polar(table: pd.DataFrame, variant: str, display: Display = Display(), 
             ax.plot(np.linspace(0, 2 * np.pi, 90), np.full(90, noise), ":", color="0.4", lw=1, label="noise (2 sigma)")
             ax.set_title(f"{h}X, {c}: radius [{display.unit}], angle phase {display.phase} [deg]", fontsize=8)
             ax.tick_params(labelsize=7)
+            ax.set_rlabel_position(100)
     if scatter is not None:
-        fig.colorbar(scatter, ax=axes.ravel().tolist(), shrink=0.6, label="speed [RPM]")
+        fig.colorbar(scatter, cax=fig.add_axes((0.9, 0.3, 0.015, 0.45)), label="speed [RPM]")
     _legend(fig, [axes[0, 0]])
-    fig.suptitle(_title(table, "polar plot", variant, display), fontsize=9)
+    fig.suptitle(_title(table, "polar plot", variant, display, "points coloured by speed; hollow: kept out of the "
+                        "fit"), fontsize=9)
     return fig
 
 
@@ -447,13 +454,16 @@ def orbit_speeds(orders: pd.DataFrame, bands: pd.DataFrame, requested: Sequence[
                  ) -> tuple[list[int], list[str]]:
     """(indexes of the order table's windows whose speed is nearest each requested speed, notes on the speeds
     the record does not reach). None: three speeds, the lowest band's, the record's largest 1X (over every
-    channel) and its top speed."""
+    channel; the middle of the two others where that is within 10 % of the span from the top) and its top
+    speed."""
     rpm = orders["rpm"].to_numpy(float)
     notes = []
     if requested is None:
         channels = table_channels(orders)
         first = np.abs(np.stack([order_vector(orders, c, 1)[0] for c in channels], 1)).max(1)
         picks = [float(bands["band_lo_rpm"].min()), float(rpm[int(np.nanargmax(first))]), float(rpm.max())]
+        if abs(picks[1] - picks[2]) < 0.1 * np.ptp(rpm):  # the largest 1X at the top: the middle instead
+            picks[1] = 0.5 * (picks[0] + picks[2])
     else:
         picks = []
         for r in requested:
