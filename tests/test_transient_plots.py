@@ -254,3 +254,30 @@ def test_the_figures_are_written(tracked, tmp_path):
     assert written == ["bode_model.png", "bode_probes.png", "orbits.png", "polar_model.png", "polar_probes.png",
                        "waterfall.png"]
     assert all((tmp_path / name).stat().st_size > 10_000 for name in written)
+
+
+def test_a_sheet_with_transient_rows_has_their_pictures_among_the_default_targets(tmp_path):
+    """A dry run of the workflow on a sheet with a run-up and a coast-down: the default target plans one
+    report_transient per variant and one report_waterfall per record (the bundled steady sheet plans none: the
+    rules exist only for sheets with transient rows)."""
+    import subprocess
+    import sys
+
+    from test_workflow import SMALL, _copy_workflow
+
+    work = _copy_workflow(tmp_path, runs=[], config=SMALL.replace("data/small/runs.tsv", "runs.tsv"))
+    (work / "records").mkdir()
+    for name in ("up.csv", "down.csv"):
+        record = swept_record(Sweep(300.0, 600.0, 3.0, 0.0), Response(), harmonics=1)
+        pd.DataFrame({"time_s": record.time_s, "x_mm": 1e3 * record.channels["x"],
+                      "y_mm": 1e3 * record.channels["y"], "keyphasor": record.keyphasor.astype(int)}
+                     ).to_csv(work / "records" / name, index=False)
+    (work / "runs.tsv").write_text("run\tkind\trpm_start\trpm_end\teccentric_mass_g\tpath\trole\n"
+                                   "up\trunup\t300\t600\t10\trecords/up.csv\tfit\n"
+                                   "down\tcoastdown\t600\t300\t10\trecords/down.csv\tvalidate\n")
+    run = subprocess.run([sys.executable, "-m", "snakemake", "-n", "--cores", "1"], cwd=work, capture_output=True,
+                         text=True)
+    assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-2000:]
+    counts = {line.split()[0]: int(line.split()[1]) for line in run.stdout.splitlines()
+              if len(line.split()) == 2 and line.split()[1].isdigit()}
+    assert counts.get("report_transient") == 2 and counts.get("report_waterfall") == 2, counts
