@@ -55,4 +55,8 @@ rule all:
         "results/ledger.tsv",
         "results/ledger.png",
         "results/summary.tsv",
+        # a sheet with run-ups or coast-downs: their Bode, polar and orbit figures per variant, and waterfalls
+        expand("results/{variant}/report/{name}", variant=VARIANTS if transient_records() else [],
+               name=["transient", "transient.tsv"]),
+        expand("results/data/report/records/{run}/waterfall.png", run=[r["run"] for r in transient_records()]),
     default_target: True

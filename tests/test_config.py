@@ -211,9 +211,11 @@ def _library_defaults() -> dict:
     from hybridtwin.diagnose import diagnosis
     from hybridtwin.identify import identification
     from hybridtwin.config import OFFLINE_DEFAULTS
+    from hybridtwin.report import transient_plots
 
     return {"effects_files": [],  # hybridtwin.config.user_effects: no key, no effects files
-            "offline": OFFLINE_DEFAULTS, "identification": identification.DEFAULTS, "diagnosis": diagnosis.DEFAULTS}
+            "offline": OFFLINE_DEFAULTS, "identification": identification.DEFAULTS, "diagnosis": diagnosis.DEFAULTS,
+            "report": {"transient": transient_plots.DEFAULTS}}
 
 
 def _schema() -> dict:

@@ -12,6 +12,7 @@ from hybridtwin.identify.identification import settings as identification_settin
 from hybridtwin.data.measurements import DataError, read_runs
 from hybridtwin.data.run_kinds import is_transient_row
 from hybridtwin.model.variants import nested_parents, parent_variant
+from hybridtwin.report.transient_plots import settings as transient_settings
 
 
 validate(config, "../schemas/config.schema.yaml")
@@ -156,3 +157,23 @@ def measured_tables(wildcards):
     """Each sheet row's harmonics table, in the sheet's order: a steady run's, or a transient record's bands."""
     return [f"results/data/records/{r['run']}/bands.tsv" if is_transient_row(r)
             else f"results/data/runs/{r['run']}/harmonics.tsv" for r in read_runs(config.get("runs", "data/default/runs.tsv")).to_dict("records")]
+
+
+# the figures of run-ups and coast-downs (report_transient, report_waterfall; issue 38 item 7)
+TRANSIENT_DISPLAY = transient_settings(config)  # config report: transient: (frame, amplitude, phase, orbit_rpm)
+
+
+def transient_records():
+    """The sheet's run-ups and coast-downs (``kind`` runup or coastdown), in its order, as plain rows."""
+    rows = read_runs(config.get("runs", "data/default/runs.tsv"), require_mass=True).to_dict("records")
+    return [{"run": str(r["run"]), "kind": str(r["kind"]).strip().lower(),
+             "role": r["role"] if isinstance(r.get("role"), str) else "fit",  # no role column: every run fits
+             "eccentric_mass_g": float(r["eccentric_mass_g"]), "record": str(r["record"])}
+            for r in rows if is_transient_row(r)]
+
+
+def transient_input(wildcards):
+    """Each transient record's tracking outputs and the record itself (its orbits), in the sheet's order."""
+    runs = [r["run"] for r in transient_records()]
+    return {name: expand(f"results/data/records/{{run}}/{name}.tsv", run=runs)
+            for name in ("orders", "bands", "runout")} | {"records": [r["record"] for r in transient_records()]}

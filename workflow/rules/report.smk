@@ -255,3 +255,74 @@ rule report_summary:
         "../envs/hybridtwin.yaml"
     script:
         "../../scripts/report_summary.py"
+
+
+# Run-ups and coast-downs (issue 38, item 7): the pictures engineers read of each transient record of the sheet
+# (transient_records, transient_input and TRANSIENT_DISPLAY in common.smk).
+rule report_transient:
+    """Per transient record: Bode and polar plots of its tracked order vectors with the fitted twin on top and the
+    residual in units of the noise, and its orbits at chosen speeds (hybridtwin.report.transient_plots)."""
+    input:
+        unpack(transient_input),
+        parameters="results/{variant}/parameters.tsv",
+        effects=variant_effects,  # their contents build the variant (params.model has only the paths)
+    output:
+        figures=report(
+            directory("results/{variant}/report/transient"),
+            patterns=["{run}/{figure}.png"],
+            caption="../report/report_transient.rst",
+            category="Transient records",
+            subcategory="{variant}",
+            labels={"variant": "{variant}", "record": "{run}", "figure": "{figure}"},
+        ),
+        table=report(
+            "results/{variant}/report/transient.tsv",
+            caption="../report/report_transient_table.rst",
+            category="Transient records",
+            subcategory="{variant}",
+        ),
+    params:
+        model=variant_model,
+        runs=lambda wildcards: run_plan(config)[["run", "rpm", "eccentric_mass_g"]].to_dict("list"),  # the bow's law
+        records=lambda wildcards: [{k: r[k] for k in ("run", "kind", "role", "eccentric_mass_g")}
+                                   for r in transient_records()],
+        harmonics=config["harmonics"],
+        law=lambda wildcards: rule_settings(config, wildcards.variant, "validation")["validation_bow"],
+        display=TRANSIENT_DISPLAY,
+        **SENSOR_PARAMS,
+    log:
+        "logs/{variant}/report_transient.log",
+    benchmark:
+        "results/benchmarks/{variant}/report_transient.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
+    script:
+        "../../scripts/report_transient.py"
+
+
+rule report_waterfall:
+    """The waterfall of one transient record: its short-time spectra against the keyphasor's speed, per probe
+    (hybridtwin.report.transient_plots.waterfall)."""
+    input:
+        record=lambda wildcards: sheet_entry(RUNS_SHEET, wildcards.run)["record"],
+        speed="results/data/records/{run}/speed.tsv",
+    wildcard_constraints:
+        run="[A-Za-z0-9_-]+",
+    output:
+        waterfall=report(
+            "results/data/report/records/{run}/waterfall.png",
+            caption="../report/report_waterfall.rst",
+            category="Measurements",
+            labels={"record": "{run}", "figure": "waterfall"},
+        ),
+    params:
+        display={k: TRANSIENT_DISPLAY[k] for k in ("frame", "amplitude")},
+        **SENSOR_PARAMS,
+    log:
+        "logs/data/report_waterfall/{run}.log",
+    benchmark:
+        "results/benchmarks/data/report_waterfall/{run}.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
+    script:
+        "../../scripts/report_waterfall.py"
