@@ -37,9 +37,10 @@ BOOLEAN_COLUMNS = ("pair", "meets")
 
 
 def write_table(table: pd.DataFrame, path: Path) -> None:
-    """A table as TSV, every float to full precision (``read_table`` is its exact inverse)."""
+    """A table as TSV, every float as its shortest exact repr (``0.0``, ``1e-05``: a float stays a float, to the
+    last bit), so that ``read_table`` is its exact inverse, values and types."""
     try:
-        table.to_csv(path, sep="\t", index=False, float_format="%.17g")
+        table.to_csv(path, sep="\t", index=False, float_format=lambda v: repr(float(v)))
     except OSError as err:
         raise UsageError(f"{path}: cannot write: {err.strerror or err}") from None
 
