@@ -141,7 +141,6 @@ def simulate(args: argparse.Namespace) -> int:
     variant, source = chosen_variant(args)
     machine = variant.model.shaft
     node = _plane(machine, args.plane, source)
-    values = variant_values(variant, args)
     for option, path in (("--output", args.output), ("--time-series", args.time_series)):
         if path is not None:
             check_writable(path, option)
@@ -150,6 +149,7 @@ def simulate(args: argparse.Namespace) -> int:
         if samples > MAX_SAMPLES:
             raise UsageError(f"--time-series: {args.cycles:g} revolutions at dt = {args.dt:g} s are {samples:.3g} "
                              f"samples (at most {MAX_SAMPLES:.0e}): raise --dt or lower --cycles")
+    values = variant_values(variant, args)
     result, notes, failures = _solve(variant, values, args)
     for note in notes:
         print(f"# {note}", file=sys.stderr)
