@@ -378,3 +378,93 @@ def test_simulate_refuses_a_mass_in_kilograms_as_the_runs_sheet_does(capsys, tmp
     assert code == 2 and out == ""
     assert "--eccentric-mass-g 0.0148: 0.0148 g looks like kilograms (14.8 g?)" in err
     assert _run(capsys, "simulate", "--rpm", 700, "--eccentric-mass-g", 0.1)[0] == 0  # the sheet's smallest mass
+
+
+# --- one's own machine without the VARM (item 4) ----------------------------------------------------------------
+
+
+def _stepped_config(plane: bool = True, effects=None, **variant) -> dict:
+    from example_machines import STEPPED_YAML
+
+    config = yaml.safe_load(STEPPED_YAML)
+    if not plane:
+        del config["machine"]["unbalance_planes"]
+    config["variants"]["linear"] = {"effects": effects or ["linear_bearing@a", "linear_bearing@b", "unbalance"],
+                                    **variant}
+    return config
+
+
+def test_the_plain_unbalance_sits_on_the_machine_not_at_the_varms_place():
+    """On a machine of one's own the built-in `unbalance` ranges over its length (1.0 m here, not the VARM's 0-0.85)
+    and sits at its unbalance plane (node 8, z = 0.4 m), not at the VARM's 0.425 m; an overhung position is in range."""
+    from hybridtwin import config as cfg
+
+    variant = cfg.variant(_stepped_config(), "linear")
+    z_me = variant.model.parameters["z_me"]
+    assert z_me.bounds == (0.0, 1.0) and z_me.nominal == pytest.approx(0.4)
+    assert float(variant.values()["z_me"]) == pytest.approx(0.4)
+    overhung = cfg.variant(_stepped_config(fixed={"z_me": 0.95}), "linear")
+    assert z_me.bounds[0] <= float(overhung.values()["z_me"]) <= z_me.bounds[1]
+
+
+def test_the_plain_unbalance_without_a_plane_is_never_placed_silently(capsys, tmp_path):
+    from hybridtwin import config as cfg
+
+    with pytest.raises(ValueError, match=r"z_me has no nominal value on this machine.*fixed:.*unbalance_planes"):
+        cfg.variant(_stepped_config(plane=False), "linear")
+    given = cfg.variant(_stepped_config(plane=False, fixed={"z_me": 0.95}), "linear")
+    assert float(given.values()["z_me"]) == 0.95
+    unknown = cfg.variant(_stepped_config(plane=False, unknown={"z_me": [0.3, 0.9]}), "linear")
+    assert float(unknown.values()["z_me"]) == pytest.approx(0.6)  # no nominal: the middle of its range
+    path = tmp_path / "config.yaml"
+    path.write_text(yaml.safe_dump(_stepped_config(plane=False)))
+    code, out, err = _run(capsys, "simulate", "--config", path, "--rpm", 2000, "--eccentric-mass-g", 20)
+    assert code == 2 and out == "" and "z_me has no nominal value" in err and len(err.strip().splitlines()) == 1
+
+
+def test_a_missing_unbalance_plane_is_named_not_hinted_to_the_varms_unbalance(tmp_path):
+    from hybridtwin import config as cfg
+    from hybridtwin.model.machine import Machine
+    from hybridtwin.model.variants import Variant
+
+    config = _stepped_config(plane=False, effects=["linear_bearing@a", "linear_bearing@b", "unbalance@d1"])
+    with pytest.raises(ValueError) as refused:
+        Variant.from_spec("linear", config["variants"]["linear"], shaft=Machine.from_mapping(config["machine"]))
+    message = str(refused.value)
+    assert "no unbalance plane 'd1' (unbalance planes: none)" in message and "did you mean" not in message
+    assert "unbalance_planes: {d1: NODE}" in message and "fixed: {z_me: METRES}" in message
+    example = yaml.safe_load((Path(__file__).resolve().parents[1] / "examples" / "stepped_rotor" / "config" /
+                              "config.yaml").read_text())
+    del example["machine"]["unbalance_planes"]
+    with pytest.raises(cfg.ConfigError) as problems:
+        cfg.check(example, config_dir=tmp_path)
+    found = [p for p in problems.value.problems if "variants.linear.effects" in p]
+    assert found and "no unbalance plane 'd1'" in found[0] and "did you mean" not in found[0]
+
+
+def test_effects_placed_at_ones_bearings_speak_of_them():
+    """Parameters named after the bearing (f2_c_b, not the node's f2_c_13), no VARM words ("rubber bushing",
+    "upper bearing"), and a nominal value that is the VARM's said to be so."""
+    from example_machines import stepped_machine
+
+    effects = stepped_machine().effects()
+    assert [p.name for p in effects["excitation_2x@b"].parameters] == ["f2_c_b", "f2_s_b"]
+    assert effects["excitation_2x@b"].switches == ("f2_c_b", "f2_s_b")
+    for name in ("lower_bearing@a", "geometric_spring@b", "upper_housing@a"):
+        effect = effects[name]
+        words = effect.meaning + " ".join(p.meaning for p in effect.parameters)
+        assert not any(w in words for w in ("rubber", "upper bearing", "lower bearing")), (name, words)
+        assert all("the VARM's value" in p.meaning for p in effect.parameters if p.nominal), name
+    # the VARM's own effects keep their words
+    from hybridtwin.model.machine import Machine
+
+    assert Machine.varm().effects()["lower_bearing@lower"].parameters[0].meaning == "lower bearing mass"
+
+
+def test_from_spec_knows_the_machines_placed_effects():
+    """docs/model.md's `Variant.from_spec(..., shaft=machine)` with the placed names of a config's variants."""
+    from example_machines import LINEAR_EFFECTS, stepped_machine
+    from hybridtwin.model.variants import Variant
+
+    variant = Variant.from_spec("linear", {"effects": LINEAR_EFFECTS}, shaft=stepped_machine())
+    assert [e.name for e in variant.model.effects] == LINEAR_EFFECTS
