@@ -468,3 +468,28 @@ def test_from_spec_knows_the_machines_placed_effects():
 
     variant = Variant.from_spec("linear", {"effects": LINEAR_EFFECTS}, shaft=stepped_machine())
     assert [e.name for e in variant.model.effects] == LINEAR_EFFECTS
+
+
+def test_summary_figure_keeps_long_variant_names_inside(tmp_path):
+    """summary.png with long variant names (one's own, e.g. a recommended variant's): every label inside the
+    figure once drawn, and the whole name readable (wrapped at '_', not cut)."""
+    from hybridtwin.report import report, summary
+
+    names = ["linear", "linear_bearing_anisotropy_at_b_with_cross_coupled_stiffness", "linear_plus_slope_force"]
+    errors = {name: pd.DataFrame({"run": ["a", "b"], "rpm": [2000.0, 3000.0], "eccentric_mass_g": 20.0,
+                                  "role": "fit", "source": "solver", "chi2": [10.0, 30.0], "dof": 10.0,
+                                  "chi2_dof": [1.0, 3.0], "p_value": 0.5, "beyond_noise": [False, True],
+                                  "error_pct": 1.0, "signal_m": 1e-5}) for name in names}
+    ledger = report.ledger_table([report.ledger_row(name, "", {"n_data": 20, "dof": 18, "chi2": 36.0}, errors[name])
+                                  for name in names])
+    figure = summary.plot_summary(ledger, errors)
+    figure.savefig(tmp_path / "summary.png", dpi=100)
+    renderer = figure.canvas.get_renderer()
+    box = figure.bbox
+    for ax in figure.axes[:2]:
+        for label in ax.get_xticklabels():
+            extent = label.get_window_extent(renderer)
+            assert box.x0 - 1 <= extent.x0 and extent.x1 <= box.x1 + 1, (label.get_text(), extent, box)
+        shown = [label.get_text().replace("\n", "") for label in ax.get_xticklabels()]
+        assert shown == names
+    mp.plt.close(figure)
