@@ -470,7 +470,7 @@ class Machine(DofCounts):
             placed.node, placed.name = node, name
         if isinstance(getattr(effect, "meaning", None), str):  # its words for the place, the place's (frozen too)
             object.__setattr__(placed, "meaning", placed_meaning(effect.meaning, at, node))
-        if not self.is_varm:  # its parameters' words too, and a nominal value that is the VARM's says so
+        if not self.varm_structure:  # its parameters' words too, and a nominal value that is the VARM's says so
             object.__setattr__(placed, "parameters", tuple(
                 dataclasses.replace(p, meaning=placed_meaning(p.meaning, at, node) + (VARM_NOMINAL if p.nominal else ""))
                 for p in placed.parameters))
@@ -496,7 +496,7 @@ class Machine(DofCounts):
                 out[candidate.name] = candidate
         for plane in self.unbalance_planes:
             out[f"unbalance@{plane.name}"] = PlaneUnbalance(name=f"unbalance@{plane.name}", node=plane.node)
-        if not self.is_varm:  # the plain `unbalance` along this shaft, not at the VARM's 0.425 m
+        if not self.varm_structure:  # the plain `unbalance` along this shaft, not at the VARM's 0.425 m
             first = self.unbalance_planes[0] if self.unbalance_planes else None
             out["unbalance"] = MachineUnbalance(self.name, self.L, None if first is None else
                                                 float(self.z[first.node]))
@@ -533,6 +533,14 @@ class Machine(DofCounts):
         if self.rotary_inertia:
             out["rotary_inertia"] = True
         return out
+
+    @cached_property
+    def varm_structure(self) -> bool:
+        """Whether this is the VARM's rotor (shaft, disks, bearings, unbalance plane), whatever its probes (e.g. the
+        run-up example's rotated ones)."""
+        def structure(machine: Machine) -> dict:
+            return {k: v for k, v in machine.to_mapping().items() if k not in ("name", "sensors")}
+        return self is _VARM or structure(self) == structure(_VARM)
 
     @property
     def is_varm(self) -> bool:
