@@ -405,6 +405,11 @@ def test_the_plain_unbalance_sits_on_the_machine_not_at_the_varms_place():
     assert float(variant.values()["z_me"]) == pytest.approx(0.4)
     overhung = cfg.variant(_stepped_config(fixed={"z_me": 0.95}), "linear")
     assert z_me.bounds[0] <= float(overhung.values()["z_me"]) <= z_me.bounds[1]
+    # the VARM's rotor with probes of its own (the run-up example's, rotated) keeps the VARM's unbalance
+    runup = yaml.safe_load((Path(__file__).resolve().parents[1] / "examples" / "runup" / "config" /
+                            "config.yaml").read_text())
+    varm = cfg.variant(runup, next(iter(runup["variants"]))).model.parameters["z_me"]
+    assert (varm.nominal, varm.bounds, varm.meaning) == (0.425, (0.0, 0.85), "axial position of the eccentric mass")
 
 
 def test_the_plain_unbalance_without_a_plane_is_never_placed_silently(capsys, tmp_path):
