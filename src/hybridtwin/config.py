@@ -26,7 +26,7 @@ from .model.bearing_candidates import at_bearing
 from .model.effects import Effect
 from .model.machine import Machine, MachineSpecError
 from .offline.scenarios import default_n_scenarios
-from .model.variants import EffectsFileError, Variant, load_effects_files
+from .model.variants import EffectsFileError, Variant, load_effects_files, unbalance_hint
 
 CONFIG_DIR = Path("config")
 CONFIG_FILE = CONFIG_DIR / "config.yaml"
@@ -282,6 +282,9 @@ def _no_such_effect(effect: str, registry: Mapping, rotor) -> str:
     bare = [b for b in getattr(rotor, "bearings", ()) if b.name == bearing and (b.k is None or
                                                                                  (kind == "cross_coupled_damping"
                                                                                   and not b.c))]
+    if kind == "unbalance" and bearing:  # unbalance@<plane>: the plane is not declared
+        planes = [p.name for p in getattr(rotor, "unbalance_planes", ())]
+        return f"no effect named {effect!r}: {unbalance_hint(bearing, planes)}"
     if sized and bare:
         need = "c > 0" if kind == "cross_coupled_damping" else "k (and c)"
         return (f"no effect named {effect!r}: bearing {bearing!r} is declared without its nominal {need} in "

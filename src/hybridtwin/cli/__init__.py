@@ -1,11 +1,12 @@
-"""Command line: ``hybridtwin simulate | effects | variants | check-data | rig``.
+"""Command line: ``hybridtwin simulate | effects | variants | check-data | rig | campbell | modes | response``.
 
 Conventions (stated once, here and in the README): amplitudes are 0-peak,
 u(t) = Re(sum_h U_h exp(i h Omega t)), t = 0 when the unbalance points to +x,
 the shaft turns from +x towards +y; SI units, units in column names.
 
 Every bad value on the command line ends in one line on standard error (exit status 2),
-never a traceback; a point where no periodic solution is found exits with status 1 and says why.
+never a traceback; a point where no periodic solution is found exits with status 1 and says why (so does an
+unstable one, unless ``simulate --unstable``, which prints it marked).
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ import numpy as np
 import pandas as pd
 
 from ..model.effects import builtin_effects
-from ..model.sensor import harmonics_frame, sensor_harmonics, time_series_frame
+from ..model.sensor import harmonics_frame, sensor_harmonics, sensor_names, time_series_frame
 from ..solvers.continuation import solve_sweep
 from ..solvers.solver import SteadyState, solve
 from ..model.variants import Variant
@@ -29,9 +30,16 @@ from ..model.variants import Variant
 from .check_data import add_check_data_command
 from .common import (
     MAX_SAMPLES, RUN_UP_FROM_RPM, RUNDOWN_FACTOR, RUNDOWN_MARGIN_RPM, SAME_BRANCH_RTOL, UsageError, _harmonics,
-    _non_negative, _parameter, _Parser, _positive, _version, build_variant, config_file, load_catalog, read_config,
+    _non_negative, _parameter, _Parser, _positive, _version, build_variant, check_writable, chosen_variant,
+    config_file, load_catalog, own_machine, variant_values,
 )
+from .machine import add_machine_commands
 from .rig import add_rig_command
+
+#: a harmonic whose amplitude is below this fraction of the table's largest is round-off (the solver's residual is
+#: ~1e-16 of the largest; a real harmonic far below 1e-12 of it is below any probe's resolution): --polar leaves
+#: its phase blank
+ZERO_HARMONIC_RTOL = 1e-12
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -39,7 +47,9 @@ def build_parser() -> argparse.ArgumentParser:
         prog="hybridtwin",
         description="Hybrid twins of rotating machines. Commands: simulate (one operating point), effects (the "
                     "physical effects), variants (the model variants), check-data (a runs sheet and its records), "
-                    "rig (virtual-rig data). The workflow itself runs with `snakemake --cores 2`.",
+                    "rig (virtual-rig data), campbell, modes and response (the machine before any data: natural "
+                    "frequencies and damping vs speed, mode shapes, unbalance response). The workflow itself runs "
+                    "with `snakemake --cores 2`.",
         epilog="Run `hybridtwin COMMAND --help` for a command's options.")
     parser.add_argument("--version", action="version", version=f"hybridtwin {_version()}")
     sub = parser.add_subparsers(dest="command", required=True, title="commands", metavar="COMMAND")
@@ -48,11 +58,14 @@ def build_parser() -> argparse.ArgumentParser:
         "simulate", help="periodic steady state at one operating point; sensor harmonics as CSV",
         description="Solve the periodic steady state at one operating point of the config's machine (its "
                     "'machine:' section; the VARM without one) and print the harmonics at its first x, y probe "
-                    "pair (node 1 on the VARM) as CSV: harmonic,u_re_m,u_im_m,v_re_m,v_im_m with "
+                    "pair (node 1 on the VARM; --plane for another, or every probe) as CSV: "
+                    "harmonic,u_re_m,u_im_m,v_re_m,v_im_m with "
                     "u(t) = Re(sum_h U_h exp(i h Omega t)), t = 0 when the unbalance points to +x "
                     "(--polar: 0-peak amplitude [um] and phase [deg] instead). When the direct solve fails, "
                     f"the point is reached by continuation by itself: a run-up from {RUN_UP_FROM_RPM:g} RPM, else "
-                    "a run-down from above; standard error says which branch is reported.",
+                    "a run-down from above; standard error says which branch is reported. An unstable solution "
+                    "(a Floquet multiplier outside the unit circle) exits with status 1, or with --unstable is "
+                    "printed, marked.",
     )
     _common(sim)
     sim.add_argument("--rpm", type=_positive, required=True, help="rotational speed [RPM]")
@@ -71,6 +84,15 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--polar", action="store_true",
                      help="print harmonic,x_amplitude_0pk_um,x_phase_deg,y_amplitude_0pk_um,y_phase_deg: "
                           "x_h(t) = A cos(h Omega t + phase), A 0-peak [um], phase [degrees]")
+    sim.add_argument("--plane", default=None, metavar="NODE|PROBE|all",
+                     help="the probe plane to print: a node with an x and a y probe, or a probe's name (its node); "
+                          "'all': every probe, columns <probe>_re_m,<probe>_im_m (--polar: "
+                          "<probe>_amplitude_0pk_um,<probe>_phase_deg; --time-series: <probe>_m) in the machine's "
+                          "order (default: the first x, y pair, columns u_*, v_*)")
+    sim.add_argument("--unstable", action="store_true",
+                     help="print an unstable steady state too (by default an error): two more columns, "
+                          "stable (True/False) and floquet_radius (the largest |Floquet multiplier|; > 1: a small "
+                          "deviation grows by that factor per revolution, the machine does not stay there)")
     sim.add_argument("--output", type=Path, default=None, help="write the harmonics CSV here instead of stdout")
     sim.add_argument("--time-series", type=Path, default=None, metavar="CSV",
                      help="also write time_s,x_m,y_m at the sensor over --cycles revolutions")
@@ -93,6 +115,7 @@ def build_parser() -> argparse.ArgumentParser:
     _common(var)
     add_check_data_command(sub)
     add_rig_command(sub)
+    add_machine_commands(sub, _common)
     return parser
 
 
@@ -115,86 +138,111 @@ def _common(parser: argparse.ArgumentParser, variant: bool = True) -> None:
 
 
 def simulate(args: argparse.Namespace) -> int:
-    source = config_file(args.config)
-    specs, user, machine = load_catalog(source, args.effects_file)
-    name = args.variant or ("geometric" if "geometric" in specs and not _own_machine(source) else next(iter(specs)))
-    variant = build_variant(name, specs, user, source, args.add_effect, machine)
-    try:
-        machine.sensor_node  # the output is the first x, y probe pair's
-    except ValueError as err:
-        raise UsageError(f"{source}: {err}") from None
-    values = dict(args.values)
-    if args.eccentric_mass_g is not None:
-        if "m_e" in values:
-            raise UsageError("give the eccentric mass once: --eccentric-mass-g or --set m_e=..., not both")
-        values["m_e"] = args.eccentric_mass_g * 1e-3
-    try:
-        overrides = variant.values(values)
-    except ValueError as err:
-        raise UsageError(str(err)) from None
-    _check_physical(variant, dict(args.values))  # --eccentric-mass-g: >= 0 by its parser
+    variant, source = chosen_variant(args)
+    machine = variant.model.shaft
+    node = _plane(machine, args.plane, source)
     for option, path in (("--output", args.output), ("--time-series", args.time_series)):
         if path is not None:
-            _check_writable(path, option)
+            check_writable(path, option)
     if args.time_series is not None:
         samples = args.cycles * 60.0 / args.rpm / args.dt
         if samples > MAX_SAMPLES:
             raise UsageError(f"--time-series: {args.cycles:g} revolutions at dt = {args.dt:g} s are {samples:.3g} "
                              f"samples (at most {MAX_SAMPLES:.0e}): raise --dt or lower --cycles")
-    _warn_defaults_and_ranges(variant, values)
-    result, notes, failures = _solve(variant, overrides, args)
+    values = variant_values(variant, args)
+    result, notes, failures = _solve(variant, values, args)
     for note in notes:
         print(f"# {note}", file=sys.stderr)
     if result is None:
         print(f"hybridtwin simulate: failed at {args.rpm:g} RPM: {'; '.join(failures)}", file=sys.stderr)
         return 1
-    if not result.stable[0]:  # solved but unstable (hybridtwin.solvers.floquet): not a state the machine stays in
-        print(f"hybridtwin simulate: unstable at {args.rpm:g} RPM, branch {result.branch[0]}: {result.message[0]}",
-              file=sys.stderr)
+    stable = bool(result.stable[0])
+    if not stable and not args.unstable:  # solved but unstable (solvers.floquet): not a state the machine stays in
+        print(f"hybridtwin simulate: unstable at {args.rpm:g} RPM, branch {result.branch[0]}: {result.message[0]} "
+              "(--unstable prints it)", file=sys.stderr)
         return 1
     where = "" if source is None else f" ({source})"
     print(f"# {variant.name}{where} at {args.rpm:g} RPM, branch {result.branch[0]}: {result.message[0]}",
           file=sys.stderr)
-    shaft = variant.model.shaft
-    table = polar_frame(result, shaft) if args.polar else harmonics_frame(result, shaft)
+    if not stable:
+        print(f"# UNSTABLE steady state printed (--unstable): largest Floquet multiplier |mu| = "
+              f"{result.floquet_radius[0]:.4g} > 1, the machine does not stay in it", file=sys.stderr)
+    table = _harmonics_table(result, machine, node, args.polar)
+    if args.unstable:
+        table["stable"], table["floquet_radius"] = stable, float(result.floquet_radius[0])
     _write(table, args.output, "--output", "%.6f" if args.polar else "%.9e")
     if args.time_series:
         t = np.arange(0.0, args.cycles * 2 * np.pi / result.Omega[0], args.dt)
-        _write(time_series_frame(result, shaft, t), args.time_series, "--time-series", "%.9e")
+        _write(_time_series(result, machine, node, t), args.time_series, "--time-series", "%.9e")
     return 0
 
 
-def polar_frame(result: SteadyState, shaft, scenario: int = 0) -> pd.DataFrame:
-    """Sensor harmonics as 0-peak amplitude [um] and phase [deg]: x_h(t) = A cos(h Omega t + phase)."""
-    U, V = sensor_harmonics(result.harmonics, shaft)
+def _plane(machine, plane: str | None, source: Path | None) -> int | str:
+    """The node of --plane (a node number or a probe's name), "all", or the first x, y pair's node (default); a
+    one-line error for a node without an x and a y probe, or no such pair at all."""
+    if plane == "all":
+        return "all"
+    if plane is None:
+        try:
+            return machine.sensor_node  # the output is the first x, y probe pair's
+        except ValueError as err:
+            raise UsageError(f"{source}: {err}; --plane all prints every probe") from None
+    pairs = {s.node for s in machine.sensors if s.direction == "x"} & {s.node for s in machine.sensors
+                                                                        if s.direction == "y"}
+    names = {s.name: s.node for s in machine.sensors}
+    node = names.get(plane)
+    if node is None:
+        try:
+            node = int(plane)
+        except ValueError:
+            raise UsageError(f"--plane {plane}: neither a node, a probe ({', '.join(names)}) nor 'all'") from None
+    if node not in pairs:
+        raise UsageError(f"--plane {plane}: node {node} has no x and y probe pair (pairs at node(s) "
+                         f"{', '.join(map(str, sorted(pairs))) or 'none'}); --plane all prints every probe")
+    return node
+
+
+def _harmonics_table(result: SteadyState, machine, node: int | str, polar: bool) -> pd.DataFrame:
+    """The harmonics at the x, y pair of ``node`` (columns u_*, v_*; polar x_*, y_*) or, for "all", at every probe
+    (columns per probe name)."""
+    if node != "all":
+        return polar_frame(result, machine, node=node) if polar else harmonics_frame(result, machine, node=node)
+    dofs = machine.sensor_dofs() if hasattr(machine, "sensor_dofs") else [machine.dof("u1"), machine.dof("v1")]
+    Z = result.harmonics[0][:, dofs]
+    table = pd.DataFrame({"harmonic": np.arange(result.H + 1)})
+    for j, name in enumerate(sensor_names(machine)):
+        if polar:
+            table[f"{name}_amplitude_0pk_um"] = np.abs(Z[:, j]) * 1e6
+            table[f"{name}_phase_deg"] = _phase_deg(Z[:, j], np.abs(Z).max())
+        else:
+            table[f"{name}_re_m"], table[f"{name}_im_m"] = Z[:, j].real, Z[:, j].imag
+    return table
+
+
+def _time_series(result: SteadyState, machine, node: int | str, t: np.ndarray) -> pd.DataFrame:
+    if node != "all":
+        return time_series_frame(result, machine, t, node=node)
+    dofs = machine.sensor_dofs() if hasattr(machine, "sensor_dofs") else [machine.dof("u1"), machine.dof("v1")]
+    series = result.time_series(t, dofs)[0]
+    return pd.DataFrame({"time_s": t} | {f"{name}_m": series[:, j] for j, name in enumerate(sensor_names(machine))})
+
+
+def _phase_deg(Z: np.ndarray, largest: float) -> np.ndarray:
+    """Phases [deg] of harmonics Z, NaN (a blank cell) where a harmonic is zero to round-off (ZERO_HARMONIC_RTOL of
+    ``largest``): a zero has no phase."""
+    return np.where(np.abs(Z) > ZERO_HARMONIC_RTOL * largest, np.degrees(np.angle(Z)), np.nan)
+
+
+def polar_frame(result: SteadyState, shaft, scenario: int = 0, node: int | None = None) -> pd.DataFrame:
+    """Sensor harmonics as 0-peak amplitude [um] and phase [deg]: x_h(t) = A cos(h Omega t + phase); the phase
+    blank (NaN) for a harmonic that is zero to round-off (``_phase_deg``)."""
+    U, V = sensor_harmonics(result.harmonics, shaft, node)
+    largest = max(np.abs(U[scenario]).max(), np.abs(V[scenario]).max())
     return pd.DataFrame({
         "harmonic": np.arange(result.H + 1),
-        "x_amplitude_0pk_um": np.abs(U[scenario]) * 1e6, "x_phase_deg": np.degrees(np.angle(U[scenario])),
-        "y_amplitude_0pk_um": np.abs(V[scenario]) * 1e6, "y_phase_deg": np.degrees(np.angle(V[scenario])),
+        "x_amplitude_0pk_um": np.abs(U[scenario]) * 1e6, "x_phase_deg": _phase_deg(U[scenario], largest),
+        "y_amplitude_0pk_um": np.abs(V[scenario]) * 1e6, "y_phase_deg": _phase_deg(V[scenario], largest),
     })
-
-
-def _check_physical(variant: Variant, given: Mapping[str, float]) -> None:
-    """Values no machine can have are errors (outside a range is only a warning): a negative mass, or a
-    value beyond a parameter's physical limits (``Parameter.limits``)."""
-    for name, value in given.items():
-        parameter = variant.model.parameters[name]
-        if parameter.unit == "kg" and value < 0:
-            raise UsageError(f"--set {name}={value:g}: a mass cannot be negative (kg)")
-        if parameter.limits is not None and not parameter.limits[0] <= value <= parameter.limits[1]:
-            lo, hi = parameter.limits
-            raise UsageError(f"--set {name}={value:g}: outside its physical limits [{lo:g}, {hi:g}] {parameter.unit}")
-
-
-def _check_writable(path: Path, option: str) -> None:
-    """An output file that cannot be written is an error before any solve."""
-    if path.is_dir():
-        raise UsageError(f"{option} {path}: is a folder, not a file")
-    folder = path.parent if str(path.parent) else Path(".")
-    if not folder.is_dir():
-        raise UsageError(f"{option} {path}: folder {folder} does not exist")
-    if not os.access(folder, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
-        raise UsageError(f"{option} {path}: not writable (permission denied)")
 
 
 def _write(table: pd.DataFrame, path: Path | None, option: str, float_format: str) -> None:
@@ -279,32 +327,16 @@ def _failure(result, start_rpm: float) -> str:
     return f"continuation from {start_rpm:g} RPM: {result.message[0]}"
 
 
-def _warn_defaults_and_ranges(variant: Variant, given: dict[str, float]) -> None:
-    defaulted = [k for k in variant.unknown if k not in given]
-    if defaulted:
-        nominal = ", ".join(f"{k}={variant.model.parameters[k].nominal:g}" for k in defaulted)
-        print(f"# note: unknown parameter(s) not given, nominal values used: {nominal}", file=sys.stderr)
-    for name, value in given.items():
-        lo, hi = variant.unknown.get(name, variant.model.parameters[name].bounds)
-        if not lo <= value <= hi:
-            print(f"# warning: {name}={value:g} lies outside its range [{lo:g}, {hi:g}]", file=sys.stderr)
-
-
 # --- effects, variants ----------------------------------------------------------------------------
 
 
 def list_effects(args: argparse.Namespace) -> int:
     source = config_file(args.config)
     _, user, machine = load_catalog(source, args.effects_file)
-    placed = machine.effects() if _own_machine(source) else {}  # linear_bearing@a, unbalance@d1, gyroscopic, ...
+    placed = machine.effects() if own_machine(source) else {}  # linear_bearing@a, unbalance@d1, gyroscopic, ...
     for effect in (builtin_effects() | placed | user).values():
         print(effect.describe(), end="\n\n")
     return 0
-
-
-def _own_machine(config: Path | None) -> bool:
-    """Whether ``config`` describes a machine of its own (a ``machine:`` section), not the VARM."""
-    return config is not None and bool(read_config(config).get("machine"))
 
 
 def describe_variants(args: argparse.Namespace) -> int:
@@ -328,7 +360,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     command = {"simulate": simulate, "effects": list_effects, "variants": describe_variants}.get(args.command)
-    command = command or args.handler  # check-data, rig: registered with set_defaults(handler=...)
+    command = command or args.handler  # check-data, rig, campbell, ...: registered with set_defaults(handler=...)
     try:
         return command(args)
     except UsageError as err:

@@ -4,6 +4,8 @@ and the parsing of numbers on the command line. Every bad value ends in a ``Usag
 from __future__ import annotations
 
 import argparse
+import os
+import sys
 from collections.abc import Mapping, Sequence
 from importlib import metadata
 from pathlib import Path
@@ -11,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from ..data.measurements import kg_looking
 from ..model.effect_base import Effect
 from ..model.effects import builtin_effects
 from ..model.machine import Machine, MachineSpecError, default_machine
@@ -178,6 +181,83 @@ def load_variants(config: Path | None, effects_files: Sequence[Path]) -> tuple[d
     """Every variant (built on the config's machine) and the user effects (``load_catalog``)."""
     specs, user, machine = load_catalog(config, effects_files)
     return {name: build_variant(name, specs, user, config, machine=machine) for name in specs}, user
+
+
+def own_machine(config: Path | None) -> bool:
+    """Whether ``config`` describes a machine of its own (a ``machine:`` section), not the VARM."""
+    return config is not None and bool(read_config(config).get("machine"))
+
+
+def chosen_variant(args: argparse.Namespace) -> tuple[Variant, Path | None]:
+    """The variant the options name (--config, --effects-file, --variant, --add-effect) and the config it came
+    from: --variant, else geometric on the VARM, else the config's first variant."""
+    source = config_file(args.config)
+    specs, user, machine = load_catalog(source, args.effects_file)
+    name = args.variant or ("geometric" if "geometric" in specs and not own_machine(source) else next(iter(specs)))
+    return build_variant(name, specs, user, source, args.add_effect, machine), source
+
+
+def given_values(args: argparse.Namespace) -> dict[str, float]:
+    """The parameter values the command line gives [SI]: --set NAME=VALUE, and --eccentric-mass-g as m_e [kg]
+    (refused, as the runs sheet refuses it, when it looks like kilograms: ``measurements.kg_looking``)."""
+    values = dict(args.values)
+    mass_g = getattr(args, "eccentric_mass_g", None)
+    if mass_g is not None:
+        if "m_e" in values:
+            raise UsageError("give the eccentric mass once: --eccentric-mass-g or --set m_e=..., not both")
+        if kg_looking(mass_g):
+            raise UsageError(f"--eccentric-mass-g {mass_g:g}: {kg_looking(mass_g)}; the option is in grams "
+                             "(the runs sheet refuses such a mass too)")
+        values["m_e"] = mass_g * 1e-3
+    return values
+
+
+def variant_values(variant: Variant, args: argparse.Namespace) -> dict[str, float]:
+    """The variant's complete parameter values with the command line's (``given_values``): nominal where not
+    given (a note on standard error says which unknowns), a warning for a value outside its range, an error for
+    one no machine can have (``check_physical``)."""
+    given = given_values(args)
+    try:
+        values = variant.values(given)
+    except ValueError as err:
+        raise UsageError(str(err)) from None
+    check_physical(variant, dict(args.values))  # --eccentric-mass-g: >= 0 by its parser
+    warn_defaults_and_ranges(variant, given)
+    return {name: float(value) for name, value in values.items()}
+
+
+def check_physical(variant: Variant, given: Mapping[str, float]) -> None:
+    """Values no machine can have are errors (outside a range is only a warning): a negative mass, or a
+    value beyond a parameter's physical limits (``Parameter.limits``)."""
+    for name, value in given.items():
+        parameter = variant.model.parameters[name]
+        if parameter.unit == "kg" and value < 0:
+            raise UsageError(f"--set {name}={value:g}: a mass cannot be negative (kg)")
+        if parameter.limits is not None and not parameter.limits[0] <= value <= parameter.limits[1]:
+            lo, hi = parameter.limits
+            raise UsageError(f"--set {name}={value:g}: outside its physical limits [{lo:g}, {hi:g}] {parameter.unit}")
+
+
+def warn_defaults_and_ranges(variant: Variant, given: Mapping[str, float]) -> None:
+    defaulted = [k for k in variant.unknown if k not in given]
+    if defaulted:
+        nominal = ", ".join(f"{k}={variant.model.parameters[k].nominal:g}" for k in defaulted)
+        print(f"# note: unknown parameter(s) not given, nominal values used: {nominal}", file=sys.stderr)
+    for name, value in given.items():
+        lo, hi = variant.unknown.get(name, variant.model.parameters[name].bounds)
+        if not lo <= value <= hi:
+            print(f"# warning: {name}={value:g} lies outside its range [{lo:g}, {hi:g}]", file=sys.stderr)
+
+
+def check_writable(path: Path, option: str) -> None:
+    """An output file that cannot be written is an error before any solve."""
+    if path.is_dir():
+        raise UsageError(f"{option} {path}: is a folder, not a file")
+    folder = path.parent if str(path.parent) else Path(".")
+    if not folder.is_dir():
+        raise UsageError(f"{option} {path}: folder {folder} does not exist")
+    if not os.access(folder, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
+        raise UsageError(f"{option} {path}: not writable (permission denied)")
 
 
 # --- the parser -----------------------------------------------------------------------------------

@@ -68,6 +68,15 @@ SENSOR_RANGE_MM = 14.0
 SENSOR_RESOLUTION_MM = 1e-3
 #: an eccentric mass below this [g] (but above 0) looks like kilograms written in the grams column
 KG_LOOKING_MASS_G = 0.1
+
+
+def kg_looking(mass_g: float) -> str:
+    """Why an eccentric mass of ``mass_g`` grams looks like kilograms written as grams ("0.0148 g looks like kilograms
+    (14.8 g?)": above 0 and below KG_LOOKING_MASS_G), or "" when it does not: the runs sheet's check, which
+    ``hybridtwin simulate --eccentric-mass-g`` and the machine commands share."""
+    return f"{mass_g:g} g looks like kilograms ({mass_g * 1e3:g} g?)" if 0 < mass_g < KG_LOOKING_MASS_G else ""
+
+
 #: fewest whole revolutions a record must hold (at its nominal speed) to be analysed
 MIN_REVOLUTIONS = 5
 #: saturation: at least this many consecutive samples at a channel's extreme value form a flat top
@@ -454,8 +463,8 @@ def read_runs(path: str | Path, check_files: bool = True, require_path: bool = T
                                              "for no added mass")
     problems += found
     problems += [f"line {n}, column eccentric_mass_g: {v:g} g is negative" for n, v in zip(line, mass) if v < 0]
-    problems += [f"line {n}, column eccentric_mass_g: {v:g} g looks like kilograms ({v * 1e3:g} g?); the column "
-                 "is in grams" for n, v in zip(line, mass) if 0 < v < KG_LOOKING_MASS_G]
+    problems += [f"line {n}, column eccentric_mass_g: {kg_looking(v)}; the column is in grams"
+                 for n, v in zip(line, mass) if kg_looking(v)]
     role = table["role"].str.lower() if "role" in table else pd.Series("", index=table.index)
     role = role.where(role != "", "fit")
     bad_role = ~role.isin(ROLES)

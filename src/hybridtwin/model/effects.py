@@ -440,7 +440,9 @@ class HarmonicExcitation(Effect):
     there (the same 2X force at node 10 moves the sensor at node 1 3-9 times less below
     550 RPM, comparably above 650 RPM). A user who wants the coupling itself builds
     ``HarmonicExcitation(name=..., meaning=..., harmonic=2, node=10, bounds=...)``; off node 0
-    the parameters are named f{h}_c_{node}, f{h}_s_{node} so that both can be in one model.
+    the parameters are named f{h}_c_{node}, f{h}_s_{node} so that both can be in one model; placed at a named
+    bearing of a machine (``place``, set by ``Machine.place``: ``excitation_2x@nde``) f{h}_c_{bearing},
+    f{h}_s_{bearing}.
 
     Law: ``law="constant"`` (above), or ``law="omega2"``: the force grows like an unbalance,
     F_h = (e_c + i e_s) Omega^2 with e_c, e_s [kg m] (parameters e{h}_c, e{h}_s): an inertial
@@ -459,6 +461,7 @@ class HarmonicExcitation(Effect):
     bounds: tuple[float, float] = (-1.0, 1.0)
     law: str = "constant"
     limits: tuple[float, float] | None = None
+    place: str = ""
     parameters: tuple[Parameter, ...] = field(init=False)
     switches: tuple[str, ...] = field(init=False)
 
@@ -468,7 +471,7 @@ class HarmonicExcitation(Effect):
         if self.law not in ("constant", "omega2"):
             raise ValueError(f"effect {self.name}: law must be 'constant' or 'omega2', got {self.law!r}")
         h, node = self.harmonic, self.node
-        suffix = "" if node == 0 else f"_{node}"
+        suffix = f"_{self.place}" if self.place else "" if node == 0 else f"_{node}"
         letter, unit, what = ("f", "N", "force") if self.law == "constant" else ("e", "kg m", "force / Omega^2")
         self._names = (f"{letter}{h}_c{suffix}", f"{letter}{h}_s{suffix}")
         self.parameters = (

@@ -172,7 +172,10 @@ def _tuple(items: Iterable, kind: type) -> tuple:
 
 #: the VARM's words for where a built-in effect acts, and what they become where it is placed at a bearing
 _VARM_PLACES = ((r"at node 0\b", "at node {node}"), (r"at the lowest node", "at node {node}"),
-                (r"\b(the )?upper bearing\b", "bearing {at}"), (r"\b(the )?lower bearing\b", "bearing {at}"))
+                (r"\b(the )?upper bearing\b", "bearing {at}"), (r"\b(the )?lower bearing\b", "bearing {at}"),
+                (r" \(rubber bushing\)", ""))
+#: what a placed effect's parameter with a nonzero nominal value says of it: the value is the VARM's bearing's
+VARM_NOMINAL = " [nominal: the VARM's value; give this machine's under fixed: or unknown:]"
 
 
 def placed_meaning(meaning: str, at: str, node: int) -> str:
@@ -460,12 +463,17 @@ class Machine(DofCounts):
         if isinstance(effect, LinearBearing):
             return dataclasses.replace(effect, node=node, name=name, bearing=at)
         if dataclasses.is_dataclass(effect):
-            placed = dataclasses.replace(effect, node=node, name=name)
+            named = {"place": at} if "place" in {f.name for f in dataclasses.fields(effect)} else {}
+            placed = dataclasses.replace(effect, node=node, name=name, **named)  # parameters named after `at`
         else:
             placed = copy.copy(effect)
             placed.node, placed.name = node, name
         if isinstance(getattr(effect, "meaning", None), str):  # its words for the place, the place's (frozen too)
             object.__setattr__(placed, "meaning", placed_meaning(effect.meaning, at, node))
+        if not self.varm_structure:  # its parameters' words too, and a nominal value that is the VARM's says so
+            object.__setattr__(placed, "parameters", tuple(
+                dataclasses.replace(p, meaning=placed_meaning(p.meaning, at, node) + (VARM_NOMINAL if p.nominal else ""))
+                for p in placed.parameters))
         return placed
 
     def effects(self) -> dict[str, Effect]:
@@ -488,6 +496,10 @@ class Machine(DofCounts):
                 out[candidate.name] = candidate
         for plane in self.unbalance_planes:
             out[f"unbalance@{plane.name}"] = PlaneUnbalance(name=f"unbalance@{plane.name}", node=plane.node)
+        if not self.varm_structure:  # the plain `unbalance` along this shaft, not at the VARM's 0.425 m
+            first = self.unbalance_planes[0] if self.unbalance_planes else None
+            out["unbalance"] = MachineUnbalance(self.name, self.L, None if first is None else
+                                                float(self.z[first.node]))
         return out
 
     def candidates(self) -> dict[str, Effect]:
@@ -521,6 +533,14 @@ class Machine(DofCounts):
         if self.rotary_inertia:
             out["rotary_inertia"] = True
         return out
+
+    @cached_property
+    def varm_structure(self) -> bool:
+        """Whether this is the VARM's rotor (shaft, disks, bearings, unbalance plane), whatever its probes (e.g. the
+        run-up example's rotated ones)."""
+        def structure(machine: Machine) -> dict:
+            return {k: v for k, v in machine.to_mapping().items() if k not in ("name", "sensors")}
+        return self is _VARM or structure(self) == structure(_VARM)
 
     @property
     def is_varm(self) -> bool:
@@ -690,6 +710,20 @@ class PlaneUnbalance(Effect):
         f[:, ctx.dof(f"u{self.node}")] = amplitude
         f[:, ctx.dof(f"v{self.node}")] = -1j * amplitude
         return {1: f}
+
+
+class MachineUnbalance(Unbalance):
+    """The built-in ``unbalance`` (the eccentric mass at the node nearest z_me) on a machine of one's own: z_me
+    ranges over the machine's length [0, L] (the VARM's is 0-0.85 m), nominal at its first unbalance plane, or
+    none without one (NaN: the variant gives z_me under ``fixed:`` or ``unknown:``, ``Variant.from_spec`` says
+    so), never the VARM's 0.425 m by default."""
+
+    def __init__(self, machine: str, length: float, z: float | None):
+        where = f"the first unbalance plane's, z = {z:g} m" if z is not None else "none: give it"
+        self.parameters = (_M_E, _R_ME, Parameter(
+            "z_me", "m", (0.0, float(length)), np.nan if z is None else float(z),
+            f"axial position of the eccentric mass along machine {machine!r} (0-{length:g} m; nominal {where})",
+            (0.0, float(length))))
 
 
 def default_machine() -> Machine:

@@ -90,8 +90,11 @@ class Variant:
     @classmethod
     def from_spec(cls, name: str, spec: Mapping, effects: Mapping[str, Effect] | None = None,
                   shaft: Shaft | None = None) -> "Variant":
-        """Build from the config form (see module docstring); ``effects`` adds user effects."""
-        registry = builtin_effects() | dict(effects or {})
+        """Build from the config form (see module docstring); ``effects`` adds user effects. On a ``Machine``
+        (``shaft``) the effects placed on it are known by name too (``linear_bearing@<bearing>``,
+        ``unbalance@<plane>``, ``gyroscopic``: ``Machine.effects``), as in a config's variants."""
+        placed = shaft.effects() if callable(getattr(shaft, "effects", None)) else {}
+        registry = builtin_effects() | placed | dict(effects or {})
         # per_run: which unknowns the joint fit estimates per run, an identification option
         # (``identification.settings``), not part of the model
         unknown_keys = sorted(set(spec) - {"description", "effects", "unknown", "fixed", "per_run"})
@@ -100,6 +103,10 @@ class Variant:
                              "(expected description, effects, unknown, fixed, per_run)")
         chosen = []
         for effect_name in spec.get("effects", []):
+            kind, _, place = str(effect_name).partition("@")
+            if effect_name not in registry and kind == "unbalance" and place:
+                planes = [p.name for p in getattr(shaft, "unbalance_planes", ())]
+                raise ValueError(f"variant {name!r}: no effect named {effect_name!r}: {unbalance_hint(place, planes)}")
             if effect_name not in registry:
                 raise ValueError(f"variant {name!r}: no effect named {effect_name!r} "
                                  f"(available: {sorted(registry)})")
@@ -110,7 +117,14 @@ class Variant:
                 raise ValueError(f"variant {name!r}: range of {par} must be [low, high], got {bounds!r}")
             unknown[par] = (float(bounds[0]), float(bounds[1]))
         fixed = {k: float(v) for k, v in dict(spec.get("fixed", {})).items()}
-        return cls(name, Model(chosen, shaft), unknown, fixed, spec.get("description", ""))
+        model = Model(chosen, shaft)
+        unset = [p for k, p in model.parameters.items() if np.isnan(p.nominal) and k not in fixed and k not in unknown]
+        if unset:  # e.g. the plain `unbalance` on a machine without an unbalance plane: no place to assume
+            raise ValueError(f"variant {name!r}: {', '.join(p.name for p in unset)} has no nominal value on this "
+                             f"machine ({'; '.join(p.meaning for p in unset)}): give it under fixed: (or unknown:)"
+                             + ("; or declare an unbalance plane (machine: unbalance_planes: {NAME: NODE}) and use "
+                                "unbalance@NAME" if any(p.name == "z_me" for p in unset) else ""))
+        return cls(name, model, unknown, fixed, spec.get("description", ""))
 
     @property
     def unknown_names(self) -> list[str]:
@@ -128,13 +142,17 @@ class Variant:
                 np.array([self.unknown[k][1] for k in names], float))
 
     def values(self, overrides: Mapping[str, float | Array] | None = None) -> dict[str, Array]:
-        """All parameter values: nominal, then the variant's fixed values, then ``overrides``."""
+        """All parameter values: nominal (an unknown without one: the middle of its range), then the variant's fixed
+        values, then ``overrides``."""
         overrides = dict(overrides or {})
         stray = sorted(set(overrides) - set(self.model.parameters))
         if stray:
             raise ValueError(f"variant {self.name!r} has no parameter(s) {stray} "
                              f"(parameters: {sorted(self.model.parameters)})")
         out = {k: np.asarray(p.nominal, dtype=float) for k, p in self.model.parameters.items()}
+        for k, (lo, hi) in self.unknown.items():  # an unknown without a nominal value: the middle of its range
+            if k in out and np.isnan(out[k]):
+                out[k] = np.asarray(0.5 * (lo + hi))
         out.update({k: np.asarray(v, dtype=float) for k, v in self.fixed.items()})
         out.update({k: np.asarray(v, dtype=float) for k, v in overrides.items()})
         return out
@@ -149,6 +167,14 @@ class Variant:
         if self.fixed:
             lines.append("fixed: " + ", ".join(f"{k} = {v:g}" for k, v in self.fixed.items()))
         return "\n".join(lines)
+
+
+def unbalance_hint(plane: str, planes: Sequence[str]) -> str:
+    """Why ``unbalance@<plane>`` does not exist and what to write instead (never the VARM's plain ``unbalance`` at
+    its 0.425 m by default: on another machine it needs z_me)."""
+    return (f"the machine has no unbalance plane {plane!r} (unbalance planes: {', '.join(planes) or 'none'}); "
+            f"declare it (machine: unbalance_planes: {{{plane}: NODE}}) and use unbalance@{plane}, or use the plain "
+            "'unbalance' with the eccentric mass's axial position given (fixed: {z_me: METRES})")
 
 
 Monomial = tuple[int, tuple[int, int, int, int]]  # (node, powers of u, v, u', v')

@@ -3,7 +3,8 @@ and the operating deflected shape, for any model (a ``Machine``'s or the VARM's)
 
 ``campbell_figure(model, values, rpm)``: the whirl frequencies of any model's linear part (``model.campbell``)
 against speed, forward and backward branches apart, the 1X-3X excitation lines, the crossings of the 1X line
-(the critical speeds) and the run speeds marked.
+(the critical speeds) and the run speeds marked; below them each branch's damping as its logarithmic decrement
+(``log_decrement``: 2 pi zeta / sqrt(1 - zeta^2), the decay of a free vibration per cycle, ln(x_n / x_n+1)).
 
 ``undamped_modes(model, values, rpm)`` and ``mode_shape_figure``: the lowest modes of the model's linear part at
 one speed without damping (stiffness with its speed terms, mass, gyroscopic coupling kept: it is not damping),
@@ -36,29 +37,43 @@ from ..solvers.solver import SteadyState
 WHIRL_STYLE = {"forward": dict(color="C0", ls="-"), "backward": dict(color="C3", ls="--")}
 
 
+def log_decrement(damping_ratio) -> np.ndarray:
+    """The logarithmic decrement of a mode of damping ratio zeta: delta = 2 pi zeta / sqrt(1 - zeta^2) (ln of the
+    ratio of two successive peaks of its free vibration; API 684's measure of stability, > 0 stable); +inf for
+    zeta >= 1 (no oscillation to decay), negative for a growing mode."""
+    zeta = np.asarray(damping_ratio, float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(zeta < 1.0, 2 * np.pi * zeta / np.sqrt(np.maximum(1.0 - zeta**2, 0.0)), np.inf)
+
+
 def branches(table: pd.DataFrame) -> pd.DataFrame:
     """``table`` (``model.campbell``) with a column ``branch``: the rank of each mode among the modes of its
-    whirl sense at its speed (0 = the lowest forward mode, ...). Following a branch along speed keeps a
-    forward and a backward mode apart where they cross."""
+    whirl sense at its speed (0 = the lowest forward mode, ...), and each mode's ``log_decrement``. Following a
+    branch along speed keeps a forward and a backward mode apart where they cross."""
     out = table.sort_values(["rpm", "whirl", "frequency_hz"]).copy()
     out["branch"] = out.groupby(["rpm", "whirl"]).cumcount()
+    if "damping_ratio" in out:
+        out["log_decrement"] = log_decrement(out["damping_ratio"])
     return out.sort_values(["rpm", "mode"])
 
 
 def critical_speeds(table: pd.DataFrame, harmonic: int = 1) -> pd.DataFrame:
     """Where a branch crosses the ``harmonic`` X line (frequency = harmonic rpm / 60), by linear
-    interpolation between the table's speeds: columns whirl, branch, rpm, frequency_hz."""
+    interpolation between the table's speeds: columns whirl, branch, rpm, frequency_hz, and the branch's
+    damping_ratio and log_decrement there (interpolated the same way; NaN for a table without damping)."""
     rows = []
     for (whirl, branch), group in branches(table).groupby(["whirl", "branch"]):
         group = group.sort_values("rpm")
         rpm, f = group["rpm"].to_numpy(), group["frequency_hz"].to_numpy()
+        zeta = group["damping_ratio"].to_numpy(float) if "damping_ratio" in group else np.full(len(rpm), np.nan)
         gap = f - harmonic * rpm / 60.0
         for i in np.flatnonzero(np.sign(gap[:-1]) * np.sign(gap[1:]) < 0):
             t = gap[i] / (gap[i] - gap[i + 1])
             crossing = rpm[i] + t * (rpm[i + 1] - rpm[i])
-            rows.append((whirl, int(branch), crossing, harmonic * crossing / 60.0))
-    return pd.DataFrame(rows, columns=["whirl", "branch", "rpm", "frequency_hz"]).sort_values("rpm",
-                                                                                               ignore_index=True)
+            z = zeta[i] + t * (zeta[i + 1] - zeta[i])
+            rows.append((whirl, int(branch), crossing, harmonic * crossing / 60.0, z, float(log_decrement(z))))
+    columns = ["whirl", "branch", "rpm", "frequency_hz", "damping_ratio", "log_decrement"]
+    return pd.DataFrame(rows, columns=columns).sort_values("rpm", ignore_index=True)
 
 
 def _lowest_branches(table: pd.DataFrame, n_modes: int) -> pd.DataFrame:
@@ -71,27 +86,35 @@ def _lowest_branches(table: pd.DataFrame, n_modes: int) -> pd.DataFrame:
 
 def campbell_figure(model: Model, values: Mapping[str, float], rpm: Sequence[float], run_rpm: Sequence[float] = (),
                     n_modes: int = 6, harmonics: Sequence[int] = (1, 2, 3), title: str = "",
-                    table: pd.DataFrame | None = None) -> plt.Figure:
+                    table: pd.DataFrame | None = None, operating: Sequence[float] | None = None) -> plt.Figure:
     """The Campbell diagram of ``model`` at parameter values ``values`` over the speeds ``rpm``.
 
     Whirl frequencies [Hz] of the branches of the ``n_modes`` lowest modes at the lowest speed, followed over
     the speeds (forward solid, backward dashed); the
     ``harmonics`` X lines; the critical speeds (1X crossings) as dots; the run speeds ``run_rpm`` as vertical
-    lines. ``table``: a ``model.campbell`` table already computed (then ``values``, ``rpm`` and ``n_modes``
-    are not used). The figure's data stay readable: ``fig.campbell`` is the table with its branches and
-    ``fig.critical`` the crossings.
+    lines; the operating speed range ``operating`` (min, max) [RPM] shaded. ``table``: a ``model.campbell`` table already computed (then ``values``, ``rpm`` and ``n_modes``
+    are not used). Below, a second panel: each branch's logarithmic decrement against speed (the zero line is the
+    stability limit). The figure's data stay readable: ``fig.campbell`` is the table with its branches and log
+    decrements, ``fig.critical`` the crossings with their damping.
     """
     if table is None:  # twice the modes, so that a branch among the lowest is never cut off at high speed
         table = _lowest_branches(branches(campbell(model, values, rpm, 2 * n_modes)), n_modes)
     else:
         table = branches(table)
+    if "log_decrement" not in table:  # a table without damping: the panel stays empty
+        table = table.assign(log_decrement=np.nan)
     if table.empty:
         raise ValueError("Campbell diagram: the model has no oscillating mode at these speeds")
-    fig, ax = plt.subplots(figsize=(8, 5.5))
+    fig, (ax, damping) = plt.subplots(2, 1, figsize=(8, 8), sharex=True, height_ratios=(2.2, 1))
     for (whirl, branch), group in table.groupby(["whirl", "branch"]):
         group = group.sort_values("rpm")
         ax.plot(group["rpm"], group["frequency_hz"], lw=1.5, **WHIRL_STYLE[whirl],
                 label=f"{whirl} whirl" if branch == 0 else None, gid=f"{whirl}:{branch}")
+        damping.plot(group["rpm"], group["log_decrement"], lw=1.3, **WHIRL_STYLE[whirl],
+                     gid=f"log_decrement:{whirl}:{branch}")
+        end = group.iloc[-1]
+        damping.annotate(f"{branch + 1}{whirl[0].upper()}", (end["rpm"], end["log_decrement"]), fontsize=7,
+                         xytext=(2, 0), textcoords="offset points", va="center", color=WHIRL_STYLE[whirl]["color"])
     speed = np.array([table["rpm"].min(), table["rpm"].max()])
     top = table["frequency_hz"].max() * 1.05
     for h in harmonics:
@@ -108,13 +131,30 @@ def campbell_figure(model: Model, values: Mapping[str, float], rpm: Sequence[flo
                         ha="left" if row["whirl"] == "backward" else "right")
     for i, r in enumerate(sorted(set(float(v) for v in run_rpm))):
         ax.axvline(r, color="C2", lw=0.8, alpha=0.6, label="run speeds" if i == 0 else None, gid=f"run:{r:g}")
+    if operating is not None:
+        for panel in (ax, damping):
+            panel.axvspan(min(operating), max(operating), color="C2", alpha=0.12, zorder=0, gid="operating",
+                          label="operating range" if panel is ax else None)
     ax.set_xlim(speed)
     ax.set_ylim(0, top)
-    ax.set_xlabel("speed [RPM]")
     ax.set_ylabel("whirl frequency [Hz]")
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8, loc="upper left")
     ax.set_title(title or f"Campbell diagram, {getattr(model.shaft, 'name', 'shaft')}")
+    damping.axhline(0.0, color="k", lw=0.8, gid="stability limit")  # below: a mode that grows (unstable)
+    for r in sorted(set(float(v) for v in run_rpm)):
+        damping.axvline(r, color="C2", lw=0.8, alpha=0.6)
+    finite = table["log_decrement"].to_numpy(float)
+    finite = finite[np.isfinite(finite)]
+    if finite.size:  # every branch's decrement in view, the zero line too
+        lo, hi = min(finite.min(), 0.0), max(finite.max(), 0.0)
+        pad = 0.08 * (hi - lo) or 0.1
+        damping.set_ylim(lo - pad, hi + pad)
+    damping.set_xlabel("speed [RPM]")
+    damping.set_ylabel("log decrement")
+    damping.grid(True, alpha=0.3)
+    damping.set_title("damping: logarithmic decrement 2 pi zeta / sqrt(1 - zeta^2) of each branch (< 0: unstable)",
+                      fontsize=8, loc="left")
     fig.tight_layout()
     fig.campbell, fig.critical = table, critical
     return fig

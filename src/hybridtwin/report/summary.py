@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import io
 import math
+import re
 from collections.abc import Mapping, Sequence
 from urllib.parse import quote
 
@@ -105,12 +106,27 @@ def _short(value: float) -> str:
     return f"{value:.0f}" if value >= 100 else f"{value:.2g}"
 
 
+def wrapped(name: str, width: int) -> str:
+    """A variant's name on lines of at most ``width`` characters, broken after '_', '+', '@' or '-' (a part longer
+    than a line is cut), so that its label fits the figure and reads back whole with the line breaks removed."""
+    parts = [piece[i:i + width] for piece in re.split(r"(?<=[_+@-])", name) if piece
+             for i in range(0, len(piece), width)]
+    lines = [""]
+    for part in parts:
+        if lines[-1] and len(lines[-1]) + len(part) > width:
+            lines.append("")
+        lines[-1] += part
+    return "\n".join(lines)
+
+
 def plot_summary(ledger: pd.DataFrame, errors: Mapping[str, pd.DataFrame]) -> plt.Figure:
     """Top: chi^2/dof of the fit runs (black) and of the validation runs (magenta) variant by variant, in config
     order, against the noise floor. Bottom: per run (rows) and variant (columns) the run's chi^2/dof, colour
     on a log scale, the value written, bold where the run is beyond the noise (p < ALPHA); validation runs
     marked with a star. Narrow (5.6 in) to sit in the report's first page."""
     variants = list(ledger["variant"])
+    # each name on lines that fit its column (the figure is 5.6 in wide: ~70 characters of 8-point text in all)
+    labels_of = [wrapped(str(v), max(8, 64 // max(len(variants), 1))) for v in variants]
     runs = run_order(errors)
     grid = np.full((len(runs), len(variants)), np.nan)
     beyond = np.zeros(grid.shape, bool)
@@ -133,7 +149,7 @@ def plot_summary(ledger: pd.DataFrame, errors: Mapping[str, pd.DataFrame]) -> pl
     for i, value in enumerate(ledger["chi2_dof"]):
         ax.annotate(f"{value:.3g}", (i, value), xytext=(6, 4), textcoords="offset points", fontsize=8)
     ax.set_yscale("log")
-    ax.set_xticks(position, variants, fontsize=8, rotation=20)
+    ax.set_xticks(position, labels_of, fontsize=8)
     ax.set_xlim(-0.5, len(variants) - 0.5)
     ax.set_ylabel("chi^2 / dof")
     ax.grid(alpha=0.3, which="both")
@@ -153,7 +169,7 @@ def plot_summary(ledger: pd.DataFrame, errors: Mapping[str, pd.DataFrame]) -> pl
     labels = [f"{'* ' if r.role != 'fit' else ''}{r.run}  ({r.rpm:.0f} RPM, {r.eccentric_mass_g:g} g)"
               for r in runs.itertuples()]
     ax_runs.set_yticks(np.arange(len(runs)), labels, fontsize=7)
-    ax_runs.set_xticks(position, variants, fontsize=8, rotation=20, ha="left")
+    ax_runs.set_xticks(position, labels_of, fontsize=8)
     ax_runs.xaxis.tick_top()
     fig.colorbar(image, ax=ax_runs, label="chi^2 / dof of the run", fraction=0.06, pad=0.02)
     ax_runs.set_xlabel(f"where each variant fails: chi^2/dof per run, bold beyond the noise (p < {ALPHA:g});\n"
