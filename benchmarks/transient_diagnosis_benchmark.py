@@ -73,7 +73,9 @@ def make_data(case: str, out: Path, seed: int, harmonics: int, runs: list[str] |
     bands = []
     for _, row in sheet.iterrows():
         record = read_record(row["record"], sensors)
-        bands.append(track_record(record, row.to_dict(), harmonics).bands)
+        table = track_record(record, row.to_dict(), harmonics).bands
+        table.attrs = {}  # the runout table rides along in attrs; pandas cannot concatenate frames holding frames
+        bands.append(table)
     table = pd.concat(bands, ignore_index=True)
     data = [run_data(table, run, harmonics) for run in table["run"]]
     usable = [d for d in data if d.usable]

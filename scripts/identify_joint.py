@@ -29,9 +29,10 @@ if "refits" in smk.input.keys():  # this variant adds one effect to another (par
 nested = smk.input.get("nested", [])
 nested = [(cfg.variant(model, Path(path).parent.name), idn.read_parameters(path))
           for path in ([nested] if isinstance(nested, str) else nested)]
+validation = pd.read_csv(smk.input.validation, sep="\t") if smk.input.validation else None  # none: no libraries
 result = fit_joint(variant, smk.params.options, [Library.load(path) for path in smk.input.libraries],
-                   idn.read_harmonics(smk.input.harmonics), per_run, pd.read_csv(smk.input.validation, sep="\t"),
-                   int(smk.params.harmonics), parent_refit, nested)
+                   idn.read_harmonics(smk.input.harmonics), per_run, validation, int(smk.params.harmonics),
+                   parent_refit, nested, runs=smk.params.runs)
 for message in result.messages:
     log.info("%s", message)
 fit = result.fit

@@ -18,11 +18,13 @@ log = cfg.rule_logger(smk.log[0], "identify_run")
 variant = cfg.variant(smk.params.model, smk.wildcards.variant)  # its spec, the machine, the effects files
 options = smk.params.options
 harmonics = idn.read_harmonics(smk.input.harmonics)
-validation = pd.read_csv(smk.input.validation, sep="\t")
-outputs = zip(smk.params.runs, smk.input.libraries, smk.output.parameters, smk.output.history, smk.output.fit)
+validation = pd.read_csv(smk.input.validation, sep="\t") if smk.input.validation else None
+libraries = list(smk.input.libraries) or [None] * len(smk.params.runs)  # none (offline.scope: none): the solver
+outputs = zip(smk.params.runs, libraries, smk.output.parameters, smk.output.history, smk.output.fit)
 for run, library, parameters, history, fit in outputs:
     data = idn.run_data(harmonics, run, keyphasor=options["keyphasor"], channels=variant.channels)
-    result = fit_run(variant, options, Library.load(library), data, validation, int(smk.params.harmonics))
+    result = fit_run(variant, options, library and Library.load(library), data, validation,
+                     int(smk.params.harmonics))
     write_run_fit(result, parameters, history, fit)
     for message in result.messages:
         log.info("%s", message)

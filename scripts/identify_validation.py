@@ -11,6 +11,7 @@ from hybridtwin import config as cfg
 from hybridtwin.identify import forward as fwd
 from hybridtwin.identify import identification as idn
 from hybridtwin.identify import validation as val
+from hybridtwin.identify.run_fits import ranges
 from hybridtwin.offline.library import Library
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
@@ -19,22 +20,23 @@ variant = cfg.variant(smk.params.model, smk.wildcards.variant)  # its spec, the 
 options = smk.params.options
 joint = idn.read_parameters(smk.input.parameters)
 table = idn.read_harmonics(smk.input.harmonics)
-errors = idn.model_errors(pd.read_csv(smk.input.validation, sep="\t"), list(table["run"]), options["model_error"])
+errors = idn.model_errors(pd.read_csv(smk.input.validation, sep="\t") if smk.input.validation else None,
+                          list(table["run"]), options["model_error"])
 fitted_runs = table[["run", "rpm_true", "eccentric_mass_g"]].rename(columns={"rpm_true": "rpm"})
 rows, predictions = [], []
-for path in smk.input.libraries:
-    library = Library.load(path)
-    data = idn.run_data(table, library.run, keyphasor=options["keyphasor"], channels=variant.channels)
+names, lower, upper = ranges(variant)
+libraries = [Library.load(path) for path in smk.input.libraries] or [None] * len(smk.params.runs)  # none: solver
+for library, run in zip(libraries, smk.params.runs):
+    data = idn.run_data(table, run, keyphasor=options["keyphasor"], channels=variant.channels)
     if not data.usable:
         rows.append({"run": data.run, "rpm": data.rpm, "eccentric_mass_g": data.eccentric_mass_g,
                      "model": "none", "note": data.note})
         continue
     values = val.validation_values(joint, data, options["validation_bow"], fitted_runs)
-    models = [("library", fwd.SensorSurrogate(library), errors.get(data.run, 0.0))]
-    if options["solver"]:  # the joint fit was polished with the full solver: predict with it too
-        models.append(("solver", fwd.SolverModel(variant, data.run, data.rpm, data.eccentric_mass_g,
-                                                 library.parameters, library.lower, library.upper,
-                                                 int(smk.params.harmonics)), 0.0))
+    models = [("library", fwd.SensorSurrogate(library), errors.get(data.run, 0.0))] if library else []
+    if options["solver"] or library is None:  # the joint fit was polished with the full solver: predict with it too
+        models.append(("solver", fwd.SolverModel(variant, data.run, data.rpm, data.eccentric_mass_g, names, lower,
+                                                 upper, int(smk.params.harmonics)), 0.0))
     for name, model, error in models:
         row = val.predict_run(model, data, values, error)
         predictions.append(val.PredictedRun.from_prediction(row, name, data.channels))

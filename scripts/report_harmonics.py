@@ -26,8 +26,8 @@ for row in validation[validation["model"] == "none"].to_dict("records"):
     log.warning("validation run %s has no prediction: %s", row["run"], row["note"])
 predictions = val.read_predictions(smk.input.predictions)
 source = "solver" if any(p.model == "solver" for p in predictions) else "library"
-errors = idn.model_errors(pd.read_csv(smk.input.library_validation, sep="\t"), list(table["run"]),
-                          options["model_error"])
+library_errors = pd.read_csv(smk.input.library_validation, sep="\t") if smk.input.library_validation else None
+errors = idn.model_errors(library_errors, list(table["run"]), options["model_error"])  # None: no libraries
 scores = validation.set_index(["run", "model"])["error_rel"]
 for prediction in predictions:
     if prediction.model != source:

@@ -18,6 +18,8 @@ from hybridtwin.report.transient_plots import settings as transient_settings
 validate(config, "../schemas/config.schema.yaml")
 
 VARIANTS = list(config["variants"])
+# the variants fitted on sPGD libraries (offline.scope run or global); the others fit on the full solver (none)
+LIBRARY_VARIANTS = [v for v in VARIANTS if offline_for(config, v)["scope"] != "none"]
 OFFLINE = offline(config)
 CHUNKS = [f"{i:03d}" for i in range(OFFLINE["chunks"])]
 ENRICHMENT_CHUNKS = [f"{i:03d}" for i in range(OFFLINE["enrichment"]["chunks"] if OFFLINE["enrichment"]["n_scenarios"] else 0)]
@@ -137,6 +139,23 @@ def gather_input(wildcards):
     return inputs | {"enrichment": f"results/{wildcards.variant}/enrichment.tsv",
                      "enrichment_chunks": expand("results/{variant}/enrichment/{chunk}.zarr",
                                                  variant=wildcards.variant, chunk=ENRICHMENT_CHUNKS)}
+
+
+def has_libraries(variant):
+    """offline.scope run or global: the variant's fits run on sPGD libraries; none: on the full solver."""
+    return offline_for(config, variant)["scope"] != "none"
+
+
+def fit_libraries(wildcards, runs):
+    """The libraries of ``runs`` (none without libraries: the fits then run on the full solver)."""
+    if not has_libraries(wildcards.variant):
+        return []
+    return expand("results/{variant}/library/{run}.zarr", variant=wildcards.variant, run=runs)
+
+
+def library_validation_input(wildcards):
+    """The libraries' test errors (their share of the fits' weights), none without libraries."""
+    return f"results/{wildcards.variant}/library_validation.tsv" if has_libraries(wildcards.variant) else []
 
 
 def library_input(wildcards):

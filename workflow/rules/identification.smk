@@ -1,6 +1,7 @@
 # Grey box (issue 5): the variant's unknowns identified from the measured harmonics on the libraries
 # (paper sec. 2.3, eq. 9-11): per fit run by the paper's protocol, then all fit runs jointly (shared
 # physical parameters, per-run bow), polished with the full solver; validation runs only predicted.
+# With offline.scope: none there are no libraries: the same rules fit on the full solver (run_fits.py).
 # The scripts read only their input, params and output: what a job uses of the config is in its params (a
 # change reruns only the jobs that use it).
 from hybridtwin.identify.identification import runs_with_role
@@ -15,9 +16,9 @@ rule identify_run:
     """Every fit run alone: tau random trials x (1 + n_MC) Monte Carlo repeats of batched LM on its library.
     One job for all runs of a variant: a run's fit takes about a second, less than a job's start-up."""
     input:
-        libraries=expand("results/{{variant}}/library/{run}.zarr", run=FIT_RUNS),
+        libraries=lambda wildcards: fit_libraries(wildcards, FIT_RUNS),
         harmonics="results/data/harmonics.tsv",
-        validation="results/{variant}/library_validation.tsv",
+        validation=library_validation_input,
         effects=variant_effects,  # their contents build the variant (params.model has only the paths)
     output:
         parameters=expand("results/{{variant}}/runs/{run}/parameters.tsv", run=FIT_RUNS),
@@ -43,10 +44,10 @@ rule identify_joint:
     input:
         unpack(parent_refits_input),
         unpack(nested_fits_input),
-        libraries=expand("results/{{variant}}/library/{run}.zarr", run=FIT_RUNS),
+        libraries=lambda wildcards: fit_libraries(wildcards, FIT_RUNS),
         per_run=expand("results/{{variant}}/runs/{run}/parameters.tsv", run=FIT_RUNS),
         harmonics="results/data/harmonics.tsv",
-        validation="results/{variant}/library_validation.tsv",
+        validation=library_validation_input,
         effects=joint_effects,  # their contents build the variants (params.model has only the paths)
     output:
         table=report(
@@ -70,6 +71,7 @@ rule identify_joint:
         ),
         fit=directory("results/{variant}/identification/fit.zarr"),
     params:
+        runs=FIT_RUNS,
         model=joint_model,
         parent=joint_parent,
         options=lambda wildcards: rule_settings(config, wildcards.variant, "joint"),
@@ -88,9 +90,9 @@ rule predict_validation:
     """Validation runs predicted with the joint parameters (never fitted): error per run, predicted harmonics."""
     input:
         parameters="results/{variant}/parameters.tsv",
-        libraries=expand("results/{{variant}}/library/{run}.zarr", run=VALIDATION_RUNS),
+        libraries=lambda wildcards: fit_libraries(wildcards, VALIDATION_RUNS),
         harmonics="results/data/harmonics.tsv",
-        validation="results/{variant}/library_validation.tsv",
+        validation=library_validation_input,
         effects=variant_effects,  # their contents build the variant (params.model has only the paths)
     output:
         table=report(
@@ -101,6 +103,7 @@ rule predict_validation:
         ),
         harmonics="results/{variant}/validation_harmonics.tsv",
     params:
+        runs=VALIDATION_RUNS,
         model=variant_model,
         options=lambda wildcards: rule_settings(config, wildcards.variant, "validation"),
         harmonics=config["harmonics"],

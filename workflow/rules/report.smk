@@ -16,7 +16,7 @@ rule report_harmonics:
         summary="results/{variant}/identification/summary.yaml",
         validation="results/{variant}/validation.tsv",
         predictions="results/{variant}/validation_harmonics.tsv",
-        library_validation="results/{variant}/library_validation.tsv",
+        library_validation=library_validation_input,
         harmonics="results/data/harmonics.tsv",
     output:
         table="results/{variant}/report/harmonics.tsv",

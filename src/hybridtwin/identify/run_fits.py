@@ -11,6 +11,13 @@ protocol from random trials and a start from the per-run fits, then, when asked,
 from the library optimum, the next-best trials, the parent variant's diagnosis refit and the joint fits of
 the simpler variants nested in this one.
 
+Without libraries (``offline.scope: none``) both fits run on the full harmonic-balance solver
+(``forward.SolverModel``: warm starts, analytic sensitivities) from SOLVER_TRIALS random starts, with no Monte
+Carlo repeats (the interval from the solver's Jacobian), and the joint fit's polish rule (more random starts where
+the misfit stays large) on top. Measured on the run-up example: the offline library stages cost 380 s of CPU out of
+the run's 755, while the full solver alone reached the same optimum from 4 random starts in 8 s
+(benchmarks/README.md, "Fits on the full solver").
+
 ``options`` are the rule's (``identification.rule_settings``): a job reads nothing else of the config.
 """
 
@@ -18,7 +25,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +34,7 @@ import pandas as pd
 from . import forward as fwd
 from . import identification as idn
 from . import polish as pol
+from .protocol import ProtocolOptions
 from ..offline.library import Library
 from ..model.variants import Variant, embed
 
@@ -35,6 +43,8 @@ Array = np.ndarray
 #: a simpler variant's joint fit is a polish start when this variant reproduces it to this coefficient
 #: mismatch (``variants.embed``; round-off: ~1e-16)
 NESTED_MISMATCH = 1e-6
+#: random starts of a fit on the full solver (no libraries, ``offline.scope: none``; module docstring)
+SOLVER_TRIALS = 4
 #: polish.tsv's columns (an empty table when there was no polish)
 COMPARISON_COLUMNS = ["parameter", "run", "unit", "library_value", "solver_value", "difference", "difference_rel",
                       "difference_in_stderr", "stderr"]
@@ -56,18 +66,49 @@ class RunFit:
     warnings: list[str]
 
 
-def fit_run(variant: Variant, options: Mapping, library: Library, data: idn.RunData,
+def ranges(variant: Variant) -> tuple[list[str], Array, Array]:
+    """The variant's unknowns and their ranges [SI] in its order (a library's order too)."""
+    names = list(variant.unknown)
+    lower, upper = (np.array(v, float) for v in zip(*variant.unknown.values()))
+    return names, lower, upper
+
+
+def solver_models(variant: Variant, data: Sequence[idn.RunData], harmonics: int) -> list[fwd.SolverModel]:
+    """The full solver as the forward model of each run of ``data`` over the variant's unknowns."""
+    names, lower, upper = ranges(variant)
+    return [fwd.SolverModel(variant, d.run, d.rpm, d.eccentric_mass_g, names, lower, upper, harmonics) for d in data]
+
+
+def solver_protocol(options: Mapping, joint: bool = False) -> ProtocolOptions:
+    """The protocol of a fit on the full solver: SOLVER_TRIALS random starts (or fewer when asked), no Monte Carlo
+    repeats (module docstring)."""
+    base = idn.protocol_options(options, joint)
+    return replace(base, trials=min(base.trials, SOLVER_TRIALS), monte_carlo=0, monte_carlo_starts=0)
+
+
+def fit_run(variant: Variant, options: Mapping, library: Library | None, data: idn.RunData,
             validation: pd.DataFrame | None, harmonics: int) -> RunFit:
     """``data``'s run alone on its ``library`` by the paper's protocol (``options``: ``identification.rule_settings``
-    for rule "run"), polished with the full solver when ``options["polish"]`` (its iterations; False: no polish).
+    for rule "run"), polished with the full solver when ``options["polish"]`` (its iterations; False: no polish);
+    without a library (None: ``offline.scope: none``) on the full solver itself (``solver_protocol``).
     A run that is not usable is not fitted: its table holds NaN and the reason."""
     run, units = data.run, idn.units(variant)
+    names, lower, upper = (library.parameters, library.lower, library.upper) if library else ranges(variant)
     if not data.usable:
         empty = pd.DataFrame(columns=["trial", "iteration", "loss", "selected"])
-        return RunFit(run, excluded_table(data, library, units), empty, None, data, [],
+        return RunFit(run, excluded_table(data, names, lower, upper, units), empty, None, data, [],
                       [f"run {run} is not usable ({data.note}): not fitted"])
     errors = idn.model_errors(validation, [run], options["model_error"])
     start = time.perf_counter()
+    if library is None:
+        fit = idn.identify(solver_models(variant, [data], harmonics), [data], (), solver_protocol(options),
+                           units=units)
+        table = fit.table()
+        table["note"] = "; ".join(fit.uncertainty.notes) or "ok"
+        return RunFit(run, table, fit.history_table(), fit, data,
+                      [f"run {run}: on the full solver, {len(fit.protocol.trials.loss)} trials in "
+                       f"{time.perf_counter() - start:.2f} s; chi^2/dof {fit.chi2_dof:.3g} ({fit.message})"],
+                      [f"run {run}: {note}" for note in fit.uncertainty.notes])
     fit = idn.identify([fwd.SensorSurrogate(library)], [data], (), idn.protocol_options(options), errors,
                        units=units)
     messages = [f"run {run}: {len(fit.protocol.trials.loss)} trials x (1 + {len(fit.protocol.monte_carlo)} Monte "
@@ -131,7 +172,7 @@ class JointFit:
 def fit_joint(variant: Variant, options: Mapping, libraries: Sequence[Library], harmonics_table: pd.DataFrame,
               per_run: Mapping[str, pd.DataFrame], validation: pd.DataFrame | None, harmonics: int,
               parent_refit: tuple[str, str, pd.DataFrame] | None = None,
-              nested: Sequence[tuple[Variant, pd.DataFrame]] = ()) -> JointFit:
+              nested: Sequence[tuple[Variant, pd.DataFrame]] = (), runs: Sequence[str] = ()) -> JointFit:
     """All usable fit runs of ``variant`` at once (``options``: ``identification.rule_settings`` for rule
     "joint"): the parameters in ``options["per_run"]`` per run, the others shared.
 
@@ -147,32 +188,36 @@ def fit_joint(variant: Variant, options: Mapping, libraries: Sequence[Library], 
     messages: list[str] = []
     warnings: list[str] = []
     data, models = [], []
-    for library in libraries:
-        run = idn.run_data(harmonics_table, library.run, keyphasor=options["keyphasor"],
-                           channels=variant.channels)
+    on_solver = not libraries  # offline.scope: none: the fits on the full solver (module docstring)
+    for library, name in (zip(libraries, [lib.run for lib in libraries]) if libraries else ((None, r) for r in runs)):
+        run = idn.run_data(harmonics_table, name, keyphasor=options["keyphasor"], channels=variant.channels)
         if not run.usable:
             warnings.append(f"run {run.run} left out of the joint fit: {run.note}")
             continue
         data.append(run)
-        models.append(fwd.SensorSurrogate(library))
+        if library is not None:
+            models.append(fwd.SensorSurrogate(library))
     if not data:
         raise ValueError(f"variant {variant.name}: no usable fit run for the joint identification")
+    if on_solver:
+        models = solver_models(variant, data, harmonics)
     errors = idn.model_errors(validation, [d.run for d in data], options["model_error"])
     parameters, lower, upper = models[0].parameters, models[0].lower, models[0].upper
     layout = idn.Layout.for_data(parameters, lower, upper, data, options["per_run"])
     start_theta = start_from_runs(layout, {d.run: idn.Identification.from_table(per_run[d.run]) for d in data
                                            if d.run in per_run})
     start = time.perf_counter()
-    fit = idn.identify(models, data, options["per_run"], idn.protocol_options(options, joint=True), errors,
-                       extra_starts=start_theta, units=idn.units(variant))
-    messages.append(f"joint fit of {len(data)} runs ({layout.n} unknowns): {fit.protocol.n_lm} LM problems in "
+    protocol = solver_protocol(options, joint=True) if on_solver else idn.protocol_options(options, joint=True)
+    fit = idn.identify(models, data, options["per_run"], protocol, errors, extra_starts=start_theta,
+                       units=idn.units(variant))
+    messages.append(f"joint fit of {len(data)} runs ({layout.n} unknowns) on the "
+                    f"{'full solver' if on_solver else 'libraries'}: {fit.protocol.n_lm} LM problems in "
                     f"{time.perf_counter() - start:.1f} s, loss {fit.loss:.4g}, chi^2/dof {fit.chi2_dof:.3g} "
                     f"({fit.message})")
     library_fit, summary = fit, {"library": fit.summary()}
     comparison = pd.DataFrame(columns=COMPARISON_COLUMNS)
     if options["polish"]:
-        solver = [fwd.SolverModel(variant, d.run, d.rpm, d.eccentric_mass_g, parameters, lower, upper, harmonics)
-                  for d in data]
+        solver = models if on_solver else solver_models(variant, data, harmonics)
         start = time.perf_counter()
         starts, labels = polish_starts(fit, variant, parent_refit, nested, messages)
         exact = pol.polish(fit, solver, int(options["polish"]), starts, labels, seed=int(options["seed"]))
@@ -232,12 +277,12 @@ def polish_starts(fit: idn.Identification, variant: Variant, parent_refit: tuple
 
 
 
-def excluded_table(data: idn.RunData, library: Library, units: Mapping[str, str]) -> pd.DataFrame:
+def excluded_table(data: idn.RunData, parameters: Sequence[str], lower: Array, upper: Array,
+                   units: Mapping[str, str]) -> pd.DataFrame:
     """The parameter table of a run that cannot be fitted (not usable): ``Identification.table``'s rows and
     columns with NaN estimates, and the reason as its note."""
     rows = [{"parameter": p, "run": data.run, "kind": "physical", "unit": units.get(p, ""), "value": np.nan,
-             "lower": float(lo), "upper": float(hi)} for p, lo, hi in zip(library.parameters, library.lower,
-                                                                          library.upper)]
+             "lower": float(lo), "upper": float(hi)} for p, lo, hi in zip(parameters, lower, upper)]
     rows.append({"parameter": "phase", "run": data.run, "kind": "nuisance", "unit": "rad", "value": np.nan,
                  "lower": -np.pi, "upper": np.pi})
     table = pd.DataFrame(rows).reindex(columns=list(idn.TABLE_COLUMNS))
