@@ -17,6 +17,7 @@ import pandas as pd
 
 from .measurements import DEFAULT_CHANNELS
 from .preprocessing import harmonic_column, origin_share, table_channels
+from .slow_roll import RUNOUT_HARMONICS
 
 Array = np.ndarray
 
@@ -42,6 +43,9 @@ class RunData:
     note: str = "ok"
     phase_sigma: float = math.inf  # [rad] uncertainty of X's absolute phase (keyphasor); inf: arbitrary origin
     channels: tuple[str, ...] = CHANNELS  # the sensors' names, one per column of X
+    # the harmonics from which a slow-roll runout was subtracted (a transient record's band): the model is then
+    # compensated alike (forward.SolverModel's slow_roll_harmonics); () for a steady run
+    slow_roll_harmonics: tuple[int, ...] = ()
 
     @property
     def H(self) -> int:
@@ -109,8 +113,9 @@ def run_data(table: pd.DataFrame, run: str, harmonics: int | None = None, keypha
         sigma = np.sqrt(np.maximum(sigma**2 - share**2, (1e-3 * sigma) ** 2))
         phase_sigma = max(omega * sigma_t, 1e-9)
     usable = bool(row.get("usable", True)) and np.isfinite(X).all() and np.isfinite(sigma).all()
+    compensated = str(row.get("slowroll_compensated", False)).strip().lower() in ("true", "1")
     return RunData(str(run), rpm, float(row["eccentric_mass_g"]), str(row.get("role", "fit")), X, sigma, usable,
-                   str(row.get("note", "ok")), phase_sigma, channels)
+                   str(row.get("note", "ok")), phase_sigma, channels, RUNOUT_HARMONICS if compensated else ())
 
 
 def total_sigma(data: RunData, relative_model_error: float = 0.0) -> Array:

@@ -154,6 +154,9 @@ def run_ups(variant, rpm: Array, values: Mapping[str, Array], harmonics: int, st
     return SteadyState.concatenate(parts, np.argsort(np.concatenate(order))), jumped
 
 
+#: the speed [RPM] at which a slow-roll compensated model's own runout is read (``SolverModel``): low enough that a
+#: response growing as Omega^2 is 1e-5 of its value at 1000 RPM, the Omega -> 0 limit the data's estimate takes
+SLOW_ROLL_RPM = 3.0
 #: a warm start is kept when Newton's solution lies within this fraction of the predicted change of the
 #: condensed state (plus ``WARM_FLOOR`` of its size) from the predictor: a solution farther away means the
 #: continuation in the parameters left the branch the run-up reaches (a fold in between)
@@ -187,13 +190,19 @@ class SolverModel:
     m_e is the run's eccentric mass unless it is one of the parameters. Counters: ``n_solves``
     sets solved, ``n_warm`` of them by a warm start, ``n_run_ups`` by a run-up.
 
+    ``slow_roll_harmonics`` (a speed band of a transient record whose slow-roll runout was subtracted,
+    ``RunData.slow_roll_harmonics``): the model is compensated as the data were, its own response at slow roll
+    (at SLOW_ROLL_RPM, the Omega -> 0 limit the data's runout estimate extrapolates to) subtracted from those
+    harmonics. A response that does not vanish at slow roll (the static deflection under a 2X force of constant
+    amplitude) is then removed from model and data alike; forces growing as Omega^2 (unbalance, bow) have none.
+
     ``evaluate`` does not assess stability (the LM needs the response only); ``floquet_radius(x)``
     does, for the states ``evaluate`` reports at x (``check_stability``: a fit's optimum).
     """
 
     def __init__(self, variant, run: str, rpm: float, eccentric_mass_g: float, parameters: Sequence[str],
                  lower: Array, upper: Array, harmonics: int, step: float = 1e-5, *, warm: bool = True,
-                 analytic: bool = True, cache_size: int = CACHE_SIZE):
+                 analytic: bool = True, cache_size: int = CACHE_SIZE, slow_roll_harmonics: Sequence[int] = ()):
         self.variant, self.run = variant, run
         self.rpm, self.eccentric_mass_g = float(rpm), float(eccentric_mass_g)
         self.parameters = list(parameters)
@@ -207,6 +216,12 @@ class SolverModel:
         self._x = np.zeros((0, d))  # cached normalised points, their condensed states and derivatives
         self._state = None
         self._dstate = None
+        self.slow_roll_harmonics = tuple(h for h in slow_roll_harmonics if 1 <= h <= self.harmonics)
+        self.reference = None  # the same model at slow roll, subtracted from the slow-roll harmonics
+        if self.slow_roll_harmonics:
+            self.reference = SolverModel(variant, f"{run} at slow roll", SLOW_ROLL_RPM, eccentric_mass_g, parameters,
+                                         lower, upper, harmonics, step, warm=warm, analytic=analytic,
+                                         cache_size=cache_size)
 
     # --- parameter values and systems -------------------------------------------------------
 
@@ -276,7 +291,16 @@ class SolverModel:
         if jacobian:
             dM = np.full((N, self.harmonics, M_finite.shape[2], d), np.nan + 0j)
             dM[finite] = J
+        if self.reference is not None:
+            self._compensate(M, dM, *self.reference.evaluate(x, jacobian))
         return M, dM
+
+    def _compensate(self, M: Array, dM: Array | None, M_ref: Array, dM_ref: Array | None) -> None:
+        """Subtract the slow-roll reference's response from the slow-roll harmonics, in place."""
+        h = np.array(self.slow_roll_harmonics) - 1
+        M[:, h] -= M_ref[:, h]
+        if dM is not None and dM_ref is not None:
+            dM[:, h] -= dM_ref[:, h]
 
     def floquet_radius(self, x: Array) -> Array:
         """The largest |Floquet multiplier| (N,) of the steady states ``evaluate(x)`` reports at normalised x
@@ -325,6 +349,12 @@ class SolverModel:
                     own = result.take(np.arange(offsets[k], offsets[k + 1]))
                     m._remember(x[r], own, dstate[sl], batch.jumped[sl])
             out.append((M, dM))
+        compensated = [k for k, m in enumerate(models) if m.reference is not None]
+        if compensated:  # the slow-roll references, solved together too
+            references = SolverModel.evaluate_together([models[k].reference for k in compensated],
+                                                       [batch.xs[k] for k in compensated], jacobian)
+            for k, (M_ref, dM_ref) in zip(compensated, references):
+                models[k]._compensate(*out[k], M_ref, dM_ref)
         return out
 
     @staticmethod
