@@ -25,8 +25,9 @@ errors = idn.model_errors(pd.read_csv(smk.input.validation, sep="\t") if smk.inp
 fitted_runs = table[["run", "rpm_true", "eccentric_mass_g"]].rename(columns={"rpm_true": "rpm"})
 rows, predictions = [], []
 names, lower, upper = ranges(variant)
-libraries = [Library.load(path) for path in smk.input.libraries] or [None] * len(smk.params.runs)  # none: solver
-for library, run in zip(libraries, smk.params.runs):
+libraries = [Library.load(path) for path in smk.input.libraries]
+pairs = [(library, library.run) for library in libraries] or [(None, run) for run in smk.params.runs]  # none: solver
+for library, run in pairs:
     data = idn.run_data(table, run, keyphasor=options["keyphasor"], channels=variant.channels)
     if not data.usable:
         rows.append({"run": data.run, "rpm": data.rpm, "eccentric_mass_g": data.eccentric_mass_g,

@@ -84,7 +84,8 @@ def test_a_run_left_out_has_a_table_that_reads_back(fits, tmp_path):
 
     data = toy_data([0.0, 0.0, 0.0], 0.0, run="007")
     library = SimpleNamespace(parameters=ToyModel.parameters, lower=ToyModel.lower, upper=ToyModel.upper)
-    table = excluded_table(data, library, {"a": "N/m"}).assign(note="record too short")
+    table = excluded_table(data, library.parameters, library.lower, library.upper, {"a": "N/m"}).assign(
+        note="record too short")
     path = tmp_path / "parameters.tsv"
     idn.write_parameters(table, path)
     read = idn.read_parameters(path)
