@@ -29,7 +29,7 @@ from ..model.variants import Variant
 
 from .check_data import add_check_data_command
 from .common import (
-    MAX_SAMPLES, RUN_UP_FROM_RPM, RUNDOWN_FACTOR, RUNDOWN_MARGIN_RPM, SAME_BRANCH_RTOL, UsageError, _harmonics,
+    MAX_SAMPLES, RUN_UP_FROM_RPM, RUNDOWN_FACTOR, RUNDOWN_MARGIN_RPM, SAME_BRANCH_RTOL, UsageError, _positive_int,
     _non_negative, _parameter, _Parser, _positive, _version, build_variant, check_writable, chosen_variant,
     config_file, load_catalog, own_machine, variant_values,
 )
@@ -73,7 +73,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help="eccentric (unbalance) mass [g] (default: the variant's value, 0 g nominal)")
     sim.add_argument("--set", dest="values", type=_parameter, action="append", default=[], metavar="NAME=VALUE",
                      help="parameter value in SI units (repeatable), e.g. --set k_b=2411.3")
-    sim.add_argument("--harmonics", type=_harmonics, default=5, help="highest harmonic H (default 5)")
+    sim.add_argument("--harmonics", type=_positive_int, default=5, help="highest harmonic H (default 5)")
     sim.add_argument("--method", choices=("newton", "fixed-point"), default="newton",
                      help="harmonic-balance iteration (default newton)")
     sim.add_argument("--sweep-from", type=_positive, default=None, metavar="RPM",

@@ -85,7 +85,8 @@ def _non_negative(text: str) -> float:
     return value
 
 
-def _harmonics(text: str) -> int:
+def _positive_int(text: str) -> int:
+    """An argparse type: an integer >= 1 (harmonics, speeds, modes)."""
     try:
         value = int(text)
     except ValueError:

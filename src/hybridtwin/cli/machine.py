@@ -25,7 +25,7 @@ import numpy as np
 import pandas as pd
 from threadpoolctl import threadpool_limits
 
-from .common import UsageError, _harmonics, _non_negative, _parameter, _positive, chosen_variant, variant_values
+from .common import UsageError, _positive_int, _non_negative, _parameter, _positive, chosen_variant, variant_values
 
 # the report's modules (matplotlib, the solvers) are imported by the commands that use them, not by every command
 # line: `hybridtwin simulate` starts as fast as before
@@ -73,8 +73,8 @@ def add_machine_commands(sub, common) -> None:
                     "prints the critical speeds.")
     _model_options(parser, common)
     _speed_range(parser)
-    parser.add_argument("--speeds", type=_count, default=121, help="number of speeds (default 121)")
-    parser.add_argument("--modes", type=_count, default=6, help="lowest modes followed (default 6)")
+    parser.add_argument("--speeds", type=_positive_int, default=121, help="number of speeds (default 121)")
+    parser.add_argument("--modes", type=_positive_int, default=6, help="lowest modes followed (default 6)")
     parser.set_defaults(handler=_single_threaded(campbell_command))
 
     parser = sub.add_parser(
@@ -85,7 +85,7 @@ def add_machine_commands(sub, common) -> None:
                     "per mode) and mode_shapes.png to --out; prints the modes.")
     _model_options(parser, common)
     parser.add_argument("--rpm", type=_non_negative, default=0.0, help="speed [RPM] (default 0)")
-    parser.add_argument("--modes", type=_count, default=4, help="modes drawn (default 4)")
+    parser.add_argument("--modes", type=_positive_int, default=4, help="modes drawn (default 4)")
     parser.set_defaults(handler=_single_threaded(modes_command))
 
     parser = sub.add_parser(
@@ -100,9 +100,9 @@ def add_machine_commands(sub, common) -> None:
     _speed_range(parser)
     parser.add_argument("--eccentric-mass-g", type=_non_negative, required=True,
                         help="the unbalance: eccentric mass [g] at radius r_me on the unbalance plane")
-    parser.add_argument("--speeds", type=_count, default=121,
+    parser.add_argument("--speeds", type=_positive_int, default=121,
                         help="evenly spaced speeds (default 121), besides those refined at each critical speed")
-    parser.add_argument("--harmonics", type=_harmonics, default=None,
+    parser.add_argument("--harmonics", type=_positive_int, default=None,
                         help="highest harmonic H (default 1 for a linear model, 3 for a nonlinear one)")
     parser.set_defaults(handler=_single_threaded(response_command))
 
@@ -114,16 +114,6 @@ def _single_threaded(command):
         with threadpool_limits(1):
             return command(args)
     return run
-
-
-def _count(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
-    return value
 
 
 def _model_options(parser: argparse.ArgumentParser, common) -> None:
