@@ -104,19 +104,16 @@ def fit_run(variant: Variant, options: Mapping, library: Library | None, data: i
     if library is None:
         fit = idn.identify(solver_models(variant, [data], harmonics), [data], (), solver_protocol(options),
                            units=units)
-        table = fit.table()
-        table["note"] = "; ".join(fit.uncertainty.notes) or "ok"
-        return RunFit(run, table, fit.history_table(), fit, data,
-                      [f"run {run}: on the full solver, {len(fit.protocol.trials.loss)} trials in "
-                       f"{time.perf_counter() - start:.2f} s; chi^2/dof {fit.chi2_dof:.3g} ({fit.message})"],
-                      [f"run {run}: {note}" for note in fit.uncertainty.notes])
-    fit = idn.identify([fwd.SensorSurrogate(library)], [data], (), idn.protocol_options(options), errors,
-                       units=units)
-    messages = [f"run {run}: {len(fit.protocol.trials.loss)} trials x (1 + {len(fit.protocol.monte_carlo)} Monte "
-                f"Carlo repeats), {fit.protocol.n_lm} LM problems in {time.perf_counter() - start:.2f} s; best loss "
-                f"{fit.loss:.4g} (chi^2/dof {fit.chi2_dof:.3g}, {fit.message}); {fit.summary()['trials_at_best']} "
-                f"of {len(fit.protocol.trials.loss)} trials reached it"]
-    if options["polish"]:
+        messages = [f"run {run}: on the full solver, {len(fit.protocol.trials.loss)} trials in "
+                    f"{time.perf_counter() - start:.2f} s; chi^2/dof {fit.chi2_dof:.3g} ({fit.message})"]
+    else:
+        fit = idn.identify([fwd.SensorSurrogate(library)], [data], (), idn.protocol_options(options), errors,
+                           units=units)
+        messages = [f"run {run}: {len(fit.protocol.trials.loss)} trials x (1 + {len(fit.protocol.monte_carlo)} "
+                    f"Monte Carlo repeats), {fit.protocol.n_lm} LM problems in {time.perf_counter() - start:.2f} s; "
+                    f"best loss {fit.loss:.4g} (chi^2/dof {fit.chi2_dof:.3g}, {fit.message}); "
+                    f"{fit.summary()['trials_at_best']} of {len(fit.protocol.trials.loss)} trials reached it"]
+    if library is not None and options["polish"]:
         solver = [fwd.SolverModel(variant, run, data.rpm, data.eccentric_mass_g, library.parameters, library.lower,
                                   library.upper, harmonics, slow_roll_harmonics=data.slow_roll_harmonics)]
         exact = pol.polish(fit, solver, int(options["polish"]))
