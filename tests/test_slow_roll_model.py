@@ -54,3 +54,17 @@ def test_compensated_is_the_band_minus_its_slow_roll_response():
     assert np.all((one > 0.5) & (one < 1.5)), one
     ratio = np.abs(S[:, 1]) / np.abs(P[:, 1])
     assert np.all((ratio > 0.5) & (ratio < 1.0)), ratio
+
+
+def test_the_bands_of_one_record_share_one_slow_roll_solve():
+    """Two bands of one record (same mass, same parameters) need one 3-RPM state: it is solved once per evaluation,
+    and both bands get the same numbers as when evaluated alone."""
+    v = variant()
+    x = np.array([[0.1, 0.2, -0.3, -0.5, -0.6, 0.5, -0.25]])
+    a, b = models(v, 250.0, 14.8, (1, 2)), models(v, 300.0, 14.8, (1, 2))
+    (Ma, _), (Mb, _) = fwd.evaluate_runs([a, b], [x, x])
+    assert a.reference.n_solves + b.reference.n_solves == 1
+    alone_a, alone_b = models(v, 250.0, 14.8, (1, 2)).evaluate(x)[0], models(v, 300.0, 14.8, (1, 2)).evaluate(x)[0]
+    scale = np.abs(alone_a).max()
+    # batched or alone, the same solver to its tolerance (1e-9 of the response)
+    assert np.allclose(Ma, alone_a, atol=1e-9 * scale, rtol=0) and np.allclose(Mb, alone_b, atol=1e-9 * scale, rtol=0)

@@ -350,11 +350,15 @@ class SolverModel:
                     m._remember(x[r], own, dstate[sl], batch.jumped[sl])
             out.append((M, dM))
         compensated = [k for k, m in enumerate(models) if m.reference is not None]
-        if compensated:  # the slow-roll references, solved together too
-            references = SolverModel.evaluate_together([models[k].reference for k in compensated],
-                                                       [batch.xs[k] for k in compensated], jacobian)
-            for k, (M_ref, dM_ref) in zip(compensated, references):
-                models[k]._compensate(*out[k], M_ref, dM_ref)
+        if compensated:  # the slow-roll references, solved together too; the bands of one record share theirs
+            # (the same mass at the same parameters: one 3-RPM state), so each distinct one is solved once
+            key = {k: (models[k].eccentric_mass_g, batch.xs[k].tobytes()) for k in compensated}
+            first = list({key[k]: k for k in reversed(compensated)}.values())
+            solved = SolverModel.evaluate_together([models[k].reference for k in first],
+                                                   [batch.xs[k] for k in first], jacobian)
+            by_key = {key[k]: value for k, value in zip(first, solved)}
+            for k in compensated:
+                models[k]._compensate(*out[k], *by_key[key[k]])
         return out
 
     @staticmethod
