@@ -187,7 +187,7 @@ def fit_joint(variant: Variant, options: Mapping, libraries: Sequence[Library], 
     warnings: list[str] = []
     data, models = [], []
     on_solver = not libraries  # offline.scope: none: the fits on the full solver (module docstring)
-    for library, name in (zip(libraries, [lib.run for lib in libraries]) if libraries else ((None, r) for r in runs)):
+    for library, name in [(lib, lib.run) for lib in libraries] or [(None, r) for r in runs]:
         run = idn.run_data(harmonics_table, name, keyphasor=options["keyphasor"], channels=variant.channels)
         if not run.usable:
             warnings.append(f"run {run.run} left out of the joint fit: {run.note}")
