@@ -3,7 +3,8 @@ on top and the residual in units of the noise, and its orbits at chosen speeds (
 hybridtwin.report.transient_plots). Reads only the rule's input, params and output.
 
 The model: the fitted twin's response by continuation at every window's speed of every record, one batched sweep
-for all records (response_plots.dense_response, as report_response: the joint fit's values, the bow from its law).
+for all records (response_plots.dense_response, as report_response: the joint fit's values, the bow from its law),
+compensated for slow roll as each record was (transient_plots.compensated_like_the_data).
 """
 
 from pathlib import Path
@@ -15,6 +16,7 @@ from hybridtwin import config as cfg
 from hybridtwin.data.measurements import probe_angles, read_record, record_channels
 from hybridtwin.data.order_tracking import read_orders, speed_profile, table_channels
 from hybridtwin.identify import identification as idn
+from hybridtwin.identify.forward import SLOW_ROLL_RPM
 from hybridtwin.report import transient_plots as tp
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
@@ -31,6 +33,8 @@ harmonics = min([int(smk.params.harmonics)] + [tp.table_harmonics(o) for o in or
 speeds = np.concatenate([o["rpm"].to_numpy(float) for o in orders])
 log.info("%s: the fitted twin at %d window speeds of %d record(s), %.0f-%.0f RPM, 1X..%dX", variant.name,
          speeds.size, len(records), speeds.min(), speeds.max(), harmonics)
+if any(r is not None and not r.empty for r in runouts):  # the model is compensated as the records were
+    speeds = np.append(speeds, SLOW_ROLL_RPM)
 dense = tp.model_response(variant, idn.read_parameters(smk.input.parameters), pd.DataFrame(smk.params.runs),
                           speeds, harmonics, smk.params.law)
 names, pairs = record_channels(sensors)
@@ -38,7 +42,9 @@ folder = Path(smk.output.figures)
 tables = []
 for record, table, band, runout, path in zip(records, orders, bands, runouts, smk.input.records):
     channels = table_channels(table)
-    model = tp.model_at(dense, float(record["eccentric_mass_g"]), record["kind"], table["rpm"], harmonics)
+    mass = float(record["eccentric_mass_g"])
+    model = tp.compensated_like_the_data(dense, tp.model_at(dense, mass, record["kind"], table["rpm"], harmonics),
+                                         mass, record["kind"], runout)
     points = tp.points(table, model, tp.probe_matrix(channels, sensors, options["frame"]), record, band,
                        options["frame"])
     tables.append(points)

@@ -165,6 +165,30 @@ def test_model_at_reads_the_records_own_sweep_at_each_windows_speed():
     assert np.isnan(tp.model_at(dense, 7.0, "runup", [100.0], 2)).all()
 
 
+def test_the_twin_is_compensated_for_slow_roll_as_the_record_was():
+    """The fit compares the record with the model less its own response at forward.SLOW_ROLL_RPM on the runout's
+    harmonics (SolverModel's slow_roll_harmonics); the figures must draw that model. A dense table whose 2X holds
+    a constant (a 2X force's static deflection, the same at every speed) and whose 1X and 3X grow with speed: with
+    a 1X/2X runout table the 2X constant is gone and 1X loses its (tiny) slow-roll value, 3X is untouched; without
+    a runout table (compensation off) nothing changes."""
+    from hybridtwin.identify.forward import SLOW_ROLL_RPM
+
+    rows = []
+    for rpm in (SLOW_ROLL_RPM, 300.0, 600.0):
+        for h, value in ((1, 1e-9 * rpm**2), (2, 4e-6 + 1e-12 * rpm**2), (3, 1e-10 * rpm**2)):
+            rows.append((5.0, "run-up", rpm, h, value, 0.0, 0.0, value, True, "main"))
+    dense = pd.DataFrame(rows, columns=dense_columns(("x", "y")))
+    model = tp.model_at(dense, 5.0, "runup", [300.0, 600.0], 3)
+    runout = pd.DataFrame({"channel": ["x", "x", "y", "y"], "harmonic": [1, 2, 1, 2]})
+    out = tp.compensated_like_the_data(dense, model, 5.0, "runup", runout)
+    rpm = np.array([300.0, 600.0])
+    assert np.allclose(out[:, 1, 0], 1e-12 * (rpm**2 - SLOW_ROLL_RPM**2), rtol=1e-12, atol=0)
+    assert np.allclose(out[:, 0, 0], 1e-9 * (rpm**2 - SLOW_ROLL_RPM**2), rtol=1e-12, atol=0)
+    assert np.array_equal(out[:, 2], model[:, 2])
+    assert np.array_equal(tp.compensated_like_the_data(dense, model, 5.0, "runup", None), model)
+    assert np.array_equal(tp.compensated_like_the_data(dense, model, 5.0, "runup", runout.iloc[:0]), model)
+
+
 def test_the_waterfalls_strongest_line_follows_1x_on_a_closed_form_sweep():
     """A run-up 300 -> 900 RPM whose 1X dominates: in every segment the strongest line lies at the segment's
     speed / 60 Hz within a frequency bin plus the speed's change over the segment; with a constant 1X of 20 um

@@ -229,6 +229,10 @@ def track_record(record: Record, sheet_row: Mapping, harmonics: int, sensor_rang
 
 #: a band is too fast for the quasi-steady model where the sweep's expected lag exceeds this many of its sigmas
 SWEEP_LAG_SIGMAS = 2.0
+#: an order above 1 is checked where its resonance improves the chi^2 of a constant by this many sigmas squared
+ORDER_SIGNIFICANCE = 3.0
+#: ... and where its damping ratio in rotor speed is at least this share of the 1X's (``_order_mode``)
+ORDER_ZETA_SHARE = 0.5
 
 
 def check_sweep_rate(bands: pd.DataFrame, names: Sequence[str], plan: BandPlan) -> pd.DataFrame:
@@ -238,8 +242,11 @@ def check_sweep_rate(bands: pd.DataFrame, names: Sequence[str], plan: BandPlan) 
     whole or only on its flank); the expected lag of the swept response per band is the first-order adiabatic
     correction (``solvers.sweep_rate.sweep_rate_check``, measured against time integration on the rig:
     benchmarks/README.md, "Sweep rate") at the record's fastest rate, scaled to the mode's peak, and a band is
-    kept out where it exceeds SWEEP_LAG_SIGMAS of the band's 1X sigma. Columns added: sweep_lag_m (the expected
-    lag), sweep_check ("ok", "too fast", or "no mode found" where no resonance is in sight)."""
+    kept out where it exceeds SWEEP_LAG_SIGMAS of the band's sigma. Every order of the table is checked: the h-th
+    order sweeps its mode at h times the frequency rate (``sweep_rate_check(order=h)``), at its own resonance and
+    scaled to its own resonant part (``_order_mode``: a 2X force's response peaks where 2X meets the mode, where 1X
+    is quiet); an order without a resonance in sight is not checked. Columns added: sweep_lag_m (the expected lag of the order that decides, the largest against its
+    sigma), sweep_check ("ok", "too fast", or "no mode found" where no resonance is in sight)."""
     from ..solvers.sweep_rate import sweep_rate_check
 
     out = bands.copy()
@@ -257,25 +264,88 @@ def check_sweep_rate(bands: pd.DataFrame, names: Sequence[str], plan: BandPlan) 
         out["sweep_check"] = "no mode found"
         return out
     omega_n, zeta, gain = mode
-    # sweep_rate_check scales each band's lag to the mode's largest response over the record's bands: in metres
-    fine = np.linspace(plan.bands[0][0], plan.bands[-1][1], 4001) * math.pi / 30.0
-    peak = gain * float(np.abs(fine**2 / (omega_n**2 - fine**2 + 2j * zeta * omega_n * fine)).max())
     rate = float(np.nanmax(np.abs(out["sweep_rpm_per_s"].to_numpy(float))))
     width_rpm = plan.bands[0][1] - plan.bands[0][0]
-    checks = sweep_rate_check([(omega_n, zeta)], rate, 0.0, plan.bands[0][0], plan.bands[-1][1],
-                              band_rpm=width_rpm, centrifugal=False)
-    lag = np.array([ch.expected_error for ch in checks])[: len(out)] * peak
-    band_sigma = np.where(np.isfinite(sigma), sigma, 0.0).max(axis=1)  # a band not fitted: 0 (not usable, never marked)
-    too_fast = usable & (lag > SWEEP_LAG_SIGMAS * band_sigma)
+    fine = np.linspace(plan.bands[0][0], plan.bands[-1][1], 4001) * math.pi / 30.0
+    ratio, lag, order = np.zeros(len(out)), np.zeros(len(out)), np.ones(len(out), int)
+    modes = {1: (omega_n, zeta, gain * float(np.abs(fine**2 / (omega_n**2 - fine**2
+                                                              + 2j * zeta * omega_n * fine)).max()))}
+    for h in range(2, table_harmonics_of(out, names) + 1):
+        found = _order_mode(out, names, h, usable, fine, zeta)
+        if found is not None:
+            modes[h] = found
+    for h, (omega_h, zeta_h, peak) in modes.items():
+        # sweep_rate_check scales each band's lag to the order's largest response over the record's bands
+        checks = sweep_rate_check([(omega_h, zeta_h)], rate, 0.0, plan.bands[0][0], plan.bands[-1][1],
+                                  band_rpm=width_rpm, centrifugal=False, order=h)
+        lag_h = np.array([ch.expected_error for ch in checks])[: len(out)] * peak
+        sigma_h = np.column_stack([out[harmonic_column(name, h, "sigma")] for name in names])
+        sigma_h = np.where(np.isfinite(sigma_h), sigma_h, 0.0).max(axis=1)  # a band not fitted: 0 (never marked)
+        ratio_h = np.divide(lag_h, sigma_h, out=np.zeros_like(lag_h), where=sigma_h > 0)
+        worse = ratio_h > ratio
+        ratio[worse], lag[worse], order[worse] = ratio_h[worse], lag_h[worse], h
+    too_fast = usable & (ratio > SWEEP_LAG_SIGMAS)
     out["sweep_lag_m"] = lag
     out["sweep_check"] = np.where(too_fast, "too fast", "ok")
     for i in np.flatnonzero(too_fast):
+        h = int(order[i])
         out.loc[i, "usable"] = False
-        out.loc[i, "note"] = (f"sweep too fast for a quasi-steady model: expected lag {1e6 * lag[i]:.1f} um against "
-                              f"a 1X sigma of {1e6 * band_sigma[i]:.2f} um at {rate:.1f} RPM/s near the resonance at "
-                              f"{omega_n * 30 / math.pi:.0f} RPM (zeta {zeta:.3f}, fitted to the record): kept out")
+        out.loc[i, "note"] = (f"sweep too fast for a quasi-steady model: expected {h}X lag {1e6 * lag[i]:.1f} um "
+                              f"against a {h}X sigma of {1e6 * lag[i] / ratio[i]:.2f} um at {rate:.1f} RPM/s near "
+                              f"the {h}X resonance at {modes[h][0] * 30 / math.pi / h:.0f} RPM (zeta "
+                              f"{modes[h][1]:.3f}, fitted to the record): kept out")
         out.loc[i, "flags"] = "sweep_too_fast"
     return out
+
+
+def table_harmonics_of(bands: pd.DataFrame, names: Sequence[str]) -> int:
+    """The highest order h with re, im and sigma columns for every probe in a bands table."""
+    h = 0
+    while all(harmonic_column(n, h + 1, part) in bands for n in names for part in ("re", "im", "sigma")):
+        h += 1
+    return h
+
+
+def _order_mode(bands: pd.DataFrame, names: Sequence[str], h: int, usable: Array, fine: Array, zeta_1: float
+                ) -> tuple[float, float, float] | None:
+    """(omega_h [rad/s], zeta_h, peak [m]) of the h-th order's own resonance: the one-mode fit (``one_mode_fit``)
+    of the strongest probe's h-th order over the usable bands, in rotor speed: the order crosses the mode at
+    Omega_h, and omega_h = h Omega_h is the mode's frequency as that order drives it. Its own, not the 1X mode's
+    divided by h: a speed-dependent stiffness moves the crossings apart (the VARM's centrifugal softening
+    K - Omega^2 M puts 1X at omega_0 / sqrt(2) and 2X at omega_0 / sqrt(5), 950 and 600 RPM, not 950 / 2).
+    peak: the fitted resonant part's largest modulus over ``fine`` [rad/s]. None where the order shows no
+    resonance of the mode: the fit no better than a constant by ORDER_SIGNIFICANCE^2 in chi^2 (otherwise the
+    noise, scaled to a resonance no band shows, would keep bands out of a record with no such order), no mode
+    found, or a damping ratio below ORDER_ZETA_SHARE of the 1X's ``zeta_1``: the same mode driven by the h-th
+    order shows in rotor speed a damping ratio zeta_0 h / sqrt(s + h^2) for a stiffness K - s Omega^2 M, at 2X
+    0.9-1.3 times the 1X's for s in [0, 1]; a narrower one is a band or two fitted as a needle-sharp peak
+    between the bands (measured on a time-integrated run-up with no 2X force: zeta 0.001, a 2X "peak" of 16 um
+    where the bands show 1 um, which kept two bands out that the quasi-steady model fits to the noise)."""
+    Omega = bands["rpm_true"].to_numpy(float) * math.pi / 30.0
+    X = np.column_stack([(bands[harmonic_column(n, h, "re")] + 1j * bands[harmonic_column(n, h, "im")]).to_numpy()
+                         for n in names])
+    s = np.column_stack([bands[harmonic_column(n, h, "sigma")].to_numpy(float) for n in names])
+    keep = usable & np.isfinite(X).all(1) & np.isfinite(s).all(1) & (s > 0).all(1)
+    if keep.sum() < 6:
+        return None
+    c = int(np.argmax(np.abs(X[keep]).max(axis=0)))
+    X, s, Omega = X[keep, c], s[keep, c], Omega[keep]
+    mode = one_mode_fit(Omega, X, s)
+    if mode is None:
+        return None
+    Omega_h, zeta, gain = mode
+    if zeta < ORDER_ZETA_SHARE * zeta_1:
+        return None
+    shape = Omega**2 / (Omega_h**2 - Omega**2 + 2j * zeta * Omega_h * Omega)
+    A = np.column_stack([shape, np.ones_like(shape)]) / s[:, None]
+    coef, *_ = np.linalg.lstsq(A, X / s, rcond=None)
+    chi2_mode = float(np.sum(np.abs(A @ coef - X / s) ** 2))
+    mean = np.sum(X / s**2) / np.sum(1 / s**2)
+    chi2_constant = float(np.sum(np.abs((X - mean) / s) ** 2))
+    if chi2_constant - chi2_mode < ORDER_SIGNIFICANCE**2:
+        return None
+    peak = gain * float(np.abs(fine**2 / (Omega_h**2 - fine**2 + 2j * zeta * Omega_h * fine)).max())
+    return h * Omega_h, zeta, peak
 
 
 def summary_row(tracked: TrackedRecord, names: Sequence[str]) -> dict:
@@ -334,12 +404,22 @@ def one_mode_fit(omega: Array, X: Array, sigma: Array) -> tuple[float, float, fl
         return np.concatenate([r.real, r.imag])
 
     hi = 1.5 * omega.max()
-    best = None
-    for wn0 in np.linspace(omega.min(), hi, 12)[1:]:
-        for z0 in (0.01, 0.05, 0.2):
-            fit = least_squares(residual, [wn0, z0], bounds=([omega.min(), 1e-3], [hi, 0.5]))
-            if best is None or fit.cost < best.cost:
-                best = fit
+    # the starts: the best point of a grid over (omega_n, zeta), its cost in closed form (the 2 x 2 weighted
+    # normal equations of A and B for every point at once), then one least-squares refinement from there
+    grid_wn = np.linspace(omega.min(), hi, 121)[1:]
+    grid_z = np.geomspace(1.5e-3, 0.45, 24)
+    wn_g, z_g = (g.ravel() for g in np.meshgrid(grid_wn, grid_z, indexing="ij"))
+    basis = omega**2 / (wn_g[:, None] ** 2 - omega**2 + 2j * z_g[:, None] * wn_g[:, None] * omega)  # (G, n)
+    w2 = w**2
+    s_bb, s_b1, s_11 = (np.abs(basis) ** 2) @ w2, basis.conj() @ w2, w2.sum()
+    s_bx, s_1x = (basis.conj() * X) @ w2, (X * w2).sum()
+    det = s_bb * s_11 - np.abs(s_b1) ** 2
+    a = (s_11 * s_bx - s_b1 * s_1x) / det
+    b = (s_bb * s_1x - s_b1.conj() * s_bx) / det
+    cost = np.sum(np.abs((a[:, None] * basis + b[:, None] - X) * w) ** 2, axis=1)
+    cost[~np.isfinite(cost)] = np.inf
+    k = int(np.argmin(cost))
+    best = least_squares(residual, [wn_g[k], z_g[k]], bounds=([omega.min(), 1e-3], [hi, 0.5]))
     wn, z = best.x
     if z >= 0.49 or wn >= 0.99 * hi:
         return None

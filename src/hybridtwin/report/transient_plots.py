@@ -11,7 +11,8 @@ first band: such windows are drawn hollow, their band shaded, never left out.
 **The model** is the fitted twin's steady response by continuation (``response_plots.dense_response``, the
 report's Bode curves: the joint fit's values, the bow from its law over the fit runs) at every window's own speed,
 along the record's own sweep direction (a run-up on the run-up branch, a coast-down on the run-down one), so the
-residual z = (measured - model) / sigma is exact at each point, not read off an interpolated curve. The residual
+residual z = (measured - model) / sigma is exact at each point, not read off an interpolated curve; compensated
+for slow roll as the record was (``compensated_like_the_data``), as the fit compares them. The residual
 panel shows |z|: for a complex vector with independent parts of sigma each, |z| is Rayleigh-distributed, below
 RAYLEIGH_95 = 2.45 in 95 % of the windows where the model explains the record.
 
@@ -199,6 +200,26 @@ def model_at(dense: pd.DataFrame, mass_g: float, kind: str, rpm: Sequence[float]
         for j, c in enumerate(channels):
             z = rows[f"{c}_re_m"].to_numpy(float) + 1j * rows[f"{c}_im_m"].to_numpy(float)
             out[:, h - 1, j] = np.where(match, z[k], np.nan)
+    return out
+
+
+def compensated_like_the_data(dense: pd.DataFrame, model: Array, mass_g: float, kind: str,
+                              runout: pd.DataFrame | None) -> Array:
+    """The model (W, H, C) of ``model_at`` compensated as the record was: where its slow-roll runout was subtracted
+    (``runout``: the record's runout table, None or empty when compensation was off), the model's own response at
+    ``forward.SLOW_ROLL_RPM`` (a speed of ``dense``) subtracted from the runout's harmonics, as the fit's model
+    (``forward.SolverModel``'s ``slow_roll_harmonics``). A response that does not vanish at slow roll (a 2X force's
+    static deflection) then lies on the record's curve, not beside it; unbalance and bow responses are unchanged
+    (~1e-5 of their value at 1000 RPM)."""
+    from ..identify.forward import SLOW_ROLL_RPM
+
+    if runout is None or runout.empty:
+        return model
+    out = model.copy()
+    reference = model_at(dense, mass_g, kind, [SLOW_ROLL_RPM], model.shape[1])[0]  # (H, C)
+    for h in sorted(set(int(v) for v in runout["harmonic"])):
+        if 1 <= h <= model.shape[1]:
+            out[:, h - 1, :] -= reference[h - 1]
     return out
 
 

@@ -20,6 +20,15 @@ resonance |X1| / |X0| ~ Omega' / (zeta^2 Omega_c^2) up to a factor of order one:
 rate eta = Omega' / omega^2 against zeta^2 (``dimensionless_rate``). First order only: past ~20 % it
 underestimates the flattening, and the verdict there is "too fast" anyway.
 
+**Higher orders.** The h-th order of a swept record (a 2X force, a 3X excitation) is a forcing at the frequency
+w = h Omega, swept at w' = h Omega': with z = X exp(i h theta) the same equation holds in w (``order`` h). Its
+forcing law is that of the effect behind it, unknown to the data: an unbalance-like w^2 - i w' (an inertial 2X
+excitation) or a constant amplitude F (a 2X force: X0 = F / D, X1 = (-(2 i w + c) dX0/dw w' - i w' X0) / D).
+``sweep_rate_check`` with ``order`` > 1 takes the larger of both relative errors. The h-th order meets the mode
+at Omega = omega_n / h: a 2X force crosses at half the critical speed at twice its frequency rate, where a run-up
+slow enough for 1X may not be (measured on a time-integrated run-up with a 2X force: the 2X bands at 560-640 RPM,
+quasi-steady chi^2 up to 2450 on 4 numbers; tests/test_sweep.py checks the closed form against time integration).
+
 Measured on the rig (the VARM's default truth, benchmarks/sweep_rate_study.py; table in benchmarks/README.md):
 the predicted error against the time-integrated transient's, per rate and band.
 """
@@ -34,24 +43,43 @@ import numpy as np
 Array = np.ndarray
 
 
-def quasi_steady(Omega: Array, omega_n: float, zeta: float, centrifugal: bool = True) -> Array:
-    """X0 = Omega^2 / D(Omega) of a unit unbalance on the mode (module docstring)."""
+#: the forcing laws of an order (module docstring): an unbalance-like w^2 - i w', or a constant amplitude
+FORCINGS = ("unbalance", "constant")
+
+
+def quasi_steady(Omega: Array, omega_n: float, zeta: float, centrifugal: bool = True,
+                 forcing: str = "unbalance") -> Array:
+    """X0 = Omega^2 / D(Omega) of a unit unbalance on the mode (module docstring); ``forcing`` "constant": 1 / D,
+    a unit force of constant amplitude."""
     Omega = np.asarray(Omega, dtype=float)
     s = 1.0 if centrifugal else 0.0
-    return Omega ** 2 / (omega_n ** 2 - (1.0 + s) * Omega ** 2 + 2j * zeta * omega_n * Omega)
+    D = omega_n ** 2 - (1.0 + s) * Omega ** 2 + 2j * zeta * omega_n * Omega
+    return (Omega ** 2 if _forcing(forcing) == "unbalance" else 1.0) / D
 
 
 def adiabatic_correction(Omega: Array, Omega_dot: Array | float, omega_n: float, zeta: float,
-                         centrifugal: bool = True) -> Array:
-    """X1, the first-order lag of the swept response (module docstring), for a unit unbalance."""
+                         centrifugal: bool = True, forcing: str = "unbalance") -> Array:
+    """X1, the first-order lag of the swept response (module docstring), for a unit unbalance (or, ``forcing``
+    "constant", a unit force of constant amplitude: no -i Omega' term in the forcing)."""
     Omega = np.asarray(Omega, dtype=float)
     Omega_dot = np.broadcast_to(np.asarray(Omega_dot, dtype=float), Omega.shape)
     s = 1.0 if centrifugal else 0.0
     c = 2.0 * zeta * omega_n
     D = omega_n ** 2 - (1.0 + s) * Omega ** 2 + 1j * c * Omega
-    X0 = Omega ** 2 / D
-    dX0 = (2.0 * Omega * D - Omega ** 2 * (-2.0 * (1.0 + s) * Omega + 1j * c)) / D ** 2
-    return (-1j * Omega_dot - (2j * Omega + c) * dX0 * Omega_dot - 1j * Omega_dot * X0) / D
+    dD = -2.0 * (1.0 + s) * Omega + 1j * c
+    if _forcing(forcing) == "unbalance":
+        X0 = Omega ** 2 / D
+        dX0 = (2.0 * Omega * D - Omega ** 2 * dD) / D ** 2
+        f1 = -1j * Omega_dot
+    else:
+        X0, dX0, f1 = 1.0 / D, -dD / D ** 2, 0.0
+    return (f1 - (2j * Omega + c) * dX0 * Omega_dot - 1j * Omega_dot * X0) / D
+
+
+def _forcing(forcing: str) -> str:
+    if forcing not in FORCINGS:
+        raise ValueError(f"forcing {forcing!r}: one of {', '.join(FORCINGS)}")
+    return forcing
 
 
 def crossing_speed(omega_n: float, centrifugal: bool = True) -> float:
@@ -88,34 +116,43 @@ class BandCheck:
 
 def sweep_rate_check(modes: list[tuple[float, float]], sweep_rate_rpm_s: float, noise_to_amplitude: float,
                      rpm_low: float, rpm_high: float, band_rpm: float = 50.0, centrifugal: bool = True,
-                     points_per_band: int = 50) -> list[BandCheck]:
+                     points_per_band: int = 50, order: int = 1) -> list[BandCheck]:
     """Per band of ``band_rpm`` between rpm_low and rpm_high: is the quasi-steady model within the noise?
 
     modes: (omega_n [rad/s], zeta) of each mode at rest (e.g. ``model.campbell`` at 0 RPM, or the first mode
     of ``Model.at_rest`` with its damping ratio); sweep_rate_rpm_s: the record's rate |rpm'| (its largest, to be
     safe); noise_to_amplitude: the standard deviation of a measured order vector over the record's largest
     order amplitude (e.g. noise sigma sqrt(2 / samples per window) / peak). Each mode is scaled to its own
-    peak (the worst case: the record dominated by that mode). Returns one ``BandCheck`` per band.
+    peak (the worst case: the record dominated by that mode). ``order`` h: the h-th order vector, a forcing at
+    h Omega swept at h Omega' (module docstring, "Higher orders"; h > 1: the larger error of both forcing laws).
+    The bands stay in rotor speed; an order above 1 takes ``centrifugal`` False (a mode as the record shows it).
+    Returns one ``BandCheck`` per band.
     """
     if not rpm_high > rpm_low > 0:
         raise ValueError(f"sweep_rate_check: needs 0 < rpm_low < rpm_high, got {rpm_low}, {rpm_high}")
     if not band_rpm > 0 or not noise_to_amplitude >= 0:
         raise ValueError("sweep_rate_check: band_rpm must be positive and noise_to_amplitude >= 0")
+    if int(order) != order or order < 1:
+        raise ValueError(f"sweep_rate_check: order must be a positive integer, got {order}")
+    if order > 1 and centrifugal:  # K - Omega^2 M is a law in Omega, not in h Omega: the mapping holds without it
+        raise ValueError("sweep_rate_check: an order above 1 needs centrifugal=False (the record's apparent mode)")
     for omega_n, zeta in modes:
         if not (omega_n > 0 and zeta > 0):
             raise ValueError(f"sweep_rate_check: a mode needs omega_n > 0 and zeta > 0, got ({omega_n}, {zeta})")
     edges = np.arange(rpm_low, rpm_high + 1e-9, band_rpm)
     if edges[-1] < rpm_high - 1e-9:
         edges = np.append(edges, rpm_high)
-    rate = abs(sweep_rate_rpm_s) * math.pi / 30.0
-    fine = np.linspace(rpm_low, rpm_high, max(2001, int(points_per_band * (edges.size - 1)))) * math.pi / 30.0
+    h = int(order)
+    rate = h * abs(sweep_rate_rpm_s) * math.pi / 30.0  # the order's frequency rate, w' = h Omega'
+    fine = h * np.linspace(rpm_low, rpm_high, max(2001, int(points_per_band * (edges.size - 1)))) * math.pi / 30.0
     errors = np.zeros(edges.size - 1)
     for omega_n, zeta in modes:
-        peak = np.abs(quasi_steady(fine, omega_n, zeta, centrifugal)).max()
-        for i, (a, b) in enumerate(zip(edges[:-1], edges[1:])):
-            Omega = np.linspace(a, b, points_per_band) * math.pi / 30.0
-            X1 = adiabatic_correction(Omega, rate, omega_n, zeta, centrifugal)
-            errors[i] = max(errors[i], float(np.abs(X1).max() / peak))
+        for forcing in FORCINGS if h > 1 else ("unbalance",):
+            peak = np.abs(quasi_steady(fine, omega_n, zeta, centrifugal, forcing)).max()
+            for i, (a, b) in enumerate(zip(edges[:-1], edges[1:])):
+                w = h * np.linspace(a, b, points_per_band) * math.pi / 30.0
+                X1 = adiabatic_correction(w, rate, omega_n, zeta, centrifugal, forcing)
+                errors[i] = max(errors[i], float(np.abs(X1).max() / peak))
     return [BandCheck(float(a), float(b), float(e), float(noise_to_amplitude))
             for a, b, e in zip(edges[:-1], edges[1:], errors)]
 
