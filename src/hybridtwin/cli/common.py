@@ -18,11 +18,10 @@ from ..model.effect_base import Effect
 from ..model.effects import builtin_effects
 from ..model.machine import Machine, MachineSpecError, default_machine
 from ..model.variants import BUILTIN_VARIANTS, EffectsFileError, Variant, load_effects_files
+from ..solvers.continuation import RUN_UP_FROM_RPM  # noqa: F401 (simulate's run-up start: the rig's and the fits')
 
 #: the config read when --config is not given and the command runs from the project root
 PROJECT_CONFIG = Path("config") / "config.yaml"
-#: where simulate's own run-up starts when the direct solve fails (the rig's and forward.run_up's start)
-RUN_UP_FROM_RPM = 300.0
 #: a run-down for the other branch starts this much above the point (at least RUNDOWN_MARGIN_RPM)
 RUNDOWN_FACTOR, RUNDOWN_MARGIN_RPM = 1.5, 300.0
 #: two branches at a point are different steady states when their harmonics differ by more than this,

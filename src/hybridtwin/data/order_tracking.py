@@ -59,6 +59,7 @@ import numpy as np
 import pandas as pd
 
 from .record_columns import harmonic_column as _harmonic_column
+from ..solvers.solver import DEFAULT_HARMONICS  # the order vectors' default highest harmonic (the steady analysis's)
 from scipy.interpolate import PchipInterpolator
 
 Array = np.ndarray
@@ -66,8 +67,6 @@ Array = np.ndarray
 #: windows of this many whole revolutions by default (benchmarks/order_tracking_window.py: the smallest
 #: total error of the 1X through a resonance of a 300 -> 1000 RPM run-up, bias against noise)
 DEFAULT_REVOLUTIONS = 6
-#: the order vectors' default highest harmonic (the steady analysis's)
-DEFAULT_HARMONICS = 5
 #: fewest whole revolutions between the first and the last mark
 MIN_REVOLUTIONS = 5
 #: a revolution this many times the median of its neighbours holds a missed mark (two turns: ~2x) ...

@@ -61,6 +61,7 @@ import numpy as np
 
 from .measurements import UNITS, DataError, DataWarning, Record, Sensor, _format
 from .record_columns import listed
+from ..solvers.solver import DEFAULT_HARMONICS
 
 Array = np.ndarray
 
@@ -263,7 +264,7 @@ def _slower_speed(spectrum: _Spectrum, rpm_nominal: float, tolerance: float, har
     return None if best is None else best[:3]
 
 
-def check_speed(record: Record, rpm_nominal: float, tolerance: float = SPEED_TOLERANCE, harmonics: int = 5) -> None:
+def check_speed(record: Record, rpm_nominal: float, tolerance: float = SPEED_TOLERANCE, harmonics: int = DEFAULT_HARMONICS) -> None:
     """Raise ``DataError`` when the record turns at another speed than the sheet's nominal one; a
     ``DataWarning`` when it turns at that speed but another line is stronger than its 1X (module docstring)."""
     spectrum = _Spectrum.of(record)

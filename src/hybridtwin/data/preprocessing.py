@@ -70,6 +70,7 @@ from .record_columns import (  # noqa: F401 (harmonic_column, harmonic_stem re-e
     carried_columns as _carried, harmonic_column, harmonic_columns, harmonic_stem, keyphasor_marks,
 )
 from .run_kinds import is_transient_row
+from ..solvers.solver import DEFAULT_HARMONICS
 from .transient import summary_row, track_record
 
 Array = np.ndarray
@@ -195,7 +196,7 @@ def design_matrix(t: Array, omega: float, harmonics: int) -> Array:
 _SPEED_BLOCK_VALUES = 1 << 20
 
 
-def refine_speed(record: Record, rpm_nominal: float, harmonics: int = 5,
+def refine_speed(record: Record, rpm_nominal: float, harmonics: int = DEFAULT_HARMONICS,
                  channels: tuple[str, ...] | None = None, search: float = SPEED_SEARCH) -> SpeedEstimate:
     """Maximum-likelihood rotation speed from the record (module docstring, step 1).
 
@@ -313,7 +314,7 @@ def quantisation_sigma(weights: Array, k: Array, f: float, dt: float, n_position
 # --- step 3: order analysis -------------------------------------------------------------
 
 
-def order_analysis(record: Record, speed: SpeedEstimate, origin: PhaseOrigin, harmonics: int = 5) -> OrderAnalysis:
+def order_analysis(record: Record, speed: SpeedEstimate, origin: PhaseOrigin, harmonics: int = DEFAULT_HARMONICS) -> OrderAnalysis:
     """Synchronous averages of DC and 1X..HX of every channel over whole revolutions (module docstring, step 3)."""
     t, period, omega = record.time_s, speed.period_s, speed.omega
     first = int(np.ceil((t[0] - origin.time_s) / period - 1e-9))
@@ -368,7 +369,7 @@ def _to_real(X: Array) -> Array:
 # --- a whole run ------------------------------------------------------------------------
 
 
-def analyse_record(record: Record, rpm_nominal: float, harmonics: int = 5, sensor_range_m: float | None = None,
+def analyse_record(record: Record, rpm_nominal: float, harmonics: int = DEFAULT_HARMONICS, sensor_range_m: float | None = None,
                    min_revolutions: float = MIN_REVOLUTIONS, sensor_resolution_m: float | None = None) -> RunAnalysis:
     """Checks and steps 1-3 for one record (docs/data-checks.md).
 
@@ -489,7 +490,7 @@ def spectrum(record: Record, rpm: float, max_order: float = 10.0) -> pd.DataFram
     return pd.DataFrame(out)
 
 
-def preprocess_run(sheet_row: Mapping, harmonics: int = 5, sensor_range_m: float | None = None,
+def preprocess_run(sheet_row: Mapping, harmonics: int = DEFAULT_HARMONICS, sensor_range_m: float | None = None,
                    sensor_resolution_m: float | None = None, record: Record | None = None, sensors=None
                    ) -> tuple[pd.DataFrame, pd.DataFrame]:
     """One runs-sheet row (with its resolved ``record`` path) -> (one-row tidy table, waveforms).
@@ -507,7 +508,7 @@ def preprocess_run(sheet_row: Mapping, harmonics: int = 5, sensor_range_m: float
     return pd.DataFrame([_carried(sheet_row, analysed) | analysed]), waveforms(analysis)
 
 
-def summarise_runs(runs: pd.DataFrame, harmonics: int = 5, sensor_range_m: float | None = None,
+def summarise_runs(runs: pd.DataFrame, harmonics: int = DEFAULT_HARMONICS, sensor_range_m: float | None = None,
                    min_revolutions: float = MIN_REVOLUTIONS, sensor_resolution_m: float | None = None, sensors=None
                    ) -> tuple[pd.DataFrame, dict[str, str]]:
     """check-data: every run of a validated sheet analysed; (summary table, {run: error message}).
@@ -596,7 +597,7 @@ def write_tsv(table: pd.DataFrame, path: str | Path) -> None:
 # --- check-data: the whole data set -----------------------------------------------------
 
 
-def check_data(sheet: str | Path, harmonics: int = 5, rpm_range: tuple[float, float] | None = None,
+def check_data(sheet: str | Path, harmonics: int = DEFAULT_HARMONICS, rpm_range: tuple[float, float] | None = None,
                mass_range_g: tuple[float, float] | None = None, sensor_range_m: float | None = None,
                min_revolutions: float = MIN_REVOLUTIONS, sensor_resolution_m: float | None = None,
                range_names: tuple[str, str] = ("--rpm-range", "--mass-range-g"), sensors=None

@@ -31,7 +31,7 @@ import numpy as np
 
 from ..offline.library import Library
 from ..offline.pod import feature_index
-from ..solvers.continuation import padded_speeds
+from ..solvers.continuation import RUN_UP_FROM_RPM, padded_speeds
 from ..offline.scenarios import intermediate_speeds
 
 Array = np.ndarray
@@ -90,7 +90,7 @@ class SensorSurrogate:
 
 
 def run_up(variant, rpm: Sequence[float], values: Mapping[str, Array | float], harmonics: int,
-           start_rpm: float = 300.0, step_rpm: float = 50.0, jumps: bool = False) -> list:
+           start_rpm: float = RUN_UP_FROM_RPM, step_rpm: float = 50.0, jumps: bool = False) -> list:
     """Steady states of S parameter sets at each of ``rpm``, reached by one run-up from ``start_rpm``.
 
     values: parameter values [SI], scalars or (S,) arrays, m_e included (unlike
@@ -123,7 +123,7 @@ def run_up(variant, rpm: Sequence[float], values: Mapping[str, Array | float], h
     return states, jumped
 
 
-def run_ups(variant, rpm: Array, values: Mapping[str, Array], harmonics: int, start_rpm: float = 300.0,
+def run_ups(variant, rpm: Array, values: Mapping[str, Array], harmonics: int, start_rpm: float = RUN_UP_FROM_RPM,
             step_rpm: float = 50.0) -> tuple:
     """Steady states of S parameter sets, set s at its own speed ``rpm[s]``, each reached by its own run-up
     from ``start_rpm`` as in ``run_up`` (the same speed steps, so the same states), all solved in lockstep

@@ -22,8 +22,8 @@ import pandas as pd
 
 from ..model.effect_base import Array
 from ..model.sensor import sensor_harmonics
-from ..solvers.continuation import padded_speeds, solve_sweep
-from ..solvers.solver import SteadyState, flag_unstable, floquet_radius
+from ..solvers.continuation import RUN_UP_FROM_RPM, padded_speeds, solve_sweep
+from ..solvers.solver import DEFAULT_HARMONICS, SteadyState, flag_unstable, floquet_radius
 from ..model.variants import Variant
 
 SPLITS = ("train", "validation", "test")
@@ -92,7 +92,8 @@ class RunSolutions:
 
 
 def solve_runs(variant: Variant, runs: pd.DataFrame, values: Mapping[str, Array | float],
-               harmonics: int = 5, step_rpm: float = 50.0, start_rpm: float = 300.0) -> RunSolutions:
+               harmonics: int = DEFAULT_HARMONICS, step_rpm: float = 50.0,
+               start_rpm: float = RUN_UP_FROM_RPM) -> RunSolutions:
     """Every scenario of ``values`` at every run (rows with run, rpm, eccentric_mass_g), by run-up.
 
     values: parameter values, scalars or (S,) arrays (m_e is set from each run).
@@ -217,7 +218,7 @@ def sample_enrichment(variant: Variant, values: Array, split: Array, observable:
                                                  "candidates_kept_pct", "added"])
 
 
-def solve_enrichment(variant: Variant, runs: pd.DataFrame, table: pd.DataFrame, harmonics: int = 5) -> RunSolutions:
+def solve_enrichment(variant: Variant, runs: pd.DataFrame, table: pd.DataFrame, harmonics: int = DEFAULT_HARMONICS) -> RunSolutions:
     """Enrichment scenarios (``sample_enrichment``) solved at the runs of their eccentric mass, by run-up;
     at every other run they are marked ``NOT_SOLVED`` (not a failure)."""
     S = len(table)
@@ -238,7 +239,7 @@ def solve_enrichment(variant: Variant, runs: pd.DataFrame, table: pd.DataFrame, 
 
 
 def solve_operating_points(variant: Variant, points: pd.DataFrame, overrides: Mapping[str, float] | None = None,
-                           harmonics: int = 5, **options) -> pd.DataFrame:
+                           harmonics: int = DEFAULT_HARMONICS, **options) -> pd.DataFrame:
     """One parameter set over a run plan: ``points`` plus sensor harmonics and status per run.
 
     Adds, per harmonic h (1..H), columns U{h}_re_m, U{h}_im_m, V{h}_re_m,

@@ -26,6 +26,9 @@ from .solver import INVALID, SteadyState, assess_stability, solve
 # chunk (120 scenarios, 22 runs): 34 -> 21-24 s against no window, 1 of 2640 points lost; Geometric: 6 of
 # 4385 lost, all beyond 50 mm where no sensor reads.
 _CONTINUATION_STALL = 16
+#: the speed [RPM] a run-up starts from when nothing else is said: the rig's truth, the offline scenarios, the
+#: fits' forward models and the command line all start here, so that they reach the same branch
+RUN_UP_FROM_RPM = 300.0
 _STALL_WINDOW = 8  # fresh starts in sweeps give up when the residual has not halved over this many iterations
 
 

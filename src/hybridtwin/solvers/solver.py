@@ -38,6 +38,8 @@ CONVERGED, MAX_ITER, SINGULAR, DIVERGED, LINEAR_SINGULAR, INVALID, STALLED = 0, 
 # amplitude growth (vs the linear response) taken as "no bounded periodic solution found"
 _DIVERGENCE_FACTOR = 1e3
 _MAX_HALVINGS = 8  # backtracking steps of the damped Newton
+#: the highest harmonic H of the harmonic balance when nothing else is said (the config's ``harmonics`` default)
+DEFAULT_HARMONICS = 5
 BLOCK = 256  # most scenarios per batched solve (``floquet_radius``; a sweep's ``continuation._in_blocks``)
 
 
@@ -308,7 +310,7 @@ def _norm(x: Array) -> Array:
 
 def solve(
     system: System,
-    harmonics: int = 5,
+    harmonics: int = DEFAULT_HARMONICS,
     *,
     method: str = "newton",
     initial: Array | None = None,
@@ -626,7 +628,7 @@ def sensitivity(build: Callable[[Mapping[str, Array]], System], values: Mapping[
 
 
 def solve_variant(variant, rpm: Array | float, overrides: Mapping[str, float | Array] | None = None,
-                  harmonics: int = 5, **options) -> SteadyState:
+                  harmonics: int = DEFAULT_HARMONICS, **options) -> SteadyState:
     """Steady state of a model variant (``hybridtwin.model.variants.Variant``) at ``rpm`` for the given parameter
     values (scalars or (S,) arrays; the variant's nominal values for the others): ``solve`` of its ``System``."""
     return solve(variant.system(rpm, overrides), harmonics, **options)
