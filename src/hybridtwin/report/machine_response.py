@@ -32,7 +32,7 @@ from ..model.model import Model, campbell
 from ..model.sensor import sensor_channels, sensor_names
 from ..solvers.continuation import solve_sweep
 from . import machine_plots as mp
-from .response_plots import SWEEPS, _curve, channels_of, columns
+from .response_plots import SWEEPS, _curve, bode_axes, channels_of, columns
 
 Array = np.ndarray
 MICRO = 1e6
@@ -274,12 +274,7 @@ def bode_figure(table: pd.DataFrame, peaks: pd.DataFrame | None = None, harmonic
                         amp.annotate(f"{row.rpm_peak:.0f} RPM\nAF {row.amplification_factor:.3g}",
                                      (row.rpm_peak, row.amplitude_0pk_m * MICRO), xytext=(4, 2),
                                      textcoords="offset points", fontsize=7)
-            amp.set_yscale("log")
-            amp.set_ylabel(f"|{channel}, {h}X| 0-peak [um]")
-            ph.set_ylabel(f"phase {channel}, {h}X [deg]")
-            amp.set_title(f"{h}X, {channel}", fontsize=9)
-            for ax in (amp, ph):
-                ax.grid(alpha=0.3, which="both")
+            bode_axes(amp, ph, channel, h, f"|{channel}, {h}X| 0-peak [um]")
         axes[-1, col].set_xlabel("speed [RPM]")
     axes[0, 0].legend(fontsize=8, loc="upper left")
     fig.suptitle(title or "Unbalance response (solid run-up, dashed run-down, dotted unstable; grey: half-power "

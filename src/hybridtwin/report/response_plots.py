@@ -234,13 +234,8 @@ def plot_bode(dense: pd.DataFrame, comparisons: Sequence[RunComparison], variant
             if ordered:
                 amp.plot([c.rpm for c in ordered], [2 * c.sigma[h - 1, j] * MICRO for c in ordered], ":",
                          color="0.5", label="noise (2 sigma)")
-            amp.set_yscale("log")
+            bode_axes(amp, ph, channel, h, f"|{channel}, {h}X| [um]")
             amp.set_ylim(bottom=floor)
-            amp.set_ylabel(f"|{channel}, {h}X| [um]")
-            ph.set_ylabel(f"phase of {channel}, {h}X [deg]")
-            amp.set_title(f"{h}X, {channel}", fontsize=9)
-            for ax in (amp, ph):
-                ax.grid(alpha=0.3, which="both")
         axes[-1, col].set_xlabel("speed [RPM]")
     _legend(fig, axes[0, 0])
     fig.suptitle(f"variant {variant}: Bode plots, model by continuation (solid run-up, dashed run-down, dotted "
@@ -248,6 +243,17 @@ def plot_bode(dense: pd.DataFrame, comparisons: Sequence[RunComparison], variant
                  "predicted (crosses)", fontsize=10)
     fig.tight_layout(rect=(0, 0.035 * 2 / len(channels), 1, 1 - TITLE_IN / fig.get_figheight()))
     return fig
+
+
+def bode_axes(amp: plt.Axes, ph: plt.Axes, channel: str, h: int, amp_label: str) -> None:
+    """One Bode pair's styling (the report's and the machine view's): log amplitude with ``amp_label``, phase in
+    degrees, the panel named by harmonic and channel, light grids."""
+    amp.set_yscale("log")
+    amp.set_ylabel(amp_label)
+    ph.set_ylabel(f"phase of {channel}, {h}X [deg]")
+    amp.set_title(f"{h}X, {channel}", fontsize=9)
+    for ax in (amp, ph):
+        ax.grid(alpha=0.3, which="both")
 
 
 def _measured(amp, ph, c: RunComparison, h: int, j: int, colour: str, floor: float, near: float, label: str
