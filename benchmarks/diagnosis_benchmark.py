@@ -134,8 +134,7 @@ def base_fit(data: list, config: dict, trials: int, seed: int, harmonics: int) -
     variant = Variant.from_spec("geometric", config["variants"]["geometric"])
     names = list(variant.unknown)
     lower, upper = (np.array(v, float) for v in zip(*variant.unknown.values()))
-    models = [fwd.SolverModel(variant, d.run, d.rpm, d.eccentric_mass_g, names, lower, upper, harmonics,
-                              slow_roll_harmonics=d.slow_roll_harmonics) for d in data]
+    models = [fwd.SolverModel.for_data(variant, d, names, lower, upper, harmonics) for d in data]
     per_run = config["identification"]["per_run"]
     options = ProtocolOptions(trials=trials, monte_carlo=0, seed=seed, lm=lm.LMOptions(max_iterations=60))
     fit = idn.identify(models, data, per_run, options)

@@ -36,9 +36,8 @@ for library, run in pairs:
     values = val.validation_values(joint, data, options["validation_bow"], fitted_runs)
     models = [("library", fwd.SensorSurrogate(library), errors.get(data.run, 0.0))] if library else []
     if options["solver"] or library is None:  # the joint fit was polished with the full solver: predict with it too
-        models.append(("solver", fwd.SolverModel(variant, data.run, data.rpm, data.eccentric_mass_g, names, lower,
-                                                 upper, int(smk.params.harmonics),
-                                                 slow_roll_harmonics=data.slow_roll_harmonics), 0.0))
+        models.append(("solver", fwd.SolverModel.for_data(variant, data, names, lower, upper,
+                                                          int(smk.params.harmonics)), 0.0))
     for name, model, error in models:
         row = val.predict_run(model, data, values, error)
         predictions.append(val.PredictedRun.from_prediction(row, name, data.channels))

@@ -67,3 +67,54 @@ def test_a_run_alone_on_the_solver(setup):
     assert set(result.parameters["parameter"]) >= set(TRUTH) and np.isfinite(result.fit.chi2_dof)
     # one run's 12 numbers against 5 unknowns and a phase: an exact model ends near the noise (dof 6: 1 +- 0.58)
     assert result.fit.chi2_dof < 3.0, result.fit.chi2_dof
+
+
+def test_a_coastdown_band_is_fitted_on_the_run_down_branch():
+    """Where run-up and run-down reach different stable states (a stiffening upper bearing lightly damped, 25.9 g:
+    at 965 RPM the run-up's orbit is 59.6 mm at u0, the run-down's 21.3 mm; tests/test_stability.py), a band of a
+    coast-down (RunData.sweep_from_rpm, from the band table's kind and rpm_start) is compared with the run-down
+    branch, a run-up's band with the run-up one. References: plain continuation sweeps up from 300 RPM and down
+    from 1000 RPM (solve_sweep, no warm starts, no lockstep with other sets); both converged to ~1e-10, 1e-8 of the
+    amplitude allowed. A warm start from the cached run-down state stays on that branch, and the analytic path's
+    result is the finite-difference path's (the run-down in both)."""
+    from hybridtwin.data.measured import run_data
+    from hybridtwin.identify.forward import SolverModel
+    from hybridtwin.model.sensor import sensor_channels
+    from hybridtwin.model.variants import BUILTIN_VARIANTS, Variant
+    from hybridtwin.solvers.continuation import solve_sweep
+
+    final = Variant.from_spec("final", BUILTIN_VARIANTS["final"], {})
+    truth = {"k_b": 2331.5, "zeta_s": 0.01, "zeta_bup": 0.0, "k_z": 1000.0, "k_w": 0.0, "q_x": 0.005, "q_y": 0.005}
+    names = list(final.unknown)
+    lower, upper = (np.array(v, float) for v in zip(*final.unknown.values()))
+    x = np.array([[2 * (truth[p] - lo) / (hi - lo) - 1 for p, lo, hi in zip(names, lower, upper)]])
+    values = final.values(truth | {"m_e": 0.0259})
+
+    def build(rpm, rows):
+        return final.model.system(values, rpm)
+
+    def sensors(result):
+        return sensor_channels(result.harmonics, final.model.shaft)[0, 1:H + 1]
+
+    up = sensors(solve_sweep(build, np.arange(300.0, 966.0, 5.0), 1, harmonics=H).results[-1])
+    down = sensors(solve_sweep(build, np.arange(1000.0, 964.0, -5.0), 1, harmonics=H, direction="down").results[-1])
+    scale = np.abs(down).max()
+    assert np.abs(up - down).max() > 0.5 * scale  # two branches, far apart
+
+    row = {"run": "c_b0965", "rpm": 965.0, "rpm_true": 965.0, "eccentric_mass_g": 25.9, "role": "fit",
+           "kind": "coastdown", "rpm_start": 1000.0, "rpm_end": 800.0, "usable": True}
+    row |= harmonic_columns(["x", "y"], H, np.zeros((2, H + 1), complex), np.ones((2, H + 1)), np.ones(2))
+    band = run_data(pd.DataFrame([row]), "c_b0965", H)
+    assert band.sweep_from_rpm == 1000.0
+    assert run_data(pd.DataFrame([row | {"kind": "runup"}]), "c_b0965", H).sweep_from_rpm is None
+    coast = SolverModel.for_data(final, band, names, lower, upper, H)
+    M = coast.evaluate(x, jacobian=True)[0][0]  # with its sensitivities: the state is cached for warm starts
+    assert np.abs(M - down).max() < 1e-8 * scale
+    runup = SolverModel(final, "u", 965.0, 25.9, names, lower, upper, H)
+    assert np.abs(runup.evaluate(x, jacobian=False)[0][0] - up).max() < 1e-8 * scale
+    step = np.zeros_like(x)
+    step[0, names.index("k_b")] = 1e-3  # 0.75 N/m
+    nearby = coast.evaluate(x + step, jacobian=True)[0][0]  # a warm start from the cached run-down state
+    assert coast.n_warm >= 1 and np.abs(nearby - down).max() < 0.01 * scale
+    differences = SolverModel.for_data(final, band, names, lower, upper, H, analytic=False)
+    assert np.abs(differences.evaluate(x, jacobian=False)[0][0] - down).max() < 1e-8 * scale

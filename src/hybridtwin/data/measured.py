@@ -46,6 +46,9 @@ class RunData:
     # the harmonics from which a slow-roll runout was subtracted (a transient record's band): the model is then
     # compensated alike (forward.SolverModel's slow_roll_harmonics); () for a steady run
     slow_roll_harmonics: tuple[int, ...] = ()
+    # the speed [RPM] a coast-down's band is reached from (its record's nominal start): the model follows the
+    # run-down branch from there (forward.SolverModel's sweep_from_rpm); None for a steady run or a run-up's band
+    sweep_from_rpm: float | None = None
 
     @property
     def H(self) -> int:
@@ -114,8 +117,10 @@ def run_data(table: pd.DataFrame, run: str, harmonics: int | None = None, keypha
         phase_sigma = max(omega * sigma_t, 1e-9)
     usable = bool(row.get("usable", True)) and np.isfinite(X).all() and np.isfinite(sigma).all()
     compensated = str(row.get("slowroll_compensated", False)).strip().lower() in ("true", "1")
+    down = str(row.get("kind", "")).strip().lower() == "coastdown"
     return RunData(str(run), rpm, float(row["eccentric_mass_g"]), str(row.get("role", "fit")), X, sigma, usable,
-                   str(row.get("note", "ok")), phase_sigma, channels, RUNOUT_HARMONICS if compensated else ())
+                   str(row.get("note", "ok")), phase_sigma, channels, RUNOUT_HARMONICS if compensated else (),
+                   float(row["rpm_start"]) if down else None)
 
 
 def total_sigma(data: RunData, relative_model_error: float = 0.0) -> Array:

@@ -116,8 +116,7 @@ def extended_problem(base: BaseFit, candidates: Sequence[Candidate],
     lower, upper = zip(*ext.unknown.values())
     layout = Layout.build(list(ext.unknown), lower, upper, base.layout.runs,
                           base.layout.local if per_run is None else per_run, base.layout.phase_sigma)
-    models = [SolverModel(ext, d.run, d.rpm, d.eccentric_mass_g, layout.parameters, np.array(lower),
-                          np.array(upper), base.harmonics, slow_roll_harmonics=d.slow_roll_harmonics)
+    models = [SolverModel.for_data(ext, d, layout.parameters, np.array(lower), np.array(upper), base.harmonics)
               for d in base.data]
     known = dict(zip(base.layout.entries(), base.theta))
     theta = np.array([known[e] if e in known else float(layout.normalise(e[0], 0.0)) for e in layout.entries()])

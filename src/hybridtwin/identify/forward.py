@@ -124,23 +124,53 @@ def run_up(variant, rpm: Sequence[float], values: Mapping[str, Array | float], h
 
 
 def run_ups(variant, rpm: Array, values: Mapping[str, Array], harmonics: int, start_rpm: float = RUN_UP_FROM_RPM,
-            step_rpm: float = 50.0) -> tuple:
+            step_rpm: float = 50.0, down_from_rpm: Array | None = None) -> tuple:
     """Steady states of S parameter sets, set s at its own speed ``rpm[s]``, each reached by its own run-up
     from ``start_rpm`` as in ``run_up`` (the same speed steps, so the same states), all solved in lockstep
     (``solve_sweep`` with per-scenario speeds): one batched sweep instead of one per run.
 
+    down_from_rpm: (S,) where finite, set s is reached by a run-down from that speed instead (a coast-down's band:
+    the branch the rotor follows coming down, which differs from the run-up's where both are stable near a
+    nonlinear resonance), in steps of at most ``step_rpm``; the run-downs solved in one lockstep sweep of their own.
+
     values: complete parameter values [SI], each (S,). Returns the ``SteadyState`` of the S sets and (S,)
-    flags: True for a set whose run-up jumped between branches on the way (a fold crossed)."""
-    from ..solvers.continuation import solve_sweep
+    flags: True for a set whose sweep jumped between branches on the way (a fold crossed)."""
     from ..solvers.solver import SteadyState
 
     rpm = np.asarray(rpm, float)
     S = rpm.size
-    ramps = [intermediate_speeds(np.unique([min(start_rpm, r), r]), step_rpm) for r in rpm]
+    values = {k: np.broadcast_to(np.asarray(v, float), (S,)) for k, v in values.items()}
+    down = np.zeros(S, bool) if down_from_rpm is None else np.isfinite(np.asarray(down_from_rpm, float))
+    jumped = np.zeros(S, bool)
+    parts, order = [], []
+    for going_down in (False, True):
+        sets = np.flatnonzero(down == going_down)
+        if not sets.size:
+            continue
+        if going_down:
+            tops = np.asarray(down_from_rpm, float)[sets]
+            ramps = [intermediate_speeds(np.unique([r, max(top, r)]), step_rpm)[::-1] for r, top in zip(rpm[sets], tops)]
+        else:
+            ramps = [intermediate_speeds(np.unique([min(start_rpm, r), r]), step_rpm) for r in rpm[sets]]
+        states, jump = _lockstep(variant, ramps, {k: v[sets] for k, v in values.items()}, harmonics,
+                                 "down" if going_down else "up")
+        parts.append(states)
+        order.append(sets)
+        jumped[sets] = jump
+    return SteadyState.concatenate(parts, np.argsort(np.concatenate(order))), jumped
+
+
+def _lockstep(variant, ramps: Sequence[Array], values: Mapping[str, Array], harmonics: int, direction: str) -> tuple:
+    """Each set's sweep along its own ramp (speeds in sweep order), all in one ``solve_sweep``: the last step's
+    states in the sets' order and (S,) flags of a jump on the way."""
+    from ..solvers.continuation import solve_sweep
+    from ..solvers.solver import SteadyState
+
+    S = len(ramps)
     speeds = padded_speeds(ramps)
-    rest = variant.model.at_rest({k: np.broadcast_to(np.asarray(v, float), (S,)) for k, v in values.items()}, S)
+    rest = variant.model.at_rest(dict(values), S)
     sweep = solve_sweep(lambda speed, rows: variant.model.system_at(rest.rows(rows), speed),
-                        speeds, S, harmonics=harmonics, direction="up", stability=False)
+                        speeds, S, harmonics=harmonics, direction=direction, stability=False)
     last = np.array([len(r) for r in ramps]) - 1
     jumped = np.zeros(S, bool)
     parts, order = [], []
@@ -175,7 +205,8 @@ class SolverModel:
     Same interface as ``SensorSurrogate``: evaluate(x (N, d)) -> M (N, H, C), dM/dx (N, H, C, d), C the
     machine's sensors (``sensor.sensor_dofs``).
     The response at a parameter set is the steady state a run-up from 300 RPM reaches (the rig's
-    history, ``run_up``). Two things make repeated evaluations (an LM's iterates) cheap:
+    history, ``run_up``), or, with ``sweep_from_rpm`` (a coast-down's band, ``RunData.sweep_from_rpm``), the one a
+    run-down from that speed reaches. Two things make repeated evaluations (an LM's iterates) cheap:
 
     - warm starts (``warm``): a set close to one solved before continues from it, Newton started at
       the first-order predictor x_old + dx/dp (p - p_old) (the condensed state's sensitivity), no
@@ -202,8 +233,11 @@ class SolverModel:
 
     def __init__(self, variant, run: str, rpm: float, eccentric_mass_g: float, parameters: Sequence[str],
                  lower: Array, upper: Array, harmonics: int, step: float = 1e-5, *, warm: bool = True,
-                 analytic: bool = True, cache_size: int = CACHE_SIZE, slow_roll_harmonics: Sequence[int] = ()):
+                 analytic: bool = True, cache_size: int = CACHE_SIZE, slow_roll_harmonics: Sequence[int] = (),
+                 sweep_from_rpm: float | None = None):
         self.variant, self.run = variant, run
+        # None: the run-up from RUN_UP_FROM_RPM; a speed: the run-down from there (a coast-down's band)
+        self.sweep_from_rpm = None if sweep_from_rpm is None or not np.isfinite(sweep_from_rpm) else float(sweep_from_rpm)
         self.rpm, self.eccentric_mass_g = float(rpm), float(eccentric_mass_g)
         self.parameters = list(parameters)
         self.lower, self.upper = np.asarray(lower, float), np.asarray(upper, float)
@@ -222,6 +256,14 @@ class SolverModel:
             self.reference = SolverModel(variant, f"{run} at slow roll", SLOW_ROLL_RPM, eccentric_mass_g, parameters,
                                          lower, upper, harmonics, step, warm=warm, analytic=analytic,
                                          cache_size=cache_size)
+
+    @classmethod
+    def for_data(cls, variant, data, parameters: Sequence[str], lower: Array, upper: Array, harmonics: int,
+                 **options) -> "SolverModel":
+        """The model of one run of ``data`` (``measured.RunData``): its speed and eccentric mass, compensated for
+        slow roll and swept as its record was (a transient band's ``slow_roll_harmonics`` and ``sweep_from_rpm``)."""
+        return cls(variant, data.run, data.rpm, data.eccentric_mass_g, parameters, lower, upper, harmonics,
+                   slow_roll_harmonics=data.slow_roll_harmonics, sweep_from_rpm=data.sweep_from_rpm, **options)
 
     # --- parameter values and systems -------------------------------------------------------
 
@@ -266,7 +308,12 @@ class SolverModel:
 
     def _solve(self, x: Array) -> Array:
         """Sensor harmonics (N, H, C) at normalised x (N, d) by the run-up alone (the differences' path)."""
-        result = run_up(self.variant, [self.rpm], self._values(x), self.harmonics)[0]
+        values = self._values(x)
+        if self.sweep_from_rpm is None:
+            result = run_up(self.variant, [self.rpm], values, self.harmonics)[0]
+        else:
+            result = run_ups(self.variant, np.full(x.shape[0], self.rpm), values, self.harmonics,
+                             down_from_rpm=np.full(x.shape[0], self.sweep_from_rpm))[0]
         self.n_solves += x.shape[0]
         self.n_run_ups += x.shape[0]
         M = self._sensor(result.harmonics)
@@ -378,6 +425,8 @@ class SolverModel:
         keys = list(values_k[0])
         values = {key: np.concatenate([v[key] for v in values_k]) for key in keys}
         rpm = np.concatenate([np.full(c, m.rpm) for m, c in zip(models, counts)])
+        down_from = np.concatenate([np.full(c, np.nan if m.sweep_from_rpm is None else m.sweep_from_rpm)
+                                    for m, c in zip(models, counts)])
         S = int(offsets[-1])
 
         def build_at(v: Mapping[str, Array], speeds: Array):
@@ -419,7 +468,8 @@ class SolverModel:
             m.n_run_ups += cold.size
         cold = np.flatnonzero(~kept)
         if cold.size:  # every run's cold sets in one lockstep sweep, each on its own run's run-up
-            states, jump = run_ups(first.variant, rpm[cold], {k_: v[cold] for k_, v in values.items()}, H)
+            states, jump = run_ups(first.variant, rpm[cold], {k_: v[cold] for k_, v in values.items()}, H,
+                                   down_from_rpm=down_from[cold])
             parts.append(states)
             order.append(cold)
             jumped[cold] = jump

@@ -76,8 +76,7 @@ def ranges(variant: Variant) -> tuple[list[str], Array, Array]:
 def solver_models(variant: Variant, data: Sequence[idn.RunData], harmonics: int) -> list[fwd.SolverModel]:
     """The full solver as the forward model of each run of ``data`` over the variant's unknowns."""
     names, lower, upper = ranges(variant)
-    return [fwd.SolverModel(variant, d.run, d.rpm, d.eccentric_mass_g, names, lower, upper, harmonics,
-                            slow_roll_harmonics=d.slow_roll_harmonics) for d in data]
+    return [fwd.SolverModel.for_data(variant, d, names, lower, upper, harmonics) for d in data]
 
 
 def solver_protocol(options: Mapping, joint: bool = False) -> ProtocolOptions:
@@ -114,8 +113,7 @@ def fit_run(variant: Variant, options: Mapping, library: Library | None, data: i
                     f"best loss {fit.loss:.4g} (chi^2/dof {fit.chi2_dof:.3g}, {fit.message}); "
                     f"{fit.summary()['trials_at_best']} of {len(fit.protocol.trials.loss)} trials reached it"]
     if library is not None and options["polish"]:
-        solver = [fwd.SolverModel(variant, run, data.rpm, data.eccentric_mass_g, library.parameters, library.lower,
-                                  library.upper, harmonics, slow_roll_harmonics=data.slow_roll_harmonics)]
+        solver = [fwd.SolverModel.for_data(variant, data, library.parameters, library.lower, library.upper, harmonics)]
         exact = pol.polish(fit, solver, int(options["polish"]))
         messages += [f"polish {row.parameter}: library {row.library_value:.6g}, solver {row.solver_value:.6g} "
                      f"({row.difference_in_stderr:.2g} stderr)" for row in pol.compare_polish(fit, exact).itertuples()]
