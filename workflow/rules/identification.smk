@@ -59,6 +59,7 @@ rule identify_joint:
         library_table="results/{variant}/identification/library_parameters.tsv",
         polish="results/{variant}/identification/polish.tsv",
         polish_starts="results/{variant}/identification/polish_starts.tsv",
+        profile="results/{variant}/identification/profile.tsv",  # the intervals over a loose parameter
         correlation="results/{variant}/identification/correlation.tsv",
         history="results/{variant}/identification/history.tsv",
         summary="results/{variant}/identification/summary.yaml",
