@@ -452,6 +452,30 @@ def test_first_page_names_the_runs_the_data_checks_kept_out(three_variants):
     assert summary.kept_out(written)["run"].tolist() == ["r975", "v2"]
 
 
+def test_first_page_says_why_a_validation_run_fails(three_variants, tmp_path):
+    """validation.tsv's explanation (hybridtwin.identify.validation_refit) follows the failing validation run: the
+    parameters it pins when the fit runs leave them loose; nothing for a variant that misfits its fit runs."""
+    from docutils.core import publish_parts
+
+    from hybridtwin.identify.validation_refit import EXPLANATIONS, VALIDATION_COLUMNS
+
+    written = tmp_path / "validation.tsv"
+    rows = pd.DataFrame({"run": ["v", "v"], "model": ["library", "solver"], "explanation": "not_pinned",
+                         "pinned": "zeta_bup,k_b"}).reindex(columns=["run", "model", *VALIDATION_COLUMNS])
+    rows.assign(explanation="not_pinned", pinned="zeta_bup,k_b").to_csv(written, sep="\t", index=False)
+    read = pd.read_csv(written, sep="\t", dtype={"run": str, "pinned": str}, keep_default_na=False)
+    assert summary.explanations(read) == {"v": "the fit runs do not pin zeta_bup, k_b; this run does"}
+    misfit = read.assign(explanation="misfit")
+    assert summary.explanations(misfit) == {} and set(summary.WHY) < set(EXPLANATIONS)
+    why = {"base": summary.explanations(read), "other": {"b": "not a validation run"}}
+    page = summary.landing_rst(three_variants.table, three_variants.errors, why=why)
+    text = re.sub(r"<[^>]+>", "", publish_parts(page, writer="html", settings_overrides={"halt_level": 2})
+                  ["html_body"])
+    failures = text[text.index("Where each variant fails"):]
+    assert "v (validation) 80 (the fit runs do not pin zeta_bup, k_b; this run does)" in failures
+    assert "not a validation run" not in failures  # only validation runs are explained
+
+
 def test_first_page_links_only_the_worst_runs_of_a_variant_failing_everywhere():
     chi2_dof = {f"r{i}": 10.0 + i for i in range(9)}
     errors = {"bad": _errors(chi2_dof, beyond=set(chi2_dof), validation=())}

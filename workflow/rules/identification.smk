@@ -88,7 +88,8 @@ rule identify_joint:
 
 
 rule predict_validation:
-    """Validation runs predicted with the joint parameters (never fitted): error per run, predicted harmonics."""
+    """Validation runs predicted with the joint parameters (never fitted): error per run, predicted harmonics; a run
+    beyond the noise explained by its refit with the fit runs (loose parameters, the bow's law, or the model)."""
     input:
         parameters="results/{variant}/parameters.tsv",
         libraries=lambda wildcards: fit_libraries(wildcards, VALIDATION_RUNS),
@@ -103,6 +104,7 @@ rule predict_validation:
             subcategory="{variant}",
         ),
         harmonics="results/{variant}/validation_harmonics.tsv",
+        refits="results/{variant}/validation_refits.tsv",  # a run beyond the noise refitted with the fit runs
     params:
         runs=VALIDATION_RUNS,
         model=variant_model,

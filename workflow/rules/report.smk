@@ -238,6 +238,7 @@ rule report_summary:
         errors=expand("results/{variant}/report/errors.tsv", variant=VARIANTS),
         validation_errors=expand("results/{variant}/report/validation_errors.tsv", variant=VARIANTS),
         diagnoses=expand("results/{variant}/diagnosis.yaml", variant=VARIANTS),
+        validation=expand("results/{variant}/validation.tsv", variant=VARIANTS),  # why a validation run fails
         figures=expand("results/{variant}/report/runs", variant=VARIANTS),  # what the page links to
         harmonics="results/data/harmonics.tsv",  # the runs the data checks kept out (usable false)
     output:

@@ -633,7 +633,7 @@ def read_parameters(path: str | Path) -> pd.DataFrame:
     """A parameter table written by ``write_parameters``: names, runs and units as text (run "001" stays "001",
     unit "1" a string, an empty unit ""), ``TABLE_COLUMNS``' numbers as floats; ``Identification.from_table``
     reads the result. Other columns (a per-run fit's note, a refit's effect) come as pandas reads them."""
-    text = {"parameter", "run", "kind", "unit", "interval", "loose", "source", "note", "effect"}
+    text = {"parameter", "run", "kind", "unit", "interval", "loose", "source", "note", "effect", "validation_run"}
     header = pd.read_csv(path, sep="\t", nrows=0).columns
     table = pd.read_csv(path, sep="\t", dtype={c: str for c in text}, keep_default_na=False,
                         na_values={c: ["", "nan", "NaN", "NA"] for c in header if c not in text})
@@ -719,7 +719,8 @@ def rule_settings(config: Mapping, variant: str, rule: str) -> dict:
         return common | {"joint": options["joint"], "per_run": options["per_run"], "polish": polish_joint,
                          "profile": bool(options["profile"])}
     return {"validation_bow": options["validation_bow"], "model_error": options["model_error"],
-            "solver": bool(options["polish"]["joint"]), "keyphasor": options["keyphasor"]}
+            "solver": bool(options["polish"]["joint"]), "keyphasor": options["keyphasor"],
+            "per_run": options["per_run"]}  # per_run: a failing validation run's refit with the fit runs
 
 
 def protocol_options(options: Mapping, joint: bool = False) -> ProtocolOptions:
