@@ -25,7 +25,12 @@ figure = summary.plot_summary(ledger, errors)
 png = summary.png_bytes(figure)
 with open(smk.output.plot, "wb") as stream:
     stream.write(png)
-with open(smk.output.page, "w") as stream:
-    stream.write(summary.landing_rst(table, errors, summary.kept_out(read_harmonics(smk.input.harmonics)), why))
 best = summary.best_variant(table)
+designs = dict(zip(smk.params.variants, zip(smk.input.next_runs, smk.input.intervals))) if smk.params.design else {}
+line = ""
+if best["variant"] in designs:
+    chosen, intervals = (pd.read_csv(path, sep="\t") for path in designs[best["variant"]])
+    line = summary.next_runs_line(best["variant"], chosen, intervals)
+with open(smk.output.page, "w") as stream:
+    stream.write(summary.landing_rst(table, errors, summary.kept_out(read_harmonics(smk.input.harmonics)), why, line))
 log.info("best variant %s (chi^2/dof %.4g); %s", best["variant"], best["chi2_dof"], best["conclusion"])

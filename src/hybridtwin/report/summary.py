@@ -303,6 +303,21 @@ def _failures(variant: str, table: pd.DataFrame, why: Mapping[str, str] | None =
             + f" ({error_map}).")
 
 
+def next_runs_line(variant: str, chosen: pd.DataFrame, intervals: pd.DataFrame) -> str:
+    """The first page's line on the next runs to take for ``variant`` (its design/next_runs.tsv and intervals.tsv,
+    hybridtwin.identify.design): the runs in order and the intervals of interest now and expected after them."""
+    if chosen.empty:
+        return ""
+    runs = "; ".join(f"{r.rpm:g} RPM, {r.eccentric_mass_g:g} g{' with a keyphasor' if str(r.keyphasor) == 'True' else ''}"
+                     for r in chosen.itertuples())
+    wanted = intervals[intervals["interest"].astype(str) == "True"]
+    shrink = ", ".join(f"{_text(r.parameter)} +-{r.linear_half_width:.3g} -> +-{r.expected_half_width:.3g}"
+                       for r in wanted.itertuples())
+    return (f"**The next runs to take** for {_text(variant)} (D-optimal on its fitted twin, "
+            + result_link("design.png", f"results/{variant}/design/design.png") + f"): {runs}; expected 95 % "
+            f"half-widths {shrink}.")
+
+
 def kept_out(harmonics: pd.DataFrame) -> pd.DataFrame:
     """The runs the data checks kept out (results/data/harmonics.tsv's usable false): run, role, note."""
     return measured.kept_out(harmonics)[["run", "role", "note"]]
@@ -318,10 +333,12 @@ def _kept_out_line(runs: pd.DataFrame) -> str:
 
 
 def landing_rst(summary: pd.DataFrame, errors: Mapping[str, pd.DataFrame],
-                excluded: pd.DataFrame | None = None, why: Mapping[str, Mapping[str, str]] | None = None) -> str:
+                excluded: pd.DataFrame | None = None, why: Mapping[str, Mapping[str, str]] | None = None,
+                next_runs: str = "") -> str:
     """The report's first page: the best variant, the runs the data checks kept out (``excluded``: ``kept_out``),
     the ledger, what the diagnoses recommend and where each variant fails, with links that open the figures in
-    the report, a failing validation run followed by why (``why``: per variant, ``explanations``).
+    the report, a failing validation run followed by why (``why``: per variant, ``explanations``), and the next
+    runs to take for the best variant (``next_runs``: ``next_runs_line``).
     reStructuredText, included by workflow/report/workflow.rst; short, to fit a window (see above)."""
     why = why or {}
     excluded = excluded if excluded is not None else pd.DataFrame(columns=["run", "role", "note"])
@@ -335,5 +352,6 @@ def landing_rst(summary: pd.DataFrame, errors: Mapping[str, pd.DataFrame],
         (f"**Where each variant fails**: runs beyond the noise (p < {ALPHA:g}), worst first, with their "
          "chi^2/dof; a link opens the run's figure:"),
         "\n".join(f"- {_failures(r.variant, errors[r.variant], why.get(r.variant))}" for r in summary.itertuples()),
+        next_runs,
         "Every run of every variant in one figure: " + result_link("summary.png", "results/summary.png") + "."]
         if part) + "\n"
