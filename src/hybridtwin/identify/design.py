@@ -9,8 +9,9 @@ entries (its phase without a keyphasor, its per-run parameters: nuisances a new 
     I = J_s^T J_s - J_s^T J_n (J_n^T J_n)^+ J_n^T J_s,
 
 which adds up over runs. The fit runs give I_0; a candidate run c (a speed and a mass, its bow from the law over
-the fit runs, the noise the fit runs' median sigma per harmonic and channel) gives I_c. The covariance after adding
-runs is s^2 (I_0 + sum I_c)^-1, s^2 = max(1, chi^2/dof) of the joint fit, so the expected 95 % intervals are
+the fit runs, the noise the fit runs' median sigma per harmonic and channel) gives I_c; with a keyphasor its phase
+has the fit's prior N(0, (Omega sigma_t)^2), sigma_t the timing of a keyphasor (``keyphasor_timing``). The
+covariance after adding runs is s^2 (I_0 + sum I_c)^-1, s^2 = max(1, chi^2/dof) of the joint fit, so the expected 95 % intervals are
 linear predictions: where the current intervals come from a profile (a loose parameter), they are compared with
 the linearised ones.
 
@@ -130,11 +131,28 @@ def fit_information(variant, joint: pd.DataFrame, harmonics: pd.DataFrame, optio
     return schur(J, shared), [p for (p, run), s in zip(layout.entries(), shared) if s], max(1.0, chi2 / dof), data
 
 
+def keyphasor_timing(harmonics: pd.DataFrame, rpm: float) -> float:
+    """sigma_t [s]: how well a new record's keyphasor fixes its time origin at ``rpm``. The fit runs' own
+    (phase_origin_sigma_s, their median) where they have a keyphasor; else each mark rounded to a sample
+    (dt / sqrt 12) averaged over the record's marks, dt and the record's length the fit runs' medians. 0 (the phase
+    exact, an upper bound of the keyphasor's worth) for a table without those columns."""
+    if not {"phase_reference", "phase_origin_sigma_s", "sample_rate_hz", "duration_s"} <= set(harmonics):
+        return 0.0
+    marked = harmonics[harmonics["phase_reference"].astype(str) == "keyphasor"]
+    if len(marked):
+        return float(np.median(marked["phase_origin_sigma_s"].astype(float)))
+    dt = 1.0 / float(np.median(harmonics["sample_rate_hz"].astype(float)))
+    marks = max(float(np.median(harmonics["duration_s"].astype(float))) * rpm / 60.0, 2.0)
+    return dt / np.sqrt(12.0 * marks)
+
+
 def candidate_information(variant, joint: pd.DataFrame, runs: pd.DataFrame, shared: Sequence[str],
                           rpm: Sequence[float], masses: Sequence[float], sigma: Array, options: Mapping,
-                          n_harmonics: int, sensor_range_m: float) -> tuple[pd.DataFrame, dict]:
+                          n_harmonics: int, sensor_range_m: float, timing=None) -> tuple[pd.DataFrame, dict]:
     """Every candidate (speed x mass, with and without a keyphasor): whether the rig can measure it and its
-    information on ``shared`` (normalised units). sigma: (H, C) the noise a new run is expected to have."""
+    information on ``shared`` (normalised units). sigma: (H, C) the noise a new run is expected to have; timing:
+    rpm -> sigma_t [s] of a keyphasor (``keyphasor_timing``; None: a keyphasor fixes the phase exactly). With a
+    keyphasor the run's phase has the prior N(0, (Omega sigma_t)^2), as in the fit (a row of the Jacobian)."""
     from .run_fits import ranges
 
     names, lower, upper = ranges(variant)
@@ -165,8 +183,14 @@ def candidate_information(variant, joint: pd.DataFrame, runs: pd.DataFrame, shar
             if not reason:
                 columns = [_real_rows(-dM[..., j] / sigma) for j in range(len(names))]
                 own = [names.index(p) for p in per_run]
-                nuisance = [columns[j] for j in own] + ([] if keyphasor else [_real_rows(-1j * h[:, None] * M / sigma)])
+                phase = _real_rows(-1j * h[:, None] * M / sigma)
+                sigma_t = timing(r) if keyphasor and timing is not None else 0.0
+                nuisance = [columns[j] for j in own] + ([phase] if not keyphasor or sigma_t > 0 else [])
                 J = np.column_stack([columns[j] for j in shared_columns] + nuisance)
+                if keyphasor and sigma_t > 0:  # the phase's prior: a pseudo-measurement
+                    prior = np.zeros(J.shape[1])
+                    prior[-1] = 1.0 / (r * np.pi / 30.0 * sigma_t)
+                    J = np.vstack([J, prior])
                 is_shared = np.r_[np.ones(len(shared_columns), bool), np.zeros(len(nuisance), bool)]
                 gain_info = schur(J, is_shared)
                 information[(r, m, keyphasor)] = gain_info
@@ -206,7 +230,8 @@ def design_runs(variant, joint: pd.DataFrame, harmonics: pd.DataFrame, runs: pd.
     information, shared, s2, data = fit_information(variant, joint, harmonics, options, n_harmonics)
     sigma = np.median(np.stack([d.sigma for d in data]), axis=0)  # (H, C) a new run's expected noise
     candidates, added = candidate_information(variant, joint, runs, shared, rpm, masses, sigma, options,
-                                              sigma.shape[0], sensor_range_m)
+                                              sigma.shape[0], sensor_range_m,
+                                              timing=lambda r: keyphasor_timing(harmonics, r))
     wanted = interest(joint, shared)
     keep = np.array([p in wanted for p in shared])
     allowed = candidates["feasible"] & candidates["keyphasor"].isin(list(keyphasor))
