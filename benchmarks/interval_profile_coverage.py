@@ -20,6 +20,11 @@ threshold. One fit per parameter (from the optimum and from the truth, the lower
 (the workflow's 5 cost twice as much; the 1X and 2X carry the information).
 
     OMP_NUM_THREADS=1 python benchmarks/interval_profile_coverage.py [--seeds 12] [--harmonics 3]
+
+``--bundled HARMONICS`` instead fits that variant (the bow per run, ``fit_joint`` on the full solver as with
+``offline.scope: none``, the workflow's identification options, H = 5) to the bundled records' measured harmonics
+(a main job's results/data/harmonics.tsv) and prints each shared parameter's interval linearised (the profile off)
+and over the loose one (the workflow's), against the truth (data/default/truth.yaml).
 """
 
 from __future__ import annotations
@@ -104,12 +109,45 @@ def case(seed: int, H: int, runs: list[tuple[str, float, float]]) -> list[dict]:
     return rows
 
 
+def bundled(harmonics_path: str) -> None:
+    """The issue's case on the bundled records (module docstring)."""
+    import yaml
+
+    from hybridtwin.identify import profile as prf
+    from hybridtwin.identify.run_fits import fit_joint
+
+    config = yaml.safe_load(open("config/config.yaml"))
+    variant = Variant.from_spec("geometric_slope", SPEC)
+    table = idn.read_harmonics(harmonics_path)
+    runs = fit_runs()
+    options = idn.rule_settings(config, "geometric", "joint") | {"per_run": ["q_x", "q_y"], "profile": False}
+    start = time.process_time()
+    fit = fit_joint(variant, options, [], table, {}, None, 5, runs=[r for r, _, _ in runs]).fit
+    print(f"joint fit on the full solver: chi^2/dof {fit.chi2_dof:.4g}, {time.process_time() - start:.0f} s CPU")
+    start = time.process_time()
+    profiled = prf.with_profile(fit)
+    print(f"profile: {time.process_time() - start:.0f} s CPU; " + "; ".join(profiled.profile.notes))
+    before = fit.table().set_index(["parameter", "run"])
+    after = profiled.table().set_index(["parameter", "run"])
+    for p in SHARED:
+        a, b = before.loc[(p, "all")], after.loc[(p, "all")]
+        inside = [lo <= TRUTH[p] <= hi for lo, hi in ((a.ci_low, a.ci_high), (b.ci_low, b.ci_high))]
+        print(f"  {p}: {b.value:.6g}{' (at its edge)' if b.at_bound else ''}; linearised [{a.ci_low:.6g}, "
+              f"{a.ci_high:.6g}] ({a.interval}) {'holds' if inside[0] else 'misses'} the truth {TRUTH[p]}; "
+              f"{b.interval} over {b.loose or 'its range'} [{b.ci_low:.6g}, {b.ci_high:.6g}] "
+              f"{'holds' if inside[1] else 'misses'} it")
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seeds", type=int, default=12)
     parser.add_argument("--harmonics", type=int, default=3)
     parser.add_argument("--output", default="results/benchmarks/interval_profile_coverage.tsv")
+    parser.add_argument("--bundled", help="a main job's results/data/harmonics.tsv: the issue's case on it")
     args = parser.parse_args()
+    if args.bundled:
+        bundled(args.bundled)
+        return 0
     runs = fit_runs()
     rows = []
     for seed in range(1, args.seeds + 1):
