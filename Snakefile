@@ -50,6 +50,7 @@ rule all:
         expand("results/{variant}/runs/{run}/parameters.tsv", variant=VARIANTS, run=FIT_RUNS),
         expand("results/{variant}/parameters.tsv", variant=VARIANTS),
         expand("results/{variant}/validation.tsv", variant=VARIANTS),
+        expand("results/{variant}/design/next_runs.tsv", variant=VARIANTS if DESIGN["runs"] else []),
         expand("results/{variant}/diagnosis.tsv", variant=VARIANTS),
         expand("results/{variant}/diagnosis.md", variant=VARIANTS),
         expand("results/{variant}/report/{name}", variant=VARIANTS, name=REPORT_FILES),

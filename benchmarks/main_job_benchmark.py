@@ -360,7 +360,7 @@ def main() -> None:
     parser.add_argument("--protocol", type=Path, help="folder of a workflow run: compare the per-run protocols")
     parser.add_argument("--protocol-runs", nargs="+", default=["r350_m25p9", "r700_m14p8", "r950_m0p0"])
     parser.add_argument("--joint", type=Path, help="folder of a workflow run: compare the joint fit's protocols")
-    parser.add_argument("--joint-variants", nargs="+", default=["geometric", "geometric_slope", "expansion", "final"])
+    parser.add_argument("--joint-variants", nargs="+", default=["geometric", "expansion", "final", "geometric_expansion_k4"])
     parser.add_argument("--solves", type=Path, help="folder of a workflow run: time one chunk's solves, old vs new")
     parser.add_argument("--old-src", type=Path, help="with --solves: the older source tree (its src folder)")
     parser.add_argument("--scenarios", type=int, default=200, help="with --solves: the first N scenarios")

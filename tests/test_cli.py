@@ -279,12 +279,13 @@ def test_readme_effects_example_runs(capsys, tmp_path, monkeypatch):
 
 
 def test_add_effect_builds_the_variant_the_config_declares(capsys):
-    """geometric + --add-effect slope_spring is config/config.yaml's geometric_slope (the loop's next variant)."""
-    values = [*PAPER_ARGS, "--set", "k_w=324.2", "--set", "k_z=301.1", "--harmonics", "3"]
+    """geometric + --add-effect expansion_k4 is config/config.yaml's geometric_expansion_k4 (the loop's next variant,
+    as the diagnosis of geometric printed it)."""
+    values = [*PAPER_ARGS, "--set", "k4=324.2", "--harmonics", "3"]
     config = ["--config", str(ROOT / "config" / "config.yaml")]
-    assert main(["simulate", *config, "--variant", "geometric", "--add-effect", "slope_spring", *values]) == 0
+    assert main(["simulate", *config, "--variant", "geometric", "--add-effect", "expansion_k4", *values]) == 0
     added = capsys.readouterr().out
-    assert main(["simulate", *config, "--variant", "geometric_slope", *values]) == 0
+    assert main(["simulate", *config, "--variant", "geometric_expansion_k4", *values]) == 0
     assert capsys.readouterr().out == added
 
 
@@ -295,11 +296,11 @@ def test_variants_reads_the_project_config_from_the_project_root(capsys, monkeyp
     assert out.startswith("# variants of config/config.yaml")
     declared = yaml.safe_load((ROOT / "config" / "config.yaml").read_text())["variants"]
     listed = [line.split(":")[0] for line in out.splitlines() if line and not line.startswith((" ", "#"))]
-    assert listed == list(declared)  # geometric_slope is declared there only, not built in
+    assert listed == list(declared)  # geometric_expansion_k4 is declared there only, not built in
     monkeypatch.chdir(tmp_path)
     assert main(["variants"]) == 0
     out = capsys.readouterr().out
-    assert "built in" in out.splitlines()[0] and "geometric_slope" not in out
+    assert "built in" in out.splitlines()[0] and "geometric_expansion_k4" not in out
     assert main(["variants", "--variant", "geometric", "--add-effect", "speed_damping"]) == 0
     assert "speed_damping: " in capsys.readouterr().out
 

@@ -82,7 +82,7 @@ def test_workflow_tests_configs_pass(project, overlay):
 BAD = {
     "typo at the top": ("identifcation: {trials: 3}\n",
                         ["top level", "unknown key 'identifcation'", "did you mean 'identification'?"]),
-    "unknown top-level key": ("colour: blue\n", ["unknown key 'colour'", "allowed: coverage, diagnosis"]),
+    "unknown top-level key": ("colour: blue\n", ["unknown key 'colour'", "allowed: coverage, design, diagnosis"]),
     "typo in a section": ("offline: {chunk: 3}\n", ["offline", "unknown key 'chunk'", "did you mean 'chunks'?"]),
     "per_run parameter": ("identification: {per_run: [q_x, q_z]}\n",
                           ["identification.per_run", "'q_z'", "unknown of no variant", "q_y"]),
@@ -209,13 +209,13 @@ def test_snakemake_stops_before_any_job_with_the_one_line_error(tmp_path):
 def _library_defaults() -> dict:
     """Every default the library fills in, by config section (the one place each is set)."""
     from hybridtwin.diagnose import diagnosis
-    from hybridtwin.identify import identification
+    from hybridtwin.identify import design, identification
     from hybridtwin.config import OFFLINE_DEFAULTS
     from hybridtwin.report import transient_plots
 
     return {"effects_files": [],  # hybridtwin.config.user_effects: no key, no effects files
             "offline": OFFLINE_DEFAULTS, "identification": identification.DEFAULTS, "diagnosis": diagnosis.DEFAULTS,
-            "report": {"transient": transient_plots.DEFAULTS}}
+            "design": design.DEFAULTS, "report": {"transient": transient_plots.DEFAULTS}}
 
 
 def _schema() -> dict:
@@ -338,7 +338,7 @@ def test_the_bundled_config_writes_out_the_defaults():
     workflow and the Python API (which fills in the defaults) run alike."""
     bundled = yaml.safe_load((ROOT / "config" / "config.yaml").read_text())
     library = _library_defaults()
-    for section in ("offline", "identification", "diagnosis"):
+    for section in ("offline", "identification", "diagnosis", "design"):
         for key, value in bundled[section].items():
             default = library[section][key]
             if key in ("spgd", "joint", "polish", "enrichment"):  # the keys it sets of a nested section

@@ -233,12 +233,12 @@ def test_sparse_route_reads_which_terms_an_l1_fit_kept():
 def test_parent_variant_is_the_one_extended_by_exactly_one_effect():
     base = ["centrifugal_softening", "unbalance", "geometric_spring"]
     specs = {"geometric": {"effects": base, "unknown": {"k_b": [0, 1]}},
-                "geometric_slope": {"effects": base + ["slope_spring"], "unknown": {"k_b": [0, 1], "k_w": [0, 1]}},
+                "geometric_slope_spring": {"effects": base + ["slope_spring"], "unknown": {"k_b": [0, 1], "k_w": [0, 1]}},
                 "two_more": {"effects": base + ["slope_spring", "speed_damping"],
                              "unknown": {"k_b": [0, 1], "k_w": [0, 1], "zeta_v": [0, 1]}},
                 "other": {"effects": ["unbalance", "radial_spring", "slope_spring"], "unknown": {"k_b": [0, 1]}}}
-    assert variants.parent_variant(specs, "geometric_slope") == ("geometric", "slope_spring")
-    assert variants.parent_variant(specs, "two_more") == ("geometric_slope", "speed_damping")
+    assert variants.parent_variant(specs, "geometric_slope_spring") == ("geometric", "slope_spring")
+    assert variants.parent_variant(specs, "two_more") == ("geometric_slope_spring", "speed_damping")
     assert variants.parent_variant(specs, "geometric") is None
     assert variants.parent_variant(specs, "other") is None
 

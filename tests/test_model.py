@@ -357,16 +357,17 @@ def test_embedding_reports_what_cannot_be_matched():
 
 
 def test_nested_parents_are_the_simplest_contained_variants():
-    """Expansion contains Geometric, Final and Geometric + slope; only the first two contain no other variant
+    """Expansion contains Geometric, Final and Geometric + expansion_k4; only the first two contain no other variant
     (their fits wait for no other), so the Expansion polish starts from them."""
     from hybridtwin.model.variants import BUILTIN_VARIANTS, Variant, contains, nested_parents
 
     specs = dict(BUILTIN_VARIANTS)
-    specs["geometric_slope"] = {**specs["geometric"], "effects": specs["geometric"]["effects"] + ["expansion_k4"],
-                                "unknown": {**specs["geometric"]["unknown"], "k4": (-1000.0, 1000.0)}}
+    specs["geometric_expansion_k4"] = {**specs["geometric"],
+                                       "effects": specs["geometric"]["effects"] + ["expansion_k4"],
+                                       "unknown": {**specs["geometric"]["unknown"], "k4": (-1000.0, 1000.0)}}
     variants = {name: Variant.from_spec(name, spec) for name, spec in specs.items()}
     assert nested_parents(variants, "expansion") == ["geometric", "final"]
-    assert nested_parents(variants, "geometric_slope") == ["geometric"]
+    assert nested_parents(variants, "geometric_expansion_k4") == ["geometric"]
     assert nested_parents(variants, "geometric") == [] and nested_parents(variants, "final") == []
     slope = Variant.from_spec("slope", {
         **specs["geometric"], "effects": specs["geometric"]["effects"] + ["slope_spring"],

@@ -452,6 +452,56 @@ def test_first_page_names_the_runs_the_data_checks_kept_out(three_variants):
     assert summary.kept_out(written)["run"].tolist() == ["r975", "v2"]
 
 
+def test_first_page_says_why_a_validation_run_fails(three_variants, tmp_path):
+    """validation.tsv's explanation (hybridtwin.identify.validation_refit) follows the failing validation run: the
+    parameters it pins when the fit runs leave them loose; nothing for a variant that misfits its fit runs."""
+    from docutils.core import publish_parts
+
+    from hybridtwin.identify.validation_refit import EXPLANATIONS, VALIDATION_COLUMNS
+
+    written = tmp_path / "validation.tsv"
+    rows = pd.DataFrame({"run": ["v", "v"], "model": ["library", "solver"], "explanation": "not_pinned",
+                         "pinned": "zeta_bup,k_b"}).reindex(columns=["run", "model", *VALIDATION_COLUMNS])
+    rows.assign(explanation="not_pinned", pinned="zeta_bup,k_b").to_csv(written, sep="\t", index=False)
+    read = pd.read_csv(written, sep="\t", dtype={"run": str, "pinned": str}, keep_default_na=False)
+    assert summary.explanations(read) == {"v": "the fit runs do not pin zeta_bup, k_b; this run does"}
+    misfit = read.assign(explanation="misfit")
+    assert summary.explanations(misfit) == {} and set(summary.WHY) < set(EXPLANATIONS)
+    why = {"base": summary.explanations(read), "other": {"b": "not a validation run"}}
+    page = summary.landing_rst(three_variants.table, three_variants.errors, why=why)
+    text = re.sub(r"<[^>]+>", "", publish_parts(page, writer="html", settings_overrides={"halt_level": 2})
+                  ["html_body"])
+    failures = text[text.index("Where each variant fails"):]
+    assert "v (validation) 80 (the fit runs do not pin zeta_bup, k_b; this run does)" in failures
+    assert "not a validation run" not in failures  # only validation runs are explained
+
+
+def test_first_page_names_the_next_runs_to_take(three_variants, tmp_path):
+    """design/next_runs.tsv and intervals.tsv of the best variant (hybridtwin.identify.design), as written and read
+    back: the runs in order and the expected half-widths of the parameters of interest only."""
+    from docutils.core import publish_parts
+
+    from hybridtwin.identify.design import CHOSEN_COLUMNS, INTERVAL_COLUMNS
+
+    chosen = pd.DataFrame([[1, 1000.0, 7.6, True, 3.2, 9.8], [2, 975.0, 0.0, False, 1.1, 10.9]], columns=CHOSEN_COLUMNS)
+    intervals = pd.DataFrame([["zeta_bup", "1", 0.0138, 0.0119, 0.0157, "linear", 0.0, 0.05, 1.9e-3, 1.7e-4, 11.0, True],
+                              ["k_b", "N/m", 2411.6, 2410.7, 2412.5, "linear", 2000.0, 3500.0, 0.86, 0.35, 2.5, False]],
+                             columns=INTERVAL_COLUMNS)
+    for name, frame in (("chosen", chosen), ("intervals", intervals)):
+        frame.to_csv(tmp_path / f"{name}.tsv", sep="\t", index=False)
+    line = summary.next_runs_line("base_slope", *(pd.read_csv(tmp_path / f"{n}.tsv", sep="\t")
+                                                  for n in ("chosen", "intervals")))
+    page = summary.landing_rst(three_variants.table, three_variants.errors, next_runs=line)
+    import html as markup
+
+    html = publish_parts(page, writer="html", settings_overrides={"halt_level": 2})["html_body"]
+    text = markup.unescape(re.sub(r"<[^>]+>", "", html))
+    assert "1000 RPM, 7.6 g with a keyphasor; 975 RPM, 0 g;" in text
+    assert "zeta_bup +-0.0019 -> +-0.00017" in text and "k_b +-" not in text
+    assert "results/base_slope/design/design.png" in _links(html)
+    assert summary.next_runs_line("x", chosen.iloc[:0], intervals) == ""
+
+
 def test_first_page_links_only_the_worst_runs_of_a_variant_failing_everywhere():
     chi2_dof = {f"r{i}": 10.0 + i for i in range(9)}
     errors = {"bad": _errors(chi2_dof, beyond=set(chi2_dof), validation=())}

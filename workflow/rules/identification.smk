@@ -6,6 +6,7 @@
 # change reruns only the jobs that use it).
 from hybridtwin.identify.identification import runs_with_role
 from hybridtwin.identify.identification import rule_settings
+from hybridtwin.identify.design import candidate_grid, settings as design_settings
 
 
 FIT_RUNS = runs_with_role(config["runs"], "fit")
@@ -59,6 +60,7 @@ rule identify_joint:
         library_table="results/{variant}/identification/library_parameters.tsv",
         polish="results/{variant}/identification/polish.tsv",
         polish_starts="results/{variant}/identification/polish_starts.tsv",
+        profile="results/{variant}/identification/profile.tsv",  # the intervals over a loose parameter
         correlation="results/{variant}/identification/correlation.tsv",
         history="results/{variant}/identification/history.tsv",
         summary="results/{variant}/identification/summary.yaml",
@@ -87,7 +89,8 @@ rule identify_joint:
 
 
 rule predict_validation:
-    """Validation runs predicted with the joint parameters (never fitted): error per run, predicted harmonics."""
+    """Validation runs predicted with the joint parameters (never fitted): error per run, predicted harmonics; a run
+    beyond the noise explained by its refit with the fit runs (loose parameters, the bow's law, or the model)."""
     input:
         parameters="results/{variant}/parameters.tsv",
         libraries=lambda wildcards: fit_libraries(wildcards, VALIDATION_RUNS),
@@ -102,6 +105,7 @@ rule predict_validation:
             subcategory="{variant}",
         ),
         harmonics="results/{variant}/validation_harmonics.tsv",
+        refits="results/{variant}/validation_refits.tsv",  # a run beyond the noise refitted with the fit runs
     params:
         runs=VALIDATION_RUNS,
         model=variant_model,
@@ -115,3 +119,51 @@ rule predict_validation:
         "../envs/hybridtwin.yaml"
     script:
         "../../scripts/identify_validation.py"
+
+
+DESIGN = design_settings(config)
+
+
+rule design_runs:
+    """The next runs to take (issue 41): candidate speeds x masses x keyphasor ranked by the information they would
+    add on the loosely pinned parameters (D-optimal design on the fitted twin; hybridtwin.identify.design)."""
+    input:
+        parameters="results/{variant}/parameters.tsv",
+        harmonics="results/data/harmonics.tsv",
+        effects=variant_effects,  # their contents build the variant (params.model has only the paths)
+    output:
+        chosen=report(
+            "results/{variant}/design/next_runs.tsv",
+            caption="../report/design_next_runs.rst",
+            category="Next run",
+            subcategory="{variant}",
+        ),
+        intervals=report(
+            "results/{variant}/design/intervals.tsv",
+            caption="../report/design_intervals.rst",
+            category="Next run",
+            subcategory="{variant}",
+        ),
+        candidates="results/{variant}/design/candidates.tsv",
+        plot=report(
+            "results/{variant}/design/design.png",
+            caption="../report/design_plot.rst",
+            category="Next run",
+            subcategory="{variant}",
+        ),
+    params:
+        model=variant_model,
+        options=lambda wildcards: rule_settings(config, wildcards.variant, "validation"),
+        harmonics=config["harmonics"],
+        grid=lambda wildcards: candidate_grid(DESIGN, run_plan(config)),
+        runs=DESIGN["runs"],
+        keyphasor=DESIGN["keyphasor"],
+        sensor_range_mm=OFFLINE["sensor_range_mm"],
+    log:
+        "logs/{variant}/design_runs.log",
+    benchmark:
+        "results/benchmarks/{variant}/design_runs.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
+    script:
+        "../../scripts/design_runs.py"

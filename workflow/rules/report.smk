@@ -238,6 +238,9 @@ rule report_summary:
         errors=expand("results/{variant}/report/errors.tsv", variant=VARIANTS),
         validation_errors=expand("results/{variant}/report/validation_errors.tsv", variant=VARIANTS),
         diagnoses=expand("results/{variant}/diagnosis.yaml", variant=VARIANTS),
+        validation=expand("results/{variant}/validation.tsv", variant=VARIANTS),  # why a validation run fails
+        next_runs=expand("results/{variant}/design/next_runs.tsv", variant=VARIANTS if DESIGN["runs"] else []),
+        intervals=expand("results/{variant}/design/intervals.tsv", variant=VARIANTS if DESIGN["runs"] else []),
         figures=expand("results/{variant}/report/runs", variant=VARIANTS),  # what the page links to
         harmonics="results/data/harmonics.tsv",  # the runs the data checks kept out (usable false)
     output:
@@ -247,6 +250,7 @@ rule report_summary:
     params:
         variants=VARIANTS,
         specs={name: {"effects": list(spec.get("effects", []))} for name, spec in config["variants"].items()},
+        design=bool(DESIGN["runs"]),
     log:
         "logs/report_summary.log",
     benchmark:

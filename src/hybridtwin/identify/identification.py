@@ -74,7 +74,7 @@ from ..data.measured import (  # noqa: F401 (the measured harmonics: hybridtwin.
 )
 from .lm import STATUS_MESSAGES, Evaluation, LMOptions
 from .protocol import ProtocolOptions, ProtocolResult, run_protocol
-from .uncertainty import Uncertainty, analyse_uncertainty, student_t
+from .uncertainty import Profiled, Uncertainty, analyse_uncertainty, interval_basis, student_t
 
 Array = np.ndarray
 
@@ -360,12 +360,15 @@ def _real(z: Array) -> Array:
 
 
 #: the columns of ``Identification.table`` (parameters.tsv), in order
-TABLE_COLUMNS = ("parameter", "run", "kind", "unit", "value", "normalised", "stderr", "ci_low", "ci_high", "at_bound",
-                 "identifiable", "lower", "upper", "mc_mean", "mc_std", "mc_ci_low", "mc_ci_high", "vif", "source")
-#: the per-entry statistics among them (``Identification.statistics``); at_bound and identifiable are flags
-STATISTICS = ("stderr", "ci_low", "ci_high", "at_bound", "identifiable", "mc_mean", "mc_std", "mc_ci_low",
-              "mc_ci_high", "vif")
+TABLE_COLUMNS = ("parameter", "run", "kind", "unit", "value", "normalised", "stderr", "ci_low", "ci_high", "interval",
+                 "loose", "at_bound", "identifiable", "lower", "upper", "mc_mean", "mc_std", "mc_ci_low", "mc_ci_high",
+                 "vif", "source")
+#: the per-entry statistics among them (``Identification.statistics``); at_bound and identifiable are flags,
+#: interval (a code of ``uncertainty.INTERVAL_CODES``) and loose (parameter names, comma-separated) text
+STATISTICS = ("stderr", "ci_low", "ci_high", "interval", "loose", "at_bound", "identifiable", "mc_mean", "mc_std",
+              "mc_ci_low", "mc_ci_high", "vif")
 _FLAGS = ("at_bound", "identifiable")
+_TEXT = ("interval", "loose")
 
 
 @dataclass
@@ -397,6 +400,7 @@ class Identification:
     source: str = "library"  # the response model: "library" (sPGD) or "solver" (full harmonic balance)
     starts: pd.DataFrame | None = None  # a polish's starts: start, chi2_start, chi2, chi2_dof, iterations, status
     read_columns: dict[str, Array] | None = None  # ``statistics`` and ``ranges`` as ``from_table`` read them
+    profile: Profiled | None = None  # the intervals over the loose parameters (``hybridtwin.identify.profile``)
 
     @property
     def success(self) -> bool:
@@ -435,15 +439,17 @@ class Identification:
 
     def statistics(self) -> dict[str, Array]:
         """Per entry of theta (``STATISTICS``): stderr, the interval x -+ t stderr at ``confidence`` (Student t),
-        at_bound, identifiable, the Monte Carlo repeats' mean, std and percentile interval (phases unwrapped
-        around the estimate; NaN without repeats) and the variance inflation factor vif."""
+        widened over the loose parameters where ``profile`` holds their profile, what each interval is (``interval``,
+        ``loose``: ``uncertainty.interval_basis``), at_bound, identifiable, the Monte Carlo repeats' mean, std and
+        percentile interval (phases unwrapped around the estimate; NaN without repeats) and the variance inflation
+        factor vif."""
         if self.read_columns is not None:
             return {name: self.read_columns[name] for name in STATISTICS}
         u, L = self.uncertainty, self.layout
         t = student_t(self.confidence, u.dof)
         mc = L.to_si(self.protocol.monte_carlo) if len(self.protocol.monte_carlo) else None
         alpha = 100 * (0.5 - 0.5 * self.confidence)
-        out = {name: np.full(L.n, np.nan) for name in STATISTICS if name not in _FLAGS}
+        out = {name: np.full(L.n, np.nan) for name in STATISTICS if name not in _FLAGS + _TEXT}
         out["at_bound"] = np.asarray(u.at_bound, bool) & ~L.is_phase
         out["identifiable"] = np.asarray(u.identifiable, bool)
         for i, (p, _) in enumerate(L.entries()):
@@ -456,6 +462,13 @@ class Identification:
             out["mc_std"][i] = values.std(ddof=1) if len(values) >= 2 else np.nan
             out["mc_ci_low"][i] = np.percentile(values, alpha)
             out["mc_ci_high"][i] = np.percentile(values, 100 - alpha)
+        profiled = None
+        if self.profile is not None:  # never narrower than the linearised interval (fmin/fmax skip its NaN)
+            profiled = self.profile.profiled
+            out["ci_low"] = np.where(profiled, np.fmin(out["ci_low"], self.profile.low), out["ci_low"])
+            out["ci_high"] = np.where(profiled, np.fmax(out["ci_high"], self.profile.high), out["ci_high"])
+        finite = np.isfinite(out["ci_low"]) & np.isfinite(out["ci_high"])
+        out["interval"], out["loose"] = interval_basis(L, u.at_bound, u.identifiable, finite, profiled)
         return out
 
     def ranges(self) -> tuple[Array, Array]:
@@ -522,7 +535,8 @@ class Identification:
         if len(sources) != 1:
             raise ValueError(f"parameter table: one source expected, got {sorted(sources)}")
         x = rows["value"].to_numpy(float)
-        read = {c: rows[c].to_numpy(bool if c in _FLAGS else float) for c in STATISTICS + ("lower", "upper")}
+        read = {c: rows[c].astype(str).tolist() if c in _TEXT else rows[c].to_numpy(bool if c in _FLAGS else float)
+                for c in STATISTICS + ("lower", "upper")}
         units = {p: u for p, u, is_phase in zip(names, rows["unit"].tolist(), phase) if not is_phase}
         return cls(layout, None, None, x, np.where(phase, x, rows["normalised"].to_numpy(float)), math.nan, math.nan,
                    None, None, 0, "read from a parameter table", None, math.nan, [], None, units, sources.pop(),
@@ -559,7 +573,8 @@ class Identification:
                 "collinearity_index": float(u.collinearity_index), "trials": int(len(tr.loss)),
                 "trials_at_best": int(at_best.sum()), "monte_carlo": int(len(self.protocol.monte_carlo)),
                 "lm_problems": int(self.protocol.n_lm), "seconds": float(self.protocol.seconds),
-                "sparsity": float(self.problem.sparsity), "notes": list(u.notes)}
+                "sparsity": float(self.problem.sparsity),
+                "notes": list(u.notes) + (list(self.profile.notes) if self.profile is not None else [])}
 
 
 def _unwrap_around(phases: Array, centre: float) -> Array:
@@ -618,7 +633,7 @@ def read_parameters(path: str | Path) -> pd.DataFrame:
     """A parameter table written by ``write_parameters``: names, runs and units as text (run "001" stays "001",
     unit "1" a string, an empty unit ""), ``TABLE_COLUMNS``' numbers as floats; ``Identification.from_table``
     reads the result. Other columns (a per-run fit's note, a refit's effect) come as pandas reads them."""
-    text = {"parameter", "run", "kind", "unit", "source", "note", "effect"}
+    text = {"parameter", "run", "kind", "unit", "interval", "loose", "source", "note", "effect", "validation_run"}
     header = pd.read_csv(path, sep="\t", nrows=0).columns
     table = pd.read_csv(path, sep="\t", dtype={c: str for c in text}, keep_default_na=False,
                         na_values={c: ["", "nan", "NaN", "NA"] for c in header if c not in text})
@@ -660,6 +675,9 @@ DEFAULTS: dict = {
     "polish": {"joint": True, "runs": False, "max_iterations": 60, "nested": True},
     "keyphasor": True,  # runs with a keyphasor: absolute phases, phase prior N(0, (Omega sigma_t)^2); false: free
     "validation_bow": "law",  # per-run parameters of validation runs: law (c0 + c1 W^2 + c2 W^2 m_e) | mean
+    # a shared parameter of the joint fit at a range edge or not identifiable: the shared parameters' intervals over
+    # it (hybridtwin.identify.profile); false: the linearised ones, marked conditional on it
+    "profile": True,
 }
 
 
@@ -698,9 +716,11 @@ def rule_settings(config: Mapping, variant: str, rule: str) -> dict:
     polish_joint = options["polish"]["max_iterations"] if options["polish"]["joint"] else False
     if rule == "joint":
         # polish: nested changes the job's input files (the nested fits), which reruns it by itself
-        return common | {"joint": options["joint"], "per_run": options["per_run"], "polish": polish_joint}
+        return common | {"joint": options["joint"], "per_run": options["per_run"], "polish": polish_joint,
+                         "profile": bool(options["profile"])}
     return {"validation_bow": options["validation_bow"], "model_error": options["model_error"],
-            "solver": bool(options["polish"]["joint"]), "keyphasor": options["keyphasor"]}
+            "solver": bool(options["polish"]["joint"]), "keyphasor": options["keyphasor"],
+            "per_run": options["per_run"]}  # per_run: a failing validation run's refit with the fit runs
 
 
 def protocol_options(options: Mapping, joint: bool = False) -> ProtocolOptions:

@@ -34,6 +34,7 @@ import pandas as pd
 from . import forward as fwd
 from . import identification as idn
 from . import polish as pol
+from . import profile as prf
 from .protocol import ProtocolOptions
 from ..offline.library import Library
 from ..model.variants import Variant, embed
@@ -144,7 +145,8 @@ def write_run_fit(result: RunFit, parameters: str, history: str, fit: str) -> No
 class JointFit:
     """The joint fit of a variant: ``fit`` the final one (the full solver's polish when asked and it solved,
     else the library's), ``library_fit`` the library protocol's, ``comparison`` library vs solver per entry
-    (polish.tsv; empty without a polish), ``summary`` (summary.yaml: library, solver, final), the runs fitted,
+    (polish.tsv; empty without a polish), ``summary`` (summary.yaml: library, solver, the intervals' profile when a
+    parameter is loose, final), the runs fitted,
     and the lines for the log."""
 
     fit: idn.Identification
@@ -154,6 +156,10 @@ class JointFit:
     data: list[idn.RunData]
     messages: list[str]
     warnings: list[str]
+
+    def profile_table(self) -> pd.DataFrame:
+        """The fits of the intervals' profile (identification/profile.tsv; empty when no parameter is loose)."""
+        return prf.profile_table(self.fit.profile)
 
     def starts_table(self) -> pd.DataFrame:
         """The polish's starts and where each ended (polish_starts.tsv; empty without a polish)."""
@@ -179,7 +185,9 @@ def fit_joint(variant: Variant, options: Mapping, libraries: Sequence[Library], 
     one extends by one effect, that effect, and the parent's diagnosis_refits.tsv: its refit with the effect
     is already a full-solver fit of this model) and the joint fit of each ``nested`` variant (a simpler
     variant this one contains, with its parameters.tsv) mapped onto this variant's parameters. When the
-    solver has no periodic solution at any start, the library's estimate is kept, with a note.
+    solver has no periodic solution at any start, the library's estimate is kept, with a note. With
+    ``options["profile"]`` (default on), when a shared parameter of the final fit is loose (at a range edge or not
+    identifiable), the shared parameters' intervals are profiled over it (``profile.profile_intervals``).
     """
     messages: list[str] = []
     warnings: list[str] = []
@@ -237,6 +245,13 @@ def fit_joint(variant: Variant, options: Mapping, libraries: Sequence[Library], 
             fit.uncertainty.notes.append(note)
             summary["solver"] = {"failed": note, "seconds": time.perf_counter() - start}
             warnings.append(f"polish failed: {note}")
+    if options.get("profile", True):  # a loose shared parameter: the others' intervals over it (profile.py)
+        fit = prf.with_profile(fit)
+        if fit.profile is not None:
+            messages += [f"intervals: {note}" for note in fit.profile.notes]
+            messages.append(f"profile of the intervals in {fit.profile.seconds:.1f} s")
+            summary["profile"] = {"loose": list(fit.profile.loose), "seconds": fit.profile.seconds,
+                                  "fits": int(len(fit.profile.points)), "notes": list(fit.profile.notes)}
     summary["final"] = fit.summary()
     warnings += list(fit.uncertainty.notes)
     return JointFit(fit, library_fit, comparison, summary, data, messages, warnings)
@@ -283,6 +298,7 @@ def excluded_table(data: idn.RunData, parameters: Sequence[str], lower: Array, u
                  "lower": -np.pi, "upper": np.pi})
     table = pd.DataFrame(rows).reindex(columns=list(idn.TABLE_COLUMNS))
     table[["at_bound", "identifiable"]] = False
+    table["interval"], table["loose"] = "none", ""
     table["source"], table["note"] = "library", data.note
     return table
 

@@ -161,6 +161,62 @@ def _uncertainty_notes(layout, at_bound: Array, identifiable: Array, gamma: floa
     return notes
 
 
+#: the ``interval`` codes of a parameter table (parameters.tsv), what each interval is; ``loose`` names the parameters
+INTERVAL_CODES = {
+    "linear": "linearised at the estimate (the Jacobian's covariance); no parameter is loose",
+    "conditional": "linearised at the estimate: valid only with the parameters in `loose` where the fit left them",
+    "profile": "the shadow of the joint region of this parameter and those in `loose` (profile likelihood, the loose "
+               "ones free across their ranges), never narrower than the linearised interval",
+    "none": "no interval: the estimate sits at a range edge, or the run was not fitted",
+}
+
+
+@dataclass
+class Profiled:
+    """Intervals that account for the loose parameters (``hybridtwin.identify.profile``), per entry of theta.
+
+    low, high [SI]: the profile's interval ends (NaN for an entry not profiled); loose: the loose parameters'
+    names; threshold: the chi^2 rise that bounds each profiled entry's region (NaN elsewhere); points: every
+    profile fit (parameter, side, value, chi2 rise, ...); notes: sentences for the log and the summary.
+    """
+
+    low: Array
+    high: Array
+    loose: tuple[str, ...]
+    threshold: Array
+    points: object = None  # a pandas table (``profile.POINT_COLUMNS``)
+    notes: list[str] = field(default_factory=list)
+    seconds: float = 0.0
+
+    @property
+    def profiled(self) -> Array:
+        return np.isfinite(self.low) & np.isfinite(self.high)
+
+
+def loose_entries(layout, at_bound: Array, identifiable: Array) -> Array:
+    """The loose entries of theta: shared physical parameters at a range edge or not identifiable (the data leave
+    them anywhere in a stretch of their range, so the others' linearised intervals are conditional on them)."""
+    shared = np.array([run == "all" and p != "phase" for p, run in layout.entries()])
+    return shared & (np.asarray(at_bound, bool) | ~np.asarray(identifiable, bool))
+
+
+def interval_basis(layout, at_bound: Array, identifiable: Array, finite: Array,
+                   profiled: Array | None = None) -> tuple[list[str], list[str]]:
+    """Per entry of theta, the ``interval`` code (``INTERVAL_CODES``) and the ``loose`` parameters it is conditional
+    on or profiled over (comma-separated, "" when none). finite: the entry has an interval; profiled: it comes from
+    the profile (``Profiled.profiled``)."""
+    loose = loose_entries(layout, at_bound, identifiable)
+    names = [p for p, _ in layout.entries()]
+    profiled = np.zeros(layout.n, bool) if profiled is None else np.asarray(profiled, bool)
+    codes, over = [], []
+    for i in range(layout.n):
+        others = ",".join(names[j] for j in np.flatnonzero(loose) if j != i)
+        code = ("profile" if profiled[i] else "none" if not finite[i] else "conditional" if others else "linear")
+        codes.append(code)
+        over.append(others if code in ("profile", "conditional") else "")
+    return codes, over
+
+
 def student_t(confidence: float, dof: int) -> float:
     """Two-sided quantile of Student's t (the normal one for dof > 1000)."""
     from scipy.stats import t

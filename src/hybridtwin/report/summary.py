@@ -273,16 +273,49 @@ def _recommendation(r) -> str:
     return line
 
 
-def _failures(variant: str, table: pd.DataFrame) -> str:
+#: what the first page says after a failing validation run, per explanation code (validation.tsv's ``explanation``,
+#: hybridtwin.identify.validation_refit); {pinned}: the parameters the run pins
+WHY = {"not_pinned": "the fit runs do not pin {pinned}; this run does", "bow_law": "its bow leaves the fit runs' law",
+       "missing_physics": "missing physics: no parameter set the fit runs allow predicts it"}
+
+
+def explanations(validation: pd.DataFrame) -> dict[str, str]:
+    """Per validation run, what the first page says of its failure (``WHY``; none for the other codes), from
+    validation.tsv (its explanation and pinned columns; a table without them: nothing)."""
+    if "explanation" not in validation:
+        return {}
+    rows = validation.drop_duplicates("run")
+    return {str(r.run): WHY[r.explanation].format(pinned=str(r.pinned).replace(",", ", "))
+            for r in rows.itertuples() if r.explanation in WHY}
+
+
+def _failures(variant: str, table: pd.DataFrame, why: Mapping[str, str] | None = None) -> str:
     beyond = table[table["beyond_noise"]].sort_values("chi2_dof", ascending=False)
     error_map = result_link("error map", f"results/{variant}/report/error_map.png")
     if beyond.empty:
         return f"**{_text(variant)}**: every run within the noise ({error_map})."
+    why = why or {}
     runs = [result_link(f"{r.run}{' (validation)' if r.role != 'fit' else ''} {_number(r.chi2_dof)}",
-                        run_figure(variant, r.run)) for r in beyond.head(MAX_RUN_LINKS).itertuples()]
+                        run_figure(variant, r.run)) + (f" ({_text(why[r.run])})" if r.role != "fit" and r.run in why else "")
+            for r in beyond.head(MAX_RUN_LINKS).itertuples()]
     more = f" and {len(beyond) - MAX_RUN_LINKS} more" if len(beyond) > MAX_RUN_LINKS else ""
     return (f"**{_text(variant)}**: {len(beyond)} of {len(table)} runs: " + ", ".join(runs) + more
             + f" ({error_map}).")
+
+
+def next_runs_line(variant: str, chosen: pd.DataFrame, intervals: pd.DataFrame) -> str:
+    """The first page's line on the next runs to take for ``variant`` (its design/next_runs.tsv and intervals.tsv,
+    hybridtwin.identify.design): the runs in order and the intervals of interest now and expected after them."""
+    if chosen.empty:
+        return ""
+    runs = "; ".join(f"{r.rpm:g} RPM, {r.eccentric_mass_g:g} g{' with a keyphasor' if str(r.keyphasor) == 'True' else ''}"
+                     for r in chosen.itertuples())
+    wanted = intervals[intervals["interest"].astype(str) == "True"]
+    shrink = ", ".join(f"{_text(r.parameter)} +-{r.linear_half_width:.3g} -> +-{r.expected_half_width:.3g}"
+                       for r in wanted.itertuples())
+    return (f"**The next runs to take** for {_text(variant)} (D-optimal on its fitted twin, "
+            + result_link("design.png", f"results/{variant}/design/design.png") + f"): {runs}; expected 95 % "
+            f"half-widths {shrink}.")
 
 
 def kept_out(harmonics: pd.DataFrame) -> pd.DataFrame:
@@ -300,10 +333,14 @@ def _kept_out_line(runs: pd.DataFrame) -> str:
 
 
 def landing_rst(summary: pd.DataFrame, errors: Mapping[str, pd.DataFrame],
-                excluded: pd.DataFrame | None = None) -> str:
+                excluded: pd.DataFrame | None = None, why: Mapping[str, Mapping[str, str]] | None = None,
+                next_runs: str = "") -> str:
     """The report's first page: the best variant, the runs the data checks kept out (``excluded``: ``kept_out``),
     the ledger, what the diagnoses recommend and where each variant fails, with links that open the figures in
-    the report. reStructuredText, included by workflow/report/workflow.rst; short, to fit a window (see above)."""
+    the report, a failing validation run followed by why (``why``: per variant, ``explanations``), and the next
+    runs to take for the best variant (``next_runs``: ``next_runs_line``).
+    reStructuredText, included by workflow/report/workflow.rst; short, to fit a window (see above)."""
+    why = why or {}
     excluded = excluded if excluded is not None else pd.DataFrame(columns=["run", "role", "note"])
     return "\n\n".join(part for part in [
         _headline(summary), _kept_out_line(excluded),
@@ -314,6 +351,7 @@ def landing_rst(summary: pd.DataFrame, errors: Mapping[str, pd.DataFrame],
         "\n".join(f"- {_recommendation(r)}" for r in summary.itertuples()),
         (f"**Where each variant fails**: runs beyond the noise (p < {ALPHA:g}), worst first, with their "
          "chi^2/dof; a link opens the run's figure:"),
-        "\n".join(f"- {_failures(r.variant, errors[r.variant])}" for r in summary.itertuples()),
+        "\n".join(f"- {_failures(r.variant, errors[r.variant], why.get(r.variant))}" for r in summary.itertuples()),
+        next_runs,
         "Every run of every variant in one figure: " + result_link("summary.png", "results/summary.png") + "."]
         if part) + "\n"
