@@ -1,5 +1,5 @@
 # hybridtwin workflow: model -> solver -> scenarios -> snapshots -> POD -> sPGD library
-#                      -> identification -> diagnosis -> report
+#                      -> identification -> diagnosis -> report -> the twin online
 # Run: snakemake --cores 2   (the default profile in profiles/default sets the options)
 
 from snakemake.utils import min_version
@@ -31,6 +31,7 @@ include: "workflow/rules/measurements.smk"
 include: "workflow/rules/identification.smk"
 include: "workflow/rules/diagnosis.smk"
 include: "workflow/rules/report.smk"
+include: "workflow/rules/online.smk"
 
 
 localrules: check_data, measured_harmonics, sample_scenarios  # seconds-long, run on the submit host under profiles/slurm
@@ -52,6 +53,7 @@ rule all:
         expand("results/{variant}/validation.tsv", variant=VARIANTS),
         expand("results/{variant}/diagnosis.tsv", variant=VARIANTS),
         expand("results/{variant}/diagnosis.md", variant=VARIANTS),
+        expand("results/{variant}/twin.yaml", variant=VARIANTS),  # the twin's card: `hybridtwin assess` reads it
         expand("results/{variant}/report/{name}", variant=VARIANTS, name=REPORT_FILES),
         "results/ledger.tsv",
         "results/ledger.png",
