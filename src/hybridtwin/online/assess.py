@@ -1,0 +1,311 @@
+"""A record judged against a built twin: consistent, changed, or a new discrepancy (docs/online.md).
+
+1. **Consistent?** The twin's hypothesis (``fits``: every parameter on the twin's prior, the per-run ones such as
+   the bow at their law, the phases free or on the keyphasor's prior) fitted to the record: chi^2 against
+   chi^2(dof). At p >= ``alpha`` the twin explains the record to within its noise and its own uncertainty:
+   **consistent**. What the record says of each parameter is then its estimate with that parameter freed, to
+   first order from the twin's fit (``fits.linearised``: no solve).
+2. **Changed?** Otherwise each parameter group is freed in turn (each shared parameter alone; the per-run ones
+   together, the bow), every group in one batched fit. A group *explains* the record when its fit reaches the noise
+   (p >= alpha). The best explaining group (highest p: the fewest freed parameters for the fit) is the change, with
+   its estimate, interval and the likelihood-ratio statistic D = chi^2(twin) - chi^2(group) ~ chi^2(k) (the
+   significance against the twin's own uncertainty, its correlations included); the other explaining groups are
+   named as alternatives the record cannot tell apart from it. When no single group explains, pairs of the three
+   best are tried. A parameter the twin left undetermined is said to be so: its "move" is first the twin's ignorance.
+3. **New discrepancy.** When no parameter change explains the record: the residual of the best change, its
+   fingerprint (``diagnose.fingerprint``: harmonic, whirl, speed band) and the diagnosis candidates ranked by their
+   score test at the twin (``diagnose.score_test``: with every parameter's sensitivity projected out, so a
+   candidate scores what no parameter change can absorb).
+
+The outcome is a code (``Verdict``); the sentences are derived from it (``Assessment.line``).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from enum import Enum
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+from ..diagnose.fingerprint import Fingerprint, fingerprint
+from ..diagnose.score_test import BaseFit, by_score, candidate_score, column_basis, extended_problem
+from ..identify.identification import Layout
+from . import fits
+from .intake import Intake
+from .twin import Twin
+
+Array = np.ndarray
+
+#: the level of every test: a record is beyond the noise at p < ALPHA (the project's "beyond the noise", README)
+ALPHA = 0.01
+#: pairs of groups are tried among this many best single groups when none explains the record alone
+PAIRS_OF = 3
+#: intervals: estimate -+ this many standard errors (95 %, normal)
+Z95 = float(stats.norm.ppf(0.975))
+
+
+class Verdict(str, Enum):
+    CONSISTENT = "consistent"
+    CHANGED = "changed"
+    NEW_DISCREPANCY = "new_discrepancy"
+
+
+OPENINGS = {Verdict.CONSISTENT: "consistent with the twin", Verdict.CHANGED: "CHANGED",
+            Verdict.NEW_DISCREPANCY: "NEW DISCREPANCY"}
+
+#: the parameter table's columns (``Assessment.parameters``, parameters.tsv of an assessment)
+PARAMETER_COLUMNS = ["parameter", "run", "unit", "twin_value", "twin_stderr", "value", "stderr", "ci_low", "ci_high",
+                     "change", "change_rel", "z", "statistic", "dof", "p_value", "explains", "moved", "estimate",
+                     "note"]
+#: the harmonics table's columns (measured, the twin's fit and the best change's, per run, harmonic and channel)
+HARMONIC_COLUMNS = ["run", "rpm", "harmonic", "channel", "measured_re_m", "measured_im_m", "sigma_m", "twin_re_m",
+                    "twin_im_m", "best_re_m", "best_im_m"]
+#: the candidates table's columns (the score tests of a new discrepancy, most significant first)
+CANDIDATE_COLUMNS = ["candidate", "statistic", "dof", "p_value", "log_p", "beyond_range"]
+#: the one-row summary's columns (assessment.tsv)
+SUMMARY_COLUMNS = ["record", "path", "kind", "timestamp", "timestamp_source", "twin", "verdict", "alpha", "n_runs",
+                   "rpm_low", "rpm_high", "eccentric_mass_g", "n_data", "chi2", "dof", "chi2_dof", "p_value",
+                   "changed", "alternatives", "best", "best_chi2", "best_dof", "best_p_value", "twin_chi2_dof",
+                   "left_out", "seconds"]
+
+
+@dataclass
+class Assessment:
+    """A record's assessment: the verdict and what backs it (module docstring). ``summary`` holds the scalar
+    fields (``SUMMARY_COLUMNS``); the tables are ``parameters``, ``harmonics``, ``candidates`` (empty unless a new
+    discrepancy) and the residual's ``fingerprint`` (None unless a new discrepancy)."""
+
+    summary: dict
+    parameters: pd.DataFrame
+    harmonics: pd.DataFrame
+    candidates: pd.DataFrame
+    fingerprint: Fingerprint | None = None
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def verdict(self) -> Verdict:
+        return Verdict(self.summary["verdict"])
+
+    @property
+    def changed(self) -> list[str]:
+        """The parameters of the named change (empty unless changed)."""
+        return [p for p in str(self.summary["changed"]).split(",") if p]
+
+    def line(self) -> str:
+        """The one-line verdict for the console."""
+        s = self.summary
+        head = (f"{s['record']}: {OPENINGS[self.verdict]} ({s['twin']}): chi^2/dof {s['chi2_dof']:.3g} on {s['dof']} "
+                f"dof, p = {s['p_value']:.2g}")
+        if self.verdict is Verdict.CONSISTENT:
+            return head
+        if self.verdict is Verdict.CHANGED:
+            moved = self.parameters[self.parameters["moved"]]
+            moves = [_move(row) for row in moved.itertuples() if row.run == "all" or moved["run"].nunique() == 1]
+            spread = moved[moved["run"] != "all"]
+            if spread["run"].nunique() > 1:  # a per-run parameter of a transient record: one move per band
+                moves += [f"{p} at {len(rows)} bands, median {100 * rows['change_rel'].median():+.1f} % (D = "
+                          f"{rows['statistic'].iloc[0]:.3g} on {int(rows['dof'].iloc[0])} dof)"
+                          for p, rows in spread.groupby("parameter", sort=False)]
+            also = f"; the record cannot tell it from: {s['alternatives']}" if s["alternatives"] else ""
+            return (f"{head}; {'; '.join(moves)} (with it chi^2/dof {s['best_chi2'] / max(s['best_dof'], 1):.3g})"
+                    f"{also}")
+        top = ", ".join(f"{row.candidate} (p {row.p_value:.1g})" for row in self.candidates.head(3).itertuples())
+        where = self.fingerprint.summary().split(". ")[0] if self.fingerprint is not None else ""
+        return (f"{head}; no parameter change explains it (best: {s['best']}, chi^2/dof "
+                f"{s['best_chi2'] / max(s['best_dof'], 1):.3g}); candidates: {top or 'none significant'}. {where}")
+
+    # --- files: one folder per record, each table with its exact inverse -------------------------
+
+    def write(self, folder: str | Path) -> None:
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        pd.DataFrame([self.summary], columns=SUMMARY_COLUMNS).to_csv(folder / "assessment.tsv", sep="\t",
+                                                                       index=False, float_format="%.9g")
+        for name, table in (("parameters", self.parameters), ("harmonics", self.harmonics),
+                            ("candidates", self.candidates)):
+            table.to_csv(folder / f"{name}.tsv", sep="\t", index=False, float_format="%.9g")
+        if self.fingerprint is not None:
+            self.fingerprint.table().to_csv(folder / "fingerprint.tsv", sep="\t", index=False, float_format="%.9g")
+
+    @classmethod
+    def read(cls, folder: str | Path) -> "Assessment":
+        """The exact inverse of ``write`` (the warnings, said on the console, are not kept)."""
+        folder = Path(folder)
+        summary = read_summary(folder / "assessment.tsv").iloc[0].to_dict()
+        parameters = _read(folder / "parameters.tsv", {"parameter", "run", "unit", "estimate", "note"},
+                           {"explains", "moved"})
+        harmonics = _read(folder / "harmonics.tsv", {"run", "channel"})
+        candidates = _read(folder / "candidates.tsv", {"candidate"}, {"beyond_range"})
+        path = folder / "fingerprint.tsv"
+        found = Fingerprint.from_table(pd.read_csv(path, sep="\t", dtype={"key": str}, keep_default_na=False,
+                                                   na_values={"value": ["nan", "NaN"]})) if path.is_file() else None
+        return cls(summary, parameters, harmonics, candidates, found)
+
+
+def read_summary(path: str | Path) -> pd.DataFrame:
+    """assessment.tsv (or rows of them), text columns as text, numbers as numbers (``SUMMARY_COLUMNS``)."""
+    text = {"record", "path", "kind", "timestamp", "timestamp_source", "twin", "verdict", "changed", "alternatives",
+            "best", "left_out"}
+    table = _read(path, text)
+    for column in ("n_runs", "n_data", "dof", "best_dof"):
+        table[column] = table[column].astype(int)
+    return table
+
+
+def _read(path: Path, text: set[str], flags: set[str] = frozenset()) -> pd.DataFrame:
+    header = pd.read_csv(path, sep="\t", nrows=0).columns
+    table = pd.read_csv(path, sep="\t", dtype={c: str for c in text}, keep_default_na=False,
+                        na_values={c: ["nan", "NaN", ""] for c in header if c not in text | set(flags)})
+    for column in flags & set(header):
+        table[column] = table[column].astype(str).str.lower().eq("true")
+    for column in set(header) - text - set(flags):
+        table[column] = table[column].astype(float)
+    return table
+
+
+def _move(row) -> str:
+    return (f"{row.parameter} {row.twin_value:.4g} -> {row.value:.4g} [{row.ci_low:.4g}, {row.ci_high:.4g}] {row.unit} "
+            f"({100 * row.change_rel:+.1f} %, D = {row.statistic:.3g} on {int(row.dof)} dof, p = {row.p_value:.2g})")
+
+
+# --- the assessment ------------------------------------------------------------------------------
+
+
+def assess(twin: Twin, record: Intake, alpha: float = ALPHA, candidates: bool = True) -> Assessment:
+    """``record`` judged against ``twin`` at level ``alpha`` (module docstring); ``candidates`` False skips the
+    score tests of a new discrepancy (the benchmark's speed)."""
+    start = time.perf_counter()
+    prior = twin.prior([(d.rpm, d.eccentric_mass_g) for d in record.data])
+    problem = fits.RecordProblem(twin.variant, record.data, prior, twin.harmonics)
+    groups = [(p,) for p in problem.shared] + ([tuple(problem.local)] if problem.local else [])
+    base = fits.fit(problem, [fits.Hypothesis()])[0]
+    singles: list[fits.RecordFit]
+    named, alternatives, best, ranked, found = None, [], base, pd.DataFrame(columns=CANDIDATE_COLUMNS), None
+    if base.p_value >= alpha:
+        verdict = Verdict.CONSISTENT
+        singles = [fits.linearised(problem, base, fits.Hypothesis((g,))) for g in groups]
+    else:
+        singles = fits.fit(problem, [fits.Hypothesis((g,)) for g in groups], base)
+        tried = list(singles)
+        explaining = [f for f in tried if f.p_value >= alpha]
+        if not explaining and len(groups) > 1:
+            top = sorted(singles, key=lambda f: f.chi2)[:PAIRS_OF]
+            pairs = [fits.Hypothesis(a.hypothesis.groups + b.hypothesis.groups) for a, b in itertools.combinations(top, 2)]
+            tried += fits.fit(problem, pairs, base)
+            explaining = [f for f in tried if f.p_value >= alpha]
+        best = max(explaining, key=lambda f: f.p_value) if explaining else min(tried, key=lambda f: f.chi2)
+        if explaining:
+            verdict, named = Verdict.CHANGED, best
+            alternatives = [f.hypothesis.name for f in sorted(explaining, key=lambda f: -f.p_value) if f is not best]
+        else:
+            verdict = Verdict.NEW_DISCREPANCY
+            found = _fingerprint(problem, best)
+            if candidates:
+                ranked = _candidates(twin, problem, base)
+    table = parameter_table(twin, problem, base, singles, named, alpha)
+    lo, hi = min(d.rpm for d in record.data), max(d.rpm for d in record.data)
+    summary = {
+        "record": record.run, "path": str(record.path), "kind": record.kind, "timestamp": record.timestamp,
+        "timestamp_source": record.timestamp_source, "twin": twin.name, "verdict": verdict.value, "alpha": alpha,
+        "n_runs": len(record.data), "rpm_low": lo, "rpm_high": hi, "eccentric_mass_g": record.eccentric_mass_g,
+        "n_data": int(problem.X.size * 2), "chi2": base.chi2, "dof": base.dof, "chi2_dof": base.chi2 / max(base.dof, 1),
+        "p_value": base.p_value, "changed": ",".join(named.hypothesis.free) if named else "",
+        "alternatives": "; ".join(alternatives), "best": best.hypothesis.name, "best_chi2": best.chi2,
+        "best_dof": best.dof, "best_p_value": best.p_value, "twin_chi2_dof": float(twin.card["fit"]["chi2_dof"]),
+        "left_out": "; ".join(f"{run}: {why}" for run, why in record.left_out.items()),
+        "seconds": time.perf_counter() - start}
+    return Assessment(summary, table, harmonic_table(problem, base, best), ranked, found, list(record.warnings))
+
+
+def parameter_table(twin: Twin, problem: fits.RecordProblem, base: fits.RecordFit, singles: Sequence[fits.RecordFit],
+                    named: fits.RecordFit | None, alpha: float) -> pd.DataFrame:
+    """One row per parameter entry (shared: run "all"; per-run: each run of the record): the twin's value and
+    standard error (the prior's), the record's estimate with its group freed (``singles``, or the named change's
+    fit for its own entries), the change, z against both uncertainties, and the group's likelihood-ratio test."""
+    units = {name: p.unit for name, p in twin.variant.model.parameters.items()}
+    prior_sd = np.sqrt(np.diag(problem.prior.covariance))
+    runs = [d.run for d in problem.data]
+    rows = []
+    for single in singles:
+        group = single.hypothesis.free
+        source = named if named is not None and set(named.hypothesis.free) >= set(group) else single
+        statistic = max(base.chi2 - source.chi2, 0.0)
+        k = sum(problem.R if p in problem.local else 1 for p in source.hypothesis.free)  # the entries it frees
+        for column, (p, k_run) in enumerate(problem.entries):
+            if p not in group:
+                continue
+            value, stderr = problem.to_si(source.v)[column], math.sqrt(max(source.covariance[column, column], 0.0)) \
+                * problem.scale[column]
+            held = p in problem.prior.held
+            twin_value = problem.prior.held[p][0] if held else problem.prior.mean[problem.prior.index(p, k_run)]
+            twin_sd = math.nan if held else prior_sd[problem.prior.index(p, k_run)]
+            change = value - twin_value
+            z = change / math.hypot(stderr, twin_sd) if not held else math.nan
+            rows.append({
+                "parameter": p, "run": "all" if k_run is None else runs[k_run], "unit": units.get(p, ""),
+                "twin_value": twin_value, "twin_stderr": twin_sd, "value": value, "stderr": stderr,
+                "ci_low": value - Z95 * stderr, "ci_high": value + Z95 * stderr, "change": change,
+                "change_rel": change / twin_value if twin_value else math.nan, "z": z, "statistic": statistic,
+                "dof": k, "p_value": float(stats.chi2.sf(statistic, k)), "explains": source.p_value >= alpha,
+                "moved": named is not None and p in named.hypothesis.free,
+                "estimate": "linear" if source.linear else "fit",
+                "note": f"the twin left it undetermined ({problem.prior.held[p][1]}): held at its value in the "
+                        "twin's fit" if held else ""})
+    return pd.DataFrame(rows, columns=PARAMETER_COLUMNS)
+
+
+def harmonic_table(problem: fits.RecordProblem, base: fits.RecordFit, best: fits.RecordFit) -> pd.DataFrame:
+    """Measured, twin and best-change harmonics [m] of every run, harmonic and channel of the record (its frame)."""
+    rows = []
+    channels = problem.data[0].channels
+    for k, d in enumerate(problem.data):
+        for h in range(problem.H):
+            for c, channel in enumerate(channels):
+                X, T, B = problem.X[k, h, c], base.model[k, h, c], best.model[k, h, c]
+                rows.append({"run": d.run, "rpm": d.rpm, "harmonic": h + 1, "channel": channel,
+                             "measured_re_m": X.real, "measured_im_m": X.imag, "sigma_m": problem.sigma[k, h, c],
+                             "twin_re_m": T.real, "twin_im_m": T.imag, "best_re_m": B.real, "best_im_m": B.imag})
+    return pd.DataFrame(rows, columns=HARMONIC_COLUMNS)
+
+
+def _fingerprint(problem: fits.RecordProblem, best: fits.RecordFit) -> Fingerprint:
+    """The fingerprint of the residual the best parameter change leaves (DC unused)."""
+    def with_dc(z: Array, fill) -> Array:
+        return np.concatenate([np.full((z.shape[0], 1, z.shape[2]), fill, dtype=z.dtype), z], axis=1)
+
+    return fingerprint(with_dc(problem.X, 0j), with_dc(best.model, 0j), with_dc(problem.sigma, np.inf),
+                       [d.rpm for d in problem.data], [d.eccentric_mass_g for d in problem.data],
+                       [d.run for d in problem.data])
+
+
+def _candidates(twin: Twin, problem: fits.RecordProblem, base: fits.RecordFit) -> pd.DataFrame:
+    """The diagnosis candidates ranked by their score test at the twin's fit of the record, the twin's prior
+    included: the residual and every parameter's sensitivity (its prior rows with it) projected out, so that a
+    candidate scores what no parameter change the twin allows can absorb (``score_test.candidate_score``)."""
+    variant, found = twin.variant, twin.candidates()
+    lower, upper = zip(*variant.unknown.values())
+    layout = Layout.for_data(list(variant.unknown), lower, upper, problem.data, problem.local)
+    theta = np.array([base.v[problem.column[(p, None if run == "all" else layout.runs.index(run))]]
+                      for p, run in layout.entries()])
+    extended, theta = extended_problem(BaseFit(variant, layout, theta, problem.data, problem.H), found)
+    sensitivities = extended.dense_jacobian(extended.evaluate(theta[None], problem.X[None], jacobian=True))
+    r, J, n_data = problem.residuals(base.v[None], base.responses, [fits.Hypothesis()])[0]
+    Q = column_basis(J[:, problem.fitted(fits.Hypothesis())])
+    r_p = r - Q @ (Q.T @ r)
+    entries = extended.layout.entries()
+    scores = []
+    for candidate in found:
+        columns = [entries.index((p.name, "all")) for p in candidate.parameters]
+        G = np.zeros((r.size, len(columns)))
+        G[:n_data] = sensitivities[:, columns]  # a candidate has no prior: nothing in the prior's rows
+        scores.append(candidate_score(candidate, G, Q, r_p, theta[columns]))
+    rows = [{"candidate": s.candidate.name, "statistic": s.statistic, "dof": len(s.step), "p_value": s.p_value,
+             "log_p": s.log_p, "beyond_range": s.beyond_range} for s in sorted(scores, key=by_score)]
+    return pd.DataFrame(rows, columns=CANDIDATE_COLUMNS)
