@@ -32,10 +32,10 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from scipy import stats
+from scipy.special import chdtrc, ndtri  # chi^2's survival function, the normal quantile (not scipy.stats:
+# its import costs more than a consistent record's fits)
 
 from ..diagnose.fingerprint import Fingerprint, fingerprint
-from ..diagnose.score_test import BaseFit, by_score, candidate_score, column_basis, extended_problem
 from ..identify.identification import Layout
 from . import fits
 from .intake import Intake
@@ -48,7 +48,7 @@ ALPHA = 0.01
 #: pairs of groups are tried among this many best single groups when none explains the record alone
 PAIRS_OF = 3
 #: intervals: estimate -+ this many standard errors (95 %, normal)
-Z95 = float(stats.norm.ppf(0.975))
+Z95 = float(ndtri(0.975))
 
 
 class Verdict(str, Enum):
@@ -253,7 +253,7 @@ def parameter_table(twin: Twin, problem: fits.RecordProblem, base: fits.RecordFi
                 "twin_value": twin_value, "twin_stderr": twin_sd, "value": value, "stderr": stderr,
                 "ci_low": value - Z95 * stderr, "ci_high": value + Z95 * stderr, "change": change,
                 "change_rel": change / twin_value if twin_value else math.nan, "z": z, "statistic": statistic,
-                "dof": k, "p_value": float(stats.chi2.sf(statistic, k)), "explains": source.p_value >= alpha,
+                "dof": k, "p_value": float(chdtrc(k, statistic)), "explains": source.p_value >= alpha,
                 "moved": named is not None and p in named.hypothesis.free,
                 "estimate": "linear" if source.linear else "fit",
                 "note": f"the twin left it undetermined ({problem.prior.held[p][1]}): held at its value in the "
@@ -289,6 +289,8 @@ def _candidates(twin: Twin, problem: fits.RecordProblem, base: fits.RecordFit) -
     """The diagnosis candidates ranked by their score test at the twin's fit of the record, the twin's prior
     included: the residual and every parameter's sensitivity (its prior rows with it) projected out, so that a
     candidate scores what no parameter change the twin allows can absorb (``score_test.candidate_score``)."""
+    from ..diagnose.score_test import BaseFit, by_score, candidate_score, column_basis, extended_problem  # a new
+    # discrepancy only: scipy.stats with it
     variant, found = twin.variant, twin.candidates()
     lower, upper = zip(*variant.unknown.values())
     layout = Layout.for_data(list(variant.unknown), lower, upper, problem.data, problem.local)

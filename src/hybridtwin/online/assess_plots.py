@@ -13,6 +13,8 @@ from .assess import Assessment, Verdict
 
 #: |E / sigma| of one complex entry is beyond the noise above this (chi^2 with 2 dof at 99 %)
 NOISE_99 = float(np.sqrt(stats.chi2.ppf(0.99, 2)))
+#: significances drawn up to this many standard deviations (a move at p ~ 0 is off any scale)
+CAP = 10.0
 
 
 def plot_assessment(assessment: Assessment):
@@ -37,10 +39,13 @@ def plot_assessment(assessment: Assessment):
         sigma = rows["sigma_m"]
         if steady:
             h = rows["harmonic"].to_numpy()
-            top.errorbar(h, 1e6 * np.abs(measured), yerr=2e6 * sigma, fmt="o", color="k", ms=4, label="record (2 sigma)")
-            top.plot(h, 1e6 * np.abs(twin), "s", mfc="none", color="tab:blue", label="twin")
+            floor = 0.1 * float(sigma.min())  # a harmonic the model lacks (zero) is drawn at the floor
+            top.bar(h, 2e6 * sigma, 0.6, color="0.85", label="noise, 2 sigma")
+            top.plot(h, 1e6 * np.abs(measured), "o", color="k", ms=4, label="record")
+            top.plot(h, 1e6 * np.maximum(np.abs(twin), floor), "s", mfc="none", color="tab:blue", label="twin")
             if changed:
-                top.plot(h, 1e6 * np.abs(best), "x", color="tab:red", label=f"with {assessment.summary['best']}")
+                top.plot(h, 1e6 * np.maximum(np.abs(best), floor), "x", color="tab:red",
+                         label=f"with {assessment.summary['best']}")
             top.set_yscale("log")
             top.set_xlabel("harmonic")
             mid.bar(h - 0.2, np.abs(measured - twin) / sigma, 0.4, color="tab:blue", label="twin")
@@ -51,7 +56,7 @@ def plot_assessment(assessment: Assessment):
             for h, style in zip(sorted(rows["harmonic"].unique())[:3], ("-", "--", ":")):
                 one = rows["harmonic"] == h
                 rpm = rows.loc[one, "rpm"]
-                top.errorbar(rpm, 1e6 * np.abs(measured[one]), yerr=2e6 * sigma[one], fmt=".", color="k", ms=3)
+                top.plot(rpm, 1e6 * np.abs(measured[one]), ".", color="k", ms=3)
                 top.plot(rpm, 1e6 * np.abs(twin[one]), style, color="tab:blue", label=f"twin {h}X")
                 if changed:
                     top.plot(rpm, 1e6 * np.abs(best[one]), style, color="tab:red", lw=0.8)
@@ -63,28 +68,30 @@ def plot_assessment(assessment: Assessment):
         top.set_ylabel("amplitude, 0-peak [um]")
         top.legend(fontsize=7)
         mid.axhline(NOISE_99, color="0.4", ls="--", lw=1, label="noise, 99 %")
-        mid.set_yscale("log")
+        mid.set_ylim(bottom=0)
         mid.set_ylabel("|record - model| / sigma")
         mid.set_title("residual vs noise", fontsize=9)
         mid.legend(fontsize=7)
     ax = fig.add_subplot(grid[2, :])
-    params = assessment.parameters
-    params = params[(params["run"] == "all") | (params["run"].nunique() <= 2)]
-    labels = [p if r == "all" else f"{p} [{r}]" for p, r in zip(params["parameter"], params["run"])]
+    params = assessment.parameters.drop_duplicates("parameter")  # a group's test is one per parameter
+    z = np.sign(params["change"]) * np.minimum(stats.norm.isf(params["p_value"].to_numpy(float) / 2), CAP)
     y = np.arange(len(params))[::-1]
-    z = params["z"].to_numpy(float)
-    half = params["stderr"] / np.hypot(params["stderr"], params["twin_stderr"].fillna(0))
-    colours = ["tab:red" if m else "tab:blue" for m in params["moved"]]
-    ax.errorbar(z, y, xerr=stats.norm.ppf(0.975) * half, fmt="none", ecolor="0.6")
-    ax.scatter(z, y, c=colours, zorder=3)
-    level = stats.norm.ppf(1 - assessment.summary["alpha"] / 2)
+    held = params["note"] != ""
+    colours = np.where(params["moved"], "tab:red", "tab:blue")
+    ax.scatter(z[~held], y[~held], c=colours[~held], zorder=3)
+    ax.scatter(z[held], y[held], facecolors="none", edgecolors=colours[held], zorder=3,
+               label="left undetermined by the twin")
+    level = stats.norm.isf(assessment.summary["alpha"] / 2)
     for x in (-level, level):
         ax.axvline(x, color="0.5", ls="--", lw=1)
     ax.axvline(0, color="0.3", lw=0.8)
-    ax.set_yticks(y, labels, fontsize=8)
-    ax.set_xlabel("the record's estimate of each parameter (freed alone) against the twin's, in combined standard "
-                  "errors", fontsize=8)
-    ax.set_title("what the record says of each parameter (red: the change named; dashed: alarm level)", fontsize=9)
+    ax.set_xlim(-CAP - 0.5, CAP + 0.5)
+    ax.set_yticks(y, params["parameter"], fontsize=8)
+    ax.set_xlabel("significance of the parameter's move (freed alone against the twin's prior), signed, in "
+                  f"normal standard deviations (capped at {CAP:g})", fontsize=8)
+    ax.set_title("what the record says of each parameter (red: the change named; dashed: the alarm level)", fontsize=9)
+    if held.any():
+        ax.legend(fontsize=7, loc="upper center")
     fig.suptitle("\n".join(textwrap.wrap(assessment.line(), 110)), fontsize=8, x=0.02, ha="left")
-    fig.tight_layout(rect=(0, 0, 1, 0.93))
+    fig.subplots_adjust(left=0.1, right=0.97, bottom=0.05, top=0.9, hspace=0.35, wspace=0.3)
     return fig
