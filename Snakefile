@@ -62,4 +62,6 @@ rule all:
         expand("results/{variant}/report/{name}", variant=VARIANTS if transient_records() else [],
                name=["transient", "transient.tsv"]),
         expand("results/data/report/records/{run}/waterfall.png", run=[r["run"] for r in transient_records()]),
+        # the twin online (config online:): every record of its sheet judged against the twin, and the trend
+        expand("results/online/{variant}/trend.tsv", variant=[ONLINE["variant"]] if ONLINE else []),
     default_target: True

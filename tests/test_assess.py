@@ -10,20 +10,24 @@ and a keyphasor; the changed machines change one value of the truth. The referen
 from __future__ import annotations
 
 import shutil
+from contextlib import chdir
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
+import yaml
 
 from hybridtwin.cli import main
+from hybridtwin.config import ConfigError, check
 from hybridtwin.data.rig import DEFAULT_TRUTH, Imperfections, RigSpec, Truth, generate
 from hybridtwin.online.assess import Assessment, Verdict, assess
 from hybridtwin.online.intake import RecordError, intake, read_sheet, record_row
 from hybridtwin.online.trend import add, read_trend
 from hybridtwin.online.twin import TwinError, load_twin
 
-TWIN = Path(__file__).resolve().parent / "twin" / "results" / "geometric_slope"
+ROOT = Path(__file__).resolve().parents[1]
+TWIN = ROOT / "tests" / "twin" / "results" / "geometric_slope"
 TRUTH = DEFAULT_TRUTH["values"]
 
 
@@ -203,3 +207,28 @@ def test_a_single_record_needs_its_speed(tmp_path):
     (tmp_path / "r.csv").write_text("time_s,x_mm,y_mm\n0,0,0\n")
     with pytest.raises(RecordError, match="r.csv: a steady record needs its speed"):
         record_row(tmp_path / "r.csv", None, 0.0)
+
+
+# --- the workflow: every record of a sheet, only the new ones on a rerun -------------------------------------------
+
+
+def test_the_workflow_plans_one_assessment_per_record_and_the_trend(tmp_path):
+    """A dry run in a copy of the workflow (test_workflow's small configuration with an online: section): one
+    assess_record job per record of the sheet and the trend; a twin that is not a variant is a config error naming
+    the key (the check the Snakefile makes first)."""
+    from test_workflow import _copy_workflow, _snakemake
+
+    (tmp_path / "work").mkdir()
+    work = _copy_workflow(tmp_path / "work")
+    rig(work / "data" / "online", [("n600", 600, 25.9), ("n700", 700, 14.8)])
+    (work / "online.yaml").write_text("online: {variant: geometric, records: data/online/runs.tsv}\n")
+    plan = _snakemake(work, "-n", "results/online/geometric/trend.tsv", config="online.yaml")
+    assert plan.returncode == 0, plan.stderr[-2000:]
+    jobs = [line.split("wildcards: ")[1] for line in plan.stdout.splitlines() if "record=" in line]
+    assert sorted(jobs) == ["variant=geometric, record=n600", "variant=geometric, record=n700"]
+    assert "rule assess_trend:" in plan.stdout and "rule twin_card:" in plan.stdout
+    config = yaml.safe_load((work / "config" / "config.yaml").read_text())
+    bad = config | {"online": {"variant": "geometrik", "records": "data/online/runs.tsv", "alpha": 0.01}}
+    with pytest.raises(ConfigError, match=r"online.variant: no variant named 'geometrik'"):
+        with chdir(work):
+            check(bad, ROOT / "workflow" / "schemas" / "config.schema.yaml", ["config/config.yaml"])

@@ -35,6 +35,7 @@ import pandas as pd
 from scipy.special import chdtrc, ndtri  # chi^2's survival function, the normal quantile (not scipy.stats:
 # its import costs more than a consistent record's fits)
 
+from ..config import ONLINE_DEFAULTS
 from ..diagnose.fingerprint import Fingerprint, fingerprint
 from ..identify.identification import Layout
 from . import fits
@@ -44,7 +45,7 @@ from .twin import Twin
 Array = np.ndarray
 
 #: the level of every test: a record is beyond the noise at p < ALPHA (the project's "beyond the noise", README)
-ALPHA = 0.01
+ALPHA = ONLINE_DEFAULTS["alpha"]
 #: pairs of groups are tried among this many best single groups when none explains the record alone
 PAIRS_OF = 3
 #: intervals: estimate -+ this many standard errors (95 %, normal)

@@ -86,6 +86,11 @@ def plot_trend(trend: pd.DataFrame, twin: str = ""):
     import matplotlib.pyplot as plt
 
     records = trend.drop_duplicates("record")
+    if records.empty:
+        fig, ax = plt.subplots(figsize=(9, 2))
+        ax.set_title(f"twin {twin}: no record assessed yet", fontsize=9)
+        ax.axis("off")
+        return fig
     when = pd.to_datetime(records["timestamp"], utc=True, format="ISO8601")
     entries = trend[(trend["run"] == "all") | (trend["run"] == trend["record"])]
     names = list(dict.fromkeys(entries["parameter"]))
