@@ -56,10 +56,11 @@ def plot_assessment(assessment: Assessment):
             for h, style in zip(sorted(rows["harmonic"].unique())[:3], ("-", "--", ":")):
                 one = rows["harmonic"] == h
                 rpm = rows.loc[one, "rpm"]
+                floor = 0.1 * float(sigma[one].min())  # a harmonic the model lacks (zero) is drawn at the floor
                 top.plot(rpm, 1e6 * np.abs(measured[one]), ".", color="k", ms=3)
-                top.plot(rpm, 1e6 * np.abs(twin[one]), style, color="tab:blue", label=f"twin {h}X")
+                top.plot(rpm, 1e6 * np.maximum(np.abs(twin[one]), floor), style, color="tab:blue", label=f"twin {h}X")
                 if changed:
-                    top.plot(rpm, 1e6 * np.abs(best[one]), style, color="tab:red", lw=0.8)
+                    top.plot(rpm, 1e6 * np.maximum(np.abs(best[one]), floor), style, color="tab:red", lw=0.8)
                 mid.plot(rpm, np.abs(measured[one] - twin[one]) / sigma[one], style, color="tab:blue", label=f"{h}X")
             top.set_yscale("log")
             top.set_xlabel("speed [RPM]")
@@ -91,7 +92,7 @@ def plot_assessment(assessment: Assessment):
                   f"normal standard deviations (capped at {CAP:g})", fontsize=8)
     ax.set_title("what the record says of each parameter (red: the change named; dashed: the alarm level)", fontsize=9)
     if held.any():
-        ax.legend(fontsize=7, loc="upper center")
+        ax.legend(fontsize=7, loc="lower left")
     fig.suptitle("\n".join(textwrap.wrap(assessment.line(), 110)), fontsize=8, x=0.02, ha="left")
     fig.subplots_adjust(left=0.1, right=0.97, bottom=0.05, top=0.9, hspace=0.35, wspace=0.3)
     return fig
