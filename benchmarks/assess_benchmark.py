@@ -47,9 +47,9 @@ CASES = {  # case: (values changed, effects added, what a right verdict names)
     "k_xy": ({"k_xy": 100.0}, ["cross_coupled_stiffness"], "cross_coupled_stiffness"),
 }
 #: the power scan: relative changes of each parameter of the truth (k_xy: absolute, N/m)
-POWER = {"k_b": [-0.005, -0.01, -0.02, -0.05], "zeta_s": [0.05, 0.1, 0.2, 0.5], "zeta_bup": [0.1, 0.2, 0.5, 1.0],
-         "k_w": [0.02, 0.05, 0.1, 0.2], "k_z": [0.2, 0.5, 1.0, 2.0], "bow": [0.01, 0.02, 0.05, 0.1],
-         "k_xy": [5.0, 10.0, 20.0, 50.0]}
+POWER = {"k_b": [-0.005, -0.01, -0.02, -0.05], "zeta_s": [0.2, 0.5, 1.0, 2.0], "zeta_bup": [0.2, 0.5, 1.0, 2.0],
+         "k_w": [0.01, 0.02, 0.05, 0.1], "k_z": [0.5, 1.0, 3.0], "bow": [0.02, 0.05, 0.1, 0.2],
+         "k_xy": [10.0, 20.0, 50.0, 100.0]}
 
 
 def cpu() -> float:

@@ -3,9 +3,9 @@
     python benchmarks/online_trend_demo.py --twin results/geometric_slope --out online_demo
 
 One steady record a day, made by the virtual rig from the bundled data's truth with every nuisance and a
-keyphasor, at the speeds and masses of the twin's fit runs in turn: days 1-6 the machine the twin was built from,
-days 7-10 its upper bearing softening by 1 % a day, days 11-12 a cross-coupled stiffness of 100 N/m appearing on
-top. The records go into a runs sheet with a timestamp column, and ``hybridtwin assess`` judges the sheet (its
+keyphasor, at the speeds and masses of the twin's fit runs with an added mass in turn (the last day at 900 RPM
+without one, next to the resonance): days 1-5 the machine the twin was built from, days 6-9 its upper bearing
+softening by 1 % a day, days 10-12 the bearing as new again and a cross-coupled stiffness of 100 N/m appearing. The records go into a runs sheet with a timestamp column, and ``hybridtwin assess`` judges the sheet (its
 console lines printed); the trend figure is ``OUT/assessments/trend.png`` (copied to ``--figure`` when given).
 """
 
@@ -29,11 +29,9 @@ DAYS = 12
 
 def day_truth(day: int) -> tuple[dict, list]:
     """The machine on ``day`` (1-based): values changed and effects added."""
-    softer = max(0, min(day, 10) - 6) * 0.01
-    values = {"k_b": (1 - softer) * TRUTH["k_b"]}
-    if day >= 11:
-        return values | {"k_xy": 100.0}, ["cross_coupled_stiffness"]
-    return values, []
+    if day >= 10:
+        return {"k_xy": 100.0}, ["cross_coupled_stiffness"]
+    return {"k_b": (1 - 0.01 * max(0, day - 5)) * TRUTH["k_b"]}, []
 
 
 def main(argv=None) -> int:
@@ -44,9 +42,10 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     twin = load_twin(args.twin)
     points = twin.runs[twin.runs["eccentric_mass_g"] > 0].reset_index(drop=True)  # the runs with an added mass
+    near = {"rpm": 900.0, "eccentric_mass_g": 0.0}  # the last day: next to the resonance, no added mass
     rows = []
     for day in range(1, DAYS + 1):
-        point = points.iloc[(3 * day) % len(points)]
+        point = points.iloc[(3 * day) % len(points)] if day < DAYS else near
         run = f"day{day:02d}"
         values, effects = day_truth(day)
         plan = pd.DataFrame({"run": [run], "rpm": [float(np.round(point["rpm"]))],

@@ -309,11 +309,15 @@ def _fingerprint(problem: fits.RecordProblem, best: fits.RecordFit) -> Fingerpri
 
 
 def _candidates(twin: Twin, problem: fits.RecordProblem, base: fits.RecordFit) -> pd.DataFrame:
-    """The diagnosis candidates ranked by their score test at the twin's fit of the record, the twin's prior
-    included: the residual and every parameter's sensitivity (its prior rows with it) projected out, so that a
-    candidate scores what no parameter change the twin allows can absorb (``score_test.candidate_score``)."""
-    from ..diagnose.score_test import BaseFit, by_score, candidate_score, column_basis, extended_problem  # a new
-    # discrepancy only: scipy.stats with it
+    """The diagnosis candidates ranked by their score test at the twin's fit of the record (``base``), the twin's
+    prior included: the residual and every parameter's sensitivity (with its prior's rows) projected out, so that a
+    candidate scores what no parameter change the twin allows can absorb (``score_test.candidate_score``). A
+    candidate whose sensitivity is one of the twin's own parameters' (the linear slope force expansion_k4 of a
+    variant with slope_spring's k_w) is a parameter change under another name: it scores 0 (``score_test.nested``
+    in that parameter's columns), or, free of the prior, it would stand in for a move the prior forbids."""
+    from ..diagnose.score_test import (  # a new discrepancy only: scipy.stats with it
+        BaseFit, by_score, candidate_score, column_basis, extended_problem, nested)
+
     variant, found = twin.variant, twin.candidates()
     lower, upper = zip(*variant.unknown.values())
     layout = Layout.for_data(list(variant.unknown), lower, upper, problem.data, problem.local)
@@ -321,15 +325,20 @@ def _candidates(twin: Twin, problem: fits.RecordProblem, base: fits.RecordFit) -
                       for p, run in layout.entries()])
     extended, theta = extended_problem(BaseFit(variant, layout, theta, problem.data, problem.H), found)
     sensitivities = extended.dense_jacobian(extended.evaluate(theta[None], problem.X[None], jacobian=True))
-    r, J, n_data = problem.residuals(base.v[None], base.responses, [fits.Hypothesis()])[0]
-    Q = column_basis(J[:, problem.fitted(fits.Hypothesis())])
+    r, J, n_data = problem.residuals(base.v[None], base.responses, [base.hypothesis])[0]
+    fitted = problem.fitted(base.hypothesis)
+    Q = column_basis(J[:, fitted])
     r_p = r - Q @ (Q.T @ r)
+    groups = [[problem.column[e] for e in problem.entries if e[0] == p] for p in problem.shared]
+    groups.append([problem.column[e] for e in problem.entries if e[0] in problem.local])
     entries = extended.layout.entries()
     scores = []
     for candidate in found:
         columns = [entries.index((p.name, "all")) for p in candidate.parameters]
         G = np.zeros((r.size, len(columns)))
         G[:n_data] = sensitivities[:, columns]  # a candidate has no prior: nothing in the prior's rows
+        if any(columns_ and nested(G[:n_data], J[:n_data, columns_]) for columns_ in groups):
+            G[:] = 0.0
         scores.append(candidate_score(candidate, G, Q, r_p, theta[columns]))
     rows = [{"candidate": s.candidate.name, "statistic": s.statistic, "dof": len(s.step), "p_value": s.p_value,
              "log_p": s.log_p, "beyond_range": s.beyond_range} for s in sorted(scores, key=by_score)]

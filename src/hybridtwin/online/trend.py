@@ -78,8 +78,8 @@ def read_trend(path: str | Path) -> pd.DataFrame:
 
 
 def plot_trend(trend: pd.DataFrame, twin: str = ""):
-    """The trend figure (module docstring): chi^2/dof, then one panel per parameter (per-run parameters from
-    steady records only: a run-up's bow is one value per band)."""
+    """The trend figure (module docstring): chi^2/dof, then one panel per parameter the twin determined (per-run
+    parameters from steady records only: a run-up's bow is one value per band)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -93,6 +93,7 @@ def plot_trend(trend: pd.DataFrame, twin: str = ""):
         return fig
     when = pd.to_datetime(records["timestamp"], utc=True, format="ISO8601")
     entries = trend[(trend["run"] == "all") | (trend["run"] == trend["record"])]
+    entries = entries[entries["twin_stderr"].notna()]  # a parameter the twin left undetermined has no limits
     names = list(dict.fromkeys(entries["parameter"]))
     fig, axes = plt.subplots(len(names) + 1, 1, figsize=(9, 1.9 * (len(names) + 1) + 0.6), sharex=True,
                              squeeze=False)
