@@ -5,7 +5,8 @@
 One steady record a day, made by the virtual rig from the bundled data's truth with every nuisance and a
 keyphasor, at the speeds and masses of the twin's fit runs with an added mass in turn (the last day at 900 RPM
 without one, next to the resonance): days 1-5 the machine the twin was built from, days 6-9 its upper bearing
-softening by 1 % a day, days 10-12 the bearing as new again and a cross-coupled stiffness of 100 N/m appearing. The records go into a runs sheet with a timestamp column, and ``hybridtwin assess`` judges the sheet (its
+softening by 1 % a day, days 10-12 the bearing as new again and a cross-coupled stiffness of 100 N/m appearing.
+The records go into a runs sheet with a timestamp column, and ``hybridtwin assess`` judges the sheet (its
 console lines printed); the trend figure is ``OUT/assessments/trend.png`` (copied to ``--figure`` when given).
 """
 

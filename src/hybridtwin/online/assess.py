@@ -14,9 +14,9 @@
    the two tests); the best (highest p of its fit) is the change, with its estimate, interval and D, the
    significance against the twin's own uncertainty (its correlations included); the other explaining groups are
    named as alternatives the record cannot tell apart from it. When no single group explains a record beyond its
-   noise, pairs of the three best are tried. A parameter the twin left undetermined is said to be so: its "move" is
-   first the twin's ignorance. (A first-order move that the full fits do not confirm, on a record at its noise,
-   leaves the record consistent.)
+   noise, pairs of the three best are tried. A parameter the twin left undetermined has no prior (``twin``): the
+   record estimates it in every fit, and it is never a "move". (A first-order move that the full fits do not
+   confirm, on a record at its noise, leaves the record consistent.)
 3. **New discrepancy.** When no parameter change explains a record beyond its noise: the residual of the best
    change, its fingerprint (``diagnose.fingerprint``: harmonic, whirl, speed band) and the diagnosis candidates
    ranked by their score test at the twin (``diagnose.score_test``, with every parameter's sensitivity and its prior
@@ -53,6 +53,9 @@ Array = np.ndarray
 ALPHA = ONLINE_DEFAULTS["alpha"]
 #: pairs of groups are tried among this many best single groups when none explains the record alone
 PAIRS_OF = 3
+#: two changes whose fits' chi^2 differ by less than this cannot be told apart by the record (one standard deviation
+#: of a likelihood ratio): the smaller relative move is named first (``_ranked``)
+TIE = 1.0
 #: intervals: estimate -+ this many standard errors (95 %, normal)
 Z95 = float(ndtri(0.975))
 
@@ -78,7 +81,8 @@ CANDIDATE_COLUMNS = ["candidate", "statistic", "dof", "p_value", "log_p", "beyon
 #: the one-row summary's columns (assessment.tsv)
 SUMMARY_COLUMNS = ["record", "path", "kind", "timestamp", "timestamp_source", "twin", "verdict", "alpha", "n_runs",
                    "rpm_low", "rpm_high", "eccentric_mass_g", "n_data", "chi2", "dof", "chi2_dof", "p_value", "p_fit",
-                   "move", "p_move", "changed", "alternatives", "best", "best_chi2", "best_dof", "best_p_value", "twin_chi2_dof",
+                   "move", "p_move", "changed", "alternatives", "best", "best_chi2", "best_dof", "best_p_value",
+                   "twin_chi2_dof",
                    "left_out", "seconds"]
 
 
@@ -190,7 +194,8 @@ def assess(twin: Twin, record: Intake, alpha: float = ALPHA, candidates: bool = 
     start = time.perf_counter()
     prior = twin.prior([(d.rpm, d.eccentric_mass_g) for d in record.data])
     problem = fits.RecordProblem(twin.variant, record.data, prior, twin.harmonics)
-    groups = [(p,) for p in problem.shared] + ([tuple(problem.local)] if problem.local else [])
+    groups = [(p,) for p in problem.shared if p not in prior.undetermined] + ([tuple(problem.local)]
+                                                                               if problem.local else [])
     base = fits.fit(problem, [fits.Hypothesis()])[0]
     singles = [fits.linearised(problem, base, fits.Hypothesis((g,))) for g in groups]
     p_fit, move, p_move = base.p_value, *_largest_move(problem, base, singles)
@@ -203,13 +208,15 @@ def assess(twin: Twin, record: Intake, alpha: float = ALPHA, candidates: bool = 
         explaining = [f for f in tried if f.p_value >= alpha and 2 * len(groups) * _lr(problem, base, f)[2] < alpha]
         if not explaining and p_fit < alpha and len(groups) > 1:
             top = sorted(singles, key=lambda f: f.chi2)[:PAIRS_OF]
-            pairs = [fits.Hypothesis(a.hypothesis.groups + b.hypothesis.groups) for a, b in itertools.combinations(top, 2)]
+            pairs = [fits.Hypothesis(a.hypothesis.groups + b.hypothesis.groups)
+                     for a, b in itertools.combinations(top, 2)]
             tried += fits.fit(problem, pairs, base)
             explaining = [f for f in tried if f.p_value >= alpha]
         if explaining:
-            verdict, named = Verdict.CHANGED, max(explaining, key=lambda f: f.p_value)
+            explaining = _ranked(problem, base, explaining)
+            verdict, named = Verdict.CHANGED, explaining[0]
             best = named
-            alternatives = [f.hypothesis.name for f in sorted(explaining, key=lambda f: -f.p_value) if f is not best]
+            alternatives = [f.hypothesis.name for f in explaining[1:]]
         elif p_fit < alpha:
             verdict, best = Verdict.NEW_DISCREPANCY, min(tried, key=lambda f: f.chi2)
             found = _fingerprint(problem, best)
@@ -240,6 +247,27 @@ def _lr(problem: fits.RecordProblem, base: fits.RecordFit, freed: fits.RecordFit
     return statistic, k, float(chdtrc(k, statistic))
 
 
+def _ranked(problem: fits.RecordProblem, base: fits.RecordFit, explaining: Sequence[fits.RecordFit]
+            ) -> list[fits.RecordFit]:
+    """The explaining changes, the one to name first: the highest p-value of its fit; among those the record cannot
+    tell from it (chi^2 within TIE of it and as many parameters freed), the smallest relative move (a bearing 10 %
+    softer before a slope stiffness 67 % softer that fits as well: one steady record cannot tell the upper bearing's
+    two stiffnesses apart, measured at 900 RPM, chi^2 2880.08 against 2880.37)."""
+    first = max(explaining, key=lambda f: f.p_value)
+    tied = [f for f in explaining if len(f.hypothesis.free) == len(first.hypothesis.free)
+            and f.chi2 <= first.chi2 + TIE]
+    named = min(tied, key=lambda f: _relative_move(problem, base, f))
+    return [named] + sorted((f for f in explaining if f is not named), key=lambda f: -f.p_value)
+
+
+def _relative_move(problem: fits.RecordProblem, base: fits.RecordFit, freed: fits.RecordFit) -> float:
+    """How far a change moves its parameters from the twin's fit, relative to their values (largest of them)."""
+    si, at = problem.to_si(freed.v), problem.to_si(base.v)
+    moves = [abs(si[c] - at[c]) / max(abs(at[c]), 1e-300) for c, (p, _) in enumerate(problem.entries)
+             if p in freed.hypothesis.free]
+    return max(moves, default=0.0)
+
+
 def _largest_move(problem: fits.RecordProblem, base: fits.RecordFit, singles: Sequence[fits.RecordFit]
                   ) -> tuple[str, float]:
     """The most significant single group's name and its p-value, Bonferroni-corrected over the groups."""
@@ -252,35 +280,40 @@ def parameter_table(twin: Twin, problem: fits.RecordProblem, base: fits.RecordFi
                     named: fits.RecordFit | None, alpha: float) -> pd.DataFrame:
     """One row per parameter entry (shared: run "all"; per-run: each run of the record): the twin's value and
     standard error (the prior's), the record's estimate with its group freed (``singles``, or the named change's
-    fit for its own entries), the change, z against both uncertainties, and the group's likelihood-ratio test."""
+    fit for its own entries), the change, z against both uncertainties, and the group's likelihood-ratio test. A
+    parameter the twin left undetermined: the record's estimate in the twin's fit, no test (nothing to compare)."""
     units = {name: p.unit for name, p in twin.variant.model.parameters.items()}
     prior_sd = np.sqrt(np.diag(problem.prior.covariance))
     runs = [d.run for d in problem.data]
+    groups = [(single.hypothesis.free, named if named is not None and set(named.hypothesis.free)
+               >= set(single.hypothesis.free) else single) for single in singles]
+    groups += [((p,), base) for p in problem.prior.undetermined]  # estimated in the twin's fit, never tested
     rows = []
-    for single in singles:
-        group = single.hypothesis.free
-        source = named if named is not None and set(named.hypothesis.free) >= set(group) else single
-        statistic, k, p_value = _lr(problem, base, source)
+    for group, source in groups:
+        undetermined = group[0] in problem.prior.undetermined
+        statistic, k, p_value = (math.nan, 0, math.nan) if undetermined else _lr(problem, base, source)
         for column, (p, k_run) in enumerate(problem.entries):
             if p not in group:
                 continue
-            value, stderr = problem.to_si(source.v)[column], math.sqrt(max(source.covariance[column, column], 0.0)) \
-                * problem.scale[column]
-            held = p in problem.prior.held
-            twin_value = problem.prior.held[p][0] if held else problem.prior.mean[problem.prior.index(p, k_run)]
-            twin_sd = math.nan if held else prior_sd[problem.prior.index(p, k_run)]
+            value = problem.to_si(source.v)[column]
+            stderr = math.sqrt(max(source.covariance[column, column], 0.0)) * problem.scale[column]
+            if undetermined:
+                twin_value, twin_sd = problem.prior.undetermined[p][0], math.nan
+            else:
+                twin_value = problem.prior.mean[problem.prior.index(p, k_run)]
+                twin_sd = prior_sd[problem.prior.index(p, k_run)]
             change = value - twin_value
-            z = change / math.hypot(stderr, twin_sd) if not held else math.nan
             rows.append({
                 "parameter": p, "run": "all" if k_run is None else runs[k_run], "unit": units.get(p, ""),
                 "twin_value": twin_value, "twin_stderr": twin_sd, "value": value, "stderr": stderr,
                 "ci_low": value - Z95 * stderr, "ci_high": value + Z95 * stderr, "change": change,
-                "change_rel": change / twin_value if twin_value else math.nan, "z": z, "statistic": statistic,
-                "dof": k, "p_value": p_value, "explains": source.p_value >= alpha,
+                "change_rel": change / twin_value if twin_value else math.nan,
+                "z": change / math.hypot(stderr, twin_sd), "statistic": statistic, "dof": k, "p_value": p_value,
+                "explains": not undetermined and source.p_value >= alpha,
                 "moved": named is not None and p in named.hypothesis.free,
                 "estimate": "linear" if source.linear else "fit",
-                "note": f"the twin left it undetermined ({problem.prior.held[p][1]}): held at its value in the "
-                        "twin's fit" if held else ""})
+                "note": f"the twin left it undetermined ({problem.prior.undetermined[p][1]}): estimated from the "
+                        "record alone" if undetermined else ""})
     return pd.DataFrame(rows, columns=PARAMETER_COLUMNS)
 
 
@@ -326,8 +359,7 @@ def _candidates(twin: Twin, problem: fits.RecordProblem, base: fits.RecordFit) -
     extended, theta = extended_problem(BaseFit(variant, layout, theta, problem.data, problem.H), found)
     sensitivities = extended.dense_jacobian(extended.evaluate(theta[None], problem.X[None], jacobian=True))
     r, J, n_data = problem.residuals(base.v[None], base.responses, [base.hypothesis])[0]
-    fitted = problem.fitted(base.hypothesis)
-    Q = column_basis(J[:, fitted])
+    Q = column_basis(J)
     r_p = r - Q @ (Q.T @ r)
     groups = [[problem.column[e] for e in problem.entries if e[0] == p] for p in problem.shared]
     groups.append([problem.column[e] for e in problem.entries if e[0] in problem.local])

@@ -77,22 +77,18 @@ def plot_assessment(assessment: Assessment):
     params = assessment.parameters.drop_duplicates("parameter")  # a group's test is one per parameter
     z = np.sign(params["change"]) * np.minimum(stats.norm.isf(params["p_value"].to_numpy(float) / 2), CAP)
     y = np.arange(len(params))[::-1]
-    held = params["note"] != ""
     colours = np.where(params["moved"], "tab:red", "tab:blue")
-    ax.scatter(z[~held], y[~held], c=colours[~held], zorder=3)
-    ax.scatter(z[held], y[held], facecolors="none", edgecolors=colours[held], zorder=3,
-               label="left undetermined by the twin")
+    ax.scatter(z, y, c=colours, zorder=3)  # a parameter the twin left undetermined has no test: not drawn
     level = stats.norm.isf(assessment.summary["alpha"] / 2)
     for x in (-level, level):
         ax.axvline(x, color="0.5", ls="--", lw=1)
     ax.axvline(0, color="0.3", lw=0.8)
     ax.set_xlim(-CAP - 0.5, CAP + 0.5)
-    ax.set_yticks(y, params["parameter"], fontsize=8)
+    labels = [f"{p} (undetermined by the twin)" if note else p for p, note in zip(params["parameter"], params["note"])]
+    ax.set_yticks(y, labels, fontsize=8)
     ax.set_xlabel("significance of the parameter's move (freed alone against the twin's prior), signed, in "
                   f"normal standard deviations (capped at {CAP:g})", fontsize=8)
     ax.set_title("what the record says of each parameter (red: the change named; dashed: the alarm level)", fontsize=9)
-    if held.any():
-        ax.legend(fontsize=7, loc="lower left")
     fig.suptitle("\n".join(textwrap.wrap(assessment.line(), 110)), fontsize=8, x=0.02, ha="left")
     fig.subplots_adjust(left=0.1, right=0.97, bottom=0.05, top=0.9, hspace=0.35, wspace=0.3)
     return fig

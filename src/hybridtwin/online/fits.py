@@ -12,10 +12,10 @@ The least squares of a hypothesis (a set of parameters ``free`` of their prior):
              + sum_runs (phi / sigma_phi)^2                                   (keyphasor phases only)
 
 with mu, L L^T the prior's mean and covariance (``twin.Prior``) marginalised onto P. The twin's hypothesis frees
-nothing; a parameter freed keeps no prior and is estimated by the record alone. A shared parameter the twin left
-undetermined is held at the twin's value unless freed. Under "nothing changed" (and a model that is right to first
+nothing; a parameter freed keeps no prior and is estimated by the record alone, as is, in every hypothesis, a shared
+parameter the twin left undetermined (it has no prior). Under "nothing changed" (and a model that is right to first
 order) chi^2 at the optimum is chi^2 with dof = data rows + prior rows - fitted entries: for the twin's hypothesis
-the data rows less the phases without a keyphasor.
+the data rows less the phases without a keyphasor and the undetermined parameters.
 
 Every hypothesis advances in one Levenberg-Marquardt loop (Nielsen's damping update, Marquardt's scaling): the
 responses of all hypotheses and runs come from one batched solve with warm starts and analytic sensitivities
@@ -71,8 +71,8 @@ class Hypothesis:
 @dataclass
 class RecordFit:
     """One hypothesis fitted (or, ``linear``, its one Gauss-Newton step from another fit): the entries v, the
-    record's responses in its frame (R, H, C), chi^2 of the data and of the prior, dof, the covariance of v
-    (NaN where not fitted), and how the fit ended."""
+    record's responses in its frame (R, H, C), chi^2 of the data and of the prior, dof, the covariance of v, and how
+    the fit ended."""
 
     hypothesis: Hypothesis
     v: Array
@@ -125,8 +125,8 @@ class RecordProblem:
         self.prior_mean = (prior.mean - self.offset[self.prior_columns]) / self.scale[self.prior_columns]
         s = self.scale[self.prior_columns]
         self.prior_covariance = prior.covariance / np.outer(s, s)
-        self.held = {self.column[(p, None)]: (value - self.offset[self.column[(p, None)]])
-                     / self.scale[self.column[(p, None)]] for p, (value, _) in prior.held.items()}
+        self.undetermined = {self.column[(p, None)]: (value - self.offset[self.column[(p, None)]])
+                             / self.scale[self.column[(p, None)]] for p, (value, _) in prior.undetermined.items()}
         self.phase_prior = np.array([1.0 / d.phase_sigma if math.isfinite(d.phase_sigma) else 0.0 for d in data])
         self.lo_v, self.hi_v = self._limits()
         self.h = np.arange(1, H + 1)
@@ -138,20 +138,12 @@ class RecordProblem:
         return self.offset + self.scale * np.asarray(v, float)
 
     def start(self) -> Array:
-        """The twin: the prior's mean, held entries at the twin's values, phases 0 (aligned by ``fit``)."""
+        """The twin: the prior's mean, undetermined entries at the twin's values, phases 0 (aligned by ``fit``)."""
         v = np.zeros(self.n)
         v[self.prior_columns] = self.prior_mean
-        for column, value in self.held.items():
+        for column, value in self.undetermined.items():
             v[column] = value
         return v
-
-    def fitted(self, hypothesis: Hypothesis) -> Array:
-        """Which entries the hypothesis fits: all but the held shared parameters it does not free."""
-        mask = np.ones(self.n, bool)
-        for column in self.held:
-            if self.entries[column][0] not in hypothesis.free:
-                mask[column] = False
-        return mask
 
     def _limits(self) -> tuple[Array, Array]:
         lo, hi = np.full(self.n, -np.inf), np.full(self.n, np.inf)
@@ -249,7 +241,6 @@ def fit(problem: RecordProblem, hypotheses: Sequence[Hypothesis], start: RecordF
         V, first = start.v[None], start.responses
     V = np.repeat(V, N, axis=0)
     responses = [(np.repeat(M, N, axis=0), np.repeat(dM, N, axis=0)) for M, dM in first]
-    masks = [problem.fitted(h) for h in hypotheses]
     current = problem.residuals(V, responses, hypotheses)
     cost = np.array([r @ r for r, _, _ in current])
     mu, nu = np.full(N, 1e-3), np.full(N, 2.0)
@@ -260,7 +251,7 @@ def fit(problem: RecordProblem, hypotheses: Sequence[Hypothesis], start: RecordF
             break
         trial, predicted = V[rows].copy(), np.zeros(rows.size)
         for t, i in enumerate(rows):
-            step = _step(problem, V[i], current[i], masks[i], mu[i])
+            step = _step(problem, V[i], current[i], mu[i])
             trial[t] += step
             r, J, _ = current[i]
             Js = J @ step
@@ -289,22 +280,22 @@ def fit(problem: RecordProblem, hypotheses: Sequence[Hypothesis], start: RecordF
                     active[i], converged[i] = False, True  # no step lowers chi^2: the optimum
     out = []
     for i in range(N):
-        result = _result(problem, hypotheses[i], V[i], current[i], masks[i], problem.frame(V, responses, i),
+        result = _result(problem, hypotheses[i], V[i], current[i], problem.frame(V, responses, i),
                          int(iterations[i]), bool(converged[i]))
         result.responses = [(M[i: i + 1], dM[i: i + 1]) for M, dM in responses]
         out.append(result)
     return out
 
 
-def _step(problem: RecordProblem, v: Array, evaluated, mask: Array, mu: float) -> Array:
-    """A damped Gauss-Newton step (Marquardt's scaling) over the fitted entries, with an active set: an entry on a
+def _step(problem: RecordProblem, v: Array, evaluated, mu: float) -> Array:
+    """A damped Gauss-Newton step (Marquardt's scaling), with an active set: an entry on a
     limit whose descent points out is held; a step that would leave the limits is shortened along its direction to
     end on them (projecting entry by entry would turn it off the descent)."""
     r, J, _ = evaluated
     lo, hi = problem.lo_v, problem.hi_v
     g = J.T @ r
     on_lo, on_hi = v <= lo + SNAP, v >= hi - SNAP
-    free = mask & ~((on_lo & (g > 0)) | (on_hi & (g < 0)))
+    free = ~((on_lo & (g > 0)) | (on_hi & (g < 0)))
     step = np.zeros_like(v)
     while free.any():
         Jf = J[:, free]
@@ -325,7 +316,7 @@ def _step(problem: RecordProblem, v: Array, evaluated, mask: Array, mu: float) -
         step *= max(fraction, 0.0)
     new = v + step
     new = np.where(new <= lo + SNAP, lo, np.where(new >= hi - SNAP, hi, new))  # on a limit, not creeping to it
-    return np.where(mask, new - v, 0.0)
+    return new - v
 
 
 def linearised(problem: RecordProblem, base: RecordFit, hypothesis: Hypothesis) -> RecordFit:
@@ -334,14 +325,10 @@ def linearised(problem: RecordProblem, base: RecordFit, hypothesis: Hypothesis) 
     solve."""
     V, single = base.v[None], base.responses
     r, J, n_data = problem.residuals(V, single, [hypothesis])[0]
-    mask = problem.fitted(hypothesis)
-    Jf = J[:, mask]
-    step = np.linalg.lstsq(Jf, -r, rcond=None)[0]
-    v = base.v.copy()
-    v[mask] += step
-    r_lin = r + Jf @ step
-    model = problem.frame(V, single, 0) + _model_change(problem, single, V, v - base.v)
-    fitted = _result(problem, hypothesis, v, (r_lin, J, n_data), mask, model, 0, True)
+    step = np.linalg.lstsq(J, -r, rcond=None)[0]
+    v = base.v + step
+    model = problem.frame(V, single, 0) + _model_change(problem, single, V, step)
+    fitted = _result(problem, hypothesis, v, (r + J @ step, J, n_data), model, 0, True)
     fitted.linear, fitted.responses = True, single
     return fitted
 
@@ -357,14 +344,11 @@ def _model_change(problem: RecordProblem, responses, V: Array, dv: Array) -> Arr
     return np.stack(out)
 
 
-def _result(problem: RecordProblem, hypothesis: Hypothesis, v: Array, evaluated, mask: Array, model: Array,
-            iterations: int, converged: bool) -> RecordFit:
+def _result(problem: RecordProblem, hypothesis: Hypothesis, v: Array, evaluated, model: Array, iterations: int,
+            converged: bool) -> RecordFit:
     r, J, n_data = evaluated
-    Jf = J[:, mask]
-    covariance = np.full((problem.n, problem.n), np.nan)
-    covariance[np.ix_(mask, mask)] = np.linalg.pinv(Jf.T @ Jf)
     return RecordFit(hypothesis, v, model, float(r[:n_data] @ r[:n_data]), float(r[n_data:] @ r[n_data:]),
-                     int(len(r) - mask.sum()), covariance, iterations, converged)
+                     int(len(r) - problem.n), np.linalg.pinv(J.T @ J), iterations, converged)
 
 
 def _replace(responses, new, i: int, t: int):

@@ -56,10 +56,6 @@ class Intake:
     left_out: dict[str, str] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
 
-    @property
-    def transient(self) -> bool:
-        return self.kind != "steady"
-
 
 def read_sheet(path: str | Path) -> list[dict]:
     """The rows of a runs sheet (the workflow's format, read by check-data's reader), in time order when it has a

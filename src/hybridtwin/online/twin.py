@@ -16,8 +16,10 @@ parameters at their joint estimates with their joint covariance; a per-run param
 at its law over the fit runs (``identify.validation.bow_law``: q = c0 + c1 Omega^2 + c2 Omega^2 m_e) at the
 record's speed and mass, with the law's uncertainty carried from the twin's covariance (the law is linear in the
 runs' estimates, ``law_operator``) plus the runs' scatter about it beyond their own errors. A shared parameter the
-twin left undetermined (at a range edge, not identifiable, no finite standard error) is held at the twin's value:
-the twin knows nothing better, and a move of it is the twin's ignorance before it is a change of the machine.
+twin left undetermined (at a range edge, not identifiable, no finite standard error) has no prior: the record's fit
+estimates it alone, from the twin's value. The twin knows nothing of it to compare with, and held at a value the
+twin could not determine it would push the parameters it compensates for into false "moves" (measured: a run-up of
+the unchanged machine named a 1 % k_b move against a twin that held zeta_bup at its range edge).
 """
 
 from __future__ import annotations
@@ -97,13 +99,13 @@ class Prior:
     """The twin as a Gaussian prior over a record's fitted parameters [SI].
 
     ``names``: (parameter, None) for a shared parameter, (parameter, k) for a per-run one at the record's run k;
-    ``mean`` (n,), ``covariance`` (n, n) over them; ``held``: shared parameters held at the twin's value, each with
-    why (the twin left it undetermined)."""
+    ``mean`` (n,), ``covariance`` (n, n) over them; ``undetermined``: the shared parameters without a prior, each
+    with the twin's value (a start) and why the twin left it undetermined."""
 
     names: tuple[tuple[str, int | None], ...]
     mean: Array
     covariance: Array
-    held: dict[str, tuple[float, str]]
+    undetermined: dict[str, tuple[float, str]]
 
     def index(self, name: str, run: int | None = None) -> int:
         return self.names.index((name, run))
@@ -180,8 +182,8 @@ class Twin:
     def prior(self, points: Sequence[tuple[float, float]]) -> Prior:
         """The prior of a record whose runs are at ``points`` (rpm, eccentric_mass_g) (module docstring)."""
         entries, values, covariance = self.covariance()
-        held = {p: (self.estimate(p)[0], why) for p, why in self.undetermined().items()}
-        names: list[tuple[str, int | None]] = [(p, None) for p in self.shared if p not in held]
+        undetermined = {p: (self.estimate(p)[0], why) for p, why in self.undetermined().items()}
+        names: list[tuple[str, int | None]] = [(p, None) for p in self.shared if p not in undetermined]
         rows = [self._selector(entries, p) for p, _ in names]
         scatter = [0.0] * len(rows)
         runs = self.runs.set_index("run")
@@ -203,7 +205,7 @@ class Twin:
                 rows.append(row)
                 scatter.append(tau2)
         G = np.array(rows).reshape(len(rows), len(entries))
-        return Prior(tuple(names), G @ values, G @ covariance @ G.T + np.diag(scatter), held)
+        return Prior(tuple(names), G @ values, G @ covariance @ G.T + np.diag(scatter), undetermined)
 
     def candidates(self) -> list[Candidate]:
         """The diagnosis's candidates for this twin (its card's ``candidates``, as the workflow's diagnosis)."""
