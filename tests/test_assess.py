@@ -22,7 +22,10 @@ from hybridtwin.cli import main
 from hybridtwin.config import ConfigError, check
 from hybridtwin.data.rig import DEFAULT_TRUTH, Imperfections, RigSpec, Truth, generate
 from hybridtwin.online.assess import Assessment, Verdict, assess
-from hybridtwin.online.intake import RecordError, intake, read_sheet, record_row
+from hybridtwin.data.measured import RunData
+from hybridtwin.identify.forward import SolverModel
+from hybridtwin.model.variants import Variant
+from hybridtwin.online.intake import Intake, RecordError, intake, read_sheet, record_row
 from hybridtwin.online.trend import add, read_trend
 from hybridtwin.online.twin import TwinError, load_twin
 
@@ -237,3 +240,37 @@ def test_the_workflow_plans_one_assessment_per_record_and_the_trend(tmp_path):
     with pytest.raises(ConfigError, match=r"online.variant: no variant named 'geometrik'"):
         with chdir(work):
             check(bad, ROOT / "workflow" / "schemas" / "config.schema.yaml", ["config/config.yaml"])
+
+
+# --- a run-up: many speed bands of one record ----------------------------------------------------------------------
+
+
+def bands(twin, values: dict, seed: int = 2) -> Intake:
+    """A run-up's speed bands (450-850 RPM, 14.8 g, keyphasor phases, the slow-roll runout removed at 1X and 2X as
+    track_record removes it) made by the truth's own harmonic balance with Gaussian noise of 0.3 % of the largest
+    1X: a check of the statistics over many bands (the record's reading and tracking are test_transient_records'),
+    the truth's values the reference."""
+    spec = Truth.from_spec({"effects": DEFAULT_TRUTH["effects"], "values": TRUTH | values})
+    truth = Variant("truth", spec.variant.model, {}, spec.values)  # the truth's values, fixed
+    rng = np.random.default_rng(seed)
+    data = []
+    for rpm in np.arange(450.0, 851.0, 50.0):
+        model = SolverModel(truth, f"u_b{int(rpm):04d}", rpm, 14.8, [], np.zeros(0), np.zeros(0), twin.harmonics,
+                            slow_roll_harmonics=(1, 2))
+        M = model.evaluate(np.zeros((1, 0)), jacobian=False)[0][0]
+        sigma = np.full(M.shape, 3e-3 * np.abs(M[0]).max())
+        X = M + sigma * (rng.standard_normal(M.shape) + 1j * rng.standard_normal(M.shape))
+        data.append(RunData(model.run, rpm, 14.8, "fit", X, sigma, phase_sigma=1e-4, channels=("x", "y"),
+                            slow_roll_harmonics=(1, 2)))
+    return Intake("u", Path("u.csv"), "runup", 14.8, "2026-11-28T00:00:00", "option", pd.DataFrame(), data)
+
+
+def test_a_run_up_of_the_unchanged_machine_is_consistent_and_a_softer_bearing_changed(twin):
+    same = assess(twin, bands(twin, {}))
+    assert same.verdict is Verdict.CONSISTENT and same.summary["n_runs"] == 9, same.line()
+    assert len(same.parameters[same.parameters["parameter"] == "q_x"]) == 9  # the bow re-estimated per band
+    soft = assess(twin, bands(twin, {"k_b": 0.95 * TRUTH["k_b"]}))
+    named = [soft.summary["changed"]] + soft.summary["alternatives"].split("; ")
+    assert soft.verdict is Verdict.CHANGED and "k_b" in named, soft.line()  # named first on this seed
+    row = soft.parameters.set_index("parameter").loc["k_b"]
+    assert row["ci_low"] <= 0.95 * TRUTH["k_b"] <= row["ci_high"], row.to_dict()
