@@ -119,7 +119,7 @@ def main(argv=None) -> int:
     parser.add_argument("--twin", type=Path, required=True)
     parser.add_argument("--data", type=Path, required=True, help="the rig's records (made once, reused)")
     parser.add_argument("--out", type=Path, required=True)
-    parser.add_argument("--unchanged", type=int, default=300, help="records of the unchanged machine")
+    parser.add_argument("--unchanged", type=int, default=152, help="records of the unchanged machine")
     parser.add_argument("--changed", type=int, default=38, help="records per changed case")
     parser.add_argument("--power", type=int, default=38, help="records per size of change in the power scan (0: none)")
     parser.add_argument("--integrator", choices=("time", "hb"), default="time")

@@ -116,7 +116,6 @@ class RecordProblem:
                         + [("phase", k) for k in range(self.R)])
         self.n = len(self.entries)
         self.column = {e: i for i, e in enumerate(self.entries)}
-        self.is_phase = np.array([p == "phase" for p, _ in self.entries])
         half = dict(zip(self.names, 0.5 * (upper - lower)))
         self.scale = np.array([1.0 if p == "phase" else half[p] for p, _ in self.entries])  # dp/dv
         self.offset = np.array([0.0 if p == "phase" else 0.5 * (lower + upper)[self.names.index(p)]
