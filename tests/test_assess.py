@@ -174,6 +174,16 @@ def test_a_record_outside_the_twins_speeds_is_refused(twin, tmp_path):
         intake(twin, rows[0])
 
 
+def test_a_record_with_no_usable_speed_is_refused(twin, tmp_path):
+    """A steady record given another speed than it turns at, and one read as a run-up: the data checks' messages,
+    naming the file."""
+    row = rig(tmp_path, [("w720", 720, 14.8)])[0]
+    with pytest.raises(RecordError, match=r"w720\.csv.*(speed|RPM)"):
+        intake(twin, record_row(row["record"], 500.0, 14.8))
+    with pytest.raises(RecordError, match=r"w720\.csv: the sweep never leaves one speed"):
+        intake(twin, record_row(row["record"], None, 14.8, "runup", 400.0, 900.0))
+
+
 @pytest.mark.parametrize("missing, message", [("twin.yaml", "twin.yaml: missing: .*older than `assess`"),
                                               ("identification/correlation.tsv", "correlation.tsv: missing")])
 def test_an_incomplete_twin_folder_is_refused_naming_the_file(tmp_path, missing, message):
