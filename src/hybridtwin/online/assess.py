@@ -73,7 +73,8 @@ OPENINGS = {Verdict.CONSISTENT: "consistent with the twin", Verdict.CHANGED: "CH
 PARAMETER_COLUMNS = ["parameter", "run", "unit", "twin_value", "twin_stderr", "value", "stderr", "ci_low", "ci_high",
                      "change", "change_rel", "z", "statistic", "dof", "p_value", "explains", "moved", "estimate",
                      "note"]
-#: the harmonics table's columns (measured, the twin's fit and the best change's, per run, harmonic and channel)
+#: the harmonics table's columns (measured, the twin's prediction and the best change's fit, per run, harmonic and
+#: channel)
 HARMONIC_COLUMNS = ["run", "rpm", "harmonic", "channel", "measured_re_m", "measured_im_m", "sigma_m", "twin_re_m",
                     "twin_im_m", "best_re_m", "best_im_m"]
 #: the candidates table's columns (the score tests of a new discrepancy, most significant first)
@@ -318,13 +319,15 @@ def parameter_table(twin: Twin, problem: fits.RecordProblem, base: fits.RecordFi
 
 
 def harmonic_table(problem: fits.RecordProblem, base: fits.RecordFit, best: fits.RecordFit) -> pd.DataFrame:
-    """Measured, twin and best-change harmonics [m] of every run, harmonic and channel of the record (its frame)."""
+    """Measured harmonics [m] of every run, harmonic and channel of the record (its frame), the twin's own prediction
+    (``RecordFit.prediction``: its estimates, the bow from its law) and the best change's fit (the twin's fit of the
+    record when it is consistent)."""
     rows = []
     channels = problem.data[0].channels
     for k, d in enumerate(problem.data):
         for h in range(problem.H):
             for c, channel in enumerate(channels):
-                X, T, B = problem.X[k, h, c], base.model[k, h, c], best.model[k, h, c]
+                X, T, B = problem.X[k, h, c], base.prediction[k, h, c], best.model[k, h, c]
                 rows.append({"run": d.run, "rpm": d.rpm, "harmonic": h + 1, "channel": channel,
                              "measured_re_m": X.real, "measured_im_m": X.imag, "sigma_m": problem.sigma[k, h, c],
                              "twin_re_m": T.real, "twin_im_m": T.imag, "best_re_m": B.real, "best_im_m": B.imag})

@@ -85,6 +85,9 @@ class RecordFit:
     converged: bool
     linear: bool = False
     responses: list = field(default=None, repr=False)  # each run's (M, dM) at v (1, H, C[, d]): a linear step's base
+    #: the twin's own prediction of the record (R, H, C), where the fit started: the prior's mean (the bow from its
+    #: law), the undetermined parameters at the twin's values, the phases aligned on the 1X (or the keyphasor's 0)
+    prediction: Array | None = field(default=None, repr=False)
 
     @property
     def chi2(self) -> float:
@@ -236,8 +239,9 @@ def fit(problem: RecordProblem, hypotheses: Sequence[Hypothesis], start: RecordF
         V = problem.start()[None]
         first = problem.responses(V)  # one solve for all: they start at the same point
         V = problem.align_phases(V, first)
+        prediction = problem.frame(V, first, 0)
     else:
-        V, first = start.v[None], start.responses
+        V, first, prediction = start.v[None], start.responses, start.prediction
     V = np.repeat(V, N, axis=0)
     responses = [(np.repeat(M, N, axis=0), np.repeat(dM, N, axis=0)) for M, dM in first]
     current = problem.residuals(V, responses, hypotheses)
@@ -282,6 +286,7 @@ def fit(problem: RecordProblem, hypotheses: Sequence[Hypothesis], start: RecordF
         result = _result(problem, hypotheses[i], V[i], current[i], problem.frame(V, responses, i),
                          int(iterations[i]), bool(converged[i]))
         result.responses = [(M[i: i + 1], dM[i: i + 1]) for M, dM in responses]
+        result.prediction = prediction
         out.append(result)
     return out
 

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from scipy import stats
+from scipy.special import chdtri, ndtri  # chi^2's inverse survival function, the normal quantile
 
 from .assess import Assessment, Verdict
 
@@ -98,7 +98,7 @@ def plot_trend(trend: pd.DataFrame, twin: str = ""):
     fig, axes = plt.subplots(len(names) + 1, 1, figsize=(9, 1.9 * (len(names) + 1) + 0.6), sharex=True,
                              squeeze=False)
     axes = axes[:, 0]
-    limit = stats.chi2.ppf(1 - records["alpha"].to_numpy(float), records["dof"].to_numpy(float)) / records["dof"]
+    limit = chdtri(records["dof"].to_numpy(float), records["alpha"].to_numpy(float)) / records["dof"]
     axes[0].plot(when, limit, drawstyle="steps-mid", color="0.5", lw=1, label=r"alarm limit $\chi^2_{1-\alpha}$/dof")
     axes[0].scatter(when, records["chi2_dof"], c=[COLOURS[v] for v in records["verdict"]], zorder=3, s=18)
     axes[0].set_yscale("log")
@@ -109,7 +109,7 @@ def plot_trend(trend: pd.DataFrame, twin: str = ""):
     for ax, name in zip(axes[1:], names):
         rows_ = entries[entries["parameter"] == name]
         t = pd.to_datetime(rows_["timestamp"], utc=True, format="ISO8601")
-        z = stats.norm.ppf(1 - rows_["alpha"].to_numpy(float) / 2)
+        z = -ndtri(rows_["alpha"].to_numpy(float) / 2)
         half = z * np.hypot(rows_["twin_stderr"].fillna(0), rows_["stderr"].fillna(0))
         ax.plot(t, rows_["twin_value"], color="0.3", lw=1, label="twin")
         ax.plot(t, rows_["twin_value"] - half, color="0.6", lw=0.8, ls="--", drawstyle="steps-mid",
