@@ -99,6 +99,10 @@ def test_a_cross_coupled_stiffness_is_a_new_discrepancy_and_ranked_first(twin, t
     # be five standard deviations of a chi^2(1) difference, far beyond what noise or a machine's round-off moves
     assert first["statistic"] > second["statistic"] + 25
     assert result.fingerprint is not None and result.fingerprint.dominant == 1
+    result.write(tmp_path / "x900")  # its candidates and fingerprint read back as written
+    back = Assessment.read(tmp_path / "x900")
+    pd.testing.assert_frame_equal(back.candidates, result.candidates, check_exact=False, rtol=1e-8, check_dtype=False)
+    pd.testing.assert_frame_equal(back.fingerprint.table(), result.fingerprint.table(), check_exact=False, rtol=1e-8)
 
 
 def test_the_prior_carries_the_twins_covariance_to_a_new_bow(twin):

@@ -156,7 +156,7 @@ class Assessment:
         candidates = _read(folder / "candidates.tsv", {"candidate"}, {"beyond_range"})
         path = folder / "fingerprint.tsv"
         found = Fingerprint.from_table(pd.read_csv(path, sep="\t", dtype={"key": str}, keep_default_na=False,
-                                                   na_values={"value": ["nan", "NaN"]})) if path.is_file() else None
+                                                   na_values={"value": ["", "nan", "NaN"]})) if path.is_file() else None
         return cls(summary, parameters, harmonics, candidates, found)
 
 
