@@ -82,8 +82,12 @@ def judge(twin, rows: list[dict], case: str, size: float, alpha: float) -> list[
         w, c = time.perf_counter(), cpu()
         try:
             result = assess(twin, intake(twin, row), alpha)
-        except RecordError as err:
+        except RecordError as err:  # refused by the data checks (a clipped record next to the resonance): counted
             print(f"# {row['run']}: {err}", file=sys.stderr)
+            out.append({"case": case, "size": size, "record": row["run"], "rpm": row["rpm"],
+                        "eccentric_mass_g": row["eccentric_mass_g"], "verdict": "refused", "changed": "",
+                        "alternatives": "", "top_candidate": "", "p_value": np.nan, "chi2_dof": np.nan,
+                        "wall_s": np.nan, "cpu_s": np.nan})
             continue
         s = result.summary
         top = result.candidates["candidate"].iloc[0] if len(result.candidates) else ""
@@ -179,7 +183,7 @@ def report(table: pd.DataFrame, args) -> None:
         rate = (len(rows) - k if case == "unchanged" else k) / len(rows)
         print(f"| {case} | {len(rows)} | {counts} | {k} | {int(rows['listed'].sum())} | {what} {100 * rate:.1f} % "
               f"[{100 * lo:.1f}, {100 * hi:.1f}] |")
-    power = table[table["case"].str.startswith("power_")]
+    power = table[table["case"].str.startswith("power_") & (table["verdict"] != "refused")]  # rates of the judged
     if len(power):
         print("\n| parameter | size of change: detection rate (alarm) | smallest detected at >= 95 % |\n|---|---|---|")
         for case, rows in power.groupby("case", sort=False):
@@ -211,7 +215,7 @@ def plot(table: pd.DataFrame, main_cases: pd.DataFrame, path: Path, alpha: float
     axes[0].set_ylabel("p-value of the twin's fit")
     axes[0].set_title(f"false alarms: {int((p < alpha).sum())} of {len(p)}", fontsize=9)
     axes[0].legend(fontsize=7)
-    power = table[table["case"].str.startswith("power_")]
+    power = table[table["case"].str.startswith("power_") & (table["verdict"] != "refused")]
     for case, rows in power.groupby("case", sort=False):
         rates = rows.groupby("size")["verdict"].apply(lambda v: float((v != Verdict.CONSISTENT.value).mean()))
         x = np.abs(rates.index.to_numpy(float)) * (1 if case == "power_k_xy" else 100)
