@@ -1,5 +1,5 @@
 # hybridtwin workflow: model -> solver -> scenarios -> snapshots -> POD -> sPGD library
-#                      -> identification -> diagnosis -> report
+#                      -> identification -> diagnosis -> report -> the twin online
 # Run: snakemake --cores 2   (the default profile in profiles/default sets the options)
 
 from snakemake.utils import min_version
@@ -31,6 +31,7 @@ include: "workflow/rules/measurements.smk"
 include: "workflow/rules/identification.smk"
 include: "workflow/rules/diagnosis.smk"
 include: "workflow/rules/report.smk"
+include: "workflow/rules/online.smk"
 
 
 localrules: check_data, measured_harmonics, sample_scenarios  # seconds-long, run on the submit host under profiles/slurm
@@ -53,6 +54,7 @@ rule all:
         expand("results/{variant}/design/next_runs.tsv", variant=VARIANTS if DESIGN["runs"] else []),
         expand("results/{variant}/diagnosis.tsv", variant=VARIANTS),
         expand("results/{variant}/diagnosis.md", variant=VARIANTS),
+        expand("results/{variant}/twin.yaml", variant=VARIANTS),  # the twin's card: `hybridtwin assess` reads it
         expand("results/{variant}/report/{name}", variant=VARIANTS, name=REPORT_FILES),
         "results/ledger.tsv",
         "results/ledger.png",
@@ -61,4 +63,6 @@ rule all:
         expand("results/{variant}/report/{name}", variant=VARIANTS if transient_records() else [],
                name=["transient", "transient.tsv"]),
         expand("results/data/report/records/{run}/waterfall.png", run=[r["run"] for r in transient_records()]),
+        # the twin online (config online:): every record of its sheet judged against the twin, and the trend
+        expand("results/online/{variant}/trend.tsv", variant=[ONLINE["variant"]] if ONLINE else []),
     default_target: True

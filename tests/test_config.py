@@ -210,12 +210,12 @@ def _library_defaults() -> dict:
     """Every default the library fills in, by config section (the one place each is set)."""
     from hybridtwin.diagnose import diagnosis
     from hybridtwin.identify import design, identification
-    from hybridtwin.config import OFFLINE_DEFAULTS
+    from hybridtwin.config import OFFLINE_DEFAULTS, ONLINE_DEFAULTS
     from hybridtwin.report import transient_plots
 
     return {"effects_files": [],  # hybridtwin.config.user_effects: no key, no effects files
             "offline": OFFLINE_DEFAULTS, "identification": identification.DEFAULTS, "diagnosis": diagnosis.DEFAULTS,
-            "design": design.DEFAULTS, "report": {"transient": transient_plots.DEFAULTS}}
+            "design": design.DEFAULTS, "report": {"transient": transient_plots.DEFAULTS}, "online": ONLINE_DEFAULTS}
 
 
 def _schema() -> dict:
@@ -299,6 +299,7 @@ def test_the_defaults_are_a_valid_config():
 
     config = {"runs": "runs.tsv", "harmonics": 5, "variants": {"v": {"effects": ["unbalance"]}},
               **copy.deepcopy(_library_defaults())}
+    config["online"] |= {"variant": "v", "records": "runs.tsv"}  # the section's required keys (no default)
     assert [error.message for error in Draft202012Validator(_schema()).iter_errors(config)] == []
 
 
@@ -352,7 +353,7 @@ def test_the_offline_spgd_defaults_are_the_sparse_pgds():
     libraries and an sPGD built in Python fit alike)."""
     import inspect
 
-    from hybridtwin.config import OFFLINE_DEFAULTS
+    from hybridtwin.config import OFFLINE_DEFAULTS, ONLINE_DEFAULTS
     from hybridtwin.offline.spgd import SparsePGD
 
     signature = inspect.signature(SparsePGD).parameters

@@ -113,6 +113,24 @@ def offline(config: Mapping) -> dict:
     return options
 
 
+#: the ``online:`` section's defaults (the twin online, hybridtwin.online; the schema's default: entries copy them)
+ONLINE_DEFAULTS: dict = {"alpha": 0.01}  # the level of every test: beyond the noise at p < 0.01, as the README says
+
+
+def online(config: Mapping) -> dict:
+    """The ``online:`` section (the twin judging new records: ``variant``, ``records``, ``alpha``) with its defaults;
+    empty when the config has none."""
+    section = config.get("online")
+    return {} if not section else {**ONLINE_DEFAULTS, **section}
+
+
+def online_records(settings: Mapping) -> list[str]:
+    """The records (runs) of the ``online:`` section's sheet, read as check-data reads a sheet; none without one."""
+    from .data.measurements import read_runs  # the one reader of runs sheets
+
+    return [] if not settings else read_runs(settings["records"], require_mass=True)["run"].tolist()
+
+
 def data_check_settings(config: Mapping) -> dict:
     """What the data checks take from a config, one derivation for the workflow's check_data and preprocess rules
     (their params) and ``hybridtwin check-data`` (its defaults, each option overriding one): ``harmonics`` (H),
@@ -492,3 +510,11 @@ def _name_problems(config: Mapping, config_dir: Path) -> Iterable[Problem]:
             RigSpec.from_mapping(spec, user, rotor)  # the truth on the config's machine, as the rig rule builds it
         except ValueError as err:
             yield ("rig", name), f"rig.{name}", str(err)
+
+    section = config.get("online") or {}
+    if section.get("variant") is not None and section["variant"] not in variants:
+        yield ("online", "variant"), "online.variant", \
+            f"no variant named {section['variant']!r} {_allowed(section['variant'], variants, 'variants')}"
+    if section.get("records") is not None and not Path(section["records"]).is_file():
+        yield ("online", "records"), "online.records", \
+            f"runs sheet {str(section['records'])!r} does not exist (paths are relative to the project root)"

@@ -6,7 +6,8 @@ from pathlib import Path
 import pandas as pd
 from snakemake.utils import validate
 
-from hybridtwin.config import CONFIG_DIR, effects_files_used, offline, offline_for, run_plan, variant as config_variant
+from hybridtwin.config import CONFIG_DIR, effects_files_used, offline, offline_for, online as online_settings, \
+    online_records, run_plan, variant as config_variant
 from hybridtwin.diagnose.diagnosis import settings as diagnosis_settings
 from hybridtwin.identify.identification import settings as identification_settings
 from hybridtwin.data.measurements import DataError, read_runs

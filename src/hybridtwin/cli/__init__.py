@@ -1,4 +1,5 @@
-"""Command line: ``hybridtwin simulate | effects | variants | check-data | rig | campbell | modes | response``.
+"""Command line: ``hybridtwin simulate | effects | variants | check-data | rig | campbell | modes | response |
+assess``.
 
 Conventions (stated once, here and in the README): amplitudes are 0-peak,
 u(t) = Re(sum_h U_h exp(i h Omega t)), t = 0 when the unbalance points to +x,
@@ -27,6 +28,7 @@ from ..solvers.continuation import solve_sweep
 from ..solvers.solver import SteadyState, solve
 from ..model.variants import Variant
 
+from .assess import add_assess_command
 from .check_data import add_check_data_command
 from .common import (
     MAX_SAMPLES, RUN_UP_FROM_RPM, RUNDOWN_FACTOR, RUNDOWN_MARGIN_RPM, SAME_BRANCH_RTOL, UsageError, _positive_int,
@@ -48,8 +50,8 @@ def build_parser() -> argparse.ArgumentParser:
         description="Hybrid twins of rotating machines. Commands: simulate (one operating point), effects (the "
                     "physical effects), variants (the model variants), check-data (a runs sheet and its records), "
                     "rig (virtual-rig data), campbell, modes and response (the machine before any data: natural "
-                    "frequencies and damping vs speed, mode shapes, unbalance response). The workflow itself runs "
-                    "with `snakemake --cores 2`.",
+                    "frequencies and damping vs speed, mode shapes, unbalance response), assess (a new record judged "
+                    "against a built twin). The workflow itself runs with `snakemake --cores 2`.",
         epilog="Run `hybridtwin COMMAND --help` for a command's options.")
     parser.add_argument("--version", action="version", version=f"hybridtwin {_version()}")
     sub = parser.add_subparsers(dest="command", required=True, title="commands", metavar="COMMAND")
@@ -116,6 +118,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_check_data_command(sub)
     add_rig_command(sub)
     add_machine_commands(sub, _common)
+    add_assess_command(sub)
     return parser
 
 

@@ -123,7 +123,7 @@ def extended_problem(base: BaseFit, candidates: Sequence[Candidate],
     return ArrowProblem(models, layout, base.sigma), theta
 
 
-def _basis(J: Array) -> Array:
+def column_basis(J: Array) -> Array:
     """Orthonormal basis of the column space of J (rank-revealing SVD)."""
     if J.shape[1] == 0:
         return np.zeros((J.shape[0], 0))
@@ -172,28 +172,34 @@ def score_tests(base: BaseFit, candidates: Sequence[Candidate]) -> Scores:
     tested = {p.name for c in candidates for p in c.parameters}
     is_base = np.array([p not in tested for p, _ in entries])
     free = is_base & (layout.is_phase | (np.abs(theta) < 1.0 - BOUND_TOLERANCE))
-    Q = _basis(J[:, free])
+    Q = column_basis(J[:, free])
     r_p = r - Q @ (Q.T @ r)
     scores = []
     for c in candidates:
         cols = [entries.index((p.name, "all")) for p in c.parameters]
-        G = J[:, cols] - Q @ (Q.T @ J[:, cols])
-        at_zero_edge = theta[cols] <= -1.0 + BOUND_TOLERANCE  # 0 is the lower edge: only b >= 0 is physical
-        at_top_edge = theta[cols] >= 1.0 - BOUND_TOLERANCE
-        lower = np.where(at_zero_edge, 0.0, -np.inf)
-        upper = np.where(at_top_edge, 0.0, np.inf)
-        if np.linalg.norm(G) == 0:
-            step = np.zeros(len(cols))
-        else:
-            step = optimize.lsq_linear(G, -r_p, bounds=(lower, upper), method="bvls").x
-        statistic = float(r_p @ r_p - np.sum((r_p + G @ step) ** 2))
-        statistic = max(statistic, 0.0)
-        k = len(cols)
-        beyond = bool(np.any(np.abs(theta[cols] + step) > 1.0))
-        scores.append(Score(c, statistic, float(stats.chi2.sf(statistic, k)), float(stats.chi2.logsf(statistic, k)),
-                            step, G, beyond))
+        scores.append(candidate_score(c, J[:, cols], Q, r_p, theta[cols]))
     dof = r.size - int(free.sum())
     return Scores(float(r @ r), dof, r.size, r, r_p, scores, time.perf_counter() - start)
+
+
+def candidate_score(candidate: Candidate, G: Array, Q: Array, r_p: Array, theta: Array) -> Score:
+    """One candidate's score test (module docstring): G = d r / d beta (its columns, normalised beta), Q an
+    orthonormal basis of what the base can absorb, r_p the residual with it projected out, theta the candidate's
+    entries (at beta = 0: a sign constraint where 0 is a range edge)."""
+    G = G - Q @ (Q.T @ G)
+    at_zero_edge = theta <= -1.0 + BOUND_TOLERANCE  # 0 is the lower edge: only b >= 0 is physical
+    at_top_edge = theta >= 1.0 - BOUND_TOLERANCE
+    lower = np.where(at_zero_edge, 0.0, -np.inf)
+    upper = np.where(at_top_edge, 0.0, np.inf)
+    if np.linalg.norm(G) == 0:
+        step = np.zeros(G.shape[1])
+    else:
+        step = optimize.lsq_linear(G, -r_p, bounds=(lower, upper), method="bvls").x
+    statistic = max(float(r_p @ r_p - np.sum((r_p + G @ step) ** 2)), 0.0)
+    k = G.shape[1]
+    beyond = bool(np.any(np.abs(theta + step) > 1.0))
+    return Score(candidate, statistic, float(stats.chi2.sf(statistic, k)), float(stats.chi2.logsf(statistic, k)),
+                 step, G, beyond)
 
 
 def by_score(score: Score) -> tuple[float, float]:
@@ -203,7 +209,7 @@ def by_score(score: Score) -> tuple[float, float]:
 
 def nested(a: Array, b: Array, tolerance: float = 1e-3) -> bool:
     """Whether span(a) lies within span(b): all principal angles between them are ~0."""
-    Qa, Qb = _basis(a), _basis(b)
+    Qa, Qb = column_basis(a), column_basis(b)
     if Qa.shape[1] == 0 or Qa.shape[1] > Qb.shape[1]:
         return False
     cosines = np.linalg.svd(Qa.T @ Qb, compute_uv=False)

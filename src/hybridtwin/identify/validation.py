@@ -37,24 +37,36 @@ def bow_law(table: pd.DataFrame, parameter: str, law: str = "law"
     terms not used are 0. Needs rows with rpm, eccentric_mass_g, value, stderr.
     Returns (coefficients c0, c1, c2, predict(rpm, mass_g)).
     """
-    omega2 = (np.asarray(table["rpm"], float) * 2 * np.pi / 60) ** 2
-    mass = np.asarray(table["eccentric_mass_g"], float) * 1e-3
-    stderr = np.asarray(table["stderr"], float)
-    w = 1.0 / np.where(np.isfinite(stderr) & (stderr > 0), stderr, np.nanmax(np.append(stderr, 1.0))) ** 2
-    y = np.asarray(table["value"], float)
-    terms = [np.ones_like(omega2), omega2, omega2 * mass]
-    used = [0] + [k for k, varied in ((1, omega2), (2, mass)) if spans(varied, LAW_SPREAD)]
-    coef = np.zeros(3)
-    if law == "law" and len(used) > 1 and len(y) >= max(4, len(used) + 1):
-        A = np.column_stack([terms[k] for k in used])
-        coef[used] = np.linalg.lstsq(A * np.sqrt(w)[:, None], y * np.sqrt(w), rcond=None)[0]
-    else:
-        coef[0] = float((w * y).sum() / w.sum())
+    coef = law_operator(table, law) @ np.asarray(table["value"], float)
 
     def predict(rpm: Array, mass_g: Array) -> Array:
-        o2 = (np.asarray(rpm, float) * 2 * np.pi / 60) ** 2
-        return coef[0] + coef[1] * o2 + coef[2] * o2 * np.asarray(mass_g, float) * 1e-3
+        return law_terms(rpm, mass_g) @ coef
     return coef, predict
+
+
+def law_terms(rpm: Array, mass_g: Array) -> Array:
+    """The bow law's terms [1, Omega^2, Omega^2 m_e] at speeds ``rpm`` and masses ``mass_g`` (..., 3)."""
+    omega2 = (np.asarray(rpm, float) * 2 * np.pi / 60) ** 2
+    return np.stack(np.broadcast_arrays(np.ones_like(omega2), omega2, omega2 * np.asarray(mass_g, float) * 1e-3),
+                    axis=-1)
+
+
+def law_operator(table: pd.DataFrame, law: str = "law") -> Array:
+    """The linear map (3, n) from the n runs' values of a per-run parameter to the coefficients c0, c1, c2 of its
+    law (``bow_law``): the law is linear in the runs' values, so the coefficients' covariance is this map applied to
+    the values' covariance (what ``hybridtwin.online`` uses to carry the twin's uncertainty to a new record)."""
+    terms = law_terms(table["rpm"], table["eccentric_mass_g"])  # (n, 3)
+    stderr = np.asarray(table["stderr"], float)
+    w = 1.0 / np.where(np.isfinite(stderr) & (stderr > 0), stderr, np.nanmax(np.append(stderr, 1.0))) ** 2
+    varied = {1: terms[:, 1], 2: np.asarray(table["eccentric_mass_g"], float)}  # the speed term, the unbalance term
+    used = [0] + [k for k, values in varied.items() if spans(values, LAW_SPREAD)]
+    operator = np.zeros((3, len(w)))
+    if law == "law" and len(used) > 1 and len(w) >= max(4, len(used) + 1):
+        root = np.sqrt(w)
+        operator[used] = np.linalg.pinv(terms[:, used] * root[:, None]) * root[None, :]
+    else:
+        operator[0] = w / w.sum()
+    return operator
 
 
 #: a bow-law term is fitted when the runs' values of it span at least this fraction of the largest (``bow_law``)

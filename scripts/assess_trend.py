@@ -1,0 +1,22 @@
+"""Rule assess_trend: the twin's trend from every record's assessment, in time order (thin wrapper of
+hybridtwin.online.trend)."""
+
+from pathlib import Path
+
+import matplotlib
+import pandas as pd
+
+matplotlib.use("Agg")
+
+from hybridtwin import config as cfg
+from hybridtwin.online.assess import Assessment
+from hybridtwin.online.trend import TREND_COLUMNS, plot_trend, rows, write_trend
+
+smk = snakemake  # noqa: F821 (injected by Snakemake)
+log = cfg.rule_logger(smk.log[0], "assess_trend")
+assessments = [Assessment.read(Path(path).parent) for path in smk.input.summaries]
+trend = write_trend(pd.concat([rows(a) for a in assessments], ignore_index=True) if assessments
+                    else pd.DataFrame(columns=TREND_COLUMNS), smk.output.table)
+plot_trend(trend, smk.wildcards.variant).savefig(smk.output.figure, dpi=110)
+log.info("%d record(s): %s", len(assessments), ", ".join(f"{a.summary['record']} {a.summary['verdict']}"
+                                                         for a in assessments))
