@@ -18,10 +18,8 @@ CAP = 10.0
 
 
 def plot_assessment(assessment: Assessment):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # here, not at import (the command's verdict needs no matplotlib); no backend
+    # forced: Agg by itself without a display, or the caller's choice
 
     table = assessment.harmonics
     channels = list(dict.fromkeys(table["channel"]))
