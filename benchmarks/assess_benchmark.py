@@ -87,14 +87,19 @@ def judge(twin, rows: list[dict], case: str, size: float, alpha: float) -> list[
             out.append({"case": case, "size": size, "record": row["run"], "rpm": row["rpm"],
                         "eccentric_mass_g": row["eccentric_mass_g"], "verdict": "refused", "changed": "",
                         "alternatives": "", "top_candidate": "", "p_value": np.nan, "chi2_dof": np.nan,
-                        "wall_s": np.nan, "cpu_s": np.nan})
+                        "truth_inside": np.nan, "wall_s": np.nan, "cpu_s": np.nan})
             continue
         s = result.summary
         top = result.candidates["candidate"].iloc[0] if len(result.candidates) else ""
+        truth = CASES.get(case, ({}, [], ""))[0]
+        rows_ = result.parameters[result.parameters["parameter"].isin(truth) & result.parameters["moved"]]
+        inside = (bool(((rows_["ci_low"] <= rows_["parameter"].map(truth))
+                        & (rows_["parameter"].map(truth) <= rows_["ci_high"])).all()) if len(rows_) else np.nan)
         out.append({"case": case, "size": size, "record": s["record"], "rpm": s["rpm_low"],
                     "eccentric_mass_g": s["eccentric_mass_g"], "verdict": s["verdict"], "changed": s["changed"],
                     "alternatives": s["alternatives"], "top_candidate": top, "p_value": s["p_value"],
-                    "chi2_dof": s["chi2_dof"], "wall_s": time.perf_counter() - w, "cpu_s": cpu() - c})
+                    "chi2_dof": s["chi2_dof"], "truth_inside": inside, "wall_s": time.perf_counter() - w,
+                    "cpu_s": cpu() - c})
     return out
 
 
@@ -138,6 +143,7 @@ def main(argv=None) -> int:
     parser.add_argument("--integrator", choices=("time", "hb"), default="time")
     parser.add_argument("--keyphasor", action=argparse.BooleanOptionalAction, default=True)
     parser.add_argument("--alpha", type=float, default=ALPHA)
+    parser.add_argument("--cases", default=",".join(CASES), help="the cases to judge (comma-separated)")
     parser.add_argument("--records-only", action="store_true", help="make the rig's records, judge nothing")
     args = parser.parse_args(argv)
     ARGS.records_only = args.records_only
@@ -146,6 +152,8 @@ def main(argv=None) -> int:
     tag = f"{args.integrator}_{'kp' if args.keyphasor else 'nokp'}"
     rows = []
     for case, (values, effects, _) in CASES.items():
+        if case not in args.cases.split(","):
+            continue
         n = args.unchanged if case == "unchanged" else args.changed
         if n == 0:
             continue
@@ -183,8 +191,10 @@ def report(table: pd.DataFrame, args) -> None:
         lo, hi = binomial_interval(len(rows) - k if case == "unchanged" else k, len(rows))
         what = "false alarms" if case == "unchanged" else "right"
         rate = (len(rows) - k if case == "unchanged" else k) / len(rows)
+        inside = rows["truth_inside"].dropna().astype(bool)
+        held = f"; the truth inside the named interval {int(inside.sum())} of {len(inside)}" if len(inside) else ""
         print(f"| {case} | {len(rows)} | {counts} | {k} | {int(rows['listed'].sum())} | {what} {100 * rate:.1f} % "
-              f"[{100 * lo:.1f}, {100 * hi:.1f}] |")
+              f"[{100 * lo:.1f}, {100 * hi:.1f}]{held} |")
     power = table[table["case"].str.startswith("power_") & (table["verdict"] != "refused")]  # rates of the judged
     if len(power):
         print("\n| parameter | size of change: detection rate (alarm) | smallest detected at >= 95 % |\n|---|---|---|")

@@ -4,10 +4,6 @@ rule's input, params and output; the twin's folder is read, never written."""
 import sys
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")
-
 from hybridtwin import config as cfg
 from hybridtwin.online.assess import assess
 from hybridtwin.online.assess_plots import plot_assessment

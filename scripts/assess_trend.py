@@ -3,10 +3,7 @@ hybridtwin.online.trend)."""
 
 from pathlib import Path
 
-import matplotlib
 import pandas as pd
-
-matplotlib.use("Agg")
 
 from hybridtwin import config as cfg
 from hybridtwin.online.assess import Assessment

@@ -59,7 +59,7 @@ rule assess_record:
         ),
     params:
         row=lambda wildcards: sheet_entry(ONLINE["records"], wildcards.record),
-        alpha=lambda wildcards: ONLINE["alpha"],  # read when the rule runs: only with an online: section
+        alpha=lambda wildcards: ONLINE["alpha"],  # lazily: a config without online: plans no such job
     log:
         "logs/online/{variant}/{record}.log",
     benchmark:

@@ -314,7 +314,8 @@ def parameter_table(twin: Twin, problem: fits.RecordProblem, base: fits.RecordFi
                 "moved": named is not None and p in named.hypothesis.free,
                 "estimate": "linear" if source.linear else "fit",
                 "note": f"the twin left it undetermined ({problem.prior.undetermined[p][1]}): estimated from the "
-                        "record alone" if undetermined else ""})
+                        "record alone" if undetermined else "at its physical limit: the interval is not valid there"
+                        if source.v[column] in (problem.lo_v[column], problem.hi_v[column]) else ""})
     return pd.DataFrame(rows, columns=PARAMETER_COLUMNS)
 
 

@@ -18,10 +18,8 @@ CAP = 10.0
 
 
 def plot_assessment(assessment: Assessment):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # here, not at import (the command's verdict needs no matplotlib); no backend
+    # forced: Agg by itself without a display, or the caller's choice
 
     table = assessment.harmonics
     channels = list(dict.fromkeys(table["channel"]))
@@ -87,7 +85,8 @@ def plot_assessment(assessment: Assessment):
         ax.axvline(x, color="0.5", ls="--", lw=1)
     ax.axvline(0, color="0.3", lw=0.8)
     ax.set_xlim(-CAP - 0.5, CAP + 0.5)
-    labels = [f"{p} *" if note else p for p, note in zip(params["parameter"], params["note"])]
+    # no prior (twin_stderr NaN): a parameter the twin left undetermined, never tested
+    labels = [f"{p} *" if np.isnan(sd) else p for p, sd in zip(params["parameter"], params["twin_stderr"])]
     ax.set_yticks(y, labels, fontsize=8)
     ax.set_xlabel("significance of the parameter's move (freed alone against the twin's prior), signed, in normal "
                   f"standard deviations (capped at {CAP:g})\n* left undetermined by the twin: not tested", fontsize=8)

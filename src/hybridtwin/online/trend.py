@@ -80,10 +80,8 @@ def read_trend(path: str | Path) -> pd.DataFrame:
 def plot_trend(trend: pd.DataFrame, twin: str = ""):
     """The trend figure (module docstring): chi^2/dof, then one panel per parameter the twin determined (per-run
     parameters from steady records only: a run-up's bow is one value per band)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # here, not at import (the command's verdict needs no matplotlib); no backend
+    # forced: Agg by itself without a display, or the caller's choice
 
     records = trend.drop_duplicates("record")
     if records.empty:
