@@ -15,7 +15,6 @@ with the bow shared.
 
 import numpy as np
 import pandas as pd
-import pytest
 import yaml
 from scipy import stats
 

@@ -11,9 +11,9 @@ entries (its phase without a keyphasor, its per-run parameters: nuisances a new 
 which adds up over runs. The fit runs give I_0; a candidate run c (a speed and a mass, its bow from the law over
 the fit runs, the noise the fit runs' median sigma per harmonic and channel) gives I_c; with a keyphasor its phase
 has the fit's prior N(0, (Omega sigma_t)^2), sigma_t the timing of a keyphasor (``keyphasor_timing``). The
-covariance after adding runs is s^2 (I_0 + sum I_c)^-1, s^2 = max(1, chi^2/dof) of the joint fit, so the expected 95 % intervals are
-linear predictions: where the current intervals come from a profile (a loose parameter), they are compared with
-the linearised ones.
+covariance after adding runs is s^2 (I_0 + sum I_c)^-1, s^2 = max(1, chi^2/dof) of the joint fit, so the
+expected 95 % intervals are linear predictions: where the current intervals come from a profile (a loose
+parameter), they are compared with the linearised ones.
 
 Criterion: D_s-optimality on the parameters of interest, the loose ones (at a range edge or not identifiable), or,
 when none is loose, those whose interval is within a factor ``INTEREST_FACTOR`` of the widest relative to its
@@ -252,13 +252,13 @@ def design_runs(variant, joint: pd.DataFrame, harmonics: pd.DataFrame, runs: pd.
             break
         best = max(gains, key=gains.get)
         r = candidates.loc[best]
-        plain = {i: g for i, g in gains.items() if candidates.loc[i, "rpm"] == r.rpm and not
-                 candidates.loc[i, "keyphasor"] and candidates.loc[i, "eccentric_mass_g"] == r.eccentric_mass_g}
+        same = {i for i in gains if candidates.loc[i, "rpm"] == r.rpm
+                and candidates.loc[i, "eccentric_mass_g"] == r.eccentric_mass_g}
+        plain = {i: gains[i] for i in same if not candidates.loc[i, "keyphasor"]}
         if r.keyphasor and plain and gains[best] - max(plain.values()) < KEYPHASOR_WORTH:
             best = max(plain, key=plain.get)  # the same run without a keyphasor does nearly as well
             r = candidates.loc[best]
-        with_keyphasor = [g for i, g in gains.items() if candidates.loc[i, "rpm"] == r.rpm and
-                          candidates.loc[i, "keyphasor"] and candidates.loc[i, "eccentric_mass_g"] == r.eccentric_mass_g]
+        with_keyphasor = [gains[i] for i in same if candidates.loc[i, "keyphasor"]]
         matrix = added[(r.rpm, r.eccentric_mass_g, r.keyphasor)]
         total, base = total + matrix, base + gains[best]
         matrices.append(matrix)

@@ -62,7 +62,8 @@ REFIT_COLUMNS = ["validation_run", *idn.TABLE_COLUMNS]
 class Explanation:
     """Why one validation run is predicted as it is (module docstring). pinned: the parameters this run pins (name,
     move, value before and after, the move's unit: a shared parameter's standard errors in the joint fit, a loose
-    one's tenths of its range, the run's own per-run parameters' sigmas of their law); chi2_*: the run's chi^2 per residual predicted and after the refit; fit_rise:
+    one's tenths of its range, the run's own per-run parameters' sigmas of their law); chi2_*: the run's chi^2 per
+    residual predicted and after the refit; fit_rise:
     the fit runs' chi^2 rise in the refit, allowed: its threshold; law: per per-run parameter of the run, its refit
     value, its law's value and the law band's half-width; table: the refit's parameter table (None without one)."""
 
@@ -123,7 +124,8 @@ def law_band(joint: pd.DataFrame, parameter: str, rpm: float, mass_g: float, run
     used = [k for k in range(3) if coef[k] != 0.0] or [0]
     A = np.column_stack([np.ones_like(omega2), omega2, omega2 * mass])[:, used]
     value = float(predict(rpm, mass_g))
-    residual = rows["value"].to_numpy(float) - predict(rows["rpm"].to_numpy(float), rows["eccentric_mass_g"].to_numpy(float))
+    speeds, masses = (rows[c].to_numpy(float) for c in ("rpm", "eccentric_mass_g"))
+    residual = rows["value"].to_numpy(float) - predict(speeds, masses)
     dof = max(len(rows) - len(used), 1)
     s2 = max(1.0, float((w * residual**2).sum()) / dof)
     o2 = (rpm * 2 * np.pi / 60) ** 2
