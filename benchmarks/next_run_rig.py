@@ -11,7 +11,11 @@ fit runs, and the variant refitted jointly on the full solver (``fit_joint`` wit
 expected (design/intervals.tsv), the one achieved, their ratio, and whether the truth lies inside.
 
     OMP_NUM_THREADS=1 python benchmarks/next_run_rig.py --results CLONE [--variant geometric_expansion_k4]
-        [--seed 2] [--out CLONE/results/benchmarks/next_run_rig]
+        [--seed 2] [--out CLONE/results/benchmarks/next_run_rig] [--truth-model]
+
+``--truth-model`` also refits, on the same runs, the truth's own model (its effects; the variant's unknowns but
+those of the effects it lacks, and the truth's other values unknown over [0, 1000] N: the slope force's k_w, k_z),
+the bow shared: what is left of the misses when the model's form is the truth's.
 """
 
 from __future__ import annotations
@@ -60,6 +64,7 @@ def main() -> int:
     parser.add_argument("--variant", default="geometric_expansion_k4")
     parser.add_argument("--seed", type=int, default=2, help="the rig's seed for the new records (bundled: 1)")
     parser.add_argument("--out", type=Path, default=None)
+    parser.add_argument("--truth-model", action="store_true", help="also refit the truth's own model")
     args = parser.parse_args()
     root = args.results
     out = args.out or root / "results" / "benchmarks" / "next_run_rig"
@@ -105,7 +110,28 @@ def main() -> int:
     report.to_csv(out / "intervals.tsv", sep="\t", index=False, float_format="%.6g")
     pd.set_option("display.width", 200)
     print(report.to_string(index=False, float_format=lambda v: f"{v:.5g}"))
+    if args.truth_model:
+        truth_model(config, root, args.variant, options, table, fit_runs + new["run"].tolist(), truth)
     return 0
+
+
+def truth_model(config: dict, root: Path, name: str, options: dict, table: pd.DataFrame, runs: list[str],
+                truth: dict) -> None:
+    """The truth's own model refitted on ``runs`` (module docstring): each shared parameter against its truth."""
+    spec = config["variants"][name]
+    effects = config["rig"]["default"]["truth"]["effects"]
+    unknown = {p: r for p, r in spec["unknown"].items() if p in truth}
+    unknown |= {p: [0.0, 1000.0] for p in truth if p not in unknown}
+    model = {**config, "variants": {"truth_model": {"effects": effects, "unknown": unknown, "per_run": []}}}
+    variant = cfg.variant(model, "truth_model", root / "config")
+    start = time.process_time()
+    fit = fit_joint(variant, options, [], table, {}, None, int(config["harmonics"]), runs=runs).fit
+    print(f"the truth's model ({', '.join(unknown)}) on the same {len(runs)} runs: chi^2/dof {fit.chi2_dof:.4g}, "
+          f"{time.process_time() - start:.0f} s CPU")
+    for r in fit.table().itertuples():
+        if r.run == "all":
+            print(f"  {r.parameter}: {r.value:.6g} [{r.ci_low:.6g}, {r.ci_high:.6g}] ({r.interval}) truth "
+                  f"{truth[r.parameter]}: {'inside' if r.ci_low <= truth[r.parameter] <= r.ci_high else 'OUTSIDE'}")
 
 
 if __name__ == "__main__":

@@ -107,3 +107,18 @@ def test_taking_the_recommended_run_gives_the_interval_expected(designed):
     # a linear prediction at the old estimate (zeta_bup at its edge, 0.05) against the interval at the new one
     # (near 0.016), with chi^2/dof from 1 +- 0.25 (dof ~ 50) and Student's t against the normal quantile: a factor 1.5
     assert expected / 1.5 < achieved < 1.5 * expected, (achieved, expected)
+
+
+def test_a_keyphasor_is_asked_for_only_where_it_adds_to_the_run(designed):
+    """With and without a keyphasor as candidates: the first run takes one only if the same run with it gains
+    KEYPHASOR_WORTH more (log det) than without (here, the tables lacking the records' sampling, a keyphasor is taken
+    to fix the phase exactly: an upper bound of its worth)."""
+    variant, config, options, settings, table, joint, _ = designed
+    runs = table[["run", "rpm_true", "eccentric_mass_g"]].rename(columns={"rpm_true": "rpm"})
+    design = dsg.design_runs(variant, joint, table, runs, settings, H, RPM, MASSES, 1, 14e-3)
+    first = design.chosen.iloc[0]
+    c = design.candidates
+    same = c[(c["rpm"] == first["rpm"]) & (c["eccentric_mass_g"] == first["eccentric_mass_g"])].set_index("keyphasor")
+    extra = same.loc[True, "gain"] - same.loc[False, "gain"]
+    assert bool(first["keyphasor"]) == (extra >= dsg.KEYPHASOR_WORTH)
+    assert first["gain_with_keyphasor"] == pytest.approx(same.loc[True, "gain"])

@@ -54,12 +54,14 @@ class ToyModel:
     lower, upper = np.array([1.0, 0.1, -1.0]), np.array([3.0, 0.5, 1.0])
     H = 2
 
-    def evaluate(self, x, jacobian=True):
-        x = np.atleast_2d(x)
+    def physical(self, x):
+        """a, b, c (N, 1) at normalised x (N, 3), the harmonics h (1, H) and dp/dx (the half ranges)."""
         half = (self.upper - self.lower) / 2
-        p = self.lower + (x + 1) * half
-        a, b, c = p[:, 0, None], p[:, 1, None], p[:, 2, None]
-        h = np.array([1.0, 2.0])[None, :]
+        p = self.lower + (np.atleast_2d(x) + 1) * half
+        return p[:, 0, None], p[:, 1, None], p[:, 2, None], np.array([1.0, 2.0])[None, :], half
+
+    def evaluate(self, x, jacobian=True):
+        a, b, c, h, half = self.physical(x)
         base = 1.0 / (1.0 + a - 0.5j * h * (1.0 + 2.0 * b))  # (N, H)
         turn = np.exp(0.4j * h)
         M = np.stack([base, (0.6 + 0.3 * c) * base * turn], axis=-1)  # (N, H, 2)
@@ -420,7 +422,8 @@ def test_validation_runs_all_kept_out_still_give_a_full_validation_table(geometr
         input=SimpleNamespace(parameters=str(results / "parameters.tsv"), harmonics=str(tmp_path / "harmonics.tsv"),
                               libraries=[str(results / "library" / f"{run}.zarr") for run in VALIDATE],
                               validation=str(results / "library_validation.tsv")),
-        output=SimpleNamespace(table=str(tmp_path / "validation.tsv"), harmonics=str(tmp_path / "predicted.tsv")),
+        output=SimpleNamespace(table=str(tmp_path / "validation.tsv"), harmonics=str(tmp_path / "predicted.tsv"),
+                               refits=str(tmp_path / "refits.tsv")),
         params=SimpleNamespace(model={"variants": {"geometric": config["variants"]["geometric"]}, "machine": None,
                                       "effects_files": []},
                                options=rule_settings(config, "geometric", "validation"), harmonics=config["harmonics"]),
@@ -430,6 +433,8 @@ def test_validation_runs_all_kept_out_still_give_a_full_validation_table(geometr
     written = pd.read_csv(tmp_path / "validation.tsv", sep="\t")
     assert set(written["run"]) == set(VALIDATE) and (written["model"] == "none").all()
     assert {"error_rel", "chi2_per_residual", "note"} <= set(written) and written["error_rel"].isna().all()
+    assert (written["explanation"] == "not_checked").all()  # nothing predicted, nothing explained
+    assert pd.read_csv(tmp_path / "refits.tsv", sep="\t").empty  # no refit either, the columns still there
 
 
 def test_batched_surrogate_equals_the_library(geometric_truth):

@@ -18,23 +18,18 @@ from hybridtwin.identify import identification as idn
 from hybridtwin.identify import profile as prf
 from hybridtwin.identify.protocol import ProtocolOptions
 from hybridtwin.identify.uncertainty import INTERVAL_CODES
+from test_identification import ToyModel
 
 TRUTH = {"a": 1.6, "b": 0.5, "c": 0.2}
 
 
-class ValleyModel:
+class ValleyModel(ToyModel):
     """M_h = [B, 0.7 B e^{0.4 i h}], B = 1 / (1 + a (1 + b^2) - 0.5 i h (1 + 2 c)), h = 1, 2: exact derivatives in x."""
 
-    parameters = ["a", "b", "c"]
     lower, upper = np.array([0.5, 0.0, -1.0]), np.array([3.0, 1.0, 1.0])
-    H = 2
 
     def evaluate(self, x, jacobian=True):
-        x = np.atleast_2d(x)
-        half = (self.upper - self.lower) / 2
-        p = self.lower + (x + 1) * half
-        a, b, c = p[:, 0, None], p[:, 1, None], p[:, 2, None]
-        h = np.array([1.0, 2.0])[None, :]
+        a, b, c, h, half = self.physical(x)
         base = 1.0 / (1.0 + a * (1.0 + b**2) - 0.5j * h * (1.0 + 2.0 * c))
         turn = 0.7 * np.exp(0.4j * h)
         M = np.stack([base, base * turn], axis=-1)
@@ -114,6 +109,26 @@ def test_the_profile_widens_a_to_the_closed_form_and_covers_every_truth(at_edge)
     assert set(table["interval"]) <= set(INTERVAL_CODES)
 
 
+def test_a_parameter_not_identifiable_gets_its_profile_not_its_linearised_interval():
+    """From the middle of the valley b is free but on a null direction of the Jacobian (not identifiable): its
+    linearised interval is meaningless (wider than the range); its own interval is its profile, the whole range [0, 1]
+    (the valley is flat), and a's covers the closed form's A / 2 .. A as at the edge."""
+    data = _data()
+    start = np.r_[0.0, 0.0, 0.0, [0.3 * k for k in range(len(data))]]
+    fit = idn.identify([ValleyModel()] * len(data), data, options=ProtocolOptions(trials=0, monte_carlo=0),
+                       extra_starts=start)
+    row = fit.table().set_index("parameter").loc["b"]
+    assert not row["at_bound"] and not row["identifiable"]
+    shared = prf.with_profile(fit).table()
+    shared = shared[shared["run"] == "all"].set_index("parameter")
+    assert shared.loc["b", "ci_low"] == pytest.approx(0.0, abs=1e-9)
+    assert shared.loc["b", "ci_high"] == pytest.approx(1.0, abs=1e-9)
+    A = fit.x[0] * (1 + fit.x[1] ** 2)  # the valley's A at this fit
+    assert shared.loc["a", "ci_low"] < A / 2 and shared.loc["a", "ci_high"] > A
+    for p, truth in TRUTH.items():
+        assert shared.loc[p, "ci_low"] <= truth <= shared.loc[p, "ci_high"], p
+
+
 def test_a_profiled_table_reads_back_exactly(at_edge, tmp_path):
     table = prf.with_profile(at_edge).table()
     path = tmp_path / "parameters.tsv"
@@ -127,7 +142,7 @@ def test_a_profiled_table_reads_back_exactly(at_edge, tmp_path):
 
 def test_nothing_loose_nothing_profiled():
     """Every parameter pinned (test_identification's toy model): no profile, every interval linear."""
-    from test_identification import ToyModel, toy_data
+    from test_identification import toy_data
 
     data = [toy_data([0.3, -0.4, 0.5], phase, noise=1.0, seed=seed, run=f"r{seed}") for seed, phase in ((1, 0.4),
                                                                                                            (2, -1.0))]

@@ -483,7 +483,8 @@ def test_first_page_names_the_next_runs_to_take(three_variants, tmp_path):
 
     from hybridtwin.identify.design import CHOSEN_COLUMNS, INTERVAL_COLUMNS
 
-    chosen = pd.DataFrame([[1, 1000.0, 7.6, True, 3.2, 9.8], [2, 975.0, 0.0, False, 1.1, 10.9]], columns=CHOSEN_COLUMNS)
+    chosen = pd.DataFrame([[1, 1000.0, 7.6, True, 3.2, 9.8, 3.2], [2, 975.0, 0.0, False, 1.1, 10.9, 1.12]],
+                          columns=CHOSEN_COLUMNS)
     intervals = pd.DataFrame([["zeta_bup", "1", 0.0138, 0.0119, 0.0157, "linear", 0.0, 0.05, 1.9e-3, 1.7e-4, 11.0, True],
                               ["k_b", "N/m", 2411.6, 2410.7, 2412.5, "linear", 2000.0, 3500.0, 0.86, 0.35, 2.5, False]],
                              columns=INTERVAL_COLUMNS)

@@ -15,7 +15,6 @@ with the bow shared.
 
 import numpy as np
 import pandas as pd
-import pytest
 import yaml
 from scipy import stats
 
@@ -80,7 +79,7 @@ def test_a_run_that_pins_what_the_fit_runs_leave_loose_is_not_called_a_failure()
     # with it, the fit reaches the run's noise (dof 2 C H - 1 = 11: chi^2 per residual 1 +- 0.4) within the fit runs'
     # region; and the damping it pins moves towards the truth (0.016), from its edge 0.05
     assert why.chi2_refit < 2.0 and why.fit_rise <= why.allowed
-    pinned = {name: after for name, _, _, after in why.pinned}
+    pinned = {m[0]: m[3] for m in why.pinned}
     assert abs(pinned["zeta_bup"] - TRUTH["zeta_bup"]) < 0.005  # the refit's zeta_bup: 0.014 on this seed
     table = vr.refits_table([why])
     assert set(table["validation_run"]) == {"v900"} and "v900" in set(table["run"])  # the fit with it included

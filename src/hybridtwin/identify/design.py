@@ -11,9 +11,9 @@ entries (its phase without a keyphasor, its per-run parameters: nuisances a new 
 which adds up over runs. The fit runs give I_0; a candidate run c (a speed and a mass, its bow from the law over
 the fit runs, the noise the fit runs' median sigma per harmonic and channel) gives I_c; with a keyphasor its phase
 has the fit's prior N(0, (Omega sigma_t)^2), sigma_t the timing of a keyphasor (``keyphasor_timing``). The
-covariance after adding runs is s^2 (I_0 + sum I_c)^-1, s^2 = max(1, chi^2/dof) of the joint fit, so the expected 95 % intervals are
-linear predictions: where the current intervals come from a profile (a loose parameter), they are compared with
-the linearised ones.
+covariance after adding runs is s^2 (I_0 + sum I_c)^-1, s^2 = max(1, chi^2/dof) of the joint fit, so the
+expected 95 % intervals are linear predictions: where the current intervals come from a profile (a loose
+parameter), they are compared with the linearised ones.
 
 Criterion: D_s-optimality on the parameters of interest, the loose ones (at a range edge or not identifiable), or,
 when none is loose, those whose interval is within a factor ``INTEREST_FACTOR`` of the widest relative to its
@@ -21,7 +21,8 @@ range: maximise det of the information on them with the others profiled out (the
 which for one parameter is its variance). D-optimality is invariant to how each parameter is scaled and needs no
 weights between parameters of different units; a Bayesian criterion would need a prior the project does not have.
 Runs are chosen greedily, one after the other (each one given the runs chosen before; greedy D-optimal selection is
-within 1 - 1/e of the best subset for this submodular criterion), from the candidates the rig can measure: a
+within 1 - 1/e of the best subset for this submodular criterion; a run may be chosen again, a repeat), a keyphasor
+asked for only where it adds ``KEYPHASOR_WORTH`` to the run's gain, from the candidates the rig can measure: a
 periodic, stable steady state (Floquet multipliers inside the unit circle) whose peak displacement plus the largest
 sensor offset stays inside the sensor range.
 """
@@ -53,7 +54,10 @@ OFFSET_MARGIN_M = 5e-4
 CANDIDATE_COLUMNS = ["rpm", "eccentric_mass_g", "keyphasor", "feasible", "reason", "peak_mm", "floquet_radius",
                      "gain"]
 #: the chosen runs' columns (next_runs.tsv)
-CHOSEN_COLUMNS = ["step", "rpm", "eccentric_mass_g", "keyphasor", "gain", "log_det"]
+CHOSEN_COLUMNS = ["step", "rpm", "eccentric_mass_g", "keyphasor", "gain", "log_det", "gain_with_keyphasor"]
+#: a run is asked with a keyphasor only when that adds this much to its gain (log det: 5 % of the joint region's
+#: volume over the same run without one; a keyphasor is one more sensor)
+KEYPHASOR_WORTH = 0.05
 #: the intervals' columns (design_intervals.tsv)
 INTERVAL_COLUMNS = ["parameter", "unit", "value", "ci_low", "ci_high", "interval", "lower", "upper",
                     "linear_half_width", "expected_half_width", "shrink", "interest"]
@@ -248,11 +252,19 @@ def design_runs(variant, joint: pd.DataFrame, harmonics: pd.DataFrame, runs: pd.
             break
         best = max(gains, key=gains.get)
         r = candidates.loc[best]
+        same = {i for i in gains if candidates.loc[i, "rpm"] == r.rpm
+                and candidates.loc[i, "eccentric_mass_g"] == r.eccentric_mass_g}
+        plain = {i: gains[i] for i in same if not candidates.loc[i, "keyphasor"]}
+        if r.keyphasor and plain and gains[best] - max(plain.values()) < KEYPHASOR_WORTH:
+            best = max(plain, key=plain.get)  # the same run without a keyphasor does nearly as well
+            r = candidates.loc[best]
+        with_keyphasor = [gains[i] for i in same if candidates.loc[i, "keyphasor"]]
         matrix = added[(r.rpm, r.eccentric_mass_g, r.keyphasor)]
         total, base = total + matrix, base + gains[best]
         matrices.append(matrix)
         chosen.append({"step": step, "rpm": r.rpm, "eccentric_mass_g": r.eccentric_mass_g,
-                       "keyphasor": bool(r.keyphasor), "gain": gains[best], "log_det": base})
+                       "keyphasor": bool(r.keyphasor), "gain": gains[best], "log_det": base,
+                       "gain_with_keyphasor": max(with_keyphasor) if with_keyphasor else np.nan})
     intervals = _intervals(variant, joint, shared, wanted, information, total, s2, confidence)
     notes = [] if chosen else ["no candidate run the rig can measure"]
     return Design(candidates, pd.DataFrame(chosen, columns=CHOSEN_COLUMNS), intervals, wanted, information,
@@ -293,7 +305,7 @@ def plot_design(design: Design, variant_name: str):
         colour = f"C{k}"
         for keyphasor, style in ((False, "-"), (True, ":")):
             sub = rows[rows["keyphasor"] == keyphasor]
-            ax.plot(sub["rpm"], sub["gain"], style, color=colour,
+            ax.plot(sub["rpm"], sub["gain"], style, color=colour, marker="." if not keyphasor else None, ms=4,
                     label=f"{mass:g} g{', keyphasor' if keyphasor else ''}")
         bad = rows[~rows["feasible"] & ~rows["keyphasor"]]
         ax.plot(bad["rpm"], np.zeros(len(bad)), "x", color=colour, ms=5)

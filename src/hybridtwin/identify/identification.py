@@ -74,7 +74,7 @@ from ..data.measured import (  # noqa: F401 (the measured harmonics: hybridtwin.
 )
 from .lm import STATUS_MESSAGES, Evaluation, LMOptions
 from .protocol import ProtocolOptions, ProtocolResult, run_protocol
-from .uncertainty import Profiled, Uncertainty, analyse_uncertainty, interval_basis, student_t
+from .uncertainty import Profiled, Uncertainty, analyse_uncertainty, interval_basis, loose_entries, student_t
 
 Array = np.ndarray
 
@@ -463,10 +463,14 @@ class Identification:
             out["mc_ci_low"][i] = np.percentile(values, alpha)
             out["mc_ci_high"][i] = np.percentile(values, 100 - alpha)
         profiled = None
-        if self.profile is not None:  # never narrower than the linearised interval (fmin/fmax skip its NaN)
+        if self.profile is not None:  # never narrower than the linearised interval (fmin/fmax skip its NaN), but a
+            # loose parameter's own is its profile across its range (its linearised one is not valid: wider than the
+            # range, or none at its edge)
             profiled = self.profile.profiled
-            out["ci_low"] = np.where(profiled, np.fmin(out["ci_low"], self.profile.low), out["ci_low"])
-            out["ci_high"] = np.where(profiled, np.fmax(out["ci_high"], self.profile.high), out["ci_high"])
+            loose = loose_entries(L, u.at_bound, u.identifiable)
+            low, high = (np.where(loose, np.nan, out[k]) for k in ("ci_low", "ci_high"))
+            out["ci_low"] = np.where(profiled, np.fmin(low, self.profile.low), out["ci_low"])
+            out["ci_high"] = np.where(profiled, np.fmax(high, self.profile.high), out["ci_high"])
         finite = np.isfinite(out["ci_low"]) & np.isfinite(out["ci_high"])
         out["interval"], out["loose"] = interval_basis(L, u.at_bound, u.identifiable, finite, profiled)
         return out

@@ -10,8 +10,9 @@ per-run parameters and phase free as a fit run's, starting from their law and al
 
 - the run comes within the noise (p >= ALPHA on its own 2 C H - k degrees of freedom, k its per-run entries) and the
   fit runs' chi^2 rises by at most s^2 chi2_d(0.95) (the joint region of the d shared parameters, as the intervals'
-  profile, ``hybridtwin.identify.profile``): ``not_pinned``, "the fit runs do not pin X; this run does", X the
-  shared parameters that moved by more than one standard error (or the one that moved most);
+  profile, ``hybridtwin.identify.profile``): ``not_pinned``, "the fit runs do not pin X; this run does", X what
+  moved by more than one unit (or the one that moved most): a shared parameter in its standard errors, a loose one
+  (at its edge or not identifiable) in tenths of its range, the run's own per-run parameters in sigmas of their law;
 - the same, but the run's own per-run parameters (the bow) end outside their law's 95 % prediction band over the
   fit runs (``law_band``): ``bow_law``, the law of the per-run parameters does not carry to this run;
 - otherwise ``missing_physics``: no parameter set the fit runs allow predicts it.
@@ -60,13 +61,15 @@ REFIT_COLUMNS = ["validation_run", *idn.TABLE_COLUMNS]
 @dataclass
 class Explanation:
     """Why one validation run is predicted as it is (module docstring). pinned: the parameters this run pins (name,
-    move in the joint fit's standard errors (inf where it had none), value before and after); chi2_*: the run's chi^2 per residual predicted and after the refit; fit_rise:
+    move, value before and after, the move's unit: a shared parameter's standard errors in the joint fit, a loose
+    one's tenths of its range, the run's own per-run parameters' sigmas of their law); chi2_*: the run's chi^2 per
+    residual predicted and after the refit; fit_rise:
     the fit runs' chi^2 rise in the refit, allowed: its threshold; law: per per-run parameter of the run, its refit
     value, its law's value and the law band's half-width; table: the refit's parameter table (None without one)."""
 
     run: str
     code: str
-    pinned: list[tuple[str, float, float, float]] = field(default_factory=list)
+    pinned: list[tuple[str, float, float, float, str]] = field(default_factory=list)
     chi2_predicted: float = np.nan
     chi2_refit: float = np.nan
     fit_rise: float = np.nan
@@ -80,11 +83,11 @@ class Explanation:
     def sentence(self) -> str:
         """What the user reads (derived from the code and the numbers; no code branches on it)."""
         if self.code == "not_pinned":
-            moved = ", ".join(f"{p} {a:.4g} -> {b:.4g} ({_in_stderr(m)})" for p, m, a, b in self.pinned)
+            moved = ", ".join(f"{p} {a:.4g} -> {b:.4g} ({m:+.2g} {unit})" for p, m, a, b, unit in self.pinned)
             return (f"the fit runs do not pin {', '.join(m[0] for m in self.pinned)}; this run does: fitted with the "
                     f"fit runs it comes within the noise (chi^2 per residual {self.chi2_predicted:.3g} -> "
-                    f"{self.chi2_refit:.3g}) while theirs rises by {self.fit_rise:.3g} (allowed {self.allowed:.3g}); "
-                    f"moved: {moved} (validation_refits.tsv)")
+                    f"{self.chi2_refit:.3g}) while theirs changes by {self.fit_rise:+.3g} (at most "
+                    f"{self.allowed:.3g} allowed); moved: {moved} (validation_refits.tsv)")
         if self.code == "bow_law":
             outside = "; ".join(f"{p} = {v:.4g} against its law's {w:.4g} +- {b:.2g}" for p, (v, w, b)
                                 in self.law.items() if abs(v - w) > b)
@@ -97,10 +100,6 @@ class Explanation:
         if self.code == "misfit":
             return f"{EXPLANATIONS['misfit']} (their chi^2/dof {self.fit_chi2_dof:.3g})"
         return EXPLANATIONS[self.code] + (f": {self.detail}" if self.detail else "")
-
-
-def _in_stderr(move: float) -> str:
-    return f"{move:+.1f} standard errors" if np.isfinite(move) else "it had no interval: an estimate at its edge"
 
 
 def beyond_noise(chi2_per_residual: float, n_residuals: int) -> bool:
@@ -125,7 +124,8 @@ def law_band(joint: pd.DataFrame, parameter: str, rpm: float, mass_g: float, run
     used = [k for k in range(3) if coef[k] != 0.0] or [0]
     A = np.column_stack([np.ones_like(omega2), omega2, omega2 * mass])[:, used]
     value = float(predict(rpm, mass_g))
-    residual = rows["value"].to_numpy(float) - predict(rows["rpm"].to_numpy(float), rows["eccentric_mass_g"].to_numpy(float))
+    speeds, masses = (rows[c].to_numpy(float) for c in ("rpm", "eccentric_mass_g"))
+    residual = rows["value"].to_numpy(float) - predict(speeds, masses)
     dof = max(len(rows) - len(used), 1)
     s2 = max(1.0, float((w * residual**2).sum()) / dof)
     o2 = (rpm * 2 * np.pi / 60) ** 2
@@ -196,17 +196,27 @@ def explain_run(variant, joint: pd.DataFrame, harmonics: pd.DataFrame, data: idn
             and after - before <= allowed):
         return explanation
     old = joint.set_index(["parameter", "run"])
-    moves = []  # (parameter, move in standard errors (inf without one: an estimate at its edge), before, after)
+    moves = []  # (name, move in its unit (module docstring), before, after, unit's name)
     for i in shared:
         p = layout.entries()[i][0]
-        stderr, value = float(old.loc[(p, "all"), "stderr"]), float(old.loc[(p, "all"), "value"])
-        move = (refit.x[i] - value) / stderr if np.isfinite(stderr) and stderr > 0 else np.inf
-        moves.append((p, float(move), value, float(refit.x[i])))
-    moves.sort(key=lambda m: -abs(m[1]))
-    explanation.pinned = [m for m in moves if abs(m[1]) > 1.0] or moves[:1]
+        row = old.loc[(p, "all")]
+        value, after_value = float(row["value"]), float(refit.x[i])
+        if bool(row["at_bound"]) or not bool(row["identifiable"]):  # loose: how far across its range it moved
+            moves.append((p, (after_value - value) / (0.1 * (row["upper"] - row["lower"])), value, after_value,
+                          "tenths of its range (loose in the fit runs)"))
+        else:
+            stderr = float(row["stderr"])
+            moves.append((p, (after_value - value) / stderr if stderr > 0 else np.inf, value, after_value,
+                          "standard errors"))
     for p in per_run:
         value, band = law_band(joint, p, data.rpm, data.eccentric_mass_g, runs, options["validation_bow"])
-        explanation.law[p] = (float(refit.x[layout.entries().index((p, data.run))]), value, band)
+        after_value = float(refit.x[layout.entries().index((p, data.run))])
+        explanation.law[p] = (after_value, value, band)
+        sigma = band / stats.norm.ppf(0.975)
+        moves.append((f"{p} at this run", (after_value - value) / sigma if sigma > 0 else np.inf, value, after_value,
+                      "sigmas of its law over the fit runs"))
+    moves.sort(key=lambda m: -abs(m[1]))
+    explanation.pinned = [m for m in moves if abs(m[1]) > 1.0] or moves[:1]
     outside = [p for p, (v, w, b) in explanation.law.items() if abs(v - w) > b]
     explanation.code = "bow_law" if outside else "not_pinned"
     return explanation

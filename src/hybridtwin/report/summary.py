@@ -296,7 +296,8 @@ def _failures(variant: str, table: pd.DataFrame, why: Mapping[str, str] | None =
         return f"**{_text(variant)}**: every run within the noise ({error_map})."
     why = why or {}
     runs = [result_link(f"{r.run}{' (validation)' if r.role != 'fit' else ''} {_number(r.chi2_dof)}",
-                        run_figure(variant, r.run)) + (f" ({_text(why[r.run])})" if r.role != "fit" and r.run in why else "")
+                        run_figure(variant, r.run))
+            + (f" ({_text(why[r.run])})" if r.role != "fit" and r.run in why else "")
             for r in beyond.head(MAX_RUN_LINKS).itertuples()]
     more = f" and {len(beyond) - MAX_RUN_LINKS} more" if len(beyond) > MAX_RUN_LINKS else ""
     return (f"**{_text(variant)}**: {len(beyond)} of {len(table)} runs: " + ", ".join(runs) + more
@@ -308,8 +309,8 @@ def next_runs_line(variant: str, chosen: pd.DataFrame, intervals: pd.DataFrame) 
     hybridtwin.identify.design): the runs in order and the intervals of interest now and expected after them."""
     if chosen.empty:
         return ""
-    runs = "; ".join(f"{r.rpm:g} RPM, {r.eccentric_mass_g:g} g{' with a keyphasor' if str(r.keyphasor) == 'True' else ''}"
-                     for r in chosen.itertuples())
+    runs = "; ".join(f"{r.rpm:g} RPM, {r.eccentric_mass_g:g} g" + (" with a keyphasor" if str(r.keyphasor) == "True"
+                                                                   else "") for r in chosen.itertuples())
     wanted = intervals[intervals["interest"].astype(str) == "True"]
     shrink = ", ".join(f"{_text(r.parameter)} +-{r.linear_half_width:.3g} -> +-{r.expected_half_width:.3g}"
                        for r in wanted.itertuples())
