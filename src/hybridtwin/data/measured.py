@@ -17,6 +17,7 @@ import pandas as pd
 
 from .measurements import DEFAULT_CHANNELS
 from .preprocessing import harmonic_column, origin_share, table_channels
+from .record_columns import highest_harmonic
 from .slow_roll import RUNOUT_HARMONICS
 
 Array = np.ndarray
@@ -73,9 +74,7 @@ def table_harmonics(table: pd.DataFrame) -> int:
     if not channels:
         raise ValueError("the harmonics table has no channels (columns noise_<sensor>_m, offset_<sensor>_m and "
                          "x1_re_m, ...; not results/data/harmonics.tsv?)")
-    h = 0
-    while all(harmonic_column(c, h + 1, "re") in table for c in channels):
-        h += 1
+    h = highest_harmonic(table, channels)
     if h == 0:
         raise ValueError(f"the harmonics table has no {harmonic_column(channels[0], 1, 're')} column (not "
                          "results/data/harmonics.tsv?)")

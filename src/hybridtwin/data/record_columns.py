@@ -197,6 +197,15 @@ def harmonic_column(channel: str, h: int, part: str) -> str:
     return f"{harmonic_stem(channel, h)}_{part}_m"
 
 
+def highest_harmonic(table, channels: Sequence[str]) -> int:
+    """The highest h such that every channel has its harmonics 1..h (columns <channel><h>_re_m) in ``table``; 0
+    when the first is missing."""
+    h = 0
+    while channels and all(harmonic_column(c, h + 1, "re") in table for c in channels):
+        h += 1
+    return h
+
+
 def harmonic_stem(channel: str, h: int) -> str:
     """Channel ``channel``'s harmonic ``h`` in column names: x1 for channel x, x1_1 for channel x1."""
     return f"{channel}{'_' if channel[-1:].isdigit() else ''}{h}"

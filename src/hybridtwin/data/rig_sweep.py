@@ -306,7 +306,7 @@ def synthesise_sweep(truth, row: Mapping, conditions: Mapping, imperfections, se
             result = integrate_sweep(system, profile, t, dofs, harmonics=harmonics,
                                      atol_relative=SWEEP_ATOL_RELATIVE)
         except NotSettledError as err:
-            if "no periodic steady state" not in str(err):  # diverged, or Radau failed: not a matter of tolerance
+            if not err.budget:  # diverged, or Radau failed: not a matter of tolerance
                 raise
             result = integrate_sweep(system, profile, t, dofs, harmonics=harmonics, atol_relative=SWEEP_ATOL_RELATIVE,
                                      settle_options={"tolerance": START_TOLERANCE_RETRY})

@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 from .measurements import DataError, Record
-from .record_columns import carried_columns, harmonic_column, harmonic_columns
+from .record_columns import carried_columns, harmonic_column, harmonic_columns, highest_harmonic
 from .run_kinds import BandPlan
 from .order_tracking import SpeedProfile, TrackingError, speed_profile, track_orders
 from .slow_roll import SlowRollWarning, compensate, runout as slow_roll_runout
@@ -270,7 +270,7 @@ def check_sweep_rate(bands: pd.DataFrame, names: Sequence[str], plan: BandPlan) 
     ratio, lag, order = np.zeros(len(out)), np.zeros(len(out)), np.ones(len(out), int)
     modes = {1: (omega_n, zeta, gain * float(np.abs(fine**2 / (omega_n**2 - fine**2
                                                               + 2j * zeta * omega_n * fine)).max()))}
-    for h in range(2, table_harmonics_of(out, names) + 1):
+    for h in range(2, highest_harmonic(out, names) + 1):
         found = _order_mode(out, names, h, usable, fine, zeta)
         if found is not None:
             modes[h] = found
@@ -296,14 +296,6 @@ def check_sweep_rate(bands: pd.DataFrame, names: Sequence[str], plan: BandPlan) 
                               f"{modes[h][1]:.3f}, fitted to the record): kept out")
         out.loc[i, "flags"] = "sweep_too_fast"
     return out
-
-
-def table_harmonics_of(bands: pd.DataFrame, names: Sequence[str]) -> int:
-    """The highest order h with re, im and sigma columns for every probe in a bands table."""
-    h = 0
-    while all(harmonic_column(n, h + 1, part) in bands for n in names for part in ("re", "im", "sigma")):
-        h += 1
-    return h
 
 
 def _order_mode(bands: pd.DataFrame, names: Sequence[str], h: int, usable: Array, fine: Array, zeta_1: float

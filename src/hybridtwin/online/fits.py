@@ -108,8 +108,7 @@ class RecordProblem:
         self.lower, self.upper = lower, upper
         H = min(harmonics, min(d.H for d in data))
         self.H, self.R = H, len(data)
-        self.models = [SolverModel(variant, d.run, d.rpm, d.eccentric_mass_g, self.names, lower, upper, H,
-                                   slow_roll_harmonics=d.slow_roll_harmonics) for d in data]
+        self.models = [SolverModel.for_data(variant, d, self.names, lower, upper, H) for d in data]
         self.X = np.stack([d.X[:H] for d in data])  # (R, H, C)
         self.sigma = np.stack([d.sigma[:H] for d in data])
         self.C = self.X.shape[2]

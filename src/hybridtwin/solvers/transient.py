@@ -430,12 +430,15 @@ DEFAULT_MAX_DECAY_TIMES = 40.0
 class NotSettledError(RuntimeError):
     """No periodic steady state reached: the period budget ran out, the response diverged or Radau failed.
 
-    ``settled`` holds the speeds a run-up had settled before (``run_up_harmonics``).
+    ``settled`` holds the speeds a run-up had settled before (``run_up_harmonics``); ``budget`` is True when the
+    period budget ran out with the response bounded (the harmonics still changing above the tolerance), False when
+    it diverged or Radau failed.
     """
 
-    def __init__(self, message: str, settled: list | None = None):
+    def __init__(self, message: str, settled: list | None = None, budget: bool = False):
         super().__init__(message)
         self.settled = list(settled or [])
+        self.budget = bool(budget)
 
 
 @dataclass
@@ -600,7 +603,7 @@ def settle(
         y, scale = y_end, (amplitude if amplitude > 0 else scale)
     raise NotSettledError(f"{rpm:.2f} RPM: no periodic steady state after {max_periods} periods "
                           f"({max_periods * T:.3g} s): the last period-to-period change of the harmonics is "
-                          f"{change:.2e} of the largest, tolerance {tolerance:.1e}")
+                          f"{change:.2e} of the largest, tolerance {tolerance:.1e}", budget=True)
 
 
 def run_up_harmonics(systems: Sequence[System], dofs: Sequence[int], harmonics: int = 7, *, scenario: int = 0,
