@@ -19,7 +19,8 @@ from hybridtwin.cli import main
 from hybridtwin.model.machine import Machine
 from hybridtwin.data.measurements import DataWarning, detect_saturation, read_record, read_runs
 from hybridtwin.data.rig import (
-    DEFAULT_TRUTH, Imperfections, RigError, RigSpec, RigWarning, Truth, generate, read_plan,
+    DEFAULT_TRUTH, Imperfections, RigError, RigSpec, RigWarning, Truth, generate, harmonics_of, read_plan,
+    write_steady_records,
 )
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -77,6 +78,20 @@ def test_records_and_answer_key(tmp_path):
     # the record is the truth's steady state: its mean is the drawn offset (the truth has no 0X), to 4 sigma
     row = truth.iloc[0]
     assert abs(record.x_m.mean() - row["offset_x_m"]) < 4 * row["noise_x_m"] / np.sqrt(record.n_samples) + 2e-6
+
+
+def test_records_written_again_from_the_answer_key_are_the_records(tmp_path):
+    """rig.write_steady_records from truth.tsv as written (no solve) gives the records generate wrote, to one unit
+    of their last written digit (numeric_files.same_record): truth.tsv keeps 10 significant digits, 1e-10 relative
+    of a response of at most a few mm is < 1e-6 mm, far below the records' 1e-4 mm digit."""
+    spec = RigSpec(imperfections=Imperfections(duration_s=1.0, keyphasor=True), seed=5, harmonics=5)
+    generate(SMALL, spec, tmp_path / "solved")
+    key = pd.read_csv(tmp_path / "solved" / "truth.tsv", sep="\t")
+    again = write_steady_records(key, spec, tmp_path / "again")
+    assert again["clipped_samples"].tolist() == key["clipped_samples"].tolist()
+    for run in SMALL["run"]:
+        same_record(tmp_path / "again" / "records" / f"{run}.csv", tmp_path / "solved" / "records" / f"{run}.csv")
+    np.testing.assert_allclose(harmonics_of(key, 5)[:, 1], harmonics_of(again, 5)[:, 1], rtol=0)
 
 
 def test_keyphasor_marks_the_unbalance_on_plus_x_once_per_turn(tmp_path):

@@ -507,14 +507,37 @@ def _steady_records(plan: pd.DataFrame, spec: RigSpec, out_dir: Path, channels: 
     if failed.any():
         detail = "; ".join(f"{r} ({m})" for r, m in zip(runs["run"][failed], response.message[failed]))
         raise RigError(f"the truth has no periodic steady state at: {detail}")
-    truth = _truth_table(runs, response, spec, channels)
-    for i, row in runs.iterrows():
-        record = synthesise(response.Z[i], row["rpm_true"], row, spec.imperfections, _rng(spec.seed, row["run"], 1),
-                            channels)
-        write_record(out_dir / "records" / f"{row['run']}.csv", record, spec.imperfections.unit, channels)
-        truth.loc[i, "clipped_samples"] = int(record["clipped"].sum())
+    truth = write_steady_records(_truth_table(runs, response, spec, channels), spec, out_dir, channels)
     _warn(truth, spec.imperfections)
     return truth
+
+
+def write_steady_records(truth: pd.DataFrame, spec: RigSpec, out_dir: str | Path,
+                         channels: Sequence[str] = ("x", "y")) -> pd.DataFrame:
+    """The steady runs' records, synthesised from an answer key's rows (truth.tsv: the conditions and the truth's
+    harmonics, as ``generate`` wrote them) into ``out_dir``/records; the table with ``clipped_samples`` counted.
+
+    What ``generate`` does after solving the truth: the records of an answer key can be written again (the same
+    seeds, so the same records to the truth.tsv's digits) without solving it again, e.g. from a time-integrated
+    truth kept small (the suite's time-integrated diagnosis cases, tests/rig_cases)."""
+    truth = truth.copy()
+    Z = harmonics_of(truth, spec.harmonics, channels)
+    for i, (_, row) in enumerate(truth.iterrows()):
+        record = synthesise(Z[i], row["rpm_true"], row, spec.imperfections, _rng(spec.seed, row["run"], 1),
+                            channels)
+        write_record(Path(out_dir) / "records" / f"{row['run']}.csv", record, spec.imperfections.unit, channels)
+        truth.loc[truth.index[i], "clipped_samples"] = int(record["clipped"].sum())
+    return truth
+
+
+def harmonics_of(truth: pd.DataFrame, harmonics: int, channels: Sequence[str] = ("x", "y")) -> Array:
+    """(R, H+1, C) complex [m]: the truth's harmonics from an answer key's columns (the inverse of
+    ``_truth_table``'s harmonic columns)."""
+    from .preprocessing import harmonic_column
+
+    return np.stack([np.stack([truth[harmonic_column(c, h, "re")].to_numpy(float)
+                               + 1j * truth[harmonic_column(c, h, "im")].to_numpy(float) for c in channels], -1)
+                     for h in range(harmonics + 1)], 1)
 
 
 # --- helpers ----------------------------------------------------------------------------
@@ -594,6 +617,32 @@ def _warn(truth: pd.DataFrame, imperfections: Imperfections) -> None:
 
 
 # --- command line -----------------------------------------------------------------------
+
+
+def read_answer_key(path: str | Path, effects: Mapping[str, Effect] | None = None) -> RigSpec:
+    """The RigSpec of a generated data set from its answer key (truth.yaml, as ``generate`` wrote it:
+    ``RigSpec.to_mapping``): the inverse of that writer. ``nominal_values_used`` is what the truth's model takes
+    for the values not given; it must be what this version's model takes (else the records came from another
+    model, and are refused). ``effects``: the user effects the truth names (e.g. the rig's effects files)."""
+    path = Path(path)
+    try:
+        mapping = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as err:
+        raise RigError(f"answer key {path}: cannot read it ({err})") from None
+    if not isinstance(mapping, dict) or not isinstance(mapping.get("truth"), dict):
+        raise RigError(f"answer key {path}: expected the mapping generate writes (seed, ..., truth: {{...}})")
+    mapping = dict(mapping)
+    truth = dict(mapping["truth"])
+    nominal = truth.pop("nominal_values_used", {}) or {}
+    machine = Machine.from_mapping(mapping.pop("machine")) if "machine" in mapping else None
+    spec = RigSpec.from_mapping(mapping | {"truth": truth}, effects, machine)
+    used = spec.truth.to_mapping()["nominal_values_used"]
+    differ = sorted(k for k in set(nominal) | set(used) if not np.isclose(nominal.get(k, np.nan), used.get(k, np.nan),
+                                                                         rtol=1e-12, atol=0.0))
+    if differ:
+        raise RigError(f"answer key {path}: nominal value(s) {differ} differ from this model's "
+                       f"({ {k: nominal.get(k) for k in differ} } against { {k: used.get(k) for k in differ} })")
+    return spec
 
 
 def load_spec(path: Path | None, effects_files: list[Path] | None = None, machine: Machine | None = None,
