@@ -182,6 +182,16 @@ def estimates(case: str, result: dg.Diagnosis) -> str:
     return "; ".join(out)
 
 
+def coverage(case: str, result: dg.Diagnosis) -> tuple[int, int]:
+    """(inside, estimated): of the case's hidden values the path's final fit estimates (a value no added effect
+    carries, e.g. the slope force's k_z when expansion_k4 stands for it, is not counted), how many lie inside
+    their 95 % interval. Summed over the cases: the intervals' coverage (issue 36)."""
+    _, values, _ = CASES[case]
+    final = result.estimates().set_index("parameter")
+    rows = [final.loc[name] for name in values if name in final.index]
+    return sum(bool(r.ci_low <= values[r.name] <= r.ci_high) for r in rows), len(rows)
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cases", default=",".join(CASES), help="comma-separated subset of: " + ", ".join(CASES))
@@ -240,8 +250,10 @@ def main() -> int:
                      "verdict": result.conclusion.split(":")[0], "status": result.status.value,
                      "chi2_dof_before": result.summary["base_chi2_dof"],
                      "chi2_dof_after": after, "path": " + ".join(s.effect for s in result.path),
-                     "estimate_vs_truth": estimates(case, result), "rig_s": rig_s, "fit_s": fit_s,
-                     "diagnose_s": diagnose_s, "diagnose_cpu_s": diagnose_cpu_s, "refits": len(result.summary["refitted"]),
+                     "estimate_vs_truth": estimates(case, result),
+                     **dict(zip(("inside", "estimated"), coverage(case, result))),
+                     "rig_s": rig_s, "fit_s": fit_s, "diagnose_s": diagnose_s, "diagnose_cpu_s": diagnose_cpu_s,
+                     "refits": len(result.summary["refitted"]),
                      "fingerprint": result.summary.get("fingerprint", "") if not result.path else "",
                      "conclusion": result.conclusion})
         row = rows[-1]
@@ -258,12 +270,14 @@ def main() -> int:
     pd.set_option("display.width", 250)
     pd.set_option("display.max_colwidth", 60)
     shown = [c for c in ["case", "top1", "correct", "verdict", "chi2_dof_before", "chi2_dof_after", "after_over_floor",
-                         "estimate_vs_truth", "rig_s", "fit_s", "diagnose_s",
+                         "estimate_vs_truth", "inside", "estimated", "rig_s", "fit_s", "diagnose_s",
                          "diagnose_cpu_s"] if c in table]
     print(table[shown].to_string(index=False, float_format=lambda v: f"{v:.3g}"))
     hidden = table["case"].map(lambda c: bool(CASES[c][0]))
     invisible = table.loc[hidden & ~table["visible"], "case"].tolist()
-    print(f"\ncorrect: {int(table['correct'].sum())} of {len(table)}"
+    inside, estimated = int(table["inside"].sum()), int(table["estimated"].sum())
+    print(f"\ncorrect: {int(table['correct'].sum())} of {len(table)}; hidden values inside their 95 % interval: "
+          f"{inside} of {estimated}"
           + (f" ({len(invisible)} hidden effect(s) invisible, the base fitting them to the noise: "
              f"{', '.join(invisible)})" if invisible else "") + f"; table written to {args.out}")
     return 0

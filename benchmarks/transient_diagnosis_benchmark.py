@@ -36,7 +36,7 @@ import yaml
 from threadpoolctl import threadpool_limits
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from diagnosis_benchmark import CASES, MIDSPAN_CUBIC, TRUTH, base_fit, estimates, judge  # noqa: E402
+from diagnosis_benchmark import CASES, MIDSPAN_CUBIC, TRUTH, base_fit, coverage, estimates, judge  # noqa: E402
 
 from hybridtwin.data.measured import run_data  # noqa: E402
 from hybridtwin.data.measurements import read_record, read_runs  # noqa: E402
@@ -122,7 +122,9 @@ def main() -> int:
                      "visible": bool(result.summary["misfit"]), "verdict": result.conclusion.split(":")[0],
                      "status": result.status.value, "chi2_dof_before": result.summary["base_chi2_dof"],
                      "chi2_dof_after": after, "path": " + ".join(s.effect for s in result.path),
-                     "estimate_vs_truth": estimates(case, result), "rig_s": rig_s, "fit_s": fit_s,
+                     "estimate_vs_truth": estimates(case, result),
+                     **dict(zip(("inside", "estimated"), coverage(case, result))),
+                     "rig_s": rig_s, "fit_s": fit_s,
                      "diagnose_s": diagnose_s, "diagnose_cpu_s": diagnose_cpu_s,
                      "refits": len(result.summary["refitted"]),
                      "fingerprint": result.summary.get("fingerprint", "") if not result.path else "",
@@ -142,9 +144,11 @@ def main() -> int:
     pd.set_option("display.width", 250)
     pd.set_option("display.max_colwidth", 70)
     shown = [c for c in ["case", "bands", "top1", "correct", "verdict", "chi2_dof_before", "chi2_dof_after",
-                         "after_over_floor", "estimate_vs_truth", "rig_s", "fit_s", "diagnose_s"] if c in table]
+                         "after_over_floor", "estimate_vs_truth", "inside", "estimated", "rig_s", "fit_s", "diagnose_s"] if c in table]
     print(table[shown].to_string(index=False, float_format=lambda v: f"{v:.3g}"))
-    print(f"\ncorrect: {int(table['correct'].sum())} of {len(table)}; table written to {args.out}")
+    inside, estimated = int(table["inside"].sum()), int(table["estimated"].sum())
+    print(f"\ncorrect: {int(table['correct'].sum())} of {len(table)}; hidden values inside their 95 % interval: "
+          f"{inside} of {estimated}; table written to {args.out}")
     return 0
 
 
