@@ -144,7 +144,8 @@ def main() -> int:
     pd.set_option("display.width", 250)
     pd.set_option("display.max_colwidth", 70)
     shown = [c for c in ["case", "bands", "top1", "correct", "verdict", "chi2_dof_before", "chi2_dof_after",
-                         "after_over_floor", "estimate_vs_truth", "inside", "estimated", "rig_s", "fit_s", "diagnose_s"] if c in table]
+                         "after_over_floor", "estimate_vs_truth", "inside", "estimated", "rig_s", "fit_s",
+                         "diagnose_s"] if c in table]
     print(table[shown].to_string(index=False, float_format=lambda v: f"{v:.3g}"))
     inside, estimated = int(table["inside"].sum()), int(table["estimated"].sum())
     print(f"\ncorrect: {int(table['correct'].sum())} of {len(table)}; hidden values inside their 95 % interval: "
