@@ -501,3 +501,67 @@ def test_check_data_cli_reports_an_invalid_record_and_keeps_checking(dataset, ca
     out, err = capsys.readouterr()
     assert "run a:" in err and "a.csv: column x_mm: not a number" in err and "line 12 ('abc')" in err
     assert "1 ok" in err and "1 invalid" in err  # run b still checked and summarised
+
+
+def _fast_and_careful(path: Path):
+    from hybridtwin.data.measurements import _checked_record, _clean_record
+
+    names = ("x", "y")
+    return _clean_record(path, names), _checked_record(path, names)
+
+
+@pytest.mark.parametrize("number", ["%.6f", "%.17g", "%.4e", "%g"])
+def test_the_fast_record_reader_reads_what_the_careful_one_reads_bit_for_bit(tmp_path, number):
+    """A clean all-numeric record (record_columns.fast_numeric_table, the C parser) gives the careful cell-by-cell
+    reader's values to the last bit, its line numbers and its keyphasor marks, whatever the number format (the
+    careful reader is the reference: pd.to_numeric, correctly rounded, as round_trip is)."""
+    rng = np.random.default_rng(5)
+    n = 2000
+    t = np.arange(n) / 2000.0
+    x, y = rng.normal(0, 1.3, n), rng.normal(0, 0.02, n) * 10.0 ** rng.integers(-8, 3, n)
+    keyphasor = (np.arange(n) % 37 == 3).astype(int)
+    path = tmp_path / "r.csv"
+    with open(path, "w") as f:
+        f.write("Time_s, x_mm ,y_mm,keyphasor\n")  # header spacing and case as a user may write them
+        for row in zip(t, x, y, keyphasor):
+            f.write(",".join([f"{row[0]:.6f}", number % row[1], number % row[2], str(row[3])]) + "\r\n")
+    fast, careful = _fast_and_careful(path)
+    assert fast is not None  # the premise: this file takes the fast path
+    for column in careful[0]:
+        assert np.array_equal(fast[0][column], careful[0][column]), column
+    assert np.array_equal(fast[1], careful[1]) and fast[1].sum() == keyphasor.sum()
+    assert np.array_equal(fast[2], careful[2]) and fast[3:] == careful[3:]
+
+
+@pytest.mark.parametrize("change", ["quotes", "blank line", "trailing comma", "nan", "empty", "decimal comma",
+                                    "unit", "true/false keyphasor", "true as a displacement", "one level keyphasor"])
+def test_a_record_the_fast_reader_cannot_vouch_for_is_read_cell_by_cell(tmp_path, change):
+    """Anything but a clean all-numeric file goes to the careful reader (fast_numeric_table returns None, or the
+    keyphasor has no two levels with a rising edge), which reads it or names the problem as before: the fast path
+    never accepts what the careful one would refuse, nor reads a value differently."""
+    from hybridtwin.data.measurements import _clean_record
+
+    lines = ["time_s,x_mm,y_mm,keyphasor"] + [f"{i / 1000:.3f},{np.sin(i / 7):.5f},{np.cos(i / 7):.5f},"
+                                              f"{int(i % 20 == 1)}" for i in range(200)]
+    edit = {"quotes": lambda s: s.replace("time_s", '"time_s"'),
+            "blank line": lambda s: s.replace("\n", "\n\n", 5).replace("\n\n", "\n", 4),
+            "trailing comma": lambda s: s.replace("\n", ",\n"),
+            "nan": lambda s: s[::-1].replace(",", ",nan"[::-1], 1)[::-1],
+            "empty": lambda s: s.replace(",1\n", ",\n", 1),
+            "decimal comma": lambda s: s.replace("0.5", "0,5", 1),
+            "unit": lambda s: s.replace(",0.0", ",0.0 mm", 1),
+            "true/false keyphasor": lambda s: s.replace(",0\n", ",false\n").replace(",1\n", ",true\n"),
+            "true as a displacement": lambda s: s.replace(",0.00000,", ",true,", 1),
+            "one level keyphasor": lambda s: s.replace(",1\n", ",0\n")}[change]
+    path = tmp_path / "r.csv"
+    path.write_text(edit("\n".join(lines) + "\n"))
+    assert _clean_record(path, ("x", "y")) is None
+    try:
+        careful = _fast_and_careful(path)[1]
+    except DataError as err:
+        with pytest.raises(DataError) as again:
+            read_record(path)
+        assert str(again.value) == str(err)
+    else:
+        record = read_record(path)
+        assert np.array_equal(record.x_m, careful[0]["x_mm"] * 1e-3)
