@@ -280,17 +280,19 @@ def test_response_of_the_varm_marks_its_unstable_stretch(capsys, tmp_path):
     assert len(peaks) and set(peaks["channel"]) == {"x", "y"}
 
 
-def test_log_decrement_matches_ross():
+@pytest.mark.parametrize("shear", [False, True])
+def test_log_decrement_matches_ross(shear):
     """ROSS's log decrements of the stepped rotor of tests/test_ross.py (its own assembly and eigensolver), mode by
-    mode, to its tolerance (1e-6: the same beam theory and mesh, round-off only)."""
+    mode, to its tolerance (1e-6: the same beam theory and mesh, round-off only), Euler-Bernoulli and Timoshenko
+    (shear and rotary inertia on)."""
     pytest.importorskip("ross")
     import ross as rs
 
     from test_ross import RTOL, _ours, _ross
     from hybridtwin.model.model import campbell
 
-    _, model, values = _ours(False)
-    rotor = _ross(rs, False)
+    _, model, values = _ours(shear, shear)
+    rotor = _ross(rs, shear, shear)
     for speed in (0.0, 500.0):  # rad/s
         table = mp.branches(campbell(model, values, [speed * 60 / (2 * np.pi)], n_modes=8)).sort_values("mode")
         modal = rotor.run_modal(speed, num_modes=40, sparse=False)

@@ -39,7 +39,7 @@ from .effect_base import Context, Effect, Parameter
 from .effects import Unbalance, builtin_effects
 from .probes import DEFAULT_ANGLE_DEG, check_pair
 from .sensor import machine_order, sensor_pairs
-from .shaft import DofCounts, Shaft, beam_element, slope_element
+from .shaft import DofCounts, Shaft, beam_element, shear_phi, slope_element
 
 Array = np.ndarray
 
@@ -50,7 +50,9 @@ class ShaftSegment:
 
     length, d_out, d_in [m], E [Pa], rho [kg/m^3]. The bending stiffness uses I = pi (d_out^4 - d_in^4) / 64
     and the mass per unit length rho A, unless ``I`` [m^4] or ``m`` [kg/m] give them directly (the VARM's
-    Table 1 values). The sections' rotary and polar inertia always come from the diameters and rho.
+    Table 1 values). The sections' rotary and polar inertia always come from the diameters and rho. ``G``: the
+    shear modulus [Pa], read only by a machine with ``shear`` (Timoshenko beams); default E / (2 (1 + 0.3)),
+    steel's Poisson ratio 0.3.
     """
 
     length: float
@@ -61,6 +63,7 @@ class ShaftSegment:
     n_elements: int = 1
     I: float | None = None
     m: float | None = None
+    G: float | None = None
 
     def __post_init__(self) -> None:
         for name in ("length", "d_out", "E", "rho"):
@@ -72,7 +75,7 @@ class ShaftSegment:
         if isinstance(self.n_elements, bool) or not isinstance(self.n_elements, (int, np.integer)) \
                 or self.n_elements < 1:
             raise ValueError(f"shaft segment: n_elements must be a positive integer, got {self.n_elements!r}")
-        for name in ("I", "m"):
+        for name in ("I", "m", "G"):
             value = getattr(self, name)
             if value is not None and not value > 0:
                 raise ValueError(f"shaft segment: {name} must be positive when given, got {value!r}")
@@ -101,6 +104,16 @@ class ShaftSegment:
     def h(self) -> float:
         """Element length [m]."""
         return self.length / self.n_elements
+
+    @property
+    def shear_modulus(self) -> float:
+        """``G`` when given, else E / (2 (1 + 0.3)) [Pa]."""
+        return self.E / 2.6 if self.G is None else self.G
+
+    def phi(self, shear: bool) -> float:
+        """The element's shear parameter 12 E I / (kappa G A h^2) with ``shear`` (``shaft.shear_phi``), else 0."""
+        return shear_phi(self.h, self.E, self.shear_modulus, self.bending_I, self.area, self.d_in, self.d_out) \
+            if shear else 0.0
 
 
 @dataclass(frozen=True)
@@ -191,7 +204,10 @@ class Machine(DofCounts):
     """A rotor described by segments and disks, with named bearings, unbalance planes and sensors.
 
     ``rotary_inertia``: add the sections' rotary inertia rho I (a Rayleigh beam); off for the VARM, whose
-    model leaves it out (docs/model.md, "Shaft"). ``sensors`` are kept plane by plane, each plane's x probe then
+    model leaves it out (docs/model.md, "Shaft"). ``shear``: Timoshenko elements, the shear deformation in the
+    stiffness, mass, rotary and gyroscopic matrices (``shaft.beam_element``, Cowper's shear coefficient); off
+    for the VARM, whose slender shaft the paper models as Euler-Bernoulli. ``sensors`` are kept plane by plane,
+    each plane's x probe then
     its y probe (planes in order of first appearance), probes without a partner after them: the records'
     channel order.
     """
@@ -203,6 +219,7 @@ class Machine(DofCounts):
     unbalance_planes: Sequence[UnbalancePlane] = ()
     sensors: Sequence[Sensor] = ()
     rotary_inertia: bool = False
+    shear: bool = False
     _names: dict[str, int] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -286,7 +303,8 @@ class Machine(DofCounts):
             bearings: {drive_end: {node: 2, k: 2.0e+7, c: 800}, free_end: {node: 16}}
             unbalance_planes: {impeller: 8}
             sensors: {x1: {node: 8, direction: x}, y1: {node: 8, direction: y}}   # angle_deg optional
-            rotary_inertia: false
+            rotary_inertia: false           # the sections' rotary inertia (Rayleigh beams)
+            shear: false                    # Timoshenko beams (a segment's shear modulus G optional)
 
         A section that gives only ``sensors`` (and optionally ``name``) is the VARM's shaft, bearings and
         unbalance plane with those sensors (probes at other angles or nodes of the VARM, e.g.
@@ -297,7 +315,8 @@ class Machine(DofCounts):
             return cls.varm()
         if not isinstance(spec, Mapping):
             raise MachineSpecError((), f"must be a mapping, got {spec!r}")
-        _known(spec, (), {"name", "segments", "disks", "bearings", "unbalance_planes", "sensors", "rotary_inertia"})
+        _known(spec, (), {"name", "segments", "disks", "bearings", "unbalance_planes", "sensors", "rotary_inertia",
+                          "shear"})
         sensors = [_build(Sensor, {"name": name, **_mapping(item, ("sensors", name))}, ("sensors", name),
                           {"name", "node", "direction"}, {"angle_deg"})
                    for name, item in _mapping(spec.get("sensors"), ("sensors",)).items()]
@@ -305,7 +324,7 @@ class Machine(DofCounts):
             varm = cls.varm()
             spec = {**varm.to_mapping(), "name": spec.get("name", varm.name)}
         segments = [_build(ShaftSegment, item, ("segments", i), {"length", "d_out", "E", "rho"},
-                           {"d_in", "n_elements", "I", "m"}) for i, item in enumerate(_sequence(spec, "segments"))]
+                           {"d_in", "n_elements", "I", "m", "G"}) for i, item in enumerate(_sequence(spec, "segments"))]
         disks = [_build(Disk, item, ("disks", i), {"node", "mass"}, {"I_p", "I_d", "name"})
                  for i, item in enumerate(_sequence(spec, "disks"))]
         bearings = [_build(Bearing, {"name": name, **_mapping(item, ("bearings", name))}, ("bearings", name),
@@ -315,7 +334,7 @@ class Machine(DofCounts):
                          set()) for name, node in _mapping(spec.get("unbalance_planes"), ("unbalance_planes",)).items()]
         try:
             return cls(str(spec.get("name", "machine")), segments, disks, bearings, planes, sensors,
-                       bool(spec.get("rotary_inertia", False)))
+                       bool(spec.get("rotary_inertia", False)), bool(spec.get("shear", False)))
         except ValueError as err:
             raise MachineSpecError((), str(err)) from None
 
@@ -365,12 +384,13 @@ class Machine(DofCounts):
         M = np.zeros_like(K)
         for e, s in enumerate(self._segment_of_element):
             segment = self.segments[s]
-            K_e, M_e = beam_element(segment.h, segment.E * segment.bending_I, segment.mass_per_length)
+            phi = segment.phi(self.shear)
+            K_e, M_e = beam_element(segment.h, segment.E * segment.bending_I, segment.mass_per_length, phi)
             sl = slice(2 * e, 2 * e + 4)
             K[sl, sl] += K_e
             M[sl, sl] += M_e
             if self.rotary_inertia:
-                M[sl, sl] += slope_element(segment.h, segment.rho * segment.section_I)
+                M[sl, sl] += slope_element(segment.h, segment.rho * segment.section_I, phi)
         for disk in self.disks:
             M[2 * disk.node, 2 * disk.node] += disk.mass
             M[2 * disk.node + 1, 2 * disk.node + 1] += disk.I_d
@@ -395,7 +415,8 @@ class Machine(DofCounts):
         for e, s in enumerate(self._segment_of_element):
             segment = self.segments[s]
             sl = slice(2 * e, 2 * e + 4)
-            R[sl, sl] += slope_element(segment.h, 2.0 * segment.rho * segment.section_I)  # rho I_p = 2 rho I
+            R[sl, sl] += slope_element(segment.h, 2.0 * segment.rho * segment.section_I,  # rho I_p = 2 rho I
+                                       segment.phi(self.shear))
         for disk in self.disks:
             R[2 * disk.node + 1, 2 * disk.node + 1] += disk.I_p
         zero = np.zeros_like(R)
@@ -516,7 +537,7 @@ class Machine(DofCounts):
             item = {"length": float(s.length), "d_out": float(s.d_out), "E": float(s.E), "rho": float(s.rho)}
             item |= {"d_in": float(s.d_in)} if s.d_in else {}
             item["n_elements"] = int(s.n_elements)
-            item |= {k: float(getattr(s, k)) for k in ("I", "m") if getattr(s, k) is not None}
+            item |= {k: float(getattr(s, k)) for k in ("I", "m", "G") if getattr(s, k) is not None}
             segments.append(item)
         out = {"name": self.name, "segments": segments}
         if self.disks:
@@ -532,6 +553,8 @@ class Machine(DofCounts):
                               | ({"angle_deg": float(s.angle_deg)} if s.rotated else {}) for s in self.sensors}
         if self.rotary_inertia:
             out["rotary_inertia"] = True
+        if self.shear:
+            out["shear"] = True
         return out
 
     @cached_property

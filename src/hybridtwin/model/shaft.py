@@ -120,10 +120,17 @@ class Shaft(DofCounts):
         return np.block([[K_p, zero], [zero, K_p]]), np.block([[M_p, zero], [zero, M_p]])
 
 
-def beam_element(h: float, EI: float, m: float) -> tuple[np.ndarray, np.ndarray]:
-    """Euler-Bernoulli element of length ``h``, bending stiffness ``EI`` [N m^2] and mass per unit length
-    ``m`` [kg/m]: stiffness K_e = EI/h^3 [...] and consistent mass M_e = m h / 420 [...], DOFs
-    [w1, theta1, w2, theta2] of one plane (cubic Hermite shape functions, docs/model.md)."""
+def beam_element(h: float, EI: float, m: float, phi: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Beam element of length ``h``, bending stiffness ``EI`` [N m^2] and mass per unit length ``m`` [kg/m], DOFs
+    [w1, theta1, w2, theta2] of one plane (docs/model.md, "Discretisation").
+
+    ``phi`` = 0: Euler-Bernoulli, K_e = EI/h^3 [...] and the consistent mass M_e = m h / 420 [...] (cubic Hermite
+    shape functions). ``phi`` = 12 EI / (kappa G A h^2) > 0: Timoshenko, shear deformation in the shape functions
+    (Friswell et al., Dynamics of Rotating Machines, 2010, sec. 5.4; ``shear_phi``): K_e = EI / (h^3 (1 + phi))
+    [[12, 6h, -12, 6h], [6h, (4 + phi) h^2, -6h, (2 - phi) h^2], ...] and the translational mass
+    m h / (840 (1 + phi)^2) [[312 + 588 phi + 280 phi^2, (44 + 77 phi + 35 phi^2) h, ...], ...]."""
+    if phi:
+        return _timoshenko(h, EI, m, phi)
     K_e = EI / h**3 * np.array(
         [
             [12, 6 * h, -12, 6 * h],
@@ -143,11 +150,36 @@ def beam_element(h: float, EI: float, m: float) -> tuple[np.ndarray, np.ndarray]
     return K_e, M_e
 
 
-def slope_element(h: float, inertia: float) -> np.ndarray:
-    """integral of inertia * N'^T N' dz over an element of length ``h`` (N the cubic Hermite shape functions),
+def _timoshenko(h: float, EI: float, m: float, phi: float) -> tuple[np.ndarray, np.ndarray]:
+    """``beam_element`` with shear (phi > 0)."""
+    p2 = phi * phi
+    K_e = EI / (h**3 * (1 + phi)) * np.array(
+        [
+            [12, 6 * h, -12, 6 * h],
+            [6 * h, (4 + phi) * h * h, -6 * h, (2 - phi) * h * h],
+            [-12, -6 * h, 12, -6 * h],
+            [6 * h, (2 - phi) * h * h, -6 * h, (4 + phi) * h * h],
+        ]
+    )
+    a, b = 312 + 588 * phi + 280 * p2, (44 + 77 * phi + 35 * p2) * h
+    c, d = 108 + 252 * phi + 140 * p2, (26 + 63 * phi + 35 * p2) * h
+    e, f = (8 + 14 * phi + 7 * p2) * h * h, (6 + 14 * phi + 7 * p2) * h * h
+    M_e = m * h / (840 * (1 + phi) ** 2) * np.array([[a, b, c, -d], [b, e, d, -f], [c, d, a, -b], [-d, -f, -b, e]])
+    return K_e, M_e
+
+
+def slope_element(h: float, inertia: float, phi: float = 0.0) -> np.ndarray:
+    """integral of inertia * N'^T N' dz over an element of length ``h`` (N the beam's shape functions),
     DOFs [w1, theta1, w2, theta2]: the consistent rotary-inertia matrix for ``inertia`` = rho I [kg m] (the
-    section's diametral inertia per unit length) and the gyroscopic block for rho I_p = 2 rho I:
-    inertia / (30 h) [[36, 3h, -36, 3h], [3h, 4h^2, -3h, -h^2], [-36, -3h, 36, -3h], [3h, -h^2, -3h, 4h^2]]."""
+    section's diametral inertia per unit length) and the gyroscopic block for rho I_p = 2 rho I.
+    ``phi`` = 0 (Euler-Bernoulli): inertia / (30 h) [[36, 3h, -36, 3h], [3h, 4h^2, -3h, -h^2], [-36, -3h, 36, -3h],
+    [3h, -h^2, -3h, 4h^2]]; ``phi`` > 0 (Timoshenko, ``beam_element``): inertia / (30 h (1 + phi)^2)
+    [[36, (3 - 15 phi) h, ...], [., (4 + 5 phi + 10 phi^2) h^2, ., (-1 - 5 phi + 5 phi^2) h^2], ...]."""
+    if phi:
+        g = (3 - 15 * phi) * h
+        e, f = (4 + 5 * phi + 10 * phi * phi) * h * h, (-1 - 5 * phi + 5 * phi * phi) * h * h
+        return inertia / (30 * h * (1 + phi) ** 2) * np.array(
+            [[36, g, -36, g], [g, e, -g, f], [-36, -g, 36, -g], [g, f, -g, e]])
     return inertia / (30 * h) * np.array(
         [
             [36, 3 * h, -36, 3 * h],
@@ -156,3 +188,13 @@ def slope_element(h: float, inertia: float) -> np.ndarray:
             [3 * h, -h * h, -3 * h, 4 * h * h],
         ]
     )
+
+
+def shear_phi(h: float, E: float, G: float, I: float, area: float, d_in: float, d_out: float) -> float:
+    """phi = 12 E I / (kappa G A h^2) of a Timoshenko element of length ``h`` (``beam_element``), with Cowper's
+    shear coefficient of a hollow circular section (Cowper 1966; the one ROSS uses by default), r = d_in / d_out,
+    nu = E / (2 G) - 1: kappa = 6 (1 + nu) (1 + r^2)^2 / ((7 + 6 nu) (1 + r^2)^2 + (20 + 12 nu) r^2)."""
+    nu = E / (2 * G) - 1
+    r2 = (d_in / d_out) ** 2
+    kappa = 6 * (1 + nu) * (1 + r2) ** 2 / ((7 + 6 * nu) * (1 + r2) ** 2 + (20 + 12 * nu) * r2)
+    return 12 * E * I / (kappa * G * area * h * h)
