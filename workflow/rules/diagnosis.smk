@@ -30,16 +30,16 @@ rule diagnose:
             category="Diagnosis",
             subcategory="{variant}",
         ),
-    params:
-        model=diagnosis_model,
-        keyphasor=lambda wildcards: identification_settings(config, wildcards.variant)["keyphasor"],
-        options=diagnosis_settings(config),
-        harmonics=config["harmonics"],
     log:
         "logs/{variant}/diagnose.log",
     benchmark:
         "results/benchmarks/{variant}/diagnose.tsv"
     conda:
         "../envs/hybridtwin.yaml"
+    params:
+        model=diagnosis_model,
+        keyphasor=lambda wildcards: identification_settings(config, wildcards.variant)["keyphasor"],
+        options=diagnosis_settings(config),
+        harmonics=config["harmonics"],
     script:
         "../../scripts/diagnose.py"
