@@ -311,6 +311,34 @@ def _no_such_effect(effect: str, registry: Mapping, rotor) -> str:
     return f"no effect named {effect!r} {_allowed(effect, registry, 'effects')}"
 
 
+def _place(effect) -> str | None:
+    """'linear_bearing@b' -> 'b'; None for an effect not placed."""
+    name, at, place = str(effect).partition("@")
+    return place if at else None
+
+
+def _unknown_places(config: Mapping, known: set[str]) -> dict[str, list[Problem]]:
+    """Places (after @) that no known effect or candidate has, named by two or more effect names in the variants,
+    diagnosis.candidates or the rig's truths: {place: [(path, key, name) of each use, in the config's order]}."""
+    places = {_place(n) for n in known} - {None}
+    uses: dict[str, list[Problem]] = {}
+
+    def scan(path: tuple, names) -> None:
+        for i, name in enumerate(names or []) if isinstance(names, list) else ():
+            place = _place(name)
+            if place is not None and place not in places and name not in known:
+                uses.setdefault(place, []).append((path + (i,), _key(path), str(name)))
+
+    for name, spec in (config.get("variants") or {}).items():
+        scan(("variants", name, "effects"), (spec or {}).get("effects") if isinstance(spec, Mapping) else None)
+    diagnosis = config.get("diagnosis")
+    scan(("diagnosis", "candidates"), diagnosis.get("candidates") if isinstance(diagnosis, Mapping) else None)
+    for name, spec in (config.get("rig") or {}).items() if isinstance(config.get("rig"), Mapping) else ():
+        truth = spec.get("truth") if isinstance(spec, Mapping) else None
+        scan(("rig", name, "truth", "effects"), truth.get("effects") if isinstance(truth, Mapping) else None)
+    return {place: found for place, found in uses.items() if len(found) > 1}
+
+
 def _allowed(name: str, names: Iterable[str], what: str) -> str:
     names = sorted(map(str, names))
     close = difflib.get_close_matches(str(name), names, n=1)
@@ -424,6 +452,16 @@ def _name_problems(config: Mapping, config_dir: Path) -> Iterable[Problem]:
     placed = user | rotor.effects()  # effects at the machine's named nodes, e.g. linear_bearing@drive_end
     variants = dict(config.get("variants") or {})
     registry = builtin_effects() | placed
+    testable = dict(user) | (rotor.candidates() if machine_ok else {})  # candidates sized to the machine's bearings
+    # a place (after @) the machine does not have, named more than once: one problem, not one per name
+    lost = _unknown_places(config, set(registry) | set(testable)) if machine_ok else {}
+    for place, uses in lost.items():
+        path, key, _ = uses[0]
+        names = sorted({effect for _, _, effect in uses})
+        keys = ", ".join(dict.fromkeys(k for _, k, _ in uses))
+        places = {n.partition("@")[2] for n in list(registry) + list(testable) if "@" in n}
+        yield path, key, (f"{len(uses)} effects are placed at {place!r} ({', '.join(names)}), which the machine "
+                          f"does not have {_allowed(place, places, 'places')}; named in {keys}")
     for name, spec in variants.items():
         where = ("variants", name)
         bad = False
@@ -433,7 +471,7 @@ def _name_problems(config: Mapping, config_dir: Path) -> Iterable[Problem]:
                 parameters |= {p.name for p in registry[effect].parameters}
             else:
                 bad = True
-                if not machine_ok and "@" in str(effect):
+                if "@" in str(effect) and (not machine_ok or _place(effect) in lost):
                     continue  # placed at a name of the machine, whose own problem is reported
                 yield where + ("effects", i), _key(where + ("effects",)), \
                     _no_such_effect(str(effect), registry, rotor)
@@ -478,11 +516,10 @@ def _name_problems(config: Mapping, config_dir: Path) -> Iterable[Problem]:
                     f"{_allowed(parameter, own, 'its unknown parameters')}"
 
     diagnosis = config.get("diagnosis") or {}
-    testable = dict(user)
-    if machine_ok:  # the candidates sized to the machine's bearings (bearing_candidates)
-        testable |= rotor.candidates()
     available = [c.name for c in candidates_for([])] + list(testable)  # built in, effects files, bearings
     for i, candidate in enumerate(diagnosis.get("candidates") or []):
+        if "@" in str(candidate) and (not machine_ok or _place(candidate) in lost):
+            continue  # placed at a bearing of the machine, whose own problem is reported (not one line per name)
         if candidate not in available:
             yield ("diagnosis", "candidates", i), "diagnosis.candidates", \
                 f"no candidate effect named {candidate!r} " \
@@ -506,6 +543,9 @@ def _name_problems(config: Mapping, config_dir: Path) -> Iterable[Problem]:
                                                              f"with {smallest} low < high"
 
     for name, spec in (config.get("rig") or {}).items() if machine_ok else ():  # a bad machine: reported above
+        truth = (spec or {}).get("truth") if isinstance(spec, Mapping) else None
+        if isinstance(truth, Mapping) and any(_place(e) in lost for e in truth.get("effects") or []):
+            continue  # an effect of its truth placed where the machine has nothing: reported above
         try:
             RigSpec.from_mapping(spec, user, rotor)  # the truth on the config's machine, as the rig rule builds it
         except ValueError as err:
