@@ -85,6 +85,21 @@ def test_a_renamed_bearing_is_one_error_naming_every_use(example):
                             "rig.stepped.truth.effects"), message
 
 
+def test_a_bearing_without_its_coefficients_is_one_error_at_the_bearing(example):
+    """Bearing b without k: the eight effects sized to it (variants, candidates, the rig's truth) are one error, at
+    machine.bearings.b (the line to fix), naming them and where they are used."""
+    text = (EXAMPLE / "config" / "config.yaml").read_text()
+    problems = _problems(text.replace(BEARINGS, BEARINGS.replace("b: {node: 13, k: 1.0e+7, c: 500}",
+                                                                 "b: {node: 13, c: 500}")))
+    assert len(problems) == 1, problems
+    assert problems[0].startswith("config/config.yaml, line 19: machine.bearings.b: bearing 'b' is declared without "
+                                  "its nominal k (and c) in machine.bearings (e.g. b: {node: 13, k: 2.0e+06, c: 300})"
+                                  ", which 8 effects placed at it need (bearing_anisotropy@b, cross_coupled_damping@b,"
+                                  " cross_coupled_stiffness@b, linear_bearing@b); named in variants.linear.effects, "
+                                  "variants.anisotropic_b.effects, diagnosis.candidates, rig.stepped.truth.effects"), \
+        problems
+
+
 def test_one_mistyped_placement_keeps_its_own_message(example):
     """A place named once (a typo in one effect name, not a renamed bearing) is said as before, at that name."""
     text = (EXAMPLE / "config" / "config.yaml").read_text()
