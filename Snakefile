@@ -14,8 +14,12 @@ configfile: "config/config.yaml"
 # parameters, effects, candidates); each problem one line naming its file and line, key and allowed values
 from hybridtwin.config import check_or_exit
 
-check_or_exit(config, f"{workflow.basedir}/workflow/schemas/config.schema.yaml",
-              ["config/config.yaml", *workflow.overwrite_configfiles], workflow.config_settings.config)
+check_or_exit(
+    config,
+    f"{workflow.basedir}/workflow/schemas/config.schema.yaml",
+    ["config/config.yaml", *workflow.overwrite_configfiles],
+    workflow.config_settings.config,
+)
 
 
 report: "workflow/report/workflow.rst"  # the report's first page: the answer first (results/summary.rst)
@@ -34,10 +38,14 @@ include: "workflow/rules/report.smk"
 include: "workflow/rules/online.smk"
 
 
-localrules: check_data, measured_harmonics, sample_scenarios  # seconds-long, run on the submit host under profiles/slurm
+localrules:
+    check_data,
+    measured_harmonics,
+    sample_scenarios,  # seconds-long, run on the submit host under profiles/slurm
 
 
 rule all:
+    default_target: True
     input:
         "results/data/check.tsv",
         "results/data/harmonics.tsv",
@@ -60,9 +68,11 @@ rule all:
         "results/ledger.png",
         "results/summary.tsv",
         # a sheet with run-ups or coast-downs: their Bode, polar and orbit figures per variant, and waterfalls
-        expand("results/{variant}/report/{name}", variant=VARIANTS if transient_records() else [],
-               name=["transient", "transient.tsv"]),
+        expand(
+            "results/{variant}/report/{name}",
+            variant=VARIANTS if transient_records() else [],
+            name=["transient", "transient.tsv"],
+        ),
         expand("results/data/report/records/{run}/waterfall.png", run=[r["run"] for r in transient_records()]),
         # the twin online (config online:): every record of its sheet judged against the twin, and the trend
         expand("results/online/{variant}/trend.tsv", variant=[ONLINE["variant"]] if ONLINE else []),
-    default_target: True

@@ -11,6 +11,7 @@ from snakemake.utils import validate
 
 from hybridtwin.data.measurements import DataError, DataWarning, read_runs
 from hybridtwin.data.preprocessing import check_data, has_usable_fit_run, write_tsv
+from hybridtwin.data.shared_problems import group_messages, group_problems
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 logging.basicConfig(filename=smk.log[0], level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s")
@@ -30,16 +31,23 @@ except DataError as err:
     sys.exit(f"check_data: error: {err}")
 for warning in caught:
     log.warning("%s", warning.message)
-    print(f"check_data: warning: {warning.message}", file=sys.stderr)
+# on the console, a problem several runs share once, with the runs it concerns (data/shared_problems.py)
+runs, paths = list(summary["run"]), dict(zip(summary["run"], summary["path"].astype(str)))
+for message, count in group_messages([str(w.message) for w in caught], runs, paths):
+    print(f"check_data: warning: {message}" + (f" (the same in {count - 1} more run(s))" if count > 1 else ""),
+          file=sys.stderr)
 for row in summary.itertuples():
     log.info("%s: %s", row.run, row.status)
 flagged = summary.loc[~summary["usable"].astype(bool) & ~summary["run"].isin(list(errors)), ["run", "status"]]
-for row in flagged.itertuples():
-    print(f"check_data: run {row.run} is kept out of the fit: {row.status}", file=sys.stderr)
+for problem in group_problems(dict(zip(flagged["run"], flagged["status"])), paths):
+    said = (f"run {problem.runs[0]} is kept out of the fit: {problem.message}" if len(problem.runs) == 1
+            else f"kept out of the fit: {problem.describe(len(summary))}")
+    print(f"check_data: {said}", file=sys.stderr)
 if errors:
     for run, message in errors.items():
         log.error("run %s: %s", run, message)
-    sys.exit(f"check_data: {len(errors)} invalid record(s) in {smk.input.sheet}:\n" + "\n".join(errors.values()))
+    sys.exit(f"check_data: {len(errors)} invalid record(s) in {smk.input.sheet}:\n"
+             + "\n".join(problem.describe(len(summary)) for problem in group_problems(errors, paths)))
 if not has_usable_fit_run(summary):
     log.error("no usable fit run in %s", smk.input.sheet)
     sys.exit(f"check_data: no usable fit run in {smk.input.sheet}: every run with role fit is kept out of the fit "

@@ -292,23 +292,89 @@ def _short(value, width: int = 60) -> str:
     return text if len(text) <= width else text[:width - 3] + "..."
 
 
+SIZED = ("linear_bearing", "bearing_anisotropy", "cross_coupled_stiffness", "cross_coupled_damping")
+
+
+def _bare_bearing(effect: str, rotor):
+    """The bearing an effect sized to its nominal coefficients is placed at, when declared without them (None
+    otherwise), and the coefficient it lacks."""
+    kind, _, bearing = effect.partition("@")
+    for b in getattr(rotor, "bearings", ()) if kind in SIZED else ():
+        if b.name == bearing and (b.k is None or (kind == "cross_coupled_damping" and not b.c)):
+            return b, "k (and c)" if b.k is None else "c > 0"
+    return None, ""
+
+
+def _bare_text(bearing, need: str) -> str:
+    return (f"bearing {bearing.name!r} is declared without its nominal {need} in machine.bearings (e.g. "
+            f"{bearing.name}: {{node: {bearing.node}, k: 2.0e+06, c: 300}})")
+
+
 def _no_such_effect(effect: str, registry: Mapping, rotor) -> str:
     """Why ``effect`` is not offered: a bearing effect at a bearing declared without nominal coefficients, or no
     such name (with the closest)."""
     kind, _, bearing = effect.partition("@")
-    sized = kind in ("linear_bearing", "bearing_anisotropy", "cross_coupled_stiffness", "cross_coupled_damping")
-    bare = [b for b in getattr(rotor, "bearings", ()) if b.name == bearing and (b.k is None or
-                                                                                 (kind == "cross_coupled_damping"
-                                                                                  and not b.c))]
     if kind == "unbalance" and bearing:  # unbalance@<plane>: the plane is not declared
         planes = [p.name for p in getattr(rotor, "unbalance_planes", ())]
         return f"no effect named {effect!r}: {unbalance_hint(bearing, planes)}"
-    if sized and bare:
-        need = "c > 0" if kind == "cross_coupled_damping" else "k (and c)"
-        return (f"no effect named {effect!r}: bearing {bearing!r} is declared without its nominal {need} in "
-                f"machine.bearings (e.g. {bearing}: {{node: {bare[0].node}, k: 2.0e+06, c: 300}}), which "
-                f"{kind}@{bearing} needs")
+    bare, need = _bare_bearing(effect, rotor)
+    if bare is not None:
+        return f"no effect named {effect!r}: {_bare_text(bare, need)}, which {effect} needs"
     return f"no effect named {effect!r} {_allowed(effect, registry, 'effects')}"
+
+
+def _place(effect) -> str | None:
+    """'linear_bearing@b' -> 'b'; None for an effect not placed."""
+    name, at, place = str(effect).partition("@")
+    return place if at else None
+
+
+def _cause(effect, known: set[str], rotor) -> tuple | None:
+    """Why a placed effect name is not known, when the machine is to blame: ("place", p) for a place it does not
+    have, ("bare", bearing, need) for a bearing declared without the coefficients the effect is sized to."""
+    place = _place(effect)
+    if place is None or effect in known:
+        return None
+    if place not in {_place(n) for n in known} - {None}:
+        return ("place", place)
+    bare, need = _bare_bearing(str(effect), rotor)
+    return ("bare", bare.name, need) if bare is not None else None
+
+
+def _shared_causes(config: Mapping, known: set[str], rotor) -> dict[tuple, list[Problem]]:
+    """Causes (``_cause``) shared by two or more effect names in the variants, diagnosis.candidates or the rig's
+    truths: {cause: [(path, key, name) of each use, in the config's order]}, each then said once."""
+    uses: dict[tuple, list[Problem]] = {}
+
+    def scan(path: tuple, names) -> None:
+        for i, name in enumerate(names or []) if isinstance(names, list) else ():
+            cause = _cause(name, known, rotor)
+            if cause is not None:
+                uses.setdefault(cause, []).append((path + (i,), _key(path), str(name)))
+
+    for name, spec in (config.get("variants") or {}).items():
+        scan(("variants", name, "effects"), (spec or {}).get("effects") if isinstance(spec, Mapping) else None)
+    diagnosis = config.get("diagnosis")
+    scan(("diagnosis", "candidates"), diagnosis.get("candidates") if isinstance(diagnosis, Mapping) else None)
+    for name, spec in (config.get("rig") or {}).items() if isinstance(config.get("rig"), Mapping) else ():
+        truth = spec.get("truth") if isinstance(spec, Mapping) else None
+        scan(("rig", name, "truth", "effects"), truth.get("effects") if isinstance(truth, Mapping) else None)
+    return {cause: found for cause, found in uses.items() if len(found) > 1}
+
+
+def _shared_cause_problem(cause: tuple, uses: list[Problem], known: set[str], rotor) -> Problem:
+    """One problem for every use of a shared cause: at the machine's bearing (bare), or at the first use."""
+    names = ", ".join(sorted({effect for _, _, effect in uses}))
+    keys = ", ".join(dict.fromkeys(k for _, k, _ in uses))
+    if cause[0] == "bare":
+        bearing = next(b for b in rotor.bearings if b.name == cause[1])
+        path = ("machine", "bearings", bearing.name)
+        return path, _key(path), (f"{_bare_text(bearing, cause[2])}, which {len(uses)} effects placed at it need "
+                                  f"({names}); named in {keys}")
+    places = {_place(n) for n in known} - {None}
+    path, key, _ = uses[0]
+    return path, key, (f"{len(uses)} effects are placed at {cause[1]!r} ({names}), which the machine does not have "
+                       f"{_allowed(cause[1], places, 'places')}; named in {keys}")
 
 
 def _allowed(name: str, names: Iterable[str], what: str) -> str:
@@ -424,6 +490,13 @@ def _name_problems(config: Mapping, config_dir: Path) -> Iterable[Problem]:
     placed = user | rotor.effects()  # effects at the machine's named nodes, e.g. linear_bearing@drive_end
     variants = dict(config.get("variants") or {})
     registry = builtin_effects() | placed
+    testable = dict(user) | (rotor.candidates() if machine_ok else {})  # candidates sized to the machine's bearings
+    # the machine to blame for several effect names (a place it lacks, a bearing without its coefficients): one
+    # problem, not one per name
+    known = set(registry) | set(testable)
+    lost = _shared_causes(config, known, rotor) if machine_ok else {}
+    for cause, uses in lost.items():
+        yield _shared_cause_problem(cause, uses, known, rotor)
     for name, spec in variants.items():
         where = ("variants", name)
         bad = False
@@ -433,7 +506,7 @@ def _name_problems(config: Mapping, config_dir: Path) -> Iterable[Problem]:
                 parameters |= {p.name for p in registry[effect].parameters}
             else:
                 bad = True
-                if not machine_ok and "@" in str(effect):
+                if "@" in str(effect) and (not machine_ok or _cause(effect, known, rotor) in lost):
                     continue  # placed at a name of the machine, whose own problem is reported
                 yield where + ("effects", i), _key(where + ("effects",)), \
                     _no_such_effect(str(effect), registry, rotor)
@@ -478,11 +551,15 @@ def _name_problems(config: Mapping, config_dir: Path) -> Iterable[Problem]:
                     f"{_allowed(parameter, own, 'its unknown parameters')}"
 
     diagnosis = config.get("diagnosis") or {}
-    testable = dict(user)
-    if machine_ok:  # the candidates sized to the machine's bearings (bearing_candidates)
-        testable |= rotor.candidates()
     available = [c.name for c in candidates_for([])] + list(testable)  # built in, effects files, bearings
     for i, candidate in enumerate(diagnosis.get("candidates") or []):
+        if "@" in str(candidate) and (not machine_ok or _cause(candidate, known, rotor) in lost):
+            continue  # placed at a bearing of the machine, whose own problem is reported (not one line per name)
+        bare, need = _bare_bearing(str(candidate), rotor)
+        if candidate not in available and bare is not None:
+            yield ("diagnosis", "candidates", i), "diagnosis.candidates", \
+                f"no candidate effect named {candidate!r}: {_bare_text(bare, need)}, which {candidate} needs"
+            continue
         if candidate not in available:
             yield ("diagnosis", "candidates", i), "diagnosis.candidates", \
                 f"no candidate effect named {candidate!r} " \
@@ -506,6 +583,9 @@ def _name_problems(config: Mapping, config_dir: Path) -> Iterable[Problem]:
                                                              f"with {smallest} low < high"
 
     for name, spec in (config.get("rig") or {}).items() if machine_ok else ():  # a bad machine: reported above
+        truth = (spec or {}).get("truth") if isinstance(spec, Mapping) else None
+        if isinstance(truth, Mapping) and any(_cause(e, known, rotor) in lost for e in truth.get("effects") or []):
+            continue  # an effect of its truth placed where the machine has nothing: reported above
         try:
             RigSpec.from_mapping(spec, user, rotor)  # the truth on the config's machine, as the rig rule builds it
         except ValueError as err:

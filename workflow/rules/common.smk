@@ -6,15 +6,22 @@ from pathlib import Path
 import pandas as pd
 from snakemake.utils import validate
 
-from hybridtwin.config import CONFIG_DIR, effects_files_used, offline, offline_for, online as online_settings, \
-    online_records, run_plan, variant as config_variant
+from hybridtwin.config import (
+    CONFIG_DIR,
+    effects_files_used,
+    offline,
+    offline_for,
+    online as online_settings,
+    online_records,
+    run_plan,
+    variant as config_variant,
+)
 from hybridtwin.diagnose.diagnosis import settings as diagnosis_settings
 from hybridtwin.identify.identification import settings as identification_settings
 from hybridtwin.data.measurements import DataError, read_runs
 from hybridtwin.data.run_kinds import is_transient_row
 from hybridtwin.model.variants import nested_parents, parent_variant
 from hybridtwin.report.transient_plots import settings as transient_settings
-
 
 validate(config, "../schemas/config.schema.yaml")
 
@@ -23,7 +30,9 @@ VARIANTS = list(config["variants"])
 LIBRARY_VARIANTS = [v for v in VARIANTS if offline_for(config, v)["scope"] != "none"]
 OFFLINE = offline(config)
 CHUNKS = [f"{i:03d}" for i in range(OFFLINE["chunks"])]
-ENRICHMENT_CHUNKS = [f"{i:03d}" for i in range(OFFLINE["enrichment"]["chunks"] if OFFLINE["enrichment"]["n_scenarios"] else 0)]
+ENRICHMENT_CHUNKS = [
+    f"{i:03d}" for i in range(OFFLINE["enrichment"]["chunks"] if OFFLINE["enrichment"]["n_scenarios"] else 0)
+]
 # The runs sheet, read at parse time by the reader check-data uses (hybridtwin.data.measurements.read_runs, also behind
 # run_plan, runs_with_role and sheet_entry): white space, case, BOM, CRLF handled one way; any problem (a missing
 # column, an unknown role, an empty mass, a missing record...) stops here in one message naming file, line, column.
@@ -91,10 +100,12 @@ def variant_model(wildcards, nested=(), all_effects=False):
     of the ``nested`` variants, the machine and the effects files that define effects they use (``all_effects``:
     every one, e.g. the diagnosis's candidates)."""
     names = [wildcards.variant, *nested]
-    files = (list(config.get("effects_files") or []) if all_effects
-             else effects_files_used(config, names, CONFIG_DIR))
-    return {"variants": {name: config["variants"][name] for name in names}, "machine": config.get("machine"),
-            "effects_files": files}
+    files = list(config.get("effects_files") or []) if all_effects else effects_files_used(config, names, CONFIG_DIR)
+    return {
+        "variants": {name: config["variants"][name] for name in names},
+        "machine": config.get("machine"),
+        "effects_files": files,
+    }
 
 
 def model_effects(model):
@@ -133,13 +144,18 @@ def joint_parent(wildcards):
 
 def gather_input(wildcards):
     """The first design's chunk stores and, with offline.enrichment.n_scenarios > 0, the enrichment's."""
-    inputs = {"scenarios": f"results/{wildcards.variant}/scenarios.tsv",
-              "chunks": expand("results/{variant}/chunks/{chunk}.zarr", variant=wildcards.variant, chunk=CHUNKS)}
+    inputs = {
+        "scenarios": f"results/{wildcards.variant}/scenarios.tsv",
+        "chunks": expand("results/{variant}/chunks/{chunk}.zarr", variant=wildcards.variant, chunk=CHUNKS),
+    }
     if not ENRICHMENT_CHUNKS:
         return inputs
-    return inputs | {"enrichment": f"results/{wildcards.variant}/enrichment.tsv",
-                     "enrichment_chunks": expand("results/{variant}/enrichment/{chunk}.zarr",
-                                                 variant=wildcards.variant, chunk=ENRICHMENT_CHUNKS)}
+    return inputs | {
+        "enrichment": f"results/{wildcards.variant}/enrichment.tsv",
+        "enrichment_chunks": expand(
+            "results/{variant}/enrichment/{chunk}.zarr", variant=wildcards.variant, chunk=ENRICHMENT_CHUNKS
+        ),
+    }
 
 
 def has_libraries(variant):
@@ -170,13 +186,23 @@ def library_input(wildcards):
 
 def steady_runs():
     """The sheet's steady runs (each preprocessed alone); the others are run-ups and coast-downs (track_record)."""
-    return [r["run"] for r in read_runs(config.get("runs", "data/default/runs.tsv")).to_dict("records") if not is_transient_row(r)]
+    return [
+        r["run"]
+        for r in read_runs(config.get("runs", "data/default/runs.tsv")).to_dict("records")
+        if not is_transient_row(r)
+    ]
 
 
 def measured_tables(wildcards):
     """Each sheet row's harmonics table, in the sheet's order: a steady run's, or a transient record's bands."""
-    return [f"results/data/records/{r['run']}/bands.tsv" if is_transient_row(r)
-            else f"results/data/runs/{r['run']}/harmonics.tsv" for r in read_runs(config.get("runs", "data/default/runs.tsv")).to_dict("records")]
+    return [
+        (
+            f"results/data/records/{r['run']}/bands.tsv"
+            if is_transient_row(r)
+            else f"results/data/runs/{r['run']}/harmonics.tsv"
+        )
+        for r in read_runs(config.get("runs", "data/default/runs.tsv")).to_dict("records")
+    ]
 
 
 # the figures of run-ups and coast-downs (report_transient, report_waterfall; issue 38 item 7)
@@ -186,14 +212,22 @@ TRANSIENT_DISPLAY = transient_settings(config)  # config report: transient: (fra
 def transient_records():
     """The sheet's run-ups and coast-downs (``kind`` runup or coastdown), in its order, as plain rows."""
     rows = read_runs(config.get("runs", "data/default/runs.tsv"), require_mass=True).to_dict("records")
-    return [{"run": str(r["run"]), "kind": str(r["kind"]).strip().lower(),
-             "role": r["role"] if isinstance(r.get("role"), str) else "fit",  # no role column: every run fits
-             "eccentric_mass_g": float(r["eccentric_mass_g"]), "record": str(r["record"])}
-            for r in rows if is_transient_row(r)]
+    return [
+        {
+            "run": str(r["run"]),
+            "kind": str(r["kind"]).strip().lower(),
+            "role": r["role"] if isinstance(r.get("role"), str) else "fit",  # no role column: every run fits
+            "eccentric_mass_g": float(r["eccentric_mass_g"]),
+            "record": str(r["record"]),
+        }
+        for r in rows
+        if is_transient_row(r)
+    ]
 
 
 def transient_input(wildcards):
     """Each transient record's tracking outputs and the record itself (its orbits), in the sheet's order."""
     runs = [r["run"] for r in transient_records()]
-    return {name: expand(f"results/data/records/{{run}}/{name}.tsv", run=runs)
-            for name in ("orders", "bands", "runout")} | {"records": [r["record"] for r in transient_records()]}
+    return {
+        name: expand(f"results/data/records/{{run}}/{name}.tsv", run=runs) for name in ("orders", "bands", "runout")
+    } | {"records": [r["record"] for r in transient_records()]}

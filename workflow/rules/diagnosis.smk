@@ -30,16 +30,14 @@ rule diagnose:
             category="Diagnosis",
             subcategory="{variant}",
         ),
+    log:
+        "logs/{variant}/diagnose.log",
+    benchmark:
+        "results/benchmarks/{variant}/diagnose.tsv"
     params:
         model=diagnosis_model,
         keyphasor=lambda wildcards: identification_settings(config, wildcards.variant)["keyphasor"],
         options=diagnosis_settings(config),
         harmonics=config["harmonics"],
-    log:
-        "logs/{variant}/diagnose.log",
-    benchmark:
-        "results/benchmarks/{variant}/diagnose.tsv"
-    conda:
-        "../envs/hybridtwin.yaml"
     script:
         "../../scripts/diagnose.py"

@@ -8,7 +8,6 @@ from hybridtwin.identify.identification import runs_with_role
 from hybridtwin.identify.identification import rule_settings
 from hybridtwin.identify.design import candidate_grid, settings as design_settings
 
-
 FIT_RUNS = runs_with_role(config["runs"], "fit")
 VALIDATION_RUNS = runs_with_role(config["runs"], "validate")
 
@@ -25,17 +24,15 @@ rule identify_run:
         parameters=expand("results/{{variant}}/runs/{run}/parameters.tsv", run=FIT_RUNS),
         history=expand("results/{{variant}}/runs/{run}/history.tsv", run=FIT_RUNS),
         fit=[directory(path) for path in expand("results/{{variant}}/runs/{run}/fit.zarr", run=FIT_RUNS)],
+    log:
+        "logs/{variant}/identify_run.log",
+    benchmark:
+        "results/benchmarks/{variant}/identify_run.tsv"
     params:
         runs=FIT_RUNS,
         model=variant_model,
         options=lambda wildcards: rule_settings(config, wildcards.variant, "run"),
         harmonics=config["harmonics"],
-    log:
-        "logs/{variant}/identify_run.log",
-    benchmark:
-        "results/benchmarks/{variant}/identify_run.tsv"
-    conda:
-        "../envs/hybridtwin.yaml"
     script:
         "../../scripts/identify_run.py"
 
@@ -72,18 +69,16 @@ rule identify_joint:
             subcategory="{variant}",
         ),
         fit=directory("results/{variant}/identification/fit.zarr"),
+    log:
+        "logs/{variant}/identify_joint.log",
+    benchmark:
+        "results/benchmarks/{variant}/identify_joint.tsv"
     params:
         runs=FIT_RUNS,
         model=joint_model,
         parent=joint_parent,
         options=lambda wildcards: rule_settings(config, wildcards.variant, "joint"),
         harmonics=config["harmonics"],
-    log:
-        "logs/{variant}/identify_joint.log",
-    benchmark:
-        "results/benchmarks/{variant}/identify_joint.tsv"
-    conda:
-        "../envs/hybridtwin.yaml"
     script:
         "../../scripts/identify_joint.py"
 
@@ -106,17 +101,15 @@ rule predict_validation:
         ),
         harmonics="results/{variant}/validation_harmonics.tsv",
         refits="results/{variant}/validation_refits.tsv",  # a run beyond the noise refitted with the fit runs
+    log:
+        "logs/{variant}/predict_validation.log",
+    benchmark:
+        "results/benchmarks/{variant}/predict_validation.tsv"
     params:
         runs=VALIDATION_RUNS,
         model=variant_model,
         options=lambda wildcards: rule_settings(config, wildcards.variant, "validation"),
         harmonics=config["harmonics"],
-    log:
-        "logs/{variant}/predict_validation.log",
-    benchmark:
-        "results/benchmarks/{variant}/predict_validation.tsv"
-    conda:
-        "../envs/hybridtwin.yaml"
     script:
         "../../scripts/identify_validation.py"
 
@@ -151,6 +144,10 @@ rule design_runs:
             category="Next run",
             subcategory="{variant}",
         ),
+    log:
+        "logs/{variant}/design_runs.log",
+    benchmark:
+        "results/benchmarks/{variant}/design_runs.tsv"
     params:
         model=variant_model,
         options=lambda wildcards: rule_settings(config, wildcards.variant, "validation"),
@@ -159,11 +156,5 @@ rule design_runs:
         runs=DESIGN["runs"],
         keyphasor=DESIGN["keyphasor"],
         sensor_range_mm=OFFLINE["sensor_range_mm"],
-    log:
-        "logs/{variant}/design_runs.log",
-    benchmark:
-        "results/benchmarks/{variant}/design_runs.tsv"
-    conda:
-        "../envs/hybridtwin.yaml"
     script:
         "../../scripts/design_runs.py"

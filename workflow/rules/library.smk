@@ -9,15 +9,13 @@ rule spgd_global:
         effects=variant_effects,  # their contents build the variant (params.model has only the paths)
     output:
         directory("results/{variant}/library_global.zarr"),
-    params:
-        model=variant_model,
-        offline=lambda wildcards: offline_for(config, wildcards.variant, OFFLINE_USED["spgd_global"]),
     log:
         "logs/{variant}/spgd_global.log",
     benchmark:
         "results/benchmarks/{variant}/spgd_global.tsv"
-    conda:
-        "../envs/hybridtwin.yaml"
+    params:
+        model=variant_model,
+        offline=lambda wildcards: offline_for(config, wildcards.variant, OFFLINE_USED["spgd_global"]),
     script:
         "../../scripts/spgd_global.py"
 
@@ -30,17 +28,15 @@ rule spgd_library:
         effects=variant_effects,  # their contents build the variant (params.model has only the paths)
     output:
         [directory(path) for path in expand("results/{{variant}}/library/{run}.zarr", run=RUNS)],
-    params:
-        runs=RUNS,
-        model=variant_model,
-        offline=lambda wildcards: offline_for(config, wildcards.variant, OFFLINE_USED["spgd_library"]),
-    threads: 2
     log:
         "logs/{variant}/spgd_library.log",
     benchmark:
         "results/benchmarks/{variant}/spgd_library.tsv"
-    conda:
-        "../envs/hybridtwin.yaml"
+    threads: 2
+    params:
+        runs=RUNS,
+        model=variant_model,
+        offline=lambda wildcards: offline_for(config, wildcards.variant, OFFLINE_USED["spgd_library"]),
     script:
         "../../scripts/spgd_library.py"
 
@@ -65,14 +61,12 @@ rule validate_library:
             category="Offline library",
             subcategory="{variant}",
         ),
-    params:
-        model=variant_model,
-        offline=lambda wildcards: offline_for(config, wildcards.variant, OFFLINE_USED["validate_library"]),
     log:
         "logs/{variant}/validate_library.log",
     benchmark:
         "results/benchmarks/{variant}/validate_library.tsv"
-    conda:
-        "../envs/hybridtwin.yaml"
+    params:
+        model=variant_model,
+        offline=lambda wildcards: offline_for(config, wildcards.variant, OFFLINE_USED["validate_library"]),
     script:
         "../../scripts/validate_library.py"

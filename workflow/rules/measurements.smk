@@ -16,7 +16,6 @@ SENSOR_PARAMS = {"sensors": config["machine"].get("sensors")} if config.get("mac
 CHECK_SETTINGS = data_check_settings(config)
 
 
-
 rule check_data:
     """First step on measured data: validate the sheet and every record; per-run summary."""
     input:
@@ -27,15 +26,13 @@ rule check_data:
         schema=os.path.relpath(Path(workflow.basedir) / "workflow" / "schemas" / "runs.schema.yaml"),
     output:
         summary="results/data/check.tsv",
-    params:
-        **CHECK_SETTINGS,  # harmonics, coverage, sensor_range_mm (the lasers'; a sheet's column overrides it)
-        **SENSOR_PARAMS,
     log:
         "logs/data/check_data.log",
     benchmark:
         "results/benchmarks/data/check_data.tsv"
-    conda:
-        "../envs/hybridtwin.yaml"
+    params:
+        **CHECK_SETTINGS,  # harmonics, coverage, sensor_range_mm (the lasers'; a sheet's column overrides it)
+        **SENSOR_PARAMS,
     script:
         "../../scripts/check_data.py"
 
@@ -46,23 +43,21 @@ rule preprocess:
     input:
         check="results/data/check.tsv",
         record=lambda wildcards: sheet_entry(RUNS_SHEET, wildcards.run)["record"],
-    wildcard_constraints:
-        run="[A-Za-z0-9_-]+",
     output:
         harmonics="results/data/runs/{run}/harmonics.tsv",
         waveforms="results/data/runs/{run}/waveforms.tsv",
         spectrum="results/data/runs/{run}/spectrum.tsv",
-    params:
-        row=lambda wildcards: sheet_entry(RUNS_SHEET, wildcards.run),
-        harmonics=CHECK_SETTINGS["harmonics"],
-        sensor_range_mm=CHECK_SETTINGS["sensor_range_mm"],
-        **SENSOR_PARAMS,
     log:
         "logs/data/preprocess/{run}.log",
     benchmark:
         "results/benchmarks/data/preprocess/{run}.tsv"
-    conda:
-        "../envs/hybridtwin.yaml"
+    wildcard_constraints:
+        run="[A-Za-z0-9_-]+",
+    params:
+        **SENSOR_PARAMS,
+        row=lambda wildcards: sheet_entry(RUNS_SHEET, wildcards.run),
+        harmonics=CHECK_SETTINGS["harmonics"],
+        sensor_range_mm=CHECK_SETTINGS["sensor_range_mm"],
     script:
         "../../scripts/preprocess.py"
 
@@ -74,24 +69,22 @@ rule track_record:
     input:
         check="results/data/check.tsv",
         record=lambda wildcards: sheet_entry(RUNS_SHEET, wildcards.run)["record"],
-    wildcard_constraints:
-        run="[A-Za-z0-9_-]+",
     output:
         bands="results/data/records/{run}/bands.tsv",
         orders="results/data/records/{run}/orders.tsv",
         runout="results/data/records/{run}/runout.tsv",
         speed="results/data/records/{run}/speed.tsv",
-    params:
-        row=lambda wildcards: sheet_entry(RUNS_SHEET, wildcards.run),
-        harmonics=CHECK_SETTINGS["harmonics"],
-        sensor_range_mm=CHECK_SETTINGS["sensor_range_mm"],
-        **SENSOR_PARAMS,
     log:
         "logs/data/track_record/{run}.log",
     benchmark:
         "results/benchmarks/data/track_record/{run}.tsv"
-    conda:
-        "../envs/hybridtwin.yaml"
+    wildcard_constraints:
+        run="[A-Za-z0-9_-]+",
+    params:
+        **SENSOR_PARAMS,
+        row=lambda wildcards: sheet_entry(RUNS_SHEET, wildcards.run),
+        harmonics=CHECK_SETTINGS["harmonics"],
+        sensor_range_mm=CHECK_SETTINGS["sensor_range_mm"],
     script:
         "../../scripts/track_record.py"
 
@@ -106,8 +99,6 @@ rule measured_harmonics:
         "logs/data/measured_harmonics.log",
     benchmark:
         "results/benchmarks/data/measured_harmonics.tsv"
-    conda:
-        "../envs/hybridtwin.yaml"
     script:
         "../../scripts/measured_harmonics.py"
 
@@ -117,22 +108,20 @@ rule rig:
     config's machine."""
     input:
         plan=lambda wildcards: config["rig"][wildcards.name].get("plan", "data/default/runs.tsv"),
-    wildcard_constraints:
-        name="[A-Za-z0-9_-]+",
     output:
         sheet="results/rig/{name}/runs.tsv",
         records=directory("results/rig/{name}/records"),
         truth="results/rig/{name}/truth.tsv",
         key="results/rig/{name}/truth.yaml",
-    params:
-        spec=lambda wildcards: config["rig"][wildcards.name],
-        machine=config.get("machine"),  # the rotor the truth is built on (None: the VARM); a change reruns the rig
-        effects_files=[str(Path("config") / f) for f in config.get("effects_files", [])],
     log:
         "logs/rig/{name}.log",
     benchmark:
         "results/benchmarks/rig/{name}.tsv"
-    conda:
-        "../envs/hybridtwin.yaml"
+    wildcard_constraints:
+        name="[A-Za-z0-9_-]+",
+    params:
+        spec=lambda wildcards: config["rig"][wildcards.name],
+        machine=config.get("machine"),  # the rotor the truth is built on (None: the VARM); a change reruns the rig
+        effects_files=[str(Path("config") / f) for f in config.get("effects_files", [])],
     script:
         "../../scripts/rig.py"

@@ -13,18 +13,16 @@ rule twin_card:
         effects=variant_effects,  # their contents build the variant (params.model has only the paths)
     output:
         card="results/{variant}/twin.yaml",
+    log:
+        "logs/{variant}/twin_card.log",
+    benchmark:
+        "results/benchmarks/{variant}/twin_card.tsv"
     params:
         model=variant_model,
         harmonics=config["harmonics"],
         keyphasor=lambda wildcards: identification_settings(config, wildcards.variant)["keyphasor"],
         candidates=diagnosis_settings(config)["candidates"],
         sensor_range_mm=CHECK_SETTINGS["sensor_range_mm"],
-    log:
-        "logs/{variant}/twin_card.log",
-    benchmark:
-        "results/benchmarks/{variant}/twin_card.tsv"
-    conda:
-        "../envs/hybridtwin.yaml"
     script:
         "../../scripts/twin_card.py"
 
@@ -44,8 +42,6 @@ rule assess_record:
         correlation="results/{variant}/identification/correlation.tsv",
         record=lambda wildcards: sheet_entry(ONLINE["records"], wildcards.record)["record"],
         effects=variant_effects,  # their contents build the variant (the card has only the paths)
-    wildcard_constraints:
-        record="[A-Za-z0-9_-]+",
     output:
         summary="results/online/{variant}/{record}/assessment.tsv",
         parameters="results/online/{variant}/{record}/parameters.tsv",
@@ -57,15 +53,15 @@ rule assess_record:
             category="Online",
             subcategory="{variant}",
         ),
-    params:
-        row=lambda wildcards: sheet_entry(ONLINE["records"], wildcards.record),
-        alpha=lambda wildcards: ONLINE["alpha"],  # lazily: a config without online: plans no such job
     log:
         "logs/online/{variant}/{record}.log",
     benchmark:
         "results/benchmarks/online/{variant}/{record}.tsv"
-    conda:
-        "../envs/hybridtwin.yaml"
+    wildcard_constraints:
+        record="[A-Za-z0-9_-]+",
+    params:
+        row=lambda wildcards: sheet_entry(ONLINE["records"], wildcards.record),
+        alpha=lambda wildcards: ONLINE["alpha"],  # lazily: a config without online: plans no such job
     script:
         "../../scripts/assess_record.py"
 
@@ -73,8 +69,9 @@ rule assess_record:
 rule assess_trend:
     """The twin's trend over every record of the sheet, in time order, with control limits."""
     input:
-        summaries=lambda wildcards: expand("results/online/{variant}/{record}/assessment.tsv",
-                                           variant=wildcards.variant, record=ONLINE_RECORDS),
+        summaries=lambda wildcards: expand(
+            "results/online/{variant}/{record}/assessment.tsv", variant=wildcards.variant, record=ONLINE_RECORDS
+        ),
     output:
         table="results/online/{variant}/trend.tsv",
         figure=report(
@@ -87,7 +84,5 @@ rule assess_trend:
         "logs/online/{variant}/trend.log",
     benchmark:
         "results/benchmarks/online/{variant}/trend.tsv"
-    conda:
-        "../envs/hybridtwin.yaml"
     script:
         "../../scripts/assess_trend.py"

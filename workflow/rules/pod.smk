@@ -14,14 +14,12 @@ rule pod:
             category="Offline library",
             subcategory="{variant}",
         ),
-    params:
-        model=variant_model,
-        offline=lambda wildcards: offline_for(config, wildcards.variant, OFFLINE_USED["pod"]),
     log:
         "logs/{variant}/pod.log",
     benchmark:
         "results/benchmarks/{variant}/pod.tsv"
-    conda:
-        "../envs/hybridtwin.yaml"
+    params:
+        model=variant_model,
+        offline=lambda wildcards: offline_for(config, wildcards.variant, OFFLINE_USED["pod"]),
     script:
         "../../scripts/pod.py"

@@ -4,8 +4,21 @@
 # outputs (the validation runs' predicted harmonics included); nothing is predicted again.
 
 
-REPORT_FILES = ["harmonics.tsv", "runs", "errors.tsv", "validation_errors.tsv", "bode.png", "polar.png", "response.tsv",
-                "error_map.png", "drift.tsv", "drift.png", "campbell.png", "campbell.tsv", "mode_shapes.png"]
+REPORT_FILES = [
+    "harmonics.tsv",
+    "runs",
+    "errors.tsv",
+    "validation_errors.tsv",
+    "bode.png",
+    "polar.png",
+    "response.tsv",
+    "error_map.png",
+    "drift.tsv",
+    "drift.png",
+    "campbell.png",
+    "campbell.tsv",
+    "mode_shapes.png",
+]
 
 
 rule report_harmonics:
@@ -20,14 +33,12 @@ rule report_harmonics:
         harmonics="results/data/harmonics.tsv",
     output:
         table="results/{variant}/report/harmonics.tsv",
-    params:
-        options=lambda wildcards: rule_settings(config, wildcards.variant, "validation"),
     log:
         "logs/{variant}/report_harmonics.log",
     benchmark:
         "results/benchmarks/{variant}/report_harmonics.tsv"
-    conda:
-        "../envs/hybridtwin.yaml"
+    params:
+        options=lambda wildcards: rule_settings(config, wildcards.variant, "validation"),
     script:
         "../../scripts/report_harmonics.py"
 
@@ -36,8 +47,6 @@ rule report_runs:
     """One figure per run: orbit, x and y over two revolutions with the residual, residual whirl spectrum."""
     input:
         table="results/{variant}/report/harmonics.tsv",
-    params:
-        **SENSOR_PARAMS,  # the machine's probes: which channels are a plane's x and y (an orbit each)
     output:
         runs=report(
             directory("results/{variant}/report/runs"),
@@ -51,8 +60,8 @@ rule report_runs:
         "logs/{variant}/report_runs.log",
     benchmark:
         "results/benchmarks/{variant}/report_runs.tsv"
-    conda:
-        "../envs/hybridtwin.yaml"
+    params:
+        **SENSOR_PARAMS,  # the machine's probes: which channels are a plane's x and y (an orbit each)
     script:
         "../../scripts/report_runs.py"
 
@@ -84,8 +93,6 @@ rule report_overview:
         "logs/{variant}/report_overview.log",
     benchmark:
         "results/benchmarks/{variant}/report_overview.tsv"
-    conda:
-        "../envs/hybridtwin.yaml"
     script:
         "../../scripts/report_overview.py"
 
@@ -111,17 +118,15 @@ rule report_response:
             category="Comparison",
             subcategory="{variant}",
         ),
+    log:
+        "logs/{variant}/report_response.log",
+    benchmark:
+        "results/benchmarks/{variant}/report_response.tsv"
     params:
         model=variant_model,
         runs=lambda wildcards: run_plan(config)[["run", "rpm", "eccentric_mass_g", "role"]].to_dict("list"),
         harmonics=config["harmonics"],
         options=lambda wildcards: rule_settings(config, wildcards.variant, "validation"),
-    log:
-        "logs/{variant}/report_response.log",
-    benchmark:
-        "results/benchmarks/{variant}/report_response.tsv"
-    conda:
-        "../envs/hybridtwin.yaml"
     script:
         "../../scripts/report_response.py"
 
@@ -141,8 +146,6 @@ rule report_cascade:
         "logs/data/report_cascade.log",
     benchmark:
         "results/benchmarks/data/report_cascade.tsv"
-    conda:
-        "../envs/hybridtwin.yaml"
     script:
         "../../scripts/report_cascade.py"
 
@@ -167,15 +170,13 @@ rule report_machine:
             category="Machine",
             subcategory="{variant}",
         ),
-    params:
-        model=variant_model,
-        runs=lambda wildcards: run_plan(config)[["run", "rpm", "eccentric_mass_g"]].to_dict("list"),  # marked
     log:
         "logs/{variant}/report_machine.log",
     benchmark:
         "results/benchmarks/{variant}/report_machine.tsv"
-    conda:
-        "../envs/hybridtwin.yaml"
+    params:
+        model=variant_model,
+        runs=lambda wildcards: run_plan(config)[["run", "rpm", "eccentric_mass_g"]].to_dict("list"),  # marked
     script:
         "../../scripts/report_machine.py"
 
@@ -202,8 +203,6 @@ rule report_drift:
         "logs/{variant}/report_drift.log",
     benchmark:
         "results/benchmarks/{variant}/report_drift.tsv"
-    conda:
-        "../envs/hybridtwin.yaml"
     script:
         "../../scripts/report_drift.py"
 
@@ -217,15 +216,13 @@ rule ledger:
     output:
         table=report("results/ledger.tsv", caption="../report/ledger.rst", category="Ledger"),
         plot=report("results/ledger.png", caption="../report/ledger_plot.rst", category="Ledger"),
-    params:
-        variants=VARIANTS,
-        descriptions={name: spec.get("description", "") for name, spec in config["variants"].items()},
     log:
         "logs/ledger.log",
     benchmark:
         "results/benchmarks/ledger.tsv"
-    conda:
-        "../envs/hybridtwin.yaml"
+    params:
+        variants=VARIANTS,
+        descriptions={name: spec.get("description", "") for name, spec in config["variants"].items()},
     script:
         "../../scripts/ledger.py"
 
@@ -247,16 +244,14 @@ rule report_summary:
         table=report("results/summary.tsv", caption="../report/summary_table.rst", category="Summary"),
         plot=report("results/summary.png", caption="../report/summary_plot.rst", category="Summary"),
         page="results/summary.rst",
-    params:
-        variants=VARIANTS,
-        specs={name: {"effects": list(spec.get("effects", []))} for name, spec in config["variants"].items()},
-        design=bool(DESIGN["runs"]),
     log:
         "logs/report_summary.log",
     benchmark:
         "results/benchmarks/report_summary.tsv"
-    conda:
-        "../envs/hybridtwin.yaml"
+    params:
+        variants=VARIANTS,
+        specs={name: {"effects": list(spec.get("effects", []))} for name, spec in config["variants"].items()},
+        design=bool(DESIGN["runs"]),
     script:
         "../../scripts/report_summary.py"
 
@@ -285,21 +280,20 @@ rule report_transient:
             category="Transient records",
             subcategory="{variant}",
         ),
-    params:
-        model=variant_model,
-        runs=lambda wildcards: run_plan(config)[["run", "rpm", "eccentric_mass_g"]].to_dict("list"),  # the bow's law
-        records=lambda wildcards: [{k: r[k] for k in ("run", "kind", "role", "eccentric_mass_g")}
-                                   for r in transient_records()],
-        harmonics=config["harmonics"],
-        law=lambda wildcards: rule_settings(config, wildcards.variant, "validation")["validation_bow"],
-        display=TRANSIENT_DISPLAY,
-        **SENSOR_PARAMS,
     log:
         "logs/{variant}/report_transient.log",
     benchmark:
         "results/benchmarks/{variant}/report_transient.tsv"
-    conda:
-        "../envs/hybridtwin.yaml"
+    params:
+        **SENSOR_PARAMS,
+        model=variant_model,
+        runs=lambda wildcards: run_plan(config)[["run", "rpm", "eccentric_mass_g"]].to_dict("list"),  # the bow's law
+        records=lambda wildcards: [
+            {k: r[k] for k in ("run", "kind", "role", "eccentric_mass_g")} for r in transient_records()
+        ],
+        harmonics=config["harmonics"],
+        law=lambda wildcards: rule_settings(config, wildcards.variant, "validation")["validation_bow"],
+        display=TRANSIENT_DISPLAY,
     script:
         "../../scripts/report_transient.py"
 
@@ -310,8 +304,6 @@ rule report_waterfall:
     input:
         record=lambda wildcards: sheet_entry(RUNS_SHEET, wildcards.run)["record"],
         speed="results/data/records/{run}/speed.tsv",
-    wildcard_constraints:
-        run="[A-Za-z0-9_-]+",
     output:
         waterfall=report(
             "results/data/report/records/{run}/waterfall.png",
@@ -319,14 +311,14 @@ rule report_waterfall:
             category="Measurements",
             labels={"record": "{run}", "figure": "waterfall"},
         ),
-    params:
-        display={k: TRANSIENT_DISPLAY[k] for k in ("frame", "amplitude")},
-        **SENSOR_PARAMS,
     log:
         "logs/data/report_waterfall/{run}.log",
     benchmark:
         "results/benchmarks/data/report_waterfall/{run}.tsv"
-    conda:
-        "../envs/hybridtwin.yaml"
+    wildcard_constraints:
+        run="[A-Za-z0-9_-]+",
+    params:
+        **SENSOR_PARAMS,
+        display={k: TRANSIENT_DISPLAY[k] for k in ("frame", "amplitude")},
     script:
         "../../scripts/report_waterfall.py"

@@ -8,15 +8,13 @@ rule sample_scenarios:
         effects=variant_effects,  # their contents build the variant (params.model has only the paths)
     output:
         "results/{variant}/scenarios.tsv",
-    params:
-        model=variant_model,
-        offline=lambda wildcards: offline_for(config, wildcards.variant, OFFLINE_USED["sample_scenarios"]),
     log:
         "logs/{variant}/sample_scenarios.log",
     benchmark:
         "results/benchmarks/{variant}/sample_scenarios.tsv"
-    conda:
-        "../envs/hybridtwin.yaml"
+    params:
+        model=variant_model,
+        offline=lambda wildcards: offline_for(config, wildcards.variant, OFFLINE_USED["sample_scenarios"]),
     script:
         "../../scripts/sample_scenarios.py"
 
@@ -30,19 +28,17 @@ rule solve_chunk:
         effects=variant_effects,  # their contents build the variant (params.model has only the paths)
     output:
         directory("results/{variant}/chunks/{chunk}.zarr"),
+    log:
+        "logs/{variant}/solve_chunk_{chunk}.log",
+    benchmark:
+        "results/benchmarks/{variant}/solve_chunk_{chunk}.tsv"
+    resources:
+        mem_mb=2000,
     params:
         model=variant_model,
         measured=OFFLINE["speed"] == "measured",
         n_chunks=OFFLINE["chunks"],
         harmonics=config["harmonics"],
-    resources:
-        mem_mb=2000,
-    log:
-        "logs/{variant}/solve_chunk_{chunk}.log",
-    benchmark:
-        "results/benchmarks/{variant}/solve_chunk_{chunk}.tsv"
-    conda:
-        "../envs/hybridtwin.yaml"
     script:
         "../../scripts/solve_chunk.py"
 
@@ -63,15 +59,13 @@ rule sample_enrichment:
             category="Offline library",
             subcategory="{variant}",
         ),
-    params:
-        model=variant_model,
-        offline=lambda wildcards: offline_for(config, wildcards.variant, OFFLINE_USED["sample_enrichment"]),
     log:
         "logs/{variant}/sample_enrichment.log",
     benchmark:
         "results/benchmarks/{variant}/sample_enrichment.tsv"
-    conda:
-        "../envs/hybridtwin.yaml"
+    params:
+        model=variant_model,
+        offline=lambda wildcards: offline_for(config, wildcards.variant, OFFLINE_USED["sample_enrichment"]),
     script:
         "../../scripts/sample_enrichment.py"
 
@@ -85,18 +79,16 @@ rule solve_enrichment:
         effects=variant_effects,  # their contents build the variant (params.model has only the paths)
     output:
         directory("results/{variant}/enrichment/{chunk}.zarr"),
+    log:
+        "logs/{variant}/solve_enrichment_{chunk}.log",
+    benchmark:
+        "results/benchmarks/{variant}/solve_enrichment_{chunk}.tsv"
+    resources:
+        mem_mb=2000,
     params:
         model=variant_model,
         measured=OFFLINE["speed"] == "measured",
         n_chunks=OFFLINE["enrichment"]["chunks"],
         harmonics=config["harmonics"],
-    resources:
-        mem_mb=2000,
-    log:
-        "logs/{variant}/solve_enrichment_{chunk}.log",
-    benchmark:
-        "results/benchmarks/{variant}/solve_enrichment_{chunk}.tsv"
-    conda:
-        "../envs/hybridtwin.yaml"
     script:
         "../../scripts/solve_enrichment.py"

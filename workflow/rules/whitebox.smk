@@ -14,14 +14,12 @@ rule whitebox_sweep:
             category="White box",
             subcategory="{variant}",
         ),
-    params:
-        model=variant_model,
-        harmonics=config["harmonics"],
     log:
         "logs/{variant}/whitebox_sweep.log",
     benchmark:
         "results/benchmarks/{variant}/whitebox_sweep.tsv"
-    conda:
-        "../envs/hybridtwin.yaml"
+    params:
+        model=variant_model,
+        harmonics=config["harmonics"],
     script:
         "../../scripts/whitebox_sweep.py"

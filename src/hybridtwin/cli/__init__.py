@@ -13,10 +13,9 @@ unstable one, unless ``simulate --unstable``, which prints it marked).
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np

@@ -15,6 +15,7 @@ import numpy as np
 from ..config import data_check_settings
 from ..data.measurements import MIN_REVOLUTIONS, SENSOR_RANGE_MM, SENSOR_RESOLUTION_MM, DataError, DataWarning
 from ..data.preprocessing import check_data, format_summary, has_usable_fit_run, write_tsv
+from ..data.shared_problems import group_messages, group_problems
 from .common import UsageError, config_file, config_machine, read_config
 
 
@@ -105,10 +106,13 @@ def check_data_command(args) -> int:
         except OSError as err:
             print(f"hybridtwin check-data: error: cannot write {args.output}: {err.strerror}", file=sys.stderr)
             return 1
-    for warning in caught:
-        print(f"hybridtwin check-data: warning: {warning.message}", file=sys.stderr)
-    for run, message in errors.items():
-        print(f"hybridtwin check-data: error: run {run}: {message}", file=sys.stderr)
+    # a problem several runs share is said once, with the runs it concerns (data/shared_problems.py)
+    runs, paths = list(summary["run"]), dict(zip(summary["run"], summary["path"].astype(str)))
+    for message, count in group_messages([str(w.message) for w in caught], runs, paths):
+        same = f" (the same in {count - 1} more run(s))" if count > 1 else ""
+        print(f"hybridtwin check-data: warning: {message}{same}", file=sys.stderr)
+    for problem in group_problems(errors, paths):
+        print(f"hybridtwin check-data: error: {problem.describe(len(summary))}", file=sys.stderr)
     flagged = (~summary["usable"].astype(bool)).sum() - len(errors)
     print(f"# {len(summary)} run(s): {len(summary) - len(errors) - flagged} ok, {flagged} flagged (kept out of the "
           f"fit), {len(errors)} invalid", file=sys.stderr)

@@ -177,12 +177,6 @@ def build_variant(name: str, specs: Mapping[str, Mapping], user: Mapping[str, Ef
         raise UsageError(f"{source or 'built-in variants'}: {err}") from None
 
 
-def load_variants(config: Path | None, effects_files: Sequence[Path]) -> tuple[dict[str, Variant], dict[str, Effect]]:
-    """Every variant (built on the config's machine) and the user effects (``load_catalog``)."""
-    specs, user, machine = load_catalog(config, effects_files)
-    return {name: build_variant(name, specs, user, config, machine=machine) for name in specs}, user
-
-
 def own_machine(config: Path | None) -> bool:
     """Whether ``config`` describes a machine of its own (a ``machine:`` section), not the VARM."""
     return config is not None and bool(read_config(config).get("machine"))

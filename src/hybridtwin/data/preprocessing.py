@@ -470,9 +470,6 @@ def waveforms(analysis: RunAnalysis, cycles: int = 2) -> pd.DataFrame:
     return pd.DataFrame(out, columns=columns)
 
 
-SPECTRUM_COLUMNS = ["frequency_hz", "order", "x_amplitude_m", "y_amplitude_m"]
-
-
 def spectrum(record: Record, rpm: float, max_order: float = 10.0) -> pd.DataFrame:
     """A record's full amplitude spectrum up to ``max_order`` times the speed (the cascade plot's rows): each
     channel's mean removed, a Hann window, |FFT| scaled so that a sinusoid at a bin's frequency shows its

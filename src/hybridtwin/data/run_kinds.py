@@ -108,11 +108,6 @@ def sheet_kinds(runs: pd.DataFrame) -> pd.Series:
     return pd.Series(STEADY, index=runs.index, name="kind")
 
 
-def is_transient(kind: str) -> bool:
-    """Whether a row of this kind is a transient record (runup, coastdown)."""
-    return str(kind) in TRANSIENT_KINDS
-
-
 # --- a transient row's speed bands: the pseudo-runs the workflow plans (hybridtwin.data.transient) ----------
 
 #: speed band of a pseudo-run [RPM] unless the sheet's band_rpm says otherwise: narrow enough that the response

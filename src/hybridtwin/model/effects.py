@@ -262,32 +262,20 @@ def expansion_terms() -> list[PolynomialBearing]:
 # matrices, no forcing harmonic), so a model extended by any of them at zero *is* the model
 # without it. Each effect declares them as its ``switches`` (the parameters the diagnosis tests).
 #
-# Ranges. The top of each range should change the sensor response clearly (sensor noise 0.05 mm)
-# but not absurdly. Estimated with Variant.solve on the Geometric model at the bundled data's values
-# (k_b 2411.3, zeta_s 0.024, zeta_bup 0.016, q_x 0.002, q_y 0.0015) over the paper's 19 fitting runs
-# (350-1000 RPM with their m_e; node-1 amplitudes 0.3-14 mm, largest at 900-1000 RPM near
-# omega_1/sqrt(2)). "Median" is the median over runs of the peak change of u_1(t), v_1(t); "rel" the
-# largest change relative to that run's amplitude. The target was a change comparable to the hidden
-# slope force of the bundled data (k_w, k_z at the paper's values: median 0.46 mm, rel 1.0) with
-# rel <= ~1 and every run still solved. At the ends of the ranges:
-# - dk_up +-500 N/m (+-10 % of 2 k_b per axis): median 0.3 mm, rel 0.6-0.8.
-# - k_xy +-200 N/m: median 0.1 mm, rel 0.2-0.3, but it is a destabilising term. The linearised machine
-#   stays stable up to |k_xy| ~ 350 N/m at these dampings, only up to ~ 110 N/m at the lowest damping
-#   of the base ranges (zeta_s 0.01, zeta_bup 0). At +150 N/m the 950 RPM run (14 mm, at the fold near
-#   omega_1/sqrt(2)) no longer converges.
-# - c_xy +-5 N s/m (1X forward: an equivalent stiffness Omega c_xy of 180-520 N/m, like dk_up's size):
-#   median 0.2 mm, rel 0.6-0.8.
-# - k_rot 0-300 N m/rad (7 % of an element's 4 EI/h = 4140 N m/rad; partial clamping of the tilt):
-#   median 0.13 mm, rel 0.85 (omega_1 rises from 22.3 to 22.9 Hz). Not negative: a support does not
-#   push the tilt further.
-# - dk_lo +-2000 N/m (+-20 % of k = 1e4 N/m): median 0.07-0.12 mm, rel 0.6-0.8.
-# - f2 +-0.5 N: 0.6 mm at 550 RPM, near the 2X critical speed Omega = omega_1/sqrt(5) (K - 5 Omega^2 M
-#   with the centrifugal term), median 0.2 mm. Only the 2X line changes, where the noise floor of an
-#   order analysis is ~ 1 um.
-# - f3 +-0.3 N: 0.5 mm at 400 RPM (3X critical speed omega_1/sqrt(10)), comparable to the 1X there,
-#   median 0.04 mm (3X line only).
+# Ranges. The top of each range changes the sensor response clearly (sensor noise 0.05 mm), about as much as
+# the bundled data's hidden slope force, but not absurdly, and every run of the paper's plan still solves (how each
+# was estimated, with its figures: benchmarks/README.md, "The candidate effects' ranges"). Per parameter:
+# - dk_up +-500 N/m: +-10 % of 2 k_b per axis.
+# - k_xy +-200 N/m: a destabilising term; the linearised machine stays stable up to |k_xy| ~ 350 N/m at the
+#   bundled dampings, only up to ~ 110 N/m at the lowest damping of the base ranges (zeta_s 0.01, zeta_bup 0).
+# - c_xy +-5 N s/m: at 1X forward an equivalent stiffness Omega c_xy of 180-520 N/m, like dk_up's size.
+# - k_rot 0-300 N m/rad: 7 % of an element's 4 EI/h = 4140 N m/rad (partial clamping of the tilt). Not negative:
+#   a support does not push the tilt further.
+# - dk_lo +-2000 N/m: +-20 % of k = 1e4 N/m.
+# - f2 +-0.5 N: largest near the 2X critical speed Omega = omega_1/sqrt(5); only the 2X line changes.
+# - f3 +-0.3 N: largest near the 3X critical speed omega_1/sqrt(10); 3X line only.
 # - zeta_v 0-0.05: adds up to 0.05 Omega/omega_1 = 0.04 to zeta_s at 1000 RPM (zeta_s's own range is
-#   0.01-0.05): median 0.12 mm, rel 0.5. Not negative: damping does not fall with speed here.
+#   0.01-0.05). Not negative: damping does not fall with speed here.
 RANGE_DK_UP = (-500.0, 500.0)
 RANGE_K_XY = (-200.0, 200.0)
 RANGE_C_XY = (-5.0, 5.0)

@@ -364,11 +364,6 @@ class Machine(DofCounts):
             start = start + segment.length
         return np.concatenate(parts)
 
-    @property
-    def element_lengths(self) -> np.ndarray:
-        """Length of each element [m], (n,)."""
-        return np.array([self.segments[s].h for s in self._segment_of_element])
-
     def node_at(self, z: float) -> int:
         """Index of the node nearest to axial position ``z`` [m]."""
         if not 0.0 <= z <= self.L * (1 + 1e-12):

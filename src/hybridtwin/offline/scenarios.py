@@ -26,8 +26,6 @@ from ..solvers.continuation import RUN_UP_FROM_RPM, padded_speeds, solve_sweep
 from ..solvers.solver import DEFAULT_HARMONICS, SteadyState, flag_unstable, floquet_radius
 from ..model.variants import Variant
 
-SPLITS = ("train", "validation", "test")
-
 
 def default_n_scenarios(n_parameters: int) -> int:
     """The paper's sample sizes: 1000 for up to 5 unknowns, 300 per unknown beyond (2700 for 9)."""

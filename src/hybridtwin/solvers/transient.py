@@ -272,33 +272,6 @@ def state_tolerance(n: int, atol: float | Array = DEFAULT_ATOL,
     return np.concatenate([np.full(n, float(atol)), np.full(n, velocity_scale * float(atol))])
 
 
-def integrate(
-    system: System,
-    q0: Array | None = None,
-    v0: Array | None = None,
-    t_end: float = 1.0,
-    t_eval: Array | None = None,
-    *,
-    scenario: int = 0,
-    t_start: float = 0.0,
-    method: str = DEFAULT_METHOD,
-    rtol: float = DEFAULT_RTOL,
-    atol: float | Array = DEFAULT_ATOL,
-    velocity_scale: float = DEFAULT_VELOCITY_SCALE,
-) -> tuple[Array, Array]:
-    """Integrate eq. 29 for one scenario from q(t_start) = q0, q'(t_start) = v0 (default: rest).
-
-    Returns the sample times t and the displacements q (len(t), n) at ``t_eval``
-    (default: the integrator's own steps). Tolerances: see ``state_tolerance``
-    and the module docstring. Raises RuntimeError when the integrator fails
-    (e.g. the response grows without bound).
-    """
-    first_order = FirstOrder.from_system(system, scenario)
-    t, y = run(first_order, q0, v0, (t_start, t_end), t_eval, method=method, rtol=rtol,
-               atol=state_tolerance(first_order.n, atol, velocity_scale))
-    return t, y[:, : first_order.n]
-
-
 def run(first_order: FirstOrder, q0: Array | None, v0: Array | None, t_span: tuple[float, float],
         t_eval: Array | None = None, *, method: str = DEFAULT_METHOD, rtol: float = DEFAULT_RTOL,
         atol: float | Array | None = None) -> tuple[Array, Array]:
