@@ -34,6 +34,8 @@ rule diagnose:
         "logs/{variant}/diagnose.log",
     benchmark:
         "results/benchmarks/{variant}/diagnose.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
     params:
         model=diagnosis_model,
         keyphasor=lambda wildcards: identification_settings(config, wildcards.variant)["keyphasor"],

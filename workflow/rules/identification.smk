@@ -28,6 +28,8 @@ rule identify_run:
         "logs/{variant}/identify_run.log",
     benchmark:
         "results/benchmarks/{variant}/identify_run.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
     params:
         runs=FIT_RUNS,
         model=variant_model,
@@ -73,6 +75,8 @@ rule identify_joint:
         "logs/{variant}/identify_joint.log",
     benchmark:
         "results/benchmarks/{variant}/identify_joint.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
     params:
         runs=FIT_RUNS,
         model=joint_model,
@@ -105,6 +109,8 @@ rule predict_validation:
         "logs/{variant}/predict_validation.log",
     benchmark:
         "results/benchmarks/{variant}/predict_validation.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
     params:
         runs=VALIDATION_RUNS,
         model=variant_model,
@@ -148,6 +154,8 @@ rule design_runs:
         "logs/{variant}/design_runs.log",
     benchmark:
         "results/benchmarks/{variant}/design_runs.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
     params:
         model=variant_model,
         options=lambda wildcards: rule_settings(config, wildcards.variant, "validation"),

@@ -13,6 +13,8 @@ rule spgd_global:
         "logs/{variant}/spgd_global.log",
     benchmark:
         "results/benchmarks/{variant}/spgd_global.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
     params:
         model=variant_model,
         offline=lambda wildcards: offline_for(config, wildcards.variant, OFFLINE_USED["spgd_global"]),
@@ -32,6 +34,8 @@ rule spgd_library:
         "logs/{variant}/spgd_library.log",
     benchmark:
         "results/benchmarks/{variant}/spgd_library.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
     threads: 2
     params:
         runs=RUNS,
@@ -65,6 +69,8 @@ rule validate_library:
         "logs/{variant}/validate_library.log",
     benchmark:
         "results/benchmarks/{variant}/validate_library.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
     params:
         model=variant_model,
         offline=lambda wildcards: offline_for(config, wildcards.variant, OFFLINE_USED["validate_library"]),

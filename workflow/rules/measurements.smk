@@ -30,6 +30,8 @@ rule check_data:
         "logs/data/check_data.log",
     benchmark:
         "results/benchmarks/data/check_data.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
     params:
         **CHECK_SETTINGS,  # harmonics, coverage, sensor_range_mm (the lasers'; a sheet's column overrides it)
         **SENSOR_PARAMS,
@@ -53,6 +55,8 @@ rule preprocess:
         "results/benchmarks/data/preprocess/{run}.tsv"
     wildcard_constraints:
         run="[A-Za-z0-9_-]+",
+    conda:
+        "../envs/hybridtwin.yaml"
     params:
         **SENSOR_PARAMS,
         row=lambda wildcards: sheet_entry(RUNS_SHEET, wildcards.run),
@@ -80,6 +84,8 @@ rule track_record:
         "results/benchmarks/data/track_record/{run}.tsv"
     wildcard_constraints:
         run="[A-Za-z0-9_-]+",
+    conda:
+        "../envs/hybridtwin.yaml"
     params:
         **SENSOR_PARAMS,
         row=lambda wildcards: sheet_entry(RUNS_SHEET, wildcards.run),
@@ -99,6 +105,8 @@ rule measured_harmonics:
         "logs/data/measured_harmonics.log",
     benchmark:
         "results/benchmarks/data/measured_harmonics.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
     script:
         "../../scripts/measured_harmonics.py"
 
@@ -119,6 +127,8 @@ rule rig:
         "results/benchmarks/rig/{name}.tsv"
     wildcard_constraints:
         name="[A-Za-z0-9_-]+",
+    conda:
+        "../envs/hybridtwin.yaml"
     params:
         spec=lambda wildcards: config["rig"][wildcards.name],
         machine=config.get("machine"),  # the rotor the truth is built on (None: the VARM); a change reruns the rig

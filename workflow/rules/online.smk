@@ -17,6 +17,8 @@ rule twin_card:
         "logs/{variant}/twin_card.log",
     benchmark:
         "results/benchmarks/{variant}/twin_card.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
     params:
         model=variant_model,
         harmonics=config["harmonics"],
@@ -59,6 +61,8 @@ rule assess_record:
         "results/benchmarks/online/{variant}/{record}.tsv"
     wildcard_constraints:
         record="[A-Za-z0-9_-]+",
+    conda:
+        "../envs/hybridtwin.yaml"
     params:
         row=lambda wildcards: sheet_entry(ONLINE["records"], wildcards.record),
         alpha=lambda wildcards: ONLINE["alpha"],  # lazily: a config without online: plans no such job
@@ -84,5 +88,7 @@ rule assess_trend:
         "logs/online/{variant}/trend.log",
     benchmark:
         "results/benchmarks/online/{variant}/trend.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
     script:
         "../../scripts/assess_trend.py"

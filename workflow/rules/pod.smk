@@ -18,6 +18,8 @@ rule pod:
         "logs/{variant}/pod.log",
     benchmark:
         "results/benchmarks/{variant}/pod.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
     params:
         model=variant_model,
         offline=lambda wildcards: offline_for(config, wildcards.variant, OFFLINE_USED["pod"]),

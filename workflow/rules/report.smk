@@ -37,6 +37,8 @@ rule report_harmonics:
         "logs/{variant}/report_harmonics.log",
     benchmark:
         "results/benchmarks/{variant}/report_harmonics.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
     params:
         options=lambda wildcards: rule_settings(config, wildcards.variant, "validation"),
     script:
@@ -60,6 +62,8 @@ rule report_runs:
         "logs/{variant}/report_runs.log",
     benchmark:
         "results/benchmarks/{variant}/report_runs.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
     params:
         **SENSOR_PARAMS,  # the machine's probes: which channels are a plane's x and y (an orbit each)
     script:
@@ -93,6 +97,8 @@ rule report_overview:
         "logs/{variant}/report_overview.log",
     benchmark:
         "results/benchmarks/{variant}/report_overview.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
     script:
         "../../scripts/report_overview.py"
 
@@ -122,6 +128,8 @@ rule report_response:
         "logs/{variant}/report_response.log",
     benchmark:
         "results/benchmarks/{variant}/report_response.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
     params:
         model=variant_model,
         runs=lambda wildcards: run_plan(config)[["run", "rpm", "eccentric_mass_g", "role"]].to_dict("list"),
@@ -146,6 +154,8 @@ rule report_cascade:
         "logs/data/report_cascade.log",
     benchmark:
         "results/benchmarks/data/report_cascade.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
     script:
         "../../scripts/report_cascade.py"
 
@@ -174,6 +184,8 @@ rule report_machine:
         "logs/{variant}/report_machine.log",
     benchmark:
         "results/benchmarks/{variant}/report_machine.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
     params:
         model=variant_model,
         runs=lambda wildcards: run_plan(config)[["run", "rpm", "eccentric_mass_g"]].to_dict("list"),  # marked
@@ -203,6 +215,8 @@ rule report_drift:
         "logs/{variant}/report_drift.log",
     benchmark:
         "results/benchmarks/{variant}/report_drift.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
     script:
         "../../scripts/report_drift.py"
 
@@ -220,6 +234,8 @@ rule ledger:
         "logs/ledger.log",
     benchmark:
         "results/benchmarks/ledger.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
     params:
         variants=VARIANTS,
         descriptions={name: spec.get("description", "") for name, spec in config["variants"].items()},
@@ -248,6 +264,8 @@ rule report_summary:
         "logs/report_summary.log",
     benchmark:
         "results/benchmarks/report_summary.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
     params:
         variants=VARIANTS,
         specs={name: {"effects": list(spec.get("effects", []))} for name, spec in config["variants"].items()},
@@ -284,6 +302,8 @@ rule report_transient:
         "logs/{variant}/report_transient.log",
     benchmark:
         "results/benchmarks/{variant}/report_transient.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
     params:
         **SENSOR_PARAMS,
         model=variant_model,
@@ -317,6 +337,8 @@ rule report_waterfall:
         "results/benchmarks/data/report_waterfall/{run}.tsv"
     wildcard_constraints:
         run="[A-Za-z0-9_-]+",
+    conda:
+        "../envs/hybridtwin.yaml"
     params:
         **SENSOR_PARAMS,
         display={k: TRANSIENT_DISPLAY[k] for k in ("frame", "amplitude")},

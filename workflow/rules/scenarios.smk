@@ -12,6 +12,8 @@ rule sample_scenarios:
         "logs/{variant}/sample_scenarios.log",
     benchmark:
         "results/benchmarks/{variant}/sample_scenarios.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
     params:
         model=variant_model,
         offline=lambda wildcards: offline_for(config, wildcards.variant, OFFLINE_USED["sample_scenarios"]),
@@ -32,6 +34,8 @@ rule solve_chunk:
         "logs/{variant}/solve_chunk_{chunk}.log",
     benchmark:
         "results/benchmarks/{variant}/solve_chunk_{chunk}.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
     resources:
         mem_mb=2000,
     params:
@@ -63,6 +67,8 @@ rule sample_enrichment:
         "logs/{variant}/sample_enrichment.log",
     benchmark:
         "results/benchmarks/{variant}/sample_enrichment.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
     params:
         model=variant_model,
         offline=lambda wildcards: offline_for(config, wildcards.variant, OFFLINE_USED["sample_enrichment"]),
@@ -83,6 +89,8 @@ rule solve_enrichment:
         "logs/{variant}/solve_enrichment_{chunk}.log",
     benchmark:
         "results/benchmarks/{variant}/solve_enrichment_{chunk}.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
     resources:
         mem_mb=2000,
     params:

@@ -20,5 +20,7 @@ rule gather_snapshots:
         "logs/{variant}/gather_snapshots.log",
     benchmark:
         "results/benchmarks/{variant}/gather_snapshots.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
     script:
         "../../scripts/gather_snapshots.py"

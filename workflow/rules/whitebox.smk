@@ -18,6 +18,8 @@ rule whitebox_sweep:
         "logs/{variant}/whitebox_sweep.log",
     benchmark:
         "results/benchmarks/{variant}/whitebox_sweep.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
     params:
         model=variant_model,
         harmonics=config["harmonics"],
