@@ -30,3 +30,17 @@ def test_snakemake_lint_is_clean():
                           timeout=600)
     assert done.returncode == 0, f"snakemake --lint:\n{done.stdout}{done.stderr}"
     assert "Lints for" not in done.stdout + done.stderr
+
+
+def test_the_conda_environment_is_the_package_pip_installed():
+    """workflow/envs/hybridtwin.yaml (for --software-deployment-method conda) names no dependency of its own: Python
+    and the repository's package installed by pip, so its dependencies are pyproject.toml's, which CI installs and
+    tests (the floors too); conda itself is not on CI, so this is what can be checked of the file."""
+    import yaml
+
+    env = yaml.safe_load((ROOT / "workflow/envs/hybridtwin.yaml").read_text())
+    pip = [d for d in env["dependencies"] if isinstance(d, dict)]
+    assert [d for d in env["dependencies"] if isinstance(d, str)] == ["python>=3.11", "pip"]
+    assert len(pip) == 1 and len(pip[0]["pip"]) == 1 and pip[0]["pip"][0].startswith("-e ")
+    folder = pip[0]["pip"][0][3:].strip()  # relative to the file's folder: the repository's root, with pyproject.toml
+    assert (ROOT / "workflow/envs" / folder).resolve() == ROOT and (ROOT / "pyproject.toml").is_file()
