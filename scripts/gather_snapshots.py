@@ -11,7 +11,7 @@ import sys
 import pandas as pd
 
 from hybridtwin import config as cfg
-from hybridtwin.offline.snapshots import gather
+from hybridtwin.offline.snapshots import UNSTABLE, gather
 from hybridtwin.offline.stores import CorruptStoreError
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
@@ -32,7 +32,7 @@ except CorruptStoreError as error:
     sys.exit(message)
 failures = snapshots.failures()
 failures.to_csv(smk.output.failures, sep="\t", index=False)
-unstable = failures["message"].str.startswith("unstable")
+unstable = failures["reason"] == UNSTABLE
 log.info("%d scenarios (%d from the enrichment) x %d runs gathered; %d failed solves, %d unstable steady states "
          "(left out downstream)", snapshots.success.shape[1], int((snapshots.design == "enrichment").sum()),
          len(snapshots.runs), int((~unstable).sum()), int(unstable.sum()))

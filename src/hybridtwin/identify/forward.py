@@ -605,8 +605,9 @@ def check_stability(fit) -> StabilityCheck | None:
                            np.array([np.nan if r is None else float(r[0]) for r in radii]))
     note = check.note()
     if note is not None:
-        if not fit.message.startswith("unstable steady state"):
+        if not fit.unstable_runs:  # once: a second check of the same fit does not say it again
             fit.message = f"unstable steady state at run(s) {', '.join(check.unstable_runs)}; {fit.message}"
+        fit.unstable_runs = tuple(check.unstable_runs)
         if note not in fit.uncertainty.notes:
             fit.uncertainty.notes.append(note)
         logging.getLogger(__name__).warning("%s", note)
