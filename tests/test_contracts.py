@@ -213,3 +213,113 @@ def test_table_has_verdict_code_column():
     assert '"verdict_code"' in inspect.getsource(diagnosis._table)
     assert pd.Series([v.value for v in diagnosis.Verdict]).is_unique
 
+
+# --- one contract per table between rules: each writer's output read back by its reader ---------------------------
+
+
+def _round_trip(write, read, table, tmp_path, name):
+    """read(write(t)) is a fixed point after the first pass (the writer's digits), dtypes included."""
+    first = tmp_path / f"{name}_1.tsv"
+    write(table, first)
+    once = read(first)
+    second = tmp_path / f"{name}_2.tsv"
+    write(once, second)
+    twice = read(second)
+    pd.testing.assert_frame_equal(once, twice, check_dtype=True)
+    third = tmp_path / f"{name}_3.tsv"
+    write(twice, third)
+    assert second.read_text() == third.read_text()
+    return once
+
+
+def test_harmonics_table_round_trip(tmp_path):
+    from hybridtwin.data import measured
+
+    table = pd.DataFrame({"run": ["001", "r2"], "rpm": [1000.0, 1200.5], "rpm_true": [1000.25, np.nan],
+                          "usable": [True, False], "keyphasor": [True, False], "flat": [False, False],
+                          "note": ["ok", "flat: no signal"], "x1_re_m": [1.23456789012e-6, -2e-7]})
+    out = _round_trip(measured.write_harmonics, measured.read_harmonics, table, tmp_path, "harmonics")
+    assert out["run"].tolist() == ["001", "r2"]
+    assert out["usable"].dtype == bool and out["keyphasor"].tolist() == [True, False]
+    np.testing.assert_allclose(out["x1_re_m"], table["x1_re_m"], rtol=1e-9)
+    assert measured.kept_out(out)["run"].tolist() == ["r2"]
+    # the true/false columns, read one way: text, numbers or bools; empty is false
+    assert measured.flags(pd.Series([True, "False", "true", "1", 0, np.nan, "", " TRUE "])).tolist() == [
+        True, False, True, True, False, False, False, True]
+
+
+def test_parameter_table_round_trip(tmp_path):
+    from hybridtwin.identify import identification as idn
+
+    table = pd.DataFrame({"parameter": ["k_b", "q_x", "phase"], "run": ["all", "001", "001"],
+                          "kind": ["shared", "per_run", "nuisance"], "unit": ["N/m", "1", ""],
+                          "value": [1.5e6, 2.25e-5, 0.1], "stderr": [1e3, np.nan, 0.01],
+                          "at_bound": [False, True, False], "identifiable": [True, True, True],
+                          "lower": [1e5, -1e-4, -np.pi], "upper": [1e7, 1e-4, np.pi], "source": ["solver"] * 3})
+    out = _round_trip(idn.write_parameters, idn.read_parameters, table, tmp_path, "parameters")
+    assert out["run"].tolist() == ["all", "001", "001"] and out["unit"].tolist() == ["N/m", "1", ""]
+    assert out["value"].dtype == float and out["at_bound"].dtype == bool
+
+
+def test_validation_table_round_trip(tmp_path):
+    from hybridtwin.identify import validation_refit as vr
+
+    rows = [{"run": "007", "rpm": 900.0, "eccentric_mass_g": 25.9, "model": "solver", "error_rel": 0.125,
+             "chi2_per_residual": 3.5, "note": "ok", "beyond_noise": True, "explanation": "not_pinned",
+             "explanation_note": "the fit runs do not pin k_b; this run does", "pinned": "k_b,zeta"},
+            {"run": "008", "rpm": 950.0, "eccentric_mass_g": 25.9, "model": "none", "note": "flat",
+             "explanation": "not_checked"}]
+    out = _round_trip(vr.write_validation, vr.read_validation, pd.DataFrame(rows), tmp_path, "validation")
+    assert list(out.columns[:7]) == vr.VALIDATION_TABLE[:7] and set(vr.VALIDATION_TABLE) <= set(out.columns)
+    assert out["run"].tolist() == ["007", "008"] and out["pinned"].tolist() == ["k_b,zeta", ""]
+    assert out["beyond_noise"].tolist() == [True, False] and np.isnan(out.loc[1, "error_rel"])
+
+
+def test_error_ledger_comparison_and_library_tables_round_trip(tmp_path):
+    from hybridtwin.offline import library
+    from hybridtwin.report import report
+
+    errors = pd.DataFrame({"run": ["001", "r2"], "rpm": [1000.0, 1100.0], "eccentric_mass_g": [25.9, 0.0],
+                           "role": ["fit", "validate"], "source": ["solver", "solver"], "chi2": [40.5, 120.0],
+                           "dof": [32.0, 32.0], "chi2_dof": [1.265625, 3.75], "p_value": [0.14, 1e-12],
+                           "beyond_noise": [False, True], "error_pct": [1.5, 7.25], "signal_m": [1e-4, 2e-4]},
+                          columns=report.ERROR_COLUMNS)
+    out = _round_trip(report.write_errors, report.read_errors, errors, tmp_path, "errors")
+    assert out["beyond_noise"].dtype == bool and out["run"].tolist() == ["001", "r2"]
+    empty = _round_trip(report.write_errors, report.read_errors, errors.iloc[:0], tmp_path, "no_errors")
+    assert empty["beyond_noise"].dtype == bool and empty.empty
+    ledger = pd.DataFrame([{c: 1.5 for c in report.LEDGER_COLUMNS} | {
+        "variant": "geometric", "description": "the base", "source": "solver", "worst_run": "001",
+        "worst_validation_run": ""}])
+    out = _round_trip(report.write_ledger, report.read_ledger, ledger, tmp_path, "ledger")
+    assert out.loc[0, "worst_run"] == "001" and out["chi2_dof"].dtype == float
+    X = np.array([[1e-5 + 2e-6j, -3e-6 + 1e-6j], [2e-7 - 1e-7j, 1e-7j]])
+    comparison = report.RunComparison("001", "fit", 1000.0, 25.9, X, 0.9 * X, np.full((2, 2), 1e-7), 6.0, "solver",
+                                      ("x", "y"))
+    path = tmp_path / "comparisons.tsv"
+    report.write_comparisons([comparison], path)
+    back = report.load_comparisons(path)
+    again = tmp_path / "comparisons_2.tsv"
+    report.write_comparisons(back, again)
+    assert path.read_text() == again.read_text() and back[0].run == "001" and back[0].channels == ("x", "y")
+    np.testing.assert_allclose(back[0].measured, X, rtol=1e-8)
+    table = pd.DataFrame({"run": ["001", "all runs"], "n_test": [10, 20], "median_error_pct": [0.5, 0.75]})
+    out = _round_trip(library.write_library_validation, library.read_library_validation, table, tmp_path, "libval")
+    assert out["run"].tolist() == ["001", "all runs"]
+
+
+def test_rule_scripts_read_tables_through_their_readers():
+    """No rule script parses a table between rules by hand: the parameter, harmonics, validation, error, ledger,
+    comparison and library-validation tables go through their owners' readers (the tables listed here)."""
+    owned = {"parameters", "per_run", "sparse", "harmonics", "runs", "bands", "validation", "library_validation",
+             "ledger", "errors", "validation_errors", "table", "refits", "nested"}
+    problems = []
+    for path in sorted((ROOT / "scripts").glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Call) and ast.unparse(node.func) in ("pd.read_csv", "pandas.read_csv"):
+                source = ast.unparse(node.args[0]) if node.args else ""
+                inputs = {n.attr for n in ast.walk(node.args[0]) if isinstance(n, ast.Attribute)} \
+                    if node.args else set()
+                if "smk.input" in source and inputs & owned:
+                    problems.append(f"{path.name}:{node.lineno}: {ast.unparse(node)}")
+    assert not problems, "tables read by hand (use the table's reader):\n" + "\n".join(problems)
