@@ -4,6 +4,7 @@ import pandas as pd
 import yaml
 
 from hybridtwin import config as cfg
+from hybridtwin.identify.design import read_design_table
 from hybridtwin.identify.validation_refit import read_validation
 from hybridtwin.report import report, summary
 from hybridtwin.data.measured import read_harmonics
@@ -29,7 +30,7 @@ best = summary.best_variant(table)
 designs = dict(zip(smk.params.variants, zip(smk.input.next_runs, smk.input.intervals))) if smk.params.design else {}
 line = ""
 if best["variant"] in designs:
-    chosen, intervals = (pd.read_csv(path, sep="\t") for path in designs[best["variant"]])
+    chosen, intervals = (read_design_table(path) for path in designs[best["variant"]])
     line = summary.next_runs_line(best["variant"], chosen, intervals)
 with open(smk.output.page, "w") as stream:
     stream.write(summary.landing_rst(table, errors, summary.kept_out(read_harmonics(smk.input.harmonics)), why, line))

@@ -308,11 +308,42 @@ def test_error_ledger_comparison_and_library_tables_round_trip(tmp_path):
     assert out["run"].tolist() == ["001", "all runs"]
 
 
+def test_scenario_and_design_tables_round_trip(tmp_path):
+    from hybridtwin.identify import design
+    from hybridtwin.offline import scenarios
+
+    table = pd.DataFrame({"scenario": [0, 1, 2], "split": ["train", "validation", "test"],
+                          "k_b": [2345.678901234567, 2100.0, 3400.5], "zeta_bup": [0.012345678901234, 0.02, 0.03]})
+    out = _round_trip(scenarios.write_scenarios, scenarios.read_scenarios, table, tmp_path, "scenarios")
+    np.testing.assert_allclose(out["k_b"], table["k_b"], rtol=1e-11)
+    full = _round_trip(lambda t, p: scenarios.write_scenarios(t, p, float_format=None), scenarios.read_scenarios,
+                       table, tmp_path, "enrichment")
+    pd.testing.assert_frame_equal(full, table)  # every digit (the enrichment's table)
+    chosen = pd.DataFrame([[1, 1000.0, 7.6, True, 3.2, 9.8, 3.2], [2, 975.0, 0.0, False, 1.1, 10.9, 1.12]],
+                          columns=design.CHOSEN_COLUMNS)
+    intervals = pd.DataFrame([["zeta_bup", "1", 0.0138, 0.0119, 0.0157, "linear", 0.0, 0.05, 1.9e-3, 1.7e-4, 11.0,
+                               True]], columns=design.INTERVAL_COLUMNS)
+    candidates = pd.DataFrame([[1000.0, 7.6, True, False, "too large", 1.2, 0.5, 0.1]],
+                              columns=design.CANDIDATE_COLUMNS)
+    result = type("Design", (), {"chosen": chosen, "intervals": intervals, "candidates": candidates})()
+    paths = [tmp_path / f"{n}.tsv" for n in ("chosen", "intervals", "candidates")]
+    design.write_design(result, *paths)
+    back = [design.read_design_table(p) for p in paths]
+    again = type("Design", (), dict(zip(("chosen", "intervals", "candidates"), back)))()
+    paths2 = [tmp_path / f"{n}_2.tsv" for n in ("chosen", "intervals", "candidates")]
+    design.write_design(again, *paths2)
+    for first, second, b in zip(paths, paths2, back):
+        assert first.read_text() == second.read_text()
+        pd.testing.assert_frame_equal(b, design.read_design_table(second))
+    assert back[0]["keyphasor"].dtype == bool and back[1]["unit"].tolist() == ["1"]
+    assert back[2]["feasible"].tolist() == [False] and back[2]["keyphasor"].tolist() == [True]
+
+
 def test_rule_scripts_read_tables_through_their_readers():
     """No rule script parses a table between rules by hand: the parameter, harmonics, validation, error, ledger,
     comparison and library-validation tables go through their owners' readers (the tables listed here)."""
     owned = {"parameters", "per_run", "sparse", "harmonics", "runs", "bands", "validation", "library_validation",
-             "ledger", "errors", "validation_errors", "table", "refits", "nested"}
+             "ledger", "errors", "validation_errors", "table", "refits", "nested", "scenarios", "enrichment"}
     problems = []
     for path in sorted((ROOT / "scripts").glob("*.py")):
         for node in ast.walk(ast.parse(path.read_text())):

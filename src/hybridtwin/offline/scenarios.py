@@ -156,6 +156,19 @@ def _store(out: RunSolutions, position: int, result: SteadyState, rows: slice) -
     out.floquet_radius[position] = result.floquet_radius[rows]
 
 
+def write_scenarios(table: pd.DataFrame, path, float_format: str | None = "%.12g") -> None:
+    """A scenario table: ``sample_scenarios``' scenarios.tsv at 12 significant digits (the values the chunks
+    solve), ``sample_enrichment``'s enrichment.tsv with ``float_format`` None (every digit, as it always was);
+    ``read_scenarios`` reads either."""
+    table.to_csv(path, sep="\t", index=False, float_format=float_format)
+
+
+def read_scenarios(path) -> pd.DataFrame:
+    """A scenario table written by ``write_scenarios``: scenario, split (text), eccentric_mass_g (enrichment),
+    one column per unknown."""
+    return pd.read_csv(path, sep="\t", dtype={"split": str})
+
+
 #: message of an enrichment scenario at a run it was not solved for (it targets other runs); not a failure
 NOT_SOLVED = "not solved at this run: an enrichment scenario of the runs at"
 
