@@ -339,11 +339,24 @@ def test_scenario_and_design_tables_round_trip(tmp_path):
     assert back[2]["feasible"].tolist() == [False] and back[2]["keyphasor"].tolist() == [True]
 
 
+def test_preprocessing_tables_round_trip(tmp_path):
+    """A spectrum, speed or runout table (preprocessing.write_tsv) read back by read_tsv; one written without
+    columns (a record without a slow-roll runout) reads as None."""
+    from hybridtwin.data import preprocessing
+
+    table = pd.DataFrame({"frequency_hz": [0.0, 1.25], "x_m": [1.23456789012e-6, 3e-9], "channel": ["x", "y"]})
+    out = _round_trip(preprocessing.write_tsv, preprocessing.read_tsv, table, tmp_path, "spectrum")
+    np.testing.assert_allclose(out["x_m"], table["x_m"], rtol=1e-9)
+    preprocessing.write_tsv(pd.DataFrame(), tmp_path / "runout.tsv")
+    assert preprocessing.read_tsv(tmp_path / "runout.tsv") is None
+
+
 def test_rule_scripts_read_tables_through_their_readers():
     """No rule script parses a table between rules by hand: the parameter, harmonics, validation, error, ledger,
     comparison and library-validation tables go through their owners' readers (the tables listed here)."""
     owned = {"parameters", "per_run", "sparse", "harmonics", "runs", "bands", "validation", "library_validation",
-             "ledger", "errors", "validation_errors", "table", "refits", "nested", "scenarios", "enrichment"}
+             "ledger", "errors", "validation_errors", "table", "refits", "nested", "scenarios", "enrichment",
+             "spectra", "speed", "runout"}
     problems = []
     for path in sorted((ROOT / "scripts").glob("*.py")):
         for node in ast.walk(ast.parse(path.read_text())):
