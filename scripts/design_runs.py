@@ -25,7 +25,5 @@ for row in result.intervals.itertuples():
              row.expected_half_width, row.unit, row.shrink)
 for note in result.notes:
     log.warning("%s", note)
-result.chosen.to_csv(smk.output.chosen, sep="\t", index=False, float_format="%.6g")
-result.intervals.to_csv(smk.output.intervals, sep="\t", index=False, float_format="%.6g")
-result.candidates.to_csv(smk.output.candidates, sep="\t", index=False, float_format="%.6g")
+design.write_design(result, smk.output.chosen, smk.output.intervals, smk.output.candidates)
 design.plot_design(result, variant.name).savefig(smk.output.plot, dpi=110)

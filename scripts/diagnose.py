@@ -1,8 +1,6 @@
 """Rule diagnose: score tests of the candidate effects at the joint fit, refits of the best (thin wrapper). Reads only
 the rule's input, params and output."""
 
-import pandas as pd
-
 from hybridtwin import config as cfg
 from hybridtwin.diagnose import diagnosis as dg
 from hybridtwin.diagnose import diagnosis_report as dgr
@@ -15,7 +13,7 @@ log = cfg.rule_logger(smk.log[0], "diagnose")
 model = smk.params.model  # the variant's spec (and the sparse variant's), the machine, the effects files
 variant = cfg.variant(model, smk.wildcards.variant)
 options = smk.params.options
-table = pd.read_csv(smk.input.parameters, sep="\t", dtype={"run": str})
+table = idn.read_parameters(smk.input.parameters)
 harmonics = idn.read_harmonics(smk.input.harmonics)
 runs = [r for r in dict.fromkeys(table["run"]) if r != "all"]
 keyphasor = smk.params.keyphasor  # as the identification used it (identification: keyphasor)
@@ -28,7 +26,7 @@ log.info("diagnosing %s on %d fit runs: %d candidates (%s)", variant.name, len(d
 result = dg.diagnose(base, candidates, options, log)
 sparse, sparse_name = None, options["sparse_variant"]
 if "sparse" in smk.input.keys():
-    sparse = dgr.sparse_route(pd.read_csv(smk.input.sparse, sep="\t", dtype={"run": str}),
+    sparse = dgr.sparse_route(idn.read_parameters(smk.input.sparse),
                              cfg.variant(model, sparse_name))
     result.summary["sparse_route"] = {"variant": sparse_name,
                                       "active": sparse.loc[sparse["active"], "parameter"].tolist()}

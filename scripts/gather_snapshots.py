@@ -11,15 +11,16 @@ import sys
 import pandas as pd
 
 from hybridtwin import config as cfg
-from hybridtwin.offline.snapshots import gather
+from hybridtwin.offline.scenarios import read_scenarios
+from hybridtwin.offline.snapshots import UNSTABLE, gather
 from hybridtwin.offline.stores import CorruptStoreError
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "gather_snapshots")
-expected = pd.read_csv(smk.input.scenarios, sep="\t")
+expected = read_scenarios(smk.input.scenarios)
 chunks = list(smk.input.chunks)
 if "enrichment" in smk.input.keys():  # offline.enrichment: the adaptive scenarios join the first design
-    expected = pd.concat([expected, pd.read_csv(smk.input.enrichment, sep="\t")], ignore_index=True)
+    expected = pd.concat([expected, read_scenarios(smk.input.enrichment)], ignore_index=True)
     chunks += list(smk.input.enrichment_chunks)
 try:
     snapshots = gather(chunks, expected, smk.output.store)
@@ -32,7 +33,7 @@ except CorruptStoreError as error:
     sys.exit(message)
 failures = snapshots.failures()
 failures.to_csv(smk.output.failures, sep="\t", index=False)
-unstable = failures["message"].str.startswith("unstable")
+unstable = failures["reason"] == UNSTABLE
 log.info("%d scenarios (%d from the enrichment) x %d runs gathered; %d failed solves, %d unstable steady states "
          "(left out downstream)", snapshots.success.shape[1], int((snapshots.design == "enrichment").sum()),
          len(snapshots.runs), int((~unstable).sum()), int(unstable.sum()))

@@ -8,13 +8,12 @@ table and plot. Reads only the rule's input, params and output.
 
 from pathlib import Path
 
-import pandas as pd
 import yaml
 
 from hybridtwin import config as cfg
 from hybridtwin.identify import identification as idn
 from hybridtwin.identify import validation as val
-from hybridtwin.offline.library import Library
+from hybridtwin.offline.library import Library, read_library_validation
 from hybridtwin.identify.run_fits import fit_joint, write_fit
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
@@ -29,7 +28,7 @@ if "refits" in smk.input.keys():  # this variant adds one effect to another (par
 nested = smk.input.get("nested", [])
 nested = [(cfg.variant(model, Path(path).parent.name), idn.read_parameters(path))
           for path in ([nested] if isinstance(nested, str) else nested)]
-validation = pd.read_csv(smk.input.validation, sep="\t") if smk.input.validation else None  # none: no libraries
+validation = read_library_validation(smk.input.validation) if smk.input.validation else None  # none: no libraries
 result = fit_joint(variant, smk.params.options, [Library.load(path) for path in smk.input.libraries],
                    idn.read_harmonics(smk.input.harmonics), per_run, validation, int(smk.params.harmonics),
                    parent_refit, nested, runs=smk.params.runs)
@@ -47,7 +46,7 @@ fit.history_table().to_csv(smk.output.history, sep="\t", index=False, float_form
 runs = result.runs()
 write_fit(smk.output.fit, fit, runs["rpm"].tolist())
 drift = val.drift_table([per_run[r] for r in per_run if r in set(runs["run"])], runs)
-drift.to_csv(smk.output.per_run, sep="\t", index=False, float_format="%.9g")
+idn.write_parameters(drift, smk.output.per_run)
 val.plot_per_run(drift, joint, variant.name).savefig(smk.output.plot, dpi=120)
 with open(smk.output.summary, "w") as stream:
     yaml.safe_dump(result.summary, stream, sort_keys=False)

@@ -6,11 +6,9 @@ every trial after each iteration, on the measured data), fit.zarr (measured and 
 rule's input, params and output.
 """
 
-import pandas as pd
-
 from hybridtwin import config as cfg
 from hybridtwin.identify import identification as idn
-from hybridtwin.offline.library import Library
+from hybridtwin.offline.library import Library, read_library_validation
 from hybridtwin.identify.run_fits import fit_run, write_run_fit
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
@@ -18,7 +16,7 @@ log = cfg.rule_logger(smk.log[0], "identify_run")
 variant = cfg.variant(smk.params.model, smk.wildcards.variant)  # its spec, the machine, the effects files
 options = smk.params.options
 harmonics = idn.read_harmonics(smk.input.harmonics)
-validation = pd.read_csv(smk.input.validation, sep="\t") if smk.input.validation else None
+validation = read_library_validation(smk.input.validation) if smk.input.validation else None
 libraries = list(smk.input.libraries) or [None] * len(smk.params.runs)  # none (offline.scope: none): the solver
 outputs = zip(smk.params.runs, libraries, smk.output.parameters, smk.output.history, smk.output.fit)
 for run, library, parameters, history, fit in outputs:

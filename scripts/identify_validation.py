@@ -7,15 +7,13 @@ refit with the run included goes to validation_refits.tsv. Writes the scores (va
 harmonics (validation_harmonics.tsv, for the report) and those refits. Reads only the rule's input, params and output.
 """
 
-import pandas as pd
-
 from hybridtwin import config as cfg
 from hybridtwin.identify import forward as fwd
 from hybridtwin.identify import identification as idn
 from hybridtwin.identify import validation as val
 from hybridtwin.identify import validation_refit as vr
 from hybridtwin.identify.run_fits import ranges
-from hybridtwin.offline.library import Library
+from hybridtwin.offline.library import Library, read_library_validation
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "predict_validation")
@@ -23,7 +21,7 @@ variant = cfg.variant(smk.params.model, smk.wildcards.variant)  # its spec, the 
 options = smk.params.options
 joint = idn.read_parameters(smk.input.parameters)
 table = idn.read_harmonics(smk.input.harmonics)
-errors = idn.model_errors(pd.read_csv(smk.input.validation, sep="\t") if smk.input.validation else None,
+errors = idn.model_errors(read_library_validation(smk.input.validation) if smk.input.validation else None,
                           list(table["run"]), options["model_error"])
 fitted_runs = table[["run", "rpm_true", "eccentric_mass_g"]].rename(columns={"rpm_true": "rpm"})
 rows, predictions, explanations = [], [], []
@@ -68,9 +66,6 @@ for library, run in pairs:
                     "pinned": ",".join(m[0] for m in why.pinned), "refit_chi2_per_residual": why.chi2_refit,
                     "fit_runs_chi2_rise": why.fit_rise, "allowed_chi2_rise": why.allowed})
         rows.append(row)
-columns = ["run", "rpm", "eccentric_mass_g", "model", "error_rel", "chi2_per_residual", "note", *vr.VALIDATION_COLUMNS]
-table = pd.DataFrame(rows)  # every column, also when no validation run could be predicted (all flagged)
-table.reindex(columns=list(dict.fromkeys([*table.columns, *columns]))).to_csv(
-    smk.output.table, sep="\t", index=False, float_format="%.9g")
+vr.write_validation(rows, smk.output.table)  # every column, also when no validation run could be predicted
 val.write_predictions(smk.output.harmonics, predictions)  # the report reads them instead of predicting again
 idn.write_parameters(vr.refits_table(explanations), smk.output.refits)

@@ -13,10 +13,10 @@ for variant, summary_path, fit_path, validation_path in zip(smk.params.variants,
                                                              smk.input.errors, smk.input.validation_errors):
     with open(summary_path) as stream:
         summary = yaml.safe_load(stream)["final"]
-    errors[variant] = pd.concat([pd.read_csv(path, sep="\t", dtype={"run": str})
-                                 for path in (fit_path, validation_path)], ignore_index=True)
+    errors[variant] = pd.concat([report.read_errors(path) for path in (fit_path, validation_path)],
+                                ignore_index=True)
     rows.append(report.ledger_row(variant, smk.params.descriptions[variant], summary, errors[variant]))
     log.info("%s: chi^2/dof %.4g, BIC %.6g", variant, rows[-1]["chi2_dof"], rows[-1]["bic"])
 ledger = report.ledger_table(rows)
-ledger.to_csv(smk.output.table, sep="\t", index=False, float_format="%.6g")
+report.write_ledger(ledger, smk.output.table)
 report.plot_ledger(ledger, errors).savefig(smk.output.plot, dpi=100)

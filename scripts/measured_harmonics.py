@@ -5,13 +5,13 @@ import sys
 
 import pandas as pd
 
-from hybridtwin.data.preprocessing import write_tsv
+from hybridtwin.data.measured import read_harmonics, write_harmonics
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 logging.basicConfig(filename=smk.log[0], level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s")
-table = pd.concat([pd.read_csv(path, sep="\t", dtype={"run": str}) for path in smk.input.runs], ignore_index=True)
-usable = table["usable"].astype(bool)
+table = pd.concat([read_harmonics(path) for path in smk.input.runs], ignore_index=True)
+usable = table["usable"]
 logging.getLogger("measured_harmonics").info("%d runs, %d usable", len(table), int(usable.sum()))
 for row in table[~usable].itertuples():
     print(f"measured_harmonics: run {row.run} is kept out of the fit: {row.note}", file=sys.stderr)
-write_tsv(table, smk.output.table)
+write_harmonics(table, smk.output.table)

@@ -10,6 +10,7 @@ import sys
 import math
 
 from hybridtwin.data.measurements import DataError, read_record
+from hybridtwin.data.measured import write_harmonics
 from hybridtwin.data.preprocessing import preprocess_run, spectrum, write_tsv
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
@@ -32,7 +33,7 @@ log.info("%s: %.3f RPM (nominal %g), %d revolutions, noise %s mm, phase %s: %s",
          " / ".join(f"{1e3 * row[f'noise_{c}_m']:.4f}" for c in record.names), row["phase_reference"], row["note"])
 if not row["usable"]:
     print(f"preprocess: run {row['run']} is kept out of the fit: {row['note']}", file=sys.stderr)
-write_tsv(table, smk.output.harmonics)
+write_harmonics(table, smk.output.harmonics)
 write_tsv(waves, smk.output.waveforms)
 rpm = row["rpm_true"] if math.isfinite(row["rpm_true"]) else float(row["rpm"])
 write_tsv(spectrum(record, rpm), smk.output.spectrum)

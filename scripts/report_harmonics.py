@@ -5,13 +5,14 @@ Fit runs come from the joint fit's store; validation runs from the harmonics pre
 Reads only the rule's input, params and output.
 """
 
-import pandas as pd
 import yaml
 
 from hybridtwin import config as cfg
 from hybridtwin.identify import identification as idn
 from hybridtwin.report import report
 from hybridtwin.identify import validation as val
+from hybridtwin.identify import validation_refit as vr
+from hybridtwin.offline.library import read_library_validation
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "report_harmonics")
@@ -21,12 +22,12 @@ joint = idn.read_parameters(smk.input.parameters)
 with open(smk.input.summary) as stream:
     summary = yaml.safe_load(stream)["final"]
 comparisons = report.fit_comparisons(smk.input.fit, joint, summary, table)
-validation = pd.read_csv(smk.input.validation, sep="\t", dtype={"run": str})
+validation = vr.read_validation(smk.input.validation)
 for row in validation[validation["model"] == "none"].to_dict("records"):
     log.warning("validation run %s has no prediction: %s", row["run"], row["note"])
 predictions = val.read_predictions(smk.input.predictions)
 source = "solver" if any(p.model == "solver" for p in predictions) else "library"
-library_errors = pd.read_csv(smk.input.library_validation, sep="\t") if smk.input.library_validation else None
+library_errors = read_library_validation(smk.input.library_validation) if smk.input.library_validation else None
 errors = idn.model_errors(library_errors, list(table["run"]), options["model_error"])  # None: no libraries
 scores = validation.set_index(["run", "model"])["error_rel"]
 for prediction in predictions:
@@ -38,5 +39,5 @@ for prediction in predictions:
     comparisons.append(comparison)
     log.info("%s (%s): chi^2/dof %.4g, relative error %.3g (validation.tsv: %.3g)", data.run, source,
              comparison.chi2_dof, comparison.error_rel, scores.get((prediction.run, source), float("nan")))
-report.comparison_table(comparisons).to_csv(smk.output.table, sep="\t", index=False, float_format="%.9g")
+report.write_comparisons(comparisons, smk.output.table)
 log.info("%d runs compared (%s model)", len(comparisons), source)

@@ -1,17 +1,15 @@
 """Rule report_overview: per-run errors (fit and validation runs apart) and the error map (thin wrapper)."""
 
-import pandas as pd
-
 from hybridtwin import config as cfg
 from hybridtwin.report import report
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "report_overview")
 variant = smk.wildcards.variant
-comparisons = report.read_comparisons(pd.read_csv(smk.input.table, sep="\t", dtype={"run": str}))
+comparisons = report.load_comparisons(smk.input.table)
 errors = report.error_table(comparisons)
 for role, path in (("fit", smk.output.errors), ("validate", smk.output.validation_errors)):
-    errors[errors["role"] == role].to_csv(path, sep="\t", index=False, float_format="%.6g")
+    report.write_errors(errors[errors["role"] == role], path)
     log.info("%s runs: %s", role, report.pooled(errors[errors["role"] == role]))
 figure = report.plot_error_map(errors, variant)
 figure.savefig(smk.output.error_map, dpi=100)

@@ -17,7 +17,7 @@ smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "report_response")
 variant = cfg.variant(smk.params.model, smk.wildcards.variant)  # its spec, the machine, the effects files
 runs = pd.DataFrame(smk.params.runs)
-comparisons = report.read_comparisons(pd.read_csv(smk.input.table, sep="\t", dtype={"run": str}))
+comparisons = report.load_comparisons(smk.input.table)
 joint = idn.read_parameters(smk.input.parameters)
 criticals = rp.critical_speeds(variant, joint, rp.dense_speeds(runs["rpm"]),
                                float(runs["eccentric_mass_g"].median()))

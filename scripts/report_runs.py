@@ -2,8 +2,6 @@
 
 from pathlib import Path
 
-import pandas as pd
-
 from hybridtwin import config as cfg
 from hybridtwin.report import report
 
@@ -13,7 +11,7 @@ folder = Path(smk.output.runs)
 folder.mkdir(parents=True, exist_ok=True)
 # each plane's x and y probes as the machine declares them (params.sensors; none: the VARM's x, y)
 pairs = report.sensor_pair_names(getattr(smk.params, "sensors", None))
-for comparison in report.read_comparisons(pd.read_csv(smk.input.table, sep="\t", dtype={"run": str})):
+for comparison in report.load_comparisons(smk.input.table):
     figure = report.plot_run(comparison, smk.wildcards.variant, pairs)
     figure.savefig(folder / f"{comparison.run}.png", dpi=100)
     report.plt.close(figure)

@@ -4,19 +4,20 @@ import pandas as pd
 import yaml
 
 from hybridtwin import config as cfg
-from hybridtwin.report import summary
+from hybridtwin.identify.design import read_design_table
+from hybridtwin.identify.validation_refit import read_validation
+from hybridtwin.report import report, summary
 from hybridtwin.data.measured import read_harmonics
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "report_summary")
-ledger = pd.read_csv(smk.input.ledger, sep="\t", dtype={"variant": str})
+ledger = report.read_ledger(smk.input.ledger)
 errors, diagnoses, why = {}, {}, {}
 for variant, fit_path, validation_path, diagnosis_path, explained in zip(
         smk.params.variants, smk.input.errors, smk.input.validation_errors, smk.input.diagnoses, smk.input.validation):
-    errors[variant] = pd.concat([pd.read_csv(path, sep="\t", dtype={"run": str})
-                                 for path in (fit_path, validation_path)], ignore_index=True)
-    why[variant] = summary.explanations(pd.read_csv(explained, sep="\t", dtype={"run": str, "pinned": str},
-                                                    keep_default_na=False))
+    errors[variant] = pd.concat([report.read_errors(path) for path in (fit_path, validation_path)],
+                                ignore_index=True)
+    why[variant] = summary.explanations(read_validation(explained))
     with open(diagnosis_path) as stream:
         diagnoses[variant] = yaml.safe_load(stream)
 table = summary.summary_table(ledger, errors, diagnoses, smk.params.specs)
@@ -29,7 +30,7 @@ best = summary.best_variant(table)
 designs = dict(zip(smk.params.variants, zip(smk.input.next_runs, smk.input.intervals))) if smk.params.design else {}
 line = ""
 if best["variant"] in designs:
-    chosen, intervals = (pd.read_csv(path, sep="\t") for path in designs[best["variant"]])
+    chosen, intervals = (read_design_table(path) for path in designs[best["variant"]])
     line = summary.next_runs_line(best["variant"], chosen, intervals)
 with open(smk.output.page, "w") as stream:
     stream.write(summary.landing_rst(table, errors, summary.kept_out(read_harmonics(smk.input.harmonics)), why, line))

@@ -13,6 +13,8 @@ import numpy as np
 import pandas as pd
 
 from hybridtwin import config as cfg
+from hybridtwin.data.measured import read_harmonics
+from hybridtwin.data.preprocessing import read_tsv
 from hybridtwin.data.measurements import probe_angles, read_record, record_channels
 from hybridtwin.data.order_tracking import read_orders, speed_profile, table_channels
 from hybridtwin.identify import identification as idn
@@ -27,8 +29,8 @@ display = tp.Display.of(options)
 sensors = getattr(smk.params, "sensors", None)
 records = smk.params.records  # the sheet's transient rows (run, kind, role, eccentric_mass_g), the inputs' order
 orders = [read_orders(path) for path in smk.input.orders]
-bands = [pd.read_csv(path, sep="\t", dtype={"run": str}) for path in smk.input.bands]
-runouts = [pd.read_csv(path, sep="\t") if Path(path).stat().st_size > 1 else None for path in smk.input.runout]
+bands = [read_harmonics(path) for path in smk.input.bands]
+runouts = [read_tsv(path) for path in smk.input.runout]
 harmonics = min([int(smk.params.harmonics)] + [tp.table_harmonics(o) for o in orders])
 speeds = np.concatenate([o["rpm"].to_numpy(float) for o in orders])
 log.info("%s: the fitted twin at %d window speeds of %d record(s), %.0f-%.0f RPM, 1X..%dX", variant.name,

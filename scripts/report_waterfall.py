@@ -2,10 +2,9 @@
 speed, per probe (thin wrapper; hybridtwin.report.transient_plots.waterfall). Reads only the rule's input, params
 and output."""
 
-import pandas as pd
-
 from hybridtwin import config as cfg
 from hybridtwin.data.measurements import read_record
+from hybridtwin.data.preprocessing import read_tsv
 from hybridtwin.report import transient_plots as tp
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
@@ -14,7 +13,7 @@ options = smk.params.display  # frame, amplitude (config report: transient:)
 record = read_record(smk.input.record, getattr(smk.params, "sensors", None))
 # frame probes: what each probe read (before a rotated pair is turned into x, y); model: the plane's x and y
 channels = record.readings if options["frame"] == "probes" and record.readings else record.channels
-fall = tp.waterfall(record.time_s, channels, pd.read_csv(smk.input.speed, sep="\t"))
+fall = tp.waterfall(record.time_s, channels, read_tsv(smk.input.speed))
 log.info("%s: %d segments of %.2f s, %.0f-%.0f RPM, resolution %.3g Hz", smk.wildcards.run, fall.rpm.size,
          2 * (fall.t_s[1] - fall.t_s[0]) if fall.t_s.size > 1 else float("nan"), fall.rpm.min(), fall.rpm.max(),
          fall.frequency_hz[1] - fall.frequency_hz[0])

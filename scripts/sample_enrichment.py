@@ -9,7 +9,7 @@ and samples offline.enrichment.n_scenarios more per eccentric mass of such runs
 import pandas as pd
 
 from hybridtwin import config as cfg
-from hybridtwin.offline.scenarios import sample_enrichment
+from hybridtwin.offline.scenarios import read_scenarios, sample_enrichment, write_scenarios
 from hybridtwin.model.sensor import observable
 from hybridtwin.offline.snapshots import read_chunks
 
@@ -18,7 +18,7 @@ log = cfg.rule_logger(smk.log[0], "sample_enrichment")
 options = smk.params.offline
 enrichment = options["enrichment"]
 variant = cfg.variant(smk.params.model, smk.wildcards.variant)  # its spec, the machine, the effects files
-scenarios = pd.read_csv(smk.input.scenarios, sep="\t")
+scenarios = read_scenarios(smk.input.scenarios)
 snaps = read_chunks(smk.input.chunks, scenarios)
 runs = pd.DataFrame({"run": snaps.runs, "eccentric_mass_g": snaps.eccentric_mass_g})
 shaft = variant.model.shaft
@@ -26,7 +26,7 @@ seen = observable(snaps.harmonics, shaft, 1e-3 * options["sensor_range_mm"]) & s
 table, summary = sample_enrichment(variant, snaps.values, snaps.split, seen, runs, int(scenarios["scenario"].max()) + 1,
                                    enrichment["n_scenarios"], enrichment["observable_below"], options["seed"],
                                    options["validation_fraction"])
-table.to_csv(smk.output.scenarios, sep="\t", index=False)
+write_scenarios(table, smk.output.scenarios, float_format=None)
 summary.to_csv(smk.output.summary, sep="\t", index=False)
 if summary.empty:
     log.info("no run has fewer than %.0f %% observable fitting scenarios: nothing to enrich",

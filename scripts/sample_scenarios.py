@@ -2,7 +2,7 @@
 params and output."""
 
 from hybridtwin import config as cfg
-from hybridtwin.offline.scenarios import sample_scenarios
+from hybridtwin.offline.scenarios import sample_scenarios, write_scenarios
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "sample_scenarios")
@@ -10,6 +10,6 @@ variant = cfg.variant(smk.params.model, smk.wildcards.variant)  # its spec, the 
 options = smk.params.offline
 n = int(options["n_scenarios"])  # n_s of this variant (hybridtwin.config.offline_for)
 table = sample_scenarios(variant, n, options["seed"], options["validation_fraction"], options["n_test"])
-table.to_csv(smk.output[0], sep="\t", index=False, float_format="%.12g")
+write_scenarios(table, smk.output[0])
 log.info("%d scenarios over %s (seed %d): %s", len(table), variant.unknown_names, options["seed"],
          table["split"].value_counts().to_dict())

@@ -4,16 +4,15 @@ input, params and output."""
 import time
 
 import numpy as np
-import pandas as pd
 
 from hybridtwin import config as cfg
-from hybridtwin.offline.scenarios import solve_runs
+from hybridtwin.offline.scenarios import read_scenarios, solve_runs
 from hybridtwin.offline.snapshots import write_chunk
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "solve_chunk")
 variant = cfg.variant(smk.params.model, smk.wildcards.variant)  # its spec, the machine, the effects files
-scenarios = pd.read_csv(smk.input.scenarios, sep="\t")
+scenarios = read_scenarios(smk.input.scenarios)
 chunk = int(smk.wildcards.chunk)
 mine = scenarios.iloc[np.array_split(np.arange(len(scenarios)), smk.params.n_chunks)[chunk]]
 runs = cfg.run_plan(smk.input.runs, smk.input.speeds if smk.params.measured else None)

@@ -4,16 +4,15 @@ Reads only the rule's input, params and output."""
 import time
 
 import numpy as np
-import pandas as pd
 
 from hybridtwin import config as cfg
-from hybridtwin.offline.scenarios import solve_enrichment
+from hybridtwin.offline.scenarios import read_scenarios, solve_enrichment
 from hybridtwin.offline.snapshots import write_chunk
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "solve_enrichment")
 variant = cfg.variant(smk.params.model, smk.wildcards.variant)  # its spec, the machine, the effects files
-table = pd.read_csv(smk.input.scenarios, sep="\t")
+table = read_scenarios(smk.input.scenarios)
 chunk = int(smk.wildcards.chunk)
 mine = table.iloc[np.array_split(np.arange(len(table)), smk.params.n_chunks)[chunk]].reset_index(drop=True)
 runs = cfg.run_plan(smk.input.runs, smk.input.speeds if smk.params.measured else None)

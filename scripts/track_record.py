@@ -6,6 +6,7 @@ import logging
 import sys
 
 from hybridtwin.data.measurements import DataError, read_record
+from hybridtwin.data.measured import write_harmonics
 from hybridtwin.data.order_tracking import write_orders
 from hybridtwin.data.preprocessing import write_tsv
 from hybridtwin.data.transient import track_record
@@ -28,7 +29,7 @@ for warning in tracked.warnings:
     print(f"track_record: {row['run']}: warning: {warning}", file=sys.stderr)
 for band in bands[~bands["usable"].astype(bool)].itertuples():
     print(f"track_record: band {band.run} of {row['run']} is kept out of the fit: {band.note}", file=sys.stderr)
-write_tsv(bands, smk.output.bands)
+write_harmonics(bands, smk.output.bands)
 write_orders(tracked.orders, smk.output.orders)
 write_tsv(tracked.runout, smk.output.runout)
 write_tsv(tracked.speed, smk.output.speed)

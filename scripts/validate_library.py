@@ -2,7 +2,7 @@
 input, params and output."""
 
 from hybridtwin import config as cfg
-from hybridtwin.offline.library import Library, validate_libraries
+from hybridtwin.offline.library import Library, validate_libraries, write_library_validation
 from hybridtwin.plots import plot_parity
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
@@ -11,7 +11,7 @@ variant = cfg.variant(smk.params.model, smk.wildcards.variant)  # its spec, the 
 libraries = [Library.load(path) for path in smk.input.libraries]
 table, parity = validate_libraries(libraries, smk.input.snapshots, cfg.run_plan(smk.input.runs),
                                    variant.model.shaft, smk.params.offline["sensor_range_mm"] * 1e-3)
-table.to_csv(smk.output.table, sep="\t", index=False, float_format="%.6g")
+write_library_validation(table, smk.output.table)
 plot_parity(parity, variant.name).savefig(smk.output.plot, dpi=120)
 for row in table.itertuples():
     log.info("%s: median %.3g %%, p95 %.3g %%, max %.3g %% over %d test scenarios", row.run,

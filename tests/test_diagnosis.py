@@ -112,6 +112,7 @@ def test_hidden_slope_force_is_ranked_first_and_confirmed(slope_base):
     assert result.summary["misfit"]  # the geometric model misses the slope force: the misfit is real
     assert table.loc[0, "effect"] in ("slope_spring", "expansion_k4")  # the slope force (k4 u' is its linear part)
     assert table.loc[0, "verdict"].startswith("add")
+    assert table.loc[0, "verdict_code"] == dg.Verdict.ADD  # the code beside the sentence (issue 37)
     assert result.conclusion.startswith("add")
     # after adding it, chi^2/dof is at the noise floor: within 3 sigma of chi^2(dof)/dof (dof ~ 30)
     dof = result.confirmations[table.loc[0, "effect"]].dof
@@ -407,7 +408,8 @@ def test_backward_elimination_drops_a_stand_in_made_redundant_by_a_later_effect(
     assert k4.chi2 / k4.dof < 1 + 3 * np.sqrt(2 / k4.dof)
     path = [dg.Step("cross_coupled_stiffness", 0.0, stand_in.chi2 / stand_in.dof, stand_in.delta_bic, 0.0, stand_in),
             dg.Step("expansion_k4", 0.0, k4.chi2 / k4.dof, k4.delta_bic, 0.0, k4)]
-    result = dg.Diagnosis(dg._table(scores, {}, {s.candidate.name: "" for s in scores.scores}, []), "", "")
+    placeholder = {s.candidate.name: (dg.Verdict.NOT_SIGNIFICANT, "") for s in scores.scores}
+    result = dg.Diagnosis(dg._table(scores, {}, placeholder, []), "", "")
     kept = dg._backward(slope_base, path, scores, dg.DEFAULTS, result)
     assert [step.effect for step in kept] == ["expansion_k4"]
     final = kept[-1].confirmation
@@ -417,6 +419,7 @@ def test_backward_elimination_drops_a_stand_in_made_redundant_by_a_later_effect(
     assert [e["effect"] for e in eliminated] == ["cross_coupled_stiffness"] and eliminated[0]["delta_bic"] > -10
     verdict = result.table.set_index("effect").loc["cross_coupled_stiffness", "verdict"]
     assert verdict.startswith("dropped by backward elimination: not needed once expansion_k4 is in")
+    assert result.table.set_index("effect").loc["cross_coupled_stiffness", "verdict_code"] == dg.Verdict.DROPPED
     k4_full = k4.estimates.set_index("parameter").loc["k4"]
     k4_kept = final.estimates.set_index("parameter").loc["k4"]
     assert abs(k4_kept.value - k4_full.value) < 2 * (k4_full.ci_high - k4_full.ci_low) / 3.92 + 1e-9
@@ -427,7 +430,7 @@ def _one_step_path(base: st.BaseFit, name: str) -> tuple[list, st.Scores, dg.Dia
     scores = st.score_tests(base, _candidates([name]))
     cf = rf.confirm(base, scores.scores[0], scores, starts=0, widen=0, far=False)
     path = [dg.Step(name, scores.base_chi2 / scores.base_dof, cf.chi2 / cf.dof, cf.delta_bic, 1.0, cf)]
-    return path, scores, dg.Diagnosis(dg._table(scores, {}, {name: ""}, []), "", "")
+    return path, scores, dg.Diagnosis(dg._table(scores, {}, {name: (dg.Verdict.NOT_SIGNIFICANT, "")}, []), "", "")
 
 
 def test_the_sharing_check_shares_a_bow_the_data_do_not_need_per_run(slope_data):
@@ -751,6 +754,7 @@ def test_the_forward_selection_does_not_take_a_negligible_step(monkeypatch):
     assert refused["chi2_after"] < refused["chi2_before"]
     verdict = result.table.set_index("effect").loc[refused["effect"], "verdict"]
     assert verdict.startswith("not added at step 2: negligible")
+    assert result.table.set_index("effect").loc[refused["effect"], "verdict_code"] == dg.Verdict.NEGLIGIBLE
     assert result.status is ds.Status.UNEXPLAINED  # step 1 alone leaves a misfit it cannot call small
 
 

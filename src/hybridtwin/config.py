@@ -177,12 +177,13 @@ def run_plan(source: Mapping | str | Path, measured: str | Path | None = None) -
     rpm is the true speed refined from its record (rpm_true) instead of the nominal one.
     """
     from .data.measurements import read_runs  # the one reader of runs sheets (check-data's): every problem named
+    from .data.measured import read_harmonics
     from .data.run_kinds import expand_bands
 
     path = source["runs"] if isinstance(source, Mapping) else source
     sheet = expand_bands(read_runs(path, require_mass=True))  # a run-up's speed bands are runs (data/transient)
     if measured is not None:
-        speeds = pd.read_csv(measured, sep="\t", dtype={"run": str}).set_index("run")["rpm_true"]
+        speeds = read_harmonics(measured).set_index("run")["rpm_true"]
         missing = sorted(set(sheet["run"]) - set(speeds.index))
         if missing:
             raise ValueError(f"{measured} has no refined speed for run(s) {missing}")

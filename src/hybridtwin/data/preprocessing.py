@@ -586,9 +586,18 @@ def phase_aligned_residuals(measured: Array, sigma: Array, model: Array) -> tupl
 
 
 def write_tsv(table: pd.DataFrame, path: str | Path) -> None:
-    """TSV with enough digits for metres (the format of every preprocessing output)."""
+    """TSV with enough digits for metres (the format of every preprocessing output); ``read_tsv`` reads it."""
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     table.to_csv(path, sep="\t", index=False, float_format="%.9e")
+
+
+def read_tsv(path: str | Path) -> pd.DataFrame | None:
+    """A table written by ``write_tsv`` (a run's spectrum.tsv, a record's speed.tsv and runout.tsv); None for one
+    written without columns (a record without a slow-roll runout). The harmonics tables have their own reader
+    (``measured.read_harmonics``)."""
+    if Path(path).stat().st_size <= 1:
+        return None
+    return pd.read_csv(path, sep="\t")
 
 
 # --- check-data: the whole data set -----------------------------------------------------

@@ -67,7 +67,7 @@ from .measurements import read_runs
 from .rig_base import RANGE_SIGMAS, UNIT_SCALES, RigError, RigWarning, _rng, write_record  # noqa: F401 (re-exported)
 from ..model.model import rpm_to_rad_s
 from ..model.sensor import sensor_dofs, sensor_names
-from ..solvers.continuation import RUN_UP_FROM_RPM, solve_sweep
+from ..solvers.continuation import RUN_UP_FROM_RPM, ramp, solve_sweep
 from ..solvers.transient import NotSettledError, SettledPeriod, run_up_harmonics
 from ..model.variants import EffectsFileError, Variant, load_effects_files
 
@@ -370,8 +370,8 @@ def solve_truth(truth: Truth, runs: pd.DataFrame, harmonics: int = 7, start_rpm:
         values = truth.variant.values({**truth.values, "m_e": float(mass_g) * 1e-3})
         speeds = group["rpm_true"].to_numpy(float)
         positions = np.flatnonzero(runs.index.isin(group.index))
-        up = _sweep(truth.variant, values, _grid(min(start_rpm, speeds.min()), speeds, step_rpm), harmonics, "up")
-        down = _sweep(truth.variant, values, _grid(speeds.max() + rundown_margin_rpm, speeds, step_rpm),
+        up = _sweep(truth.variant, values, ramp(min(start_rpm, speeds.min()), speeds, step_rpm), harmonics, "up")
+        down = _sweep(truth.variant, values, ramp(speeds.max() + rundown_margin_rpm, speeds, step_rpm),
                       harmonics, "down")
         for pos, speed in zip(positions, speeds):
             res_up, res_down = up[speed], down[speed]
@@ -541,15 +541,6 @@ def harmonics_of(truth: pd.DataFrame, harmonics: int, channels: Sequence[str] = 
 
 
 # --- helpers ----------------------------------------------------------------------------
-
-
-def _grid(start: float, speeds: Array, step: float) -> Array:
-    """start, the speeds and intermediate speeds so that no step exceeds ``step`` (sorted)."""
-    points = np.unique(np.append(speeds, start))
-    if points.size < 2:
-        return points
-    parts = [np.linspace(a, b, int(np.ceil((b - a) / step)) + 1)[:-1] for a, b in zip(points[:-1], points[1:])]
-    return np.concatenate(parts + [points[-1:]])
 
 
 def _sweep(variant: Variant, values: Mapping[str, Array], speeds: Array, harmonics: int, direction: str) -> dict:

@@ -140,9 +140,15 @@ class TrackedRecord:
     warnings: tuple[str, ...] = ()
 
 
+#: a band's outcome (``track_record``): fitted and kept, too few revolutions, a speed the record never reached, or
+#: samples clipped at the sensor's range; the band's ``note`` is the sentence
+BAND_OK, BAND_TOO_FEW, BAND_NOT_REACHED, BAND_CLIPPED = "ok", "too_few_revolutions", "not_reached", "clipped"
+
+
 def band_row(fit: BandFit | None, names: Sequence[str], harmonics: int, note: str, sample_rate_hz: float,
-             unit: str, sigma_t_s: float) -> dict:
-    """A band's row in the columns of ``preprocessing.run_row`` (NaN where not fitted), plus the band's own."""
+             unit: str, sigma_t_s: float, outcome: str = BAND_OK) -> dict:
+    """A band's row in the columns of ``preprocessing.run_row`` (NaN where not fitted), plus the band's own
+    (``outcome``: a ``BAND_*`` code, ``note`` its sentence)."""
     nan = math.nan
     row = {"n_samples": fit.n_samples if fit else 0,
            "duration_s": (fit.t_end_s - fit.t_start_s) if fit else nan, "sample_rate_hz": sample_rate_hz,
@@ -157,8 +163,8 @@ def band_row(fit: BandFit | None, names: Sequence[str], harmonics: int, note: st
            else nan, "n_revolutions": fit.n_revolutions if fit else 0}
     row |= harmonic_columns(names, harmonics, fit.X if fit else None, fit.sigma if fit else None,
                             fit.noise if fit else None)
-    usable = fit is not None and note == "ok"
-    row |= {"flat": False, "saturated": note.startswith("clipped"), "usable": usable, "note": note,
+    usable = fit is not None and outcome == BAND_OK
+    row |= {"flat": False, "saturated": outcome == BAND_CLIPPED, "usable": usable, "note": note,
             "flags": "" if usable else note.split(":")[0].replace(" ", "_"),
             "t_start_s": fit.t_start_s if fit else nan, "t_end_s": fit.t_end_s if fit else nan,
             "sweep_rpm_per_s": fit.sweep_rpm_s if fit else nan}
@@ -204,9 +210,10 @@ def track_record(record: Record, sheet_row: Mapping, harmonics: int, sensor_rang
     rows = []
     for (lo, hi), run in zip(plan.bands, plan.ids):
         take, n_rev = _revolution_samples(profile, record.time_s, lo, hi)
-        fit, note = None, "ok"
+        fit, note, outcome = None, "ok", BAND_OK
         if n_rev < MIN_BAND_REVOLUTIONS:
             reached = profile.rpm.min() <= hi and profile.rpm.max() >= lo
+            outcome = BAND_TOO_FEW if reached else BAND_NOT_REACHED
             note = (f"only {n_rev} whole revolution(s) in {lo:.0f}-{hi:.0f} RPM (at least {MIN_BAND_REVOLUTIONS}): "
                     "the sweep is too fast for its bands; widen band_rpm" if reached else
                     f"not reached: the record's speed spans {profile.rpm.min():.0f}-{profile.rpm.max():.0f} RPM")
@@ -215,7 +222,9 @@ def track_record(record: Record, sheet_row: Mapping, harmonics: int, sensor_rang
             fit = BandFit(**{**fit.__dict__, "n_revolutions": n_rev})
             if clipped[take].any():
                 note = f"clipped: {int(clipped[take].sum())} sample(s) at the sensor's range in this band"
-        analysed = band_row(fit, names, harmonics, note, record.sample_rate_hz, record.unit, profile.sigma_t_s)
+                outcome = BAND_CLIPPED
+        analysed = band_row(fit, names, harmonics, note, record.sample_rate_hz, record.unit, profile.sigma_t_s,
+                            outcome)
         carried = {k: v for k, v in sheet_row.items() if k != "record"}
         base = carried_columns(carried | {"run": run, "rpm": 0.5 * (lo + hi)}, analysed)
         rows.append(base | {"parent_run": sheet_row["run"], "band_lo_rpm": lo, "band_hi_rpm": hi,

@@ -49,8 +49,8 @@ import pandas as pd
 from scipy import stats
 
 from ..model.candidates import Candidate
-from .diagnosis_status import (NEARLY_EXPLAINED, Status, interval_note, negligible_step, opening, plain,
-                               share_text)
+from .diagnosis_status import (NEARLY_EXPLAINED, Status, Verdict, interval_note, negligible_step, opening, plain,
+                               share_text, verdict_text)
 from .fingerprint import Fingerprint, fingerprint
 from .refit import Confirmation, confirm, shared, without
 from .score_test import BaseFit, Scores, by_score, extend, nested, score_tests
@@ -280,10 +280,8 @@ def diagnose(base: BaseFit, candidates: Sequence[Candidate], options: Mapping | 
         if negligible:  # a step too small to matter is not taken to absorb a misfit the candidates do not capture
             first.summary["negligible_step"] = plain(negligible, "summary.negligible_step")
             rows = first.table.index[first.table["effect"] == best.candidate.name]
-            first.table.loc[rows, "verdict"] = (
-                f"not added at step {len(path) + 1}: negligible (its estimate "
-                f"{100 * negligible['estimate_fraction_of_range']:.2g} % of its range, its chi^2 drop "
-                f"{negligible['share_of_excess']:.2g} of the excess chi^2)")
+            _set_verdict(first.table, rows, Verdict.NEGLIGIBLE, step=len(path) + 1,
+                         fraction=100 * negligible["estimate_fraction_of_range"], drop=negligible["share_of_excess"])
             if log:
                 log.info("forward selection stops before step %d: %s is negligible (%s)", len(path) + 1,
                          best.candidate.name, negligible)
@@ -349,9 +347,8 @@ def _backward(base: BaseFit, path: list[Step], scores: Scores, o: Mapping, resul
             {"effect": dropped, "chi2_without": float(cf.chi2), "chi2_with": float(final.chi2),
              "delta_bic": float(-lr + k * np.log(n))})
         rows = result.table.index[result.table["effect"] == dropped]
-        result.table.loc[rows, "verdict"] = (f"dropped by backward elimination: not needed once {', '.join(others)} "
-                                             f"{'is' if len(others) == 1 else 'are'} in (removing it changes chi^2 "
-                                             f"by {lr:.3g}, Delta BIC of keeping it {-lr + k * np.log(n):.3g})")
+        _set_verdict(result.table, rows, Verdict.DROPPED, others=", ".join(others),
+                     verb="is" if len(others) == 1 else "are", lr=lr, bic=-lr + k * np.log(n))
         path = [step for j, step in enumerate(path) if j != i]
         before = path[-2].confirmation.chi2 if len(path) > 1 else scores.base_chi2
         dof = path[-2].confirmation.dof if len(path) > 1 else scores.base_dof
@@ -455,7 +452,7 @@ def _conclude(base: BaseFit, scores: Scores, confirmations: Mapping[str, Confirm
     confirmed = sorted((cf for cf in confirmations.values() if _is_confirmed(cf, o, alpha_each)),
                        key=lambda cf: cf.delta_bic)
     best = confirmed[0] if confirmed else None
-    verdicts: dict[str, str] = {}
+    verdicts: dict[str, tuple[Verdict, str]] = {}
     confounded: list[str] = []
     for cf in confirmed:
         name = cf.candidate.name
@@ -468,38 +465,31 @@ def _conclude(base: BaseFit, scores: Scores, confirmations: Mapping[str, Confirm
         # the refits decide: sensitivities that span the same space at the base fit (a local statement, and a
         # borderline one: 1e-3 on a principal angle's cosine) are confounded only if the refits tie as well
         tie = cf.delta_bic - best.delta_bic < o["confounded_bic"]
+        figures = {"best": best.candidate.name, "bic": cf.delta_bic, "best_bic": best.delta_bic}
         if tie and (within_best and contains_best or (not inside and not contains_best)):
             confounded.append(name)
-            verdicts[name] = (f"confounded with {best.candidate.name}: these data cannot tell them apart "
-                              f"(Delta BIC {cf.delta_bic:.1f} vs {best.delta_bic:.1f})")
+            verdicts[name] = _say(Verdict.CONFOUNDED, **figures)
         elif within_best and contains_best:
-            verdicts[name] = (f"weaker than {best.candidate.name}: the same sensitivities at the base fit, but the "
-                              f"refits tell them apart (Delta BIC {cf.delta_bic:.1f} vs {best.delta_bic:.1f})")
+            verdicts[name] = _say(Verdict.WEAKER, **figures)
         elif inside:
-            verdicts[name] = f"part of {inside[0]} (its sensitivities lie within that effect's)"
+            verdicts[name] = _say(Verdict.PART_OF, inside=inside[0])
         elif contains_best:
-            verdicts[name] = (f"contains {best.candidate.name}; its extra terms are not supported by the data "
-                              f"(Delta BIC {cf.delta_bic:.1f} vs {best.delta_bic:.1f})")
+            verdicts[name] = _say(Verdict.CONTAINS, **figures)
         else:
-            verdicts[name] = f"confirmed, but weaker than {best.candidate.name}"
+            verdicts[name] = _say(Verdict.CONFIRMED_WEAKER, **figures)
     share = 0.0 if best is None else (scores.base_chi2 - best.chi2) / excess
     gof_after = 0.0 if best is None else stats.chi2.sf(best.chi2, best.dof)
     if best is not None:
-        name = best.candidate.name
-        if share >= o["explained"] or gof_after >= o["alpha"]:
-            verdicts[name] = "add: explains the discrepancy"
-        elif share >= 0.5:
-            verdicts[name] = f"add: explains {100 * share:.0f} % of the excess chi^2; a discrepancy remains"
-        else:
-            verdicts[name] = f"explains only {100 * share:.0f} % of the excess chi^2"
-        if confounded:
-            verdicts[name] += f" (confounded with {', '.join(confounded)})"
+        tied = f" (confounded with {', '.join(confounded)})" if confounded else ""
+        code = (Verdict.ADD if share >= o["explained"] or gof_after >= o["alpha"] else Verdict.ADD_PART
+                if share >= 0.5 else Verdict.EXPLAINS_ONLY_TIED if confounded else Verdict.EXPLAINS_ONLY)
+        verdicts[best.candidate.name] = _say(code, pct=100 * share, tied=tied)
     for name, cf in confirmations.items():
-        verdicts.setdefault(name, f"not confirmed: the refit's optimum is unstable at {', '.join(cf.unstable_runs)}"
-                            if cf.unstable_runs else "not confirmed by the refit")
+        verdicts.setdefault(name, _say(Verdict.NOT_CONFIRMED_UNSTABLE, runs=", ".join(cf.unstable_runs))
+                            if cf.unstable_runs else _say(Verdict.NOT_CONFIRMED))
     for s in scores.scores:
-        verdicts.setdefault(s.candidate.name, "significant, not refitted (ranked below the refitted ones)"
-                            if s.p_value < alpha_each else "not significant")
+        verdicts.setdefault(s.candidate.name, _say(Verdict.SIGNIFICANT if s.p_value < alpha_each
+                                                   else Verdict.NOT_SIGNIFICANT))
     table = _table(scores, confirmations, verdicts, confirmed)
     status, conclusion, recommendation = _recommend(base, scores, best, confounded, share, misfit, base_ratio, o)
     summary = plain({"variant": base.variant.name, "runs": list(base.layout.runs), "n_data": scores.n_data,
@@ -551,9 +541,8 @@ def _conclude_path(result: Diagnosis, base: BaseFit, scores: Scores, o: Mapping)
             result.status = Status.ADD_NEARLY
             head = opening(result.status, effects=together, they="it" if len(names) == 1 else "together they",
                            share=share_text(share), after=f"{final.chi2 / final.dof:.3g}")
-            result.table.loc[first, "verdict"] = (
-                f"add{', with ' + ', '.join(names[1:]) if len(names) > 1 else ''}: carries the discrepancy "
-                f"({share_text(share)} of the excess chi^2); a small misfit remains")
+            _set_verdict(result.table, first, Verdict.ADD_NEARLY, share=share_text(share),
+                         with_=", with " + ", ".join(names[1:]) if len(names) > 1 else "")
         elif len(path) == 1 and confounded and not eliminated:  # the first step's tie stands (the sharing check only)
             result.status = Status.ADD_CONFOUNDED
             head = (f"{opening(result.status, effects=together)} or {', '.join(confounded)}: these data cannot "
@@ -561,12 +550,11 @@ def _conclude_path(result: Diagnosis, base: BaseFit, scores: Scores, o: Mapping)
                     "explains the discrepancy")
         elif len(path) == 1:
             result.status = Status.ADD
-            result.table.loc[first, "verdict"] = "add: explains the discrepancy"
+            _set_verdict(result.table, first, Verdict.ADD)
             head = f"{opening(result.status, effects=together)}: it explains the discrepancy"
         else:
             result.status = Status.ADD
-            result.table.loc[first, "verdict"] = (f"add, with {', '.join(names[1:])}: together they explain the "
-                                                  f"discrepancy ({100 * share:.0f} % of the excess chi^2)")
+            _set_verdict(result.table, first, Verdict.ADD_WITH, others=", ".join(names[1:]), pct=100 * share)
             head = f"{opening(result.status, effects=together)}: together they explain the discrepancy"
         if not nearly:
             head += f" ({100 * share:.0f} % of the excess chi^2)"
@@ -584,8 +572,7 @@ def _conclude_path(result: Diagnosis, base: BaseFit, scores: Scores, o: Mapping)
     else:
         result.status = Status.UNEXPLAINED
         left = result.summary.get("path_stopped") or "nothing significant is left among the others"
-        result.table.loc[first, "verdict"] = (f"explains only {100 * path[0].share:.0f} % of the excess chi^2: "
-                                              "part of an unexplained discrepancy")
+        _set_verdict(result.table, first, Verdict.PART_OF_UNEXPLAINED, pct=100 * path[0].share)
         helps = (f"the candidate that helps most, {names[0]}, removes" if len(names) == 1 else
                  f"the candidates that help most, {', then '.join(names)}, remove")
         leave = "leaves" if len(names) == 1 else "leave"
@@ -636,7 +623,18 @@ def _digits(value: float, width: float) -> int:
     return int(min(12, max(4, np.ceil(np.log10(abs(value) / width)) + 2)))
 
 
-def _table(scores: Scores, confirmations: Mapping[str, Confirmation], verdicts: Mapping[str, str],
+def _say(code: Verdict, **figures) -> tuple[Verdict, str]:
+    """A verdict: its code and its sentence (``verdict_text``)."""
+    return code, verdict_text(code, **figures)
+
+
+def _set_verdict(table: pd.DataFrame, rows, code: Verdict, **figures) -> None:
+    """The table's ``rows`` get verdict ``code``: its code and its sentence, side by side."""
+    table.loc[rows, "verdict"] = verdict_text(code, **figures)
+    table.loc[rows, "verdict_code"] = code.value
+
+
+def _table(scores: Scores, confirmations: Mapping[str, Confirmation], verdicts: Mapping[str, tuple[Verdict, str]],
            confirmed: Sequence[Confirmation]) -> pd.DataFrame:
     """One row per candidate: confirmed ones first (by Delta BIC), then by score p-value."""
     excess = _excess(scores)
@@ -661,7 +659,7 @@ def _table(scores: Scores, confirmations: Mapping[str, Confirmation], verdicts: 
             "delta_bic": np.nan if cf is None else cf.delta_bic,
             "estimate": "" if cf is None else _estimate_text(cf),
             "beyond_range": s.beyond_range,
-            "verdict": verdicts[name],
+            "verdict": verdicts[name][1], "verdict_code": verdicts[name][0].value,
         })
     return pd.DataFrame(rows)
 

@@ -12,7 +12,7 @@ import yaml
 from scipy import stats
 
 from .diagnosis import Diagnosis, plain
-from .diagnosis_status import Status
+from .diagnosis_status import Status, verdict_colour
 from ..model.variants import Variant
 
 
@@ -122,9 +122,7 @@ def plot(result: Diagnosis):
     t = result.table.iloc[::-1]
     s = result.summary
     fig, (left, right) = plt.subplots(1, 2, figsize=(12, 0.45 * len(t) + 2.0), sharey=True)
-    colours = ["tab:green" if v.startswith("add") else "tab:orange" if "confounded" in v or "part of" in v
-               or "contains" in v else "tab:red" if "significant," in v or "confirmed," in v else "tab:gray"
-               for v in t["verdict"]]
+    colours = [verdict_colour(code) for code in t["verdict_code"]]
     left.barh(t["effect"], np.maximum(t["statistic"], 1e-3), color=colours)
     left.set_xscale("log")
     threshold = stats.chi2.isf(s["alpha_per_candidate"], t["dof"])

@@ -1,4 +1,5 @@
 """The diagnosis's overall outcome as a code (``Status``), the opening of its conclusion derived from that code,
+each candidate's verdict as a code (``Verdict``) with its sentence and colour derived from it,
 the rule that keeps a negligible effect out of the forward selection, and the plain types its outputs are built
 from (``plain``) (issue 36).
 
@@ -25,6 +26,74 @@ class Status(str, Enum):
     ADD_PART = "add_part"  # the best effect explains part (at least half) of the excess; a discrepancy remains
     ADD_NEARLY = "add_nearly"  # the effects carry nearly all the excess (NEARLY_EXPLAINED); a small misfit remains
     UNEXPLAINED = "unexplained"  # the misfit is real and the candidates do not explain most of it
+
+
+class Verdict(str, Enum):
+    """One candidate's verdict in the ranked table (diagnosis.tsv's ``verdict_code``; ``verdict`` is its sentence,
+    ``verdict_text``). Code that acts on a verdict (the figure's colours) reads the code, never the sentence."""
+
+    ADD = "add"  # explains the discrepancy
+    ADD_PART = "add_part"  # explains at least half of the excess chi^2; a discrepancy remains
+    ADD_WITH = "add_with"  # the first of several effects of the path that together explain the discrepancy
+    ADD_NEARLY = "add_nearly"  # the first of the path's effects that carry nearly all of the excess
+    EXPLAINS_ONLY = "explains_only"  # the best confirmed effect, but it explains less than half
+    EXPLAINS_ONLY_TIED = "explains_only_tied"  # ... and others are confounded with it
+    PART_OF_UNEXPLAINED = "part_of_unexplained"  # the first of a path that leaves an unexplained discrepancy
+    CONFOUNDED = "confounded"  # confirmed, the refits tie with the best
+    WEAKER = "weaker"  # the same sensitivities as the best at the base fit, the refits tell them apart
+    PART_OF = "part_of"  # its sensitivities lie within a better effect's
+    CONTAINS = "contains"  # contains the best; its extra terms are not supported
+    CONFIRMED_WEAKER = "confirmed_weaker"  # confirmed, but weaker than the best
+    NOT_CONFIRMED_UNSTABLE = "not_confirmed_unstable"  # the refit's optimum is unstable at some run
+    NOT_CONFIRMED = "not_confirmed"
+    SIGNIFICANT = "significant"  # significant, not refitted
+    NOT_SIGNIFICANT = "not_significant"
+    NEGLIGIBLE = "negligible"  # not added at a step of the forward selection: negligible
+    DROPPED = "dropped"  # dropped by backward elimination
+
+
+_BIC = "(Delta BIC {bic:.1f} vs {best_bic:.1f})"
+#: each verdict's sentence ({tied}: " (confounded with ...)" or empty)
+VERDICT_TEXT = {
+    Verdict.ADD: "add: explains the discrepancy{tied}",
+    Verdict.ADD_PART: "add: explains {pct:.0f} % of the excess chi^2; a discrepancy remains{tied}",
+    Verdict.ADD_WITH: "add, with {others}: together they explain the discrepancy ({pct:.0f} % of the excess chi^2)",
+    Verdict.ADD_NEARLY: "add{with_}: carries the discrepancy ({share} of the excess chi^2); a small misfit remains",
+    Verdict.EXPLAINS_ONLY: "explains only {pct:.0f} % of the excess chi^2{tied}",
+    Verdict.EXPLAINS_ONLY_TIED: "explains only {pct:.0f} % of the excess chi^2{tied}",
+    Verdict.PART_OF_UNEXPLAINED: "explains only {pct:.0f} % of the excess chi^2: part of an unexplained discrepancy",
+    Verdict.CONFOUNDED: "confounded with {best}: these data cannot tell them apart " + _BIC,
+    Verdict.WEAKER: "weaker than {best}: the same sensitivities at the base fit, but the refits tell them apart "
+                    + _BIC,
+    Verdict.PART_OF: "part of {inside} (its sensitivities lie within that effect's)",
+    Verdict.CONTAINS: "contains {best}; its extra terms are not supported by the data " + _BIC,
+    Verdict.CONFIRMED_WEAKER: "confirmed, but weaker than {best}",
+    Verdict.NOT_CONFIRMED_UNSTABLE: "not confirmed: the refit's optimum is unstable at {runs}",
+    Verdict.NOT_CONFIRMED: "not confirmed by the refit",
+    Verdict.SIGNIFICANT: "significant, not refitted (ranked below the refitted ones)",
+    Verdict.NOT_SIGNIFICANT: "not significant",
+    Verdict.NEGLIGIBLE: "not added at step {step}: negligible (its estimate {fraction:.2g} % of its range, its chi^2 "
+                        "drop {drop:.2g} of the excess chi^2)",
+    Verdict.DROPPED: "dropped by backward elimination: not needed once {others} {verb} in (removing it changes chi^2 "
+                     "by {lr:.3g}, Delta BIC of keeping it {bic:.3g})",
+}
+#: the figure's colour of each verdict: green to add, orange tied to another effect, red confirmed or significant
+#: but not taken, grey the rest
+VERDICT_COLOUR = {Verdict.ADD: "tab:green", Verdict.ADD_PART: "tab:green", Verdict.ADD_WITH: "tab:green",
+                  Verdict.ADD_NEARLY: "tab:green", Verdict.EXPLAINS_ONLY_TIED: "tab:orange",
+                  Verdict.PART_OF_UNEXPLAINED: "tab:orange", Verdict.CONFOUNDED: "tab:orange",
+                  Verdict.PART_OF: "tab:orange", Verdict.CONTAINS: "tab:orange", Verdict.CONFIRMED_WEAKER: "tab:red",
+                  Verdict.SIGNIFICANT: "tab:red"}
+
+
+def verdict_text(code: Verdict, **figures) -> str:
+    """The sentence of verdict ``code``, its fields filled from ``figures`` (``tied`` empty unless given)."""
+    return VERDICT_TEXT[Verdict(code)].format(**({"tied": ""} | figures))
+
+
+def verdict_colour(code: str) -> str:
+    """The figure's colour of a verdict code (diagnosis.tsv's ``verdict_code``)."""
+    return VERDICT_COLOUR.get(Verdict(code), "tab:gray")
 
 
 #: share of the base's excess chi^2 the path's effects must remove for a remaining misfit to be called small (a

@@ -36,6 +36,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
+from ..data.measured import flags
 from . import forward as fwd
 from . import identification as idn
 from .validation import values_along
@@ -291,6 +292,27 @@ def _intervals(variant, joint: pd.DataFrame, shared: Sequence[str], wanted: Sequ
                     "linear_half_width": a,
                     "expected_half_width": b, "shrink": a / b if b > 0 else np.nan, "interest": p in wanted})
     return pd.DataFrame(out, columns=INTERVAL_COLUMNS)
+
+
+#: the design's true/false columns (read one way: ``measured.flags``)
+DESIGN_FLAGS = ("keyphasor", "feasible", "interest")
+
+
+def write_design(design: Design, chosen, intervals, candidates) -> None:
+    """The design's tables: next_runs.tsv (``chosen``), intervals.tsv and candidates.tsv, 6 significant digits;
+    ``read_design_table`` reads each back."""
+    for table, path in ((design.chosen, chosen), (design.intervals, intervals), (design.candidates, candidates)):
+        table.to_csv(path, sep="\t", index=False, float_format="%.6g")
+
+
+def read_design_table(path) -> pd.DataFrame:
+    """One of ``write_design``'s tables: its true/false columns (``DESIGN_FLAGS``) as bool, parameter names and
+    units as text, the rest as numbers."""
+    table = pd.read_csv(path, sep="\t", dtype={c: str for c in ("parameter", "unit", "interval", "reason")})
+    for column in DESIGN_FLAGS:
+        if column in table:
+            table[column] = flags(table[column])
+    return table
 
 
 def plot_design(design: Design, variant_name: str):

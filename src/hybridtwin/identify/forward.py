@@ -31,8 +31,7 @@ import numpy as np
 
 from ..offline.library import Library
 from ..offline.pod import feature_index
-from ..solvers.continuation import RUN_UP_FROM_RPM, padded_speeds
-from ..offline.scenarios import intermediate_speeds
+from ..solvers.continuation import RUN_UP_FROM_RPM, padded_speeds, ramp, sweep_model
 
 Array = np.ndarray
 
@@ -100,18 +99,13 @@ def run_up(variant, rpm: Sequence[float], values: Mapping[str, Array | float], h
     with ``jumps``, also (S,) flags: True for a set whose run-up jumped between
     branches at any step up to the highest of ``rpm`` (a fold crossed on the way).
     """
-    from ..solvers.continuation import solve_sweep
-
     base = variant.values(values)
     S = max(np.size(v) for v in base.values())
     arrays = {k: np.broadcast_to(np.asarray(v, float), (S,)) for k, v in base.items()}
     targets = np.asarray(rpm, float)
-    points = np.unique(np.append(targets, min(start_rpm, targets.min())))
-    grid = intermediate_speeds(points, step_rpm)
-    rest = variant.model.at_rest(arrays)  # the speed-independent stages, once for the whole run-up
+    grid = ramp(min(start_rpm, targets.min()), targets, step_rpm)
     # stability=False: the fits use the response only (as before the Floquet check, which would add ~30-40 %)
-    sweep = solve_sweep(lambda speed, rows: variant.model.system_at(rest.rows(rows), speed),
-                        grid, S, harmonics=harmonics, direction="up", stability=False)
+    sweep, _ = sweep_model(variant.model, arrays, grid, S, harmonics)
     by_rpm = dict(zip(sweep.rpm, sweep.results))
     states = [by_rpm[r] for r in targets]
     if not jumps:
@@ -149,9 +143,9 @@ def run_ups(variant, rpm: Array, values: Mapping[str, Array], harmonics: int, st
             continue
         if going_down:
             tops = np.asarray(down_from_rpm, float)[sets]
-            ramps = [intermediate_speeds(np.unique([r, max(top, r)]), step_rpm)[::-1] for r, top in zip(rpm[sets], tops)]
+            ramps = [ramp(max(top, r), [r], step_rpm)[::-1] for r, top in zip(rpm[sets], tops)]
         else:
-            ramps = [intermediate_speeds(np.unique([min(start_rpm, r), r]), step_rpm) for r in rpm[sets]]
+            ramps = [ramp(min(start_rpm, r), [r], step_rpm) for r in rpm[sets]]
         states, jump = _lockstep(variant, ramps, {k: v[sets] for k, v in values.items()}, harmonics,
                                  "down" if going_down else "up")
         parts.append(states)
@@ -163,14 +157,10 @@ def run_ups(variant, rpm: Array, values: Mapping[str, Array], harmonics: int, st
 def _lockstep(variant, ramps: Sequence[Array], values: Mapping[str, Array], harmonics: int, direction: str) -> tuple:
     """Each set's sweep along its own ramp (speeds in sweep order), all in one ``solve_sweep``: the last step's
     states in the sets' order and (S,) flags of a jump on the way."""
-    from ..solvers.continuation import solve_sweep
     from ..solvers.solver import SteadyState
 
     S = len(ramps)
-    speeds = padded_speeds(ramps)
-    rest = variant.model.at_rest(dict(values), S)
-    sweep = solve_sweep(lambda speed, rows: variant.model.system_at(rest.rows(rows), speed),
-                        speeds, S, harmonics=harmonics, direction=direction, stability=False)
+    sweep, _ = sweep_model(variant.model, dict(values), padded_speeds(ramps), S, harmonics, direction)
     last = np.array([len(r) for r in ramps]) - 1
     jumped = np.zeros(S, bool)
     parts, order = [], []
@@ -605,8 +595,9 @@ def check_stability(fit) -> StabilityCheck | None:
                            np.array([np.nan if r is None else float(r[0]) for r in radii]))
     note = check.note()
     if note is not None:
-        if not fit.message.startswith("unstable steady state"):
+        if not fit.unstable_runs:  # once: a second check of the same fit does not say it again
             fit.message = f"unstable steady state at run(s) {', '.join(check.unstable_runs)}; {fit.message}"
+        fit.unstable_runs = tuple(check.unstable_runs)
         if note not in fit.uncertainty.notes:
             fit.uncertainty.notes.append(note)
         logging.getLogger(__name__).warning("%s", note)

@@ -401,6 +401,7 @@ class Identification:
     starts: pd.DataFrame | None = None  # a polish's starts: start, chi2_start, chi2, chi2_dof, iterations, status
     read_columns: dict[str, Array] | None = None  # ``statistics`` and ``ranges`` as ``from_table`` read them
     profile: Profiled | None = None  # the intervals over the loose parameters (``hybridtwin.identify.profile``)
+    unstable_runs: tuple[str, ...] = ()  # runs whose steady state at theta is unstable (``forward.check_stability``)
 
     @property
     def success(self) -> bool:

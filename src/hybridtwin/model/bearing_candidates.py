@@ -23,8 +23,8 @@ read from the machine the model is built on (``ctx.shaft.node(NAME)``), so the e
 
 from __future__ import annotations
 
-from .effect_base import Array, Context, Effect, Parameter
-from .effects import dof_entries
+from .effect_base import Context, Parameter
+from .effects import ANISOTROPIC, SKEW, BearingTerm, CrossCoupledDamping, CrossCoupledStiffness, UpperBearingAnisotropy
 
 #: range and limits of each candidate as fractions of the bearing's k (stiffness terms) or c (damping)
 ANISOTROPY_RANGE, ANISOTROPY_LIMIT = 0.2, 0.5
@@ -32,11 +32,11 @@ CROSS_STIFFNESS_RANGE, CROSS_STIFFNESS_LIMIT = 0.01, 0.1
 CROSS_DAMPING_RANGE, CROSS_DAMPING_LIMIT = 0.4, 4.0
 
 
-class AtBearing(Effect):
-    """An effect at one named bearing of the machine with one parameter that switches it on (absent at 0)."""
+class AtBearing(BearingTerm):
+    """An effect at one named bearing of the machine with one parameter that switches it on (absent at 0): the
+    VARM's upper-bearing term of the same kind (``effects.BearingTerm``) at the bearing's node."""
 
     kind, symbol, unit, what = "", "", "", ""
-    pairs: tuple[tuple[str, str, float], ...] = ()  # (row, column, sign) at the bearing's node
 
     def __init__(self, bearing: str, half_range: float, limit: float):
         if not (half_range > 0 and limit >= half_range):
@@ -48,42 +48,32 @@ class AtBearing(Effect):
                                      f"{self.what} at bearing {bearing}", (-limit, limit)),)
         self.switches = (self.parameters[0].name,)
 
-    def _entries(self, ctx: Context) -> Array:
-        """(S, n, n): the parameter's value times each (row, column, sign) of ``pairs`` at the bearing's node (the
-        VARM candidates' ``effects.dof_entries`` at a named node)."""
-        node = ctx.shaft.node(self.bearing)
-        value = ctx.p[self.parameters[0].name]
-        return dof_entries(ctx, {(f"{row}{node}", f"{col}{node}"): sign * value for row, col, sign in self.pairs})
+    def bearing_node(self, ctx: Context) -> int:
+        return ctx.shaft.node(self.bearing)
 
 
 class BearingAnisotropy(AtBearing):
     """K[u, u] += dk, K[v, v] -= dk at the bearing: stiffer along x than along y by 2 dk, mean unchanged."""
 
     kind, symbol, unit, what = "bearing_anisotropy", "dk", "N/m", "stiffness along x minus the mean"
-    pairs = (("u", "u", 1.0), ("v", "v", -1.0))
-
-    def stiffness(self, ctx: Context) -> Array:
-        return self._entries(ctx)
+    pairs = ANISOTROPIC
+    stiffness = UpperBearingAnisotropy.stiffness
 
 
 class BearingCrossCoupledStiffness(AtBearing):
     """K[u, v] = +kxy, K[v, u] = -kxy at the bearing: a force kxy (-v, u) perpendicular to the deflection."""
 
     kind, symbol, unit, what = "cross_coupled_stiffness", "kxy", "N/m", "cross-coupled stiffness"
-    pairs = (("u", "v", 1.0), ("v", "u", -1.0))
-
-    def stiffness(self, ctx: Context) -> Array:
-        return self._entries(ctx)
+    pairs = SKEW
+    stiffness = CrossCoupledStiffness.stiffness
 
 
 class BearingCrossCoupledDamping(AtBearing):
     """C[u, v] = +cxy, C[v, u] = -cxy at the bearing: a skew-symmetric damping, force cxy (-v', u')."""
 
     kind, symbol, unit, what = "cross_coupled_damping", "cxy", "N s/m", "cross-coupled damping"
-    pairs = (("u", "v", 1.0), ("v", "u", -1.0))
-
-    def damping(self, ctx: Context) -> Array:
-        return self._entries(ctx)
+    pairs = SKEW
+    damping = CrossCoupledDamping.damping
 
 
 def at_bearing(name: str, k: float | None, c: float = 0.0) -> list[AtBearing]:

@@ -311,7 +311,31 @@ def dof_entries(ctx: Context, values: Mapping[tuple[str, str], Array]) -> Array:
     return out
 
 
-class UpperBearingAnisotropy(Effect):
+#: (row, column, sign) of a bearing's node that a bearing term's parameter enters (u, v: the node's displacements):
+#: stiffer along x than along y (mean unchanged), and the skew-symmetric (cross-coupled) pair
+ANISOTROPIC = (("u", "u", 1.0), ("v", "v", -1.0))
+SKEW = (("u", "v", 1.0), ("v", "u", -1.0))
+
+
+class BearingTerm(Effect):
+    """An effect of one parameter at one bearing's node: the parameter times each (row, column, sign) of ``pairs``
+    (``ANISOTROPIC``, ``SKEW``), in K or C as the subclass says. The VARM's candidates below sit at its upper bearing
+    (node 0); ``bearing_candidates.AtBearing`` at a named bearing of a machine (``bearing_node``; not ``node``,
+    which marks an effect ``Machine.place`` can move)."""
+
+    pairs: tuple[tuple[str, str, float], ...] = ()
+
+    def bearing_node(self, ctx: Context) -> int:
+        return 0
+
+    def entries(self, ctx: Context) -> Array:
+        """(S, n, n): the parameter's value times each of ``pairs`` at the bearing's node."""
+        node = self.bearing_node(ctx)
+        value = ctx.p[self.parameters[0].name]
+        return dof_entries(ctx, {(f"{row}{node}", f"{col}{node}"): sign * value for row, col, sign in self.pairs})
+
+
+class UpperBearingAnisotropy(BearingTerm):
     """Upper bearing stiffer in x than in y: K[u0, u0] += dk_up, K[v0, v0] -= dk_up (mean unchanged).
 
     Four springs that are not identical, or a housing stiffer along one axis. The term is part
@@ -327,12 +351,13 @@ class UpperBearingAnisotropy(Effect):
     parameters = (Parameter("dk_up", "N/m", RANGE_DK_UP, 0.0,
                             "added to the node-0 stiffness in x, removed in y", LIMIT_DK_UP),)
     switches = ("dk_up",)
+    pairs = ANISOTROPIC
 
     def stiffness(self, ctx: Context) -> Array:
-        return dof_entries(ctx, {("u0", "u0"): ctx.p.dk_up, ("v0", "v0"): -ctx.p.dk_up})
+        return self.entries(ctx)
 
 
-class CrossCoupledStiffness(Effect):
+class CrossCoupledStiffness(BearingTerm):
     """Cross-coupled stiffness at the upper bearing: K[u0, v0] = +k_xy, K[v0, u0] = -k_xy.
 
     The force on the shaft, -K q, is k_xy (-v, u): perpendicular to the deflection, along the
@@ -347,12 +372,13 @@ class CrossCoupledStiffness(Effect):
     parameters = (Parameter("k_xy", "N/m", RANGE_K_XY, 0.0, "K[u0, v0] = +k_xy, K[v0, u0] = -k_xy",
                             LIMIT_K_XY),)
     switches = ("k_xy",)
+    pairs = SKEW
 
     def stiffness(self, ctx: Context) -> Array:
-        return dof_entries(ctx, {("u0", "v0"): ctx.p.k_xy, ("v0", "u0"): -ctx.p.k_xy})
+        return self.entries(ctx)
 
 
-class CrossCoupledDamping(Effect):
+class CrossCoupledDamping(BearingTerm):
     """Cross-coupled damping at the upper bearing: C[u0, v0] = +c_xy, C[v0, u0] = -c_xy.
 
     A skew-symmetric (gyroscopic-like) damping: the force -C q' = c_xy (-v', u') does no work.
@@ -365,9 +391,10 @@ class CrossCoupledDamping(Effect):
     parameters = (Parameter("c_xy", "N s/m", RANGE_C_XY, 0.0, "C[u0, v0] = +c_xy, C[v0, u0] = -c_xy",
                             LIMIT_C_XY),)
     switches = ("c_xy",)
+    pairs = SKEW
 
     def damping(self, ctx: Context) -> Array:
-        return dof_entries(ctx, {("u0", "v0"): ctx.p.c_xy, ("v0", "u0"): -ctx.p.c_xy})
+        return self.entries(ctx)
 
 
 class MomentStiffness(Effect):

@@ -435,6 +435,16 @@ def global_run_library(global_path: str, snapshots_path: str, run: str) -> Libra
     return Library.load(global_path).at_operating_point(run, *snapshots.operating_point(snapshots_path, run))
 
 
+def write_library_validation(table: pd.DataFrame, path: str | Path) -> None:
+    """library_validation.tsv (``validate_libraries``' per-run table): ``read_library_validation`` reads it."""
+    table.to_csv(path, sep="\t", index=False, float_format="%.6g")
+
+
+def read_library_validation(path: str | Path) -> pd.DataFrame:
+    """library_validation.tsv as ``write_library_validation`` wrote it, run ids as strings."""
+    return pd.read_csv(path, sep="\t", dtype={"run": str})
+
+
 def validate_libraries(libraries: list[Library], snapshots_path: str, runs: pd.DataFrame, shaft: Shaft,
                        sensor_range_m: float) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Each library against the full solver on its run's test scenarios.

@@ -22,7 +22,7 @@ import pandas as pd
 
 from ..model.effect_base import Array
 from ..model.sensor import sensor_harmonics
-from ..solvers.continuation import RUN_UP_FROM_RPM, padded_speeds, solve_sweep
+from ..solvers.continuation import RUN_UP_FROM_RPM, padded_speeds, ramp, sweep_model
 from ..solvers.solver import DEFAULT_HARMONICS, SteadyState, flag_unstable, floquet_radius
 from ..model.variants import Variant
 
@@ -112,23 +112,17 @@ def solve_runs(variant: Variant, runs: pd.DataFrame, values: Mapping[str, Array 
     groups = list(runs.groupby("eccentric_mass_g", sort=True))
     if not groups:
         return out
-    ramps = [intermediate_speeds(np.unique(np.append(group["rpm"].to_numpy(float), start_rpm)), step_rpm)
-             for _, group in groups]
+    ramps = [ramp(start_rpm, group["rpm"].to_numpy(float), step_rpm) for _, group in groups]
     speeds = padded_speeds(ramps, S)  # column g S + s: mass g, scenario s
     scenario_values = {k: np.tile(np.broadcast_to(v, (S,)), len(groups)) for k, v in base.items()}
     if "m_e" not in values:  # an unknown m_e keeps each scenario's own value
         scenario_values["m_e"] = np.repeat([float(mass_g) * 1e-3 for mass_g, _ in groups], S)
 
-    rest = variant.model.at_rest(scenario_values)  # the speed-independent stages, once for every step
-
-    def build(rpm: Array, rows: Array):
-        return variant.model.system_at(rest.rows(rows), rpm)
-
-    sweep = solve_sweep(build, speeds, len(groups) * S, harmonics=harmonics, direction="up", stability=False)
+    sweep, build = sweep_model(variant.model, scenario_values, speeds, len(groups) * S, harmonics)
     stored: list[tuple[int, int, int]] = []  # (run position, sweep step, mass group)
-    for g, ((_, group), ramp) in enumerate(zip(groups, ramps)):
+    for g, ((_, group), grid) in enumerate(zip(groups, ramps)):
         for position, rpm in zip(np.flatnonzero(runs.index.isin(group.index)), group["rpm"].to_numpy(float)):
-            stored.append((position, int(np.flatnonzero(ramp == rpm)[0]), g))
+            stored.append((position, int(np.flatnonzero(grid == rpm)[0]), g))
     # the converged points at a run's speed, assessed in one batch across steps and masses
     points = sorted({(step, column) for _, step, g in stored for column in range(g * S, (g + 1) * S)
                      if sweep.results[step].success[column]})
@@ -158,6 +152,19 @@ def _store(out: RunSolutions, position: int, result: SteadyState, rows: slice) -
     out.message[position] = result.message[rows]
     out.branch[position] = result.branch[rows]
     out.floquet_radius[position] = result.floquet_radius[rows]
+
+
+def write_scenarios(table: pd.DataFrame, path, float_format: str | None = "%.12g") -> None:
+    """A scenario table: ``sample_scenarios``' scenarios.tsv at 12 significant digits (the values the chunks
+    solve), ``sample_enrichment``'s enrichment.tsv with ``float_format`` None (every digit, as it always was);
+    ``read_scenarios`` reads either."""
+    table.to_csv(path, sep="\t", index=False, float_format=float_format)
+
+
+def read_scenarios(path) -> pd.DataFrame:
+    """A scenario table written by ``write_scenarios``: scenario, split (text), eccentric_mass_g (enrichment),
+    one column per unknown."""
+    return pd.read_csv(path, sep="\t", dtype={"split": str})
 
 
 #: message of an enrichment scenario at a run it was not solved for (it targets other runs); not a failure
@@ -257,10 +264,3 @@ def solve_operating_points(variant: Variant, points: pd.DataFrame, overrides: Ma
     out["message"] = solutions.message[:, 0]
     return out
 
-
-def intermediate_speeds(speeds: Array, step: float) -> Array:
-    """The sorted speeds plus evenly spaced intermediate ones so no gap exceeds ``step``."""
-    if speeds.size < 2:
-        return speeds
-    parts = [np.linspace(a, b, int(np.ceil((b - a) / step)) + 1)[:-1] for a, b in zip(speeds[:-1], speeds[1:])]
-    return np.concatenate(parts + [speeds[-1:]])

@@ -49,6 +49,10 @@ from .stores import CorruptStoreError, check_store, verify_store, write_manifest
 PER_RUN = ("harmonics", "success", "stable", "floquet_radius", "message", "branch")
 
 
+#: ``Snapshots.failures``' reason codes
+FAILED, UNSTABLE = "failed", "unstable"
+
+
 class StaleStoreError(ValueError):
     """A snapshot store written before the stability check (no ``stable`` array): rebuild it."""
 
@@ -93,11 +97,14 @@ class Snapshots:
         return self.runs.index(run)
 
     def failures(self) -> pd.DataFrame:
-        """Every (run, scenario) without a steady state, failed or unstable, with its reason (not the runs an
-        enrichment scenario was not meant for)."""
+        """Every (run, scenario) without a steady state, failed or unstable, with its reason: ``reason`` the code
+        (``FAILED``: no periodic solution; ``UNSTABLE``: converged, a Floquet multiplier outside the unit circle),
+        ``message`` the solver's sentence (not the runs an enrichment scenario was not meant for)."""
         r, s = np.nonzero(~self.steady & self.solved)
+        unstable = self.success[r, s] & (np.nan_to_num(self.floquet_radius[r, s], nan=0.0) >= 1.0)
         return pd.DataFrame({"run": np.asarray(self.runs)[r], "scenario": self.scenario[s],
-                             "split": self.split[s], "message": self.message[r, s]})
+                             "split": self.split[s], "message": self.message[r, s],
+                             "reason": np.where(unstable, UNSTABLE, FAILED)})
 
 
 def write_chunk(path: str | Path, variant: str, scenarios: pd.DataFrame, parameters: Sequence[str],

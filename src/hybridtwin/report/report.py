@@ -58,6 +58,7 @@ from scipy import stats
 
 from ..identify import identification as idn
 from ..data import measurements as meas
+from ..data.measured import flags
 from ..identify import validation as val
 from ..plots import plt
 
@@ -207,6 +208,17 @@ def read_comparisons(table: pd.DataFrame) -> list[RunComparison]:
     return out
 
 
+def write_comparisons(comparisons: Sequence[RunComparison], path: str | Path) -> None:
+    """The comparison table (results/{variant}/report/harmonics.tsv, ``comparison_table``): ``load_comparisons``
+    reads it back."""
+    comparison_table(comparisons).to_csv(path, sep="\t", index=False, float_format="%.9g")
+
+
+def load_comparisons(path: str | Path) -> list[RunComparison]:
+    """The comparisons of a table written by ``write_comparisons``, run ids as strings."""
+    return read_comparisons(pd.read_csv(path, sep="\t", dtype={"run": str}))
+
+
 def _grid(rows: pd.DataFrame, column: str, channels: int) -> Array:
     """A column of one run's rows (sorted by harmonic, channel) as (H, C)."""
     return rows[column].to_numpy(float).reshape(-1, channels)
@@ -225,6 +237,19 @@ def error_table(comparisons: Sequence[RunComparison]) -> pd.DataFrame:
                      "source": c.source, "chi2": c.chi2, "dof": c.dof, "chi2_dof": c.chi2_dof, "p_value": p,
                      "beyond_noise": p < ALPHA, "error_pct": 100.0 * c.error_rel, "signal_m": c.signal_m})
     return pd.DataFrame(rows, columns=ERROR_COLUMNS)
+
+
+def write_errors(table: pd.DataFrame, path: str | Path) -> None:
+    """An error table (``error_table``: report/errors.tsv, report/validation_errors.tsv): ``read_errors`` reads it."""
+    table.to_csv(path, sep="\t", index=False, float_format="%.6g")
+
+
+def read_errors(path: str | Path) -> pd.DataFrame:
+    """An error table written by ``write_errors``: run ids and roles as text, beyond_noise as bool (one way:
+    ``measured.flags``), the rest as numbers."""
+    table = pd.read_csv(path, sep="\t", dtype={"run": str, "role": str, "source": str})
+    table["beyond_noise"] = flags(table["beyond_noise"])
+    return table
 
 
 def pooled(errors: pd.DataFrame) -> dict[str, float]:
@@ -408,6 +433,18 @@ def ledger_table(rows: Sequence[Mapping]) -> pd.DataFrame:
     table["delta_bic"] = table["bic"] - table["bic"].min()
     per_run = [c for c in table if c not in LEDGER_COLUMNS]
     return table[LEDGER_COLUMNS + per_run]
+
+
+def write_ledger(ledger: pd.DataFrame, path: str | Path) -> None:
+    """The ledger (``ledger_table``, results/ledger.tsv): ``read_ledger`` reads it back."""
+    ledger.to_csv(path, sep="\t", index=False, float_format="%.6g")
+
+
+def read_ledger(path: str | Path) -> pd.DataFrame:
+    """The ledger written by ``write_ledger``: variant names, descriptions and run ids as text, the rest as
+    numbers."""
+    text = ("variant", "description", "source", "worst_run", "worst_validation_run")
+    return pd.read_csv(path, sep="\t", dtype=dict.fromkeys(text, str))
 
 
 # --- figures ----------------------------------------------------------------------------

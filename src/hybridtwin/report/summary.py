@@ -36,7 +36,7 @@ from .report import ALPHA, NOISE_FLOOR, VALIDATION_STYLE
 #: columns of ``summary_table`` (results/summary.tsv)
 SUMMARY_COLUMNS = ["variant", "chi2_dof", "p_value", "validation_chi2_dof", "delta_bic", "fit_runs", "fit_runs_beyond_noise",
                    "validation_runs", "validation_runs_beyond_noise", "worst_run", "worst_run_chi2_dof",
-                   "conclusion", "recommended_variant", "recommended_in_config"]
+                   "conclusion", "status", "recommended_variant", "recommended_in_config"]
 #: the band above the noise floor drawn in the figure (as in the ledger's)
 NEAR_NOISE = 1.1
 
@@ -81,6 +81,7 @@ def summary_table(ledger: pd.DataFrame, errors: Mapping[str, pd.DataFrame], diag
                      "worst_run": "" if worst is None else str(worst["run"]),
                      "worst_run_chi2_dof": math.nan if worst is None else float(worst["chi2_dof"]),
                      "conclusion": str(diagnosis.get("conclusion", "")),
+                     "status": str(diagnosis.get("status") or ""),  # the conclusion's code (diagnosis_status.Status)
                      "recommended_variant": str(recommended.get("name", "")),
                      "recommended_in_config": matching_variant(recommended.get("spec"), variants)})
     return pd.DataFrame(rows, columns=SUMMARY_COLUMNS)
@@ -309,9 +310,9 @@ def next_runs_line(variant: str, chosen: pd.DataFrame, intervals: pd.DataFrame) 
     hybridtwin.identify.design): the runs in order and the intervals of interest now and expected after them."""
     if chosen.empty:
         return ""
-    runs = "; ".join(f"{r.rpm:g} RPM, {r.eccentric_mass_g:g} g" + (" with a keyphasor" if str(r.keyphasor) == "True"
-                                                                   else "") for r in chosen.itertuples())
-    wanted = intervals[intervals["interest"].astype(str) == "True"]
+    runs = "; ".join(f"{r.rpm:g} RPM, {r.eccentric_mass_g:g} g" + (" with a keyphasor" if keyphasor else "")
+                     for r, keyphasor in zip(chosen.itertuples(), measured.flags(chosen["keyphasor"])))
+    wanted = intervals[measured.flags(intervals["interest"])]
     shrink = ", ".join(f"{_text(r.parameter)} +-{r.linear_half_width:.3g} -> +-{r.expected_half_width:.3g}"
                        for r in wanted.itertuples())
     return (f"**The next runs to take** for {_text(variant)} (D-optimal on its fitted twin, "

@@ -46,6 +46,7 @@ import matplotlib.ticker  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
+from ..data import measured  # noqa: E402
 from ..data.measurements import probe_angles, record_channels  # noqa: E402
 from ..data.order_tracking import order_vector, table_channels  # noqa: E402
 from ..data.record_columns import harmonic_column  # noqa: E402
@@ -160,7 +161,7 @@ def window_status(rpm: Sequence[float], bands: pd.DataFrame) -> list[str]:
     flags): "used" (a band the fit or validation reads), the band's flag (e.g. sweep_too_fast), "slow_roll"
     below the first band, "beyond_bands" above the last."""
     lo, hi = bands["band_lo_rpm"].to_numpy(float), bands["band_hi_rpm"].to_numpy(float)
-    usable = bands["usable"].astype(str).str.lower().isin(["true", "1"]).to_numpy()
+    usable = measured.flags(bands["usable"]).to_numpy()
     flags = bands["flags"].fillna("").astype(str).to_numpy()
     out = []
     for r in np.asarray(rpm, float):

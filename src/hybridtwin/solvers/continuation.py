@@ -184,6 +184,37 @@ def _sweep_speeds(rpm: Sequence[float] | Array, n_scenarios: int, direction: str
     return speeds
 
 
+def intermediate_speeds(speeds: Array, step: float) -> Array:
+    """The sorted speeds plus evenly spaced intermediate ones so no gap exceeds ``step``."""
+    if speeds.size < 2:
+        return speeds
+    parts = [np.linspace(a, b, int(np.ceil((b - a) / step)) + 1)[:-1] for a, b in zip(speeds[:-1], speeds[1:])]
+    return np.concatenate(parts + [speeds[-1:]])
+
+
+def ramp(start_rpm: float, speeds: Sequence[float] | Array, step_rpm: float) -> Array:
+    """The speed grid of a run-up (or, reversed, a run-down) from ``start_rpm`` through ``speeds``: both, sorted,
+    with intermediate speeds so that no step exceeds ``step_rpm`` (``intermediate_speeds``). The one grid of the
+    offline stage's run-ups, the fits' (``forward.run_up``) and the rig's."""
+    return intermediate_speeds(np.unique(np.append(np.asarray(speeds, float), start_rpm)), step_rpm)
+
+
+def sweep_model(model, values: dict[str, Array], speeds: Array, n_scenarios: int, harmonics: int,
+                direction: str = "up", stability: bool = False) -> tuple[Sweep, Callable[[Array, Array], System]]:
+    """``n_scenarios`` parameter sets of ``model`` (a ``Model``; ``values`` complete, each (n,) or scalar) swept
+    along ``speeds`` (one speed per step for all, or per scenario: ``padded_speeds``): the speed-independent
+    stages assembled once (``Model.at_rest``), the system at each step's speeds from them. The run-up of the
+    offline stage, of the fits and of a lockstep of sets each on its own ramp. Returns the sweep and its
+    ``build`` (rows' system at speeds), for a stability check after it."""
+    rest = model.at_rest(values, n_scenarios)
+
+    def build(rpm: Array, rows: Array) -> System:
+        return model.system_at(rest.rows(rows), rpm)
+
+    sweep = solve_sweep(build, speeds, n_scenarios, harmonics=harmonics, direction=direction, stability=stability)
+    return sweep, build
+
+
 def padded_speeds(ramps: Sequence[Array], each: int = 1) -> Array:
     """Per-scenario sweep speeds for ``solve_sweep`` (n, len(ramps) * each): ``each`` columns per
     ramp, in order, NaN after a ramp's last speed."""
