@@ -606,18 +606,14 @@ def read_record(path: str | Path, sensors=None) -> Record:
 
 
 def _clean_record(path: Path, names: Sequence[str]) -> tuple | None:
-    """``read_record``'s columns from a clean all-numeric file at the C parser's speed
-    (``record_columns.fast_numeric_table``; a 60-s record at 5 kHz: ~0.5 s instead of ~10), or None when the file
-    needs ``_checked_record``'s cell-by-cell checks and messages (which then find what is wrong, or read it)."""
-    if not path.is_file():
-        return None
-    fast = fast_numeric_table(_decode(path, path.read_bytes()).replace("\r\n", "\n").replace("\r", "\n"), ",")
-    if fast is None:
+    """``read_record``'s columns from a clean all-numeric file at the C parser's speed (``fast_numeric_table``: an
+    83-s record at 5 kHz in 0.24 s, 13.5 s cell by cell), or None: ``_checked_record`` then reads it or says why."""
+    fast = path.is_file() and fast_numeric_table(_decode(path, path.read_bytes()).replace("\r\n", "\n")
+                                                 .replace("\r", "\n"), ",")
+    if not fast or len(fast[0]) < 3:
         return None
     table, line = fast
     time_col, chosen = _record_columns(path, table.columns, names)
-    if len(table) < 3:
-        return None
     values = {c: table[c].to_numpy() for c in (time_col, *(c for c, _ in chosen.values()))}
     keyphasor = None
     if "keyphasor" in table:
@@ -630,8 +626,7 @@ def _clean_record(path: Path, names: Sequence[str]) -> tuple | None:
 
 
 def _checked_record(path: Path, names: Sequence[str]) -> tuple:
-    """``read_record``'s columns read cell by cell (``read_text_table``), every problem of the file gathered and
-    raised as one ``DataError``."""
+    """``read_record``'s columns read cell by cell (``read_text_table``), every problem raised as one DataError."""
     table, line = read_text_table(path, ",")
     time_col, chosen = _record_columns(path, table.columns, names)
     if len(table) < 3:
