@@ -13,7 +13,8 @@
 - DiskElements become ``Disk``s at ROSS's node (m, Ip, Id; the tag as name unless ROSS made it up).
 - BearingElements (and seals) become ``Bearing``s named after their tags (non-identifier characters as ``_``):
   constant isotropic coefficients (kxx = kyy, cxx = cyy, no cross terms) as ``k``, ``c``; anything else as a
-  ``BearingTable`` of the eight coefficients, at ROSS's ``frequency`` [rad/s] converted to RPM, with
+  ``BearingTable`` of the eight coefficients, at ROSS's ``frequency`` [rad/s] converted to RPM (14 significant
+  digits), with
   ``interpolation: ross`` (ROSS 2.3.0's own spline, so both codes evaluate the same coefficients at any speed;
   ``bearing_table``). Refused: a bearing linked to another node (``n_link``), mass coefficients (mxx ...),
   elements whose K or C are not ROSS's table (magnetic bearings, ...), point masses. Axial coefficients (kzz,
@@ -123,7 +124,8 @@ def _bearing(ross, el, index: int) -> Bearing:
                 values[k] for k in ("kxy", "kyx", "cxy", "cyx")):
             return Bearing(name, int(el.n), k=values["kxx"], c=values["cxx"])
         return Bearing(name, int(el.n), table=BearingTable.constant(**values))
-    rpm = np.asarray(el.frequency, dtype=float) * (60.0 / (2.0 * np.pi))  # ROSS's frequency is rad/s
+    # ROSS's frequency is rad/s; to 14 significant digits, so that a table written from RPM comes back as it was
+    rpm = [float(f"{w * 60.0 / (2.0 * np.pi):.14g}") for w in np.asarray(el.frequency, dtype=float)]
     try:
         table = BearingTable(tuple(rpm), **{k: tuple(v) for k, v in columns.items()},
                              interpolation=getattr(el, MARK, "ross"))
@@ -135,7 +137,7 @@ def _bearing(ross, el, index: int) -> Bearing:
 def machine_from_ross(rotor, name: str | None = None, unbalance_planes: Sequence[UnbalancePlane] = (),
                       sensors: Sequence[Sensor] = ()) -> Machine:
     """Our ``Machine`` of a ROSS rotor (a ``ross.Rotor``, or the path of a file ``rotor.save`` wrote): module
-    docstring. ``name`` default the rotor's tag; ``unbalance_planes``, ``sensors``: ours to add (ROSS has none).
+    docstring. ``name`` default the rotor's tag (ROSS's file does not keep it: "Rotor 0" once loaded); ``unbalance_planes``, ``sensors``: ours to add (ROSS has none).
     A ROSS rotor this cannot represent raises ValueError naming the element and the problem."""
     ross = _ross()
     if isinstance(rotor, (str, Path)):
