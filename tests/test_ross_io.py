@@ -91,7 +91,8 @@ def test_table_bearing_puts_the_coefficients_at_its_node():
     """The effect's K (at rest and with speed) and C at 500 and 2500 RPM: the table's values at the node's (u, v),
     nothing elsewhere; the stiffness at rest is the table's at 0 RPM (seen by the first mode at rest)."""
     machine = Machine("t", [ShaftSegment(1.0, 0.05, 2.11e11, 7810.0, n_elements=4)],
-                      bearings=[Bearing("a", 0, k=1e7, c=10.0), Bearing("b", 4, table=BearingTable.from_mapping(TABLE))])
+                      bearings=[Bearing("a", 0, k=1e7, c=10.0),
+                                Bearing("b", 4, table=BearingTable.from_mapping(TABLE))])
     fx = machine.effects()
     bare = Model([fx["linear_bearing@a"]], machine).system({"k_a": 1e7, "c_a": 10.0}, [500.0, 2500.0])
     model = Model([fx["linear_bearing@a"], fx["bearing_table@b"]], machine)

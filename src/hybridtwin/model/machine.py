@@ -553,7 +553,8 @@ class Machine(DofCounts):
         if self.bearings:
             out["bearings"] = {b.name: {"node": int(b.node)} | ({"k": float(b.k)} if b.k is not None else {})
                                | ({"c": float(b.c)} if b.k is not None or b.c else {})
-                               | ({"table": b.table.to_mapping()} if b.table is not None else {}) for b in self.bearings}
+                               | ({"table": b.table.to_mapping()} if b.table is not None else {})
+                               for b in self.bearings}
         if self.unbalance_planes:
             out["unbalance_planes"] = {p.name: int(p.node) for p in self.unbalance_planes}
         if self.sensors:

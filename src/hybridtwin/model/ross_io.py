@@ -137,8 +137,9 @@ def _bearing(ross, el, index: int) -> Bearing:
 def machine_from_ross(rotor, name: str | None = None, unbalance_planes: Sequence[UnbalancePlane] = (),
                       sensors: Sequence[Sensor] = ()) -> Machine:
     """Our ``Machine`` of a ROSS rotor (a ``ross.Rotor``, or the path of a file ``rotor.save`` wrote): module
-    docstring. ``name`` default the rotor's tag (ROSS's file does not keep it: "Rotor 0" once loaded); ``unbalance_planes``, ``sensors``: ours to add (ROSS has none).
-    A ROSS rotor this cannot represent raises ValueError naming the element and the problem."""
+    docstring. ``name`` default the rotor's tag (ROSS's file does not keep it: "Rotor 0" once loaded);
+    ``unbalance_planes``, ``sensors``: ours to add (ROSS has none). A ROSS rotor this cannot represent raises
+    ValueError naming the element and the problem."""
     ross = _ross()
     if isinstance(rotor, (str, Path)):
         if not Path(rotor).is_file():
