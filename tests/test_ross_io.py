@@ -5,11 +5,11 @@ same natural frequencies".
 The tests of the table itself (interpolation, config form, the effect's matrices, bad tables) run always; those
 that build ROSS rotors are skipped, with the reason, where ROSS cannot be imported (pip install -e ".[ross]"), as
 tests/test_ross.py's. Tolerance against ROSS: 1e-6, as tests/test_ross.py (the same beam theory on the same mesh,
-the same bearing coefficients evaluated by the same scipy calls: the two codes agree to round-off, observed 4e-12 on
-the frequencies and 2e-9 on the damping ratios, whose small values carry the eigensolver's round-off; 1e-6 leaves
-room for LAPACK differences only, and is far below the effects the test sees: the bearings' change with speed moves
-the frequencies by percents, and ROSS's spline differs from a linear interpolation of the same table by up to 0.8 %
-between its rows).
+the same bearing coefficients evaluated by the same scipy calls: the two codes agree to round-off, observed 1.4e-11 on
+the frequencies, 1.7e-8 on the damping ratios (small numbers, -Re(lambda) / |lambda| carries the eigensolver's
+round-off relative to |lambda|) and 9e-11 on the unbalance response; 1e-6 leaves room for LAPACK differences only,
+and is far below the effects the test sees: the bearings' change with speed moves the frequencies by percents
+(asserted), and ROSS's spline differs from a linear interpolation of the same table by up to 0.8 % between its rows).
 """
 
 import sys
@@ -17,6 +17,9 @@ import warnings
 
 import numpy as np
 import pytest
+import yaml
+from example_machines import stepped_config
+from test_machine import _config, project  # noqa: F401 (the fixture: a project folder with the bundled config)
 from test_ross import DISKS, E, G, RHO, SEGMENTS, _ours
 
 from hybridtwin.model.bearing_table import COEFFICIENTS, BearingTable, TableBearing
@@ -132,6 +135,27 @@ def test_a_bearing_with_k_and_a_table_is_refused():
                               "bearings": {"b": {"node": 1, "k": 1e7, "table": {"rpm": [0], "kxx": [1e7]}}}})
 
 
+@pytest.mark.parametrize("change, expected", [
+    ({}, None),
+    ({"kxy": [0, 2e5]}, "machine.bearings.b.table: kxy: has 2 values, rpm has 3"),
+    ({"kzz": [1, 2, 3]}, "kzz"),
+])
+def test_a_table_in_the_workflow_config(project, change, expected):  # noqa: F811 (the fixture)
+    """The stepped rotor's bearing b as a table in config.yaml, its variant on bearing_table@b: the check passes;
+    a bad table is one line, at its place in the file."""
+    spec = stepped_config()
+    spec["machine"]["bearings"]["b"] = {"node": 13, "table": {
+        "rpm": [0, 3000, 6000], "kxx": [1e7, 1.2e7, 1.5e7], "kyy": [0.8e7, 1e7, 1.3e7], "kxy": [0, 2e5, 5e5],
+        "cxx": [500, 520, 560]} | change}
+    spec["variants"]["linear"] = {"effects": ["linear_bearing@a", "bearing_table@b", "gyroscopic", "unbalance@d1"],
+                                  "unknown": {"k_a": [1.0e+7, 4.0e+7]}}
+    _, problems = _config(project, yaml.safe_dump(spec))
+    if expected is None:
+        assert problems == []
+    else:
+        assert len(problems) == 1 and expected in problems[0] and "config.yaml, line" in problems[0], problems
+
+
 def test_without_ross_the_functions_say_how_to_install_it(monkeypatch):
     from hybridtwin.model import ross_io
 
@@ -143,13 +167,15 @@ def test_without_ross_the_functions_say_how_to_install_it(monkeypatch):
 # --- ROSS in and out -----------------------------------------------------------------------------------------------
 
 
-def _ross_rotor(rs, **shaft):
+def _ross_rotor(rs, extra_mass=0.0):
     """The stepped rotor of test_ross.py in ROSS (Timoshenko), its drive-end bearing speed-dependent, anisotropic
-    and cross-coupled (DRIVE_END), its free-end one constant but anisotropic and cross-coupled."""
+    and cross-coupled (DRIVE_END), its free-end one constant but anisotropic and cross-coupled; ``extra_mass`` [kg]
+    on the first disk (our unbalance plane's point mass)."""
     steel = rs.Material(name="Steel_check", rho=RHO, E=E, G_s=G)
-    elements = [rs.ShaftElement(L=length / n, idl=0.0, odl=d, material=steel, **shaft)
+    elements = [rs.ShaftElement(L=length / n, idl=0.0, odl=d, material=steel)
                 for length, d, n in SEGMENTS for _ in range(n)]
-    disks = [rs.DiskElement(n=node, m=m, Id=I_d, Ip=I_p) for node, m, I_p, I_d in DISKS]
+    disks = [rs.DiskElement(n=node, m=m + (extra_mass if i == 0 else 0.0), Id=I_d, Ip=I_p)
+             for i, (node, m, I_p, I_d) in enumerate(DISKS)]
     bearings = [rs.BearingElement(n=2, frequency=FREQUENCY, **DRIVE_END, tag="drive_end"),
                 rs.BearingElement(n=16, kxx=1e7, kyy=1.3e7, kxy=1e5, cxx=500.0, tag="free end")]
     return rs.Rotor(elements, disks, bearings, tag="stepped")
@@ -200,6 +226,33 @@ def test_ross_rotor_with_speed_dependent_bearings_has_our_campbell(rs, tmp_path)
                      {}, speeds * 60 / (2 * np.pi), n_modes=8)
     change = np.abs(table.frequency_hz.to_numpy() / still.frequency_hz.to_numpy() - 1)
     assert change.max() > 1e4 * RTOL, change.max()
+
+
+def test_unbalance_response_on_speed_dependent_bearings_matches_ross(rs):
+    """The same rotor's 1X response to an unbalance on the first disk (ours: the harmonic-balance solver on the model
+    of machine_from_ross; ROSS: run_unbalance_response, its bearings at each speed), every node, x and y, through
+    the critical speeds and beyond the table (50-1500 rad/s)."""
+    from hybridtwin.model.machine import UnbalancePlane
+    from hybridtwin.model.ross_io import machine_from_ross
+    from hybridtwin.solvers.solver import solve
+
+    m_e, r_me, node = 0.002, 0.1, DISKS[0][0]
+    machine = machine_from_ross(_ross_rotor(rs), unbalance_planes=[UnbalancePlane("disk", node)])
+    fx = machine.effects()
+    model = Model([fx["bearing_table@drive_end"], fx["bearing_table@free_end"], fx["gyroscopic"], fx["unbalance@disk"]],
+                  machine)
+    speeds = np.linspace(50.0, 1500.0, 30)  # rad/s
+    result = solve(model.system({"m_e": m_e, "r_me": r_me}, speeds * 60 / (2 * np.pi)), 1)
+    assert result.success.all()
+    rotor = _ross_rotor(rs, extra_mass=m_e)  # our plane's point mass m_e, on ROSS's disk
+    theirs_all = rotor.run_unbalance_response(node, m_e * r_me, 0.0, speeds).forced_resp
+    for plane, offset in (("x", 0), ("y", 1)):
+        ours = result.harmonics[:, 1, machine.translational(plane)]  # (speeds, nodes)
+        theirs = theirs_all[offset::rotor.number_dof][: machine.n_nodes].T
+        error = np.linalg.norm(ours - theirs, axis=1) / np.linalg.norm(theirs, axis=1)
+        assert error.max() < RTOL, (plane, error.max())
+    x, y = result.harmonics[:, 1, machine.dof(f"u{node}")], result.harmonics[:, 1, machine.dof(f"v{node}")]
+    assert np.abs(np.abs(x) / np.abs(y) - 1).max() > 0.1  # the bearings' anisotropy shows in the orbit
 
 
 def test_our_stepped_rotor_round_trips_through_ross(rs):
