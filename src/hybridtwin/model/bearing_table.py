@@ -149,7 +149,10 @@ class BearingTable:
         return K, C
 
     def describe(self) -> str:
-        """One line: the speed range, kxx and kyy at its ends."""
+        """One line: the speed range, kxx, kyy and cxx at its ends (a one-row table: its constant values)."""
+        if len(self.rpm) == 1:
+            return ("constant coefficients: " + ", ".join(f"{k} {getattr(self, k)[0]:g}" for k in COEFFICIENTS)
+                    + " (N/m, N s/m)")
         lo, hi = self.rpm[0], self.rpm[-1]
         return (f"table of {len(self.rpm)} speeds {lo:g}..{hi:g} RPM ({self.interpolation}): kxx {self.kxx[0]:g}.."
                 f"{self.kxx[-1]:g}, kyy {self.kyy[0]:g}..{self.kyy[-1]:g} N/m, cxx {self.cxx[0]:g}..{self.cxx[-1]:g} "

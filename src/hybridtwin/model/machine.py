@@ -640,18 +640,16 @@ def _bearing(name, item) -> Bearing:
     """A bearing from its config form: node, and k (and c) or a table (``BearingTable.from_mapping``)."""
     path = ("bearings", name)
     item = dict(_mapping(item, path))
-    table = item.pop("table", None)
-    if table is not None:
-        try:
-            item["table"] = BearingTable.from_mapping(table)
-        except ValueError as err:
-            raise MachineSpecError(path + ("table",), str(err)) from None
-    bearing = _build(Bearing, {"name": name, **{k: v for k, v in item.items() if k != "table"}}, path,
-                     {"name", "node"}, {"k", "c", "table"})
-    if table is None:
+    spec = item.pop("table", None)
+    bearing = _build(Bearing, {"name": name, **item}, path, {"name", "node"}, {"k", "c", "table"})
+    if spec is None:
         return bearing
     try:
-        return dataclasses.replace(bearing, table=item["table"])
+        table = BearingTable.from_mapping(spec)
+    except ValueError as err:
+        raise MachineSpecError(path + ("table",), str(err)) from None
+    try:
+        return dataclasses.replace(bearing, table=table)
     except ValueError as err:
         raise MachineSpecError(path, str(err)) from None
 
