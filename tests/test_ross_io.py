@@ -184,8 +184,9 @@ def _ross_rotor(rs, extra_mass=0.0):
 def test_ross_rotor_with_speed_dependent_bearings_has_our_campbell(rs, tmp_path):
     """ROSS rotor -> machine_from_ross -> our Campbell at 5 speeds (inside and beyond the table) against ROSS's
     run_modal: damped frequencies and damping ratios of the 8 lowest lateral modes, and the whirl where ROSS calls
-    it forward or backward (it calls 'mixed' a mode whose nodes whirl both ways; ours is the net sense)."""
-    from hybridtwin.model.ross_io import machine_from_ross
+    it forward or backward (it calls 'mixed' a mode whose nodes whirl both ways; ours is the net sense). Then back
+    to ROSS: the same machine again, and ROSS's eigenvalues of it those of the rotor it came from."""
+    from hybridtwin.model.ross_io import machine_from_ross, machine_to_ross
 
     rotor = _ross_rotor(rs)
     rotor.save(tmp_path / "stepped.toml")
@@ -214,6 +215,13 @@ def test_ross_rotor_with_speed_dependent_bearings_has_our_campbell(rs, tmp_path)
             assert [theirs[i] for i in clear] == [ours.whirl.iloc[i] for i in clear]
             compared += len(clear)
     assert compared >= 10
+    # and back to ROSS: the same description, and ROSS's own eigenvalues of it the original rotor's
+    again = machine_to_ross(machine)
+    assert machine_from_ross(again).to_mapping() == machine.to_mapping()
+    for speed in (150.0, 1200.0):
+        first, second = (r.run_modal(speed, num_modes=40, sparse=False) for r in (rotor, again))
+        np.testing.assert_allclose(second.wd[:16], first.wd[:16], rtol=1e-10)
+        np.testing.assert_allclose(second.damping_ratio[:16], first.damping_ratio[:16], rtol=1e-6, atol=1e-12)
     # the check sees the bearings' change with speed: constant coefficients (the table's first row) move the
     # frequencies far beyond the tolerance
     frozen = machine_from_ross(rotor)
