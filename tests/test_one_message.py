@@ -124,7 +124,7 @@ def test_snakemake_says_a_machine_typo_in_one_line(tmp_path):
     assert done.returncode != 0
     errors = [line for line in said.splitlines() if "error" in line.lower()]
     assert errors == ["config error: config/config.yaml, line 19: machine.bearings.b: unknown key 'kk' (did you "
-                      "mean 'k'? allowed: c, k, node)"], said
+                      "mean 'k'? allowed: c, k, node, table)"], said
 
 
 # --- check-data: a problem every record shares, said once ---------------------------------

@@ -35,6 +35,7 @@ from functools import cached_property
 import numpy as np
 
 from .bearing_candidates import at_bearing
+from .bearing_table import BearingTable, TableBearing
 from .effect_base import Context, Effect, Parameter
 from .effects import Unbalance, builtin_effects
 from .probes import DEFAULT_ANGLE_DEG, check_pair
@@ -130,12 +131,20 @@ class Disk:
 @dataclass(frozen=True)
 class Bearing:
     """A named bearing position. ``k`` [N/m], ``c`` [N s/m]: nominal isotropic coefficients of the effect
-    ``linear_bearing@<name>`` (offered only when ``k`` is given)."""
+    ``linear_bearing@<name>`` (offered only when ``k`` is given). Or ``table``: its eight coefficients against
+    speed (``bearing_table.BearingTable``), the effect ``bearing_table@<name>``; not both."""
 
     name: str
     node: int
     k: float | None = None
     c: float = 0.0
+    table: BearingTable | None = None
+
+    def __post_init__(self) -> None:
+        if self.table is not None and not isinstance(self.table, BearingTable):
+            raise ValueError(f"bearing {self.name!r}: table must be a BearingTable, got {type(self.table).__name__}")
+        if self.table is not None and (self.k is not None or self.c):
+            raise ValueError(f"bearing {self.name!r}: give either k (and c) or a table, not both")
 
 
 @dataclass(frozen=True)
@@ -301,6 +310,7 @@ class Machine(DofCounts):
               - {length: 0.2, d_out: 0.04, E: 2.11e+11, rho: 7810, n_elements: 4}   # d_in, I, m optional
             disks: [{node: 8, mass: 15.3, I_p: 0.12, I_d: 0.062, name: impeller}]
             bearings: {drive_end: {node: 2, k: 2.0e+7, c: 800}, free_end: {node: 16}}
+            # or a bearing's eight coefficients against speed: {node: 16, table: {rpm: [...], kxx: [...], ...}}
             unbalance_planes: {impeller: 8}
             sensors: {x1: {node: 8, direction: x}, y1: {node: 8, direction: y}}   # angle_deg optional
             rotary_inertia: false           # the sections' rotary inertia (Rayleigh beams)
@@ -327,9 +337,7 @@ class Machine(DofCounts):
                            {"d_in", "n_elements", "I", "m", "G"}) for i, item in enumerate(_sequence(spec, "segments"))]
         disks = [_build(Disk, item, ("disks", i), {"node", "mass"}, {"I_p", "I_d", "name"})
                  for i, item in enumerate(_sequence(spec, "disks"))]
-        bearings = [_build(Bearing, {"name": name, **_mapping(item, ("bearings", name))}, ("bearings", name),
-                           {"name", "node"}, {"k", "c"}) for name, item in _mapping(spec.get("bearings"),
-                                                                                    ("bearings",)).items()]
+        bearings = [_bearing(name, item) for name, item in _mapping(spec.get("bearings"), ("bearings",)).items()]
         planes = [_build(UnbalancePlane, {"name": name, "node": node}, ("unbalance_planes", name), {"name", "node"},
                          set()) for name, node in _mapping(spec.get("unbalance_planes"), ("unbalance_planes",)).items()]
         try:
@@ -494,7 +502,8 @@ class Machine(DofCounts):
 
     def effects(self) -> dict[str, Effect]:
         """The effects this machine adds to the built-in ones, by name (for a variant's effect list):
-        ``gyroscopic``; ``linear_bearing@<bearing>`` for each bearing with nominal coefficients, and the
+        ``gyroscopic``; ``linear_bearing@<bearing>`` for each bearing with nominal coefficients (and
+        ``bearing_table@<bearing>`` for one with a table of coefficients against speed), and the
         candidates sized to them (``bearing_candidates.at_bearing``: bearing_anisotropy, cross_coupled_stiffness,
         cross_coupled_damping); every placeable built-in effect at every bearing, ``<effect>@<bearing>``; ``unbalance@<plane>`` for each
         unbalance plane (the run's eccentric mass m_e at that plane)."""
@@ -505,6 +514,9 @@ class Machine(DofCounts):
                 out[f"linear_bearing@{bearing.name}"] = LinearBearing(
                     name=f"linear_bearing@{bearing.name}", bearing=bearing.name, node=bearing.node,
                     k=bearing.k, c=bearing.c)
+            if bearing.table is not None:
+                out[f"bearing_table@{bearing.name}"] = TableBearing(
+                    name=f"bearing_table@{bearing.name}", bearing=bearing.name, node=bearing.node, table=bearing.table)
             for effect in placeable:
                 placed = self.place(effect, bearing.name)
                 out[placed.name] = placed
@@ -540,7 +552,9 @@ class Machine(DofCounts):
                             | ({"name": d.name} if d.name else {}) for d in self.disks]
         if self.bearings:
             out["bearings"] = {b.name: {"node": int(b.node)} | ({"k": float(b.k)} if b.k is not None else {})
-                               | ({"c": float(b.c)} if b.k is not None or b.c else {}) for b in self.bearings}
+                               | ({"c": float(b.c)} if b.k is not None or b.c else {})
+                               | ({"table": b.table.to_mapping()} if b.table is not None else {})
+                               for b in self.bearings}
         if self.unbalance_planes:
             out["unbalance_planes"] = {p.name: int(p.node) for p in self.unbalance_planes}
         if self.sensors:
@@ -580,7 +594,8 @@ class Machine(DofCounts):
                          f"I_d {d.I_d:g} kg m^2")
         for b in self.bearings:
             lines.append(f"  bearing {b.name} at node {b.node}"
-                         + (f": k {b.k:g} N/m, c {b.c:g} N s/m" if b.k is not None else ""))
+                         + (f": k {b.k:g} N/m, c {b.c:g} N s/m" if b.k is not None else "")
+                         + (f": {b.table.describe()}" if b.table is not None else ""))
         for p in self.unbalance_planes:
             lines.append(f"  unbalance plane {p.name} at node {p.node}")
         for s in self.sensors:
@@ -619,6 +634,24 @@ def _known(spec: Mapping, path: tuple, allowed: set[str]) -> None:
     stray = sorted(set(map(str, spec)) - allowed)
     if stray:
         raise MachineSpecError(path, f"unknown key(s) {stray} (allowed: {', '.join(sorted(allowed))})")
+
+
+def _bearing(name, item) -> Bearing:
+    """A bearing from its config form: node, and k (and c) or a table (``BearingTable.from_mapping``)."""
+    path = ("bearings", name)
+    item = dict(_mapping(item, path))
+    spec = item.pop("table", None)
+    bearing = _build(Bearing, {"name": name, **item}, path, {"name", "node"}, {"k", "c", "table"})
+    if spec is None:
+        return bearing
+    try:
+        table = BearingTable.from_mapping(spec)
+    except ValueError as err:
+        raise MachineSpecError(path + ("table",), str(err)) from None
+    try:
+        return dataclasses.replace(bearing, table=table)
+    except ValueError as err:
+        raise MachineSpecError(path, str(err)) from None
 
 
 def _build(kind: type, item, path: tuple, required: set[str], optional: set[str]):

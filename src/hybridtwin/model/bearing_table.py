@@ -1,0 +1,198 @@
+"""Speed-dependent bearings: the eight linear coefficients of a bearing (or seal) against speed, from a table
+(docs/model.md, "Describing your machine", "Speed-dependent bearings").
+
+A fluid-film bearing's or a seal's force on the shaft at its node, linearised about the running position, is
+
+    [F_x, F_y] = -K(Omega) [x, y] - C(Omega) [x', y'],   K = [[kxx, kxy], [kyx, kyy]],  C = [[cxx, cxy], [cyx, cyy]]
+
+(Friswell et al., Dynamics of Rotating Machines, 2010, sec. 5.5; ROSS's ``BearingElement``, whose K and C these
+are, same signs and layout). ``BearingTable`` holds the coefficients at a list of speeds (``rpm``) and evaluates
+them at any speed, vectorised over scenarios, by one of two rules (``interpolation``):
+
+- ``linear`` (the default): piecewise linear between the table's speeds, constant beyond its ends (the table's
+  first and last rows: a table says nothing outside its range, and a line continued would soon make a stiffness
+  negative).
+- ``ross``: ROSS 2.3.0's rule (``BearingElement._process_coefficient``), the same scipy calls on the speeds in
+  rad/s: four rows or more, ``scipy.interpolate.UnivariateSpline(speeds, values)`` (a cubic smoothing spline with
+  FITPACK's default smoothing s = number of rows, which does not quite pass through the rows where the values are
+  small); three rows, the quadratic through them; two, the line; one, a constant. Beyond the table's ends ROSS
+  *extrapolates* (the spline's end polynomial, the parabola, the line), and so does this rule. It is what
+  ``ross_io.machine_from_ross`` gives a ROSS bearing, so that our model and ROSS evaluate the same coefficients.
+
+``TableBearing`` is the effect ``bearing_table@<bearing>`` (``Machine.effects``): the coefficients at rest
+(Omega = 0) in the stiffness at rest (so the first mode at rest sees the bearing), the change with speed in
+``speed_stiffness``, and C(Omega) in ``damping``. It has no parameters: the table is the machine's.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+
+from .effect_base import Array, Context, Effect, Parameter
+
+#: the eight coefficients, in the order of a table's columns: stiffness [N/m], then damping [N s/m]
+COEFFICIENTS = ("kxx", "kxy", "kyx", "kyy", "cxx", "cxy", "cyx", "cyy")
+INTERPOLATIONS = ("linear", "ross")
+#: (row, column) of each coefficient in the bearing's 2 x 2 block over (x, y)
+_PLACE = {"xx": (0, 0), "xy": (0, 1), "yx": (1, 0), "yy": (1, 1)}
+
+
+@dataclass(frozen=True)
+class BearingTable:
+    """The eight coefficients of a bearing at the speeds ``rpm`` (strictly increasing, >= 0): ``kxx`` .. ``kyy``
+    [N/m], ``cxx`` .. ``cyy`` [N s/m], one value per speed; ``interpolation`` ``"linear"`` or ``"ross"`` (module
+    docstring). A problem raises ValueError naming the key."""
+
+    rpm: tuple[float, ...]
+    kxx: tuple[float, ...]
+    kxy: tuple[float, ...]
+    kyx: tuple[float, ...]
+    kyy: tuple[float, ...]
+    cxx: tuple[float, ...]
+    cxy: tuple[float, ...]
+    cyx: tuple[float, ...]
+    cyy: tuple[float, ...]
+    interpolation: str = "linear"
+
+    def __post_init__(self) -> None:
+        for key in ("rpm",) + COEFFICIENTS:
+            values = getattr(self, key)
+            if isinstance(values, (str, bytes, Mapping)) or not isinstance(values, (Sequence, np.ndarray)):
+                raise ValueError(f"{key}: must be a list of numbers, got {values!r}")
+            if any(isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not np.isfinite(v)
+                   for v in values):
+                raise ValueError(f"{key}: must be a list of finite numbers, got {list(values)!r}")
+            object.__setattr__(self, key, tuple(float(v) for v in values))
+        n = len(self.rpm)
+        if n == 0:
+            raise ValueError("rpm: the table needs at least one speed")
+        if self.rpm[0] < 0 or any(b <= a for a, b in zip(self.rpm, self.rpm[1:])):
+            raise ValueError(f"rpm: speeds must be >= 0 and strictly increasing, got {list(self.rpm)}")
+        for key in COEFFICIENTS:
+            if len(getattr(self, key)) != n:
+                raise ValueError(f"{key}: has {len(getattr(self, key))} values, rpm has {n}")
+        if self.interpolation not in INTERPOLATIONS:
+            raise ValueError(f"interpolation: must be one of {', '.join(INTERPOLATIONS)}, got {self.interpolation!r}")
+
+    @classmethod
+    def from_mapping(cls, spec: Mapping) -> "BearingTable":
+        """A table from its config form: ``rpm`` and any of the eight coefficients (lists as long as ``rpm``);
+        as ROSS's BearingElement, kyy defaults to kxx and cyy to cxx, the others to 0; kxx is required.
+        ``interpolation`` optional (default linear)."""
+        if not isinstance(spec, Mapping):
+            raise ValueError(f"must be a mapping (rpm, kxx, ...), got {spec!r}")
+        stray = sorted(set(map(str, spec)) - {"rpm", "interpolation", *COEFFICIENTS})
+        if stray:
+            raise ValueError(f"unknown key(s) {stray} (allowed: rpm, {', '.join(COEFFICIENTS)}, interpolation)")
+        missing = [k for k in ("rpm", "kxx") if k not in spec]
+        if missing:
+            raise ValueError(f"missing key(s) {missing}")
+        rpm = spec["rpm"]
+        n = len(rpm) if isinstance(rpm, Sequence) and not isinstance(rpm, (str, bytes)) else 0
+        default = {"kyy": spec["kxx"], "cyy": spec.get("cxx", [0.0] * n)}
+        columns = {k: spec.get(k, default.get(k, [0.0] * n)) for k in COEFFICIENTS}
+        return cls(rpm, **columns, interpolation=str(spec.get("interpolation", "linear")))
+
+    def to_mapping(self) -> dict:
+        """The config form (all eight columns; ``interpolation`` only when not linear)."""
+        out = {"rpm": list(self.rpm)} | {k: list(getattr(self, k)) for k in COEFFICIENTS}
+        return out | ({"interpolation": self.interpolation} if self.interpolation != "linear" else {})
+
+    @classmethod
+    def constant(cls, kxx: float, kxy: float, kyx: float, kyy: float, cxx: float, cxy: float, cyx: float,
+                 cyy: float) -> "BearingTable":
+        """The same eight coefficients at every speed (a table of one row, at 0 RPM)."""
+        values = dict(kxx=kxx, kxy=kxy, kyx=kyx, kyy=kyy, cxx=cxx, cxy=cxy, cyx=cyx, cyy=cyy)
+        return cls((0.0,), **{k: (v,) for k, v in values.items()})
+
+    @cached_property
+    def _ross(self) -> dict:
+        """ROSS 2.3.0's interpolants (``BearingElement._process_coefficient``) of each column over rad/s."""
+        from scipy import interpolate
+
+        speeds = np.asarray(self.rpm) * (2.0 * np.pi / 60.0)
+        out = {}
+        for key in COEFFICIENTS:
+            values = np.asarray(getattr(self, key))
+            if len(values) == 1:
+                out[key] = lambda omega, v=values[0]: np.full(np.shape(omega), v)
+                continue
+            try:  # as ROSS: the smoothing spline, and where FITPACK refuses it (2 or 3 rows) the line or parabola
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    out[key] = interpolate.UnivariateSpline(speeds, values)
+            except Exception:
+                out[key] = interpolate.interp1d(speeds, values, kind=len(values) - 1, fill_value="extrapolate")
+        return out
+
+    def at(self, Omega: Array) -> dict[str, Array]:
+        """Each coefficient at the speeds ``Omega`` [rad/s] (any shape), by ``interpolation``."""
+        Omega = np.asarray(Omega, dtype=float)
+        if self.interpolation == "ross":
+            return {k: np.asarray(f(Omega), dtype=float).reshape(Omega.shape) for k, f in self._ross.items()}
+        rpm = Omega * (60.0 / (2.0 * np.pi))
+        return {k: np.interp(rpm, self.rpm, getattr(self, k)) for k in COEFFICIENTS}  # constant beyond the ends
+
+    def matrices(self, Omega: Array) -> tuple[Array, Array]:
+        """K and C over (x, y) at the speeds ``Omega`` [rad/s] (S,): two (S, 2, 2) arrays."""
+        values = self.at(np.atleast_1d(Omega))
+        K = np.zeros(np.shape(values["kxx"]) + (2, 2))
+        C = np.zeros_like(K)
+        for suffix, (i, j) in _PLACE.items():
+            K[..., i, j] = values[f"k{suffix}"]
+            C[..., i, j] = values[f"c{suffix}"]
+        return K, C
+
+    def describe(self) -> str:
+        """One line: the speed range, kxx, kyy and cxx at its ends (a one-row table: its constant values)."""
+        if len(self.rpm) == 1:
+            return ("constant coefficients: " + ", ".join(f"{k} {getattr(self, k)[0]:g}" for k in COEFFICIENTS)
+                    + " (N/m, N s/m)")
+        lo, hi = self.rpm[0], self.rpm[-1]
+        return (f"table of {len(self.rpm)} speeds {lo:g}..{hi:g} RPM ({self.interpolation}): kxx {self.kxx[0]:g}.."
+                f"{self.kxx[-1]:g}, kyy {self.kyy[0]:g}..{self.kyy[-1]:g} N/m, cxx {self.cxx[0]:g}..{self.cxx[-1]:g} "
+                "N s/m")
+
+
+@dataclass(eq=False)
+class TableBearing(Effect):
+    """The effect ``bearing_table@<bearing>``: the table's K(Omega) and C(Omega) at the bearing's node (u, v).
+
+    K(0) is in the stiffness at rest (``stiffness``), K(Omega) - K(0) in ``speed_stiffness``, C(Omega) in
+    ``damping``; ``ctx.Omega`` per scenario. No parameters."""
+
+    name: str = "bearing_table"
+    bearing: str = ""
+    node: int = 0
+    table: BearingTable | None = None
+    meaning: str = field(init=False)
+    parameters: tuple[Parameter, ...] = ()
+
+    def __post_init__(self) -> None:
+        if self.table is None:
+            raise ValueError(f"effect {self.name!r}: needs a BearingTable")
+        self.meaning = (f"bearing {self.bearing or self.node} at node {self.node}: stiffness and damping "
+                        f"(kxx..cyy) against speed from its {self.table.describe()}")
+
+    def _block(self, ctx: Context, block: Array) -> Array:
+        out = ctx.zeros()
+        dofs = (ctx.dof(f"u{self.node}"), ctx.dof(f"v{self.node}"))
+        for i, row in enumerate(dofs):
+            for j, col in enumerate(dofs):
+                out[:, row, col] = block[:, i, j]
+        return out
+
+    def stiffness(self, ctx: Context) -> Array:
+        return self._block(ctx, self.table.matrices(np.zeros(ctx.n_scenarios))[0])
+
+    def speed_stiffness(self, ctx: Context) -> Array:
+        K_rest = self.table.matrices(np.zeros(ctx.n_scenarios))[0]
+        return self._block(ctx, self.table.matrices(ctx.Omega)[0] - K_rest)
+
+    def damping(self, ctx: Context) -> Array:
+        return self._block(ctx, self.table.matrices(ctx.Omega)[1])

@@ -1,0 +1,205 @@
+"""ROSS in and out: a ``Machine`` from a ROSS rotor (the object or its saved file) and a ROSS rotor from a
+``Machine`` (docs/model.md, "ROSS in and out"). ROSS is ross-rotordynamics 2.3.0, the ``ross`` extra
+(``pip install -e ".[ross]"``); it is imported inside the functions, so this module imports without it.
+
+``machine_from_ross(rotor)``:
+
+- ROSS's ShaftElements (one per node, in order) become ``ShaftSegment``s, consecutive identical elements (length,
+  diameters, material) merged into one segment of ``n_elements``; the material's E, rho and G_s give E, rho, G.
+  ROSS's ``shear_effects`` and ``rotary_inertia`` become the machine's ``shear`` and ``rotary_inertia`` (they must
+  be the same for every element). Refused with a message: tapered elements (idl != idr or odl != odr), several
+  elements at one node (layered shafts), mixed shear, rotary-inertia or gyroscopic settings, axial force,
+  torque, ROSS's proportional damping (alpha, beta), a shear coefficient other than Cowper's.
+- DiskElements become ``Disk``s at ROSS's node (m, Ip, Id; the tag as name unless ROSS made it up).
+- BearingElements (and seals) become ``Bearing``s named after their tags (non-identifier characters as ``_``):
+  constant isotropic coefficients (kxx = kyy, cxx = cyy, no cross terms) as ``k``, ``c``; anything else as a
+  ``BearingTable`` of the eight coefficients, at ROSS's ``frequency`` [rad/s] converted to RPM (14 significant
+  digits), with
+  ``interpolation: ross`` (ROSS 2.3.0's own spline, so both codes evaluate the same coefficients at any speed;
+  ``bearing_table``). Refused: a bearing linked to another node (``n_link``), mass coefficients (mxx ...),
+  elements whose K or C are not ROSS's table (magnetic bearings, ...), point masses. Axial coefficients (kzz,
+  czz) are dropped: the model has no axial DOFs.
+- ROSS has no unbalance planes or probes: give them (``unbalance_planes``, ``sensors``) to have them.
+
+``machine_to_ross(machine)`` is the inverse (segments of explicit ``I`` or ``m`` refused: ROSS computes them from
+the diameters; a bearing with neither k nor a table refused: ROSS needs coefficients). ROSS's gyroscopic terms are
+on (``gyroscopic=True``); in our model they are the effect ``gyroscopic``, listed or not by a variant. A table with
+``interpolation: linear`` is given to ROSS with its coefficients' interpolants replaced by ours (linear, constant
+beyond the ends), so the rotor in memory evaluates what our model does; ROSS's file form keeps only the table,
+and ``Rotor.load`` makes it ROSS's spline again.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from .bearing_table import COEFFICIENTS, BearingTable
+from .machine import Bearing, Disk, Machine, Sensor, ShaftSegment, UnbalancePlane
+
+INSTALL = 'pip install -e ".[ross]"'
+#: the attribute a ROSS bearing made by ``machine_to_ross`` carries when it evaluates its table as ours
+MARK = "hybridtwin_interpolation"
+_MASS = ("mxx", "mxy", "myx", "myy")
+
+
+def _ross():
+    """The ross package, or an ImportError that says how to install it."""
+    import warnings
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            import ross
+    except Exception as err:  # ImportError, or a dependency of ROSS failing at import
+        raise ImportError(f"ROSS (ross-rotordynamics) cannot be imported ({type(err).__name__}: {err}); "
+                          f"install it with {INSTALL}") from err
+    return ross
+
+
+def _scalar(values) -> float | None:
+    """The one value of a ROSS coefficient list (constant), else None."""
+    values = np.atleast_1d(np.asarray(values, dtype=float))
+    return float(values[0]) if np.all(values == values[0]) else None
+
+
+def _shaft(rotor) -> tuple[list[ShaftSegment], bool, bool]:
+    elements = sorted(rotor.shaft_elements, key=lambda el: el.n)
+    if [el.n for el in elements] != list(range(len(elements))):
+        raise ValueError(f"ROSS rotor {rotor.tag!r}: shaft elements at nodes {[el.n for el in elements]}; only one "
+                         "element per node, nodes 0, 1, 2, ... (no layered or multi-rotor shafts) can be read")
+    for setting in ("shear_effects", "rotary_inertia", "gyroscopic"):
+        found = {bool(getattr(el, setting)) for el in elements}
+        if len(found) > 1:
+            raise ValueError(f"ROSS rotor {rotor.tag!r}: mixed {setting} (elements with and without it); our machine "
+                             f"has one setting for the whole shaft")
+    runs: list[list] = []  # [(element length, d_in, d_out, E, rho, G), count] of consecutive identical elements
+    for el in elements:
+        where = f"ROSS shaft element {el.tag!r} (node {el.n})"
+        if el.idl != el.idr or el.odl != el.odr:
+            raise ValueError(f"{where}: tapered (idl {el.idl:g}, idr {el.idr:g}, odl {el.odl:g}, odr {el.odr:g} m); "
+                             "our segments are uniform: split it into uniform elements")
+        for name in ("axial_force", "torque", "alpha", "beta"):
+            if float(getattr(el, name, 0) or 0) != 0:
+                raise ValueError(f"{where}: {name} = {getattr(el, name)!r} is not modelled here (must be 0)")
+        if getattr(el, "shear_method_calc", "cowper") != "cowper":
+            raise ValueError(f"{where}: shear_method_calc {el.shear_method_calc!r}; ours is Cowper's coefficient")
+        material = el.material
+        G = None if material.G_s == material.E / 2.6 else float(material.G_s)  # E / 2.6: our default
+        key = (float(el.L), float(el.idl), float(el.odl), float(material.E), float(material.rho), G)
+        if runs and runs[-1][0] == key:
+            runs[-1][1] += 1
+        else:
+            runs.append([key, 1])
+    out = []
+    for (h, d_in, d_out, E, rho, G), n in runs:
+        out.append(ShaftSegment(length=h * n, d_out=d_out, E=E, rho=rho, d_in=d_in, n_elements=n, G=G))
+    return out, bool(elements[0].shear_effects), bool(elements[0].rotary_inertia)
+
+
+def _name(tag, fallback: str) -> str:
+    name = re.sub(r"\W+", "_", str(tag or fallback)).strip("_") or fallback
+    return name if name.isidentifier() else f"_{name}"
+
+
+def _bearing(ross, el, index: int) -> Bearing:
+    where = f"ROSS bearing {el.tag!r} (node {el.n})"
+    if getattr(el, "n_link", None) is not None:
+        raise ValueError(f"{where}: linked to node {el.n_link} (a support of its own); only bearings to ground "
+                         "can be read")
+    if type(el).K is not ross.BearingElement.K or type(el).C is not ross.BearingElement.C:
+        raise ValueError(f"{where}: a {type(el).__name__} computes its K or C itself; only tables of coefficients "
+                         "(BearingElement, SealElement) can be read")
+    for name in _MASS:
+        if np.any(np.asarray(getattr(el, name, 0.0), dtype=float) != 0):
+            raise ValueError(f"{where}: mass coefficient {name} is not modelled here (must be 0)")
+    name = _name(el.tag, f"bearing_{index}")
+    columns = {k: np.atleast_1d(np.asarray(getattr(el, k), dtype=float)) for k in COEFFICIENTS}
+    if el.frequency is None or np.size(el.frequency) == 1:
+        values = {k: _scalar(v) for k, v in columns.items()}
+        if values["kxx"] == values["kyy"] and values["cxx"] == values["cyy"] and not any(
+                values[k] for k in ("kxy", "kyx", "cxy", "cyx")):
+            return Bearing(name, int(el.n), k=values["kxx"], c=values["cxx"])
+        return Bearing(name, int(el.n), table=BearingTable.constant(**values))
+    # ROSS's frequency is rad/s; to 14 significant digits, so that a table written from RPM comes back as it was
+    rpm = [float(f"{w * 60.0 / (2.0 * np.pi):.14g}") for w in np.asarray(el.frequency, dtype=float)]
+    try:
+        table = BearingTable(tuple(rpm), **{k: tuple(v) for k, v in columns.items()},
+                             interpolation=getattr(el, MARK, "ross"))
+    except ValueError as err:
+        raise ValueError(f"{where}: {err}") from None
+    return Bearing(name, int(el.n), table=table)
+
+
+def machine_from_ross(rotor, name: str | None = None, unbalance_planes: Sequence[UnbalancePlane] = (),
+                      sensors: Sequence[Sensor] = ()) -> Machine:
+    """Our ``Machine`` of a ROSS rotor (a ``ross.Rotor``, or the path of a file ``rotor.save`` wrote): module
+    docstring. ``name`` default the rotor's tag (ROSS's file does not keep it: "Rotor 0" once loaded);
+    ``unbalance_planes``, ``sensors``: ours to add (ROSS has none). A ROSS rotor this cannot represent raises
+    ValueError naming the element and the problem."""
+    ross = _ross()
+    if isinstance(rotor, (str, Path)):
+        if not Path(rotor).is_file():
+            raise FileNotFoundError(f"{rotor}: no such ROSS rotor file (.toml or .json, from rotor.save)")
+        rotor = ross.Rotor.load(rotor)
+    if getattr(rotor, "point_mass_elements", None):
+        raise ValueError(f"ROSS rotor {rotor.tag!r}: point masses ({[p.tag for p in rotor.point_mass_elements]}) "
+                         "are not modelled here")
+    segments, shear, rotary_inertia = _shaft(rotor)
+    disks = [Disk(int(d.n), float(d.m), I_p=float(d.Ip), I_d=float(d.Id),
+                  name="" if re.fullmatch(r"Disk \d+", str(d.tag or "Disk 0")) else _name(d.tag, ""))
+             for d in rotor.disk_elements]
+    bearings = [_bearing(ross, el, i) for i, el in enumerate(rotor.bearing_elements)]
+    return Machine(name or str(rotor.tag), segments, disks, bearings, unbalance_planes, sensors,
+                   rotary_inertia=rotary_inertia, shear=shear)
+
+
+def _linear(el, table: BearingTable) -> None:
+    """Make the ROSS bearing ``el`` evaluate ``table`` as our linear rule does (its ``*_interpolated``)."""
+    speeds = np.asarray(table.rpm) * (2.0 * np.pi / 60.0)
+    for key in COEFFICIENTS:
+        values = np.asarray(getattr(table, key))
+        setattr(el, f"{key}_interpolated", lambda omega, v=values: np.interp(omega, speeds, v))
+    setattr(el, MARK, "linear")
+
+
+def machine_to_ross(machine: Machine, file: str | Path | None = None):
+    """A ``ross.Rotor`` of our ``machine`` (module docstring); with ``file`` also saved there (ROSS's
+    ``rotor.save``: .toml or .json). A machine ROSS cannot represent raises ValueError naming what."""
+    ross = _ross()
+    shaft = []
+    for i, s in enumerate(machine.segments):
+        if s.I is not None or s.m is not None:
+            raise ValueError(f"machine {machine.name!r}, segment {i}: gives I or m directly; ROSS computes them "
+                             "from the diameters and rho")
+        material = ross.Material(name=f"{_name(machine.name, 'machine')}_segment_{i}", rho=s.rho, E=s.E,
+                                 G_s=s.shear_modulus)
+        shaft += [ross.ShaftElement(L=s.h, idl=s.d_in, odl=s.d_out, material=material, shear_effects=machine.shear,
+                                    rotary_inertia=machine.rotary_inertia, gyroscopic=True)
+                  for _ in range(s.n_elements)]
+    disks = [ross.DiskElement(n=d.node, m=d.mass, Id=d.I_d, Ip=d.I_p, tag=d.name or None) for d in machine.disks]
+    bearings = []
+    for b in machine.bearings:
+        if b.table is not None:
+            t = b.table
+            frequency = np.asarray(t.rpm) * (2.0 * np.pi / 60.0)
+            columns = {k: np.asarray(getattr(t, k)) for k in COEFFICIENTS}
+            if len(t.rpm) == 1:
+                el = ross.BearingElement(n=b.node, **{k: float(v[0]) for k, v in columns.items()}, tag=b.name)
+            else:
+                el = ross.BearingElement(n=b.node, **columns, frequency=frequency, tag=b.name)
+                if t.interpolation == "linear":
+                    _linear(el, t)
+        elif b.k is not None:
+            el = ross.BearingElement(n=b.node, kxx=b.k, cxx=b.c, tag=b.name)
+        else:
+            raise ValueError(f"machine {machine.name!r}: bearing {b.name!r} has no coefficients (k or table); "
+                             "a ROSS bearing needs them")
+        bearings.append(el)
+    rotor = ross.Rotor(shaft, disks, bearings, tag=machine.name)
+    if file is not None:
+        rotor.save(file)
+    return rotor
