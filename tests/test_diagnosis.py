@@ -781,3 +781,16 @@ def test_intervals_grow_with_the_misfit_and_the_report_says_when_they_may_be_opt
     assert misfit["optimistic"] and misfit["scaled_by"] == pytest.approx(np.sqrt(7.5))
     assert not noise["optimistic"] and noise["scaled_by"] == pytest.approx(np.sqrt(45 / 40))
     assert "may be optimistic" in dgr._intervals_markdown(misfit) and dgr._intervals_markdown(noise) == ""
+
+
+def test_what_to_do_names_the_project_it_was_run_in():
+    """The recommendation names the config, command and ledger of the project: the root's by default, a project's
+    run with --directory DIR (the workflow's project_place, common.smk) DIR's (issue 39: it named the root's)."""
+    spec = {"description": "a test", "effects": ["unbalance"], "unknown": {"k_b": [2000, 3500]}}
+    root = dg.what_to_do("v", spec, dg.DEFAULTS)
+    assert "in config/config.yaml, then run `snakemake --cores 2` " in root and "results/ledger.tsv:" in root
+    place = {"config": "examples/quick/config/config.yaml", "command": "snakemake --cores 2 --directory examples/quick",
+             "ledger": "examples/quick/results/ledger.tsv"}
+    text = dg.what_to_do("v", spec, dg.DEFAULTS | {"project": place})
+    assert all(f"{value}" in text for value in place.values()) and "in config/config.yaml" not in text
+    assert "  v:\n" in text  # the variant to paste follows

@@ -1,4 +1,5 @@
 # Shared helpers: config validation, the runs sheet, the variants, the offline options.
+import os
 import sys
 from functools import cache
 from pathlib import Path
@@ -62,6 +63,20 @@ wildcard_constraints:
     variant="|".join(VARIANTS),
     chunk=r"\d{3}",
     run="|".join(RUNS),
+
+
+def project_place():
+    """Where this project is, as its user runs it from the repository root (the diagnosis's what to do): a project
+    run with --directory DIR names DIR's config, command and ledger; the root's, the defaults (diagnosis.PROJECT)."""
+    here = os.path.relpath(os.getcwd(), workflow.basedir)
+    if here == ".":
+        return {}
+    where = os.getcwd() if here.startswith("..") else here
+    return {
+        "config": f"{where}/config/config.yaml",
+        "command": f"snakemake --cores 2 --directory {where}",
+        "ledger": f"{where}/results/ledger.tsv",
+    }
 
 
 def sparse_route_input(wildcards):

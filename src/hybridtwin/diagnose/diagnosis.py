@@ -565,9 +565,7 @@ def _conclude_path(result: Diagnosis, base: BaseFit, scores: Scores, o: Mapping)
         ranges = _path_ranges(path)
         name = _variant_name([base.variant.name] + names)
         spec = variant_spec(base.variant, candidates, ranges, per_run=[] if sharing else None)
-        result.recommendation = (f"Add this variant under `variants:` in config/config.yaml, then run `snakemake "
-                                 f"--cores 2` (only the new variant is built) and compare in results/ledger.tsv:"
-                                 f"\n\n{variant_lines(name, spec)}\n")
+        result.recommendation = what_to_do(name, spec, o)
         result.summary["recommended_variant"] = {"name": name, "spec": spec}
     else:
         result.status = Status.UNEXPLAINED
@@ -714,6 +712,18 @@ def variant_lines(name: str, spec: Mapping) -> str:
     return "\n".join(lines)
 
 
+#: where the user's project is, for the recommendation's what to do: a project at the repository root; the workflow
+#: passes its own (``project`` of the options: a project run with --directory DIR names DIR's config and command)
+PROJECT = {"config": "config/config.yaml", "command": "snakemake --cores 2", "ledger": "results/ledger.tsv"}
+
+
+def what_to_do(name: str, spec: Mapping, o: Mapping) -> str:
+    """The recommendation: the variant ``name`` (``spec``) to paste, where, and the command that builds it."""
+    place = PROJECT | dict(o.get("project") or {})
+    return (f"Add this variant under `variants:` in {place['config']}, then run `{place['command']}` (only the new "
+            f"variant is built) and compare in {place['ledger']}:\n\n{variant_lines(name, spec)}\n")
+
+
 def _recommend(base: BaseFit, scores: Scores, best: Confirmation | None, confounded: Sequence[str],
                share: float, misfit: bool, base_ratio: float, o: Mapping) -> tuple[Status, str, str]:
     """The first step's outcome (a Status), its conclusion (opening from the status) and recommendation."""
@@ -758,9 +768,7 @@ def _recommend(base: BaseFit, scores: Scores, best: Confirmation | None, confoun
     conclusion = (f"{head}; chi^2/dof {base_ratio:.3g} -> {best.chi2 / best.dof:.3g} with it, "
                   f"Delta BIC {best.delta_bic:.1f}; {_estimate_text(best)}")
     new_name = _variant_name([variant.name, name])
-    recommendation = (f"Add this variant under `variants:` in config/config.yaml, then run `snakemake --cores 2` "
-                      f"(only the new variant is built) and compare in results/ledger.tsv:\n\n"
-                      f"{variant_lines(new_name, variant_spec(variant, best.candidate, best.ranges))}\n")
+    recommendation = what_to_do(new_name, variant_spec(variant, best.candidate, best.ranges), o)
     return status, conclusion, recommendation
 
 
