@@ -374,6 +374,10 @@ def _shared_cause_problem(cause: tuple, uses: list[Problem], known: set[str], ro
                                   f"({names}); named in {keys}")
     places = {_place(n) for n in known} - {None}
     path, key, _ = uses[0]
+    if all(effect.startswith("unbalance@") for _, _, effect in uses):  # a missing unbalance plane: how to declare it
+        planes = [p.name for p in getattr(rotor, "unbalance_planes", ())]
+        return path, key, (f"{len(uses)} effects are placed at {cause[1]!r} ({names}): "
+                           f"{unbalance_hint(cause[1], planes)}; named in {keys}")
     return path, key, (f"{len(uses)} effects are placed at {cause[1]!r} ({names}), which the machine does not have "
                        f"{_allowed(cause[1], places, 'places')}; named in {keys}")
 
