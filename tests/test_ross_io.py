@@ -13,14 +13,13 @@ and is far below the effects the test sees: the bearings' change with speed move
 """
 
 import sys
-import warnings
 
 import numpy as np
 import pytest
 import yaml
 from example_machines import stepped_config
 from test_machine import _config, project  # noqa: F401 (the fixture: a project folder with the bundled config)
-from test_ross import DISKS, E, G, RHO, SEGMENTS, _ours
+from test_ross import DISKS, E, G, RHO, SEGMENTS, _ours, rs  # noqa: F401 (rs: the fixture importing ROSS)
 
 from hybridtwin.model.bearing_table import COEFFICIENTS, BearingTable, TableBearing
 from hybridtwin.model.machine import Bearing, Machine, MachineSpecError, ShaftSegment
@@ -34,17 +33,6 @@ DRIVE_END = dict(kxx=2e7 * (1 + 0.5 * np.sin(FREQUENCY / 500)), kyy=1.2e7 * (1 +
                  cxx=800 + 300 * np.cos(FREQUENCY / 400), cyy=500 + 0.2 * FREQUENCY, cxy=40 * FREQUENCY / 1000,
                  cyx=-30 * (FREQUENCY / 1000) ** 2)
 TABLE = {"rpm": [0, 1000, 3000], "kxx": [1e7, 2e7, 3e7], "kxy": [0, 1e6, 3e6], "cxx": [100, 200, 300]}
-
-
-@pytest.fixture(scope="module")
-def rs():
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        try:
-            import ross
-        except Exception as err:  # ImportError, or a dependency of ROSS failing at import
-            pytest.skip(f"ROSS cannot be imported ({type(err).__name__}: {err}); pip install -e '.[ross]'")
-    return ross
 
 
 def _rad_s(rpm):
