@@ -311,13 +311,17 @@ def _bare_text(bearing, need: str) -> str:
             f"{bearing.name}: {{node: {bearing.node}, k: 2.0e+06, c: 300}})")
 
 
+def _missing_plane(plane: str, rotor) -> str:
+    """Why unbalance@``plane`` does not exist on ``rotor``, and how to declare it (``variants.unbalance_hint``)."""
+    return unbalance_hint(plane, [p.name for p in getattr(rotor, "unbalance_planes", ())])
+
+
 def _no_such_effect(effect: str, registry: Mapping, rotor) -> str:
     """Why ``effect`` is not offered: a bearing effect at a bearing declared without nominal coefficients, or no
     such name (with the closest)."""
     kind, _, bearing = effect.partition("@")
     if kind == "unbalance" and bearing:  # unbalance@<plane>: the plane is not declared
-        planes = [p.name for p in getattr(rotor, "unbalance_planes", ())]
-        return f"no effect named {effect!r}: {unbalance_hint(bearing, planes)}"
+        return f"no effect named {effect!r}: {_missing_plane(bearing, rotor)}"
     bare, need = _bare_bearing(effect, rotor)
     if bare is not None:
         return f"no effect named {effect!r}: {_bare_text(bare, need)}, which {effect} needs"
@@ -375,9 +379,8 @@ def _shared_cause_problem(cause: tuple, uses: list[Problem], known: set[str], ro
     places = {_place(n) for n in known} - {None}
     path, key, _ = uses[0]
     if all(effect.startswith("unbalance@") for _, _, effect in uses):  # a missing unbalance plane: how to declare it
-        planes = [p.name for p in getattr(rotor, "unbalance_planes", ())]
         return path, key, (f"{len(uses)} effects are placed at {cause[1]!r} ({names}): "
-                           f"{unbalance_hint(cause[1], planes)}; named in {keys}")
+                           f"{_missing_plane(cause[1], rotor)}; named in {keys}")
     return path, key, (f"{len(uses)} effects are placed at {cause[1]!r} ({names}), which the machine does not have "
                        f"{_allowed(cause[1], places, 'places')}; named in {keys}")
 
