@@ -123,8 +123,20 @@ def test_the_link_checker_catches_what_it_should():
     assert "absolute path" in reasons["/etc/passwd"]
 
 
+def _project_files():
+    """The project's files: what git tracks or would track (its .gitignore leaves out the venvs CI makes, e.g.
+    a developer's, and generated results); outside a git checkout (an unpacked sdist), every file but
+    the IGNORED folders."""
+    try:
+        listed = subprocess.run(["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"],
+                                cwd=ROOT, capture_output=True, check=True).stdout.decode().split("\0")
+        return [ROOT / name for name in listed if name]
+    except (OSError, subprocess.CalledProcessError):
+        return list(ROOT.rglob("*"))
+
+
 def _text_files():
-    for path in ROOT.rglob("*"):
+    for path in _project_files():
         parts = path.relative_to(ROOT).parts
         if any(part in IGNORED or part.endswith(".egg-info") for part in parts) or not path.is_file():
             continue
