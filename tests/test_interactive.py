@@ -9,10 +9,11 @@ its table. Seconds, no solver but the eigenvalues.
 (b) In a real headless Chromium, each figure's HTML file, written by ``interactive.write_html``, renders (plotly's
 SVG, every visible trace drawn) and answers a mouse moved over a data point (a ``mousemove`` at the point's pixel,
 computed in the page from the subplot's axes, dispatched to the element under it: plotly's drag layer) with a hover
-label that gives the point's value and unit; the check itself fails on a figure whose hover is switched off. A
-small script injected into a copy of the file writes its findings into <pre id="result">, read from
-``chromium --dump-dom``. Skipped, saying why, where /usr/bin/chromium is absent; .ci/run installs it and runs this
-file. About a minute (a browser start per figure).
+label that gives the point's value and unit; in the comparison per run and the Bode figure, a click on a legend
+entry (mouse down and up) shows or hides that run's (probe's) traces and no other; the check itself fails on a
+figure whose hover is switched off. A small script injected into a copy of the file writes its findings into
+<pre id="result">, read from ``chromium --dump-dom``. Skipped, saying why, where /usr/bin/chromium is absent;
+.ci/run installs it and runs this file. About a minute (a browser start per figure).
 """
 
 from __future__ import annotations
@@ -343,11 +344,12 @@ def test_the_html_file_is_self_contained_and_the_same_each_time(diagnosis, tmp_p
 # --- (b) in a real browser -------------------------------------------------------------------------------------
 
 #: injected into a copy of a figure's file: waits for plotly, counts what is drawn, then for each target moves the
-#: mouse over the data point (its pixel from the subplot's own axes) and reads the hover label plotly draws
+#: mouse over the data point (its pixel from the subplot's own axes) and reads the hover label plotly draws, then
+#: clicks each legend entry of ``toggles`` (mouse down and up on it) and reads its group's traces' visibility
 CHECK = r"""
 <script>
 (function () {
-  var targets = %s;
+  var targets = %s, toggles = %s;
   function say(out) {
     var pre = document.createElement('pre');
     pre.id = 'result';
@@ -374,6 +376,30 @@ CHECK = r"""
                           : g.textContent;
     });
   }
+  function visibility(gd, group) {
+    return gd._fullData.filter(function (t) { return t.legendgroup === group; })
+                       .map(function (t) { return t.visible; });
+  }
+  function click(gd, out, k) {
+    if (k >= toggles.length) { say(out); return; }
+    var t = toggles[k], entry = Array.prototype.find.call(document.querySelectorAll('.legend .traces'),
+      function (g) { return g.querySelector('.legendtext').textContent === t.entry; });
+    var all = function () { return gd._fullData.map(function (trace) { return trace.visible; }); };
+    var seen = {entry: t.entry, found: !!entry, before: visibility(gd, t.group), all_before: all()};
+    out.toggles.push(seen);
+    if (!entry) { click(gd, out, k + 1); return; }
+    var box = entry.querySelector('.legendtoggle').getBoundingClientRect();
+    var at = {clientX: box.left + box.width / 2, clientY: box.top + box.height / 2, bubbles: true,
+              cancelable: true, view: window, button: 0, buttons: 1};
+    var toggle = entry.querySelector('.legendtoggle');
+    toggle.dispatchEvent(new MouseEvent('mousedown', at));
+    toggle.dispatchEvent(new MouseEvent('mouseup', at));
+    setTimeout(function () {
+      seen.after = visibility(gd, t.group);
+      seen.all_after = all();
+      click(gd, out, k + 1);
+    }, 800);
+  }
   function run(tries) {
     var gd = document.getElementById('figure');
     if (!gd || !gd._fullLayout || !gd.calcdata) {
@@ -383,11 +409,11 @@ CHECK = r"""
     var out = {svg: document.querySelectorAll('.main-svg').length, traces: gd._fullData.length,
                drawn: document.querySelectorAll('g.trace, g.hm').length,
                paths: document.querySelectorAll('g.trace path').length,
-               images: document.querySelectorAll('g.hm image').length, hovers: []};
+               images: document.querySelectorAll('g.hm image').length, hovers: [], toggles: []};
     var i = 0, last = null;
     function next() {
       if (last) { last.dispatchEvent(new MouseEvent('mouseout', {bubbles: true, relatedTarget: document.body})); }
-      if (i >= targets.length) { say(out); return; }
+      if (i >= targets.length) { click(gd, out, 0); return; }
       var t = targets[i++], p;
       try { p = pixel(gd, t); } catch (e) { out.hovers.push({error: String(e), labels: []}); next(); return; }
       var under = document.elementFromPoint(p[0], p[1]);
@@ -413,13 +439,14 @@ browser = pytest.mark.skipif(not CHROMIUM.exists(), reason=f"no {CHROMIUM} (a he
                              "figures: apt-get install -y chromium; .ci/run installs it where it can)")
 
 
-def in_browser(figure_html: Path, targets: list[dict], work: Path) -> dict:
-    """What the page says (``CHECK``) once Chromium has loaded a copy of ``figure_html`` with the check injected."""
+def in_browser(figure_html: Path, targets: list[dict], work: Path, toggles: list[dict] = ()) -> dict:
+    """What the page says (``CHECK``) once Chromium has loaded a copy of ``figure_html`` with the check injected.
+    toggles: legend entries to click, {"entry": its text, "group": its legend group}."""
     page = work / f"checked_{figure_html.name}"
     text = figure_html.read_text()
     assert text.count("</body>") == 1
-    page.write_text(text.replace("</body>", CHECK % json.dumps([{k: t[k] for k in t if k != "expect"}
-                                                                  for t in targets]) + "</body>"))
+    points = [{k: t[k] for k in t if k != "expect"} for t in targets]
+    page.write_text(text.replace("</body>", CHECK % (json.dumps(points), json.dumps(list(toggles))) + "</body>"))
     done = subprocess.run([str(CHROMIUM), *FLAGS, f"--user-data-dir={work / 'chromium-profile'}", page.as_uri()],
                           capture_output=True, text=True, timeout=300, check=False)
     found = re.search(r'<pre id="result">(.*?)</pre>', done.stdout, re.DOTALL)
@@ -459,14 +486,16 @@ def _index(fig, trace) -> int:
 
 
 def _figures(comparisons, dense, rotor, ledger_errors, diagnosis) -> dict:
-    """Each figure and the points to hover, with what the label must say (values computed here from the data)."""
+    """Each figure, the points to hover, with what the label must say (values computed here from the data), and
+    the legend entries to click (none: the figure's hover only)."""
     out = {}
     fig = ia.runs_figure(comparisons, "demo")
     residual = _traces(fig, 2, 2, "v: x", "scatter")[0]
     k = int(np.argmax(np.abs(residual.y)))
     out["runs"] = (fig, [{"curve": _index(fig, residual), "x": float(residual.x[k]), "y": float(residual.y[k]),
                           "expect": ["v (validation, predicted)", "x residual",
-                                     (r"x residual (\S+) um", residual.y[k])]}])
+                                     (r"x residual (\S+) um", residual.y[k])]}],
+                   [{"entry": "r600_m20: x", "group": "r600_m20: x"}])  # a hidden run's probe shown
     fig = ia.bode_figure(dense, comparisons, "demo")
     c = next(c for c in comparisons if c.run == "r900_m20")
     point = [t for t in _traces(fig, 1, 1) if t.name.split(" ")[0] == c.run][0]
@@ -477,7 +506,8 @@ def _figures(comparisons, dense, rotor, ledger_errors, diagnosis) -> dict:
          "expect": ["r900_m20", "measured", (r"\|x, 1X\| (\S+) um", abs(c.measured[0, 0]) * 1e6)]},
         {"curve": _index(fig, up), "x": 1030.0, "y": float(up.y[k]),
          "expect": ["20 g model, run-up", (r"(\S+) RPM", 1030.0), (r"\|x, 1X\| (\S+) um", abs(_one_mode(1030.0, 20.0))
-                                                                   * 1e6)]}])
+                                                                   * 1e6)]}],
+        [{"entry": point.name, "group": point.legendgroup}])  # a run's points hidden
     fig = ia.polar_figure(dense, comparisons, "demo")
     c = next(c for c in comparisons if c.run == "r900_m20")  # at the resonance: apart from the curve's points
     (point,) = [t for t in _polar(fig, 1, 1, next(t.name for t in fig.data if t.name.startswith(c.run)))]
@@ -525,15 +555,23 @@ def figures(comparisons, dense, rotor, ledger_errors, diagnosis):
 @browser
 @pytest.mark.parametrize("name", ["runs", "bode", "polar", "campbell", "modes", "summary", "diagnosis"])
 def test_the_figure_renders_and_its_hover_gives_the_points_value_in_a_browser(figures, name, tmp_path):
-    fig, targets = figures[name]
+    fig, targets, *toggles = figures[name]
+    toggles = toggles[0] if toggles else []
     ia.write_html(fig, tmp_path / f"{name}.html")
-    result = in_browser(tmp_path / f"{name}.html", targets, tmp_path)
+    result = in_browser(tmp_path / f"{name}.html", targets, tmp_path, toggles)
     assert "error" not in result, result
     visible = sum(1 for t in fig.data if t.visible in (None, True))
     assert result["svg"] >= 1 and result["traces"] == len(fig.data)
     assert result["drawn"] >= visible and result["paths"] + result["images"] > 0, result
     assert all("drag" in (seen.get("under") or "") for seen in result["hovers"]), result["hovers"]
     assert not hover_problems(result, targets), hover_problems(result, targets)
+    # a click on a legend entry shows a hidden group, or hides a shown one: every trace of the group
+    flip = {True: "legendonly", "legendonly": True}
+    for toggle, seen in zip(toggles, result["toggles"], strict=True):
+        assert seen["found"] and len(seen["before"]) > 1, seen
+        assert seen["after"] == [flip[v] for v in seen["before"]], seen
+        changed = sum(a != b for a, b in zip(seen["all_before"], seen["all_after"], strict=True))
+        assert changed == len(seen["before"]), f"{changed} traces changed, the group has {len(seen['before'])}"
 
 
 @browser
@@ -542,7 +580,7 @@ def test_the_browser_check_fails_where_hover_is_switched_off(figures, switch_off
     """The same check on the Bode figure with hover switched off, every trace's (hoverinfo "skip"; a hovertemplate
     would still win over it in plotly.js, so it goes too) or the layout's (hovermode False): the figure renders,
     but no label comes, and the check says so for every point."""
-    fig, targets = figures["bode"]
+    fig, targets, _ = figures["bode"]
     broken = go.Figure(fig)
     if switch_off == "hoverinfo":
         broken.update_traces(hoverinfo="skip", hovertemplate=None)
