@@ -4,15 +4,16 @@ from pathlib import Path
 
 from hybridtwin import config as cfg
 from hybridtwin.report import report
+from hybridtwin.report import report_plots
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "report_runs")
 folder = Path(smk.output.runs)
 folder.mkdir(parents=True, exist_ok=True)
 # each plane's x and y probes as the machine declares them (params.sensors; none: the VARM's x, y)
-pairs = report.sensor_pair_names(getattr(smk.params, "sensors", None))
+pairs = report_plots.sensor_pair_names(getattr(smk.params, "sensors", None))
 for comparison in report.load_comparisons(smk.input.table):
-    figure = report.plot_run(comparison, smk.wildcards.variant, pairs)
+    figure = report_plots.plot_run(comparison, smk.wildcards.variant, pairs)
     figure.savefig(folder / f"{comparison.run}.png", dpi=100)
-    report.plt.close(figure)
+    report_plots.plt.close(figure)
     log.info("%s: chi^2/dof %.4g", comparison.run, comparison.chi2_dof)
