@@ -2,8 +2,10 @@
 
 Every `name>=X` of [project] dependencies becomes `name==X` (a requirement without a floor is left free), and so
 does pytest's floor in the test extra (the quick subset runs on it), so that CI installs exactly the lowest
-versions the package declares and the pins cannot drift from pyproject.toml. A floor written otherwise than
-`>=X` (an upper bound, a marker) is an error here: the floors check would no longer test what is declared.
+versions the package declares and the pins cannot drift from pyproject.toml. A floor may carry an upper bound
+after it, `name>=X,<Y` (plotly's `<7`, which ROSS needs): the floor is still what CI installs. Any other form (a
+marker, `~=`, `==`, a bound without a floor) is an error here: the floors check would no longer test what is
+declared.
 
     python .ci/floors.py [pyproject.toml]
 """
@@ -16,7 +18,7 @@ import tomllib
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-_FLOOR = re.compile(r"^\s*([A-Za-z0-9][A-Za-z0-9._-]*)\s*(?:>=\s*([^,;\s]+))?\s*$")
+_FLOOR = re.compile(r"^\s*([A-Za-z0-9][A-Za-z0-9._-]*)\s*(?:>=\s*([^,;<>=!~\s]+)(?:\s*,\s*<\s*[^,;<>=!~\s]+)?)?\s*$")
 #: the test extra's requirements the floors check needs (it runs pytest without xdist)
 TEST_NEEDS = ("pytest",)
 
@@ -40,8 +42,8 @@ def _name(requirement: str, pyproject: Path) -> str:
 def _parse(requirement: str, pyproject: Path) -> tuple[str, str | None]:
     match = _FLOOR.match(requirement)
     if match is None:
-        raise SystemExit(f"{pyproject}: dependency {requirement!r} is not written 'name>=floor' (or a bare name): "
-                         ".ci/floors.py cannot pin its floor")
+        raise SystemExit(f"{pyproject}: dependency {requirement!r} is not written 'name>=floor' (or "
+                         "'name>=floor,<bound', or a bare name): .ci/floors.py cannot pin its floor")
     return match.group(1), match.group(2)
 
 

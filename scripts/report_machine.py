@@ -10,6 +10,7 @@ import pandas as pd
 
 from hybridtwin import config as cfg
 from hybridtwin.identify import identification as idn
+from hybridtwin.report import interactive, interactive_machine
 from hybridtwin.report import machine_plots as mp
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
@@ -21,19 +22,22 @@ values = variant.values(mp.fitted_values(idn.read_parameters(smk.input.parameter
 values = {name: float(value) for name, value in values.items()}
 machine = getattr(variant.model.shaft, "name", "shaft")
 speeds = mp.report_speeds(runs["rpm"])
-figure = mp.campbell_figure(variant.model, values, speeds, run_rpm=runs["rpm"], n_modes=6,
-                            title=f"Campbell diagram, {smk.wildcards.variant} on {machine} (eccentric mass "
-                                  f"{mass_g:g} g)")
+title = f"Campbell diagram, {smk.wildcards.variant} on {machine} (eccentric mass {mass_g:g} g)"
+figure = mp.campbell_figure(variant.model, values, speeds, run_rpm=runs["rpm"], n_modes=6, title=title)
 figure.campbell.to_csv(smk.output.table, sep="\t", index=False, float_format="%.9g")
 figure.savefig(smk.output.campbell, dpi=100)
+interactive.write_html(interactive_machine.campbell_figure(variant.model, values, speeds, run_rpm=runs["rpm"],
+                                                           n_modes=6, title=title, table=figure.campbell),
+                       smk.output.campbell_html)
 for row in figure.critical.itertuples():
     log.info("critical speed (1X crossing): %.1f RPM, %s whirl, branch %d", row.rpm, row.whirl, row.branch)
 mp.plt.close(figure)
 rpm = float(np.median(runs["rpm"]))
-figure = mp.mode_shape_figure(variant.model, values, rpm, n_modes=4,
-                              title=f"Undamped mode shapes at {rpm:g} RPM (the runs' median speed), "
-                                    f"{smk.wildcards.variant} on {machine}")
+title = f"Undamped mode shapes at {rpm:g} RPM (the runs' median speed), {smk.wildcards.variant} on {machine}"
+figure = mp.mode_shape_figure(variant.model, values, rpm, n_modes=4, title=title)
 figure.savefig(smk.output.modes, dpi=100)
+interactive.write_html(interactive_machine.mode_shapes_figure(variant.model, values, rpm, n_modes=4, title=title),
+                       smk.output.modes_html)
 for row in figure.modes.itertuples():
     log.info("mode %d at %g RPM: %.4g Hz, %s", row.mode + 1, rpm, row.frequency_hz,
              "x and y planes alike" if row.pair else f"{row.whirl} whirl")

@@ -10,7 +10,7 @@ import pandas as pd
 
 from hybridtwin import config as cfg
 from hybridtwin.identify import identification as idn
-from hybridtwin.report import report
+from hybridtwin.report import interactive, report
 from hybridtwin.report import response_plots as rp
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
@@ -35,7 +35,9 @@ if failed.any():
 for row in rp.multivalued(dense).dropna().itertuples():
     log.info("%g g: run-up and run-down differ between %.0f and %.0f RPM (multi-valued response)",
              row.eccentric_mass_g, row.rpm_from, row.rpm_to)
-for name, plot in (("bode", rp.plot_bode), ("polar", rp.plot_polar)):
+for name, plot, live in (("bode", rp.plot_bode, interactive.bode_figure),
+                         ("polar", rp.plot_polar, interactive.polar_figure)):
     figure = plot(dense, comparisons, variant.name)
     figure.savefig(smk.output[name], dpi=100)
     rp.plt.close(figure)
+    interactive.write_html(live(dense, comparisons, variant.name), smk.output[f"{name}_html"])  # beside the PNG

@@ -1,10 +1,10 @@
-"""Rule report_runs: one figure per run, orbit, signals with the residual, residual whirl spectrum (thin wrapper)."""
+"""Rule report_runs: one figure per run, orbit, signals with the residual, residual whirl spectrum, and every run in
+one interactive figure (runs.html; thin wrapper)."""
 
 from pathlib import Path
 
 from hybridtwin import config as cfg
-from hybridtwin.report import report
-from hybridtwin.report import report_plots
+from hybridtwin.report import interactive, report, report_plots
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "report_runs")
@@ -12,8 +12,10 @@ folder = Path(smk.output.runs)
 folder.mkdir(parents=True, exist_ok=True)
 # each plane's x and y probes as the machine declares them (params.sensors; none: the VARM's x, y)
 pairs = report_plots.sensor_pair_names(getattr(smk.params, "sensors", None))
-for comparison in report.load_comparisons(smk.input.table):
+comparisons = report.load_comparisons(smk.input.table)
+for comparison in comparisons:
     figure = report_plots.plot_run(comparison, smk.wildcards.variant, pairs)
     figure.savefig(folder / f"{comparison.run}.png", dpi=100)
     report_plots.plt.close(figure)
     log.info("%s: chi^2/dof %.4g", comparison.run, comparison.chi2_dof)
+interactive.write_html(interactive.runs_figure(comparisons, smk.wildcards.variant, pairs), smk.output.interactive)

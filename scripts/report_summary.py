@@ -6,7 +6,7 @@ import yaml
 from hybridtwin import config as cfg
 from hybridtwin.identify.design import read_design_table
 from hybridtwin.identify.validation_refit import read_validation
-from hybridtwin.report import report, summary
+from hybridtwin.report import interactive, report, summary
 from hybridtwin.data.measured import read_harmonics
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
@@ -26,6 +26,7 @@ figure = summary.plot_summary(ledger, errors)
 png = summary.png_bytes(figure)
 with open(smk.output.plot, "wb") as stream:
     stream.write(png)
+interactive.write_html(interactive.summary_figure(ledger, errors), smk.output.plot_html)
 best = summary.best_variant(table)
 designs = dict(zip(smk.params.variants, zip(smk.input.next_runs, smk.input.intervals))) if smk.params.design else {}
 line = ""

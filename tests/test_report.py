@@ -591,6 +591,10 @@ def test_report_opens_on_the_ledger_the_recommendation_and_the_failing_runs(repo
     worst = errors.loc[errors["chi2_dof"].idxmax(), "run"]
     assert f"results/geometric/report/runs/{worst}.png" in links
     assert {"results/summary.png", "results/summary.tsv"} <= set(results)
+    # the interactive figures beside their PNGs (hybridtwin.report.interactive), each in the report
+    assert {"results/summary.html", "results/geometric/diagnosis.html"} | {
+        f"results/geometric/report/{name}.html" for name in ("runs", "bode", "polar", "campbell", "mode_shapes")
+    } <= set(results)
 
 
 def test_report_made_before_the_end_says_so_instead_of_failing(reported):

@@ -30,6 +30,12 @@ rule diagnose:
             category="Diagnosis",
             subcategory="{variant}",
         ),
+        plot_html=report(
+            "results/{variant}/diagnosis.html",
+            caption="../report/interactive.rst",
+            category="Diagnosis",
+            subcategory="{variant}",
+        ),
     log:
         "logs/{variant}/diagnose.log",
     benchmark:

@@ -11,6 +11,8 @@ REPORT_FILES = [
     "validation_errors.tsv",
     "bode.png",
     "polar.png",
+    "bode.html",
+    "polar.html",
     "response.tsv",
     "error_map.png",
     "drift.tsv",
@@ -18,6 +20,9 @@ REPORT_FILES = [
     "campbell.png",
     "campbell.tsv",
     "mode_shapes.png",
+    "runs.html",
+    "campbell.html",
+    "mode_shapes.html",
 ]
 
 
@@ -57,6 +62,13 @@ rule report_runs:
             category="Comparison per run",
             subcategory="{variant}",
             labels={"variant": "{variant}", "run": "{run}"},
+        ),
+        interactive=report(
+            "results/{variant}/report/runs.html",
+            caption="../report/report_runs_html.rst",
+            category="Comparison per run",
+            subcategory="{variant}",
+            labels={"variant": "{variant}", "run": "all runs (interactive)"},
         ),
     log:
         "logs/{variant}/report_runs.log",
@@ -124,6 +136,18 @@ rule report_response:
             category="Comparison",
             subcategory="{variant}",
         ),
+        bode_html=report(
+            "results/{variant}/report/bode.html",
+            caption="../report/interactive.rst",
+            category="Comparison",
+            subcategory="{variant}",
+        ),
+        polar_html=report(
+            "results/{variant}/report/polar.html",
+            caption="../report/interactive.rst",
+            category="Comparison",
+            subcategory="{variant}",
+        ),
     log:
         "logs/{variant}/report_response.log",
     benchmark:
@@ -177,6 +201,18 @@ rule report_machine:
         modes=report(
             "results/{variant}/report/mode_shapes.png",
             caption="../report/report_mode_shapes.rst",
+            category="Machine",
+            subcategory="{variant}",
+        ),
+        campbell_html=report(
+            "results/{variant}/report/campbell.html",
+            caption="../report/interactive.rst",
+            category="Machine",
+            subcategory="{variant}",
+        ),
+        modes_html=report(
+            "results/{variant}/report/mode_shapes.html",
+            caption="../report/interactive.rst",
             category="Machine",
             subcategory="{variant}",
         ),
@@ -259,6 +295,7 @@ rule report_summary:
     output:
         table=report("results/summary.tsv", caption="../report/summary_table.rst", category="Summary"),
         plot=report("results/summary.png", caption="../report/summary_plot.rst", category="Summary"),
+        plot_html=report("results/summary.html", caption="../report/interactive.rst", category="Summary"),
         page="results/summary.rst",
     log:
         "logs/report_summary.log",
