@@ -54,6 +54,7 @@ import yaml
 from threadpoolctl import threadpool_limits
 
 from hybridtwin.diagnose import diagnosis as dg
+from hybridtwin.diagnose.conclusion import Diagnosis
 from hybridtwin.identify import forward as fwd
 from hybridtwin.identify import identification as idn
 from hybridtwin.identify import lm
@@ -148,7 +149,7 @@ OUTCOMES = {"no missing effect": {Status.NO_MISSING_EFFECT, Status.CANNOT_RULE_O
             "add": {Status.ADD, Status.ADD_CONFOUNDED, Status.ADD_PART, Status.ADD_NEARLY}}
 
 
-def judge(case: str, result: dg.Diagnosis) -> tuple[str, bool]:
+def judge(case: str, result: Diagnosis) -> tuple[str, bool]:
     """(top-1, correct) per the module docstring."""
     effects, _, expected = CASES[case]
     path = [step.effect for step in result.path]
@@ -170,7 +171,7 @@ def judge(case: str, result: dg.Diagnosis) -> tuple[str, bool]:
     return top, adds and top in expected
 
 
-def estimates(case: str, result: dg.Diagnosis) -> str:
+def estimates(case: str, result: Diagnosis) -> str:
     """Each hidden parameter's estimate against the truth, at the path's final fit (``Diagnosis.estimates``)."""
     _, values, _ = CASES[case]
     out = []
@@ -186,7 +187,7 @@ def estimates(case: str, result: dg.Diagnosis) -> str:
     return "; ".join(out)
 
 
-def coverage(case: str, result: dg.Diagnosis) -> tuple[int, int]:
+def coverage(case: str, result: Diagnosis) -> tuple[int, int]:
     """(inside, estimated): of the case's hidden values the path's final fit estimates (a value no added effect
     carries, e.g. the slope force's k_z when expansion_k4 stands for it, is not counted), how many lie inside
     their 95 % interval. Summed over the cases: the intervals' coverage (issue 36)."""

@@ -54,6 +54,7 @@ from threadpoolctl import threadpool_limits
 
 from hybridtwin.diagnose import diagnosis as dg
 from hybridtwin.identify import forward as fwd
+from hybridtwin.identify.arrow_problem import Layout
 from hybridtwin.identify import identification as idn
 from hybridtwin.identify import lm
 from hybridtwin.diagnose import score_test as st
@@ -138,7 +139,7 @@ def fit_base(data: list[idn.RunData], harmonics: int, seed: int) -> tuple[st.Bas
     lower, upper = (np.array(v, float) for v in zip(*variant.unknown.values()))
     models = [fwd.SolverModel(variant, d.run, d.rpm, d.eccentric_mass_g, names, lower, upper, harmonics)
               for d in data]
-    layout = idn.Layout.build(names, lower, upper, [d.run for d in data], [])
+    layout = Layout.build(names, lower, upper, [d.run for d in data], [])
     nominal = np.zeros(layout.n)  # phases 0: set from the 1X data by the protocol
     for i, (p, _) in enumerate(layout.entries()):
         if p != "phase":
@@ -152,7 +153,7 @@ def truth_base(clean: list[np.ndarray], harmonics: int) -> st.BaseFit:
     """The base at the truth (no hidden effect, phases 0): where the first-order lam1 is computed."""
     variant = base_variant()
     lower, upper = zip(*variant.unknown.values())
-    layout = idn.Layout.build(list(variant.unknown), lower, upper, [r[0] for r in RUNS], [])
+    layout = Layout.build(list(variant.unknown), lower, upper, [r[0] for r in RUNS], [])
     theta = np.array([0.0 if p == "phase" else float(layout.normalise(p, TRUTH[p])) for p, _ in layout.entries()])
     data = [idn.RunData(run, rpm, mass, "fit", M, np.full(M.shape, SIGMA)) for (run, rpm, mass), M in zip(RUNS, clean)]
     return st.BaseFit(variant, layout, theta, data, harmonics)

@@ -35,6 +35,7 @@ from threadpoolctl import threadpool_limits
 from workflow_run import timed_snakemake
 
 from hybridtwin.identify import forward as fwd
+from hybridtwin.identify.arrow_problem import ArrowProblem
 from hybridtwin.identify import identification as idn
 from hybridtwin.identify import lm
 from hybridtwin.identify import polish as pol
@@ -103,7 +104,7 @@ def protocol_timing(work: Path, runs: list[str]) -> pd.DataFrame:
 # --- 3. scipy -------------------------------------------------------------------------------------------
 
 
-def scipy_comparison(problem: idn.ArrowProblem, X: np.ndarray, starts: np.ndarray) -> dict:
+def scipy_comparison(problem: ArrowProblem, X: np.ndarray, starts: np.ndarray) -> dict:
     """Batched LM vs least_squares (trf, bounds, exact Jacobian) from the same starts, same tolerances."""
     lower, upper = problem.layout.bounds()
     options = lm.LMOptions(stall_chi2=0.0, ftol=1e-8, xtol=1e-8, gtol=1e-8, max_iterations=200)

@@ -37,6 +37,7 @@ import pandas as pd
 
 from hybridtwin.data.measurements import read_runs
 from hybridtwin.identify import forward as fwd
+from hybridtwin.identify.arrow_problem import Layout
 from hybridtwin.identify import identification as idn
 from hybridtwin.identify.lm import levenberg_marquardt
 from hybridtwin.identify.profile import OPTIONS, threshold
@@ -73,7 +74,7 @@ def case(seed: int, H: int, runs: list[tuple[str, float, float]]) -> list[dict]:
         data.append(idn.RunData(run, rpm, mass, "fit", M + SIGMA * (rng.standard_normal(M.shape)
                                                                     + 1j * rng.standard_normal(M.shape)),
                                 np.full(M.shape, SIGMA)))
-    layout = idn.Layout.for_data(names, lower, upper, data, ["q_x", "q_y"])
+    layout = Layout.for_data(names, lower, upper, data, ["q_x", "q_y"])
     truth_theta = np.array([0.0 if p == "phase" else float(layout.normalise(p, TRUTH[p])) for p, _ in layout.entries()])
     fit = idn.identify(models, data, ["q_x", "q_y"], ProtocolOptions(trials=2, monte_carlo=0, seed=seed),
                        extra_starts=truth_theta)  # the truth's phases are set by the first LM step (1X aligned)

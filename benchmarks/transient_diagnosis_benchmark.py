@@ -39,7 +39,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from diagnosis_benchmark import CASES, MIDSPAN_CUBIC, TRUTH, base_fit, coverage, estimates, judge  # noqa: E402
 
 from hybridtwin.data.measured import run_data  # noqa: E402
-from hybridtwin.data.measurements import read_record, read_runs  # noqa: E402
+from hybridtwin.data.measurements import read_runs  # noqa: E402
+from hybridtwin.data.records import read_record  # noqa: E402
 from hybridtwin.data.rig import RigSpec, generate, read_plan  # noqa: E402
 from hybridtwin.data.transient import track_record  # noqa: E402
 from hybridtwin.diagnose import diagnosis as dg  # noqa: E402

@@ -9,7 +9,8 @@ import sys
 
 import math
 
-from hybridtwin.data.measurements import DataError, read_record
+from hybridtwin.data.measurements import DataError
+from hybridtwin.data.records import read_record
 from hybridtwin.data.measured import write_harmonics
 from hybridtwin.data.preprocessing import preprocess_run, spectrum, write_tsv
 

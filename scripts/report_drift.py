@@ -3,6 +3,7 @@
 from hybridtwin import config as cfg
 from hybridtwin.identify import identification as idn
 from hybridtwin.report import report
+from hybridtwin.report import report_plots
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "report_drift")
@@ -12,5 +13,5 @@ statistics = report.drift_statistics(per_run, joint)
 statistics.to_csv(smk.output.table, sep="\t", index=False, float_format="%.6g")
 for row in statistics.itertuples():
     log.info("%s: %s", row.parameter, row.verdict)
-figure = report.plot_drift(per_run, statistics, joint, smk.wildcards.variant)
+figure = report_plots.plot_drift(per_run, statistics, joint, smk.wildcards.variant)
 figure.savefig(smk.output.plot, dpi=100)

@@ -2,6 +2,7 @@
 
 from hybridtwin import config as cfg
 from hybridtwin.report import report
+from hybridtwin.report import report_plots
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "report_overview")
@@ -11,6 +12,6 @@ errors = report.error_table(comparisons)
 for role, path in (("fit", smk.output.errors), ("validate", smk.output.validation_errors)):
     report.write_errors(errors[errors["role"] == role], path)
     log.info("%s runs: %s", role, report.pooled(errors[errors["role"] == role]))
-figure = report.plot_error_map(errors, variant)
+figure = report_plots.plot_error_map(errors, variant)
 figure.savefig(smk.output.error_map, dpi=100)
-report.plt.close(figure)
+report_plots.plt.close(figure)

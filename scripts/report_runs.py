@@ -4,18 +4,18 @@ one interactive figure (runs.html; thin wrapper)."""
 from pathlib import Path
 
 from hybridtwin import config as cfg
-from hybridtwin.report import interactive, report
+from hybridtwin.report import interactive, report, report_plots
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "report_runs")
 folder = Path(smk.output.runs)
 folder.mkdir(parents=True, exist_ok=True)
 # each plane's x and y probes as the machine declares them (params.sensors; none: the VARM's x, y)
-pairs = report.sensor_pair_names(getattr(smk.params, "sensors", None))
+pairs = report_plots.sensor_pair_names(getattr(smk.params, "sensors", None))
 comparisons = report.load_comparisons(smk.input.table)
 for comparison in comparisons:
-    figure = report.plot_run(comparison, smk.wildcards.variant, pairs)
+    figure = report_plots.plot_run(comparison, smk.wildcards.variant, pairs)
     figure.savefig(folder / f"{comparison.run}.png", dpi=100)
-    report.plt.close(figure)
+    report_plots.plt.close(figure)
     log.info("%s: chi^2/dof %.4g", comparison.run, comparison.chi2_dof)
 interactive.write_html(interactive.runs_figure(comparisons, smk.wildcards.variant, pairs), smk.output.interactive)

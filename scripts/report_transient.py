@@ -15,7 +15,7 @@ import pandas as pd
 from hybridtwin import config as cfg
 from hybridtwin.data.measured import read_harmonics
 from hybridtwin.data.preprocessing import read_tsv
-from hybridtwin.data.measurements import probe_angles, read_record, record_channels
+from hybridtwin.data.records import probe_angles, read_record, record_channels
 from hybridtwin.data.order_tracking import read_orders, speed_profile, table_channels
 from hybridtwin.identify import identification as idn
 from hybridtwin.identify.forward import SLOW_ROLL_RPM

@@ -3,7 +3,7 @@ speed, per probe (thin wrapper; hybridtwin.report.transient_plots.waterfall). Re
 and output."""
 
 from hybridtwin import config as cfg
-from hybridtwin.data.measurements import read_record
+from hybridtwin.data.records import read_record
 from hybridtwin.data.preprocessing import read_tsv
 from hybridtwin.report import transient_plots as tp
 

@@ -5,7 +5,8 @@ clipped) is written with its note and said on the console."""
 import logging
 import sys
 
-from hybridtwin.data.measurements import DataError, read_record
+from hybridtwin.data.measurements import DataError
+from hybridtwin.data.records import read_record
 from hybridtwin.data.measured import write_harmonics
 from hybridtwin.data.order_tracking import write_orders
 from hybridtwin.data.preprocessing import write_tsv

@@ -6,7 +6,8 @@ Model, no effect, no harmonic balance: the independent path the commands are com
 import numpy as np
 import yaml
 
-from hybridtwin.model.machine import Bearing, Disk, Machine, Sensor, ShaftSegment, UnbalancePlane
+from hybridtwin.model.machine import Machine
+from hybridtwin.model.machine_parts import Bearing, Disk, Sensor, ShaftSegment, UnbalancePlane
 
 STEPPED_YAML = """\
 machine:

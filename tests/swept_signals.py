@@ -73,7 +73,7 @@ class Response:
 
 @dataclass
 class SweptRecord:
-    """What the order tracker reads (the attributes of measurements.Record it uses) and the truth."""
+    """What the order tracker reads (the attributes of records.Record it uses) and the truth."""
 
     path: Path
     time_s: np.ndarray

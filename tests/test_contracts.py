@@ -208,9 +208,9 @@ def test_table_has_verdict_code_column():
     """diagnosis.tsv carries verdict_code beside verdict (written by diagnosis_report.write)."""
     import inspect
 
-    from hybridtwin.diagnose import diagnosis
+    from hybridtwin.diagnose import conclusion, diagnosis
 
-    assert '"verdict_code"' in inspect.getsource(diagnosis._table)
+    assert '"verdict_code"' in inspect.getsource(conclusion._table)
     assert pd.Series([v.value for v in diagnosis.Verdict]).is_unique
 
 

@@ -18,6 +18,7 @@ from scipy import stats
 
 from hybridtwin import config as cfg
 from hybridtwin.identify import design as dsg
+from hybridtwin.identify.arrow_problem import ArrowProblem, Layout
 from hybridtwin.identify import identification as idn
 from hybridtwin.identify.run_fits import fit_joint, ranges, solver_models
 from test_validation_refit import H, TRUTH, _table
@@ -71,11 +72,11 @@ def test_expected_intervals_are_those_of_the_dense_joint_problem(designed):
     new = idn.RunData("new", float(chosen["rpm"]), float(chosen["eccentric_mass_g"]), "fit",
                       np.zeros_like(data[0].X), sigma)
     every = data + [new]
-    layout = idn.Layout.for_data(names, lower, upper, every, [])
+    layout = Layout.for_data(names, lower, upper, every, [])
     values = {(p, r): v for p, r, v in zip(joint["parameter"], joint["run"], joint["value"])}
     theta = np.array([values.get((p, run), 0.0) if p == "phase" else float(layout.normalise(p, values[(p, run)]))
                       for p, run in layout.entries()])
-    problem = idn.ArrowProblem(solver_models(variant, every, H), layout, np.stack([d.sigma for d in every]))
+    problem = ArrowProblem(solver_models(variant, every, H), layout, np.stack([d.sigma for d in every]))
     X = np.stack([d.X for d in every])
     ev = problem.evaluate(theta[None], X[None])
     J = problem.dense_jacobian(ev)

@@ -11,9 +11,13 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from hybridtwin.diagnose import conclusion as conc
+from hybridtwin.diagnose import elimination as elim
+from hybridtwin.diagnose import recommendation as rec
 from hybridtwin.diagnose import diagnosis as dg
 from hybridtwin.diagnose import diagnosis_report as dgr
 from hybridtwin.identify import forward as fwd
+from hybridtwin.identify.arrow_problem import Layout
 from hybridtwin.identify import identification as idn
 from hybridtwin.identify import lm
 from hybridtwin.model import variants
@@ -247,7 +251,7 @@ def test_parent_variant_is_the_one_extended_by_exactly_one_effect():
 def test_theta_from_table_normalises_with_the_new_layout():
     import pandas as pd
 
-    layout = idn.Layout.build(["k_b", "k_w"], [2000.0, 0.0], [3500.0, 1000.0], ["r1"], ["k_w"])
+    layout = Layout.build(["k_b", "k_w"], [2000.0, 0.0], [3500.0, 1000.0], ["r1"], ["k_w"])
     refits = pd.DataFrame({"effect": ["slope_spring"] * 3 + ["other"],
                            "parameter": ["k_b", "k_w", "phase", "k_b"], "run": ["all", "r1", "r1", "all"],
                            "value": [2750.0, 250.0, 0.3, 3000.0]})
@@ -266,7 +270,7 @@ def test_theta_from_nested_maps_the_shared_values_and_copies_the_runs():
     geometric, expansion = builtin_variant("geometric"), builtin_variant("expansion")
     names = list(expansion.unknown)
     lower, upper = expansion.bounds(names)
-    layout = idn.Layout.build(names, lower, upper, ["r1", "r2"], ["q_x", "q_y"])
+    layout = Layout.build(names, lower, upper, ["r1", "r2"], ["q_x", "q_y"])
     fit = pd.DataFrame({"parameter": ["k_b", "zeta_s", "q_x", "q_y", "phase", "q_x", "q_y", "phase"],
                         "run": ["all", "all", "r1", "r1", "r1", "r2", "r2", "r2"],
                         "value": [3000.0, 0.02, 0.002, 0.003, 0.1, 0.004, 0.005, -0.2]})
@@ -381,9 +385,9 @@ def test_a_refit_whose_optimum_is_unstable_is_never_confirmed():
 
     o = dg.DEFAULTS
     cf = SimpleNamespace(lr_p_value=1e-30, delta_bic=-1e4, unstable_runs=None)
-    assert dg._is_confirmed(cf, o, 1e-3)
-    assert dg._is_confirmed(replace_ns(cf, unstable_runs=[]), o, 1e-3)
-    assert not dg._is_confirmed(replace_ns(cf, unstable_runs=["r1000_m0p0"]), o, 1e-3)
+    assert conc._is_confirmed(cf, o, 1e-3)
+    assert conc._is_confirmed(replace_ns(cf, unstable_runs=[]), o, 1e-3)
+    assert not conc._is_confirmed(replace_ns(cf, unstable_runs=["r1000_m0p0"]), o, 1e-3)
 
 
 def replace_ns(ns, **changes):
@@ -406,11 +410,11 @@ def test_backward_elimination_drops_a_stand_in_made_redundant_by_a_later_effect(
     step_scores = st.score_tests(extended, _candidates(["expansion_k4"]))
     k4 = rf.confirm(extended, step_scores.scores[0], step_scores, starts=0, widen=0, far=False)
     assert k4.chi2 / k4.dof < 1 + 3 * np.sqrt(2 / k4.dof)
-    path = [dg.Step("cross_coupled_stiffness", 0.0, stand_in.chi2 / stand_in.dof, stand_in.delta_bic, 0.0, stand_in),
-            dg.Step("expansion_k4", 0.0, k4.chi2 / k4.dof, k4.delta_bic, 0.0, k4)]
+    path = [conc.Step("cross_coupled_stiffness", 0.0, stand_in.chi2 / stand_in.dof, stand_in.delta_bic, 0.0, stand_in),
+            conc.Step("expansion_k4", 0.0, k4.chi2 / k4.dof, k4.delta_bic, 0.0, k4)]
     placeholder = {s.candidate.name: (dg.Verdict.NOT_SIGNIFICANT, "") for s in scores.scores}
-    result = dg.Diagnosis(dg._table(scores, {}, placeholder, []), "", "")
-    kept = dg._backward(slope_base, path, scores, dg.DEFAULTS, result)
+    result = conc.Diagnosis(conc._table(scores, {}, placeholder, []), "", "")
+    kept = elim._backward(slope_base, path, scores, dg.DEFAULTS, result)
     assert [step.effect for step in kept] == ["expansion_k4"]
     final = kept[-1].confirmation
     assert final.chi2 / final.dof < 1 + 3 * np.sqrt(2 / final.dof)
@@ -425,12 +429,12 @@ def test_backward_elimination_drops_a_stand_in_made_redundant_by_a_later_effect(
     assert abs(k4_kept.value - k4_full.value) < 2 * (k4_full.ci_high - k4_full.ci_low) / 3.92 + 1e-9
 
 
-def _one_step_path(base: st.BaseFit, name: str) -> tuple[list, st.Scores, dg.Diagnosis]:
+def _one_step_path(base: st.BaseFit, name: str) -> tuple[list, st.Scores, conc.Diagnosis]:
     """The path of a diagnosis that took ``name`` and fits the noise: one thorough-enough refit at ``base``."""
     scores = st.score_tests(base, _candidates([name]))
     cf = rf.confirm(base, scores.scores[0], scores, starts=0, widen=0, far=False)
-    path = [dg.Step(name, scores.base_chi2 / scores.base_dof, cf.chi2 / cf.dof, cf.delta_bic, 1.0, cf)]
-    return path, scores, dg.Diagnosis(dg._table(scores, {}, {name: (dg.Verdict.NOT_SIGNIFICANT, "")}, []), "", "")
+    path = [conc.Step(name, scores.base_chi2 / scores.base_dof, cf.chi2 / cf.dof, cf.delta_bic, 1.0, cf)]
+    return path, scores, conc.Diagnosis(conc._table(scores, {}, {name: (dg.Verdict.NOT_SIGNIFICANT, "")}, []), "", "")
 
 
 def test_the_sharing_check_shares_a_bow_the_data_do_not_need_per_run(slope_data):
@@ -442,7 +446,7 @@ def test_the_sharing_check_shares_a_bow_the_data_do_not_need_per_run(slope_data)
     base = _base_fit(slope_data, per_run=("q_x", "q_y"))
     path, scores, result = _one_step_path(base, "expansion_k4")
     assert path[-1].confirmation.fit.layout.local == ("q_x", "q_y")
-    shared = dg._sharing(base, path, scores, dg.DEFAULTS, result)
+    shared = elim._sharing(base, path, scores, dg.DEFAULTS, result)
     sharing = result.summary["sharing"]
     assert sharing["shared"] and sharing["lr_dof"] == 2 * (len(RUNS) - 1)
     assert sharing["chi2_shared"] >= sharing["chi2_per_run"] - 1e-6 * sharing["chi2_per_run"]  # nested fits
@@ -451,7 +455,7 @@ def test_the_sharing_check_shares_a_bow_the_data_do_not_need_per_run(slope_data)
     assert final.chi2 / final.dof < 1 + 3 * np.sqrt(2 / final.dof)
     assert final.estimates.set_index("parameter").loc["k4", "value"] == pytest.approx(324.2, rel=0.1)
     result.path = shared
-    dg._conclude_path(result, base, scores, dg.DEFAULTS)
+    conc._conclude_path(result, base, scores, dg.DEFAULTS)
     assert "need not be estimated per run" in result.conclusion
     spec = result.summary["recommended_variant"]["spec"]
     assert spec["per_run"] == [] and "per_run: []" in result.recommendation
@@ -484,7 +488,7 @@ def test_the_sharing_check_keeps_a_bow_that_differs_between_runs():
     light = _data(["slope_spring"], truth | {"q_x": 0.004}, seed=2)[2:]
     base = _base_fit(heavy + light, per_run=("q_x", "q_y"))
     path, scores, result = _one_step_path(base, "expansion_k4")
-    kept = dg._sharing(base, path, scores, dg.DEFAULTS, result)
+    kept = elim._sharing(base, path, scores, dg.DEFAULTS, result)
     assert not result.summary["sharing"]["shared"] and result.summary["sharing"]["lr"] > 100
     assert kept[-1].confirmation is path[-1].confirmation
 
@@ -499,10 +503,10 @@ def test_a_recommended_variant_name_is_valid_in_the_config():
 
     schema = yaml.safe_load((Path(__file__).resolve().parents[1] / "workflow/schemas/config.schema.yaml").read_text())
     pattern = schema["properties"]["variants"]["propertyNames"]["pattern"]
-    name = dg._variant_name(["linear", "bearing_anisotropy@b", "cross_coupled_stiffness"])
+    name = rec._variant_name(["linear", "bearing_anisotropy@b", "cross_coupled_stiffness"])
     assert name == "linear_bearing_anisotropy_at_b_cross_coupled_stiffness" and re.fullmatch(pattern, name)
     # an effect of the user's file may be named with other characters (oil-film_b): still a valid variant name
-    name = dg._variant_name(["linear", "oil-film_b", "k.2"])
+    name = rec._variant_name(["linear", "oil-film_b", "k.2"])
     assert name == "linear_oil_film_b_k_2" and re.fullmatch(pattern, name)
 
 
@@ -521,7 +525,7 @@ def test_the_recommended_variants_yaml_reads_back_as_numbers():
             "unknown": {"k_a": [1.5e7, 3e7], "dk_b": [-2e6, 2e6], "c_a": [400.0, 1600.0], "zeta": [0.01, 0.05],
                         "tiny": [1e-5, 2.5e-4], "k": [0.0, 1000.0]},
             "fixed": {"q": 1e-5, "big": -1.23456e12}}
-    read = yaml.safe_load("variants:\n" + dg.variant_lines("v", spec))["variants"]["v"]
+    read = yaml.safe_load("variants:\n" + rec.variant_lines("v", spec))["variants"]["v"]
     for section in ("unknown", "fixed"):
         for name, value in spec[section].items():
             assert not isinstance(read[section][name], str), (section, name, read[section][name])
@@ -530,7 +534,7 @@ def test_the_recommended_variants_yaml_reads_back_as_numbers():
     variant_schema = schema["properties"]["variants"]["additionalProperties"]
     jsonschema.validate(read, {**variant_schema, "definitions": schema.get("definitions", {}),
                                "$defs": schema.get("$defs", {})})
-    assert [dg.yaml_number(x) for x in (3e7, -2e6, 2000.0, 0.05, 1e-5)] == ["3.0e+07", "-2.0e+06", "2000", "0.05",
+    assert [rec.yaml_number(x) for x in (3e7, -2e6, 2000.0, 0.05, 1e-5)] == ["3.0e+07", "-2.0e+06", "2000", "0.05",
                                                                           "1.0e-05"]
 
 
@@ -539,7 +543,7 @@ def test_the_recommended_variants_yaml_reads_back_as_numbers():
 def test_an_estimates_text_shows_its_interval(value, low, high):
     """The printed interval's ends differ from each other and from the value (a narrow interval around a large
     value printed to 4 digits read "1.2e+06 [1.2e+06, 1.2e+06]"), with 4 significant digits at least."""
-    d = dg._digits(value, high - low)
+    d = conc._digits(value, high - low)
     texts = [f"{x:.{d}g}" for x in (low, value, high)]
     assert len(set(texts)) == 3 and d >= 4
 
@@ -553,13 +557,13 @@ def test_a_plan_too_thin_to_decide_says_so_instead_of_no_missing_effect():
     data = _data(["slope_spring"], values, seed=5)[:1]
     base = _base_fit(data)
     result = dg.diagnose(base, _candidates(["slope_spring", "expansion_k4"]))
-    assert not result.summary["misfit"] and result.summary["base_dof"] < dg.MIN_DOF
+    assert not result.summary["misfit"] and result.summary["base_dof"] < conc.MIN_DOF
     assert result.conclusion.startswith("no missing effect found, but these fit runs cannot rule one out")
     assert f"only {result.summary['base_dof']} degrees of freedom" in result.conclusion
     assert "only 1 fit run;" in result.conclusion
     # four runs at 500-850 RPM: enough to decide, no such caveat (test_no_false_alarm_without_a_hidden_effect)
     four = _base_fit(_data([], TRUTH, seed=3))
-    assert dg._thin_plan(four, st.score_tests(four, _candidates(["expansion_k4"]))) == []
+    assert conc._thin_plan(four, st.score_tests(four, _candidates(["expansion_k4"]))) == []
     table = pd.DataFrame({"parameter": ["k_b", "zeta_s", "q_x", "q_x", "phase"], "run": ["all", "all", "a", "b", "a"],
                           "kind": ["shared", "shared", "per_run", "per_run", "nuisance"],
                           "identifiable": [False, True, True, True, False],
@@ -578,10 +582,10 @@ def _stand_in_then_k4(base: st.BaseFit) -> tuple[st.Scores, dict, list]:
                           stand_in.fit.theta, base.data, base.harmonics)
     k4 = rf.confirm(extended, st.score_tests(extended, _candidates(["expansion_k4"])).scores[0],
                     st.score_tests(extended, _candidates(["expansion_k4"])), starts=0, widen=0, far=False)
-    excess = dg._excess(scores)
-    path = [dg.Step("cross_coupled_stiffness", scores.base_chi2 / scores.base_dof, stand_in.chi2 / stand_in.dof,
+    excess = conc._excess(scores)
+    path = [conc.Step("cross_coupled_stiffness", scores.base_chi2 / scores.base_dof, stand_in.chi2 / stand_in.dof,
                     stand_in.delta_bic, (scores.base_chi2 - stand_in.chi2) / excess, stand_in),
-            dg.Step("expansion_k4", stand_in.chi2 / stand_in.dof, k4.chi2 / k4.dof, k4.delta_bic,
+            conc.Step("expansion_k4", stand_in.chi2 / stand_in.dof, k4.chi2 / k4.dof, k4.delta_bic,
                     (scores.base_chi2 - k4.chi2) / excess, k4)]
     return scores, {"cross_coupled_stiffness": stand_in}, path
 
@@ -596,7 +600,7 @@ def every_path(slope_data, slope_base):
     data = _data(["slope_spring", "excitation_2x"], TRUTH | {"k_w": 324.2, "k_z": 301.1, "f2_c": 0.1, "f2_s": -0.05},
                  seed=7)  # as test_two_hidden_effects_are_both_found_by_forward_selection
     out["forward"] = dg.diagnose(_base_fit(data), _candidates(["slope_spring", "excitation_2x"]))
-    first = dg._conclude(slope_base, scores, confirmations, dg.DEFAULTS, alpha)
+    first = conc._conclude(slope_base, scores, confirmations, dg.DEFAULTS, alpha)
     out["backward elimination"] = dg._finish(first, slope_base, scores, list(path), dg.DEFAULTS)
     tilt = PolynomialBearing(name="tilt_force", meaning="force on the shaft tilt (a user's duplicate of k4 u')",
                              parameters=(Parameter("k_t", "N", (-1000.0, 1000.0), 0.0, "tilt stiffness"),),
@@ -604,7 +608,7 @@ def every_path(slope_data, slope_base):
     out["confounded"] = dg.diagnose(slope_base, _candidates(["expansion_k4"]) + [Candidate(tilt, ("k_t",))])
     per_run = _base_fit(slope_data, per_run=("q_x", "q_y"))
     one, scores, result = _one_step_path(per_run, "expansion_k4")
-    result = dg._conclude(per_run, scores, {"expansion_k4": one[0].confirmation}, dg.DEFAULTS, dg.DEFAULTS["alpha"])
+    result = conc._conclude(per_run, scores, {"expansion_k4": one[0].confirmation}, dg.DEFAULTS, dg.DEFAULTS["alpha"])
     out["sharing"] = dg._finish(result, per_run, scores, one, dg.DEFAULTS)
     data = _data(["excitation_3x"], TRUTH | {"f3_c": 0.3, "f3_s": -0.2}, seed=4)
     out["unexplained"] = dg.diagnose(_base_fit(data), _candidates(["cross_coupled_stiffness", "speed_damping"]))
@@ -787,10 +791,10 @@ def test_what_to_do_names_the_project_it_was_run_in():
     """The recommendation names the config, command and ledger of the project: the root's by default, a project's
     run with --directory DIR (the workflow's project_place, common.smk) DIR's (issue 39: it named the root's)."""
     spec = {"description": "a test", "effects": ["unbalance"], "unknown": {"k_b": [2000, 3500]}}
-    root = dg.what_to_do("v", spec, dg.DEFAULTS)
+    root = rec.what_to_do("v", spec, dg.DEFAULTS)
     assert "in config/config.yaml, then run `snakemake --cores 2` " in root and "results/ledger.tsv:" in root
     place = {"config": "examples/quick/config/config.yaml", "command": "snakemake --cores 2 --directory examples/quick",
              "ledger": "examples/quick/results/ledger.tsv"}
-    text = dg.what_to_do("v", spec, dg.DEFAULTS | {"project": place})
+    text = rec.what_to_do("v", spec, dg.DEFAULTS | {"project": place})
     assert all(f"{value}" in text for value in place.values()) and "in config/config.yaml" not in text
     assert "  v:\n" in text  # the variant to paste follows

@@ -25,6 +25,7 @@ from test_diagnosis import _base_fit, _candidates, _not_plain, _same  # noqa: E4
 from hybridtwin.data.measurements import read_runs
 from hybridtwin.data.preprocessing import preprocess_run
 from hybridtwin.data.rig import read_answer_key, write_steady_records
+from hybridtwin.diagnose import conclusion as conc
 from hybridtwin.diagnose import diagnosis as dg
 from hybridtwin.diagnose import diagnosis_report as dgr
 from hybridtwin.diagnose import score_test as st
@@ -52,7 +53,7 @@ def beyond_range(tmp_path_factory):
     return _rig_data("cross_coupled_beyond_range", tmp_path_factory.mktemp("beyond_range"))
 
 
-def _written_and_read_back(result: dg.Diagnosis, folder: Path) -> None:
+def _written_and_read_back(result: conc.Diagnosis, folder: Path) -> None:
     """diagnosis.tsv/.md/.yaml as the workflow writes them (diagnosis_report.write), the YAML read back equal to the
     summary, which holds plain Python types only (a numpy float on the long path killed the workflow there)."""
     assert _not_plain(result.summary) == []

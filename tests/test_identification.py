@@ -26,6 +26,7 @@ import zarr
 from scipy.optimize import least_squares
 
 from hybridtwin.identify import forward as fwd
+from hybridtwin.identify.arrow_problem import wrap
 from hybridtwin.identify import identification as idn
 from hybridtwin.identify import lm
 from hybridtwin.identify import polish as pol
@@ -93,7 +94,7 @@ def test_lm_recovers_known_parameters_and_phase():
     fit = idn.identify([ToyModel()], [toy_data(x_true, 1.1)], options=FAST)
     assert fit.success and fit.loss < 1e-16
     np.testing.assert_allclose(fit.theta[:3], x_true, atol=1e-7)
-    assert abs(idn.wrap(fit.theta[3] - 1.1)) < 1e-7
+    assert abs(wrap(fit.theta[3] - 1.1)) < 1e-7
     table = fit.table()
     assert list(table["parameter"]) == ["a", "b", "c", "phase"]
     physical = ToyModel.lower + (x_true + 1) / 2 * (ToyModel.upper - ToyModel.lower)
@@ -135,7 +136,7 @@ def test_phase_origin_and_dc_do_not_change_the_estimate():
     b = idn.identify([ToyModel()], [shifted], options=FAST)
     np.testing.assert_allclose(a.theta[:3], b.theta[:3], atol=1e-7)
     assert a.loss == pytest.approx(b.loss, rel=1e-9)
-    assert abs(idn.wrap(b.theta[3] - a.theta[3] - 2.0)) < 1e-7
+    assert abs(wrap(b.theta[3] - a.theta[3] - 2.0)) < 1e-7
 
 
 def test_keyphasor_phase_prior_keeps_the_phase_information():

@@ -32,7 +32,7 @@ from matplotlib.colors import to_hex
 from scipy import stats
 
 from example_machines import stepped_machine
-from hybridtwin.diagnose.diagnosis import Diagnosis
+from hybridtwin.diagnose.conclusion import Diagnosis
 from hybridtwin.diagnose.diagnosis_status import VERDICT_COLOUR, Verdict
 from hybridtwin.model.model import Model, campbell
 from hybridtwin.report import interactive as ia

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hybridtwin.identify import identification as idn
+from hybridtwin.identify.arrow_problem import ArrowProblem, Layout
 from hybridtwin.identify import lm
 
 SIGMA = 1e-6  # [m] per real/imaginary part
@@ -27,10 +27,10 @@ class Linear:
         return M, (dM if jacobian else None)
 
 
-def _problem(X: np.ndarray) -> idn.ArrowProblem:
+def _problem(X: np.ndarray) -> ArrowProblem:
     # a keyphasor: the phase has a prior (sigma 1e-3 rad) and is held at 0 below, so the model stays linear
-    layout = idn.Layout.build(["a", "b"], [-1.0, -1.0], [1.0, 1.0], ["r"], (), [1e-3])
-    return idn.ArrowProblem([Linear()], layout, np.full((1, 1, 2), SIGMA))
+    layout = Layout.build(["a", "b"], [-1.0, -1.0], [1.0, 1.0], ["r"], (), [1e-3])
+    return ArrowProblem([Linear()], layout, np.full((1, 1, 2), SIGMA))
 
 
 def _conditional(X: np.ndarray, known: np.ndarray, other: np.ndarray, value: float) -> float:

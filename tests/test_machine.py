@@ -12,7 +12,7 @@ import yaml
 from example_machines import STEPPED_YAML as MACHINE_YAML  # the stepped rotor's config section, shared
 
 from hybridtwin.model.effects import Unbalance, builtin_effects, candidate_effects
-from hybridtwin.model.machine import Bearing, Disk, Machine, Sensor, ShaftSegment, UnbalancePlane
+from hybridtwin.model.machine import Bearing, Disk, Machine, Sensor, ShaftSegment, UnbalancePlane  # as docs/model.md
 from hybridtwin.model.model import Model, campbell
 from hybridtwin.model.sensor import sensor_dofs
 from hybridtwin.model.shaft import Shaft
@@ -271,7 +271,7 @@ def test_records_read_with_the_configs_sensors_have_the_machines_channel_order(t
     from the Machine: both must give the channels in the same order, or the fit compares one probe's measurement
     with another's model (a sorted-keys config, x1 x2 y1 y2; a config with probes that have no partner). The
     record's file columns are in yet another order: channels are found by name."""
-    from hybridtwin.data.measurements import read_record, record_channels
+    from hybridtwin.data.records import read_record, record_channels
 
     nodes = {"x1": (8, "x"), "y1": (8, "y"), "x2": (16, "x"), "y2": (16, "y"), "y3": (12, "y")}
     spec = yaml.safe_load(MACHINE_YAML)["machine"]
@@ -295,7 +295,7 @@ def test_sensor_names_in_capitals_read_their_columns_in_any_case(tmp_path):
     """Sensors X1, Y1 (the schema allows capitals): their records' columns X1_mm, Y1_mm (as the rig writes them)
     or x1_mm, y1_mm (headers are read in any case) are their channels, named as the machine names them; two
     sensors whose names differ only in case are an error, since no record could tell their columns apart."""
-    from hybridtwin.data.measurements import read_record
+    from hybridtwin.data.records import read_record
 
     spec = yaml.safe_load(MACHINE_YAML)["machine"]
     spec["sensors"] = {"X1": {"node": 8, "direction": "x"}, "Y1": {"node": 8, "direction": "y"}}
@@ -461,7 +461,7 @@ def test_bad_machine_sections_are_one_line_each(project, edit, expected):
 ])
 def test_machine_from_mapping_names_the_bad_key(spec, message):
     """The Python path (without the schema) says where in the section the problem is, in one line."""
-    from hybridtwin.model.machine import MachineSpecError
+    from hybridtwin.model.machine_parts import MachineSpecError
 
     with pytest.raises(MachineSpecError) as err:
         Machine.from_mapping(spec)

@@ -10,7 +10,8 @@ import pytest
 
 from example_machines import LINEAR_EFFECTS, SENSOR_NODE, linear_response, stepped_machine
 from hybridtwin.model.effect_base import Effect, Parameter
-from hybridtwin.model.machine import Bearing, Disk, Machine, Sensor, ShaftSegment
+from hybridtwin.model.machine import Machine
+from hybridtwin.model.machine_parts import Bearing, Disk, Sensor, ShaftSegment
 from hybridtwin.report.machine_plots import (
     deflection, mode_shape_figure, mode_shapes, ods_figure, operating_deflection, undamped_modes,
 )

@@ -10,10 +10,8 @@ import pandas as pd
 import pytest
 
 from hybridtwin.cli import main
-from hybridtwin.data.measurements import (
-    SATURATED_SAMPLES, DataError, DataWarning, Record, check_coverage, check_length, detect_saturation, read_record,
-    read_runs, sheet_entry,
-)
+from hybridtwin.data.measurements import DataError, DataWarning, check_coverage, read_runs, sheet_entry
+from hybridtwin.data.records import SATURATED_SAMPLES, Record, check_length, detect_saturation, read_record
 from hybridtwin.data.preprocessing import analyse_record
 
 RPM = 600.0
@@ -504,7 +502,7 @@ def test_check_data_cli_reports_an_invalid_record_and_keeps_checking(dataset, ca
 
 
 def _fast_and_careful(path: Path):
-    from hybridtwin.data.measurements import _checked_record, _clean_record
+    from hybridtwin.data.records import _checked_record, _clean_record
 
     names = ("x", "y")
     return _clean_record(path, names), _checked_record(path, names)
@@ -539,7 +537,7 @@ def test_a_record_the_fast_reader_cannot_vouch_for_is_read_cell_by_cell(tmp_path
     """Anything but a clean all-numeric file goes to the careful reader (fast_numeric_table returns None, or the
     keyphasor has no two levels with a rising edge), which reads it or names the problem as before: the fast path
     never accepts what the careful one would refuse, nor reads a value differently."""
-    from hybridtwin.data.measurements import _clean_record
+    from hybridtwin.data.records import _clean_record
 
     lines = ["time_s,x_mm,y_mm,keyphasor"] + [f"{i / 1000:.3f},{np.sin(i / 7):.5f},{np.cos(i / 7):.5f},"
                                               f"{int(i % 20 == 1)}" for i in range(200)]

@@ -30,6 +30,7 @@ def varm_reference() -> dict:
 
     import hybridtwin.identify.forward as fwd
     import hybridtwin.identify.identification as idn
+    from hybridtwin.identify.arrow_problem import ArrowProblem, Layout
     from hybridtwin.data.measurements import read_runs
     from hybridtwin.data.preprocessing import preprocess_run
     from hybridtwin.model.variants import builtin_variant
@@ -42,8 +43,8 @@ def varm_reference() -> dict:
     lower, upper = (np.array([variant.unknown[n][i] for n in names]) for i in (0, 1))
     data = [idn.run_data(table, r["run"]) for r in rows]
     models = [fwd.SolverModel(variant, d.run, d.rpm, d.eccentric_mass_g, names, lower, upper, 3) for d in data]
-    layout = idn.Layout.for_data(names, lower, upper, data, per_run=("q_x", "q_y"))
-    problem = idn.ArrowProblem(models, layout, np.stack([idn.total_sigma(d) for d in data]))
+    layout = Layout.for_data(names, lower, upper, data, per_run=("q_x", "q_y"))
+    problem = ArrowProblem(models, layout, np.stack([idn.total_sigma(d) for d in data]))
     theta = np.linspace(-0.5, 0.5, layout.n)[None]
     ev = problem.evaluate(theta, np.stack([d.X for d in data])[None], jacobian=True)
     return {"columns": {f"{table['run'].iloc[i]}:{c}": float(table[c].iloc[i]) for i in range(len(rows))
@@ -101,7 +102,8 @@ def _write(path: Path, header: str, rows: int = 400) -> Path:
 def test_a_record_holds_a_channel_per_sensor_named_after_it(tmp_path):
     import pytest
 
-    from hybridtwin.data.measurements import DataError, read_record
+    from hybridtwin.data.measurements import DataError
+    from hybridtwin.data.records import read_record
 
     _, machine = _machine()
     record = read_record(_write(tmp_path / "a.csv", "time_s,x1_mm,y1_mm,x2_m,y2_mm"), machine)
@@ -136,7 +138,8 @@ def test_order_analysis_gives_each_channel_its_harmonics_with_one_speed_and_one_
     import pandas as pd
     import pytest
 
-    from hybridtwin.data.measurements import DataWarning, Record
+    from hybridtwin.data.measurements import DataWarning
+    from hybridtwin.data.records import Record
     from hybridtwin.data.preprocessing import analyse_record, harmonic_column, run_row, table_channels
 
     rng = np.random.default_rng(5)
@@ -272,6 +275,7 @@ def test_predictions_comparisons_figures_and_fingerprint_follow_the_channels(tmp
     import matplotlib.pyplot as plt
 
     from hybridtwin.report import report
+    from hybridtwin.report import report_plots
     from hybridtwin.identify import validation as val
     from hybridtwin.diagnose.fingerprint import fingerprint
 
@@ -291,14 +295,14 @@ def test_predictions_comparisons_figures_and_fingerprint_follow_the_channels(tmp
     again = report.read_comparisons(table)[0]
     assert again.channels == channels and np.array_equal(again.measured, comparison.measured)
     assert again.chi2 == comparison.chi2  # every channel counts
-    figure = report.plot_run(comparison, "linear")
+    figure = report_plots.plot_run(comparison, "linear")
     orbits = [ax for ax in figure.axes if ax.get_title().startswith("orbit")]
     assert [(ax.get_xlabel(), ax.get_ylabel()) for ax in orbits] == [("x1 [mm]", "y1 [mm]"), ("x2 [mm]", "y2 [mm]")]
     assert "not drawn" not in figure._suptitle.get_text()  # every channel has its row
     plt.close(figure)
     odd = report.RunComparison("v1", "validate", 4000.0, 20.0, 1e-4 * Z[:, :3], 0.9e-4 * Z[:, :3],
                                np.full((H, 3), 1e-6), 11, "solver", channels[:3])
-    figure = report.plot_run(odd, "linear")
+    figure = report_plots.plot_run(odd, "linear")
     assert "not drawn: channel x2 (no pair)" in figure._suptitle.get_text()
     plt.close(figure)
 
@@ -336,27 +340,28 @@ def test_the_run_figure_draws_an_orbit_for_each_plane_the_machine_declares_and_n
     import matplotlib.pyplot as plt
 
     from hybridtwin.report import report
+    from hybridtwin.report import report_plots
 
     sensors = {"yb": {"node": 4, "direction": "y"}, "x1": {"node": 9, "direction": "x"},
                "xa": {"node": 2, "direction": "x"}, "y1": {"node": 9, "direction": "y"}}
-    pairs = report.sensor_pair_names(sensors)
+    pairs = report_plots.sensor_pair_names(sensors)
     assert pairs == [("x1", "y1")]
-    assert report.sensor_pair_names(None) is None  # the VARM: its x, y
+    assert report_plots.sensor_pair_names(None) is None  # the VARM: its x, y
     rng = np.random.default_rng(3)
     H, channels = 2, ("x1", "y1", "xa", "yb")  # the machine's order (tests/test_machine.py: sensors_by_name)
     Z = 1e-4 * (rng.standard_normal((H, 4)) + 1j * rng.standard_normal((H, 4)))
     comparison = report.RunComparison("r1", "fit", 3000.0, 10.0, Z, 0.9 * Z, np.full((H, 4), 1e-6), 15, "solver",
                                       channels)
-    figure = report.plot_run(comparison, "linear", pairs)
+    figure = report_plots.plot_run(comparison, "linear", pairs)
     orbits = [ax for ax in figure.axes if ax.get_title().startswith("orbit")]
     assert [(ax.get_xlabel(), ax.get_ylabel()) for ax in orbits] == [("x1 [mm]", "y1 [mm]")]
     assert "not drawn: channels xa, yb (no pair)" in figure._suptitle.get_text()
     plt.close(figure)
     # the pair's numbers are its own channels' (by name, whatever the column order)
-    swapped = report.probe_pairs(comparison, [("y1", "x1")])[0]
+    swapped = report_plots.probe_pairs(comparison, [("y1", "x1")])[0]
     np.testing.assert_array_equal(swapped.measured, Z[:, [1, 0]])
     with pytest.raises(ValueError, match="run r1: channel.s. x2 not among its channels"):
-        report.probe_pairs(comparison, [("x2", "y1")])
+        report_plots.probe_pairs(comparison, [("x2", "y1")])
 
 
 def test_a_library_and_its_surrogate_give_every_sensor_in_declared_order():

@@ -7,7 +7,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from hybridtwin.data.measurements import Record, read_record, read_runs
+from hybridtwin.data.measurements import read_runs
+from hybridtwin.data.records import Record, read_record
 from hybridtwin.data.plausibility import LINE_SIGNIFICANCE, SIGNIFICANCE, dominant_rpm
 from hybridtwin.data.preprocessing import (
     PhaseOrigin, SpeedEstimate, analyse_record, fit_phase, order_analysis, phase_aligned_residuals, phase_origin,

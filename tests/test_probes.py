@@ -8,7 +8,8 @@ import pytest
 import yaml
 from jsonschema import validators
 
-from hybridtwin.model.machine import Machine, MachineSpecError, Sensor
+from hybridtwin.model.machine import Machine
+from hybridtwin.model.machine_parts import MachineSpecError, Sensor
 from hybridtwin.model.probes import ProbeAngleError, plane_xy, probe_readings, rotation
 
 SCHEMA = Path(__file__).parents[1] / "workflow" / "schemas" / "config.schema.yaml"
@@ -135,7 +136,7 @@ def test_schema_accepts_sensors_alone_with_angles_and_refuses_other_keys():
 def test_a_record_of_rotated_probes_is_read_as_the_planes_x_and_y(tmp_path):
     """The record holds the probes' readings (at 45 and 135 degrees); read with the machine's angles it gives the
     plane's x and y, which the analysis and the model compare (to the written digits: 1e-7 mm)."""
-    from hybridtwin.data.measurements import read_record
+    from hybridtwin.data.records import read_record
 
     t = np.arange(400) / 2000.0
     x, y = 0.3 * np.cos(2 * np.pi * 10 * t), 0.2 * np.sin(2 * np.pi * 10 * t + 0.4)

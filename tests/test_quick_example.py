@@ -11,7 +11,7 @@ from pathlib import Path
 import pandas as pd
 import yaml
 
-from hybridtwin.diagnose.diagnosis import variant_spec
+from hybridtwin.diagnose.recommendation import variant_spec
 from hybridtwin.model.candidates import builtin_candidates
 from hybridtwin.model.variants import Variant
 

@@ -6,7 +6,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from hybridtwin.data.measurements import UNITS, DataError, Sensor, read_record
+from hybridtwin.data.measurements import DataError
+from hybridtwin.data.records import UNITS, Sensor, read_record
 from hybridtwin.data.plausibility import check_magnitudes
 
 RPM = 600.0

@@ -20,6 +20,7 @@ from scipy import stats
 
 from hybridtwin.identify import identification as idn
 from hybridtwin.report import report
+from hybridtwin.report import report_plots
 from hybridtwin.report import summary
 from hybridtwin.identify import validation as val
 from hybridtwin.identify.run_fits import write_fit
@@ -297,12 +298,12 @@ def test_figures_show_the_numbers_and_are_written(synthetic, tmp_path):
     comparisons = synthetic.comparisons + [report.validation_comparison(_predicted(M, data, "solver"), data, 0.0)]
     errors = report.error_table(comparisons)
     # the error map colours each run by its chi^2/dof, fit runs and the validation run in separate markers
-    error_map = report.plot_error_map(errors, "synthetic")
+    error_map = report_plots.plot_error_map(errors, "synthetic")
     fit_points, validation_points = error_map.axes[0].collections[:2]
     assert np.allclose(fit_points.get_array(), errors.loc[errors["role"] == "fit", "chi2_dof"])
     assert np.allclose(validation_points.get_array(), errors.loc[errors["role"] == "validate", "chi2_dof"])
     # the run figure's residual bars are the residual's whirl components (backward -H..-1, forward 1..H) in um
-    run_figure = report.plot_run(comparisons[1], "synthetic")
+    run_figure = report_plots.plot_run(comparisons[1], "synthetic")
     spectrum = run_figure.axes[-1]
     bars = {c.get_label(): [b.get_height() for b in c] for c in spectrum.containers}
     forward, backward = report.whirl(synthetic.R[1])
@@ -312,13 +313,13 @@ def test_figures_show_the_numbers_and_are_written(synthetic, tmp_path):
     per_run = _per_run({"k": np.linspace(4, 6, 5)}, np.linspace(400, 800, 5), {"k": np.zeros(5, bool)})
     statistics = report.drift_statistics(per_run, synthetic.parameters)
     figures = {"run": run_figure, "error_map": error_map,
-               "drift": report.plot_drift(per_run, statistics, synthetic.parameters, "synthetic"),
-               "ledger": report.plot_ledger(report.ledger_table([report.ledger_row(
+               "drift": report_plots.plot_drift(per_run, statistics, synthetic.parameters, "synthetic"),
+               "ledger": report_plots.plot_ledger(report.ledger_table([report.ledger_row(
                    "synthetic", "", {"n_data": 24, "dof": 19, "chi2": errors["chi2"][:2].sum()}, errors)]),
                    {"synthetic": errors})}
     for name, figure in figures.items():
         figure.savefig(tmp_path / f"{name}.png", dpi=40)
-        report.plt.close(figure)
+        report_plots.plt.close(figure)
         assert (tmp_path / f"{name}.png").stat().st_size > 1000
 
 
@@ -332,12 +333,12 @@ def test_two_fit_runs_and_no_validation_run(synthetic, tmp_path):
     errors = report.error_table(synthetic.comparisons)
     row = report.ledger_row("v", "", {"n_data": 24, "dof": 19, "chi2": errors["chi2"].sum()}, errors)
     assert np.isnan(row["validation_chi2_dof"]) and row["worst_validation_run"] == ""
-    figures = [report.plot_drift(per_run, statistics, synthetic.parameters, "small"),
-               report.plot_error_map(errors, "small"),
-               report.plot_ledger(report.ledger_table([row]), {"v": errors})]
+    figures = [report_plots.plot_drift(per_run, statistics, synthetic.parameters, "small"),
+               report_plots.plot_error_map(errors, "small"),
+               report_plots.plot_ledger(report.ledger_table([row]), {"v": errors})]
     for i, figure in enumerate(figures):
         figure.savefig(tmp_path / f"{i}.png", dpi=30)
-        report.plt.close(figure)
+        report_plots.plt.close(figure)
 
 
 # --- the report's first page (hybridtwin.report.summary) ---------------------------------------------------------
@@ -619,20 +620,20 @@ def test_whitebox_sweep_figure_has_a_panel_per_harmonic_it_can_draw(harmonics, p
     fig = plot_sweep(pd.DataFrame(rows), "v")
     assert [ax.get_title() for ax in fig.axes if ax.get_visible()] == panels
     assert all(ax.lines for ax in fig.axes)
-    report.plt.close(fig)
+    report_plots.plt.close(fig)
 
 
 def test_error_map_without_validation_runs_says_so_and_draws_no_empty_legend_entry():
     """A plan with fit runs only: the title says 'no validation run' (it printed 'validation runs nan (error nan
     %)') and the legend of the speed panel has no validation entry (probe)."""
     errors = _errors({"a": 1.1, "b": 2.0, "c": 0.9}, beyond={"b"}, validation=())
-    fig = report.plot_error_map(errors, "fit only")
+    fig = report_plots.plot_error_map(errors, "fit only")
     assert "no validation run" in fig._suptitle.get_text() and "nan" not in fig._suptitle.get_text()
     assert "validation" not in [t.get_text() for t in fig.axes[1].get_legend().get_texts()]  # the speed panel
-    report.plt.close(fig)
-    with_v = report.plot_error_map(_errors({"a": 1.1, "v": 3.0}, beyond=set()), "with one")
+    report_plots.plt.close(fig)
+    with_v = report_plots.plot_error_map(_errors({"a": 1.1, "v": 3.0}, beyond=set()), "with one")
     assert "validation runs 3" in with_v._suptitle.get_text()
-    report.plt.close(with_v)
+    report_plots.plt.close(with_v)
 
 
 def test_first_page_counts_one_run_in_the_singular():

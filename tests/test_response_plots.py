@@ -221,7 +221,7 @@ def test_spectrum_gives_each_sinusoids_amplitude_and_order():
     3X, each at an exact frequency bin of the 4 s record: the spectrum's peaks are the amplitudes (0-peak, the
     window's gain divided out; np.hanning is the symmetric window, whose leakage at an exact bin is of order
     1/N = 1e-4 relative) at the right orders; the offset is gone."""
-    from hybridtwin.data.measurements import Record
+    from hybridtwin.data.records import Record
     from hybridtwin.data.preprocessing import spectrum
 
     fs, n, rpm = 2000.0, 8000, 900.0  # 4 s; bins every 0.25 Hz; 1X = 15 Hz
@@ -251,7 +251,7 @@ def test_every_plane_of_a_two_plane_machine_gets_its_curves():
     """Probes at d1 (node 8) and at the overhung disk d2 (node 16): the dense table has the four channels in
     declared order, each the linear rotor's response solved by hand at its own node (1e-9 of the largest, as
     above), and the Bode figure draws both sweeps per mass in each channel's amplitude panel (8 rows)."""
-    from hybridtwin.model.machine import Sensor
+    from hybridtwin.model.machine_parts import Sensor
 
     machine = stepped_machine()
     machine = type(machine)(machine.name, machine.segments, machine.disks, machine.bearings,

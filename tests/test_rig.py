@@ -17,7 +17,8 @@ from numeric_files import same_record  # noqa: E402
 
 from hybridtwin.cli import main
 from hybridtwin.model.machine import Machine
-from hybridtwin.data.measurements import DataWarning, detect_saturation, read_record, read_runs
+from hybridtwin.data.measurements import DataWarning, read_runs
+from hybridtwin.data.records import detect_saturation, read_record
 from hybridtwin.data.rig import (
     DEFAULT_TRUTH, Imperfections, RigError, RigSpec, RigWarning, Truth, generate, harmonics_of, read_plan,
     write_steady_records,

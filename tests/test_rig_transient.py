@@ -18,7 +18,8 @@ import yaml
 
 from hybridtwin.solvers import transient as tr
 from hybridtwin.cli import main
-from hybridtwin.data.measurements import read_record, read_runs
+from hybridtwin.data.measurements import read_runs
+from hybridtwin.data.records import read_record
 from hybridtwin.data.rig import (
     TIME_UNIQUE_TOLERANCE, Imperfections, RigError, RigSpec, Truth, generate,
 )

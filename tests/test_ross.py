@@ -18,7 +18,8 @@ import warnings
 import numpy as np
 import pytest
 
-from hybridtwin.model.machine import Bearing, Disk, Machine, Sensor, ShaftSegment, UnbalancePlane
+from hybridtwin.model.machine import Machine
+from hybridtwin.model.machine_parts import Bearing, Disk, Sensor, ShaftSegment, UnbalancePlane
 from hybridtwin.model.model import Model, campbell, rpm_to_rad_s
 from hybridtwin.solvers.solver import solve
 

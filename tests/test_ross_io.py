@@ -22,7 +22,8 @@ from test_machine import _config, project  # noqa: F401 (the fixture: a project 
 from test_ross import DISKS, E, G, RHO, SEGMENTS, _ours, rs  # noqa: F401 (rs: the fixture importing ROSS)
 
 from hybridtwin.model.bearing_table import COEFFICIENTS, BearingTable, TableBearing
-from hybridtwin.model.machine import Bearing, Machine, MachineSpecError, ShaftSegment
+from hybridtwin.model.machine import Machine
+from hybridtwin.model.machine_parts import Bearing, MachineSpecError, ShaftSegment
 from hybridtwin.model.model import Model, campbell
 
 RTOL = 1e-6  # see the module docstring
@@ -228,7 +229,7 @@ def test_unbalance_response_on_speed_dependent_bearings_matches_ross(rs):
     """The same rotor's 1X response to an unbalance on the first disk (ours: the harmonic-balance solver on the model
     of machine_from_ross; ROSS: run_unbalance_response, its bearings at each speed), every node, x and y, through
     the critical speeds and beyond the table (50-1500 rad/s)."""
-    from hybridtwin.model.machine import UnbalancePlane
+    from hybridtwin.model.machine_parts import UnbalancePlane
     from hybridtwin.model.ross_io import machine_from_ross
     from hybridtwin.solvers.solver import solve
 

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from hybridtwin.offline.library import Library
+from hybridtwin.offline.piecewise_spgd import PiecewiseSPGD, fit_piecewise
 from hybridtwin.offline.pod import from_features, pod, to_features
-from hybridtwin.offline.spgd import (PiecewiseSPGD, SparsePGD, _term_change, chebyshev_basis, chebyshev_derivative_basis,
-                             fit_piecewise, fit_spgd)
+from hybridtwin.offline.spgd import SparsePGD, _term_change, chebyshev_basis, chebyshev_derivative_basis, fit_spgd
 
 RNG = np.random.default_rng(7)
 

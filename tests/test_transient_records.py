@@ -13,7 +13,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from hybridtwin.data.measurements import DataError, Record
+from hybridtwin.data.measurements import DataError
+from hybridtwin.data.records import Record
 from hybridtwin.data.run_kinds import BandPlan, expand_bands
 from hybridtwin.data.transient import track_record
 

@@ -24,7 +24,8 @@ from threadpoolctl import threadpool_limits
 
 from .model.bearing_candidates import at_bearing
 from .model.effects import Effect
-from .model.machine import Machine, MachineSpecError
+from .model.machine import Machine
+from .model.machine_parts import MachineSpecError
 from .offline.scenarios import default_n_scenarios
 from .model.variants import EffectsFileError, Variant, load_effects_files, unbalance_hint
 

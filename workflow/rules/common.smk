@@ -67,7 +67,8 @@ wildcard_constraints:
 
 def project_place():
     """Where this project is, as its user runs it from the repository root (the diagnosis's what to do): a project
-    run with --directory DIR names DIR's config, command and ledger; the root's, the defaults (diagnosis.PROJECT)."""
+    run with --directory DIR names DIR's config, command and ledger; the root's, the defaults
+    (recommendation.PROJECT)."""
     here = os.path.relpath(os.getcwd(), workflow.basedir)
     if here == ".":
         return {}

@@ -13,7 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from ..config import data_check_settings
-from ..data.measurements import MIN_REVOLUTIONS, SENSOR_RANGE_MM, SENSOR_RESOLUTION_MM, DataError, DataWarning
+from ..data.measurements import DataError, DataWarning
+from ..data.records import MIN_REVOLUTIONS, SENSOR_RANGE_MM, SENSOR_RESOLUTION_MM
 from ..data.preprocessing import check_data, format_summary, has_usable_fit_run, write_tsv
 from ..data.shared_problems import group_messages, group_problems
 from .common import UsageError, config_file, config_machine, read_config

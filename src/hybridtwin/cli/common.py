@@ -16,7 +16,8 @@ import yaml
 from ..data.measurements import kg_looking
 from ..model.effect_base import Effect
 from ..model.effects import builtin_effects
-from ..model.machine import Machine, MachineSpecError, default_machine
+from ..model.machine import Machine, default_machine
+from ..model.machine_parts import MachineSpecError
 from ..model.variants import BUILTIN_VARIANTS, EffectsFileError, Variant, load_effects_files
 from ..solvers.continuation import RUN_UP_FROM_RPM  # noqa: F401 (simulate's run-up start: the rig's and the fits')
 

@@ -15,10 +15,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .measurements import DEFAULT_CHANNELS
 from .preprocessing import harmonic_column, origin_share, table_channels
 from .record_columns import highest_harmonic
 from .slow_roll import RUNOUT_HARMONICS
+from ..model.sensor import DEFAULT_CHANNELS
 
 Array = np.ndarray
 

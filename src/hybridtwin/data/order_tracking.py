@@ -45,7 +45,7 @@ steady harmonics table's columns (``harmonic_column``): <c>h_re_m, <c>h_im_m, <c
 x1_1_re_m for a channel x1). ``write_orders`` / ``read_orders`` store it as TSV and read it back exactly.
 
 Imports numpy, scipy and pandas only: a record is anything with ``time_s``, ``keyphasor`` (marks or levels, or
-None), ``channels`` ({name: (N,) [m]}), ``path`` and optionally ``line(index)`` (``measurements.Record``).
+None), ``channels`` ({name: (N,) [m]}), ``path`` and optionally ``line(index)`` (``records.Record``).
 """
 
 from __future__ import annotations

@@ -48,7 +48,7 @@ checks that its numbers can be what the sensor measured on this machine:
   deviation) from the synchronous-average waveform (for Gaussian noise a
   1e-15 chance per sample).
 
-Saturation (flat tops, the noisy rail) is ``measurements.detect_saturation``.
+Saturation (flat tops, the noisy rail) is ``records.detect_saturation``.
 """
 
 from __future__ import annotations
@@ -59,7 +59,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .measurements import UNITS, DataError, DataWarning, Record, Sensor, _format
+from .measurements import DataError, DataWarning, _format
+from .records import UNITS, Record, Sensor
 from .record_columns import listed
 from ..solvers.solver import DEFAULT_HARMONICS
 

@@ -61,15 +61,15 @@ import numpy as np
 import pandas as pd
 from scipy.optimize import minimize_scalar
 
-from .measurements import (
-    DEFAULT_CHANNELS, MIN_REVOLUTIONS, SENSOR_RANGE_MM, SENSOR_RESOLUTION_MM, DataError, DataWarning, Record, Saturation, Sensor,
-    check_coverage, check_length, check_sampling, detect_saturation, read_record, read_runs,
-)
+from .measurements import DataError, DataWarning, check_coverage, read_runs
 from .plausibility import SPEED_TOLERANCE, Flag, check_magnitudes, check_speed, response_flags
 from .record_columns import (  # noqa: F401 (harmonic_column, harmonic_stem re-exported)
     carried_columns as _carried, harmonic_column, harmonic_columns, harmonic_stem, keyphasor_marks,
 )
+from .records import (MIN_REVOLUTIONS, SENSOR_RANGE_MM, SENSOR_RESOLUTION_MM, Record, Saturation, Sensor, check_length,
+                      check_sampling, detect_saturation, read_record)
 from .run_kinds import is_transient_row
+from ..model.sensor import DEFAULT_CHANNELS
 from ..solvers.solver import DEFAULT_HARMONICS
 from .transient import summary_row, track_record
 
@@ -493,9 +493,9 @@ def preprocess_run(sheet_row: Mapping, harmonics: int = DEFAULT_HARMONICS, senso
     """One runs-sheet row (with its resolved ``record`` path) -> (one-row tidy table, waveforms).
 
     The sensor: the row's sensor_range_mm / sensor_resolution_mm, else the
-    given defaults [m], else the built-in ones (``measurements.Sensor``).
+    given defaults [m], else the built-in ones (``records.Sensor``).
     record: the row's record already read (``read_record``), e.g. for its ``spectrum`` too; else read here,
-    its channels named after ``sensors`` (the machine's, ``measurements.record_channels``; None: x, y).
+    its channels named after ``sensors`` (the machine's, ``records.record_channels``; None: x, y).
     """
     sensor = Sensor.for_run(sheet_row, sensor_range_m, sensor_resolution_m)
     record = read_record(sheet_row["record"], sensors) if record is None else record
@@ -613,7 +613,7 @@ def check_data(sheet: str | Path, harmonics: int = DEFAULT_HARMONICS, rpm_range:
     The sheet is read as the workflow reads it (``read_runs`` with every mass
     required) and must be valid, like its coverage (``check_coverage``): both
     raise ``DataError``; record problems are collected per run (``summarise_runs``). sensors: the machine
-    whose sensors name the records' channels (``measurements.record_channels``; None: the VARM's x, y).
+    whose sensors name the records' channels (``records.record_channels``; None: the VARM's x, y).
     """
     runs = read_runs(sheet, require_mass=True)
     check_coverage(runs, rpm_range, mass_range_g, sheet, range_names)

@@ -38,7 +38,8 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
-from .measurements import DataError, Record
+from .measurements import DataError
+from .records import Record
 from .record_columns import carried_columns, harmonic_column, harmonic_columns, highest_harmonic
 from .run_kinds import BandPlan
 from .order_tracking import SpeedProfile, TrackingError, speed_profile, track_orders

@@ -36,36 +36,33 @@ mistake surrogate error for physics.
    significant), or "unexplained discrepancy" when the base misfit is real and
    no candidate explains most of it: the evidence (chi^2/dof, the best
    candidate's share) is given instead of a least-bad name.
+
+Here: the refits of the significant candidates and the forward selection (``diagnose``: while the best confirmed
+effect leaves a discrepancy, add it and test the others again), and the fingerprint of the residual left at its
+end. After it, backward elimination and the sharing check: ``hybridtwin.diagnose.elimination``; the result, the
+verdicts and the conclusion: ``hybridtwin.diagnose.conclusion``; the recommended variant written out:
+``hybridtwin.diagnose.recommendation``.
 """
 
 from __future__ import annotations
 
-import re
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
-from scipy import stats
 
 from ..model.candidates import Candidate
-from .diagnosis_status import (NEARLY_EXPLAINED, Status, Verdict, interval_note, negligible_step, opening, plain,
-                               share_text, verdict_text)
+from .conclusion import (Diagnosis, Step, _conclude, _conclude_path, _excess, _fits_the_noise, _is_confirmed,
+                         _set_verdict)
+from .diagnosis_status import Status, Verdict, interval_note, negligible_step, plain
+from .elimination import _backward, _sharing
 from .fingerprint import Fingerprint, fingerprint
-from .refit import Confirmation, confirm, shared, without
-from .score_test import BaseFit, Scores, by_score, extend, nested, score_tests
-from ..identify.validation import spans
-from ..model.variants import Variant
+from .refit import Confirmation, confirm
+from .score_test import BaseFit, Scores, by_score, extend, score_tests
 
 Array = np.ndarray
 
 #: the ``diagnosis:`` section's defaults (config/config.yaml; schema in workflow/schemas)
-#: a base fit with fewer degrees of freedom cannot rule a missing effect out (a chi^2 of 10 dof spans 0.26-2.3
-#: times its mean at 99 %: an effect's share of it is lost in that spread)
-MIN_DOF = 10
-#: ... nor fewer fit runs than this, nor fit runs whose speeds span no more than this fraction of the fastest
-MIN_FIT_RUNS, SPEED_SPREAD = 3, 0.05
-
 DEFAULTS: dict = {
     "candidates": None,  # names to test (built in or from effects_files); None: every built-in candidate
     "confirm": "all",  # candidates refitted: every significant one, or the n best by score (+ any within
@@ -84,56 +81,6 @@ DEFAULTS: dict = {
     "max_iterations": 40,  # LM iterations of a confirmation refit
     "sparse_variant": "expansion",  # the paper's route, shown side by side: that variant's L1-sparse fit (or null)
 }
-
-
-@dataclass
-class Diagnosis:
-    """The ranked table, the overall conclusion and the recommendation (config lines to add)."""
-
-    table: pd.DataFrame
-    conclusion: str
-    recommendation: str
-    summary: dict = field(default_factory=dict)
-    confirmations: dict[str, Confirmation] = field(default_factory=dict)
-    best: Confirmation | None = None  # the first step's best confirmed effect
-    path: list = field(default_factory=list)  # forward selection, a Step per effect added
-    fingerprint: Fingerprint | None = None  # of the residual left at the end of the path (or of the base)
-    status: Status | None = None  # the overall outcome, a code (``summary["status"]``): act on it, not on the text
-
-    def estimates(self) -> pd.DataFrame:
-        """The path's effects' parameters (``Identification.table`` rows, with ``effect``) at the path's final
-        fit, every effect in: an earlier step's own estimate was made without the effects added after it."""
-        if not self.path:
-            return pd.DataFrame(columns=["effect", "parameter", "value", "ci_low", "ci_high"])
-        table = self.path[-1].confirmation.fit.table()
-        table = table[table["run"] == "all"]
-        rows = [table[table["parameter"].isin([p.name for p in step.confirmation.candidate.parameters])]
-                .assign(effect=step.effect) for step in self.path]
-        out = pd.concat(rows, ignore_index=True)
-        return out[["effect"] + [c for c in out if c != "effect"]]
-
-    def path_table(self) -> pd.DataFrame:
-        """One row per forward-selection step: effect, chi^2/dof before and after, Delta BIC, explained share."""
-        rows = [dict(step.row(), step=i + 1) for i, step in enumerate(self.path)]
-        return pd.DataFrame(rows, columns=["step", "effect", "chi2_dof_before", "chi2_dof_after", "delta_bic",
-                                           "explained_pct", "estimate"])
-
-
-@dataclass
-class Step:
-    """One step of the forward selection: the effect added at it and the fit with every effect so far."""
-
-    effect: str
-    chi2_dof_before: float
-    chi2_dof_after: float
-    delta_bic: float
-    share: float  # of the base's excess chi^2 removed by the path up to this step
-    confirmation: Confirmation
-
-    def row(self) -> dict:
-        return {"step": None, "effect": self.effect, "chi2_dof_before": float(self.chi2_dof_before),
-                "chi2_dof_after": float(self.chi2_dof_after), "delta_bic": float(self.delta_bic),
-                "explained_pct": float(100 * self.share), "estimate": _estimate_text(self.confirmation)}
 
 
 def _quick_refits(base: BaseFit, scores: Scores, o: Mapping, alpha_each: float) -> tuple[list, dict]:
@@ -227,10 +174,6 @@ def _out_of_reach(scores: Scores, quick: Mapping[str, Confirmation], o: Mapping)
             "explaining what is left")
 
 
-def _fits_the_noise(cf: Confirmation, o: Mapping) -> bool:
-    return stats.chi2.sf(cf.chi2, cf.dof) >= o["alpha"] or cf.chi2 / cf.dof <= o["misfit_ratio"]
-
-
 def diagnose(base: BaseFit, candidates: Sequence[Candidate], options: Mapping | None = None,
              log=None) -> Diagnosis:
     """Score every candidate, refit every significant one, rank by the refits' Delta BIC and give verdicts
@@ -310,109 +253,6 @@ def _finish(result: Diagnosis, base: BaseFit, scores: Scores, path: list[Step], 
     return result
 
 
-def _backward(base: BaseFit, path: list[Step], scores: Scores, o: Mapping, result: Diagnosis, log=None
-              ) -> list[Step]:
-    """Backward elimination after the forward selection: an effect added early can be made redundant by a later
-    one (a base far from the truth takes a stand-in first: speed damping before the softer lower bearing that
-    explains everything). Each earlier effect of the path is dropped in turn and the rest refitted from the final
-    optimum (``refit.without``); the one whose removal costs least is dropped when keeping it is not confirmed
-    (likelihood ratio not significant or Delta BIC above ``bic_threshold``), and so on. The last step stays (it
-    was confirmed with all the others in). The dropped effects, with their figures, are in
-    ``summary["eliminated"]`` and the table's verdicts; the path's earlier rows stay as the forward selection
-    took them, its last row is the refit without the dropped effects."""
-    n = scores.n_data
-    while len(path) >= 2:
-        final = path[-1].confirmation
-        ranges = _path_ranges(path)
-        trials = []
-        for i in range(len(path) - 1):
-            kept = [step.confirmation.candidate for j, step in enumerate(path) if j != i]
-            # the likelihood ratio of the refit's last effect is taken against the fit before the path's last step
-            # (the base for a path of two; for longer paths that fit still holds the dropped effect: approximate)
-            previous = scores.base_chi2 if len(path) == 2 else path[-2].confirmation.chi2
-            cf = without(base, kept, ranges, final.fit, previous, n, int(o["max_iterations"]))
-            trials.append((cf.chi2 - final.chi2, i, cf))
-        lr, i, cf = min(trials, key=lambda t: t[0])
-        k = len(path[i].confirmation.candidate.parameters)
-        keep = stats.chi2.sf(max(lr, 0.0), k) < o["alpha"] / len(scores.scores) and -lr + k * np.log(n) < \
-            o["bic_threshold"] and not final.unstable_runs
-        if log:
-            log.info("backward elimination: without %s chi^2 %.4g vs %.4g with it (Delta BIC of keeping it %.3g): %s",
-                     path[i].effect, cf.chi2, final.chi2, -lr + k * np.log(n), "kept" if keep else "dropped")
-        if keep:
-            break
-        dropped = path[i].effect
-        others = [step.effect for j, step in enumerate(path) if j != i]
-        result.summary.setdefault("eliminated", []).append(
-            {"effect": dropped, "chi2_without": float(cf.chi2), "chi2_with": float(final.chi2),
-             "delta_bic": float(-lr + k * np.log(n))})
-        rows = result.table.index[result.table["effect"] == dropped]
-        _set_verdict(result.table, rows, Verdict.DROPPED, others=", ".join(others),
-                     verb="is" if len(others) == 1 else "are", lr=lr, bic=-lr + k * np.log(n))
-        path = [step for j, step in enumerate(path) if j != i]
-        before = path[-2].confirmation.chi2 if len(path) > 1 else scores.base_chi2
-        dof = path[-2].confirmation.dof if len(path) > 1 else scores.base_dof
-        k_last = len(cf.candidate.parameters)
-        path[-1] = Step(path[-1].effect, before / dof, cf.chi2 / cf.dof, -(before - cf.chi2) + k_last * np.log(n),
-                        (scores.base_chi2 - cf.chi2) / _excess(scores), cf)
-    return path
-
-
-def _path_ranges(path: Sequence[Step]) -> dict[str, tuple[float, float]]:
-    """The ranges the path's refits ended with, every effect's parameters (widened ones as widened)."""
-    return {k: v for step in path for k, v in step.confirmation.ranges.items()}
-
-
-def _sharing(base: BaseFit, path: list[Step], scores: Scores, o: Mapping, result: Diagnosis, log=None
-             ) -> list[Step]:
-    """The sharing check, once the path's effects explain the discrepancy: are the base's per-run parameters
-    (``identification.per_run``, e.g. the bow q_x, q_y) still needed with the effects in? The path's model is
-    fitted with each of them one value shared by all runs (``refit.shared``); the per-run values are kept when
-    their likelihood ratio is significant (``alpha``) with a Delta BIC below ``bic_threshold``, as any effect
-    must be. Otherwise the path's last step becomes the shared fit (its estimates and intervals: per-run values
-    the data do not need trade off against the new effect, e.g. each run's bow and unknown phase absorb most of
-    its 1X response and bias a bearing stiffness resting on the higher harmonics), the recommended variant
-    shares them (``per_run: []``), and ``summary["sharing"]`` has the figures."""
-    local = list(base.layout.local)
-    if not path or not local or len(base.layout.runs) < 2 or not _fits_the_noise(path[-1].confirmation, o):
-        return path  # (one run: per run and shared are the same fit)
-    final, n = path[-1].confirmation, scores.n_data
-    ranges = _path_ranges(path)
-    before = path[-2].confirmation.chi2 if len(path) > 1 else scores.base_chi2
-    cf = shared(base, [step.confirmation.candidate for step in path], ranges, final.fit, before, n,
-                int(o["max_iterations"]))
-    k = len(local) * (len(base.layout.runs) - 1)  # the per-run values' extra parameters
-    lr = cf.chi2 - final.chi2
-    p_value, delta_bic = float(stats.chi2.sf(max(lr, 0.0), k)), float(-lr + k * np.log(n))
-    keep = (p_value < o["alpha"] and delta_bic < o["bic_threshold"]) or bool(cf.unstable_runs) or \
-        not _fits_the_noise(cf, o)
-    result.summary["sharing"] = plain({"parameters": local, "chi2_per_run": final.chi2, "dof_per_run": final.dof,
-                                       "chi2_shared": cf.chi2, "dof_shared": cf.dof, "lr": lr, "lr_dof": k,
-                                       "lr_p_value": p_value, "delta_bic_per_run": delta_bic, "shared": not keep},
-                                      "summary.sharing")
-    if log:
-        log.info("sharing check: %s shared chi^2 %.4g (dof %d) vs per run %.4g (dof %d): likelihood ratio %.3g on %d "
-                 "dof, Delta BIC of per-run values %.3g: %s", ", ".join(local), cf.chi2, cf.dof, final.chi2,
-                 final.dof, lr, k, delta_bic, "kept per run" if keep else "shared")
-    if keep:
-        return path
-    last = path[-1]
-    return path[:-1] + [Step(last.effect, last.chi2_dof_before, cf.chi2 / cf.dof, last.delta_bic,
-                             (scores.base_chi2 - cf.chi2) / _excess(scores), cf)]
-
-
-def _sharing_text(result: Diagnosis) -> str:
-    """The conclusion's sentence on the sharing check (empty when the per-run values stay)."""
-    s = result.summary.get("sharing")
-    if not s or not s["shared"]:
-        return ""
-    names = ", ".join(s["parameters"])
-    return (f"; {names} need not be estimated per run once the effect{'s are' if len(result.path) > 1 else ' is'} "
-            f"in (shared: chi^2 {s['chi2_shared']:.4g} against {s['chi2_per_run']:.4g} per run, likelihood ratio "
-            f"{s['lr']:.3g} on {s['lr_dof']} dof, Delta BIC of the per-run values {s['delta_bic_per_run']:+.3g}): "
-            "the estimates are from the fit with them shared, and the recommended variant shares them")
-
-
 def residual_fingerprint(base: BaseFit, r: Array) -> Fingerprint:
     """The fingerprint (``hybridtwin.diagnose.fingerprint``) of a fit's weighted residuals r (eq. 10, the data part first:
     per run [Re, Im] of (X - M) / s over (H, C), as ``ArrowProblem.evaluate``): E = X - M rebuilt from r."""
@@ -427,241 +267,6 @@ def residual_fingerprint(base: BaseFit, r: Array) -> Fingerprint:
                        [d.run for d in base.data])
 
 
-def _excess(scores: Scores) -> float:
-    """chi^2 - dof, floored at one standard deviation of chi^2(dof), sqrt(2 dof): shares of an excess within
-    the noise are not meaningful (a base at the noise floor would otherwise divide by ~0)."""
-    return float(max(scores.base_chi2 - scores.base_dof, np.sqrt(2.0 * scores.base_dof)))
-
-
-def _is_confirmed(cf: Confirmation, o: Mapping, alpha_each: float) -> bool:
-    """A significant likelihood ratio and Delta BIC below the threshold. The likelihood ratio is the test of
-    "absent" (beta = 0): where the effect's parameter lies in a valley with the base's own (speed damping and
-    the structural damping), the linearised (Wald) interval can span 0 while the refit's chi^2 drop is
-    1e5; the interval is reported (``excludes_zero``) but does not overrule the likelihood ratio. An optimum whose
-    steady state is unstable at some run (``Confirmation.unstable_runs``) is not the machine that was measured:
-    never confirmed."""
-    return cf.lr_p_value < alpha_each and cf.delta_bic < o["bic_threshold"] and not cf.unstable_runs
-
-
-def _conclude(base: BaseFit, scores: Scores, confirmations: Mapping[str, Confirmation], o: Mapping,
-              alpha_each: float) -> Diagnosis:
-    excess = _excess(scores)
-    base_ratio = scores.base_chi2 / scores.base_dof
-    misfit = (stats.chi2.sf(scores.base_chi2, scores.base_dof) < o["alpha"]) and base_ratio > o["misfit_ratio"]
-    by_name = {s.candidate.name: s for s in scores.scores}
-    confirmed = sorted((cf for cf in confirmations.values() if _is_confirmed(cf, o, alpha_each)),
-                       key=lambda cf: cf.delta_bic)
-    best = confirmed[0] if confirmed else None
-    verdicts: dict[str, tuple[Verdict, str]] = {}
-    confounded: list[str] = []
-    for cf in confirmed:
-        name = cf.candidate.name
-        if cf is best:
-            continue
-        projected, best_projected = by_name[name].projected, by_name[best.candidate.name].projected
-        within_best, contains_best = nested(projected, best_projected), nested(best_projected, projected)
-        inside = [b.candidate.name for b in confirmed if b is not cf and b.delta_bic <= cf.delta_bic
-                  and nested(projected, by_name[b.candidate.name].projected)]
-        # the refits decide: sensitivities that span the same space at the base fit (a local statement, and a
-        # borderline one: 1e-3 on a principal angle's cosine) are confounded only if the refits tie as well
-        tie = cf.delta_bic - best.delta_bic < o["confounded_bic"]
-        figures = {"best": best.candidate.name, "bic": cf.delta_bic, "best_bic": best.delta_bic}
-        if tie and (within_best and contains_best or (not inside and not contains_best)):
-            confounded.append(name)
-            verdicts[name] = _say(Verdict.CONFOUNDED, **figures)
-        elif within_best and contains_best:
-            verdicts[name] = _say(Verdict.WEAKER, **figures)
-        elif inside:
-            verdicts[name] = _say(Verdict.PART_OF, inside=inside[0])
-        elif contains_best:
-            verdicts[name] = _say(Verdict.CONTAINS, **figures)
-        else:
-            verdicts[name] = _say(Verdict.CONFIRMED_WEAKER, **figures)
-    share = 0.0 if best is None else (scores.base_chi2 - best.chi2) / excess
-    gof_after = 0.0 if best is None else stats.chi2.sf(best.chi2, best.dof)
-    if best is not None:
-        tied = f" (confounded with {', '.join(confounded)})" if confounded else ""
-        code = (Verdict.ADD if share >= o["explained"] or gof_after >= o["alpha"] else Verdict.ADD_PART
-                if share >= 0.5 else Verdict.EXPLAINS_ONLY_TIED if confounded else Verdict.EXPLAINS_ONLY)
-        verdicts[best.candidate.name] = _say(code, pct=100 * share, tied=tied)
-    for name, cf in confirmations.items():
-        verdicts.setdefault(name, _say(Verdict.NOT_CONFIRMED_UNSTABLE, runs=", ".join(cf.unstable_runs))
-                            if cf.unstable_runs else _say(Verdict.NOT_CONFIRMED))
-    for s in scores.scores:
-        verdicts.setdefault(s.candidate.name, _say(Verdict.SIGNIFICANT if s.p_value < alpha_each
-                                                   else Verdict.NOT_SIGNIFICANT))
-    table = _table(scores, confirmations, verdicts, confirmed)
-    status, conclusion, recommendation = _recommend(base, scores, best, confounded, share, misfit, base_ratio, o)
-    summary = plain({"variant": base.variant.name, "runs": list(base.layout.runs), "n_data": scores.n_data,
-               "base_chi2": scores.base_chi2, "base_dof": scores.base_dof, "base_chi2_dof": base_ratio,
-               "base_gof_p_value": float(stats.chi2.sf(scores.base_chi2, scores.base_dof)),
-               "misfit": bool(misfit), "alpha_per_candidate": alpha_each,
-               "candidates": [s.candidate.name for s in scores.scores], "refitted": list(confirmations),
-               "status": status.value, "conclusion": conclusion, "score_seconds": scores.seconds,
-               "recommended_variant": None if best is None else {
-                   "name": _variant_name([base.variant.name, best.candidate.name]),
-                   "spec": variant_spec(base.variant, best.candidate, best.ranges)},
-               "refit_seconds": float(sum(cf.seconds for cf in confirmations.values())),
-               "confounded": list(confounded)})
-    return Diagnosis(table, conclusion, recommendation, summary, dict(confirmations), best, status=status)
-
-
-def _conclude_path(result: Diagnosis, base: BaseFit, scores: Scores, o: Mapping) -> None:
-    """The conclusion, verdict of the first effect and recommendation from the forward-selection path: "add"
-    for effects that together explain the discrepancy, or that carry nearly all of it (NEARLY_EXPLAINED of the
-    excess chi^2: the small misfit left is reported as a form the candidates do not quite capture, with its
-    fingerprint); otherwise "unexplained", the path as evidence."""
-    path = result.path
-    result.summary["path"] = plain([dict(step.row(), step=i + 1, ranges=step.confirmation.ranges)
-                                    for i, step in enumerate(path)], "summary.path")
-    if not path:
-        return
-    final, share = path[-1].confirmation, path[-1].share
-    # "add" only for effects that bring the fit to the noise: a large share of a huge excess can leave a misfit
-    # many times the noise (an effect outside the candidates, half-mimicked by several of them)
-    explains = _fits_the_noise(final, o)
-    nearly = not explains and share >= NEARLY_EXPLAINED
-    names = [step.effect for step in path]
-    first = result.table.index[result.table["effect"] == names[0]][0]
-    base_ratio = scores.base_chi2 / scores.base_dof
-    final_rows = result.estimates()
-    estimates = "; ".join(f"{step.effect}: "
-                          f"{_estimate_text(step.confirmation, final_rows[final_rows['effect'] == step.effect])}"
-                          for step in path)
-    eliminated = [e["effect"] for e in result.summary.get("eliminated", [])]
-    sharing = _sharing_text(result)
-    if explains and len(path) == 1 and not eliminated and not sharing:
-        return  # _conclude's verdict and recommendation stand
-    dropped = (f"; {', '.join(eliminated)} dropped by backward elimination (not needed once "
-               f"{' and '.join(names)} {'is' if len(names) == 1 else 'are'} in)") if eliminated else ""
-    if explains or nearly:
-        together, steps = " and ".join(names), len(path) + len(eliminated)
-        confounded = result.summary.get("confounded") or []
-        if nearly:
-            result.status = Status.ADD_NEARLY
-            head = opening(result.status, effects=together, they="it" if len(names) == 1 else "together they",
-                           share=share_text(share), after=f"{final.chi2 / final.dof:.3g}")
-            _set_verdict(result.table, first, Verdict.ADD_NEARLY, share=share_text(share),
-                         with_=", with " + ", ".join(names[1:]) if len(names) > 1 else "")
-        elif len(path) == 1 and confounded and not eliminated:  # the first step's tie stands (the sharing check only)
-            result.status = Status.ADD_CONFOUNDED
-            head = (f"{opening(result.status, effects=together)} or {', '.join(confounded)}: these data cannot "
-                    f"tell them apart; {together} "
-                    "explains the discrepancy")
-        elif len(path) == 1:
-            result.status = Status.ADD
-            _set_verdict(result.table, first, Verdict.ADD)
-            head = f"{opening(result.status, effects=together)}: it explains the discrepancy"
-        else:
-            result.status = Status.ADD
-            _set_verdict(result.table, first, Verdict.ADD_WITH, others=", ".join(names[1:]), pct=100 * share)
-            head = f"{opening(result.status, effects=together)}: together they explain the discrepancy"
-        if not nearly:
-            head += f" ({100 * share:.0f} % of the excess chi^2)"
-        result.conclusion = (f"{head}; chi^2/dof {base_ratio:.3g} -> "
-                             f"{final.chi2 / final.dof:.3g} (forward selection, {steps} step{'s' if steps != 1 else ''}"
-                             f"{dropped}{sharing}); {estimates}")
-        candidates = [step.confirmation.candidate for step in path]
-        ranges = _path_ranges(path)
-        name = _variant_name([base.variant.name] + names)
-        spec = variant_spec(base.variant, candidates, ranges, per_run=[] if sharing else None)
-        result.recommendation = what_to_do(name, spec, o)
-        result.summary["recommended_variant"] = {"name": name, "spec": spec}
-    else:
-        result.status = Status.UNEXPLAINED
-        left = result.summary.get("path_stopped") or "nothing significant is left among the others"
-        _set_verdict(result.table, first, Verdict.PART_OF_UNEXPLAINED, pct=100 * path[0].share)
-        helps = (f"the candidate that helps most, {names[0]}, removes" if len(names) == 1 else
-                 f"the candidates that help most, {', then '.join(names)}, remove")
-        leave = "leaves" if len(names) == 1 else "leave"
-        result.conclusion = (f"{opening(result.status)}: {helps} {100 * share:.0f} % of the excess chi^2 but {leave} "
-                             f"chi^2/dof {final.chi2 / final.dof:.3g} (from {base_ratio:.3g}; the noise gives about "
-                             f"1), and {left}: the missing physics is not among the candidates (evidence: "
-                             f"{estimates})")
-        result.recommendation = ""
-        result.summary["recommended_variant"] = None
-    result.summary["status"] = result.status.value
-    result.summary["conclusion"] = result.conclusion
-
-
-def _variant_name(parts: Sequence[str]) -> str:
-    """A recommended variant's name, valid in the config (a letter, then letters, digits, _): the base's and the
-    effects' names joined by _, an effect placed at a bearing (``cross_coupled_stiffness@b``) spelled ``..._at_b``,
-    any other character an effect's name may hold (``oil-film_b``) as _."""
-    name = re.sub(r"[^A-Za-z0-9_]", "_", "_".join(parts).replace("@", "_at_"))
-    return name if name[:1].isalpha() else f"v_{name}"
-
-
-def _estimate_text(cf: Confirmation, estimates: pd.DataFrame | None = None) -> str:
-    """The candidate's estimates (``cf.estimates``, or ``estimates``: its rows of another fit) with intervals and
-    the ranges the refit widened."""
-    widened = {name for name, _, _ in cf.widened}
-    limits = {p.name: p.limits for p in cf.candidate.parameters}
-
-    def one(r) -> str:
-        lo, hi = cf.ranges.get(r.parameter, (r.lower, r.upper))
-        note = f" (range widened to [{lo:.4g}, {hi:.4g}])" if r.parameter in widened else ""
-        if r.at_bound:
-            edge = hi if abs(r.value - hi) <= abs(r.value - lo) else lo
-            physical = limits.get(r.parameter) is not None and edge in tuple(limits[r.parameter])
-            why = ("its physical limit: the data want more of this effect than it can physically give" if physical
-                   else "the data want more of this effect than the range allows")
-            return (f"{r.parameter} = {r.value:.4g} {r.unit} (at the edge of its range [{lo:.4g}, {hi:.4g}], "
-                    f"{why})")
-        d = _digits(r.value, r.ci_high - r.ci_low)
-        return f"{r.parameter} = {r.value:.{d}g} [{r.ci_low:.{d}g}, {r.ci_high:.{d}g}] {r.unit}".rstrip() + note
-    return "; ".join(one(r) for r in (cf.estimates if estimates is None else estimates).itertuples())
-
-
-def _digits(value: float, width: float) -> int:
-    """Significant digits that show an interval of ``width`` around ``value`` (4 at least): the interval's ends
-    differ in the printed text (1.2e+06 [1.2e+06, 1.2e+06] says nothing; 1.200005e+06 [1.199927e+06, ...] does)."""
-    if not (np.isfinite(value) and np.isfinite(width)) or width <= 0 or value == 0:
-        return 4
-    return int(min(12, max(4, np.ceil(np.log10(abs(value) / width)) + 2)))
-
-
-def _say(code: Verdict, **figures) -> tuple[Verdict, str]:
-    """A verdict: its code and its sentence (``verdict_text``)."""
-    return code, verdict_text(code, **figures)
-
-
-def _set_verdict(table: pd.DataFrame, rows, code: Verdict, **figures) -> None:
-    """The table's ``rows`` get verdict ``code``: its code and its sentence, side by side."""
-    table.loc[rows, "verdict"] = verdict_text(code, **figures)
-    table.loc[rows, "verdict_code"] = code.value
-
-
-def _table(scores: Scores, confirmations: Mapping[str, Confirmation], verdicts: Mapping[str, tuple[Verdict, str]],
-           confirmed: Sequence[Confirmation]) -> pd.DataFrame:
-    """One row per candidate: confirmed ones first (by Delta BIC), then by score p-value."""
-    excess = _excess(scores)
-    first = [cf.candidate.name for cf in confirmed]
-    rest = [s.candidate.name for s in sorted(scores.scores, key=by_score)
-            if s.candidate.name not in first]
-    by_name = {s.candidate.name: s for s in scores.scores}
-    rows = []
-    for rank, name in enumerate(first + rest, start=1):
-        s, cf = by_name[name], confirmations.get(name)
-        k = len(s.candidate.parameters)
-        rows.append({
-            "rank": rank, "effect": name, "meaning": s.candidate.meaning,
-            "parameters": ",".join(p.name for p in s.candidate.parameters),
-            "statistic": s.statistic, "dof": k, "p_value": s.p_value, "log10_p_value": s.log_p / np.log(10),
-            "predicted_error_drop_pct": 100 * s.statistic / excess,
-            "predicted_chi2_dof": (scores.base_chi2 - s.statistic) / max(scores.base_dof - k, 1),
-            "confirmed_error_drop_pct": np.nan if cf is None else 100 * (scores.base_chi2 - cf.chi2) / excess,
-            "confirmed_chi2_dof": np.nan if cf is None else cf.chi2 / cf.dof,
-            "lr_statistic": np.nan if cf is None else cf.lr,
-            "lr_p_value": np.nan if cf is None else cf.lr_p_value,
-            "delta_bic": np.nan if cf is None else cf.delta_bic,
-            "estimate": "" if cf is None else _estimate_text(cf),
-            "beyond_range": s.beyond_range,
-            "verdict": verdicts[name][1], "verdict_code": verdicts[name][0].value,
-        })
-    return pd.DataFrame(rows)
-
-
 def refits_table(result: Diagnosis) -> pd.DataFrame:
     """Every refit's parameter table (``Identification.table``) with its ``effect``: full-solver joint fits of
     the variant with one effect added, which the identification of such a variant starts its polish from."""
@@ -670,122 +275,6 @@ def refits_table(result: Diagnosis) -> pd.DataFrame:
         return pd.DataFrame(columns=["effect", "parameter", "run", "value", "normalised"])
     table = pd.concat(tables, ignore_index=True)
     return table[["effect"] + [c for c in table if c != "effect"]]
-
-
-def variant_spec(base: Variant, candidate: Candidate | Sequence[Candidate],
-                 ranges: Mapping[str, tuple[float, float]] | None = None, per_run: Sequence[str] | None = None
-                 ) -> dict:
-    """The config entry (``variants:`` form) of ``base`` + the candidate(s), their parameters unknown in their
-    ranges (``ranges``: those a refit widened); ``per_run``: the variant's own parameters per run (its
-    ``per_run`` key, overriding ``identification.per_run``; None: not set)."""
-    added = [candidate] if isinstance(candidate, Candidate) else list(candidate)
-    ranges = dict(ranges or {})
-    unknown = dict(base.unknown) | {p.name: tuple(ranges.get(p.name, p.bounds)) for c in added for p in c.parameters}
-    spec = {"description": f"{base.name} + " + " + ".join(f"{c.name}: {c.meaning}" for c in added),
-            "effects": [e.name for e in base.model.effects] + [c.name for c in added],
-            "unknown": {k: [float(lo), float(hi)] for k, (lo, hi) in unknown.items()}}
-    if base.fixed:
-        spec["fixed"] = {k: float(v) for k, v in base.fixed.items()}
-    if per_run is not None:
-        spec["per_run"] = list(per_run)
-    return spec
-
-
-def yaml_number(value: float) -> str:
-    """``value`` to 6 significant digits as YAML reads a number: 2000, 0.05, 3.0e+07, -2.0e+06 (``3e+07`` would
-    be a string to YAML 1.1, the loader of PyYAML and Snakemake: a float's exponent form needs a point)."""
-    text = f"{value:g}"
-    mantissa, e, exponent = text.partition("e")
-    return f"{mantissa}.0e{exponent}" if e and "." not in mantissa else text
-
-
-def variant_lines(name: str, spec: Mapping) -> str:
-    """``spec`` as YAML lines to paste under ``variants:`` in config/config.yaml."""
-    def flow(value) -> str:
-        if isinstance(value, Mapping):
-            return "{" + ", ".join(f"{k}: {flow(v)}" for k, v in value.items()) + "}"
-        if isinstance(value, list):
-            return "[" + ", ".join(flow(v) for v in value) + "]"
-        return yaml_number(value) if isinstance(value, float) else str(value)
-    lines = [f"  {name}:", f"    description: \"{spec['description']}\""]
-    lines += [f"    {key}: {flow(spec[key])}" for key in ("effects", "unknown", "fixed", "per_run") if key in spec]
-    return "\n".join(lines)
-
-
-#: where the user's project is, for the recommendation's what to do: a project at the repository root; the workflow
-#: passes its own (``project`` of the options: a project run with --directory DIR names DIR's config and command)
-PROJECT = {"config": "config/config.yaml", "command": "snakemake --cores 2", "ledger": "results/ledger.tsv"}
-
-
-def what_to_do(name: str, spec: Mapping, o: Mapping) -> str:
-    """The recommendation: the variant ``name`` (``spec``) to paste, where, and the command that builds it."""
-    place = PROJECT | dict(o.get("project") or {})
-    return (f"Add this variant under `variants:` in {place['config']}, then run `{place['command']}` (only the new "
-            f"variant is built) and compare in {place['ledger']}:\n\n{variant_lines(name, spec)}\n")
-
-
-def _recommend(base: BaseFit, scores: Scores, best: Confirmation | None, confounded: Sequence[str],
-               share: float, misfit: bool, base_ratio: float, o: Mapping) -> tuple[Status, str, str]:
-    """The first step's outcome (a Status), its conclusion (opening from the status) and recommendation."""
-    variant = base.variant
-    if best is None:
-        weak = _thin_plan(base, scores)
-        if weak and base.undetermined:
-            weak.append(f"the fit leaves {', '.join(base.undetermined)}")
-        if not misfit and weak:
-            return Status.CANNOT_RULE_OUT, (f"{opening(Status.CANNOT_RULE_OUT)}: "
-                    f"{'; '.join(weak)}, where an effect can hide (chi^2/dof {base_ratio:.3g}, no candidate "
-                    "significant); fit runs at more speeds and unbalance masses decide, and the validation runs "
-                    "tell whether the model predicts (results/ledger.tsv)"), ""
-        if not misfit:
-            return Status.NO_MISSING_EFFECT, (f"{opening(Status.NO_MISSING_EFFECT)}: the model fits the data to "
-                    "within the noise "
-                    f"(chi^2/dof {base_ratio:.3g}) and no candidate is significant"), ""
-        top = max(scores.scores, key=lambda s: s.statistic)
-        return Status.UNEXPLAINED, (f"{opening(Status.UNEXPLAINED)}: chi^2/dof {base_ratio:.3g} is well above the "
-                "noise floor (1), and no "
-                f"candidate is confirmed (the best, {top.candidate.name}, would remove "
-                f"{100 * top.statistic / _excess(scores):.0f} % of the excess chi^2 to first order); the missing "
-                "physics is not among the candidates: look at the residual spectrum and the error map, and add "
-                "your own candidate effects"), ""
-    name = best.candidate.name
-    if confounded:
-        status = Status.ADD_CONFOUNDED
-        head = (f"{opening(status, effects=name)} or {', '.join(confounded)}: these data cannot tell them apart "
-                "(measure where their "
-                "responses differ, e.g. more speeds or unbalance masses, to decide)")
-    elif share >= o["explained"]:
-        status = Status.ADD
-        head = f"{opening(status, effects=name)}: it explains the discrepancy ({100 * share:.0f} % of the excess chi^2)"
-    elif share >= 0.5:
-        status = Status.ADD_PART
-        head = (f"{opening(status, effects=name)}: it explains {100 * share:.0f} % of the excess chi^2; a "
-                "discrepancy remains")
-    else:
-        status = Status.UNEXPLAINED
-        head = (f"{opening(status)}: the best confirmed candidate, {name}, explains only "
-                f"{100 * share:.0f} % of the excess chi^2")
-    conclusion = (f"{head}; chi^2/dof {base_ratio:.3g} -> {best.chi2 / best.dof:.3g} with it, "
-                  f"Delta BIC {best.delta_bic:.1f}; {_estimate_text(best)}")
-    new_name = _variant_name([variant.name, name])
-    recommendation = what_to_do(new_name, variant_spec(variant, best.candidate, best.ranges), o)
-    return status, conclusion, recommendation
-
-
-def _thin_plan(base: BaseFit, scores: Scores) -> list[str]:
-    """Why the fit runs cannot rule a missing effect out, whatever their chi^2 (empty: they can): fewer than
-    MIN_FIT_RUNS runs, one speed (within SPEED_SPREAD), or fewer than MIN_DOF degrees of freedom. An effect's
-    signature is how the response changes with speed and unbalance; with too few, the base's parameters (a bow
-    per run, k_b) absorb it."""
-    rpm = np.array([d.rpm for d in base.data])
-    why = []
-    if len(rpm) < MIN_FIT_RUNS:
-        why.append(f"only {len(rpm)} fit run{'s' if len(rpm) > 1 else ''}")
-    elif not spans(rpm, SPEED_SPREAD):
-        why.append(f"every fit run at one speed ({rpm.min():.0f}-{rpm.max():.0f} RPM)")
-    if scores.base_dof < MIN_DOF:
-        why.append(f"only {scores.base_dof} degrees of freedom")
-    return why
 
 
 def settings(config: Mapping) -> dict:

@@ -11,8 +11,8 @@ import pandas as pd
 import yaml
 from scipy import stats
 
-from .diagnosis import Diagnosis, plain
-from .diagnosis_status import Status, verdict_colour
+from .conclusion import Diagnosis
+from .diagnosis_status import Status, plain, verdict_colour
 from ..model.variants import Variant
 
 
@@ -103,7 +103,7 @@ def _intervals_markdown(intervals: dict | None) -> str:
 
 
 def _sharing_markdown(sharing: dict | None) -> str:
-    """The sharing check's outcome (``diagnosis._sharing``), one paragraph; empty when it did not run."""
+    """The sharing check's outcome (``elimination._sharing``), one paragraph; empty when it did not run."""
     if not sharing:
         return ""
     names = ", ".join(sharing["parameters"])

@@ -30,7 +30,8 @@ from scipy import optimize, stats
 
 from ..model.candidates import Candidate
 from ..identify.forward import SolverModel
-from ..identify.identification import ArrowProblem, Layout, RunData, theta_from_table
+from ..identify.arrow_problem import ArrowProblem, Layout
+from ..identify.identification import RunData, theta_from_table
 from ..model.model import Model
 from ..identify.uncertainty import BOUND_TOLERANCE
 from ..model.variants import Variant

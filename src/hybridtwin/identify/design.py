@@ -38,6 +38,7 @@ from scipy import stats
 
 from ..data.measured import flags
 from . import forward as fwd
+from .arrow_problem import ArrowProblem, Layout
 from . import identification as idn
 from .validation import values_along
 
@@ -124,9 +125,9 @@ def fit_information(variant, joint: pd.DataFrame, harmonics: pd.DataFrame, optio
     data = [idn.run_data(harmonics, r, keyphasor=options["keyphasor"], channels=variant.channels) for r in runs]
     H = min(n_harmonics, *(d.H for d in data))
     data = [replace(d, X=d.X[:H], sigma=d.sigma[:H]) for d in data]
-    layout = idn.Layout.for_data(names, lower, upper, data, [p for p in options["per_run"] if p in names])
+    layout = Layout.for_data(names, lower, upper, data, [p for p in options["per_run"] if p in names])
     theta = idn.theta_from_table(joint, layout)
-    problem = idn.ArrowProblem(solver_models(variant, data, H), layout, np.stack([d.sigma for d in data]))
+    problem = ArrowProblem(solver_models(variant, data, H), layout, np.stack([d.sigma for d in data]))
     ev = problem.evaluate(theta[None], np.stack([d.X for d in data])[None])
     prior_J, prior_r = problem.prior_rows(theta)
     J = np.vstack([problem.dense_jacobian(ev), prior_J])

@@ -14,8 +14,9 @@ from collections.abc import Sequence
 import numpy as np
 import pandas as pd
 
+from .arrow_problem import ArrowProblem
 from .forward import HarmonicModel, check_stability
-from .identification import ArrowProblem, Identification, conclude
+from .identification import Identification, conclude
 from .lm import LMOptions, LMResult, levenberg_marquardt
 from .protocol import ProtocolResult
 

@@ -16,7 +16,7 @@ Where the repeats start (``ProtocolOptions.monte_carlo_starts``):
   basin that none of its random starts left. The estimate itself (the trials on the measured data) is the
   same computation in both modes.
 
-The problem is duck-typed (``hybridtwin.identify.identification.ArrowProblem``: ``layout`` with ``n``, ``is_phase``,
+The problem is duck-typed (``hybridtwin.identify.arrow_problem.ArrowProblem``: ``layout`` with ``n``, ``is_phase``,
 ``bounds()``, ``phase_sigma``; ``initial_phases``; what ``levenberg_marquardt`` needs).
 """
 

@@ -32,6 +32,7 @@ import numpy as np
 import pandas as pd
 
 from . import forward as fwd
+from .arrow_problem import Layout
 from . import identification as idn
 from . import polish as pol
 from . import profile as prf
@@ -207,7 +208,7 @@ def fit_joint(variant: Variant, options: Mapping, libraries: Sequence[Library], 
         models = solver_models(variant, data, harmonics)
     errors = idn.model_errors(validation, [d.run for d in data], options["model_error"])
     parameters, lower, upper = models[0].parameters, models[0].lower, models[0].upper
-    layout = idn.Layout.for_data(parameters, lower, upper, data, options["per_run"])
+    layout = Layout.for_data(parameters, lower, upper, data, options["per_run"])
     start_theta = start_from_runs(layout, {d.run: idn.Identification.from_table(per_run[d.run]) for d in data
                                            if d.run in per_run})
     start = time.perf_counter()
@@ -303,7 +304,7 @@ def excluded_table(data: idn.RunData, parameters: Sequence[str], lower: Array, u
     return table
 
 
-def start_from_runs(layout: idn.Layout, per_run: Mapping[str, idn.Identification]) -> np.ndarray | None:
+def start_from_runs(layout: Layout, per_run: Mapping[str, idn.Identification]) -> np.ndarray | None:
     """A joint start from the per-run fits (read back with ``Identification.from_table``): shared entries at
     the median of the runs' estimates, local ones and phases from each run's own fit (None when a run has no
     usable fit)."""
@@ -321,7 +322,7 @@ def start_from_runs(layout: idn.Layout, per_run: Mapping[str, idn.Identification
     return theta if np.isfinite(theta).all() else None
 
 
-def theta_from_nested(table: pd.DataFrame, parent: Variant, variant: Variant, layout: idn.Layout,
+def theta_from_nested(table: pd.DataFrame, parent: Variant, variant: Variant, layout: Layout,
                       fallback: pd.DataFrame) -> tuple[Array | None, float]:
     """A start for ``variant`` from the joint fit (parameter table) of a variant nested in it: the shared values
     mapped onto ``variant``'s unknowns (``hybridtwin.model.variants.embed``), the per-run entries (bow, phases) copied

@@ -17,8 +17,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from .arrow_problem import wrap
 from .forward import HarmonicModel
-from .identification import CHANNELS, RunData, total_sigma, wrap
+from .identification import CHANNELS, RunData, total_sigma
 
 Array = np.ndarray
 

@@ -33,6 +33,7 @@ import pandas as pd
 from scipy import stats
 
 from ..data.measured import flags
+from .arrow_problem import ArrowProblem, Layout
 from . import identification as idn
 from .lm import levenberg_marquardt
 from .profile import OPTIONS, threshold
@@ -180,7 +181,7 @@ def explain_run(variant, joint: pd.DataFrame, harmonics: pd.DataFrame, data: idn
     H = min(n_harmonics, *(d.H for d in every))
     every = [replace(d, X=d.X[:H], sigma=d.sigma[:H]) for d in every]
     per_run = [p for p in options["per_run"] if p in names]
-    layout = idn.Layout.for_data(names, lower, upper, every, per_run)
+    layout = Layout.for_data(names, lower, upper, every, per_run)
     start = {(str(r.parameter), str(r.run)): float(r.value) for r in joint.itertuples()}
     start |= {(p, data.run): float(values[p]) for p in per_run} | {("phase", data.run): float(phase)}
     if any(e not in start for e in layout.entries()):
@@ -191,7 +192,7 @@ def explain_run(variant, joint: pd.DataFrame, harmonics: pd.DataFrame, data: idn
     models = solver_models(variant, every, H)
     sigma = np.stack([d.sigma for d in every])
     X = np.stack([d.X for d in every])
-    problem = idn.ArrowProblem(models, layout, sigma)
+    problem = ArrowProblem(models, layout, sigma)
     own = [i for i, (_, run) in enumerate(layout.entries()) if run == data.run]
 
     def parts(theta: Array) -> tuple[float, float]:

@@ -1,7 +1,7 @@
 """Probes at any angle: the two probe readings of a plane to the plane's x and y, and back
 (docs/measurement-format.md, "Probe angles").
 
-A probe's mounting angle a (``machine.Sensor.angle_deg``) is measured in the rotor's cross-section from the
+A probe's mounting angle a (``machine_parts.Sensor.angle_deg``) is measured in the rotor's cross-section from the
 model's +x towards +y, the direction of rotation (the shaft turns from +x towards +y); the probe reads the
 displacement's component along its axis, p = x cos a + y sin a. Two probes of one plane, at a1 and a2, read
 

@@ -38,7 +38,8 @@ from pathlib import Path
 import numpy as np
 
 from .bearing_table import COEFFICIENTS, BearingTable
-from .machine import Bearing, Disk, Machine, Sensor, ShaftSegment, UnbalancePlane
+from .machine import Machine
+from .machine_parts import Bearing, Disk, Sensor, ShaftSegment, UnbalancePlane
 
 INSTALL = 'pip install -e ".[ross]"'
 #: the attribute a ROSS bearing made by ``machine_to_ross`` carries when it evaluates its table as ours

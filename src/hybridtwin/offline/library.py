@@ -23,10 +23,11 @@ import zarr
 
 from . import snapshots
 from ..model.effect_base import Array
+from .piecewise_spgd import PiecewiseSPGD, fit_piecewise, model_from_arrays, piece_index
 from .pod import MIN_TRAIN, MIN_VALIDATION, POD, feature_index, from_features, load_pod, pod, to_features
 from ..model.sensor import observable, sensor_dofs
 from ..model.shaft import Shaft
-from .spgd import PiecewiseSPGD, SparsePGD, fit_piecewise, fit_spgd, model_from_arrays, piece_index, relative_error
+from .spgd import SparsePGD, fit_spgd, relative_error
 from .stores import open_verified, write_manifest
 from ..model.variants import Variant
 

@@ -42,7 +42,7 @@ from scipy.special import chdtrc, ndtri  # chi^2's survival function, the normal
 
 from ..config import ONLINE_DEFAULTS
 from ..diagnose.fingerprint import Fingerprint, fingerprint
-from ..identify.identification import Layout
+from ..identify.arrow_problem import Layout
 from . import fits
 from .intake import Intake
 from .twin import Twin

@@ -25,7 +25,8 @@ from pathlib import Path
 import pandas as pd
 
 from ..data.measured import RunData, run_data
-from ..data.measurements import DataError, DataWarning, read_record, read_runs
+from ..data.measurements import DataError, DataWarning, read_runs
+from ..data.records import read_record
 from ..data.preprocessing import preprocess_run
 from ..data.run_kinds import is_transient_row
 from ..data.transient import track_record

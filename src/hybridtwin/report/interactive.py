@@ -7,7 +7,7 @@ One function per figure, taking what the PNG's function takes:
 =====================  ============================================  ==========================================
 figure                 PNG                                           here
 =====================  ============================================  ==========================================
-comparison per run     ``report.plot_run`` (one run)                 ``runs_figure`` (every run in one file)
+comparison per run     ``report_plots.plot_run`` (one run)           ``runs_figure`` (every run in one file)
 Bode                   ``response_plots.plot_bode``                  ``bode_figure``
 polar                  ``response_plots.plot_polar``                 ``polar_figure``
 Campbell               ``machine_plots.campbell_figure``             ``interactive_machine.campbell_figure``
@@ -43,8 +43,8 @@ from scipy import stats
 from ..diagnose.diagnosis_status import verdict_colour
 from . import response_plots as rp
 from . import summary as sm
-from .report import (ALPHA, MICRO, MILLI, NOISE_FLOOR, ORDERS, VALIDATION_STYLE, RunComparison, mass_colours,
-                     probe_pairs, waveform, waveform_noise, whirl, whirl_noise)
+from .report import ALPHA, NOISE_FLOOR, RunComparison, waveform, waveform_noise, whirl, whirl_noise
+from .report_plots import MICRO, MILLI, ORDERS, VALIDATION_STYLE, mass_colours, probe_pairs
 
 #: the plotly.js options of every file: no plotly logo; the camera button saves a PNG of the current view
 CONFIG = {"displaylogo": False, "toImageButtonOptions": {"format": "png", "scale": 2}}
@@ -115,7 +115,7 @@ def _speeds_line(rpm: Sequence[float], top: float) -> tuple[list, list]:
 
 def runs_figure(comparisons: Sequence[RunComparison], variant: str,
                 pairs: Sequence[tuple[str, str]] | None = None) -> go.Figure:
-    """Every run of ``comparisons`` as ``report.plot_run`` draws one (a row per plane: the orbit, x and y over two
+    """Every run of ``comparisons`` as ``report_plots.plot_run`` draws one (a row per plane: the orbit, x and y over two
     revolutions with the residual and its +-2 sigma noise band, the whirl spectrum), in one figure: a legend group
     per run and probe (``<run>: <probe>``; ``<run>: orbit, whirl`` per plane), the worst run (largest chi^2/dof)
     shown, the others one click away. pairs: as ``plot_run``'s."""
@@ -196,7 +196,7 @@ def _run_plane(fig: go.Figure, c: RunComparison, row: int, head: str, visible) -
 
 
 def _whirl_bars(fig: go.Figure, c: RunComparison, row: int, head: str, group: str, common: Mapping) -> None:
-    """The whirl spectrum of ``report._spectrum``: |measured|, |model|, |residual| per component, backward (-hX)
+    """The whirl spectrum of ``report_plots._spectrum``: |measured|, |model|, |residual| per component, backward (-hX)
     then forward (+hX), and the noise-only RMS (``report.whirl_noise``)."""
     H = c.H
     order = [f"{h:+d}X" for h in np.concatenate([-np.arange(H, 0, -1), np.arange(1, H + 1)])]
@@ -464,7 +464,7 @@ def summary_figure(ledger: pd.DataFrame, errors: Mapping[str, pd.DataFrame]) -> 
 
 
 def diagnosis_figure(result) -> go.Figure:
-    """``diagnosis_report.plot`` interactive, for a ``diagnosis.Diagnosis``: left, each candidate's score statistic
+    """``diagnosis_report.plot`` interactive, for a ``conclusion.Diagnosis``: left, each candidate's score statistic
     (the chi^2 drop it predicts; colour: its verdict) with the significance threshold; right, chi^2/dof with each
     candidate added, predicted (open) and refitted (filled), against the variant's and the noise floor."""
     t = result.table.iloc[::-1]

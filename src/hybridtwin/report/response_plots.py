@@ -28,8 +28,9 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from ..identify import validation as val  # noqa: E402
-from ..identify.identification import wrap  # noqa: E402
-from .report import MICRO, ORDERS, VALIDATION_STYLE, RunComparison, mass_colours  # noqa: E402
+from ..identify.arrow_problem import wrap  # noqa: E402
+from .report import RunComparison  # noqa: E402
+from .report_plots import MICRO, ORDERS, VALIDATION_STYLE, mass_colours  # noqa: E402
 from ..model.sensor import sensor_channels, sensor_names  # noqa: E402
 from ..solvers.continuation import solve_sweep  # noqa: E402
 

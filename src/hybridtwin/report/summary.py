@@ -31,7 +31,8 @@ from scipy import stats
 
 from ..data import measured
 from ..plots import plt
-from .report import ALPHA, NOISE_FLOOR, VALIDATION_STYLE
+from .report import ALPHA, NOISE_FLOOR
+from .report_plots import VALIDATION_STYLE
 
 #: columns of ``summary_table`` (results/summary.tsv)
 SUMMARY_COLUMNS = ["variant", "chi2_dof", "p_value", "validation_chi2_dof", "delta_bic", "fit_runs", "fit_runs_beyond_noise",

@@ -47,11 +47,11 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from ..data import measured  # noqa: E402
-from ..data.measurements import probe_angles, record_channels  # noqa: E402
+from ..data.records import probe_angles, record_channels  # noqa: E402
 from ..data.order_tracking import order_vector, table_channels  # noqa: E402
 from ..data.record_columns import harmonic_column  # noqa: E402
 from ..model.probes import DEFAULT_ANGLE_DEG, cos_sin_deg  # noqa: E402
-from .report import MICRO, ORDERS  # noqa: E402
+from .report_plots import MICRO, ORDERS  # noqa: E402
 from .response_plots import SWEEPS, channels_of, dense_response  # noqa: E402
 
 Array = np.ndarray

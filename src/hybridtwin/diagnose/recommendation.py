@@ -1,0 +1,73 @@
+"""The diagnosis's recommendation written out: the variant to add (the base and the confirmed effects), its name,
+its config entry (``variant_spec``), the YAML lines to paste under ``variants:`` (``variant_lines``,
+``yaml_number``) and what to do with them (``what_to_do``: where to paste them, the command that builds the new
+variant, where to compare it).
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping, Sequence
+
+from ..model.candidates import Candidate
+from ..model.variants import Variant
+
+
+def _variant_name(parts: Sequence[str]) -> str:
+    """A recommended variant's name, valid in the config (a letter, then letters, digits, _): the base's and the
+    effects' names joined by _, an effect placed at a bearing (``cross_coupled_stiffness@b``) spelled ``..._at_b``,
+    any other character an effect's name may hold (``oil-film_b``) as _."""
+    name = re.sub(r"[^A-Za-z0-9_]", "_", "_".join(parts).replace("@", "_at_"))
+    return name if name[:1].isalpha() else f"v_{name}"
+
+
+def variant_spec(base: Variant, candidate: Candidate | Sequence[Candidate],
+                 ranges: Mapping[str, tuple[float, float]] | None = None, per_run: Sequence[str] | None = None
+                 ) -> dict:
+    """The config entry (``variants:`` form) of ``base`` + the candidate(s), their parameters unknown in their
+    ranges (``ranges``: those a refit widened); ``per_run``: the variant's own parameters per run (its
+    ``per_run`` key, overriding ``identification.per_run``; None: not set)."""
+    added = [candidate] if isinstance(candidate, Candidate) else list(candidate)
+    ranges = dict(ranges or {})
+    unknown = dict(base.unknown) | {p.name: tuple(ranges.get(p.name, p.bounds)) for c in added for p in c.parameters}
+    spec = {"description": f"{base.name} + " + " + ".join(f"{c.name}: {c.meaning}" for c in added),
+            "effects": [e.name for e in base.model.effects] + [c.name for c in added],
+            "unknown": {k: [float(lo), float(hi)] for k, (lo, hi) in unknown.items()}}
+    if base.fixed:
+        spec["fixed"] = {k: float(v) for k, v in base.fixed.items()}
+    if per_run is not None:
+        spec["per_run"] = list(per_run)
+    return spec
+
+
+def yaml_number(value: float) -> str:
+    """``value`` to 6 significant digits as YAML reads a number: 2000, 0.05, 3.0e+07, -2.0e+06 (``3e+07`` would
+    be a string to YAML 1.1, the loader of PyYAML and Snakemake: a float's exponent form needs a point)."""
+    text = f"{value:g}"
+    mantissa, e, exponent = text.partition("e")
+    return f"{mantissa}.0e{exponent}" if e and "." not in mantissa else text
+
+
+def variant_lines(name: str, spec: Mapping) -> str:
+    """``spec`` as YAML lines to paste under ``variants:`` in config/config.yaml."""
+    def flow(value) -> str:
+        if isinstance(value, Mapping):
+            return "{" + ", ".join(f"{k}: {flow(v)}" for k, v in value.items()) + "}"
+        if isinstance(value, list):
+            return "[" + ", ".join(flow(v) for v in value) + "]"
+        return yaml_number(value) if isinstance(value, float) else str(value)
+    lines = [f"  {name}:", f"    description: \"{spec['description']}\""]
+    lines += [f"    {key}: {flow(spec[key])}" for key in ("effects", "unknown", "fixed", "per_run") if key in spec]
+    return "\n".join(lines)
+
+
+#: where the user's project is, for the recommendation's what to do: a project at the repository root; the workflow
+#: passes its own (``project`` of the options: a project run with --directory DIR names DIR's config and command)
+PROJECT = {"config": "config/config.yaml", "command": "snakemake --cores 2", "ledger": "results/ledger.tsv"}
+
+
+def what_to_do(name: str, spec: Mapping, o: Mapping) -> str:
+    """The recommendation: the variant ``name`` (``spec``) to paste, where, and the command that builds it."""
+    place = PROJECT | dict(o.get("project") or {})
+    return (f"Add this variant under `variants:` in {place['config']}, then run `{place['command']}` (only the new "
+            f"variant is built) and compare in {place['ledger']}:\n\n{variant_lines(name, spec)}\n")
