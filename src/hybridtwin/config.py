@@ -127,9 +127,9 @@ def online(config: Mapping) -> dict:
 
 def online_records(settings: Mapping) -> list[str]:
     """The records (runs) of the ``online:`` section's sheet, read as check-data reads a sheet; none without one."""
-    from .data.measurements import read_runs  # the one reader of runs sheets
+    from .data.measurements import sheet_of  # the one reader of runs sheets
 
-    return [] if not settings else read_runs(settings["records"], require_mass=True)["run"].tolist()
+    return [] if not settings else sheet_of(settings["records"])["run"].tolist()
 
 
 def data_check_settings(config: Mapping) -> dict:
@@ -169,20 +169,22 @@ def n_scenarios(config: Mapping, variant_: Variant) -> int:
     return int(offline(config)["n_scenarios"].get(variant_.name, default_n_scenarios(len(variant_.unknown))))
 
 
-def run_plan(source: Mapping | str | Path, measured: str | Path | None = None) -> pd.DataFrame:
+def run_plan(source: Mapping | str | Path | pd.DataFrame, measured: str | Path | None = None) -> pd.DataFrame:
     """The runs the libraries are built for: run, rpm, eccentric_mass_g, role (from the runs sheet; a transient
     record's speed bands, ``run_kinds.expand_bands``, each a run at the band's centre).
 
-    ``source`` is the runs sheet's path, or a config naming it under ``runs:`` (a workflow script passes the
-    sheet it has as input). With ``measured`` (the preprocessed table, results/data/harmonics.tsv) each run's
+    ``source`` is the runs sheet's path, a config naming it under ``runs:`` (a workflow script passes the
+    sheet it has as input), or the sheet already read (``measurements.sheet_of``: the workflow reads it once). With ``measured`` (the preprocessed table, results/data/harmonics.tsv) each run's
     rpm is the true speed refined from its record (rpm_true) instead of the nominal one.
     """
-    from .data.measurements import read_runs  # the one reader of runs sheets (check-data's): every problem named
+    from .data.measurements import sheet_of  # the one reader of runs sheets (check-data's): every problem named
     from .data.measured import read_harmonics
     from .data.run_kinds import expand_bands
 
-    path = source["runs"] if isinstance(source, Mapping) else source
-    sheet = expand_bands(read_runs(path, require_mass=True))  # a run-up's speed bands are runs (data/transient)
+    read = sheet_of(source["runs"] if isinstance(source, Mapping) else source)
+    path = read.attrs.get("source", "runs sheet")
+    sheet = expand_bands(read).copy()  # a run-up's speed bands are runs (data/transient); a copy: `read` may be
+    # the workflow's one sheet, shared by every input function, and the speeds below are written in place
     if measured is not None:
         speeds = read_harmonics(measured).set_index("run")["rpm_true"]
         missing = sorted(set(sheet["run"]) - set(speeds.index))

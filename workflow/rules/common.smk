@@ -19,7 +19,7 @@ from hybridtwin.config import (
 )
 from hybridtwin.diagnose.diagnosis import settings as diagnosis_settings
 from hybridtwin.identify.identification import settings as identification_settings
-from hybridtwin.data.measurements import DataError, read_runs
+from hybridtwin.data.measurements import DataError, read_runs, sheet_of
 from hybridtwin.data.run_kinds import is_transient_row
 from hybridtwin.model.variants import nested_parents, parent_variant
 from hybridtwin.report.transient_plots import settings as transient_settings
@@ -34,12 +34,13 @@ CHUNKS = [f"{i:03d}" for i in range(OFFLINE["chunks"])]
 ENRICHMENT_CHUNKS = [
     f"{i:03d}" for i in range(OFFLINE["enrichment"]["chunks"] if OFFLINE["enrichment"]["n_scenarios"] else 0)
 ]
-# The runs sheet, read at parse time by the reader check-data uses (hybridtwin.data.measurements.read_runs, also behind
-# run_plan, runs_with_role and sheet_entry): white space, case, BOM, CRLF handled one way; any problem (a missing
-# column, an unknown role, an empty mass, a missing record...) stops here in one message naming file, line, column.
+# The runs sheet, read once per plan, here, by the reader check-data uses (hybridtwin.data.measurements.read_runs):
+# white space, case, BOM, CRLF handled one way; any problem (a missing column, an unknown role, an empty mass, a
+# missing record...) stops here in one message naming file, line, column. Every rule's input function and param
+# takes this SHEET (run_plan, runs_with_role and sheet_entry accept the sheet already read), none reads it again.
 try:
     SHEET = read_runs(config["runs"], require_mass=True)
-    RUNS = list(run_plan(config)["run"])
+    RUNS = list(run_plan(SHEET)["run"])
 except DataError as err:
     sys.exit(f"error: {err}")
 # the offline options each job uses: a job reruns only when one of its own options changes
@@ -202,11 +203,7 @@ def library_input(wildcards):
 
 def steady_runs():
     """The sheet's steady runs (each preprocessed alone); the others are run-ups and coast-downs (track_record)."""
-    return [
-        r["run"]
-        for r in read_runs(config.get("runs", "data/default/runs.tsv")).to_dict("records")
-        if not is_transient_row(r)
-    ]
+    return [r["run"] for r in SHEET.to_dict("records") if not is_transient_row(r)]
 
 
 def measured_tables(wildcards):
@@ -217,7 +214,7 @@ def measured_tables(wildcards):
             if is_transient_row(r)
             else f"results/data/runs/{r['run']}/harmonics.tsv"
         )
-        for r in read_runs(config.get("runs", "data/default/runs.tsv")).to_dict("records")
+        for r in SHEET.to_dict("records")
     ]
 
 
@@ -227,7 +224,7 @@ TRANSIENT_DISPLAY = transient_settings(config)  # config report: transient: (fra
 
 def transient_records():
     """The sheet's run-ups and coast-downs (``kind`` runup or coastdown), in its order, as plain rows."""
-    rows = read_runs(config.get("runs", "data/default/runs.tsv"), require_mass=True).to_dict("records")
+    rows = SHEET.to_dict("records")
     return [
         {
             "run": str(r["run"]),

@@ -8,8 +8,8 @@ from hybridtwin.identify.identification import runs_with_role
 from hybridtwin.identify.identification import rule_settings
 from hybridtwin.identify.design import candidate_grid, settings as design_settings
 
-FIT_RUNS = runs_with_role(config["runs"], "fit")
-VALIDATION_RUNS = runs_with_role(config["runs"], "validate")
+FIT_RUNS = runs_with_role(SHEET, "fit")
+VALIDATION_RUNS = runs_with_role(SHEET, "validate")
 
 
 rule identify_run:
@@ -160,7 +160,7 @@ rule design_runs:
         model=variant_model,
         options=lambda wildcards: rule_settings(config, wildcards.variant, "validation"),
         harmonics=config["harmonics"],
-        grid=lambda wildcards: candidate_grid(DESIGN, run_plan(config)),
+        grid=lambda wildcards: candidate_grid(DESIGN, run_plan(SHEET)),
         runs=DESIGN["runs"],
         keyphasor=DESIGN["keyphasor"],
         sensor_range_mm=OFFLINE["sensor_range_mm"],

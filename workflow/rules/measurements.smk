@@ -1,11 +1,10 @@
 # Measured runs (issue 4): check the runs sheet and every record, preprocess each run (true speed,
 # synchronous analysis), and the virtual rig that writes such data sets from a truth model.
-# The sheet (config key `runs`, paths in it relative to its folder) is read in input functions (lazily),
-# so targets that need no measured data never open it.
+# The sheet (config key `runs`, paths in it relative to its folder) is common.smk's SHEET, read once per plan.
 import os
 
 from hybridtwin.config import data_check_settings
-from hybridtwin.data.measurements import read_runs, sheet_entry
+from hybridtwin.data.measurements import sheet_entry
 
 RUNS_SHEET = config.get("runs", "data/default/runs.tsv")
 # The records' channels are the machine's sensors, one column each named after it (issue 24), a param of the rules
@@ -20,7 +19,7 @@ rule check_data:
     """First step on measured data: validate the sheet and every record; per-run summary."""
     input:
         sheet=RUNS_SHEET,
-        records=lambda wildcards: list(read_runs(RUNS_SHEET)["record"]),
+        records=list(SHEET["record"]),
         # relative to the working directory (the project root, or another with --directory): a moved or copied
         # project reruns nothing
         schema=os.path.relpath(Path(workflow.basedir) / "workflow" / "schemas" / "runs.schema.yaml"),
@@ -44,7 +43,7 @@ rule preprocess:
     spectrum (for the cascade)."""
     input:
         check="results/data/check.tsv",
-        record=lambda wildcards: sheet_entry(RUNS_SHEET, wildcards.run)["record"],
+        record=lambda wildcards: sheet_entry(SHEET, wildcards.run)["record"],
     output:
         harmonics="results/data/runs/{run}/harmonics.tsv",
         waveforms="results/data/runs/{run}/waveforms.tsv",
@@ -59,7 +58,7 @@ rule preprocess:
         "../envs/hybridtwin.yaml"
     params:
         **SENSOR_PARAMS,
-        row=lambda wildcards: sheet_entry(RUNS_SHEET, wildcards.run),
+        row=lambda wildcards: sheet_entry(SHEET, wildcards.run),
         harmonics=CHECK_SETTINGS["harmonics"],
         sensor_range_mm=CHECK_SETTINGS["sensor_range_mm"],
     script:
@@ -72,7 +71,7 @@ rule track_record:
     harmonics table (a pseudo-run <run>_b<RPM>, hybridtwin.data.transient)."""
     input:
         check="results/data/check.tsv",
-        record=lambda wildcards: sheet_entry(RUNS_SHEET, wildcards.run)["record"],
+        record=lambda wildcards: sheet_entry(SHEET, wildcards.run)["record"],
     output:
         bands="results/data/records/{run}/bands.tsv",
         orders="results/data/records/{run}/orders.tsv",
@@ -88,7 +87,7 @@ rule track_record:
         "../envs/hybridtwin.yaml"
     params:
         **SENSOR_PARAMS,
-        row=lambda wildcards: sheet_entry(RUNS_SHEET, wildcards.run),
+        row=lambda wildcards: sheet_entry(SHEET, wildcards.run),
         harmonics=CHECK_SETTINGS["harmonics"],
         sensor_range_mm=CHECK_SETTINGS["sensor_range_mm"],
     script:

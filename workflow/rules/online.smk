@@ -33,7 +33,8 @@ rule twin_card:
 # per record (a new record in the sheet is the only new job on a rerun), then the trend rebuilt from every
 # assessment (never appended to: a failed record leaves the last trend as it was).
 ONLINE = online_settings(config)
-ONLINE_RECORDS = online_records(ONLINE)
+ONLINE_SHEET = sheet_of(ONLINE["records"]) if ONLINE else None  # read once per plan, as the runs sheet
+ONLINE_RECORDS = online_records({"records": ONLINE_SHEET} if ONLINE else ONLINE)
 
 
 rule assess_record:
@@ -42,7 +43,7 @@ rule assess_record:
         card="results/{variant}/twin.yaml",
         parameters="results/{variant}/parameters.tsv",
         correlation="results/{variant}/identification/correlation.tsv",
-        record=lambda wildcards: sheet_entry(ONLINE["records"], wildcards.record)["record"],
+        record=lambda wildcards: sheet_entry(ONLINE_SHEET, wildcards.record)["record"],
         effects=variant_effects,  # their contents build the variant (the card has only the paths)
     output:
         summary="results/online/{variant}/{record}/assessment.tsv",
@@ -64,7 +65,7 @@ rule assess_record:
     conda:
         "../envs/hybridtwin.yaml"
     params:
-        row=lambda wildcards: sheet_entry(ONLINE["records"], wildcards.record),
+        row=lambda wildcards: sheet_entry(ONLINE_SHEET, wildcards.record),
         alpha=lambda wildcards: ONLINE["alpha"],  # lazily: a config without online: plans no such job
     script:
         "../../scripts/assess_record.py"

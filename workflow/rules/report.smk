@@ -156,7 +156,7 @@ rule report_response:
         "../envs/hybridtwin.yaml"
     params:
         model=variant_model,
-        runs=lambda wildcards: run_plan(config)[["run", "rpm", "eccentric_mass_g", "role"]].to_dict("list"),
+        runs=lambda wildcards: run_plan(SHEET)[["run", "rpm", "eccentric_mass_g", "role"]].to_dict("list"),
         harmonics=config["harmonics"],
         options=lambda wildcards: rule_settings(config, wildcards.variant, "validation"),
     script:
@@ -224,7 +224,7 @@ rule report_machine:
         "../envs/hybridtwin.yaml"
     params:
         model=variant_model,
-        runs=lambda wildcards: run_plan(config)[["run", "rpm", "eccentric_mass_g"]].to_dict("list"),  # marked
+        runs=lambda wildcards: run_plan(SHEET)[["run", "rpm", "eccentric_mass_g"]].to_dict("list"),  # marked
     script:
         "../../scripts/report_machine.py"
 
@@ -344,7 +344,7 @@ rule report_transient:
     params:
         **SENSOR_PARAMS,
         model=variant_model,
-        runs=lambda wildcards: run_plan(config)[["run", "rpm", "eccentric_mass_g"]].to_dict("list"),  # the bow's law
+        runs=lambda wildcards: run_plan(SHEET)[["run", "rpm", "eccentric_mass_g"]].to_dict("list"),  # the bow's law
         records=lambda wildcards: [
             {k: r[k] for k in ("run", "kind", "role", "eccentric_mass_g")} for r in transient_records()
         ],
@@ -359,7 +359,7 @@ rule report_waterfall:
     """The waterfall of one transient record: its short-time spectra against the keyphasor's speed, per probe
     (hybridtwin.report.transient_plots.waterfall)."""
     input:
-        record=lambda wildcards: sheet_entry(RUNS_SHEET, wildcards.run)["record"],
+        record=lambda wildcards: sheet_entry(SHEET, wildcards.run)["record"],
         speed="results/data/records/{run}/speed.tsv",
     output:
         waterfall=report(

@@ -266,20 +266,27 @@ def read_runs(path: str | Path, check_files: bool = True, require_path: bool = T
     return out
 
 
-def sheet_entry(sheet: str | Path, run: str) -> dict:
-    """One run's row of a runs sheet (read as the workflow does) as a plain dict (``record`` resolved,
-    NaN -> None), or ``DataError``."""
-    runs = read_runs(sheet, require_mass=True)
+def sheet_of(sheet: str | Path | pd.DataFrame) -> pd.DataFrame:
+    """A runs sheet as the workflow reads it (``read_runs`` with the mass required), or the one already read (a
+    DataFrame ``read_runs`` returned, passed on as it is: the workflow reads its sheet once per plan)."""
+    return sheet if isinstance(sheet, pd.DataFrame) else read_runs(sheet, require_mass=True)
+
+
+def sheet_entry(sheet: str | Path | pd.DataFrame, run: str) -> dict:
+    """One run's row of a runs sheet (read as the workflow does, or already read: ``sheet_of``) as a plain dict
+    (``record`` resolved, NaN -> None), or ``DataError``."""
+    runs = sheet_of(sheet)
     rows = runs[runs["run"] == run]
     if rows.empty:
-        raise DataError(f"{sheet}: no run {run!r} (runs: {', '.join(runs['run'])})")
+        raise DataError(f"{runs.attrs.get('source', sheet)}: no run {run!r} (runs: {', '.join(runs['run'])})")
     return {k: (None if pd.isna(v) else (v.item() if hasattr(v, "item") else v)) for k, v in rows.iloc[0].items()}
 
 
-def runs_with_role(sheet: str | Path, role: str) -> list[str]:
-    """Runs of a runs sheet with this role, read as check-data reads it (no role column: every run fits); a
-    transient record's runs are its speed bands (``run_kinds.expand_bands``), with the record's role."""
-    runs = expand_bands(read_runs(sheet, require_mass=True))
+def runs_with_role(sheet: str | Path | pd.DataFrame, role: str) -> list[str]:
+    """Runs of a runs sheet (a path, or the sheet already read: ``sheet_of``) with this role, read as check-data
+    reads it (no role column: every run fits); a transient record's runs are its speed bands
+    (``run_kinds.expand_bands``), with the record's role."""
+    runs = expand_bands(sheet_of(sheet))
     return runs.loc[runs["role"] == role, "run"].tolist()
 
 
