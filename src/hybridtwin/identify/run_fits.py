@@ -38,6 +38,7 @@ from . import polish as pol
 from . import profile as prf
 from .protocol import ProtocolOptions
 from ..offline.library import Library
+from ..model.effects import trial_angle_rad
 from ..model.variants import Variant, embed
 
 Array = np.ndarray
