@@ -6,7 +6,7 @@ variant (any list of effects, e.g. the Geometric model plus the slope force
 the Geometric model lacks) with parameter values, built on a machine (the
 config's ``machine:`` section, hybridtwin.model.machine; the VARM by default), whose
 x and y probes the records hold. For every run of a plan
-(run, rpm, eccentric_mass_g, role) the rig
+(run, rpm, eccentric_mass_g[, eccentric_mass_angle_deg], role) the rig
 
 1. draws the run's conditions from a seeded generator: the true speed
    rpm (1 + speed_error * N(0, 1)), the rotor angle at the first sample
@@ -40,7 +40,9 @@ x and y probes the records hold. For every run of a plan
    at the sampling instants, t0 = angle / Omega, adds the offsets and white
    Gaussian noise, clips at +-sensor_range_mm if asked (a saturated laser
    micrometer) and marks the keyphasor on the sample nearest to each instant
-   the unbalance points to +x (if asked);
+   the rotor's reference points to +x (if asked: where a trial mass at 0 deg
+   sits; a plan row's eccentric_mass_angle_deg places its mass that far
+   ahead in the sense of rotation, ``trial_groups``);
 4. writes runs.tsv, records/{run}.csv, and the answer key truth.tsv (per run:
    true speed, phase origin, offsets, noise levels, truth harmonics in the
    model's frame, run-up/run-down agreement, stability, peak vs sensor range) and
