@@ -198,6 +198,23 @@ def run_plan(source: Mapping | str | Path | pd.DataFrame, measured: str | Path |
     return sheet[["run", "rpm", "eccentric_mass_g"] + (["role"] if "role" in sheet else [])]
 
 
+def angles_on_libraries(config: Mapping, sheet: pd.DataFrame) -> str | None:
+    """What is wrong when runs of ``sheet`` (read_runs) carry a trial mass at a non-zero angle
+    (eccentric_mass_angle_deg) and a variant fits on sPGD libraries (offline.scope run or global): the libraries are
+    built per (rpm, eccentric mass) with the mass on +x, so the angle is refused rather than ignored; None when
+    fine."""
+    from .data.measurements import trial_angles
+    from .model.effects import trial_angle_rad
+
+    angled = [r for r, a in zip(sheet["run"], trial_angles(sheet)) if trial_angle_rad(a) != 0.0]
+    on_libraries = [v for v in config["variants"] if offline_for(config, v)["scope"] != "none"]
+    if not angled or not on_libraries:
+        return None
+    return (f"run(s) {angled} carry a trial mass at an angle (eccentric_mass_angle_deg), but variant(s) "
+            f"{on_libraries} fit on sPGD libraries, built per (rpm, eccentric mass) with the mass on +x: set "
+            "offline: scope: none (the full solver) for them")
+
+
 def rule_logger(log_path: str, name: str) -> logging.Logger:
     """A logger writing to the rule's log file; BLAS pinned to one thread (jobs run in parallel)."""
     threadpool_limits(1)

@@ -9,6 +9,7 @@ from snakemake.utils import validate
 
 from hybridtwin.config import (
     CONFIG_DIR,
+    angles_on_libraries,
     effects_files_used,
     offline,
     offline_for,
@@ -43,6 +44,8 @@ try:
     RUNS = list(run_plan(SHEET)["run"])
 except DataError as err:
     sys.exit(f"error: {err}")
+if angles_on_libraries(config, SHEET):  # a trial mass at an angle needs the full solver (offline.scope: none)
+    sys.exit(f"error: {angles_on_libraries(config, SHEET)}")
 # the offline options each job uses: a job reruns only when one of its own options changes
 OFFLINE_USED = {
     "sample_scenarios": ("seed", "n_scenarios", "n_test", "validation_fraction"),

@@ -31,7 +31,7 @@ from .assess import add_assess_command
 from .check_data import add_check_data_command
 from .common import (
     MAX_SAMPLES, RUN_UP_FROM_RPM, RUNDOWN_FACTOR, RUNDOWN_MARGIN_RPM, SAME_BRANCH_RTOL, UsageError, _positive_int,
-    _non_negative, _parameter, _Parser, _positive, _version, build_variant, check_writable, chosen_variant,
+    _non_negative, _number, _parameter, _Parser, _positive, _version, build_variant, check_writable, chosen_variant,
     config_file, load_catalog, own_machine, variant_values,
 )
 from .machine import add_machine_commands
@@ -72,6 +72,9 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--rpm", type=_positive, required=True, help="rotational speed [RPM]")
     sim.add_argument("--eccentric-mass-g", type=_non_negative, default=None,
                      help="eccentric (unbalance) mass [g] (default: the variant's value, 0 g nominal)")
+    sim.add_argument("--eccentric-mass-angle-deg", type=_number, default=None, metavar="DEG",
+                     help="the eccentric mass's angle at t = 0 [deg], from +x towards +y (the sense of rotation): "
+                          "its force turns by it (default 0: on +x; any finite value, taken modulo 360)")
     sim.add_argument("--set", dest="values", type=_parameter, action="append", default=[], metavar="NAME=VALUE",
                      help="parameter value in SI units (repeatable), e.g. --set k_b=2411.3")
     sim.add_argument("--harmonics", type=_positive_int, default=5, help="highest harmonic H (default 5)")

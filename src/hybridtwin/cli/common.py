@@ -15,7 +15,7 @@ import yaml
 
 from ..data.measurements import kg_looking
 from ..model.effect_base import Effect
-from ..model.effects import builtin_effects
+from ..model.effects import builtin_effects, trial_angle_rad
 from ..model.machine import Machine, default_machine
 from ..model.machine_parts import MachineSpecError
 from ..model.variants import BUILTIN_VARIANTS, EffectsFileError, Variant, load_effects_files
@@ -193,8 +193,9 @@ def chosen_variant(args: argparse.Namespace) -> tuple[Variant, Path | None]:
 
 
 def given_values(args: argparse.Namespace) -> dict[str, float]:
-    """The parameter values the command line gives [SI]: --set NAME=VALUE, and --eccentric-mass-g as m_e [kg]
-    (refused, as the runs sheet refuses it, when it looks like kilograms: ``measurements.kg_looking``)."""
+    """The parameter values the command line gives [SI]: --set NAME=VALUE, --eccentric-mass-g as m_e [kg]
+    (refused, as the runs sheet refuses it, when it looks like kilograms: ``measurements.kg_looking``) and
+    --eccentric-mass-angle-deg as angle_me [rad] (``effects.trial_angle_rad``: taken modulo 360)."""
     values = dict(args.values)
     mass_g = getattr(args, "eccentric_mass_g", None)
     if mass_g is not None:
@@ -204,6 +205,12 @@ def given_values(args: argparse.Namespace) -> dict[str, float]:
             raise UsageError(f"--eccentric-mass-g {mass_g:g}: {kg_looking(mass_g)}; the option is in grams "
                              "(the runs sheet refuses such a mass too)")
         values["m_e"] = mass_g * 1e-3
+    angle_deg = getattr(args, "eccentric_mass_angle_deg", None)
+    if angle_deg is not None:
+        if "angle_me" in values:
+            raise UsageError("give the eccentric mass's angle once: --eccentric-mass-angle-deg or --set angle_me=..., "
+                             "not both")
+        values["angle_me"] = trial_angle_rad(angle_deg)
     return values
 
 

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from .measurements import trial_angles
 from .preprocessing import harmonic_column, origin_share, table_channels
 from .record_columns import highest_harmonic
 from .slow_roll import RUNOUT_HARMONICS
@@ -50,6 +51,8 @@ class RunData:
     # the speed [RPM] a coast-down's band is reached from (its record's nominal start): the model follows the
     # run-down branch from there (forward.SolverModel's sweep_from_rpm); None for a steady run or a run-up's band
     sweep_from_rpm: float | None = None
+    # the trial mass's angle [deg] at the keyphasor mark, from +x towards +y (the sheet's eccentric_mass_angle_deg)
+    eccentric_mass_angle_deg: float = 0.0
 
     @property
     def H(self) -> int:
@@ -139,7 +142,7 @@ def run_data(table: pd.DataFrame, run: str, harmonics: int | None = None, keypha
     down = str(row.get("kind", "")).strip().lower() == "coastdown"
     return RunData(str(run), rpm, float(row["eccentric_mass_g"]), str(row.get("role", "fit")), X, sigma, usable,
                    str(row.get("note", "ok")), phase_sigma, channels, RUNOUT_HARMONICS if compensated else (),
-                   float(row["rpm_start"]) if down else None)
+                   float(row["rpm_start"]) if down else None, float(trial_angles(rows)[0]))
 
 
 def total_sigma(data: RunData, relative_model_error: float = 0.0) -> Array:

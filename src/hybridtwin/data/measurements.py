@@ -50,6 +50,9 @@ SHEET_COLUMNS = ("run", "rpm", "eccentric_mass_g", "path", "role")
 REQUIRED_SHEET_COLUMNS = ("run", "rpm", "eccentric_mass_g", "path")  # role defaults to "fit"
 #: optional per-run facts of the displacement sensor (empty cell: the configured or built-in default)
 SENSOR_COLUMNS = ("sensor_range_mm", "sensor_resolution_mm")
+#: optional: the angle of a run's trial (eccentric) mass [deg] at the keyphasor mark, from +x towards +y (the sense
+#: of rotation); empty or absent: 0 (docs/measurement-format.md)
+TRIAL_ANGLE_COLUMN = "eccentric_mass_angle_deg"
 ROLES = ("fit", "validate")
 RUN_ID = re.compile(r"^[A-Za-z0-9_-]+$")
 #: run ids that pandas reads as missing values (its default NA strings that are valid ids): they would vanish from
@@ -166,7 +169,8 @@ def read_runs(path: str | Path, check_files: bool = True, require_path: bool = T
 
     Returns the sheet with ``rpm`` and ``eccentric_mass_g`` as floats (NaN where
     the mass is unknown), ``role`` lower-case and "fit" where empty or absent,
-    the sensor_* columns (if any) as floats, and an added column ``record``
+    the sensor_* columns (if any) as floats, eccentric_mass_angle_deg (if
+    present) as floats (0 where empty), and an added column ``record``
     with each record's path resolved against the sheet's folder. Extra columns
     are kept. ``attrs["lines"]`` holds each row's line in the file. A sheet with
     any of the columns kind, rpm_start, rpm_end (transient records:
@@ -177,18 +181,19 @@ def read_runs(path: str | Path, check_files: bool = True, require_path: bool = T
     Raises ``DataError`` listing every problem: missing or duplicated columns,
     bad or duplicate run ids (also differing only in case), non-numeric,
     non-finite or out-of-range speeds and masses (negative, or a mass that
-    looks like kilograms), unknown roles, bad sensor facts, empty or shared
+    looks like kilograms), non-numeric or non-finite trial-mass angles, unknown roles, bad sensor facts, empty or shared
     record paths and (with ``check_files``) records that do not exist. With
     ``require_mass`` an empty mass is an error (the workflow and check-data: the
     libraries are built per speed and mass). With ``require_path`` False the
     sheet may be a bare run plan without a path column (the virtual rig's input).
     """
     path = Path(path)
-    table, line = read_text_table(path, "\t", SHEET_COLUMNS + SENSOR_COLUMNS + SWEEP_COLUMNS)
+    known = SHEET_COLUMNS + SENSOR_COLUMNS + SWEEP_COLUMNS + (TRIAL_ANGLE_COLUMN,)
+    table, line = read_text_table(path, "\t", known)
     required = REQUIRED_SHEET_COLUMNS if require_path else REQUIRED_SHEET_COLUMNS[:3]
     if "kind" in table.columns:  # a sheet of transient records (run_kinds) may leave out rpm
         required = tuple(c for c in required if c != "rpm")
-    _require_columns(path, table.columns, required, SHEET_COLUMNS + SENSOR_COLUMNS + SWEEP_COLUMNS,
+    _require_columns(path, table.columns, required, known,
                      "a runs sheet needs the columns run, rpm, eccentric_mass_g, path (and optionally role)")
     if "path" not in table:
         table["path"] = ""
@@ -234,6 +239,9 @@ def read_runs(path: str | Path, check_files: bool = True, require_path: bool = T
             sensors[column], found = numeric_column(table[column], column, line, allow_empty=True)
             problems += found + [f"line {n}, column {column}: {v:g} mm is not positive"
                                  for n, v in zip(line, sensors[column]) if v <= 0]
+    if TRIAL_ANGLE_COLUMN in table:  # any finite angle (taken modulo 360 by the model); empty: 0
+        angle, found = numeric_column(table[TRIAL_ANGLE_COLUMN], TRIAL_ANGLE_COLUMN, line, allow_empty=True)
+        problems += found
     rel = table["path"]
     if require_path:
         problems += [f"line {n}, column path: empty (the record of run {r!r} is not given)"
@@ -259,11 +267,20 @@ def read_runs(path: str | Path, check_files: bool = True, require_path: bool = T
     out["run"], out["rpm"], out["eccentric_mass_g"], out["path"], out["role"] = runs, rpm, mass, rel, role
     for column, values in sensors.items():
         out[column] = values
+    if TRIAL_ANGLE_COLUMN in table:
+        out[TRIAL_ANGLE_COLUMN] = np.where(table[TRIAL_ANGLE_COLUMN] == "", 0.0, angle)
     if has_sweep_columns(table.columns):  # kind, rpm_start, rpm_end: only on a sheet that has one of them
         out["kind"], out["rpm_start"], out["rpm_end"] = kind, rpm_start, rpm_end
     out["record"] = [str(f) if f is not None else "" for f in record]
     out.attrs.update(lines=line.tolist(), source=str(path))
     return out
+
+
+def trial_angles(table: pd.DataFrame) -> Array:
+    """Each row's trial-mass angle [deg] (``TRIAL_ANGLE_COLUMN``; 0 where the column is absent or a cell empty)."""
+    if TRIAL_ANGLE_COLUMN not in table:
+        return np.zeros(len(table))
+    return np.nan_to_num(pd.to_numeric(table[TRIAL_ANGLE_COLUMN], errors="coerce").to_numpy(float), nan=0.0)
 
 
 def sheet_of(sheet: str | Path | pd.DataFrame) -> pd.DataFrame:

@@ -6,7 +6,7 @@ variant (any list of effects, e.g. the Geometric model plus the slope force
 the Geometric model lacks) with parameter values, built on a machine (the
 config's ``machine:`` section, hybridtwin.model.machine; the VARM by default), whose
 x and y probes the records hold. For every run of a plan
-(run, rpm, eccentric_mass_g, role) the rig
+(run, rpm, eccentric_mass_g[, eccentric_mass_angle_deg], role) the rig
 
 1. draws the run's conditions from a seeded generator: the true speed
    rpm (1 + speed_error * N(0, 1)), the rotor angle at the first sample
@@ -40,7 +40,9 @@ x and y probes the records hold. For every run of a plan
    at the sampling instants, t0 = angle / Omega, adds the offsets and white
    Gaussian noise, clips at +-sensor_range_mm if asked (a saturated laser
    micrometer) and marks the keyphasor on the sample nearest to each instant
-   the unbalance points to +x (if asked);
+   the rotor's reference points to +x (if asked: where a trial mass at 0 deg
+   sits; a plan row's eccentric_mass_angle_deg places its mass that far
+   ahead in the sense of rotation, ``trial_groups``);
 4. writes runs.tsv, records/{run}.csv, and the answer key truth.tsv (per run:
    true speed, phase origin, offsets, noise levels, truth harmonics in the
    model's frame, run-up/run-down agreement, stability, peak vs sensor range) and
@@ -61,9 +63,9 @@ import numpy as np
 import pandas as pd
 import yaml
 
-from ..model.effects import Effect
+from ..model.effects import Effect, trial_mass_values
 from ..model.machine import Machine, default_machine
-from .measurements import read_runs
+from .measurements import read_runs, trial_angles
 from .rig_base import RANGE_SIGMAS, UNIT_SCALES, RigError, RigWarning, _rng, write_record  # noqa: F401 (re-exported)
 from ..model.model import rpm_to_rad_s
 from ..model.sensor import sensor_dofs, sensor_names
@@ -72,6 +74,8 @@ from ..solvers.transient import NotSettledError, SettledPeriod, run_up_harmonics
 from ..model.variants import EffectsFileError, Variant, load_effects_files
 
 Array = np.ndarray
+#: the values the rig sets per run from the plan (its trial mass), never the truth's: model.effects.trial_mass_values
+RUN_VALUES = ("m_e", "angle_me")
 
 #: the paper's final finding (Table 5): the Geometric model's effects plus the bearing force on the shaft
 #: slope, k_w u' + k_z u'^3, that the Geometric model lacks; bow chosen for the bundled data (data/default)
@@ -218,11 +222,19 @@ class Truth:
             raise RigError(f"truth: {err}") from None
         if "m_e" in values:
             raise RigError("truth: m_e comes from each run's eccentric_mass_g, do not set it in the values")
+        if "angle_me" in values:
+            raise RigError("truth: angle_me comes from each run's eccentric_mass_angle_deg, do not set it in the "
+                           "values")
         return cls(variant, values)
 
+    def run_values(self, mass_g: float, angle_deg: float) -> dict[str, Array]:
+        """The truth's values with a run's trial mass of ``mass_g`` [g] at ``angle_deg`` (``trial_mass_values``)."""
+        return self.variant.values({**self.values, **trial_mass_values(mass_g, angle_deg)})
+
     def to_mapping(self) -> dict:
-        """Effects and every parameter value in effect (given or nominal), for the answer key."""
-        everything = {k: float(v) for k, v in self.variant.values(self.values).items() if k != "m_e"}
+        """Effects and every parameter value in effect (given or nominal), for the answer key (the per-run trial
+        mass, m_e and angle_me, left out)."""
+        everything = {k: float(v) for k, v in self.variant.values(self.values).items() if k not in RUN_VALUES}
         return {"description": self.variant.description,
                 "effects": [e.name for e in self.variant.model.effects],
                 "values": {k: self.values[k] for k in self.values},
@@ -366,8 +378,7 @@ def solve_truth(truth: Truth, runs: pd.DataFrame, harmonics: int = 7, start_rpm:
         raise RigError(f"rig: integrator must be one of {list(INTEGRATORS)}, got {integrator!r}")
     dofs = sensor_dofs(truth.variant.model.shaft)
     out = TruthResponse.empty(len(runs), harmonics, len(dofs))
-    for mass_g, group in runs.groupby("eccentric_mass_g", sort=True):
-        values = truth.variant.values({**truth.values, "m_e": float(mass_g) * 1e-3})
+    for values, group in trial_groups(truth, runs):
         speeds = group["rpm_true"].to_numpy(float)
         positions = np.flatnonzero(runs.index.isin(group.index))
         up = _sweep(truth.variant, values, ramp(min(start_rpm, speeds.min()), speeds, step_rpm), harmonics, "up")
@@ -384,6 +395,14 @@ def solve_truth(truth: Truth, runs: pd.DataFrame, harmonics: int = 7, start_rpm:
     return out
 
 
+def trial_groups(truth: Truth, runs: pd.DataFrame):
+    """(the truth's values, the rows) per trial mass: each (eccentric_mass_g, eccentric_mass_angle_deg) of ``runs``
+    (angle 0 where the column is absent), in increasing mass, then angle."""
+    angle = pd.Series(trial_angles(runs), index=runs.index)
+    for (mass_g, angle_deg), group in runs.groupby([runs["eccentric_mass_g"], angle], sort=True):
+        yield truth.run_values(mass_g, angle_deg), group
+
+
 def _solve_truth_time(truth: Truth, runs: pd.DataFrame, harmonics: int, rundown_margin_rpm: float) -> TruthResponse:
     """``solve_truth`` by time integration of eq. 29 (hybridtwin.solvers.transient, no harmonic-balance code).
 
@@ -395,8 +414,7 @@ def _solve_truth_time(truth: Truth, runs: pd.DataFrame, harmonics: int, rundown_
     """
     dofs = sensor_dofs(truth.variant.model.shaft)
     out = TruthResponse.empty(len(runs), harmonics, len(dofs), unique_tolerance=TIME_UNIQUE_TOLERANCE)
-    for mass_g, group in runs.groupby("eccentric_mass_g", sort=True):
-        values = truth.variant.values({**truth.values, "m_e": float(mass_g) * 1e-3})
+    for values, group in trial_groups(truth, runs):
         speeds = np.unique(group["rpm_true"].to_numpy(float))
         up = _time_sweep(truth.variant, values, speeds, harmonics, dofs)
         down = _time_sweep(truth.variant, values, np.append(speeds.max() + rundown_margin_rpm, speeds[::-1]),

@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .measurements import DataError, read_text_table
+from .measurements import TRIAL_ANGLE_COLUMN, DataError, read_text_table
 from .record_columns import listed, numeric_column
 from ..solvers.sweep import SpeedProfile, SpeedSystem, integrate_sweep
 from ..solvers.transient import NotSettledError
@@ -294,7 +294,7 @@ def synthesise_sweep(truth, row: Mapping, conditions: Mapping, imperfections, se
     fs = imperfections.sweep_sample_rate_hz
     n = int(round(profile.t1 * fs)) + 1
     t = np.arange(n) / fs
-    values = truth.variant.values({**truth.values, "m_e": float(row["eccentric_mass_g"]) * 1e-3})
+    values = truth.run_values(row["eccentric_mass_g"], row.get(TRIAL_ANGLE_COLUMN, 0.0))
     rpm_max = max(conditions["rpm_start_true"], conditions["rpm_end_true"]) * SPEED_MARGIN
     system = SpeedSystem.from_model(truth.variant.model, values, rpm_max)
     sensors = _sensors(machine)

@@ -29,6 +29,7 @@ from typing import Protocol
 
 import numpy as np
 
+from ..model.effects import trial_mass_values
 from ..offline.library import Library
 from ..offline.pod import feature_index
 from ..solvers.continuation import RUN_UP_FROM_RPM, padded_speeds, ramp, sweep_model
@@ -224,11 +225,13 @@ class SolverModel:
     def __init__(self, variant, run: str, rpm: float, eccentric_mass_g: float, parameters: Sequence[str],
                  lower: Array, upper: Array, harmonics: int, step: float = 1e-5, *, warm: bool = True,
                  analytic: bool = True, cache_size: int = CACHE_SIZE, slow_roll_harmonics: Sequence[int] = (),
-                 sweep_from_rpm: float | None = None):
+                 sweep_from_rpm: float | None = None, eccentric_mass_angle_deg: float = 0.0):
         self.variant, self.run = variant, run
         # None: the run-up from RUN_UP_FROM_RPM; a speed: the run-down from there (a coast-down's band)
         self.sweep_from_rpm = None if sweep_from_rpm is None or not np.isfinite(sweep_from_rpm) else float(sweep_from_rpm)
         self.rpm, self.eccentric_mass_g = float(rpm), float(eccentric_mass_g)
+        # the trial mass's angle [deg] (its force turned by it, model.effects.trial_mass_values); 0: on +x
+        self.eccentric_mass_angle_deg = float(eccentric_mass_angle_deg)
         self.parameters = list(parameters)
         self.lower, self.upper = np.asarray(lower, float), np.asarray(upper, float)
         self.harmonics = int(harmonics)
@@ -245,15 +248,17 @@ class SolverModel:
         if self.slow_roll_harmonics:
             self.reference = SolverModel(variant, f"{run} at slow roll", SLOW_ROLL_RPM, eccentric_mass_g, parameters,
                                          lower, upper, harmonics, step, warm=warm, analytic=analytic,
-                                         cache_size=cache_size)
+                                         cache_size=cache_size, eccentric_mass_angle_deg=eccentric_mass_angle_deg)
 
     @classmethod
     def for_data(cls, variant, data, parameters: Sequence[str], lower: Array, upper: Array, harmonics: int,
                  **options) -> "SolverModel":
-        """The model of one run of ``data`` (``measured.RunData``): its speed and eccentric mass, compensated for
-        slow roll and swept as its record was (a transient band's ``slow_roll_harmonics`` and ``sweep_from_rpm``)."""
+        """The model of one run of ``data`` (``measured.RunData``): its speed and eccentric mass at its angle,
+        compensated for slow roll and swept as its record was (a transient band's ``slow_roll_harmonics`` and
+        ``sweep_from_rpm``)."""
         return cls(variant, data.run, data.rpm, data.eccentric_mass_g, parameters, lower, upper, harmonics,
-                   slow_roll_harmonics=data.slow_roll_harmonics, sweep_from_rpm=data.sweep_from_rpm, **options)
+                   slow_roll_harmonics=data.slow_roll_harmonics, sweep_from_rpm=data.sweep_from_rpm,
+                   eccentric_mass_angle_deg=data.eccentric_mass_angle_deg, **options)
 
     # --- parameter values and systems -------------------------------------------------------
 
@@ -264,7 +269,7 @@ class SolverModel:
 
     def _values(self, x: Array) -> dict[str, Array]:
         """Complete parameter values [SI], each (N,), at normalised x (N, d)."""
-        values = {"m_e": self.eccentric_mass_g * 1e-3}
+        values = trial_mass_values(self.eccentric_mass_g, self.eccentric_mass_angle_deg)
         values |= {p: self.lower[j] + (x[:, j] + 1) * self.half_range[j] for j, p in enumerate(self.parameters)}
         base = self.variant.values(values)
         return {k: np.broadcast_to(np.asarray(v, float), (x.shape[0],)).copy() for k, v in base.items()}

@@ -38,6 +38,7 @@ from . import polish as pol
 from . import profile as prf
 from .protocol import ProtocolOptions
 from ..offline.library import Library
+from ..model.effects import trial_angle_rad
 from ..model.variants import Variant, embed
 
 Array = np.ndarray
@@ -88,6 +89,15 @@ def solver_protocol(options: Mapping, joint: bool = False) -> ProtocolOptions:
     return replace(base, trials=min(base.trials, SOLVER_TRIALS), monte_carlo=0, monte_carlo_starts=0)
 
 
+def refuse_angle_on_library(data: idn.RunData) -> None:
+    """The sPGD libraries (offline.scope run or global) are built per (rpm, eccentric mass) with the mass on +x: a
+    run whose trial mass is at another angle is refused there, never fitted as if it were on +x."""
+    if trial_angle_rad(data.eccentric_mass_angle_deg) != 0.0:
+        raise ValueError(f"run {data.run}: its trial mass is at eccentric_mass_angle_deg "
+                         f"{data.eccentric_mass_angle_deg:g}, but the sPGD libraries are built per (rpm, eccentric "
+                         "mass) with the mass on +x; fit this variant on the full solver (offline: scope: none)")
+
+
 def fit_run(variant: Variant, options: Mapping, library: Library | None, data: idn.RunData,
             validation: pd.DataFrame | None, harmonics: int) -> RunFit:
     """``data``'s run alone on its ``library`` by the paper's protocol (``options``: ``identification.rule_settings``
@@ -108,6 +118,7 @@ def fit_run(variant: Variant, options: Mapping, library: Library | None, data: i
         messages = [f"run {run}: on the full solver, {len(fit.protocol.trials.loss)} trials in "
                     f"{time.perf_counter() - start:.2f} s; chi^2/dof {fit.chi2_dof:.3g} ({fit.message})"]
     else:
+        refuse_angle_on_library(data)
         fit = idn.identify([fwd.SensorSurrogate(library)], [data], (), idn.protocol_options(options), errors,
                            units=units)
         messages = [f"run {run}: {len(fit.protocol.trials.loss)} trials x (1 + {len(fit.protocol.monte_carlo)} "
@@ -201,6 +212,7 @@ def fit_joint(variant: Variant, options: Mapping, libraries: Sequence[Library], 
             continue
         data.append(run)
         if library is not None:
+            refuse_angle_on_library(run)
             models.append(fwd.SensorSurrogate(library))
     if not data:
         raise ValueError(f"variant {variant.name}: no usable fit run for the joint identification")

@@ -107,11 +107,41 @@ def _unbalance_nodes(ctx: Context) -> Array:
     return np.array([ctx.shaft.node_at(z) for z in np.broadcast_to(ctx.p.z_me, ctx.Omega.shape)])
 
 
+#: the angle of a run's trial (eccentric) mass at t = 0 (the keyphasor mark), from +x towards +y, the sense of
+#: rotation: its force turns by it, F_1 x exp(i angle_me); the runs sheet's eccentric_mass_angle_deg
+ANGLE_ME = Parameter("angle_me", "rad", (0.0, 2 * np.pi), 0.0,
+                     "angle of the eccentric (trial) mass at t = 0 from +x towards +y, the sense of rotation")
+
+
+def trial_mass_values(mass_g: float, angle_deg: float = 0.0) -> dict[str, float]:
+    """The model values of a run's trial (eccentric) mass: m_e [kg] from ``mass_g`` [g] and, at a non-zero
+    ``angle_deg`` [deg, from +x towards +y; any finite value, taken modulo 360], angle_me [rad]. An angle of 0
+    adds no value: the model's nominal angle_me is 0, so such a run is computed exactly as before angles were."""
+    values = {"m_e": float(mass_g) * 1e-3}
+    angle = trial_angle_rad(angle_deg)
+    if angle != 0.0:
+        values["angle_me"] = angle
+    return values
+
+
+def trial_angle_rad(angle_deg: float) -> float:
+    """angle_me [rad, in [0, 2 pi)] of a trial mass at ``angle_deg`` [deg, any finite value: -90 is 270]."""
+    return float(np.deg2rad(np.mod(float(angle_deg), 360.0)))
+
+
+def trial_force(ctx: Context, amplitude: Array) -> tuple[Array, Array]:
+    """The 1X force (x, y) of a trial mass of force ``amplitude`` (S,) = m_e r_me Omega^2 placed at angle_me:
+    (F_x, F_y) = amplitude exp(i angle_me) (1, -i), i.e. f = amplitude (cos(Omega t + angle_me),
+    sin(Omega t + angle_me)); at angle_me = 0 exactly amplitude (1, -i)."""
+    F = amplitude * np.exp(1j * ctx.p.angle_me)
+    return F, -1j * F
+
+
 class Unbalance(Effect):
     """Eccentric mass m_e at z_me: point mass and rotating force (eq. 14-15, 30).
 
-    f = m_e r_me Omega^2 (cos Omega t, sin Omega t) at the node nearest z_me, so
-    F_1 = m_e r_me Omega^2 in x and -i m_e r_me Omega^2 in y.
+    f = m_e r_me Omega^2 (cos(Omega t + angle_me), sin(Omega t + angle_me)) at the node nearest z_me, so
+    F_1 = m_e r_me Omega^2 exp(i angle_me) in x and -i times that in y (angle_me = 0: the mass on +x at t = 0).
     """
 
     name = "unbalance"
@@ -120,6 +150,7 @@ class Unbalance(Effect):
         Parameter("m_e", "kg", (0.0, 0.040), 0.0, "eccentric mass"),
         Parameter("r_me", "m", (0.0, 0.1), 0.040, "eccentricity of the eccentric mass"),
         Parameter("z_me", "m", (0.0, 0.85), 0.425, "axial position of the eccentric mass"),
+        ANGLE_ME,
     )
     inertial = True  # the force is the mass's inertia: at variable speed also m_e r_me Omega' (hybridtwin.solvers.sweep)
 
@@ -136,9 +167,8 @@ class Unbalance(Effect):
         f = ctx.zero_vector()
         rows = np.arange(ctx.n_scenarios)
         nodes = _unbalance_nodes(ctx)
-        amplitude = ctx.p.m_e * ctx.p.r_me * ctx.Omega**2
-        f[rows, ctx.shaft.translational("x")[nodes]] = amplitude
-        f[rows, ctx.shaft.translational("y")[nodes]] = -1j * amplitude
+        f[rows, ctx.shaft.translational("x")[nodes]], f[rows, ctx.shaft.translational("y")[nodes]] = trial_force(
+            ctx, ctx.p.m_e * ctx.p.r_me * ctx.Omega**2)
         return {1: f}
 
 

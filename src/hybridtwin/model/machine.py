@@ -40,7 +40,7 @@ import numpy as np
 from .bearing_candidates import at_bearing
 from .bearing_table import TableBearing
 from .effect_base import Context, Effect, Parameter
-from .effects import Unbalance, builtin_effects
+from .effects import ANGLE_ME, Unbalance, builtin_effects, trial_force
 # re-exported: Bearing, Disk, Sensor, ShaftSegment, UnbalancePlane (docs/model.md imports them from here with Machine)
 from .machine_parts import (Bearing, Disk, MachineSpecError, Sensor, ShaftSegment, UnbalancePlane, _bearing, _build,
                             _known, _mapping, _sequence)
@@ -539,13 +539,13 @@ _M_E, _R_ME = Unbalance.parameters[0], Unbalance.parameters[1]
 @dataclass(eq=False)
 class PlaneUnbalance(Effect):
     """The eccentric mass m_e at radius r_me fixed at a node (an unbalance plane): its point mass and the
-    rotating force m_e r_me Omega^2, F_1 = m_e r_me Omega^2 in x and -i m_e r_me Omega^2 in y (as
-    ``Unbalance``, whose parameters m_e and r_me it shares, with the node instead of z_me)."""
+    rotating force m_e r_me Omega^2 at angle_me, F_1 = m_e r_me Omega^2 exp(i angle_me) in x and -i times that in
+    y (as ``Unbalance``, whose parameters m_e, r_me and angle_me it shares, with the node instead of z_me)."""
 
     name: str = "unbalance_plane"
     node: int = 0
     meaning: str = field(init=False)
-    parameters: tuple[Parameter, ...] = (_M_E, _R_ME)
+    parameters: tuple[Parameter, ...] = (_M_E, _R_ME, ANGLE_ME)
 
     def __post_init__(self) -> None:
         self.meaning = (f"eccentric mass at node {self.node}: its point mass and the rotating force "
@@ -559,9 +559,8 @@ class PlaneUnbalance(Effect):
 
     def forcing(self, ctx: Context) -> dict[int, Array]:
         f = ctx.zero_vector()
-        amplitude = ctx.p.m_e * ctx.p.r_me * ctx.Omega**2
-        f[:, ctx.dof(f"u{self.node}")] = amplitude
-        f[:, ctx.dof(f"v{self.node}")] = -1j * amplitude
+        f[:, ctx.dof(f"u{self.node}")], f[:, ctx.dof(f"v{self.node}")] = trial_force(
+            ctx, ctx.p.m_e * ctx.p.r_me * ctx.Omega**2)
         return {1: f}
 
 
@@ -576,7 +575,7 @@ class MachineUnbalance(Unbalance):
         self.parameters = (_M_E, _R_ME, Parameter(
             "z_me", "m", (0.0, float(length)), np.nan if z is None else float(z),
             f"axial position of the eccentric mass along machine {machine!r} (0-{length:g} m; nominal {where})",
-            (0.0, float(length))))
+            (0.0, float(length))), ANGLE_ME)
 
 
 def default_machine() -> Machine:
