@@ -798,3 +798,31 @@ def test_what_to_do_names_the_project_it_was_run_in():
     text = rec.what_to_do("v", spec, dg.DEFAULTS | {"project": place})
     assert all(f"{value}" in text for value in place.values()) and "in config/config.yaml" not in text
     assert "  v:\n" in text  # the variant to paste follows
+
+
+def test_what_to_do_sizes_the_new_variants_libraries_like_its_parents():
+    """Where the config sizes the parent's libraries under `offline: n_scenarios:` (issue 39, item 4), the
+    recommendation says what to add there for the new variant (the parent's share of its default: the README's quick
+    overlay, geometric 500 -> geometric_expansion_k4 900), so that pasting it builds the variant as intended; nothing
+    about scenarios where the parent has no entry (the default for both) or where there are no libraries (scope
+    none, the fits on the full solver)."""
+    parent = variants.builtin_variant("geometric")
+    spec = rec.variant_spec(parent, builtin_candidates()["expansion_k4"])
+    sized = dg.DEFAULTS | {"offline": {"scope": "run", "n_scenarios": {"geometric": 500}}}
+    text = rec.what_to_do("geometric_expansion_k4", spec, sized, parent)
+    assert "`offline: n_scenarios:`" in text and "`geometric_expansion_k4: 900`" in text
+    assert "beside geometric: 500" in text and "default, 1800, which it takes otherwise" in text
+    assert rec.scenarios_entry(spec, parent, sized | {"offline": {"scope": "global", "n_scenarios": {"geometric": 2000}}}
+                               ) == 3600
+    plain_text = rec.what_to_do("geometric_expansion_k4", spec, dg.DEFAULTS, parent)
+    assert "n_scenarios" not in plain_text and plain_text == rec.what_to_do("geometric_expansion_k4", spec, dg.DEFAULTS)
+    for o in (sized | {"offline": {"scope": "none", "n_scenarios": {"geometric": 500}}},
+              sized | {"offline": {"scope": "run", "n_scenarios": {"expansion": 500}}}):
+        assert rec.what_to_do("geometric_expansion_k4", spec, o, parent) == plain_text
+    # in diagnosis.md the lines to paste stay one fenced YAML block at the end, after the sentence
+    columns = ["rank", "effect", "statistic", "p_value", "predicted_error_drop_pct", "confirmed_chi2_dof", "delta_bic",
+               "estimate", "verdict"]
+    summary = {"variant": "geometric", "runs": ["r1", "r2"], "n_data": 8, "base_chi2_dof": 40.0,
+               "base_gof_p_value": 0.0, "candidates": [], "refitted": []}
+    md = dgr.markdown(conc.Diagnosis(pd.DataFrame(columns=columns), "add expansion_k4", text, summary))
+    assert md.count("```yaml\n  geometric_expansion_k4:\n") == 1 and "900`" in md.split("```yaml")[0]

@@ -114,3 +114,41 @@ def test_start_from_runs_takes_the_median_and_each_runs_own_entries(fits):
     for k, run in enumerate(joint.layout.runs):
         expected |= {("c", run): single[2] + 0.01 * k, ("phase", run): 0.1 * k}
     assert dict(zip(joint.layout.entries(), theta)) == pytest.approx(expected, abs=1e-15)
+
+
+def test_mc_note_says_when_the_monte_carlo_mean_is_not_the_estimates_spread(fits, tmp_path):
+    """parameters.tsv's mc_mean could have the opposite sign of value with no word (issue 39, item 4): mc_note says
+    why (``MC_NOTES``). Rows of the bundled run (main job at 6f13abf): a loose per-run k4 and k5 whose repeats
+    straddle zero ("sign": the data do not fix the sign), a per-run k6 whose repeats settle at another optimum, the
+    estimate outside their interval ("elsewhere"), a polished joint fit's phase and k_b, the library's repeats
+    elsewhere ("polished"); a phase is never "sign" (an angle)."""
+    rows = pd.DataFrame([  # value, mc_mean, mc_ci_low, mc_ci_high, parameter, source (run: the bundled run's)
+        (-268.412615, 111.726614, -538.216153, 822.085184, "k4", "library"),  # geometric_expansion_k4 r900_m0p0
+        (560.378105, -101.84783, -1000.0, 673.559694, "k5", "library"),  # expansion r950_m0p0
+        (475.189346, -318.696935, -901.873241, 445.447554, "k6", "library"),  # expansion r600_m25p9
+        (0.16460848, -1.15328402, -1.16187696, -1.14442699, "phase", "solver"),  # final, joint
+        (2980.96106, 2897.00639, 2894.66772, 2899.6051, "k_b", "solver"),  # geometric, joint
+        (0.3, -0.1, -0.5, 0.5, "phase", "library"),  # a phase's sign says nothing
+        (2411.6, 2411.5, 2410.0, 2413.0, "k_b", "solver"),  # as it should be
+        (2411.6, np.nan, np.nan, np.nan, "k_b", "solver"),  # no repeats
+    ], columns=["value", "mc_mean", "mc_ci_low", "mc_ci_high", "parameter", "source"])
+    notes = idn.mc_notes(rows["value"], rows["mc_mean"], rows["mc_ci_low"], rows["mc_ci_high"],
+                         rows["parameter"] == "phase", rows["source"] == "solver")
+    assert notes == ["sign", "sign", "elsewhere", "polished", "polished", "", "", ""]
+    # the table's column, from its own numbers; the writer and reader keep it exactly
+    table = fits["joint"].table()
+    assert "mc_note" in idn.TABLE_COLUMNS and set(table["mc_note"]) <= set(idn.MC_NOTES) | {""}
+    assert table["mc_note"].tolist() == idn.mc_notes(table["value"], table["mc_mean"], table["mc_ci_low"],
+                                                     table["mc_ci_high"], table["parameter"] == "phase", False)
+    assert (fits["single"].table()["mc_note"] == "").all()  # no repeats, nothing to say
+    table.loc[0, ["mc_mean", "mc_ci_low", "mc_ci_high"]] = [-table.loc[0, "value"], -1e3, 1e3]
+    table.loc[0, "mc_note"] = "sign"
+    table.loc[1, "mc_note"] = "elsewhere"
+    idn.write_parameters(table, tmp_path / "parameters.tsv")
+    read = idn.read_parameters(tmp_path / "parameters.tsv")
+    pd.testing.assert_frame_equal(idn.Identification.from_table(read, ToyModel.parameters).table(), table,
+                                  check_exact=False, rtol=1e-8)
+    # a table written before mc_note existed reads with it, from its own numbers
+    idn.write_parameters(table.drop(columns="mc_note"), tmp_path / "old.tsv")
+    old = idn.read_parameters(tmp_path / "old.tsv")
+    assert list(old.columns) == list(idn.TABLE_COLUMNS) and old["mc_note"].tolist()[0] == "sign"

@@ -84,6 +84,21 @@ def project_place():
     }
 
 
+def diagnosis_options(wildcards):
+    """The diagnosis's options, with where the project is (``project_place``) and, when the variant's libraries are
+    sized under ``offline: n_scenarios:``, its scope and that entry (the recommendation sizes the new variant's alike:
+    ``recommendation.scenarios_entry``); only this variant's entry, so that another's never reruns this diagnosis."""
+    options = diagnosis_settings(config) | {"project": project_place()}
+    counts = OFFLINE["n_scenarios"] or {}
+    scope = offline_for(config, wildcards.variant)["scope"]
+    if wildcards.variant in counts and scope != "none":
+        options["offline"] = {
+            "scope": scope,
+            "n_scenarios": {wildcards.variant: counts[wildcards.variant]},
+        }
+    return options
+
+
 def sparse_route_input(wildcards):
     """The paper's route shown side by side: the L1-sparse variant's joint fit, when declared and not this one."""
     name = diagnosis_settings(config)["sparse_variant"]

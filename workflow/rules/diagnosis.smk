@@ -45,7 +45,7 @@ rule diagnose:
     params:
         model=diagnosis_model,
         keyphasor=lambda wildcards: identification_settings(config, wildcards.variant)["keyphasor"],
-        options=diagnosis_settings(config) | {"project": project_place()},
+        options=diagnosis_options,
         harmonics=config["harmonics"],
     script:
         "../../scripts/diagnose.py"

@@ -28,6 +28,7 @@ from ..solvers.solver import SteadyState, solve
 from ..model.variants import Variant
 
 from .assess import add_assess_command
+from .docs_images import add_docs_images_command
 from .check_data import add_check_data_command
 from .common import (
     MAX_SAMPLES, RUN_UP_FROM_RPM, RUNDOWN_FACTOR, RUNDOWN_MARGIN_RPM, SAME_BRANCH_RTOL, UsageError, _positive_int,
@@ -121,6 +122,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_rig_command(sub)
     add_machine_commands(sub, _common)
     add_assess_command(sub)
+    add_docs_images_command(sub)
     return parser
 
 

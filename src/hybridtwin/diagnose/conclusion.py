@@ -242,7 +242,7 @@ def _conclude_path(result: Diagnosis, base: BaseFit, scores: Scores, o: Mapping)
         ranges = _path_ranges(path)
         name = _variant_name([base.variant.name] + names)
         spec = variant_spec(base.variant, candidates, ranges, per_run=[] if sharing else None)
-        result.recommendation = what_to_do(name, spec, o)
+        result.recommendation = what_to_do(name, spec, o, base.variant)
         result.summary["recommended_variant"] = {"name": name, "spec": spec}
     else:
         result.status = Status.UNEXPLAINED
@@ -375,7 +375,7 @@ def _recommend(base: BaseFit, scores: Scores, best: Confirmation | None, confoun
     conclusion = (f"{head}; chi^2/dof {base_ratio:.3g} -> {best.chi2 / best.dof:.3g} with it, "
                   f"Delta BIC {best.delta_bic:.1f}; {_estimate_text(best)}")
     new_name = _variant_name([variant.name, name])
-    recommendation = what_to_do(new_name, variant_spec(variant, best.candidate, best.ranges), o)
+    recommendation = what_to_do(new_name, variant_spec(variant, best.candidate, best.ranges), o, variant)
     return status, conclusion, recommendation
 
 

@@ -1,7 +1,8 @@
 """The diagnosis's recommendation written out: the variant to add (the base and the confirmed effects), its name,
 its config entry (``variant_spec``), the YAML lines to paste under ``variants:`` (``variant_lines``,
 ``yaml_number``) and what to do with them (``what_to_do``: where to paste them, the command that builds the new
-variant, where to compare it).
+variant, where to compare it, and, where the config sizes its libraries per variant, the new variant's
+``offline: n_scenarios:`` entry: ``scenarios_entry``).
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from collections.abc import Mapping, Sequence
 
 from ..model.candidates import Candidate
 from ..model.variants import Variant
+from ..offline.scenarios import default_n_scenarios
 
 
 def _variant_name(parts: Sequence[str]) -> str:
@@ -66,8 +68,32 @@ def variant_lines(name: str, spec: Mapping) -> str:
 PROJECT = {"config": "config/config.yaml", "command": "snakemake --cores 2", "ledger": "results/ledger.tsv"}
 
 
-def what_to_do(name: str, spec: Mapping, o: Mapping) -> str:
-    """The recommendation: the variant ``name`` (``spec``) to paste, where, and the command that builds it."""
+def scenarios_entry(spec: Mapping, parent: Variant | None, o: Mapping) -> int | None:
+    """n_s for the new variant (``spec``) under ``offline: n_scenarios:``, where the config sizes its parent's libraries
+    there (``o["offline"]``: the config's ``scope`` and the parent's entry of ``n_scenarios``, which the workflow
+    passes only when the parent has one, ``diagnosis_options`` in common.smk): the parent's share of its default
+    (``default_n_scenarios``) applied to the new variant's default, so that its libraries are as dense as its
+    parent's (the README's quick overlay: geometric 500 of 1000, its geometric_expansion_k4 900 of 1800; at least 10,
+    the schema's minimum). None where nothing is to be said: no libraries (scope none: the fits on the full solver),
+    or no entry for the parent (the new variant then takes the default as its parent did)."""
+    offline = dict(o.get("offline") or {})
+    counts = dict(offline.get("n_scenarios") or {})
+    if parent is None or offline.get("scope", "run") == "none" or parent.name not in counts:
+        return None
+    share = int(counts[parent.name]) / default_n_scenarios(len(parent.unknown))
+    return max(10, round(share * default_n_scenarios(len(spec["unknown"]))))
+
+
+def what_to_do(name: str, spec: Mapping, o: Mapping, parent: Variant | None = None) -> str:
+    """The recommendation: the variant ``name`` (``spec``) to paste, where, and the command that builds it; with
+    the variant it extends (``parent``), its ``offline: n_scenarios:`` entry where one is needed
+    (``scenarios_entry``)."""
     place = PROJECT | dict(o.get("project") or {})
-    return (f"Add this variant under `variants:` in {place['config']}, then run `{place['command']}` (only the new "
-            f"variant is built) and compare in {place['ledger']}:\n\n{variant_lines(name, spec)}\n")
+    n = scenarios_entry(spec, parent, o)
+    scenarios = "" if n is None else (
+        f" (and `{name}: {n}` under `offline: n_scenarios:`, beside {parent.name}: "
+        f"{int(o['offline']['n_scenarios'][parent.name])}: the same share of the new variant's default, "
+        f"{default_n_scenarios(len(spec['unknown']))}, which it takes otherwise, so that its libraries are as dense "
+        f"as {parent.name}'s)")
+    return (f"Add this variant under `variants:` in {place['config']}{scenarios}, then run `{place['command']}` (only "
+            f"the new variant is built) and compare in {place['ledger']}:\n\n{variant_lines(name, spec)}\n")

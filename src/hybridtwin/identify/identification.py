@@ -88,13 +88,40 @@ Array = np.ndarray
 #: the columns of ``Identification.table`` (parameters.tsv), in order
 TABLE_COLUMNS = ("parameter", "run", "kind", "unit", "value", "normalised", "stderr", "ci_low", "ci_high", "interval",
                  "loose", "at_bound", "identifiable", "lower", "upper", "mc_mean", "mc_std", "mc_ci_low", "mc_ci_high",
-                 "vif", "source")
+                 "mc_note", "vif", "source")
 #: the per-entry statistics among them (``Identification.statistics``); at_bound and identifiable are flags,
-#: interval (a code of ``uncertainty.INTERVAL_CODES``) and loose (parameter names, comma-separated) text
+#: interval (a code of ``uncertainty.INTERVAL_CODES``), loose (parameter names, comma-separated) and mc_note (a code
+#: of ``MC_NOTES``, "" when none applies) text
 STATISTICS = ("stderr", "ci_low", "ci_high", "interval", "loose", "at_bound", "identifiable", "mc_mean", "mc_std",
-              "mc_ci_low", "mc_ci_high", "vif")
+              "mc_ci_low", "mc_ci_high", "mc_note", "vif")
 _FLAGS = ("at_bound", "identifiable")
-_TEXT = ("interval", "loose")
+_TEXT = ("interval", "loose", "mc_note")
+#: parameters.tsv's ``mc_note``: when the Monte Carlo repeats' mean (``mc_mean``) is not the estimate's spread ("" when
+#: it is, or without repeats). On the bundled run (main job at 6f13abf) 27 rows had mc_mean of the other sign than
+#: value: loose parameters near zero of per-run fits (sign), per-run fits whose repeats mostly land at another optimum
+#: (elsewhere: expansion r600_m25p9's k6 475 against the repeats' -319 [-902, 445]) and polished joint fits (polished).
+MC_NOTES = {
+    "sign": "mc_mean has the opposite sign of value, which lies inside mc_ci_low..mc_ci_high: the data do not fix "
+            "the sign (a loose parameter near zero); read the interval, not the mean",
+    "elsewhere": "value lies outside mc_ci_low..mc_ci_high: the repeats settle mostly at another optimum (a "
+                 "multimodal fit); mc_mean and its interval describe that optimum, not the estimate's spread",
+    "polished": "value lies outside mc_ci_low..mc_ci_high, the library fit's repeats: the full solver's polish (source "
+                "solver) moved the estimate from the library's optimum (a library error); its uncertainty is stderr, "
+                "ci_low..ci_high",
+}
+
+
+def mc_notes(value: Array, mean: Array, low: Array, high: Array, phase: Array, polished: Array) -> list[str]:
+    """Per entry, the ``MC_NOTES`` code of the Monte Carlo statistics against the estimate ``value`` ("" when none
+    applies, or without repeats: ``mean`` NaN): when the value lies outside ``low``..``high``, "polished" where the
+    entry was ``polished`` (the repeats are the library fit's), else "elsewhere"; inside, "sign" when ``mean`` has the
+    opposite sign (never for a ``phase``, an angle)."""
+    value, mean, low, high = (np.asarray(a, float) for a in (value, mean, low, high))
+    with np.errstate(invalid="ignore"):
+        outside = np.isfinite(mean) & ((value < low) | (value > high))
+        flipped = np.isfinite(mean) & (np.sign(mean) * np.sign(value) < 0) & ~np.asarray(phase, bool)
+    return ["polished" if o and p else "elsewhere" if o else "sign" if f else ""
+            for o, p, f in zip(outside, np.broadcast_to(np.asarray(polished, bool), outside.shape), flipped)]
 
 
 @dataclass
@@ -168,8 +195,8 @@ class Identification:
         """Per entry of theta (``STATISTICS``): stderr, the interval x -+ t stderr at ``confidence`` (Student t),
         widened over the loose parameters where ``profile`` holds their profile, what each interval is (``interval``,
         ``loose``: ``uncertainty.interval_basis``), at_bound, identifiable, the Monte Carlo repeats' mean, std and
-        percentile interval (phases unwrapped around the estimate; NaN without repeats) and the variance inflation
-        factor vif."""
+        percentile interval (phases unwrapped around the estimate; NaN without repeats), when their mean is not the
+        estimate's spread (``mc_note``, ``mc_notes``) and the variance inflation factor vif."""
         if self.read_columns is not None:
             return {name: self.read_columns[name] for name in STATISTICS}
         u, L = self.uncertainty, self.layout
@@ -189,6 +216,8 @@ class Identification:
             out["mc_std"][i] = values.std(ddof=1) if len(values) >= 2 else np.nan
             out["mc_ci_low"][i] = np.percentile(values, alpha)
             out["mc_ci_high"][i] = np.percentile(values, 100 - alpha)
+        out["mc_note"] = mc_notes(self.x, out["mc_mean"], out["mc_ci_low"], out["mc_ci_high"], L.is_phase,
+                                  self.source == "solver")
         profiled = None
         if self.profile is not None:  # never narrower than the linearised interval (fmin/fmax skip its NaN), but a
             # loose parameter's own is its profile across its range (its linearised one is not valid: wider than the
@@ -363,13 +392,19 @@ def write_parameters(table: pd.DataFrame, path: str | Path) -> None:
 def read_parameters(path: str | Path) -> pd.DataFrame:
     """A parameter table written by ``write_parameters``: names, runs and units as text (run "001" stays "001",
     unit "1" a string, an empty unit ""), ``TABLE_COLUMNS``' numbers as floats; ``Identification.from_table``
-    reads the result. Other columns (a per-run fit's note, a refit's effect) come as pandas reads them."""
-    text = {"parameter", "run", "kind", "unit", "interval", "loose", "source", "note", "effect", "validation_run"}
+    reads the result. Other columns (a per-run fit's note, a refit's effect) come as pandas reads them. A table written
+    before ``mc_note`` existed gets it from its own columns (``mc_notes``)."""
+    text = {"parameter", "run", "kind", "unit", "interval", "loose", "mc_note", "source", "note", "effect",
+            "validation_run"}
     header = pd.read_csv(path, sep="\t", nrows=0).columns
     table = pd.read_csv(path, sep="\t", dtype={c: str for c in text}, keep_default_na=False,
                         na_values={c: ["", "nan", "NaN", "NA"] for c in header if c not in text})
     for column in set(TABLE_COLUMNS).difference(text, _FLAGS).intersection(header):
         table[column] = table[column].astype(float)
+    if "mc_note" not in header and {"value", "mc_mean", "mc_ci_low", "mc_ci_high"} <= set(header):  # written before it
+        table.insert(list(table.columns).index("mc_ci_high") + 1, "mc_note", mc_notes(
+            table["value"], table["mc_mean"], table["mc_ci_low"], table["mc_ci_high"], table["parameter"] == "phase",
+            table["source"] == "solver" if "source" in table else False))
     return table
 
 

@@ -311,7 +311,7 @@ def excluded_table(data: idn.RunData, parameters: Sequence[str], lower: Array, u
                  "lower": -np.pi, "upper": np.pi})
     table = pd.DataFrame(rows).reindex(columns=list(idn.TABLE_COLUMNS))
     table[["at_bound", "identifiable"]] = False
-    table["interval"], table["loose"] = "none", ""
+    table["interval"], table["loose"], table["mc_note"] = "none", "", ""
     table["source"], table["note"] = "library", data.note
     return table
 
