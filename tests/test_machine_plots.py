@@ -249,7 +249,8 @@ def test_report_machine_script_draws_the_fitted_model(tmp_path, machine):
         rows = [("k_a", "all", "shared", 3.0e7), ("c_b", "all", "shared", 300.0), ("phase", "a", "nuisance", 0.1)]
         expected = {"k_a": 3.0e7, "c_b": 300.0, "m_e": 0.020}
     idn.write_parameters(_parameter_table(rows), tmp_path / "parameters.tsv")
-    out = {"campbell": tmp_path / "campbell.png", "table": tmp_path / "campbell.tsv", "modes": tmp_path / "modes.png"}
+    out = {"campbell": tmp_path / "campbell.png", "table": tmp_path / "campbell.tsv", "modes": tmp_path / "modes.png",
+           "campbell_html": tmp_path / "campbell.html", "modes_html": tmp_path / "modes.html"}
     fake = SimpleNamespace(input=SimpleNamespace(parameters=str(tmp_path / "parameters.tsv")),
                            output=SimpleNamespace(**{k: str(v) for k, v in out.items()}),
                            params=SimpleNamespace(model=model, runs=runs), wildcards=SimpleNamespace(variant=name),
@@ -272,3 +273,5 @@ def test_report_machine_script_draws_the_fitted_model(tmp_path, machine):
     assert f"mode 1 at {np.median(runs['rpm']):g} RPM: {modes.frequency_hz[0]:.4g} Hz" in log
     for path in (out["campbell"], out["modes"]):
         assert path.stat().st_size > 10_000
+    for path in (out["campbell_html"], out["modes_html"]):  # the interactive figures beside them (plotly.js inside)
+        assert "plotly" in path.read_text()[:200_000].lower()

@@ -51,7 +51,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "physical effects), variants (the model variants), check-data (a runs sheet and its records), "
                     "rig (virtual-rig data), campbell, modes and response (the machine before any data: natural "
                     "frequencies and damping vs speed, mode shapes, unbalance response), assess (a new record judged "
-                    "against a built twin). The workflow itself runs with `snakemake --cores 2`.",
+                    "against a built twin), docs-images (the README's and docs' figures from a finished run). The workflow "
+                    "itself runs with `snakemake --cores 2`.",
         epilog="Run `hybridtwin COMMAND --help` for a command's options.")
     parser.add_argument("--version", action="version", version=f"hybridtwin {_version()}")
     sub = parser.add_subparsers(dest="command", required=True, title="commands", metavar="COMMAND")
