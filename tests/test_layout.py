@@ -4,8 +4,9 @@ Stages, from the bottom: the shared plotting helper (``plots``), then model -> s
 identify -> diagnose -> report, the front door (``config``), the twin online (``online``: a built twin judging new
 records, which reads the twin's own config through ``config``) and on top the command line (``cli``). A module may
 import from its own stage and from the stages below it, never from a later one; an import inside a function counts
-too (it runs back up just the same); only imports under ``if TYPE_CHECKING:`` (annotations, never executed) are
-left out. The test reads the source (ast), so it needs no import to succeed to say what is wrong."""
+too (it runs back up just the same), and so does one under ``if TYPE_CHECKING:`` (an annotation that names a later
+stage's type says the code belongs to that stage: model/sensor's two tables of a solved steady state moved to the
+command line for it). The test reads the source (ast), so it needs no import to succeed to say what is wrong."""
 
 import ast
 from pathlib import Path
@@ -29,25 +30,13 @@ def _module_name(path: Path) -> str:
     return ".".join(parts)
 
 
-def _type_checking_lines(tree: ast.AST) -> set[int]:
-    lines = set()
-    for node in ast.walk(tree):
-        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
-            for child in node.body:
-                lines.update(range(child.lineno, (child.end_lineno or child.lineno) + 1))
-    return lines
-
-
 def imports(path: Path) -> list[tuple[int, str]]:
     """(line, absolute module imported) for every hybridtwin import in the file."""
     name = _module_name(path)
     package = name if path.name == "__init__.py" else name.rsplit(".", 1)[0]
     tree = ast.parse(path.read_text())
-    skip = _type_checking_lines(tree)
     out = []
     for node in ast.walk(tree):
-        if node.lineno in skip if hasattr(node, "lineno") else False:
-            continue
         if isinstance(node, ast.ImportFrom):
             if node.level:
                 base = package.split(".")

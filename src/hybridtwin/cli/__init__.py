@@ -22,7 +22,7 @@ import numpy as np
 import pandas as pd
 
 from ..model.effects import builtin_effects
-from ..model.sensor import harmonics_frame, sensor_harmonics, sensor_names, time_series_frame
+from ..model.sensor import pair_dofs, sensor_harmonics, sensor_names
 from ..solvers.continuation import solve_sweep
 from ..solvers.solver import SteadyState, solve
 from ..model.variants import Variant
@@ -239,6 +239,23 @@ def _phase_deg(Z: np.ndarray, largest: float) -> np.ndarray:
     """Phases [deg] of harmonics Z, NaN (a blank cell) where a harmonic is zero to round-off (ZERO_HARMONIC_RTOL of
     ``largest``): a zero has no phase."""
     return np.where(np.abs(Z) > ZERO_HARMONIC_RTOL * largest, np.degrees(np.angle(Z)), np.nan)
+
+
+def harmonics_frame(result: SteadyState, shaft, scenario: int = 0, node: int | None = None) -> pd.DataFrame:
+    """One scenario's sensor harmonics as columns harmonic,u_re_m,u_im_m,v_re_m,v_im_m."""
+    U, V = sensor_harmonics(result.harmonics, shaft, node)
+    return pd.DataFrame({
+        "harmonic": np.arange(result.H + 1),
+        "u_re_m": U[scenario].real, "u_im_m": U[scenario].imag,
+        "v_re_m": V[scenario].real, "v_im_m": V[scenario].imag,
+    })
+
+
+def time_series_frame(result: SteadyState, shaft, t: np.ndarray, scenario: int = 0,
+                      node: int | None = None) -> pd.DataFrame:
+    """x_m, y_m at times ``t`` [s], evaluated from the Fourier series (not resampled)."""
+    xy = result.time_series(t, pair_dofs(shaft, node))[scenario]
+    return pd.DataFrame({"time_s": t, "x_m": xy[:, 0], "y_m": xy[:, 1]})
 
 
 def polar_frame(result: SteadyState, shaft, scenario: int = 0, node: int | None = None) -> pd.DataFrame:

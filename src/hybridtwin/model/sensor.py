@@ -3,8 +3,8 @@
 A plain ``Shaft`` (the VARM's structure) has two, named x and y, at node 1. A ``Machine`` has the sensors it
 declares, in its order (``Machine.sensors``: plane by plane, x then y): ``sensor_names`` and ``sensor_dofs``
 give every one of them (the channels of a record, docs/measurement-format.md), ``sensor_channels`` their
-harmonics. The functions that show an orbit
-(``sensor_harmonics``, ``harmonics_frame``, ``time_series_frame``) read one x, y pair: ``node`` defaults to the
+harmonics. The functions that show an orbit (``sensor_harmonics``; the command line's tables of a solved steady
+state build on it) read one x, y pair: ``node`` defaults to the
 structure's first probe plane, a ``Machine``'s ``sensor_node`` (the first node with both an x and a y probe),
 node 1 for a plain ``Shaft``.
 
@@ -15,16 +15,12 @@ the unbalance points to +x, the shaft turning from +x towards +y.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from .effect_base import Array
 from .shaft import Shaft
 
-if TYPE_CHECKING:  # annotations only: the solvers are the next stage
-    from ..solvers.solver import SteadyState
 
 #: the channels of a record when no machine says otherwise: the VARM's sensors x and y
 DEFAULT_CHANNELS = ("x", "y")
@@ -73,23 +69,6 @@ def sensor_harmonics(harmonics: Array, shaft: Shaft, node: int | None = None) ->
     """U_h, V_h at the (first) x, y probe pair's node from harmonics (..., H+1, n): each (..., H+1) complex [m]."""
     u, v = pair_dofs(shaft, node)
     return harmonics[..., u], harmonics[..., v]
-
-
-def harmonics_frame(result: SteadyState, shaft: Shaft, scenario: int = 0, node: int | None = None) -> pd.DataFrame:
-    """One scenario's sensor harmonics as columns harmonic,u_re_m,u_im_m,v_re_m,v_im_m."""
-    U, V = sensor_harmonics(result.harmonics, shaft, node)
-    return pd.DataFrame({
-        "harmonic": np.arange(result.H + 1),
-        "u_re_m": U[scenario].real, "u_im_m": U[scenario].imag,
-        "v_re_m": V[scenario].real, "v_im_m": V[scenario].imag,
-    })
-
-
-def time_series_frame(result: SteadyState, shaft: Shaft, t: Array, scenario: int = 0,
-                      node: int | None = None) -> pd.DataFrame:
-    """x_m, y_m at times ``t`` [s], evaluated from the Fourier series (not resampled)."""
-    xy = result.time_series(t, pair_dofs(shaft, node))[scenario]
-    return pd.DataFrame({"time_s": t, "x_m": xy[:, 0], "y_m": xy[:, 1]})
 
 
 def peak_displacement(harmonics: Array, shaft: Shaft, node: int | None = None, n_time: int = 64) -> Array:
