@@ -125,13 +125,6 @@ def online(config: Mapping) -> dict:
     return {} if not section else {**ONLINE_DEFAULTS, **section}
 
 
-def online_records(settings: Mapping) -> list[str]:
-    """The records (runs) of the ``online:`` section's sheet, read as check-data reads a sheet; none without one."""
-    from .data.measurements import sheet_of  # the one reader of runs sheets
-
-    return [] if not settings else sheet_of(settings["records"])["run"].tolist()
-
-
 def data_check_settings(config: Mapping) -> dict:
     """What the data checks take from a config, one derivation for the workflow's check_data and preprocess rules
     (their params) and ``hybridtwin check-data`` (its defaults, each option overriding one): ``harmonics`` (H),

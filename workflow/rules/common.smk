@@ -14,7 +14,6 @@ from hybridtwin.config import (
     offline,
     offline_for,
     online as online_settings,
-    online_records,
     run_plan,
     variant as config_variant,
 )

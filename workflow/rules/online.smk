@@ -34,7 +34,7 @@ rule twin_card:
 # assessment (never appended to: a failed record leaves the last trend as it was).
 ONLINE = online_settings(config)
 ONLINE_SHEET = sheet_of(ONLINE["records"]) if ONLINE else None  # read once per plan, as the runs sheet
-ONLINE_RECORDS = online_records({"records": ONLINE_SHEET} if ONLINE else ONLINE)
+ONLINE_RECORDS = list(ONLINE_SHEET["run"]) if ONLINE else []
 
 
 rule assess_record:
