@@ -86,13 +86,14 @@ def test_the_nonlinear_varm_at_an_angle_is_the_angle_zero_orbit_later_by_theta_o
 
 @pytest.fixture(scope="module")
 def angled_rig(tmp_path_factory):
-    """Records of the rig with a keyphasor, no bow: two runs with the mass on +x and at 120 degrees."""
+    """Records of the rig integrated in time (not our harmonic balance), every default nuisance on (speed error,
+    random offsets, noise), a keyphasor: runs with the mass on +x and at 120 / 250 degrees."""
     out = tmp_path_factory.mktemp("angled")
     plan = pd.DataFrame({"run": ["r0", "r120", "s0", "s250"], "rpm": [600.0, 600.0, 720.0, 720.0],
                          "eccentric_mass_g": [14.8, 14.8, 25.9, 25.9],
                          "eccentric_mass_angle_deg": [0.0, 120.0, 0.0, 250.0], "role": "fit"})
     spec = RigSpec(Truth.from_spec({"values": {**NO_BOW, "q_x": 0.002, "q_y": 0.0015}}),
-                   Imperfections(duration_s=2.0, keyphasor=True, speed_error=0.0), seed=11, harmonics=3)
+                   Imperfections(duration_s=2.0, keyphasor=True), seed=11, harmonics=3, integrator="time")
     truth = generate(plan, spec, out)
     sheet = read_runs(out / "runs.tsv")
     table = pd.concat([preprocess_run(row, 3)[0] for _, row in sheet.iterrows()], ignore_index=True)
@@ -104,7 +105,7 @@ def test_the_rig_writes_the_angle_and_its_records_show_the_1x_turned(angled_rig,
     np.testing.assert_array_equal(sheet["eccentric_mass_angle_deg"], [0.0, 120.0, 0.0, 250.0])
     # with no bow the truth's 1X turns by exactly theta (time invariance, as above) ...
     spec_no_bow = RigSpec(Truth.from_spec({"values": NO_BOW}),
-                          Imperfections(duration_s=2.0, keyphasor=True, speed_error=0.0), seed=11, harmonics=3)
+                          Imperfections(duration_s=2.0, keyphasor=True), seed=11, harmonics=3, integrator="time")
     plan = sheet[["run", "rpm", "eccentric_mass_g", "eccentric_mass_angle_deg", "role"]].iloc[:2]
     generate(plan, spec_no_bow, tmp_path)
     rows = read_runs(tmp_path / "runs.tsv")
