@@ -225,10 +225,12 @@ def test_ross_rotor_with_speed_dependent_bearings_has_our_campbell(rs, tmp_path)
     assert change.max() > 1e4 * RTOL, change.max()
 
 
-def test_unbalance_response_on_speed_dependent_bearings_matches_ross(rs):
+@pytest.mark.parametrize("angle_deg", [0.0, 120.0])
+def test_unbalance_response_on_speed_dependent_bearings_matches_ross(rs, angle_deg):
     """The same rotor's 1X response to an unbalance on the first disk (ours: the harmonic-balance solver on the model
     of machine_from_ross; ROSS: run_unbalance_response, its bearings at each speed), every node, x and y, through
-    the critical speeds and beyond the table (50-1500 rad/s)."""
+    the critical speeds and beyond the table (50-1500 rad/s); the unbalance on +x (angle_me 0) and turned by 120
+    degrees (ours: the trial-mass angle angle_me; ROSS: its unbalance phase, the same angle in rad)."""
     from hybridtwin.model.machine_parts import UnbalancePlane
     from hybridtwin.model.ross_io import machine_from_ross
     from hybridtwin.solvers.solver import solve
@@ -239,10 +241,11 @@ def test_unbalance_response_on_speed_dependent_bearings_matches_ross(rs):
     model = Model([fx["bearing_table@drive_end"], fx["bearing_table@free_end"], fx["gyroscopic"], fx["unbalance@disk"]],
                   machine)
     speeds = np.linspace(50.0, 1500.0, 30)  # rad/s
-    result = solve(model.system({"m_e": m_e, "r_me": r_me}, speeds * 60 / (2 * np.pi)), 1)
+    angle = np.deg2rad(angle_deg)
+    result = solve(model.system({"m_e": m_e, "r_me": r_me, "angle_me": angle}, speeds * 60 / (2 * np.pi)), 1)
     assert result.success.all()
     rotor = _ross_rotor(rs, extra_mass=m_e)  # our plane's point mass m_e, on ROSS's disk
-    theirs_all = rotor.run_unbalance_response(node, m_e * r_me, 0.0, speeds).forced_resp
+    theirs_all = rotor.run_unbalance_response(node, m_e * r_me, angle, speeds).forced_resp
     for plane, offset in (("x", 0), ("y", 1)):
         ours = result.harmonics[:, 1, machine.translational(plane)]  # (speeds, nodes)
         theirs = theirs_all[offset::rotor.number_dof][: machine.n_nodes].T
