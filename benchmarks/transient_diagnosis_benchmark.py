@@ -128,7 +128,7 @@ def main() -> int:
                      "rig_s": rig_s, "fit_s": fit_s,
                      "diagnose_s": diagnose_s, "diagnose_cpu_s": diagnose_cpu_s,
                      "refits": len(result.summary["refitted"]),
-                     "fingerprint": result.summary.get("fingerprint", "") if not result.path else "",
+                     "fingerprint": result.summary.get("fingerprint", ""),  # the residual left at the path's end
                      "conclusion": result.conclusion})
         row = rows[-1]
         print(f"[{case}] top-1 {top} ({'correct' if correct else 'WRONG'}), {row['verdict']}; chi^2/dof "
