@@ -1,7 +1,8 @@
 """The machine before any data (issue 39, item 1): `hybridtwin campbell`, `modes` and `response` against closed forms
 of a one-mode (Jeffcott) rotor, their tables read back exactly, their errors; and `simulate`'s defects of item 5
 (every probe plane, an unstable solution shown, no phase for a zero harmonic, the runs sheet's mass guard), each
-test failing on the code before.
+test failing on the code before. At the end, the three commands on the overhung example rotor and tests/test_ross.py's
+stepped rotor (shear on) against ROSS (issue 39's done-when; skipped where ROSS cannot be imported).
 
 The one-mode rotor: a disk of 10 kg at the middle of a short, very stiff shaft (EI = 2e7 N m^2, 1 kg/m) on two
 equal bearings (k = 5e4 N/m, c = 20 N s/m each), unbalance and probes at the disk. Its translation is the one mode
@@ -500,3 +501,266 @@ def test_summary_figure_keeps_long_variant_names_inside(tmp_path):
         shown = [label.get_text().replace("\n", "") for label in ax.get_xticklabels()]
         assert shown == names
     mp.plt.close(figure)
+
+
+# --- the commands against ROSS (issue 39's done-when) -----------------------------------------------------------
+#
+# "The commands above give the overhung rotor's and the stepped rotor's Campbell, modes and response in seconds
+# without data, equal to ROSS within 0.1 % (shear on) for frequencies and log decrements, tested." The commands run
+# as a user runs them (``main``, tables to tmp_path, read back with ``read_table`` / ``read_dense``) on two machines
+# with Timoshenko beams (shear and rotary inertia on), gyroscopic coupling and isotropic linear bearings:
+#
+# - "overhung": examples/stepped_rotor's machine (disk d2 overhung beyond bearing b, probes at d1 and d2), its
+#   config as shipped with ``shear: true, rotary_inertia: true`` added;
+# - "stepped": tests/test_ross.py's rotor (three solid sections, G given, node 19 overhung), as a config written here
+#   from test_ross's numbers, probes at its two disks.
+#
+# ROSS's rotor is built by hand from the config's numbers (``_ross_rotor``: ROSS's ShaftElement per element, its
+# Material from E, rho and G, or Poisson 0.3 where the config gives no G, as our default G = E / 2.6; not
+# model/ross_io.machine_to_ross, which tests/test_ross_io.py checks only by round trip). ROSS assembles and solves its
+# own matrices (6 DOFs per node). The two codes use the same beam theory (Timoshenko, Cowper's shear coefficient) on
+# the same mesh, so they agree to round-off: observed (largest relative difference, both machines) 2.2e-12 on the
+# frequencies, 1.1e-9 on the log decrements (small numbers, ~0.02-0.2: the eigensolver's round-off relative to
+# |lambda|), 2.4e-11 on the mode shapes (of their largest 1), 1.7e-10 on the probes' complex 1X response. What the
+# commands interpolate between their grid speeds differs by more, still far inside: the critical speeds (linear
+# between Campbell speeds 67 RPM apart) 2.6e-7 and their log decrements 2.1e-6; the peaks (a parabola through
+# three speeds) 8.8e-6 in speed, 1.2e-5 in height, the half-power points 7.6e-7, the amplification factors 4.5e-5.
+# The tests hold every one to the issue's 0.1 % (ROSS_RTOL): that is what the issue asks of the commands; a change of
+# beam theory (shear off moves these machines' six lowest frequencies at 0-8000 RPM by 0.20-0.67 %) or a lost
+# damping or gyroscopic term fails it.
+
+ROSS_RTOL = 1e-3  # the issue's 0.1 %: see the comment above
+
+
+def _overhung_config() -> dict:
+    config = yaml.safe_load((Path(__file__).resolve().parents[1] / "examples" / "stepped_rotor" / "config" /
+                             "config.yaml").read_text())
+    config["machine"] |= {"shear": True, "rotary_inertia": True}
+    del config["runs"]  # a sheet relative to the example's folder; the commands need none
+    return config
+
+
+def _stepped_ross_config() -> dict:
+    from test_ross import BEARINGS, DISKS, E, G, RHO, SEGMENTS
+
+    machine = {
+        "name": "stepped_ross", "shear": True, "rotary_inertia": True,
+        "segments": [{"length": length, "d_out": d, "E": E, "rho": RHO, "G": G, "n_elements": n}
+                     for length, d, n in SEGMENTS],
+        "disks": [{"node": node, "mass": float(m), "I_p": float(I_p), "I_d": float(I_d)}
+                  for node, m, I_p, I_d in DISKS],
+        "bearings": {name: {"node": node, "k": k, "c": c} for name, node, k, c in BEARINGS},
+        "unbalance_planes": {"disk": DISKS[0][0]},
+        "sensors": {"x1": {"node": DISKS[0][0], "direction": "x"}, "y1": {"node": DISKS[0][0], "direction": "y"},
+                    "x2": {"node": DISKS[1][0], "direction": "x"}, "y2": {"node": DISKS[1][0], "direction": "y"}}}
+    effects = [f"linear_bearing@{name}" for name, *_ in BEARINGS] + ["gyroscopic", "unbalance@disk"]
+    return {"machine": machine, "variants": {"linear": {"effects": effects}}}
+
+
+#: machine: (config, response's speed range [RPM] through its first two pairs of critical speeds, mass [g])
+ROSS_MACHINES = {"overhung": (_overhung_config, (1000, 8000), 20.0),
+                 "stepped": (_stepped_ross_config, (1000, 7000), 2.0)}
+
+
+@pytest.fixture(scope="module")
+def ross_module():
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return pytest.importorskip("ross")
+
+
+def _ross_rotor(rs, machine: dict, extra_mass: float = 0.0, damped: bool = True):
+    """ROSS's rotor of a config's ``machine:`` section, built from its numbers: one ShaftElement per element (shear,
+    rotary inertia and gyroscopic terms on), the disks (``extra_mass`` [kg] on the first unbalance plane's disk: our
+    eccentric mass is a point mass of the model), the bearings (k, c; ``damped`` False: c = 0)."""
+    shaft = []
+    for i, s in enumerate(machine["segments"]):
+        moduli = {"G_s": s["G"]} if "G" in s else {"Poisson": 0.3}
+        material = rs.Material(name=f"segment_{i}", rho=s["rho"], E=s["E"], **moduli)
+        n = s["n_elements"]
+        shaft += [rs.ShaftElement(L=s["length"] / n, idl=s.get("d_in", 0.0), odl=s["d_out"], material=material,
+                                  shear_effects=True, rotary_inertia=True, gyroscopic=True) for _ in range(n)]
+    plane = next(iter(machine["unbalance_planes"].values()))
+    disks = [rs.DiskElement(n=d["node"], m=d["mass"] + (extra_mass if d["node"] == plane else 0.0), Id=d["I_d"],
+                            Ip=d["I_p"]) for d in machine["disks"]]
+    bearings = [rs.BearingElement(n=b["node"], kxx=b["k"], cxx=b["c"] if damped else 0.0)
+                for b in machine["bearings"].values()]
+    return rs.Rotor(shaft, disks, bearings)
+
+
+def _ross_modal(rotor, rpm: float):
+    """ROSS's lateral modes at ``rpm``: (indices into its modes, wd [rad/s], log decrement, whirl lower case)."""
+    modal = rotor.run_modal(rpm * np.pi / 30, num_modes=40, sparse=False)
+    whirl = modal.whirl_direction()
+    lateral = np.flatnonzero([w is not None and w != "None" for w in whirl])
+    return modal, lateral, modal.wd[lateral], modal.log_dec[lateral], np.char.lower(whirl[lateral].astype(str))
+
+
+def _config_file(tmp_path, machine: str) -> Path:
+    path = tmp_path / f"{machine}.yaml"
+    path.write_text(yaml.safe_dump(ROSS_MACHINES[machine][0](), sort_keys=False))
+    return path
+
+
+def _relative(ours, theirs) -> float:
+    ours, theirs = np.asarray(ours), np.asarray(theirs)
+    return float(np.max(np.abs(ours - theirs) / np.abs(theirs)))
+
+
+@pytest.mark.parametrize("machine", ROSS_MACHINES)
+def test_campbell_command_matches_ross(capsys, tmp_path, ross_module, machine):
+    """`hybridtwin campbell`'s campbell.tsv at five of its speeds: every mode's damped whirl frequency and log
+    decrement the ROSS mode of its frequency's (each ROSS lateral mode used once), the whirl sense ROSS's (speed >
+    0; at rest the pairs are degenerate); and critical_speeds.tsv's 1X crossings those of ROSS's branches (ROSS's
+    run_modal solved for wd(N) = N by brentq), with their log decrement."""
+    from scipy.optimize import brentq
+
+    config = _config_file(tmp_path, machine)
+    spec = yaml.safe_load(config.read_text())["machine"]
+    code, _, err = _run(capsys, "campbell", "--config", config, "--rpm", 0, 8000, "--out", tmp_path)
+    assert code == 0, err
+    table = read_table(tmp_path / "campbell.tsv")
+    rotor = _ross_rotor(ross_module, spec)
+    speeds = sorted(set(table["rpm"]))
+    errors = {"frequency": 0.0, "log_decrement": 0.0}
+    for rpm in (speeds[0], speeds[20], speeds[55], speeds[90], speeds[-1]):
+        _, _, wd, log_dec, whirl = _ross_modal(rotor, rpm)
+        ours = table[table["rpm"] == rpm].sort_values("frequency_hz")
+        assert len(ours) >= 6
+        f = ours["frequency_hz"].to_numpy() * 2 * np.pi
+        match = np.array([np.argmin(np.abs(wd - w)) for w in f])  # the ROSS mode nearest in frequency
+        if rpm > 0:  # at rest the pairs are degenerate (two of ours at one frequency) and their sense arbitrary
+            assert len(set(match)) == len(match), (rpm, match)  # one ROSS mode each
+            assert list(whirl[match]) == list(ours["whirl"]), rpm
+        errors["frequency"] = max(errors["frequency"], _relative(f, wd[match]))
+        errors["log_decrement"] = max(errors["log_decrement"], _relative(ours["log_decrement"], log_dec[match]))
+    print(f"\n{machine}: campbell vs ROSS, largest relative differences: {errors}")
+    assert errors["frequency"] < ROSS_RTOL and errors["log_decrement"] < ROSS_RTOL, errors
+    # the critical speeds: ROSS's branch of the same whirl and rank, its crossing of 1X found to 1e-10
+    critical = read_table(tmp_path / "critical_speeds.tsv")
+    assert len(critical) >= 4
+    worst = {"rpm": 0.0, "log_decrement": 0.0}
+    for row in critical.itertuples():
+        def gap(rpm, row=row):
+            _, _, wd, _, whirl = _ross_modal(rotor, rpm)
+            return wd[whirl == row.whirl][row.branch] * 30 / np.pi - rpm
+
+        rpm = brentq(gap, 0.97 * row.rpm, 1.03 * row.rpm, xtol=1e-10 * row.rpm)
+        _, _, _, log_dec, whirl = _ross_modal(rotor, rpm)
+        worst["rpm"] = max(worst["rpm"], _relative(row.rpm, rpm))
+        worst["log_decrement"] = max(worst["log_decrement"],
+                                     _relative(row.log_decrement, log_dec[whirl == row.whirl][row.branch]))
+    print(f"{machine}: critical speeds vs ROSS's crossings, largest relative differences: {worst}")
+    assert worst["rpm"] < ROSS_RTOL and worst["log_decrement"] < ROSS_RTOL, worst
+
+
+@pytest.mark.parametrize("machine", ROSS_MACHINES)
+def test_modes_command_matches_ross(capsys, tmp_path, ross_module, machine):
+    """`hybridtwin modes --rpm 3000 --modes 6` (undamped, gyroscopic coupling kept) against ROSS's rotor with the
+    bearings' damping set to 0 at the same speed: each mode's frequency and whirl, and its shape in mode_shapes.tsv
+    (the whirl ellipse's semi-major axis along the shaft, signed, largest +1) against ROSS's own: the magnitude at
+    every point ROSS draws (its Shape.major_axis, its own interpolation between the nodes: nodes and quarter
+    points), the sign at the nodes from ROSS's nodal whirl (module docstring of machine_plots: + along the largest
+    ellipse's deflection at the instant it peaks), both after scaling ROSS's shape to ours at its largest node."""
+    config = _config_file(tmp_path, machine)
+    spec = yaml.safe_load(config.read_text())["machine"]
+    code, _, err = _run(capsys, "modes", "--config", config, "--rpm", 3000, "--modes", 6, "--out", tmp_path)
+    assert code == 0, err
+    modes, shapes = read_table(tmp_path / "modes.tsv"), read_table(tmp_path / "mode_shapes.tsv")
+    assert len(modes) == 6 and not modes["pair"].any()  # at speed, the gyroscopic coupling splits every pair
+    modal, lateral, wd, _, whirl = _ross_modal(_ross_rotor(ross_module, spec, damped=False), 3000.0)
+    frequency = _relative(modes["frequency_hz"] * 2 * np.pi, wd[:6])
+    assert frequency < ROSS_RTOL and list(modes["whirl"]) == list(whirl[:6]), (frequency, list(whirl[:6]))
+    z = shapes["z_m"].to_numpy()
+    worst = 0.0
+    for k in range(6):
+        shape = modal.shapes[lateral[k]]
+        ours = shapes[f"mode_{k + 1}"].to_numpy()
+        at = [int(np.argmin(np.abs(z - p))) for p in shape.zn]
+        assert np.abs(z[at] - shape.zn).max() < 1e-12  # ROSS's points are among ours (12 per element)
+        # the sign of each node's deflection: along or against the largest ellipse's at the instant it peaks
+        U, V = (modal.modes[offset::modal.number_dof, lateral[k]] for offset in (0, 1))
+        major = np.array([orbit.major_axis for orbit in shape.orbits])
+        r = int(np.argmax(major))
+        turn = np.exp(-0.5j * np.angle(U[r] ** 2 + V[r] ** 2))  # the instant (U_r, V_r) exp(i tau) is longest
+        peak = np.array([(U[r] * turn).real, (V[r] * turn).real])
+        sign = np.sign((U * turn).real * peak[0] + (V * turn).real * peak[1])
+        nodes = [int(np.argmin(np.abs(z - p))) for p in shape.nodes_pos]
+        theirs_nodes = sign * major / major[r]
+        scale = ours[nodes][r]
+        big = np.abs(theirs_nodes) > 1e-3  # a sign at a nodal point means nothing
+        assert (np.sign(ours[nodes])[big] == sign[big]).all(), (k, ours[nodes], theirs_nodes)
+        worst = max(worst, np.abs(np.abs(ours[at]) - scale * shape.major_axis / major[r]).max(),
+                    np.abs(ours[nodes] - scale * theirs_nodes).max())
+    print(f"\n{machine}: modes vs ROSS, frequencies {frequency:.2e}, shapes {worst:.2e} (of the largest 1)")
+    assert worst < ROSS_RTOL, worst
+
+
+@pytest.mark.parametrize("machine", ROSS_MACHINES)
+def test_response_command_matches_ross(capsys, tmp_path, ross_module, machine):
+    """`hybridtwin response` through the first two pairs of critical speeds: every probe's 1X (x1 .. y2, complex) at
+    every speed of both sweeps of response.tsv against ROSS's run_unbalance_response (the unbalance m_e r_me at
+    phase 0 on the unbalance plane's node; m_e, our model's point mass, on ROSS's disk there); and each resonance
+    peak of peaks.tsv (its speed, height, half-power points, amplification factor) against ROSS's curve itself:
+    its top by bounded minimisation and its half-power points by brentq, to 1e-10 of the speed."""
+    from functools import lru_cache
+
+    from scipy.optimize import brentq, minimize_scalar
+
+    from hybridtwin import config as cfg
+
+    config = _config_file(tmp_path, machine)
+    spec = yaml.safe_load(config.read_text())
+    (lo, hi), mass_g = ROSS_MACHINES[machine][1:]
+    code, stdout, err = _run(capsys, "response", "--config", config, "--rpm", lo, hi, "--eccentric-mass-g", mass_g,
+                             "--out", tmp_path)
+    assert code == 0, err
+    table = read_dense(tmp_path / "response.tsv")
+    peaks = read_table(tmp_path / "peaks.tsv")
+    values = cfg.variant(spec, "linear").values()
+    m_e, r_me = mass_g * 1e-3, float(values["r_me"])
+    assert float(values["angle_me"]) == 0.0
+    rotor = _ross_rotor(ross_module, spec["machine"], extra_mass=m_e)
+    plane = next(iter(spec["machine"]["unbalance_planes"].values()))
+    dofs = {name: rotor.number_dof * s["node"] + (0 if s["direction"] == "x" else 1)
+            for name, s in spec["machine"]["sensors"].items()}
+    assert (table["harmonic"] == 1).all() and (table["stable"] == True).all()  # noqa: E712
+    speeds = table["rpm"].to_numpy() * np.pi / 30
+    theirs = rotor.run_unbalance_response(plane, m_e * r_me, 0.0, speeds).forced_resp
+    response = 0.0
+    for name, dof in dofs.items():
+        ours = table[f"{name}_re_m"].to_numpy() + 1j * table[f"{name}_im_m"].to_numpy()
+        response = max(response, _relative(ours, theirs[dof]))
+    assert response < ROSS_RTOL, response
+
+    @lru_cache(maxsize=None)
+    def amplitudes(rpm: float) -> np.ndarray:
+        return np.abs(rotor.run_unbalance_response(plane, m_e * r_me, 0.0, [rpm * np.pi / 30]).forced_resp[:, 0])
+
+    worst = {"rpm_peak": 0.0, "amplitude_0pk_m": 0.0, "half_power": 0.0, "amplification_factor": 0.0}
+    compared = 0
+    for row in peaks[peaks["sweep"] == "run-up"].itertuples():
+        dof = dofs[row.channel]
+        width = 0.005 * row.rpm_peak  # ours is the top of a parabola through grid points: near ROSS's top
+        top = minimize_scalar(lambda r, d=dof: -amplitudes(float(r))[d], bounds=(row.rpm_peak - width,
+                              row.rpm_peak + width), method="bounded", options={"xatol": 1e-9 * row.rpm_peak})
+        assert abs(top.x - row.rpm_peak) < 0.9 * width, (row, top.x)  # a local maximum of ROSS's curve, inside
+        height = -top.fun
+        worst["rpm_peak"] = max(worst["rpm_peak"], _relative(row.rpm_peak, top.x))
+        worst["amplitude_0pk_m"] = max(worst["amplitude_0pk_m"], _relative(row.amplitude_0pk_m, height))
+        if not np.isfinite(row.amplification_factor):
+            continue
+        level = height / np.sqrt(2)
+        low, high = (brentq(lambda r, d=dof: amplitudes(float(r))[d] - level, a, b, xtol=1e-10 * row.rpm_peak)
+                     for a, b in ((row.rpm_half_power_low - width, top.x), (top.x, row.rpm_half_power_high + width)))
+        worst["half_power"] = max(worst["half_power"], _relative([row.rpm_half_power_low, row.rpm_half_power_high],
+                                                                 [low, high]))
+        worst["amplification_factor"] = max(worst["amplification_factor"],
+                                             _relative(row.amplification_factor, top.x / (high - low)))
+        compared += 1
+    print(f"\n{machine}: response vs ROSS {response:.2e}; peaks (largest relative differences): {worst}; "
+          f"{compared} amplification factors of {len(peaks[peaks['sweep'] == 'run-up'])} peaks")
+    assert compared >= 2
+    assert max(worst.values()) < ROSS_RTOL, worst
