@@ -8,13 +8,11 @@ table and plot. Reads only the rule's input, params and output.
 
 from pathlib import Path
 
-import yaml
-
 from hybridtwin import config as cfg
 from hybridtwin.identify import identification as idn
-from hybridtwin.identify import validation as val
 from hybridtwin.offline.library import Library, read_library_validation
-from hybridtwin.identify.run_fits import fit_joint, write_fit
+from hybridtwin.report import drift as dft
+from hybridtwin.identify.run_fits import fit_joint, write_fit, write_summary
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "identify_joint")
@@ -45,10 +43,9 @@ fit.correlation_table().to_csv(smk.output.correlation, sep="\t", float_format="%
 fit.history_table().to_csv(smk.output.history, sep="\t", index=False, float_format="%.9g")
 runs = result.runs()
 write_fit(smk.output.fit, fit, runs["rpm"].tolist())
-drift = val.drift_table([per_run[r] for r in per_run if r in set(runs["run"])], runs)
+drift = dft.drift_table([per_run[r] for r in per_run if r in set(runs["run"])], runs)
 idn.write_parameters(drift, smk.output.per_run)
-val.plot_per_run(drift, joint, variant.name).savefig(smk.output.plot, dpi=120)
-with open(smk.output.summary, "w") as stream:
-    yaml.safe_dump(result.summary, stream, sort_keys=False)
+dft.plot_per_run(drift, joint, variant.name).savefig(smk.output.plot, dpi=120)
+write_summary(result.summary, smk.output.summary)
 for warning in result.warnings:
     log.warning("%s", warning)

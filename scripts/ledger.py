@@ -1,19 +1,18 @@
 """Rule ledger: every variant of the config side by side, normalised error, BIC, validation error (thin wrapper)."""
 
 import pandas as pd
-import yaml
 
 from hybridtwin import config as cfg
 from hybridtwin.report import report
 from hybridtwin.report import report_plots
+from hybridtwin.identify.run_fits import read_summary
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "ledger")
 rows, errors = [], {}
 for variant, summary_path, fit_path, validation_path in zip(smk.params.variants, smk.input.summaries,
                                                              smk.input.errors, smk.input.validation_errors):
-    with open(summary_path) as stream:
-        summary = yaml.safe_load(stream)["final"]
+    summary = read_summary(summary_path)["final"]
     errors[variant] = pd.concat([report.read_errors(path) for path in (fit_path, validation_path)],
                                 ignore_index=True)
     rows.append(report.ledger_row(variant, smk.params.descriptions[variant], summary, errors[variant]))

@@ -2,16 +2,15 @@
 
 from hybridtwin import config as cfg
 from hybridtwin.identify import identification as idn
-from hybridtwin.report import report
-from hybridtwin.report import report_plots
+from hybridtwin.report import drift
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "report_drift")
 per_run = idn.read_parameters(smk.input.per_run)  # the per-run fits' drift table, a parameter table
 joint = idn.read_parameters(smk.input.parameters)
-statistics = report.drift_statistics(per_run, joint)
+statistics = drift.drift_statistics(per_run, joint)
 statistics.to_csv(smk.output.table, sep="\t", index=False, float_format="%.6g")
 for row in statistics.itertuples():
     log.info("%s: %s", row.parameter, row.verdict)
-figure = report_plots.plot_drift(per_run, statistics, joint, smk.wildcards.variant)
+figure = drift.plot_drift(per_run, statistics, joint, smk.wildcards.variant)
 figure.savefig(smk.output.plot, dpi=100)

@@ -5,22 +5,20 @@ Fit runs come from the joint fit's store; validation runs from the harmonics pre
 Reads only the rule's input, params and output.
 """
 
-import yaml
-
 from hybridtwin import config as cfg
 from hybridtwin.identify import identification as idn
 from hybridtwin.report import report
 from hybridtwin.identify import validation as val
 from hybridtwin.identify import validation_refit as vr
 from hybridtwin.offline.library import read_library_validation
+from hybridtwin.identify.run_fits import read_summary
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "report_harmonics")
 options = smk.params.options
 table = idn.read_harmonics(smk.input.harmonics)
 joint = idn.read_parameters(smk.input.parameters)
-with open(smk.input.summary) as stream:
-    summary = yaml.safe_load(stream)["final"]
+summary = read_summary(smk.input.summary)["final"]
 comparisons = report.fit_comparisons(smk.input.fit, joint, summary, table)
 validation = vr.read_validation(smk.input.validation)
 for row in validation[validation["model"] == "none"].to_dict("records"):

@@ -1,13 +1,13 @@
 """Rule report_summary: the report's first page, the answer first (results/summary.{tsv,png,rst}; thin wrapper)."""
 
 import pandas as pd
-import yaml
 
 from hybridtwin import config as cfg
 from hybridtwin.identify.design import read_design_table
 from hybridtwin.identify.validation_refit import read_validation
 from hybridtwin.report import interactive, report, summary
 from hybridtwin.data.measured import read_harmonics
+from hybridtwin.diagnose.diagnosis_report import read_summary
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "report_summary")
@@ -18,8 +18,7 @@ for variant, fit_path, validation_path, diagnosis_path, explained in zip(
     errors[variant] = pd.concat([report.read_errors(path) for path in (fit_path, validation_path)],
                                 ignore_index=True)
     why[variant] = summary.explanations(read_validation(explained))
-    with open(diagnosis_path) as stream:
-        diagnoses[variant] = yaml.safe_load(stream)
+    diagnoses[variant] = read_summary(diagnosis_path)
 table = summary.summary_table(ledger, errors, diagnoses, smk.params.specs)
 table.to_csv(smk.output.table, sep="\t", index=False, float_format="%.6g")
 figure = summary.plot_summary(ledger, errors)

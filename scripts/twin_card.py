@@ -1,11 +1,10 @@
 """Rule twin_card: the twin's card, twin.yaml (thin wrapper of hybridtwin.online.twin.make_card). Reads only the rule's
 input, params and output."""
 
-import yaml
-
 from hybridtwin import config as cfg
 from hybridtwin.identify import identification as idn
 from hybridtwin.online.twin import make_card, write_card
+from hybridtwin.identify.run_fits import read_summary
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "twin_card")
@@ -13,8 +12,7 @@ table = idn.read_parameters(smk.input.parameters)
 runs = list(dict.fromkeys(table.loc[table["kind"] == "nuisance", "run"]))  # the joint fit's runs (a phase each)
 measured = idn.read_harmonics(smk.input.harmonics).set_index("run").loc[runs].reset_index()
 measured["rpm"] = measured["rpm_true"].fillna(measured["rpm"])
-with open(smk.input.summary) as stream:
-    fit = yaml.safe_load(stream)["final"]
+fit = read_summary(smk.input.summary)["final"]
 card = make_card(smk.wildcards.variant, smk.params.model, smk.params.harmonics, smk.params.keyphasor,
                  cfg.candidate_names(smk.params.candidates, smk.params.model), smk.params.sensor_range_mm,
                  measured[["run", "rpm", "eccentric_mass_g"]], fit)

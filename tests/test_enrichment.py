@@ -70,6 +70,9 @@ def test_enrichment_is_solved_by_run_up_at_its_mass_and_marked_not_solved_elsewh
     # the same run-up as solving those scenarios alone at the 0 g runs: identical to round-off
     np.testing.assert_allclose(out.harmonics[:2][:, zero], reference.harmonics, rtol=1e-12, atol=1e-15)
     assert out.success[:2][:, zero].all() and out.success[2, heavy].all()
+    # the code: solved at the runs of the scenario's mass only; the message for people follows it
+    assert out.solved[:2, zero].all() and out.solved[2, heavy].all()
+    assert not out.solved[:2, heavy].any() and not out.solved[2, zero].any()
     assert all(m.startswith(NOT_SOLVED) for m in out.message[:2, heavy].ravel())
     assert all(m.startswith(NOT_SOLVED) for m in out.message[2, zero])
     assert np.isnan(out.harmonics[2, zero]).all() and not out.success[2, zero].any()

@@ -1,13 +1,20 @@
-"""One implementation each (issue 37, part 4): the run-up's speed grid and sweep, and the bearing terms.
+"""One implementation each (issue 37, part 4): the run-up's speed grid and sweep, the bearing terms and the drift
+analysis.
 
 The offline stage's run-ups (``scenarios.solve_runs``), the fits' (``forward.run_up``, ``forward.run_ups``) and the
 rig's (``rig.solve_truth``) take their speeds from ``continuation.ramp`` and sweep through
 ``continuation.sweep_model``; the VARM's upper-bearing candidates and a machine's candidates at a named bearing put
 their parameter into K or C through ``effects.BearingTerm``. The references below are the formulas each place had
-before, written out again, so a change to the shared function that alters a grid shows here.
+before, written out again, so a change to the shared function that alters a grid shows here. The per-run
+estimates' drift (the identification's per_run.tsv and .png, the report's drift.tsv and .png) is
+``hybridtwin.report.drift``'s alone, its two weighted means one function's.
 """
 
+import ast
+from pathlib import Path
+
 import numpy as np
+import pandas as pd
 import pytest
 
 from hybridtwin.model import bearing_candidates as bc
@@ -72,3 +79,54 @@ def test_named_bearing_term_at_node_zero_is_the_varm_term():
         values = {k: p.nominal for k, p in model.parameters.items()} | {effect.parameters[0].name: 7.5}
         systems.append(model.system(values, 0.0))
     assert np.array_equal(systems[0].K, systems[1].K)
+
+
+ROOT = Path(__file__).resolve().parents[1]
+DRIFT = {"drift_table", "plot_per_run", "weighted_mean", "drift_test", "drift_sigma", "drift_usable",
+         "drift_statistics", "plot_drift"}
+
+
+def test_the_drift_analysis_is_one_module_and_both_rules_use_it():
+    """The per-run drift's functions are defined in report/drift.py only (they were in identify/validation.py and
+    report/report.py + report_plots.py), and both rules' scripts call them there."""
+    defined = {}
+    for path in sorted((ROOT / "src").rglob("*.py")) + sorted((ROOT / "scripts").glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.FunctionDef) and node.name in DRIFT:
+                defined.setdefault(node.name, []).append(path.relative_to(ROOT).as_posix())
+    assert defined == {name: ["src/hybridtwin/report/drift.py"] for name in DRIFT}
+    for script, used in (("identify_joint.py", {"drift_table", "plot_per_run"}),
+                         ("report_drift.py", {"drift_statistics", "plot_drift"})):
+        tree = ast.parse((ROOT / "scripts" / script).read_text())
+        calls = {ast.unparse(n.func) for n in ast.walk(tree) if isinstance(n, ast.Call)}
+        modules = {a.asname or a.name for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)
+                   and n.module == "hybridtwin.report" for a in n.names if a.name == "drift"}
+        assert len(modules) == 1, (script, modules)
+        name = next(iter(modules))
+        assert {f"{name}.{f}" for f in used} <= calls, (script, calls)
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_both_weighted_means_are_the_formulas_they_were(seed):
+    """weighted_mean is, to the last bit, the per-run table's weighted mean as identify/validation.drift_table had it
+    (pandas, leaving out a zero or missing stderr; the plain mean when none is left) and drift_test's as
+    report/report.py had it (numpy, every sigma positive)."""
+    from hybridtwin.report.drift import drift_test, weighted_mean
+
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(2, 30))
+    value = pd.Series(rng.normal(5.0, 2.0, n) * 10.0 ** rng.integers(-6, 7))
+    stderr = pd.Series(rng.uniform(0.01, 1.0, n) * abs(value.mean()))
+    stderr[rng.random(n) < 0.2] = 0.0
+    stderr[rng.random(n) < 0.2] = np.nan
+    w = 1.0 / stderr.where(stderr > 0) ** 2
+    table_mean = (w * value).sum() / w.sum() if w.notna().any() else value.mean()
+    assert weighted_mean(value, stderr)[0] == table_mean
+    assert weighted_mean(value, pd.Series(0.0, index=value.index))[0] == value.mean()
+    s = rng.uniform(0.01, 1.0, n)
+    v = value.to_numpy()
+    ws = 1.0 / s**2
+    assert weighted_mean(v, s) == (float((ws * v).sum() / ws.sum()), float(ws.sum()))
+    test = drift_test(v, s, np.linspace(400.0, 1000.0, n))
+    assert test["weighted_mean"] == float((ws * v).sum() / ws.sum())
+    assert test["weighted_mean_stderr"] == float(1.0 / np.sqrt(ws.sum()))

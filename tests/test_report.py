@@ -20,7 +20,7 @@ from scipy import stats
 
 from hybridtwin.identify import identification as idn
 from hybridtwin.report import report
-from hybridtwin.report import report_plots
+from hybridtwin.report import drift, report_plots
 from hybridtwin.report import summary
 from hybridtwin.identify import validation as val
 from hybridtwin.identify.run_fits import write_fit
@@ -205,13 +205,13 @@ def test_predicted_harmonics_reader_names_the_file_and_the_problem(tmp_path):
 
 def test_drift_test_recovers_a_slope_and_flags_a_drift():
     rpm = np.linspace(400, 1000, 13)
-    line = report.drift_test(2.0 + 1e-3 * rpm, np.full(13, 0.01), rpm)
+    line = drift.drift_test(2.0 + 1e-3 * rpm, np.full(13, 0.01), rpm)
     assert line["slope_per_rpm"] == pytest.approx(1e-3)
     assert line["slope_stderr_per_rpm"] == pytest.approx(0.01 / np.sqrt(((rpm - rpm.mean()) ** 2).sum()))
     assert line["drifts"]
     rng = np.random.default_rng(1)
     step = np.where(rpm > 700, 1.0, 0.0) * np.cos(rpm)  # no trend, but not one value
-    assert report.drift_test(5 + step + 0.05 * rng.standard_normal(13), np.full(13, 0.05), rpm)["drifts"]
+    assert drift.drift_test(5 + step + 0.05 * rng.standard_normal(13), np.full(13, 0.05), rpm)["drifts"]
 
 
 def test_drift_test_reads_no_slope_into_runs_at_one_speed():
@@ -220,10 +220,10 @@ def test_drift_test_reads_no_slope_into_runs_at_one_speed():
     constancy test still is. The same values over 400-1000 RPM: the slope is tested."""
     rpm = np.array([598.9, 600.2, 601.0, 599.6])
     value = np.array([3.0, 2.6, 2.4, 2.8])
-    one_speed = report.drift_test(value, np.full(4, 0.3), rpm)
+    one_speed = drift.drift_test(value, np.full(4, 0.3), rpm)
     assert np.isnan(one_speed["slope_per_rpm"]) and np.isnan(one_speed["slope_p_value"])
     assert np.isfinite(one_speed["p_value"]) and not one_speed["drifts"]
-    spread = report.drift_test(value, np.full(4, 0.3), np.array([400.0, 600.0, 1000.0, 800.0]))
+    spread = drift.drift_test(value, np.full(4, 0.3), np.array([400.0, 600.0, 1000.0, 800.0]))
     assert np.isfinite(spread["slope_per_rpm"]) and np.isfinite(spread["slope_p_value"])
 
 
@@ -234,7 +234,7 @@ def test_drift_test_false_alarm_rate_on_constants_with_noise():
     rpm = np.linspace(350, 1000, 15)
     sigma = rng.uniform(0.5, 2.0, 15)
     n = 4000
-    flags = sum(report.drift_test(3.0 + sigma * rng.standard_normal(15), sigma, rpm)["drifts"] for _ in range(n))
+    flags = sum(drift.drift_test(3.0 + sigma * rng.standard_normal(15), sigma, rpm)["drifts"] for _ in range(n))
     spread = 3 * np.sqrt(report.ALPHA * (1 - report.ALPHA) / n)
     assert report.ALPHA / 2 - spread < flags / n < report.ALPHA + spread
 
@@ -261,7 +261,7 @@ def test_drift_statistics_flag_only_drifting_constants():
                           "run": ["all", "all"] + [f"r{i}" for i in range(10)] * 2,
                           "kind": ["shared", "shared"] + ["per_run"] * 10 + ["nuisance"] * 10,
                           "value": [5.0, 5.0] + [1.0] * 10 + [0.0] * 10})
-    table = report.drift_statistics(per_run, joint).set_index("parameter")
+    table = drift.drift_statistics(per_run, joint).set_index("parameter")
     assert table.loc["k", "n_used"] == 8 and table.loc["k", "n_at_bound"] == 2  # edge estimates not tested
     assert table.loc["k", "sigma_source"] == "monte_carlo"  # the MC spread, not the (huge) linearised stderr
     assert table.loc["k", "flagged"] and not table.loc["c", "flagged"]
@@ -311,9 +311,9 @@ def test_figures_show_the_numbers_and_are_written(synthetic, tmp_path):
     floor = spectrum.get_ylim()[0]
     assert np.allclose(bars["residual"], np.maximum(expected, floor))
     per_run = _per_run({"k": np.linspace(4, 6, 5)}, np.linspace(400, 800, 5), {"k": np.zeros(5, bool)})
-    statistics = report.drift_statistics(per_run, synthetic.parameters)
+    statistics = drift.drift_statistics(per_run, synthetic.parameters)
     figures = {"run": run_figure, "error_map": error_map,
-               "drift": report_plots.plot_drift(per_run, statistics, synthetic.parameters, "synthetic"),
+               "drift": drift.plot_drift(per_run, statistics, synthetic.parameters, "synthetic"),
                "ledger": report_plots.plot_ledger(report.ledger_table([report.ledger_row(
                    "synthetic", "", {"n_data": 24, "dof": 19, "chi2": errors["chi2"][:2].sum()}, errors)]),
                    {"synthetic": errors})}
@@ -326,14 +326,14 @@ def test_figures_show_the_numbers_and_are_written(synthetic, tmp_path):
 def test_two_fit_runs_and_no_validation_run(synthetic, tmp_path):
     """The smallest workflow: too few runs to test a drift, no validation run; tables and figures still made."""
     per_run = _per_run({"k": np.array([4.0, 6.0])}, np.array(RPM), {"k": np.zeros(2, bool)})
-    statistics = report.drift_statistics(per_run, synthetic.parameters)
-    assert list(statistics.columns) == report.DRIFT_COLUMNS  # the same columns whatever the number of runs
+    statistics = drift.drift_statistics(per_run, synthetic.parameters)
+    assert list(statistics.columns) == drift.DRIFT_COLUMNS  # the same columns whatever the number of runs
     assert statistics["verdict"].tolist() == ["too few usable per-run estimates to test"]
     assert not statistics["flagged"].any()
     errors = report.error_table(synthetic.comparisons)
     row = report.ledger_row("v", "", {"n_data": 24, "dof": 19, "chi2": errors["chi2"].sum()}, errors)
     assert np.isnan(row["validation_chi2_dof"]) and row["worst_validation_run"] == ""
-    figures = [report_plots.plot_drift(per_run, statistics, synthetic.parameters, "small"),
+    figures = [drift.plot_drift(per_run, statistics, synthetic.parameters, "small"),
                report_plots.plot_error_map(errors, "small"),
                report_plots.plot_ledger(report.ledger_table([row]), {"v": errors})]
     for i, figure in enumerate(figures):

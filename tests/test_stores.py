@@ -4,6 +4,7 @@ error is one line naming the store and the chunk. Stores: snapshot chunks, gathe
 sPGD libraries, fits (joint / per run, and the not-fitted run's store). Synthetic contents, no solver: seconds.
 """
 
+import shutil
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -168,6 +169,30 @@ def test_the_stability_flags_survive_chunk_gather_and_load(tmp_path):
     np.testing.assert_array_equal(store.stable, solved.stable)
     np.testing.assert_array_equal(store.floquet_radius, solved.floquet_radius)
     assert not store.stable[1, [3, 7]].any() and store.stable.sum() == 2 * S - 2
+
+
+def test_the_solved_code_survives_chunk_gather_and_load_and_older_stores_read_it_from_messages(tmp_path):
+    """``solved`` (an enrichment scenario not solved at a run of another mass) is written by write_chunk, joined by
+    read_chunks, saved and loaded (all runs, one run) as written; a store from before the ``solved`` array reads it
+    from the NOT_SOLVED prefix its messages had."""
+    from hybridtwin.offline.scenarios import NOT_SOLVED
+
+    table, solved = _solutions()
+    solved.solved = np.ones((2, S), bool)
+    solved.solved[0, [2, 5]] = solved.solved[1, 9] = False
+    solved.message[~solved.solved] = f"{NOT_SOLVED} 19.5 g"
+    snapshots.write_chunk(tmp_path / "000.zarr", "geometric", table, PARAMETERS, solved)
+    joined = snapshots.read_chunks([tmp_path / "000.zarr"], table)
+    np.testing.assert_array_equal(joined.solved, solved.solved)
+    snapshots.save(joined, tmp_path / "snapshots.zarr")
+    np.testing.assert_array_equal(snapshots.load(tmp_path / "snapshots.zarr").solved, solved.solved)
+    np.testing.assert_array_equal(snapshots.load(tmp_path / "snapshots.zarr", RUNS[1]).solved, solved.solved[1:])
+    assert {(r, s) for r, s in zip(*np.nonzero(~joined.steady & joined.solved))} == {(1, 3), (1, 7)}
+    for store in (tmp_path / "000.zarr", tmp_path / "snapshots.zarr"):  # as written before the solved array
+        shutil.rmtree(store / "solved")
+        write_manifest(store)
+    np.testing.assert_array_equal(snapshots.read_chunks([tmp_path / "000.zarr"], table).solved, solved.solved)
+    np.testing.assert_array_equal(snapshots.load(tmp_path / "snapshots.zarr").solved, solved.solved)
 
 
 def test_a_snapshot_store_from_before_the_stability_check_is_refused(tmp_path):

@@ -165,6 +165,28 @@ def test_an_empty_or_absent_angle_is_zero_and_any_finite_angle_is_allowed(tmp_pa
     assert "eccentric_mass_angle_deg" not in read_runs(sheet, check_files=False, require_path=False)
 
 
+def test_trial_angles_reads_the_column_read_runs_parsed_and_parses_nothing_again(tmp_path):
+    """One parser (read_runs) for the angle cells; trial_angles takes its floats, from the sheet and from the
+    harmonics table written from it and read back; a column of text (a sheet not read by read_runs) is refused,
+    not coerced (the old pd.to_numeric(errors="coerce") turned "north" into 0 without a word)."""
+    from hybridtwin.data.measured import read_harmonics, write_harmonics
+    from hybridtwin.data.measurements import trial_angles
+
+    sheet = tmp_path / "runs.tsv"
+    sheet.write_text("run\trpm\teccentric_mass_g\teccentric_mass_angle_deg\na\t600\t14.8\t\nb\t700\t14.8\t-450\n"
+                     "c\t800\t14.8\t12.5\n")
+    read = read_runs(sheet, check_files=False, require_path=False)
+    np.testing.assert_array_equal(trial_angles(read), [0.0, -450.0, 12.5])
+    write_harmonics(read[["run", "rpm", "eccentric_mass_g", "eccentric_mass_angle_deg"]], tmp_path / "h.tsv")
+    np.testing.assert_array_equal(trial_angles(read_harmonics(tmp_path / "h.tsv")), [0.0, -450.0, 12.5])
+    joined = pd.concat([read.iloc[1:], read.drop(columns="eccentric_mass_angle_deg").iloc[:1]], ignore_index=True)
+    np.testing.assert_array_equal(trial_angles(joined), [-450.0, 12.5, 0.0])
+    np.testing.assert_array_equal(trial_angles(read.drop(columns="eccentric_mass_angle_deg")), [0.0, 0.0, 0.0])
+    raw = pd.read_csv(sheet, sep="\t", dtype=str, keep_default_na=False)  # the cells as text, not parsed
+    with pytest.raises(TypeError, match="read_runs"):
+        trial_angles(raw)
+
+
 def test_the_libraries_refuse_an_angled_run_naming_the_option(tmp_path):
     data = idn.RunData("b", 700.0, 14.8, "fit", np.zeros((2, 2), complex), np.ones((2, 2)),
                        eccentric_mass_angle_deg=45.0)

@@ -277,10 +277,17 @@ def read_runs(path: str | Path, check_files: bool = True, require_path: bool = T
 
 
 def trial_angles(table: pd.DataFrame) -> Array:
-    """Each row's trial-mass angle [deg] (``TRIAL_ANGLE_COLUMN``; 0 where the column is absent or a cell empty)."""
+    """Each row's trial-mass angle [deg] as ``read_runs`` parsed it (``TRIAL_ANGLE_COLUMN``, floats, 0 where the
+    cell was empty), carried by the tables made from the sheet (the harmonics table); 0 where the table has no such
+    column (and on a row of a table joined with one without it). No parsing here: the sheet's cells are parsed once,
+    by ``read_runs``, which names a bad one's file, line and column; a column of anything but numbers is refused."""
     if TRIAL_ANGLE_COLUMN not in table:
         return np.zeros(len(table))
-    return np.nan_to_num(pd.to_numeric(table[TRIAL_ANGLE_COLUMN], errors="coerce").to_numpy(float), nan=0.0)
+    column = table[TRIAL_ANGLE_COLUMN]
+    if not pd.api.types.is_numeric_dtype(column) or pd.api.types.is_bool_dtype(column):
+        raise TypeError(f"column {TRIAL_ANGLE_COLUMN} holds {column.dtype} values, not the angles read_runs parses "
+                        "(numbers): read the runs sheet with read_runs")
+    return np.nan_to_num(column.to_numpy(float), nan=0.0)
 
 
 def sheet_of(sheet: str | Path | pd.DataFrame) -> pd.DataFrame:

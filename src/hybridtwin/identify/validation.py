@@ -1,10 +1,9 @@
-"""Validation runs (predicted, never fitted) and the per-run drift of the estimates.
+"""Validation runs (predicted, never fitted).
 
 A validation run is predicted with the joint fit's shared values and each
 per-run parameter (the bow) from its law over the fitted runs (``bow_law``);
-only its phase, a nuisance, is aligned. The per-run fits side by side
-(``drift_table``, ``plot_per_run``, the paper's Fig. 9) show a physical
-constant drifting with speed: the sign of a missing effect.
+only its phase, a nuisance, is aligned. The per-run fits side by side and their
+drift with speed (the sign of a missing effect): ``hybridtwin.report.drift``.
 """
 
 from __future__ import annotations
@@ -206,73 +205,6 @@ def read_predictions(path: str | Path) -> list[PredictedRun]:
         harmonics.real, harmonics.imag = (order[c].to_numpy(float).reshape(H, C) for c in ("model_re_m", "model_im_m"))
         out.append(PredictedRun(str(run), str(model), float(rows["phase_rad"].iloc[0]), harmonics, channels))
     return out
-
-
-
-def drift_table(per_run: Sequence[pd.DataFrame], runs: pd.DataFrame) -> pd.DataFrame:
-    """The per-run fits side by side (one row per run and parameter) with speed and unbalance.
-
-    A physical constant that drifts with speed means the model misses something
-    (the per-run fits' diagnostic); ``spread_in_stderr``: |value - weighted mean| / stderr.
-    """
-    rows = []
-    for table in per_run:
-        rows.append(table[table["kind"] != "nuisance"])
-    if not rows:
-        return pd.DataFrame()
-    out = pd.concat(rows, ignore_index=True)
-    out = out.merge(runs[["run", "rpm", "eccentric_mass_g"]], on="run", how="left", suffixes=("", "_sheet"))
-    for p, group in out.groupby("parameter"):
-        w = 1.0 / group["stderr"].where(group["stderr"] > 0) ** 2
-        mean = (w * group["value"]).sum() / w.sum() if w.notna().any() else group["value"].mean()
-        out.loc[group.index, "weighted_mean"] = mean
-        out.loc[group.index, "spread_in_stderr"] = (group["value"] - mean).abs() / group["stderr"]
-    return out
-
-
-def plot_per_run(drift: pd.DataFrame, joint: pd.DataFrame | None,
-                 title: str) -> "matplotlib.figure.Figure":  # noqa: F821
-    """Per-run estimates vs speed (the paper's Fig. 9) with their intervals, and the joint values.
-
-    The axes span each parameter's range (an interval wider than the range is cut at it); open markers
-    are estimates the uncertainty analysis calls not identifiable, crosses estimates at a range edge.
-    """
-    from ..plots import plt
-
-    names = list(dict.fromkeys(drift["parameter"])) if len(drift) else []
-    fig, axes = plt.subplots(1, max(len(names), 1), figsize=(3.2 * max(len(names), 1), 3.4), squeeze=False)
-    for ax, p in zip(axes[0], names):
-        group = drift[drift["parameter"] == p]
-        lo, hi = float(group["lower"].iloc[0]), float(group["upper"].iloc[0])
-        for colour, (mass, sub) in enumerate(group.groupby("eccentric_mass_g")):
-            low, high = sub["ci_low"].clip(lo, hi), sub["ci_high"].clip(lo, hi)
-            err = np.nan_to_num(np.vstack([sub["value"] - low, high - sub["value"]]).clip(min=0))
-            ok = sub["identifiable"].astype(bool).to_numpy()
-            edge = sub["at_bound"].astype(bool).to_numpy()
-            ax.errorbar(sub["rpm"], sub["value"], yerr=err, fmt="none", color=f"C{colour}", capsize=2, lw=0.8)
-            ax.plot(sub["rpm"][ok], sub["value"][ok], "o", ms=4, color=f"C{colour}", label=f"{mass:g} g")
-            ax.plot(sub["rpm"][~ok & ~edge], sub["value"][~ok & ~edge], "o", ms=4, mfc="none", color=f"C{colour}")
-            ax.plot(sub["rpm"][edge], sub["value"][edge], "x", ms=5, color=f"C{colour}")
-        if joint is not None:
-            shared = joint[(joint["parameter"] == p) & (joint["run"] == "all")]
-            for row in shared.itertuples():
-                ax.axhline(row.value, color="k", lw=1, label="joint")
-                ax.axhspan(max(row.ci_low, lo), min(row.ci_high, hi), color="k", alpha=0.1)
-            local = joint[(joint["parameter"] == p) & (joint["run"] != "all")].merge(
-                drift[["run", "rpm"]].drop_duplicates(), on="run")
-            if len(local):
-                ax.plot(local["rpm"], local["value"], "k+", label="joint")
-        pad = 0.05 * (hi - lo)
-        ax.set_ylim(lo - pad, hi + pad)
-        ax.set_title(p)
-        ax.set_xlabel("speed [RPM]")
-        ax.grid(alpha=0.3)
-    axes[0][0].legend(fontsize=7)
-    fig.suptitle(f"variant {title}: per-run estimates (95 % intervals; open: not identifiable, x: at a range "
-                 "edge) and the joint fit", fontsize=9)
-    fig.tight_layout()
-    return fig
-
 
 
 def validation_values(joint: pd.DataFrame, run: RunData, law: str = "law", runs: pd.DataFrame | None = None

@@ -68,6 +68,8 @@ class RunSolutions:
     success: the harmonic-balance solve converged; floquet_radius: the largest |Floquet multiplier|
     of a converged point (NaN where none); ``stable``: converged with every multiplier inside the
     unit circle. An unstable point keeps its harmonics, and its message starts with "unstable".
+    ``solved``: the scenario was solved at the run (the code; False only for an enrichment scenario at a run of
+    another eccentric mass, whose message, for people, is ``NOT_SOLVED``); all True when not given.
     """
 
     runs: list[str]
@@ -78,10 +80,13 @@ class RunSolutions:
     message: Array  # (R, S) object
     branch: Array  # (R, S) object
     floquet_radius: Array | None = None  # (R, S)
+    solved: Array | None = None  # (R, S) bool
 
     def __post_init__(self) -> None:
         if self.floquet_radius is None:
             self.floquet_radius = np.full(self.success.shape, np.nan)
+        if self.solved is None:
+            self.solved = np.ones(self.success.shape, bool)
 
     @property
     def stable(self) -> Array:
@@ -167,7 +172,8 @@ def read_scenarios(path) -> pd.DataFrame:
     return pd.read_csv(path, sep="\t", dtype={"split": str})
 
 
-#: message of an enrichment scenario at a run it was not solved for (it targets other runs); not a failure
+#: message of an enrichment scenario at a run it was not solved for (it targets other runs); not a failure. The
+#: sentence is for people: code reads ``RunSolutions.solved`` (stored as the snapshot stores' ``solved`` array)
 NOT_SOLVED = "not solved at this run: an enrichment scenario of the runs at"
 
 
@@ -225,7 +231,7 @@ def sample_enrichment(variant: Variant, values: Array, split: Array, observable:
 
 def solve_enrichment(variant: Variant, runs: pd.DataFrame, table: pd.DataFrame, harmonics: int = DEFAULT_HARMONICS) -> RunSolutions:
     """Enrichment scenarios (``sample_enrichment``) solved at the runs of their eccentric mass, by run-up;
-    at every other run they are marked ``NOT_SOLVED`` (not a failure)."""
+    at every other run they are not solved (``solved`` False, the message ``NOT_SOLVED``; not a failure)."""
     S = len(table)
     out = _unsolved(runs, S, harmonics, variant.model.shaft.n_dof)
     masses = runs["eccentric_mass_g"].to_numpy(float)
@@ -235,7 +241,9 @@ def solve_enrichment(variant: Variant, runs: pd.DataFrame, table: pd.DataFrame, 
         if not at.size:
             raise ValueError(f"enrichment scenarios for {mass:g} g, but no run has that eccentric mass "
                              f"(runs: {sorted(set(masses))} g)")
-        out.message[np.ix_(np.flatnonzero(masses != mass), cols)] = f"{NOT_SOLVED} {mass:g} g"
+        elsewhere = np.ix_(np.flatnonzero(masses != mass), cols)
+        out.solved[elsewhere] = False
+        out.message[elsewhere] = f"{NOT_SOLVED} {mass:g} g"
         part = solve_runs(variant, runs.iloc[at], {k: group[k].to_numpy(float) for k in variant.unknown_names},
                           harmonics)
         for name in ("harmonics", "success", "message", "branch", "floquet_radius"):

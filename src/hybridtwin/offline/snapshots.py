@@ -11,12 +11,14 @@ group; ``gather`` checks that the chunks hold exactly the sampled scenarios
                                               circle, ``hybridtwin.solvers.floquet``); unstable points keep their
                                               harmonics, their message says "unstable ..."
       floquet_radius (R, S) float64           the largest |Floquet multiplier| (NaN where not converged)
-      message     (R, S) str                  the solver's reason, per run and scenario
+      solved      (R, S) bool                 the scenario was solved at the run (False: an enrichment scenario
+                                              at a run of another eccentric mass; its message ``NOT_SOLVED``)
+      message     (R, S) str                  the solver's reason, per run and scenario (for people)
       branch      (R, S) str                  direct / run-up / run-up, jump between ...
       scenario    (S,) int64,  split (S,) str,  parameters (S, d) float64 [SI]
       design      (S,) str                    hypercube (the first design) or enrichment
                                               (``scenarios.sample_enrichment``: solved only at the runs
-                                              of one eccentric mass, ``NOT_SOLVED`` at the others)
+                                              of one eccentric mass, not solved at the others)
       attrs: variant, runs, rpm and eccentric_mass_g of each run (as solved), parameter names
       manifest.sha256                         sha256 of every other file (``sha256sum -c`` format)
 
@@ -46,7 +48,7 @@ from .stores import CorruptStoreError, check_store, verify_store, write_manifest
 
 
 #: the gathered store's arrays with one row per run, chunked one run per chunk
-PER_RUN = ("harmonics", "success", "stable", "floquet_radius", "message", "branch")
+PER_RUN = ("harmonics", "success", "stable", "floquet_radius", "solved", "message", "branch")
 
 
 #: ``Snapshots.failures``' reason codes
@@ -76,20 +78,19 @@ class Snapshots:
     stable: Array  # (R, S) converged and stable
     floquet_radius: Array  # (R, S)
     design: Array | None = None  # (S,) hypercube / enrichment; None: all hypercube (stores from before it)
+    #: (R, S) the scenario was solved at the run (enrichment scenarios only at their eccentric mass); None: all
+    solved: Array | None = None
 
     def __post_init__(self) -> None:
         if self.design is None:
             self.design = np.full(self.scenario.shape, "hypercube", dtype=object)
+        if self.solved is None:
+            self.solved = np.ones(self.success.shape, bool)
 
     @property
     def steady(self) -> Array:
         """(R, S): a steady state the machine can be in, converged and stable (what downstream stages use)."""
         return self.success & self.stable
-
-    @property
-    def solved(self) -> Array:
-        """(R, S): the scenario was solved at the run (enrichment scenarios only at their eccentric mass)."""
-        return ~np.char.startswith(self.message.astype(str), NOT_SOLVED)
 
     def run_index(self, run: str) -> int:
         if run not in self.runs:
@@ -121,6 +122,7 @@ def write_chunk(path: str | Path, variant: str, scenarios: pd.DataFrame, paramet
     _write(group, "success", solutions.success)
     _write(group, "stable", solutions.stable)
     _write(group, "floquet_radius", solutions.floquet_radius)
+    _write(group, "solved", solutions.solved.astype(bool))
     _write(group, "message", solutions.message.astype(str))
     _write(group, "branch", solutions.branch.astype(str))
     write_manifest(path)
@@ -133,6 +135,20 @@ def _write(group: zarr.Group, name: str, data: Array, chunks: tuple[int, ...] | 
     if data.dtype.kind == "U":
         data = data.astype(np.dtypes.StringDType())
     group.create_array(name, data=data, chunks=chunks or "auto")
+
+
+def _solved(group: zarr.Group, sel: slice = slice(None)) -> Array:
+    """The store's ``solved`` array (rows ``sel``). A store written before it (no such array) is still read: there
+    an enrichment scenario's message at the runs it was not solved for began with ``NOT_SOLVED``, and that prefix
+    is read as the code (the one place a message is read: only for those older stores)."""
+    if "solved" in group:
+        return np.asarray(group["solved"][sel], bool)
+    return _solved_from_messages(_text(group["message"][sel]))
+
+
+def _solved_from_messages(message: Array) -> Array:
+    """Stores from before the ``solved`` array: not solved where the message began with ``NOT_SOLVED``."""
+    return ~np.char.startswith(np.asarray(message).astype(str), NOT_SOLVED)
 
 
 def _text(array: Array) -> Array:
@@ -185,6 +201,7 @@ def read_chunks(chunk_paths: Sequence[str | Path], expected: pd.DataFrame) -> Sn
                                 ("parameters", 0))}
     stack |= {name: np.concatenate([_text(g[name][:]) for g in parts], axis=axis)
               for name, axis in (("message", 1), ("branch", 1), ("split", 0))}
+    stack["solved"] = np.concatenate([_solved(g) for g in parts], axis=1)
     # chunk stores from before the enrichment have no design array: all hypercube
     stack["design"] = np.concatenate([_text(g["design"][:]) if "design" in g
                                       else np.full(g["scenario"].shape, "hypercube") for g in parts]).astype(object)
@@ -195,6 +212,7 @@ def read_chunks(chunk_paths: Sequence[str | Path], expected: pd.DataFrame) -> Sn
         harmonics=stack["harmonics"][:, order], success=stack["success"][:, order],
         message=stack["message"][:, order], branch=stack["branch"][:, order], stable=stack["stable"][:, order],
         floquet_radius=stack["floquet_radius"][:, order], design=stack["design"][order],
+        solved=stack["solved"][:, order],
     )
 
 
@@ -221,7 +239,7 @@ def save(snapshots: Snapshots, path: str | Path) -> None:
                         "eccentric_mass_g": snapshots.eccentric_mass_g, "parameters": snapshots.parameters})
     R, S = snapshots.success.shape
     _write(group, "harmonics", snapshots.harmonics, (1, S) + snapshots.harmonics.shape[2:])
-    for name in ("success", "stable"):
+    for name in ("success", "stable", "solved"):
         _write(group, name, getattr(snapshots, name).astype(bool), (1, S))
     _write(group, "floquet_radius", snapshots.floquet_radius, (1, S))
     for name in ("message", "branch"):
@@ -266,5 +284,5 @@ def load(path: str | Path, run: str | None = None) -> Snapshots:
         scenario=group["scenario"][:], split=_text(group["split"][:]).astype(object), values=group["parameters"][:],
         harmonics=group["harmonics"][sel], success=group["success"][sel], message=_text(group["message"][sel]),
         branch=_text(group["branch"][sel]), stable=group["stable"][sel], floquet_radius=group["floquet_radius"][sel],
-        design=_text(group["design"][:]).astype(object) if "design" in group else None,
+        design=_text(group["design"][:]).astype(object) if "design" in group else None, solved=_solved(group, sel),
     )

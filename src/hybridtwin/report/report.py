@@ -7,8 +7,8 @@ are predicted with the joint estimates, never fitted (``validation.tsv``, their
 harmonics in ``validation_harmonics.tsv``: the report does not predict again). The
 figures and tables show, per run and over runs, how far the model is from the
 measurements in units of the measurement noise, and whether a constant of the
-model has to change from run to run to fit. The tables and their statistics are
-here; the figures drawn from them are ``hybridtwin.report.report_plots``'.
+model has to change from run to run to fit (``hybridtwin.report.drift``). The
+tables and their statistics are here; the figures drawn from them are ``hybridtwin.report.report_plots``'.
 
 Conventions (stated once):
 
@@ -31,14 +31,8 @@ Conventions (stated once):
   "beyond noise".
 - Relative error: ||X - M|| / ||X|| over h = 1..H and all channels, the
   relative L2 error of the signals' periodic part (Parseval).
-- Drift of a constant (``drift_test``): the per-run estimates v_r with
-  uncertainties s_r (the Monte Carlo spread of each per-run fit, which the
-  linearised standard error misrepresents in the per-run problems' flat
-  valleys; the standard error when there is no Monte Carlo) are tested for
-  one common value, chi^2 = sum (v_r - mean_w)^2 / s_r^2 on n - 1 dof, and
-  for a trend, the weighted least-squares slope against speed and its
-  t = slope / stderr; it drifts when either p-value is below ALPHA / 2
-  (Bonferroni: at most ALPHA false alarms per parameter).
+- Drift of a constant: ``hybridtwin.report.drift`` (the per-run estimates tested for one common value
+  and for a trend along speed, at ``ALPHA``).
 - BIC = chi^2 + k ln n, n = n_data real residuals, k = n_data - dof the
   fitted entries (shared and per-run parameters and phases not held at a
   bound).
@@ -278,104 +272,6 @@ def waveform(Z: Array, revolutions: float = 2.0, n_time: int = 240) -> tuple[Arr
 def waveform_noise(sigma: Array) -> Array:
     """Standard deviation (2,) of x(t), y(t) rebuilt from harmonics with independent noise: sqrt(sum_h s_h^2)."""
     return np.sqrt((sigma**2).sum(0))
-
-
-# --- drift of the per-run estimates -----------------------------------------------------
-
-
-#: the per-run estimates' slope along speed is tested only when their runs' speeds span this fraction of the fastest
-SLOPE_SPEED_SPREAD = 0.05
-
-
-def drift_test(value: Array, sigma: Array, rpm: Array, alpha: float = ALPHA) -> dict[str, float | bool]:
-    """Do the estimates v (n,) with uncertainties s (n,) at speeds rpm (n,) share one value? (module docstring)
-
-    Returns weighted_mean, weighted_mean_stderr, chi2, dof, chi2_dof, p_value,
-    slope_per_rpm (the weighted line passes through the weighted means of value
-    and speed, slope_centre_rpm), slope_stderr_per_rpm, slope_t, slope_p_value
-    and drifts.
-    """
-    v, s, x = (np.asarray(a, float) for a in (value, sigma, rpm))
-    w = 1.0 / s**2
-    mean = float((w * v).sum() / w.sum())
-    chi2 = float((w * (v - mean) ** 2).sum())
-    dof = v.size - 1
-    p = float(stats.chi2.sf(chi2, dof)) if dof > 0 else math.nan
-    centre = (w * x).sum() / w.sum()
-    # a slope along speed needs speeds to slope along: runs within SLOPE_SPEED_SPREAD of one speed have none (a
-    # "slope" over their 0.3 % of refined speed is noise read as a trend)
-    sxx = float((w * (x - centre) ** 2).sum()) if val.spans(x, SLOPE_SPEED_SPREAD) else 0.0
-    slope = float((w * (x - centre) * (v - mean)).sum() / sxx) if sxx > 0 else math.nan
-    slope_stderr = 1.0 / math.sqrt(sxx) if sxx > 0 else math.nan
-    t = slope / slope_stderr
-    p_slope = float(2.0 * stats.norm.sf(abs(t))) if v.size > 2 and math.isfinite(t) else math.nan
-    drifts = bool(np.nanmin([p, p_slope, 1.0]) < 0.5 * alpha)
-    return {"weighted_mean": mean, "weighted_mean_stderr": float(1.0 / math.sqrt(w.sum())), "chi2": chi2,
-            "dof": dof, "chi2_dof": chi2 / dof if dof > 0 else math.nan, "p_value": p, "slope_per_rpm": slope,
-            "slope_centre_rpm": float(centre),
-            "slope_stderr_per_rpm": slope_stderr, "slope_t": t, "slope_p_value": p_slope, "drifts": drifts}
-
-
-def drift_sigma(per_run: pd.DataFrame) -> tuple[pd.Series, pd.Series]:
-    """Uncertainty of each per-run estimate: the Monte Carlo spread (mc_std) where there is one, else the
-    linearised standard error; and its source ("monte_carlo" or "linearised")."""
-    mc = per_run["mc_std"] if "mc_std" in per_run else pd.Series(np.nan, index=per_run.index)
-    has_mc = np.isfinite(mc) & (mc > 0)
-    return mc.where(has_mc, per_run["stderr"]), pd.Series(np.where(has_mc, "monte_carlo", "linearised"),
-                                                           index=per_run.index)
-
-
-def drift_usable(per_run: pd.DataFrame) -> pd.Series:
-    """Estimates a drift test can use: finite, not at a range edge (a pile-up at a bound is not Gaussian),
-    with a positive finite uncertainty."""
-    sigma, _ = drift_sigma(per_run)
-    return np.isfinite(per_run["value"]) & ~per_run["at_bound"].astype(bool) & np.isfinite(sigma) & (sigma > 0)
-
-
-#: columns of ``drift_statistics`` (drift.tsv); the test's are NaN where too few estimates are usable
-DRIFT_COLUMNS = ["parameter", "unit", "kind", "n_runs", "n_used", "n_at_bound", "sigma_source", "joint_value",
-                 "weighted_mean", "weighted_mean_stderr", "chi2", "dof", "chi2_dof", "p_value", "slope_per_rpm",
-                 "slope_centre_rpm", "slope_stderr_per_rpm", "slope_t", "slope_p_value", "drifts", "flagged",
-                 "verdict"]
-
-
-def drift_statistics(per_run: pd.DataFrame, joint: pd.DataFrame, alpha: float = ALPHA) -> pd.DataFrame:
-    """One row per physical parameter of the per-run fits (identification/per_run.tsv): ``drift_test`` on
-    its usable estimates, with the joint fit's kind (shared constant or per run) and value.
-
-    ``flagged``: a constant of the joint model (kind shared) that drifts, i.e. the model misses something;
-    a per-run parameter (the bow) is allowed to vary and never flagged.
-    """
-    sigma, source = drift_sigma(per_run)
-    usable = drift_usable(per_run)
-    kinds = joint[joint["kind"] != "nuisance"].groupby("parameter")["kind"].first()
-    shared = joint[joint["run"] == "all"].set_index("parameter")["value"]
-    rows = []
-    for p, group in per_run.groupby("parameter", sort=False):
-        ok = usable[group.index]
-        kind = str(kinds.get(p, "fixed"))
-        row = {"parameter": p, "unit": group["unit"].iloc[0], "kind": kind, "n_runs": len(group),
-               "n_used": int(ok.sum()), "n_at_bound": int(group["at_bound"].astype(bool).sum()),
-               "sigma_source": ",".join(sorted(set(source[group.index][ok]))),
-               "joint_value": float(shared.get(p, math.nan))}
-        if ok.sum() >= 3:
-            row |= drift_test(group["value"][ok], sigma[group.index][ok], group["rpm"][ok], alpha)
-        else:
-            row["drifts"] = False
-        row["flagged"] = bool(row["drifts"] and kind == "shared")
-        row["verdict"] = _drift_verdict(row, kind)
-        rows.append(row)
-    return pd.DataFrame(rows, columns=DRIFT_COLUMNS)
-
-
-def _drift_verdict(row: Mapping, kind: str) -> str:
-    if row["n_used"] < 3:
-        return "too few usable per-run estimates to test"
-    if kind != "shared":
-        return "estimated per run in the joint fit (allowed to vary)"
-    if row["flagged"]:
-        return "drifts: a constant of the model changes from run to run, the model misses something"
-    return "constant within the per-run uncertainties"
 
 
 # --- the ledger -------------------------------------------------------------------------

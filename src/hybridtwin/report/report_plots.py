@@ -1,17 +1,15 @@
 """The report's figures: where a variant fails, drawn from the tables of ``hybridtwin.report.report`` (its module
-docstring states the conventions: the model frame, the whirl, chi^2 / dof and the drift test).
+docstring states the conventions: the model frame, the whirl, chi^2 / dof).
 
 One run (``plot_run``: orbit, signals over two revolutions with the residual, the residual's whirl spectrum, a row per
-plane with an x and a y probe), the error map over speed and unbalance mass (``plot_error_map``), the per-run
-estimates and their drift (``plot_drift``) and the ledger from variant to variant (``plot_ledger``); and the style
-the report's other figures share (``ORDERS``, ``VALIDATION_STYLE``, ``mass_colours``, ``MICRO``, ``MILLI``).
+plane with an x and a y probe), the error map over speed and unbalance mass (``plot_error_map``) and the ledger from
+variant to variant (``plot_ledger``); and the style the report's other figures share (``ORDERS``, ``VALIDATION_STYLE``,
+``mass_colours``, ``MICRO``, ``MILLI``). The per-run estimates and their drift: ``hybridtwin.report.drift``.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterable, Mapping, Sequence
-from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -19,8 +17,7 @@ from matplotlib.colors import LogNorm
 
 from ..data.records import record_channels
 from ..plots import plt
-from .report import (ALPHA, NOISE_FLOOR, RunComparison, drift_sigma, drift_usable, pooled, waveform, waveform_noise,
-                     whirl, whirl_noise)
+from .report import ALPHA, NOISE_FLOOR, RunComparison, pooled, waveform, waveform_noise, whirl, whirl_noise
 
 Array = np.ndarray
 
@@ -190,68 +187,6 @@ def plot_error_map(errors: pd.DataFrame, variant: str) -> plt.Figure:
                  f"(error {fit['error_pct']:.2g} %); {validation}", fontsize=10)
     fig.tight_layout()
     return fig
-
-
-def plot_drift(per_run: pd.DataFrame, statistics: pd.DataFrame, joint: pd.DataFrame, variant: str) -> plt.Figure:
-    """Per-run estimates vs speed (1 sigma bars: ``drift_sigma``; open: at a range edge, not tested), the
-    weighted mean and slope, the joint value (line for a shared parameter, crosses for a per-run one);
-    titles give the drift statistic, flagged constants in red."""
-    names = list(statistics["parameter"])
-    n = max(len(names), 1)
-    rows = math.ceil(n / 4)
-    columns = math.ceil(n / rows)
-    fig, axes = plt.subplots(rows, columns, figsize=(4.3 * columns, 3.6 * rows), squeeze=False)
-    sigma, _ = drift_sigma(per_run)
-    usable = drift_usable(per_run)
-    colours = mass_colours(per_run["eccentric_mass_g"])
-    for ax, stat in zip(axes.flat, statistics.itertuples()):
-        group = per_run[per_run["parameter"] == stat.parameter]
-        for mass, colour in colours.items():
-            sub = group[group["eccentric_mass_g"] == mass]
-            ok = usable[sub.index]
-            ax.errorbar(sub["rpm"][ok], sub["value"][ok], yerr=sigma[sub.index][ok], fmt="o", ms=4, color=colour,
-                        capsize=2, label=f"{mass:g} g")
-            ax.plot(sub["rpm"][~ok], sub["value"][~ok], "o", ms=4, mfc="none", color=colour)
-        _drift_lines(ax, group, stat)
-        local = joint[(joint["parameter"] == stat.parameter) & (joint["run"] != "all")].merge(
-            group[["run", "rpm"]], on="run")
-        ax.plot(local["rpm"], local["value"], "k+", ms=7, label="joint fit" if len(local) else None)
-        lo, hi = float(group["lower"].iloc[0]), float(group["upper"].iloc[0])
-        ax.set_ylim(lo - 0.05 * (hi - lo), hi + 0.05 * (hi - lo))
-        ax.set_title(_drift_title(stat), fontsize=8, color="r" if stat.flagged else "k")
-        ax.set_xlabel("speed [RPM]")
-        ax.set_ylabel(f"{stat.parameter} [{stat.unit}]")
-        ax.grid(alpha=0.3)
-    for ax in axes.flat[len(names):]:
-        ax.set_visible(False)
-    axes[0, 0].legend(fontsize=7)
-    fig.suptitle(f"variant {variant}: per-run estimates vs speed and their drift (1 sigma bars, open: at a range "
-                 f"edge, not tested); red: a constant of the model that drifts (either p < {ALPHA / 2:g})", fontsize=9)
-    fig.tight_layout()
-    return fig
-
-
-def _drift_lines(ax: plt.Axes, group: pd.DataFrame, stat: Any) -> None:
-    """The joint value, weighted mean and weighted slope of one parameter (``stat``: a drift_statistics row)."""
-    if np.isfinite(stat.joint_value):
-        ax.axhline(stat.joint_value, color="k", lw=1.2, label="joint fit")
-    mean = stat.weighted_mean
-    if np.isfinite(mean):
-        rpm = np.array([group["rpm"].min(), group["rpm"].max()])
-        ax.axhline(mean, color="0.5", lw=1, ls=":", label="weighted mean")
-        if np.isfinite(stat.slope_per_rpm):
-            ax.plot(rpm, mean + stat.slope_per_rpm * (rpm - stat.slope_centre_rpm), "--", color="0.4",
-                    label="weighted slope")
-
-
-def _drift_title(stat: Any) -> str:
-    """The drift statistic of one parameter in a line (``stat``: a drift_statistics row)."""
-    if not np.isfinite(stat.chi2_dof):
-        return f"{stat.parameter}: {stat.verdict}"
-    flag = "  DRIFTS" if stat.flagged else ("  (per run)" if stat.kind != "shared" else "")
-    slope = (f"slope t {stat.slope_t:.2g} (p {stat.slope_p_value:.2g})" if np.isfinite(stat.slope_p_value)
-             else "no slope (one speed)")
-    return f"{stat.parameter}: chi^2/dof {stat.chi2_dof:.2g} (p {stat.p_value:.2g}), {slope}{flag}"
 
 
 def plot_ledger(ledger: pd.DataFrame, errors: Mapping[str, pd.DataFrame]) -> plt.Figure:
