@@ -24,8 +24,8 @@ criticals = rp.critical_speeds(variant, joint, rp.dense_speeds(runs["rpm"]),
 speeds = rp.refined_speeds(rp.dense_speeds(runs["rpm"]), criticals)  # denser through each resonance
 log.info("critical speeds of the fitted model in the range (RPM, damping ratio): %s",
          ", ".join(f"{rpm:.0f} ({zeta:.3g})" for rpm, zeta in criticals) or "none")
-log.info("%s: run-up and run-down over %d speeds %.0f-%.0f RPM for eccentric masses %s g", variant.name,
-         len(speeds), speeds[0], speeds[-1], sorted(set(runs["eccentric_mass_g"])))
+log.info("%s: run-up and run-down over %d speeds %.0f-%.0f RPM for trial masses %s", variant.name,
+         len(speeds), speeds[0], speeds[-1], ", ".join(rp.trial_label(*t) for t in rp.trials_of(runs)))
 dense = rp.dense_response(variant, joint, runs, speeds, int(smk.params.harmonics),
                           smk.params.options["validation_bow"])
 rp.write_dense(dense, smk.output.response)
@@ -33,8 +33,8 @@ failed = dense[dense["harmonic"] == 1][f"{rp.channels_of(dense)[0]}_re_m"].isna(
 if failed.any():
     log.warning("%d of %d sweep points without a steady state (left as gaps)", int(failed.sum()), len(failed))
 for row in rp.multivalued(dense).dropna().itertuples():
-    log.info("%g g: run-up and run-down differ between %.0f and %.0f RPM (multi-valued response)",
-             row.eccentric_mass_g, row.rpm_from, row.rpm_to)
+    log.info("%s: run-up and run-down differ between %.0f and %.0f RPM (multi-valued response)",
+             rp.trial_label(row.eccentric_mass_g, row.eccentric_mass_angle_deg), row.rpm_from, row.rpm_to)
 for name, plot, live in (("bode", rp.plot_bode, interactive.bode_figure),
                          ("polar", rp.plot_polar, interactive.polar_figure)):
     figure = plot(dense, comparisons, variant.name)

@@ -44,9 +44,10 @@ folder = Path(smk.output.figures)
 tables = []
 for record, table, band, runout, path in zip(records, orders, bands, runouts, smk.input.records):
     channels = table_channels(table)
-    mass = float(record["eccentric_mass_g"])
-    model = tp.compensated_like_the_data(dense, tp.model_at(dense, mass, record["kind"], table["rpm"], harmonics),
-                                         mass, record["kind"], runout)
+    mass, angle = float(record["eccentric_mass_g"]), float(record.get("eccentric_mass_angle_deg") or 0.0)
+    model = tp.compensated_like_the_data(
+        dense, tp.model_at(dense, mass, record["kind"], table["rpm"], harmonics, angle), mass, record["kind"],
+        runout, angle)
     points = tp.points(table, model, tp.probe_matrix(channels, sensors, options["frame"]), record, band,
                        options["frame"])
     tables.append(points)

@@ -97,7 +97,7 @@ def dense(tmp_path_factory):
                 Z = _harmonics(rpm, mass) * (0.7 if jump else 1.0)
                 stable = not (sweep == "run-down" and UNSTABLE[0] <= rpm <= UNSTABLE[1])
                 for h in range(1, H + 1):
-                    rows.append((mass, sweep, rpm, h, Z[h - 1, 0].real, Z[h - 1, 0].imag, Z[h - 1, 1].real,
+                    rows.append((mass, 0.0, sweep, rpm, h, Z[h - 1, 0].real, Z[h - 1, 0].imag, Z[h - 1, 1].real,
                                  Z[h - 1, 1].imag, stable, "0"))
     path = tmp_path_factory.mktemp("dense") / "response.tsv"
     rp.write_dense(pd.DataFrame(rows, columns=rp.columns(("x", "y"))), path)

@@ -83,7 +83,7 @@ def test_multivalued_band_is_where_run_up_and_run_down_differ():
         for sweep in ("run-up", "run-down"):
             for speed in rpm:
                 x = 1e-3 * (0.7 if mass == 14.8 and sweep == "run-down" and 950 <= speed <= 1000 else 1.0)
-                rows.append((mass, sweep, speed, 1, x, 0.0, 0.0, x, True, "direct"))
+                rows.append((mass, 0.0, sweep, speed, 1, x, 0.0, 0.0, x, True, "direct"))
     band = rp.multivalued(pd.DataFrame(rows, columns=rp.COLUMNS)).set_index("eccentric_mass_g")
     assert (band.loc[14.8, "rpm_from"], band.loc[14.8, "rpm_to"]) == (950.0, 1000.0)
     assert np.isnan(band.loc[25.9, "rpm_from"])
@@ -143,9 +143,8 @@ def test_validation_runs_phase_is_drawn_on_the_curves_branch():
             x = u * r * r / (1 - r * r + 2j * zeta * r)
             for h, z in ((1, x), (2, 0.01 * x)):
                 y = -1j * z
-                rows.append((10.0, sweep, speed, h, z.real, z.imag, y.real, y.imag, True, "run-up"))
-    dense = pd.DataFrame(rows, columns=["eccentric_mass_g", "sweep", "rpm", "harmonic", "x1_re_m", "x1_im_m",
-                                        "y1_re_m", "y1_im_m", "stable", "branch"])
+                rows.append((10.0, 0.0, sweep, speed, h, z.real, z.imag, y.real, y.imag, True, "run-up"))
+    dense = pd.DataFrame(rows, columns=rp.columns(("x1", "y1")))
     speeds = [2000.0, 3300.0, 4500.0]
     comparisons = []
     for speed in speeds:
@@ -205,7 +204,7 @@ def test_the_two_line_title_clears_the_first_rows_panel_titles(plot):
         for speed in rpm:
             z = 1e-4 / (1 - (speed / 3000) ** 2 + 0.1j * speed / 3000)
             for h in (1, 2, 3):
-                rows.append((10.0, sweep, speed, h, *[part for c in (z, -1j * z, z / 2, -0.5j * z)
+                rows.append((10.0, 0.0, sweep, speed, h, *[part for c in (z, -1j * z, z / 2, -0.5j * z)
                                                       for part in (c.real, c.imag)], True, "run-up"))
     dense = pd.DataFrame(rows, columns=rp.columns(("x1", "y1", "x2", "y2")))
     fig = getattr(rp, plot)(dense, [], "two planes")
@@ -282,4 +281,52 @@ def test_every_plane_of_a_two_plane_machine_gets_its_curves():
     matplotlib.pyplot.close(fig)
     fig = rp.plot_polar(dense, comparisons, "linear", orders=(1,))
     assert len(fig.axes) == 4
+    matplotlib.pyplot.close(fig)
+
+
+def test_a_trial_mass_at_an_angle_gets_its_own_curve_turned_by_that_angle(tmp_path):
+    """Trial weights at chosen angles (the runs sheet's eccentric_mass_angle_deg): runs of the same 10 g at 0 and
+    120 degrees get a curve each. On a linear rotor whose only forcing is the unbalance the response is linear in
+    the force m_e r_me Omega^2 exp(i angle_me) (1, -i), so the 120-degree curve is the 0-degree one times
+    exp(i 2 pi / 3) at every speed, both sweeps and both channels (superposition: the harmonic balance of a linear
+    system is one exact solve, round-off only: 1e-9 of the largest amplitude), while the 0-degree curve is still the
+    response solved by hand (tests/example_machines.linear_response). The Bode figure names each trial and draws
+    each measured run on its own trial's colour; the comparison table carries the angle back and forth."""
+    from hybridtwin.report.report import load_comparisons, write_comparisons
+
+    machine, variant, joint = _fitted_linear()
+    runs = pd.DataFrame({"run": ["a0", "a120", "b120"], "rpm": [3000.0, 3900.0, 4600.0],
+                         "eccentric_mass_g": [10.0, 10.0, 10.0], "eccentric_mass_angle_deg": [0.0, 120.0, -240.0]})
+    assert rp.trials_of(runs) == [(10.0, 0.0), (10.0, 120.0)]  # -240 is 120
+    dense = rp.dense_response(variant, joint, runs, rp.dense_speeds(runs["rpm"], 21), harmonics=1)
+    at = {angle: part.sort_values(["sweep", "rpm"]) for angle, part in dense.groupby("eccentric_mass_angle_deg")}
+    assert set(at) == {0.0, 120.0}
+    turn = np.exp(2j * np.pi / 3)
+    for channel in ("x1", "y1"):
+        zero = (at[0.0][f"{channel}_re_m"] + 1j * at[0.0][f"{channel}_im_m"]).to_numpy()
+        turned = (at[120.0][f"{channel}_re_m"] + 1j * at[120.0][f"{channel}_im_m"]).to_numpy()
+        np.testing.assert_allclose(turned, turn * zero, atol=1e-9 * np.abs(zero).max())
+    first = at[0.0]
+    expected = np.array([linear_response(machine, r.rpm, 1e-2, k={"a": K_A}, c={"b": C_B})[machine.dof(f"u{SENSOR_NODE}")]
+                         for r in first.itertuples()])
+    np.testing.assert_allclose(first["x1_re_m"] + 1j * first["x1_im_m"], expected, atol=1e-9 * np.abs(expected).max())
+    rp.write_dense(dense, tmp_path / "response.tsv")
+    pd.testing.assert_frame_equal(rp.read_dense(tmp_path / "response.tsv"), dense, check_dtype=False)
+
+    comparisons = []
+    for r in runs.itertuples():
+        row = dense[(dense["eccentric_mass_angle_deg"] == np.mod(r.eccentric_mass_angle_deg, 360))
+                    & (dense["sweep"] == "run-up")].iloc[0]
+        z = np.array([[row["x1_re_m"] + 1j * row["x1_im_m"], row["y1_re_m"] + 1j * row["y1_im_m"]]])
+        comparisons.append(RunComparison(r.run, "fit", r.rpm, r.eccentric_mass_g, z, z, np.full((1, 2), 1e-7), 4.0,
+                                         "solver", ("x1", "y1"), r.eccentric_mass_angle_deg))
+    write_comparisons(comparisons, tmp_path / "harmonics.tsv")
+    assert [c.eccentric_mass_angle_deg for c in load_comparisons(tmp_path / "harmonics.tsv")] == [0.0, 120.0, -240.0]
+    fig = rp.plot_bode(dense, comparisons, "angles", orders=(1,))
+    amplitude = fig.axes[0]
+    labels = {line.get_label(): line.get_color() for line in amplitude.get_lines()}
+    assert {"10 g model, run-up", "10 g at 120 deg model, run-up"} <= set(labels)
+    points = {c.get_label(): c.lines[0].get_color() for c in amplitude.containers}
+    assert points["10 g at 120 deg measured"] == labels["10 g at 120 deg model, run-up"]
+    assert points["10 g measured"] == labels["10 g model, run-up"] != labels["10 g at 120 deg model, run-up"]
     matplotlib.pyplot.close(fig)

@@ -156,7 +156,7 @@ def test_model_at_reads_the_records_own_sweep_at_each_windows_speed():
     for sweep, sign in (("run-up", 1.0), ("run-down", -1.0)):
         for rpm in (100.0, 200.0, 300.0):
             for h in (1, 2):
-                rows.append((5.0, sweep, rpm, h, sign * rpm * h, 1.0, sign, 0.0, True, "main"))
+                rows.append((5.0, 0.0, sweep, rpm, h, sign * rpm * h, 1.0, sign, 0.0, True, "main"))
     dense = pd.DataFrame(rows, columns=dense_columns(("x", "y")))
     up = tp.model_at(dense, 5.0, "runup", [300.0, 100.0, 150.0], 2)
     down = tp.model_at(dense, 5.0, "coastdown", [200.0], 2)
@@ -176,7 +176,7 @@ def test_the_twin_is_compensated_for_slow_roll_as_the_record_was():
     rows = []
     for rpm in (SLOW_ROLL_RPM, 300.0, 600.0):
         for h, value in ((1, 1e-9 * rpm**2), (2, 4e-6 + 1e-12 * rpm**2), (3, 1e-10 * rpm**2)):
-            rows.append((5.0, "run-up", rpm, h, value, 0.0, 0.0, value, True, "main"))
+            rows.append((5.0, 0.0, "run-up", rpm, h, value, 0.0, 0.0, value, True, "main"))
     dense = pd.DataFrame(rows, columns=dense_columns(("x", "y")))
     model = tp.model_at(dense, 5.0, "runup", [300.0, 600.0], 3)
     runout = pd.DataFrame({"channel": ["x", "x", "y", "y"], "harmonic": [1, 2, 1, 2]})

@@ -248,11 +248,17 @@ def transient_records():
             "kind": str(r["kind"]).strip().lower(),
             "role": r["role"] if isinstance(r.get("role"), str) else "fit",  # no role column: every run fits
             "eccentric_mass_g": float(r["eccentric_mass_g"]),
+            "eccentric_mass_angle_deg": float(r.get("eccentric_mass_angle_deg") or 0.0),  # no such column: 0
             "record": str(r["record"]),
         }
         for r in rows
         if is_transient_row(r)
     ]
+
+
+#: the runs-sheet columns that place a run's trial mass (the report's model curves: one per mass and angle; the
+#: angle column NaN where the sheet has none, read as 0)
+TRIAL_RUN_COLUMNS = ["run", "rpm", "eccentric_mass_g", "eccentric_mass_angle_deg"]
 
 
 def transient_input(wildcards):

@@ -156,7 +156,7 @@ rule report_response:
         "../envs/hybridtwin.yaml"
     params:
         model=variant_model,
-        runs=lambda wildcards: run_plan(SHEET)[["run", "rpm", "eccentric_mass_g", "role"]].to_dict("list"),
+        runs=lambda wildcards: run_plan(SHEET).reindex(columns=TRIAL_RUN_COLUMNS + ["role"]).to_dict("list"),
         harmonics=config["harmonics"],
         options=lambda wildcards: rule_settings(config, wildcards.variant, "validation"),
     script:
@@ -344,9 +344,10 @@ rule report_transient:
     params:
         **SENSOR_PARAMS,
         model=variant_model,
-        runs=lambda wildcards: run_plan(SHEET)[["run", "rpm", "eccentric_mass_g"]].to_dict("list"),  # the bow's law
+        runs=lambda wildcards: run_plan(SHEET).reindex(columns=TRIAL_RUN_COLUMNS).to_dict("list"),  # the bow's law
         records=lambda wildcards: [
-            {k: r[k] for k in ("run", "kind", "role", "eccentric_mass_g")} for r in transient_records()
+            {k: r.get(k) for k in ("run", "kind", "role", "eccentric_mass_g", "eccentric_mass_angle_deg")}
+            for r in transient_records()
         ],
         harmonics=config["harmonics"],
         law=lambda wildcards: rule_settings(config, wildcards.variant, "validation")["validation_bow"],

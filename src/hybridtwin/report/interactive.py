@@ -44,7 +44,7 @@ from ..diagnose.diagnosis_status import verdict_colour
 from . import response_plots as rp
 from . import summary as sm
 from .report import ALPHA, NOISE_FLOOR, RunComparison, waveform, waveform_noise, whirl, whirl_noise
-from .report_plots import MICRO, MILLI, ORDERS, VALIDATION_STYLE, mass_colours, probe_pairs
+from .report_plots import MICRO, MILLI, ORDERS, VALIDATION_STYLE, probe_pairs
 
 #: the plotly.js options of every file: no plotly logo; the camera button saves a PNG of the current view
 CONFIG = {"displaylogo": False, "toImageButtonOptions": {"format": "png", "scale": 2}}
@@ -247,7 +247,7 @@ def _error(yerr) -> dict:
 
 
 def _run_label(c: RunComparison) -> str:
-    return (f"{c.run} ({'validation' if c.role == 'validate' else 'fit'}, {c.eccentric_mass_g:g} g, "
+    return (f"{c.run} ({'validation' if c.role == 'validate' else 'fit'}, {rp.trial_label(*rp.trial_key(c))}, "
             f"{c.rpm:.1f} RPM)")
 
 
@@ -260,7 +260,7 @@ def bode_figure(dense: pd.DataFrame, comparisons: Sequence[RunComparison], varia
     (2 sigma)."""
     H = min([int(dense["harmonic"].max())] + [c.H for c in comparisons])
     orders = [h for h in orders if h <= H]
-    colours = {mass: colour(c) for mass, c in mass_colours(sorted(set(dense["eccentric_mass_g"]))).items()}
+    colours = {trial: colour(c) for trial, c in rp.trial_colours(dense).items()}
     channels = rp.channels_of(dense)
     comparisons = rp._by_channel(comparisons, channels)
     fig = make_subplots(rows=2 * len(channels), cols=len(orders), shared_xaxes=True, vertical_spacing=0.04,
@@ -277,28 +277,28 @@ def bode_figure(dense: pd.DataFrame, comparisons: Sequence[RunComparison], varia
             # the hover gives the true amplitude (customdata): the line drawn stops at the floor
             amp_unit = f"|{channel}, {h}X| %{{customdata:.4~r}} um"
             ups = {}
-            for mass, both in dense[dense["harmonic"] == h].groupby("eccentric_mass_g", sort=True):
+            for trial, both in dense[dense["harmonic"] == h].groupby(rp.TRIAL, sort=True):
                 sweeps = {sweep: part for sweep, part in both.groupby("sweep")}
                 for key, style in (("up", "-"), ("down", "--")):
                     amp, ph, part = _Recorder(), _Recorder(), sweeps[rp.SWEEPS[key]]
-                    up = rp._curve(amp, ph, part, j, "", style, None, floor, ups.get(mass))
-                    ups.setdefault(mass, up)
-                    group = f"{mass:g} g model, {rp.SWEEPS[key]}"
+                    up = rp._curve(amp, ph, part, j, "", style, None, floor, ups.get(trial))
+                    ups.setdefault(trial, up)
+                    group = f"{rp.trial_label(*trial)} model, {rp.SWEEPS[key]}"
                     true = np.abs(rp._channel(part.sort_values("rpm"), j)) * MICRO  # _curve's order: by speed
                     for k, (x, y, fmt, _, _) in enumerate(amp.lines + ph.lines):
                         phase = k >= len(amp.lines)
                         fig.add_trace(go.Scatter(
                             x=x, y=y, mode="lines", name=group, legendgroup=group,
                             showlegend=not phase and shown(group), customdata=None if phase else true,
-                            line={"color": colours[mass], "dash": DASH[fmt], "width": 1.3 if fmt != ":" else 1.0},
+                            line={"color": colours[trial], "dash": DASH[fmt], "width": 1.3 if fmt != ":" else 1.0},
                             hovertemplate=hover(group + (" (unstable)" if fmt == ":" else ""),
                                                 "%{x:.1f} RPM", f"phase of {channel}, {h}X %{{y:.4~r}} deg"
                                                 if phase else amp_unit)), *cell["phase" if phase else "amp"])
                 for c in comparisons:
-                    if c.role == "fit" and c.eccentric_mass_g == mass:
+                    if c.role == "fit" and rp.trial_key(c) == trial:
                         amp, ph = _Recorder(), _Recorder()
                         rp._measured(amp, ph, c, h, j, "", floor, rp._near(ups, c), "")
-                        _points(fig, c, h, j, amp, ph, cell, colours[mass], "circle", "measured", shown)
+                        _points(fig, c, h, j, amp, ph, cell, colours[trial], "circle", "measured", shown)
             for c in comparisons:
                 if c.role == "validate":
                     amp, ph = _Recorder(), _Recorder()
@@ -351,7 +351,7 @@ def polar_figure(dense: pd.DataFrame, comparisons: Sequence[RunComparison], vari
     noise circle (2 sigma)."""
     H = min([int(dense["harmonic"].max())] + [c.H for c in comparisons])
     orders = [h for h in orders if h <= H]
-    colours = {mass: colour(c) for mass, c in mass_colours(sorted(set(dense["eccentric_mass_g"]))).items()}
+    colours = {trial: colour(c) for trial, c in rp.trial_colours(dense).items()}
     channels = rp.channels_of(dense)
     comparisons = rp._by_channel(comparisons, channels)
     fig = make_subplots(rows=len(channels), cols=len(orders), specs=[[{"type": "polar"}] * len(orders)]
@@ -369,13 +369,13 @@ def polar_figure(dense: pd.DataFrame, comparisons: Sequence[RunComparison], vari
     for col, h in enumerate(orders, start=1):
         for j, channel in enumerate(channels):
             row = j + 1
-            for (mass, sweep), part in dense[dense["harmonic"] == h].groupby(["eccentric_mass_g", "sweep"]):
+            for (mass, angle, sweep), part in dense[dense["harmonic"] == h].groupby(rp.TRIAL + ["sweep"]):
                 z = rp._channel(part, j)
-                group = f"{mass:g} g model, {sweep}"
+                group = f"{rp.trial_label(mass, angle)} model, {sweep}"
                 fig.add_trace(go.Scatterpolar(
                     r=np.abs(z) * MICRO, theta=np.degrees(np.angle(z)), mode="lines", name=group,
                     legendgroup=group, showlegend=shown(group), customdata=part["rpm"].to_numpy(),
-                    line={"color": colours[mass], "dash": "solid" if sweep == rp.SWEEPS["up"] else "dash",
+                    line={"color": colours[(mass, angle)], "dash": "solid" if sweep == rp.SWEEPS["up"] else "dash",
                           "width": 1.2},
                     hovertemplate=hover(group, "%{customdata:.1f} RPM", f"|{channel}, {h}X| %{{r:.4~r}} um",
                                         "phase %{theta:.1f} deg")), row, col)
@@ -383,7 +383,7 @@ def polar_figure(dense: pd.DataFrame, comparisons: Sequence[RunComparison], vari
                 group = _run_label(c)
                 if c.role == "fit":
                     point(c.measured[h - 1, j], row, col, group, f"{group}, measured", channel=channel, h=h,
-                          marker={"color": colours.get(c.eccentric_mass_g, "#000000"), "size": 7})
+                          marker={"color": colours.get(rp.trial_key(c), "#000000"), "size": 7})
                 else:
                     for z, kind, symbol in ((c.measured[h - 1, j], "measured", "star-open"),
                                             (c.model[h - 1, j], "predicted", "x-thin-open")):

@@ -81,13 +81,14 @@ def unbalance_response(model: Model, values: Mapping[str, float], rpm: Sequence[
     ``values``) along a run-up and a run-down over ``sweep_speeds(model, values, rpm, n_speeds)``.
 
     One row per (sweep, speed, harmonic): the columns of ``response_plots.columns`` for the machine's sensors
-    (eccentric_mass_g: 1e3 m_e, NaN without one; stable: the Floquet check, NaN where the sweep did not
+    (eccentric_mass_g: 1e3 m_e, NaN without one; eccentric_mass_angle_deg: angle_me in degrees; stable: the Floquet check, NaN where the sweep did not
     converge, its branch saying why)."""
     values = {k: np.atleast_1d(np.asarray(v, float)) for k, v in values.items()}
     speeds = sweep_speeds(model, {k: float(v[0]) for k, v in values.items()}, rpm, n_speeds)
     rest = model.at_rest(values, 1)
     channels = sensor_names(model.shaft)
     mass = 1e3 * float(values["m_e"][0]) if "m_e" in values else np.nan
+    angle = float(np.degrees(values["angle_me"][0])) if "angle_me" in values else 0.0
     rows = []
     for direction, label in SWEEPS.items():
         with np.errstate(all="ignore"):
@@ -100,7 +101,7 @@ def unbalance_response(model: Model, values: Mapping[str, float], rpm: Sequence[
             Z = sensor_channels(result.harmonics, model.shaft)[0]  # (H+1, C)
             for h in range(1, harmonics + 1):
                 z = Z[h] if ok else np.full(len(channels), np.nan + 0j)
-                rows.append((mass, label, float(speed), h, *[v for c in z for v in (c.real, c.imag)], stable,
+                rows.append((mass, angle, label, float(speed), h, *[v for c in z for v in (c.real, c.imag)], stable,
                              str(result.branch[0]) if ok else f"failed: {result.message[0]}"))
     table = pd.DataFrame(rows, columns=columns(channels))
     table["stable"] = table["stable"].astype(object)

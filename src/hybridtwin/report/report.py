@@ -51,6 +51,7 @@ from scipy import stats
 
 from ..identify import identification as idn
 from ..data.measured import flags
+from ..data.measurements import trial_angles
 from ..identify import validation as val
 
 Array = np.ndarray
@@ -89,6 +90,7 @@ class RunComparison:
     dof: float
     source: str
     channels: tuple[str, ...] = idn.CHANNELS
+    eccentric_mass_angle_deg: float = 0.0  # the trial mass's angle (the runs sheet's; 0: on +x at the mark)
 
     @property
     def H(self) -> int:
@@ -148,11 +150,13 @@ def fit_comparisons(fit_path: str | Path, parameters: pd.DataFrame, summary: Map
     sigma = group["sigma_m"][:]
     phases = parameters[parameters["parameter"] == "phase"].set_index("run")["value"]
     masses = harmonics.set_index("run")["eccentric_mass_g"]
+    angles = pd.Series(trial_angles(harmonics), index=harmonics["run"])
     source = str(parameters["source"].iloc[0])
     channels = tuple(group.attrs.get("channels", idn.CHANNELS))
     dof = 2 * measured.shape[2] * measured.shape[1] * summary["dof"] / summary["n_data"]  # a run's share
     return [RunComparison(run, "fit", float(rpm), float(masses[run]), to_model_frame(measured[k], phases[run]),
-                          to_model_frame(model[k], phases[run]), sigma[k], dof, source, channels)
+                          to_model_frame(model[k], phases[run]), sigma[k], dof, source, channels,
+                          float(angles[run]))
             for k, (run, rpm) in enumerate(zip(group.attrs["runs"], group.attrs["rpm"]))]
 
 
@@ -163,7 +167,8 @@ def validation_comparison(prediction: val.PredictedRun, data: idn.RunData, model
     phase = prediction.phase_rad
     return RunComparison(data.run, "validate", data.rpm, data.eccentric_mass_g, to_model_frame(data.X[:H], phase),
                          to_model_frame(prediction.harmonics, phase), idn.total_sigma(data, model_error)[:H],
-                         2 * prediction.harmonics.size - 1, prediction.model, tuple(data.channels))
+                         2 * prediction.harmonics.size - 1, prediction.model, tuple(data.channels),
+                         float(data.eccentric_mass_angle_deg))
 
 
 def comparison_table(comparisons: Sequence[RunComparison]) -> pd.DataFrame:
@@ -173,7 +178,7 @@ def comparison_table(comparisons: Sequence[RunComparison]) -> pd.DataFrame:
         for h in range(c.H):
             for j, channel in enumerate(c.channels):
                 rows.append({"run": c.run, "role": c.role, "rpm": c.rpm, "eccentric_mass_g": c.eccentric_mass_g,
-                             "source": c.source, "dof": c.dof, "harmonic": h + 1, "channel": channel,
+                             "eccentric_mass_angle_deg": c.eccentric_mass_angle_deg, "source": c.source, "dof": c.dof, "harmonic": h + 1, "channel": channel,
                              "measured_re_m": c.measured[h, j].real, "measured_im_m": c.measured[h, j].imag,
                              "model_re_m": c.model[h, j].real, "model_im_m": c.model[h, j].imag,
                              "sigma_m": c.sigma[h, j]})
@@ -181,7 +186,8 @@ def comparison_table(comparisons: Sequence[RunComparison]) -> pd.DataFrame:
 
 
 def read_comparisons(table: pd.DataFrame) -> list[RunComparison]:
-    """``comparison_table``'s rows back to RunComparison (runs in the table's order)."""
+    """``comparison_table``'s rows back to RunComparison (runs in the table's order; a table without
+    eccentric_mass_angle_deg, written before trial angles were, reads as angle 0)."""
     out = []
     for run, rows in table.groupby("run", sort=False):
         channels, rows = val.channel_order(rows)  # the table's order: the sensors'
@@ -191,7 +197,8 @@ def read_comparisons(table: pd.DataFrame) -> list[RunComparison]:
                                  float(first["eccentric_mass_g"]),
                                  _grid(rows, "measured_re_m", C) + 1j * _grid(rows, "measured_im_m", C),
                                  _grid(rows, "model_re_m", C) + 1j * _grid(rows, "model_im_m", C),
-                                 _grid(rows, "sigma_m", C), float(first["dof"]), str(first["source"]), channels))
+                                 _grid(rows, "sigma_m", C), float(first["dof"]), str(first["source"]), channels,
+                                 float(first.get("eccentric_mass_angle_deg", 0.0))))
     return out
 
 

@@ -30,8 +30,9 @@ MICRO = 1e6  # m -> um
 MILLI = 1e3  # m -> mm
 
 
-def mass_colours(masses: Iterable[float]) -> dict[float, str]:
-    """One colour per eccentric mass, heaviest first (C0, C1, ...; magenta is kept for validation runs)."""
+def mass_colours(masses: Iterable) -> dict:
+    """One colour per eccentric mass (or per trial, (mass, angle)), heaviest first (C0, C1, ...; magenta is kept
+    for validation runs)."""
     masses = sorted(set(masses), reverse=True)
     palette = [f"C{i}" for i in range(10) if i != 6]  # C6 (pink) is too close to the validation magenta
     return {m: palette[i % len(palette)] for i, m in enumerate(masses)}

@@ -28,7 +28,9 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from ..identify import validation as val  # noqa: E402
+from ..data.measurements import trial_angles  # noqa: E402
 from ..identify.arrow_problem import wrap  # noqa: E402
+from ..model.effects import trial_mass_values  # noqa: E402
 from .report import RunComparison  # noqa: E402
 from .report_plots import MICRO, ORDERS, VALIDATION_STYLE, mass_colours  # noqa: E402
 from ..model.sensor import sensor_channels, sensor_names  # noqa: E402
@@ -40,10 +42,32 @@ MIN_WIDTH_IN = 10.0  # the Bode and polar figures' width with one harmonic (H = 
 TITLE_IN = 0.5  # the Bode and polar figures' two-line title: kept clear of the first row's panel titles
 
 
+#: a trial (eccentric) mass as the dense table keys its curves: the mass [g] and its angle [deg, from +x towards +y
+#: at the keyphasor mark; the runs sheet's eccentric_mass_angle_deg, 0 where not given]
+TRIAL = ["eccentric_mass_g", "eccentric_mass_angle_deg"]
+
+
 def columns(channels: Sequence[str]) -> list[str]:
     """The dense table's columns for sensor ``channels`` (the machine's order)."""
-    return (["eccentric_mass_g", "sweep", "rpm", "harmonic"] + [f"{c}_{part}_m" for c in channels for part in
-                                                               ("re", "im")] + ["stable", "branch"])
+    return (TRIAL + ["sweep", "rpm", "harmonic"] + [f"{c}_{part}_m" for c in channels for part in ("re", "im")]
+            + ["stable", "branch"])
+
+
+def trials_of(runs: pd.DataFrame) -> list[tuple[float, float]]:
+    """The (mass [g], angle [deg in [0, 360)]) trials of ``runs`` (rows: eccentric_mass_g and, when the sheet has
+    it, eccentric_mass_angle_deg; an empty angle is 0), sorted."""
+    angles = trial_angles(runs)
+    return sorted({(float(m), float(np.mod(a, 360.0))) for m, a in zip(runs["eccentric_mass_g"], angles)})
+
+
+def trial_label(mass_g: float, angle_deg: float = 0.0) -> str:
+    """How a figure names a trial: "7.6 g", or "7.6 g at 120 deg" when the mass sits at an angle."""
+    return f"{mass_g:g} g" if not angle_deg else f"{mass_g:g} g at {angle_deg:g} deg"
+
+
+def trial_key(c: RunComparison) -> tuple[float, float]:
+    """A run's trial (mass, angle in [0, 360)), as ``trials_of`` keys the curves."""
+    return float(c.eccentric_mass_g), float(np.mod(c.eccentric_mass_angle_deg, 360.0))
 
 
 #: the VARM's (probes x, y)
@@ -110,33 +134,34 @@ def critical_speeds(variant, joint: pd.DataFrame, rpm: Sequence[float], eccentri
 def dense_response(variant, joint: pd.DataFrame, runs: pd.DataFrame, rpm: Sequence[float], harmonics: int,
                    law: str = "law") -> pd.DataFrame:
     """Sensor harmonics 1X..HX of the fitted ``variant`` along a run-up and a run-down over ``rpm``, one sweep per
-    eccentric mass of ``runs`` (rows: run, rpm, eccentric_mass_g; the fit runs), all masses in one batched
-    sweep. joint: the joint parameter table (parameters.tsv). One row per (mass, sweep, speed, harmonic)
-    (``columns`` of the machine's sensors; ``stable``: the Floquet check, NaN where the sweep did not converge)."""
-    masses = sorted(set(float(m) for m in runs["eccentric_mass_g"]))
+    trial mass of ``runs`` (rows: run, rpm, eccentric_mass_g and, where the sheet gives one, eccentric_mass_angle_deg;
+    the fit runs; ``trials_of``), all trials in one batched sweep. joint: the joint parameter table
+    (parameters.tsv). One row per (mass, angle, sweep, speed, harmonic) (``columns`` of the machine's sensors;
+    ``stable``: the Floquet check, NaN where the sweep did not converge)."""
+    trials = trials_of(runs)
     names = list(variant.model.parameters)
     shaft = variant.model.shaft
     channels = sensor_names(shaft)
     values_at = val.values_along(joint, law, runs)  # the bow's law fitted once, evaluated at every step
 
     def build(speed: Array, rows: Array):
-        sets = [variant.values(values_at(float(s), masses[r]) | {"m_e": 1e-3 * masses[r]})
+        sets = [variant.values(values_at(float(s), trials[r][0]) | trial_mass_values(*trials[r]))
                 for s, r in zip(speed, rows)]
         return variant.model.system({k: np.array([float(v[k]) for v in sets]) for k in names}, speed)
 
     frames = []
     for direction, label in SWEEPS.items():
-        sweep = solve_sweep(build, np.asarray(rpm, float), len(masses), direction=direction, harmonics=harmonics)
+        sweep = solve_sweep(build, np.asarray(rpm, float), len(trials), direction=direction, harmonics=harmonics)
         for speed, result in zip(sweep.rpm, sweep.results):
             Z = sensor_channels(result.harmonics, shaft)  # (S, H+1, C)
             ok = np.asarray(result.success, bool)
             radius = np.asarray(result.floquet_radius, float)
-            for s, mass in enumerate(masses):
+            for s, (mass, angle) in enumerate(trials):
                 stable = bool(radius[s] < 1.0) if ok[s] and np.isfinite(radius[s]) else np.nan
                 for h in range(1, harmonics + 1):
                     z = Z[s, h] if ok[s] else np.full(len(channels), np.nan + 0j)
                     parts = [v for c in z for v in (c.real, c.imag)]
-                    frames.append((mass, label, float(speed), h, *parts, stable, str(result.branch[s])))
+                    frames.append((mass, angle, label, float(speed), h, *parts, stable, str(result.branch[s])))
     table = pd.DataFrame(frames, columns=columns(channels))
     table["stable"] = table["stable"].astype(object)  # True, False, or NaN (not assessed)
     return table
@@ -148,10 +173,13 @@ def write_dense(table: pd.DataFrame, path) -> None:
 
 
 def read_dense(path) -> pd.DataFrame:
-    """The table ``write_dense`` wrote (``stable`` back to True/False/NaN)."""
+    """The table ``write_dense`` wrote (``stable`` back to True/False/NaN; a table written before trial angles
+    were, without eccentric_mass_angle_deg, read with the angle 0)."""
     header = pd.read_csv(path, sep="\t", nrows=0).columns
     table = pd.read_csv(path, sep="\t", dtype={"sweep": str, "branch": str}, keep_default_na=False,
                         na_values={c: ["", "nan", "NaN"] for c in header if c not in ("sweep", "branch")})
+    if "eccentric_mass_angle_deg" not in table:
+        table.insert(1, "eccentric_mass_angle_deg", 0.0)
     table["stable"] = table["stable"].map({True: True, False: False, "True": True, "False": False}).astype(object)
     table.loc[table["stable"].isna(), "stable"] = np.nan
     return table[columns(channels_of(table))]
@@ -207,7 +235,7 @@ def plot_bode(dense: pd.DataFrame, comparisons: Sequence[RunComparison], variant
     sigma bars), the validation runs measured (stars) and predicted (crosses); the noise (2 sigma, grey)."""
     H = min([int(dense["harmonic"].max())] + [c.H for c in comparisons])
     orders = [h for h in orders if h <= H]
-    colours = mass_colours(sorted(set(dense["eccentric_mass_g"])))
+    colours = trial_colours(dense)
     channels = channels_of(dense)
     comparisons = _by_channel(comparisons, channels)
     fig, axes = plt.subplots(2 * len(channels), len(orders), sharex=True, squeeze=False,
@@ -217,17 +245,17 @@ def plot_bode(dense: pd.DataFrame, comparisons: Sequence[RunComparison], variant
             amp, ph = axes[2 * j, col], axes[2 * j + 1, col]
             sigmas = [c.sigma[h - 1, j] for c in comparisons] or [float(np.nanmax(np.abs(_channel(dense, j))))]
             floor = 0.2 * min(sigmas) * MICRO
-            ups = {}  # each mass's run-up curve (rpm, unwrapped phase): the branch of 2 pi a run's phase is drawn on
-            for mass, both in dense[dense["harmonic"] == h].groupby("eccentric_mass_g", sort=True):
+            ups = {}  # each trial's run-up curve (rpm, unwrapped phase): the branch of 2 pi a run's phase is drawn on
+            for trial, both in dense[dense["harmonic"] == h].groupby(TRIAL, sort=True):
                 sweeps = {sweep: part for sweep, part in both.groupby("sweep")}
-                up = _curve(amp, ph, sweeps[SWEEPS["up"]], j, colours[mass], "-", f"{mass:g} g model, run-up",
-                            floor)
-                _curve(amp, ph, sweeps[SWEEPS["down"]], j, colours[mass], "--", f"{mass:g} g model, run-down",
+                name = trial_label(*trial)
+                up = _curve(amp, ph, sweeps[SWEEPS["up"]], j, colours[trial], "-", f"{name} model, run-up", floor)
+                _curve(amp, ph, sweeps[SWEEPS["down"]], j, colours[trial], "--", f"{name} model, run-down",
                        floor, up)
-                ups[mass] = up
+                ups[trial] = up
                 for c in comparisons:
-                    if c.role == "fit" and c.eccentric_mass_g == mass:
-                        _measured(amp, ph, c, h, j, colours[mass], floor, _near(ups, c), f"{mass:g} g measured")
+                    if c.role == "fit" and trial_key(c) == trial:
+                        _measured(amp, ph, c, h, j, colours[trial], floor, _near(ups, c), f"{name} measured")
             for c in comparisons:
                 if c.role == "validate":
                     _validation(amp, ph, c, h, j, floor, _near(ups, c))
@@ -269,11 +297,12 @@ def _measured(amp, ph, c: RunComparison, h: int, j: int, colour: str, floor: flo
 
 
 def _near(ups: dict, c: RunComparison) -> float:
-    """The model curve's unwrapped phase at run ``c``'s speed, on the run-up of its eccentric mass (or the nearest
-    mass drawn): a run's phase is drawn within pi of it, on the curve's branch of 2 pi."""
+    """The model curve's unwrapped phase at run ``c``'s speed, on the run-up of its trial (or the nearest mass
+    drawn, then the nearest angle): a run's phase is drawn within pi of it, on the curve's branch of 2 pi."""
     if not ups:
         return 0.0
-    rpm, phase = ups[min(ups, key=lambda mass: abs(mass - c.eccentric_mass_g))]
+    mass, angle = trial_key(c)
+    rpm, phase = ups[min(ups, key=lambda t: (abs(t[0] - mass), abs(wrap(np.deg2rad(t[1] - angle)))))]
     finite = np.isfinite(phase)
     return float(np.interp(c.rpm, rpm[finite], phase[finite])) if finite.any() else 0.0
 
@@ -300,7 +329,7 @@ def plot_polar(dense: pd.DataFrame, comparisons: Sequence[RunComparison], varian
     validation runs (stars measured, crosses predicted), the noise circle (2 sigma)."""
     H = min([int(dense["harmonic"].max())] + [c.H for c in comparisons])
     orders = [h for h in orders if h <= H]
-    colours = mass_colours(sorted(set(dense["eccentric_mass_g"])))
+    colours = trial_colours(dense)
     channels = channels_of(dense)
     comparisons = _by_channel(comparisons, channels)
     fig, axes = plt.subplots(len(channels), len(orders), squeeze=False, subplot_kw={"projection": "polar"},
@@ -308,16 +337,16 @@ def plot_polar(dense: pd.DataFrame, comparisons: Sequence[RunComparison], varian
     for col, h in enumerate(orders):
         for j, channel in enumerate(channels):
             ax = axes[j, col]
-            for (mass, sweep), part in dense[dense["harmonic"] == h].groupby(["eccentric_mass_g", "sweep"]):
+            for (mass, angle, sweep), part in dense[dense["harmonic"] == h].groupby(TRIAL + ["sweep"]):
                 z = _channel(part, j)
                 ax.plot(np.angle(z), np.abs(z) * MICRO, "-" if sweep == SWEEPS["up"] else "--",
-                        color=colours[mass], lw=1.2, label=f"{mass:g} g model, {sweep}")
+                        color=colours[(mass, angle)], lw=1.2, label=f"{trial_label(mass, angle)} model, {sweep}")
             for c in comparisons:
                 z = c.measured[h - 1, j]
                 if c.role == "fit":
-                    colour = colours.get(c.eccentric_mass_g, "k")
+                    colour = colours.get(trial_key(c), "k")
                     ax.plot(np.angle(z), abs(z) * MICRO, "o", ms=4, color=colour,
-                            label=f"{c.eccentric_mass_g:g} g measured")
+                            label=f"{trial_label(*trial_key(c))} measured")
                     if h == 1:
                         ax.annotate(f"{c.rpm:.0f}", (np.angle(z), abs(z) * MICRO), fontsize=6, color=colour)
                 else:
@@ -346,11 +375,12 @@ def _legend(fig: plt.Figure, ax: plt.Axes) -> None:
 
 
 def multivalued(dense: pd.DataFrame, rtol: float = 0.02) -> pd.DataFrame:
-    """Per eccentric mass, the speed band where run-up and run-down differ (1X amplitude at either sensor channel
-    by more than ``rtol`` of the larger): columns eccentric_mass_g, rpm_from, rpm_to (NaN: single-valued)."""
+    """Per trial mass, the speed band where run-up and run-down differ (1X amplitude at either sensor channel
+    by more than ``rtol`` of the larger): columns eccentric_mass_g, eccentric_mass_angle_deg, rpm_from, rpm_to
+    (NaN: single-valued)."""
     rows = []
     first = dense[dense["harmonic"] == 1]
-    for mass, part in first.groupby("eccentric_mass_g"):
+    for (mass, angle), part in first.groupby(TRIAL):
         up = part[part["sweep"] == SWEEPS["up"]].set_index("rpm")
         down = part[part["sweep"] == SWEEPS["down"]].set_index("rpm")
         common = up.index.intersection(down.index)
@@ -359,9 +389,15 @@ def multivalued(dense: pd.DataFrame, rtol: float = 0.02) -> pd.DataFrame:
             a, b = np.abs(_channel(up.loc[common], j)), np.abs(_channel(down.loc[common], j))
             differ |= np.abs(a - b) > rtol * np.maximum(np.maximum(a, b), 1e-300)
         speeds = np.asarray(common)[differ]
-        rows.append({"eccentric_mass_g": mass, "rpm_from": speeds.min() if speeds.size else np.nan,
+        rows.append({"eccentric_mass_g": mass, "eccentric_mass_angle_deg": angle,
+                     "rpm_from": speeds.min() if speeds.size else np.nan,
                      "rpm_to": speeds.max() if speeds.size else np.nan})
-    return pd.DataFrame(rows, columns=["eccentric_mass_g", "rpm_from", "rpm_to"])
+    return pd.DataFrame(rows, columns=TRIAL + ["rpm_from", "rpm_to"])
+
+
+def trial_colours(dense: pd.DataFrame) -> dict[tuple[float, float], str]:
+    """One colour per trial of a dense table (``mass_colours``: the heaviest first, then by angle)."""
+    return mass_colours(map(tuple, dense[TRIAL].drop_duplicates().to_numpy(float).tolist()))
 
 
 def plot_cascade(spectra: dict[str, pd.DataFrame], runs: pd.DataFrame, orders: Sequence[int] = ORDERS

@@ -181,13 +181,15 @@ def model_response(variant, joint: pd.DataFrame, runs: pd.DataFrame, speeds: Seq
     return dense_response(variant, joint, runs, np.unique(np.asarray(speeds, float)), harmonics, law)
 
 
-def model_at(dense: pd.DataFrame, mass_g: float, kind: str, rpm: Sequence[float], harmonics: int) -> Array:
-    """(W, H, C) complex: the model of ``dense`` for this eccentric mass along the record's sweep (kind runup:
-    the run-up branch; coastdown: the run-down one) at each of ``rpm`` (speeds of the table, matched to 1e-9;
-    NaN where the table has none or the sweep did not converge)."""
+def model_at(dense: pd.DataFrame, mass_g: float, kind: str, rpm: Sequence[float], harmonics: int,
+             angle_deg: float = 0.0) -> Array:
+    """(W, H, C) complex: the model of ``dense`` for this trial mass (``mass_g`` at ``angle_deg``) along the
+    record's sweep (kind runup: the run-up branch; coastdown: the run-down one) at each of ``rpm`` (speeds of the
+    table, matched to 1e-9; NaN where the table has none or the sweep did not converge)."""
     sweep = SWEEPS["down"] if str(kind).strip().lower() == "coastdown" else SWEEPS["up"]
     channels = channels_of(dense)
-    part = dense[(dense["sweep"] == sweep) & np.isclose(dense["eccentric_mass_g"], mass_g)]
+    part = dense[(dense["sweep"] == sweep) & np.isclose(dense["eccentric_mass_g"], mass_g)
+                 & np.isclose(dense.get("eccentric_mass_angle_deg", 0.0), np.mod(angle_deg, 360.0))]
     rpm = np.asarray(rpm, float)
     out = np.full((rpm.size, harmonics, len(channels)), np.nan + 0j)
     for h in range(1, harmonics + 1):
@@ -205,7 +207,7 @@ def model_at(dense: pd.DataFrame, mass_g: float, kind: str, rpm: Sequence[float]
 
 
 def compensated_like_the_data(dense: pd.DataFrame, model: Array, mass_g: float, kind: str,
-                              runout: pd.DataFrame | None) -> Array:
+                              runout: pd.DataFrame | None, angle_deg: float = 0.0) -> Array:
     """The model (W, H, C) of ``model_at`` compensated as the record was: where its slow-roll runout was subtracted
     (``runout``: the record's runout table, None or empty when compensation was off), the model's own response at
     ``forward.SLOW_ROLL_RPM`` (a speed of ``dense``) subtracted from the runout's harmonics, as the fit's model
@@ -217,7 +219,7 @@ def compensated_like_the_data(dense: pd.DataFrame, model: Array, mass_g: float, 
     if runout is None or runout.empty:
         return model
     out = model.copy()
-    reference = model_at(dense, mass_g, kind, [SLOW_ROLL_RPM], model.shape[1])[0]  # (H, C)
+    reference = model_at(dense, mass_g, kind, [SLOW_ROLL_RPM], model.shape[1], angle_deg)[0]  # (H, C)
     for h in sorted(set(int(v) for v in runout["harmonic"])):
         if 1 <= h <= model.shape[1]:
             out[:, h - 1, :] -= reference[h - 1]
