@@ -225,6 +225,26 @@ def test_the_command_assesses_the_good_records_names_the_bad_and_keeps_the_trend
     assert "--eccentric-mass-g" in capsys.readouterr().err
 
 
+def test_a_single_records_trial_mass_angle_is_the_commands_option(twin, tmp_path, capsys):
+    """A record of the unchanged machine whose 25.9 g trial mass sits at 120 degrees (the rig places it there):
+    with --eccentric-mass-angle-deg 120 it is consistent with the twin; judged as if on +x (no option) the same
+    record is not (its trial force turned by 120 degrees is a 1X residual far beyond the noise). A runs sheet gives
+    the angle in its column, so the option is refused with one."""
+    plan = pd.DataFrame({"run": ["t600"], "rpm": [600.0], "eccentric_mass_g": [25.9], "role": ["fit"],
+                         "eccentric_mass_angle_deg": [120.0]})
+    generate(plan, RigSpec(Truth.from_spec({"effects": DEFAULT_TRUTH["effects"], "values": TRUTH}),
+                           Imperfections(keyphasor=True), seed=11), tmp_path / "data")
+    record = str(tmp_path / "data" / read_sheet(tmp_path / "data" / "runs.tsv")[0]["path"])
+    common = ["--rpm", "600", "--eccentric-mass-g", "25.9", "--twin", str(TWIN), "--no-figure"]
+    assert main(["assess", record, *common, "--eccentric-mass-angle-deg", "120", "--out", str(tmp_path / "a")]) == 0
+    assert "t600: consistent with the twin" in capsys.readouterr().out
+    assert main(["assess", record, *common, "--out", str(tmp_path / "b")]) == 0
+    assert "consistent with the twin" not in capsys.readouterr().out
+    assert main(["assess", str(tmp_path / "data" / "runs.tsv"), "--twin", str(TWIN), "--eccentric-mass-angle-deg",
+                 "120"]) == 2
+    assert "--eccentric-mass-angle-deg are for a single record" in capsys.readouterr().err
+
+
 def test_a_single_record_needs_its_speed(tmp_path):
     (tmp_path / "r.csv").write_text("time_s,x_mm,y_mm\n0,0,0\n")
     with pytest.raises(RecordError, match="r.csv: a steady record needs its speed"):

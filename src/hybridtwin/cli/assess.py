@@ -9,7 +9,7 @@ import sys
 import time
 from pathlib import Path
 
-from .common import _non_negative, _positive
+from .common import _non_negative, _number, _positive
 
 
 def add_assess_command(sub) -> None:
@@ -30,6 +30,9 @@ def add_assess_command(sub) -> None:
     parser.add_argument("--rpm", type=_positive, default=None, help="a steady record's nominal speed [RPM]")
     parser.add_argument("--eccentric-mass-g", type=_non_negative, default=None,
                         help="the record's eccentric (unbalance) mass [g] (a single record)")
+    parser.add_argument("--eccentric-mass-angle-deg", type=_number, default=None, metavar="DEG",
+                        help="the trial mass's angle at the keyphasor mark [deg], from +x towards +y, the sense of "
+                             "rotation (a single record; default 0; a runs sheet's column eccentric_mass_angle_deg)")
     parser.add_argument("--kind", choices=("steady", "runup", "coastdown"), default="steady",
                         help="a single record's kind (default steady)")
     parser.add_argument("--rpm-start", type=_positive, default=None, help="a run-up's or coast-down's nominal start")
@@ -63,15 +66,15 @@ def assess_command(args) -> int:
     out = args.out or Path("assessments") / twin.name
     try:
         if args.record.suffix.lower() in (".tsv", ".txt"):
-            if args.rpm is not None or args.eccentric_mass_g is not None:
-                return _error(f"{args.record}: a runs sheet gives each record's speed and mass; --rpm and "
-                              "--eccentric-mass-g are for a single record")
+            if args.rpm is not None or args.eccentric_mass_g is not None or args.eccentric_mass_angle_deg is not None:
+                return _error(f"{args.record}: a runs sheet gives each record's speed and mass; --rpm, "
+                              "--eccentric-mass-g and --eccentric-mass-angle-deg are for a single record")
             rows = read_sheet(args.record)
         else:
             if args.eccentric_mass_g is None:
                 return _error(f"{args.record}: a single record needs --eccentric-mass-g (0 for no added mass)")
             rows = [record_row(args.record, args.rpm, args.eccentric_mass_g, args.kind, args.rpm_start,
-                               args.rpm_end, args.run)]
+                               args.rpm_end, args.run, args.eccentric_mass_angle_deg or 0.0)]
     except RecordError as err:
         return _error(str(err), 1)
     failed = 0

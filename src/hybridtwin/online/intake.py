@@ -73,14 +73,21 @@ def read_sheet(path: str | Path) -> list[dict]:
 
 
 def record_row(path: str | Path, rpm: float | None, eccentric_mass_g: float, kind: str = "steady",
-               rpm_start: float | None = None, rpm_end: float | None = None, run: str | None = None) -> dict:
+               rpm_start: float | None = None, rpm_end: float | None = None, run: str | None = None,
+               eccentric_mass_angle_deg: float = 0.0) -> dict:
     """A single record as a runs-sheet row: its id (``run``, default the file's stem), its speed (steady) or sweep
-    (runup, coastdown) and eccentric mass."""
+    (runup, coastdown), eccentric mass and, when not 0, the trial mass's angle (``eccentric_mass_angle_deg`` [deg],
+    the runs sheet's column: any finite value)."""
     path = Path(path)
     if not path.is_file():
         raise RecordError(f"{path}: no such record file")
     row = {"run": run or path.stem, "eccentric_mass_g": float(eccentric_mass_g), "path": path.name,
            "record": str(path), "role": "fit", "kind": kind}
+    if eccentric_mass_angle_deg:
+        if not math.isfinite(float(eccentric_mass_angle_deg)):
+            raise RecordError(f"{path}: the trial mass's angle must be a finite number of degrees, got "
+                              f"{eccentric_mass_angle_deg!r}")
+        row["eccentric_mass_angle_deg"] = float(eccentric_mass_angle_deg)
     if kind == "steady":
         if rpm is None:
             raise RecordError(f"{path}: a steady record needs its speed (--rpm)")
