@@ -36,17 +36,21 @@ def make(folder: Path, plan: pd.DataFrame, values: dict) -> Path:
     return folder / "runs.tsv"
 
 
-def run(command: list[str]) -> tuple[float, float]:
-    """Wall and CPU (user + system) seconds of a command in a new process."""
+def run(command: list[str]) -> tuple[float, float, float]:
+    """Wall and CPU (user + system) seconds of a command in a new process, and the wall seconds until its first
+    line on the console (the verdict: the command prints it before it draws the figures)."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
-    done = subprocess.run(command, capture_output=True, text=True)
+    with subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) as process:
+        first = process.stdout.readline()
+        verdict = time.perf_counter() - start
+        rest, err = process.communicate()
     wall = time.perf_counter() - start
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    if done.returncode != 0:
-        raise RuntimeError(f"{' '.join(command)} failed:\n{done.stderr[-2000:]}")
-    print("   ", done.stdout.strip().splitlines()[-1][:160])
-    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    if process.returncode != 0:
+        raise RuntimeError(f"{' '.join(command)} failed:\n{err[-2000:]}")
+    print("   ", first.strip()[:160])
+    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime), verdict
 
 
 def main(argv=None) -> int:
@@ -62,7 +66,8 @@ def main(argv=None) -> int:
              "steady, bearing 10 % softer": make(args.data / "steady_soft", steady, {"k_b": 0.9 * TRUTH["k_b"]}),
              "run-up 60 s, unchanged": make(args.data / "runup", runup, {})}
     out = args.data / "out"
-    print(f"| record | figures | wall [s] (median of {args.repeats}) | CPU [s] | load average |\n|---|---|---|---|---|")
+    print(f"| record | figures | verdict on the console [s] | wall [s] (median of {args.repeats}) | CPU [s] | "
+          "load average |\n|---|---|---|---|---|---|")
     for name, sheet in cases.items():
         for figures in (True, False):
             times = []
@@ -70,8 +75,9 @@ def main(argv=None) -> int:
                 command = [sys.executable, "-m", "hybridtwin.cli", "assess", str(sheet), "--twin", str(args.twin),
                            "--out", str(out)] + ([] if figures else ["--no-figure"])
                 times.append(run(command))
-            wall, cpu = (sorted(t[k] for t in times)[len(times) // 2] for k in (0, 1))
-            print(f"| {name} | {'yes' if figures else 'no'} | {wall:.1f} | {cpu:.1f} | {os.getloadavg()[0]:.1f} |")
+            wall, cpu, verdict = (sorted(t[k] for t in times)[len(times) // 2] for k in (0, 1, 2))
+            print(f"| {name} | {'yes' if figures else 'no'} | {verdict:.1f} | {wall:.1f} | {cpu:.1f} | "
+                  f"{os.getloadavg()[0]:.1f} |")
     phases(args.twin, cases)
     return 0
 

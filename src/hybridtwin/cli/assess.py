@@ -92,12 +92,12 @@ def assess_command(args) -> int:
             print(f"hybridtwin assess: {record.run}: {band} left out: {why}", file=sys.stderr)
         folder = out / record.run
         result.write(folder)
+        add(out / "trend.tsv", result)
+        print(result.line(), flush=True)  # the verdict first: the figures take about as long again
         if not args.no_figure:
             from ..online.assess_plots import plot_assessment
 
             _save(plot_assessment(result), folder / "figure.png")
-        add(out / "trend.tsv", result)
-        print(result.line())
     if not args.no_figure and (out / "trend.tsv").is_file():
         _save(plot_trend(read_trend(out / "trend.tsv"), twin.name), out / "trend.png")
     print(f"# {len(rows) - failed} of {len(rows)} record(s) assessed against {args.twin} in "
