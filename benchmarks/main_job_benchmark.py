@@ -186,7 +186,7 @@ def protocol_comparison(folder: Path, variant_name: str, runs: list[str]) -> pd.
     from hybridtwin.offline.library import Library
 
     config = yaml.safe_load((folder / "config" / "config.yaml").read_text())
-    options = idn.settings(config, variant_name)
+    options = IdentificationSettings.from_config(config).for_variant(variant_name)
     harmonics = idn.read_harmonics(folder / "results" / "data" / "harmonics.tsv")
     validation = pd.read_csv(folder / "results" / variant_name / "library_validation.tsv", sep="\t")
     rows = []
@@ -219,7 +219,7 @@ def joint_comparison(folder: Path, variant_name: str) -> dict:
 
     config = yaml.safe_load((folder / "config" / "config.yaml").read_text())
     variant = cfg.variant(config, variant_name, folder / "config")
-    options = {**idn.rule_settings(config, variant_name, "joint"), "polish": False}
+    options = {**IdentificationSettings.from_config(config).rule(variant_name, "joint"), "polish": False}
     results = folder / "results" / variant_name
     runs = idn.runs_with_role(folder / config["runs"], "fit")
     libraries = [Library.load(results / "library" / f"{run}.zarr") for run in runs]
@@ -247,6 +247,7 @@ import pickle, sys, time
 import pandas as pd, yaml
 from hybridtwin import config as cfg
 from hybridtwin.offline.scenarios import solve_runs
+from hybridtwin.settings import IdentificationSettings
 folder, variant_name, n, out = sys.argv[1], sys.argv[2], int(sys.argv[3]), sys.argv[4]
 config = yaml.safe_load(open(f"{folder}/config/config.yaml"))
 variant = cfg.variant(config, variant_name, __import__("pathlib").Path(folder) / "config")

@@ -40,8 +40,8 @@ rule solve_chunk:
         mem_mb=2000,
     params:
         model=variant_model,
-        measured=OFFLINE["speed"] == "measured",
-        n_chunks=OFFLINE["chunks"],
+        measured=OFFLINE.speed == "measured",
+        n_chunks=OFFLINE.chunks,
         harmonics=config["harmonics"],
     script:
         "../../scripts/solve_chunk.py"
@@ -95,8 +95,8 @@ rule solve_enrichment:
         mem_mb=2000,
     params:
         model=variant_model,
-        measured=OFFLINE["speed"] == "measured",
-        n_chunks=OFFLINE["enrichment"]["chunks"],
+        measured=OFFLINE.speed == "measured",
+        n_chunks=OFFLINE.enrichment.chunks,
         harmonics=config["harmonics"],
     script:
         "../../scripts/solve_enrichment.py"
