@@ -458,3 +458,34 @@ def test_the_readmes_quick_look_overlay_is_valid_and_does_what_it_says(project):
     assert offline(quick)["spgd"]["degree"] == 8 and offline(base)["spgd"]["degree"] != 8
     assert {k: v for k, v in offline(quick)["spgd"].items() if k != "degree"} == {
         k: v for k, v in offline(base)["spgd"].items() if k != "degree"}
+
+
+def test_no_literal_harmonics_default_in_a_signature():
+    """The harmonics a function or a dataclass takes when not told are named constants (issue 37, "no literal
+    defaults in signatures"): the analysis's solver.DEFAULT_HARMONICS (the config's ``harmonics`` is required, it
+    has no schema default) and transient.RESOLVED_HARMONICS (the time integration's and the rig truth's; ``rig:
+    NAME: harmonics`` has no schema default either), their values as before."""
+    import ast
+    import inspect
+
+    from hybridtwin.data.rig import RigSpec, solve_truth
+    from hybridtwin.solvers import solver, sweep, transient
+
+    literal = []
+    for path in sorted((ROOT / "src" / "hybridtwin").rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                args = node.args.posonlyargs + node.args.args
+                pairs = list(zip(args[len(args) - len(node.args.defaults):], node.args.defaults))
+                pairs += [(a, d) for a, d in zip(node.args.kwonlyargs, node.args.kw_defaults) if d is not None]
+                literal += [f"{path.name}:{node.lineno} {node.name}" for a, d in pairs
+                            if a.arg == "harmonics" and isinstance(d, ast.Constant) and d.value not in (None, 1)]
+            elif isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name) \
+                    and node.target.id == "harmonics" and isinstance(node.value, ast.Constant):
+                literal.append(f"{path.name}:{node.lineno} field harmonics")
+    assert literal == []  # (harmonics=1: the linear response's single harmonic, not a choice of H)
+    assert (solver.DEFAULT_HARMONICS, transient.RESOLVED_HARMONICS) == (5, 7)
+    for function in (sweep.start_state, sweep.integrate_sweep, transient.settle, transient.run_up_harmonics,
+                     solve_truth):
+        assert inspect.signature(function).parameters["harmonics"].default == transient.RESOLVED_HARMONICS
+    assert RigSpec().harmonics == transient.RESOLVED_HARMONICS

@@ -27,6 +27,7 @@ from .model.effects import Effect
 from .model.machine import Machine
 from .model.machine_parts import MachineSpecError
 from .offline.scenarios import default_n_scenarios
+from .solvers.solver import DEFAULT_HARMONICS
 from .model.variants import EffectsFileError, Variant, load_effects_files, unbalance_hint
 from .settings import SCHEMA_FILE, offline_settings, online_settings
 
@@ -101,10 +102,11 @@ def online(config: Mapping) -> dict:
 
 def data_check_settings(config: Mapping) -> dict:
     """What the data checks take from a config, one derivation for the workflow's check_data and preprocess rules
-    (their params) and ``hybridtwin check-data`` (its defaults, each option overriding one): ``harmonics`` (H),
-    ``coverage`` (``rpm`` and ``eccentric_mass_g`` ranges, or empty), ``sensor_range_mm`` (offline.sensor_range_mm
-    with its default: the probes' range; a sheet's sensor_range_mm column overrides it run by run)."""
-    return {"harmonics": config.get("harmonics", 5), "coverage": config.get("coverage") or {},
+    (their params) and ``hybridtwin check-data`` (its defaults, each option overriding one): ``harmonics`` (H;
+    without a config, solver.DEFAULT_HARMONICS), ``coverage`` (``rpm`` and ``eccentric_mass_g`` ranges, or empty),
+    ``sensor_range_mm`` (offline.sensor_range_mm with its default: the probes' range; a sheet's sensor_range_mm
+    column overrides it run by run)."""
+    return {"harmonics": config.get("harmonics", DEFAULT_HARMONICS), "coverage": config.get("coverage") or {},
             "sensor_range_mm": offline(config)["sensor_range_mm"]}  # as written (a param's value: 14 stays 14)
 
 
