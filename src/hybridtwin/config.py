@@ -29,7 +29,7 @@ from .model.machine_parts import MachineSpecError
 from .offline.scenarios import default_n_scenarios
 from .solvers.solver import DEFAULT_HARMONICS
 from .model.variants import EffectsFileError, Variant, load_effects_files, unbalance_hint
-from .settings import SCHEMA_FILE, offline_settings, online_settings
+from .settings import SCHEMA_FILE, offline_settings
 
 CONFIG_DIR = Path("config")
 CONFIG_FILE = CONFIG_DIR / "config.yaml"
@@ -91,13 +91,6 @@ def variant(config: Mapping, name: str, config_dir: Path = CONFIG_DIR) -> Varian
 def offline(config: Mapping) -> dict:
     """The ``offline:`` options with the schema's defaults filled in (``settings.OfflineSettings.options``)."""
     return offline_settings(config).options()
-
-
-def online(config: Mapping) -> dict:
-    """The ``online:`` section (the twin judging new records: ``variant``, ``records``, ``alpha``) with its defaults;
-    empty when the config has none."""
-    section = online_settings(config)
-    return {} if section is None else section.as_dict()
 
 
 def data_check_settings(config: Mapping) -> dict:

@@ -17,7 +17,7 @@ import copy
 import types
 import typing
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, fields, is_dataclass
+from dataclasses import asdict, dataclass, fields, is_dataclass, replace
 from functools import cache
 from pathlib import Path
 from typing import Any
@@ -337,8 +337,8 @@ def offline_settings(config: Mapping) -> OfflineSettings:
     unknown = sorted(set(built.spgd_variants) - set(declared))
     if unknown:
         raise SettingsError(f"config offline.spgd_variants: no variant named {unknown} (declared: {declared})")
-    spgd = {**defaults("offline")["spgd"], **(built.spgd or {})}  # a key left out keeps its default
-    return OfflineSettings(**{f.name: getattr(built, f.name) for f in fields(OfflineSettings)} | {"spgd": spgd})
+    # offline.spgd's default is one mapping: a key the config's spgd leaves out keeps its default
+    return replace(built, spgd={**defaults("offline")["spgd"], **built.spgd})
 
 
 def design_settings(config: Mapping) -> DesignSettings:
