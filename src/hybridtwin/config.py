@@ -26,7 +26,6 @@ from .model.bearing_candidates import at_bearing
 from .model.effects import Effect
 from .model.machine import Machine
 from .model.machine_parts import MachineSpecError
-from .offline.scenarios import default_n_scenarios
 from .solvers.solver import DEFAULT_HARMONICS
 from .model.variants import EffectsFileError, Variant, load_effects_files, unbalance_hint
 from .settings import SCHEMA_FILE, offline_settings
@@ -108,13 +107,8 @@ def offline_for(config: Mapping, name: str, keys: Sequence[str] | None = None) -
     (``spgd`` updated by its ``spgd_variants`` entry) only, so that declaring another variant (and its
     n_s or sPGD options) never changes this one's rule parameters (nothing of it reruns); with
     ``keys``, only those options, so that a rule reruns only when an option it uses changes (the sPGD
-    options or the library scope never re-sample or re-solve the scenarios)."""
-    section = offline_settings(config)
-    options = section.options()
-    options["n_scenarios"] = n_scenarios(config, variant(config, name))
-    options["spgd"] = section.spgd_for(name)
-    del options["spgd_variants"]
-    return options if keys is None else {k: options[k] for k in keys}
+    options or the library scope never re-sample or re-solve the scenarios): ``OfflineSettings.for_variant``."""
+    return offline_settings(config).for_variant(name, len(variant(config, name).unknown), keys)
 
 
 def spgd_for(config: Mapping, name: str) -> dict:
@@ -125,7 +119,7 @@ def spgd_for(config: Mapping, name: str) -> dict:
 
 def n_scenarios(config: Mapping, variant_: Variant) -> int:
     """n_s of a variant: the config's per-variant value or the paper's default for its unknown count."""
-    return int(offline_settings(config).n_scenarios.get(variant_.name, default_n_scenarios(len(variant_.unknown))))
+    return offline_settings(config).n_scenarios_of(variant_.name, len(variant_.unknown))
 
 
 def run_plan(source: Mapping | str | Path | pd.DataFrame, measured: str | Path | None = None) -> pd.DataFrame:

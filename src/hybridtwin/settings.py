@@ -16,13 +16,15 @@ from __future__ import annotations
 import copy
 import types
 import typing
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, fields, is_dataclass, replace
 from functools import cache
 from pathlib import Path
 from typing import Any
 
 import yaml
+
+from .offline.scenarios import default_n_scenarios
 
 #: the configuration's JSON schema (package data: found wherever the package is installed)
 SCHEMA_FILE = Path(__file__).with_name("config.schema.yaml")
@@ -161,6 +163,21 @@ class OfflineSettings(_Section):
         """The sPGD options of variant ``name`` (declared or not): ``spgd`` updated by its ``spgd_variants``
         entry."""
         return {**self.spgd, **(self.spgd_variants.get(name) or {})}
+
+    def n_scenarios_of(self, name: str, n_unknown: int) -> int:
+        """n_s of variant ``name`` with ``n_unknown`` unknowns: its ``n_scenarios`` entry, else the paper's default
+        for that many unknowns (hybridtwin.offline.scenarios.default_n_scenarios)."""
+        return int(self.n_scenarios.get(name, default_n_scenarios(n_unknown)))
+
+    def for_variant(self, name: str, n_unknown: int, keys: Sequence[str] | None = None) -> dict:
+        """The options as variant ``name``'s rules see them (``hybridtwin.config.offline_for``): its own n_s and sPGD
+        options only, so that declaring another variant never changes this one's rule parameters; with ``keys``,
+        only those options, so that a rule reruns only when an option it uses changes."""
+        options = self.options()
+        options["n_scenarios"] = self.n_scenarios_of(name, n_unknown)
+        options["spgd"] = self.spgd_for(name)
+        del options["spgd_variants"]
+        return options if keys is None else {k: options[k] for k in keys}
 
     def options(self) -> dict:
         """The options as plain values (what ``hybridtwin.config.offline`` gives)."""

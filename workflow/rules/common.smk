@@ -10,7 +10,6 @@ from hybridtwin.config import (
     CONFIG_DIR,
     angles_on_libraries,
     effects_files_used,
-    offline_for,
     run_plan,
     variant as config_variant,
 )
@@ -50,6 +49,20 @@ OFFLINE_USED = {
     "spgd_library": ("scope", "sensor_range_mm", "spgd", "pieces"),
     "validate_library": ("sensor_range_mm",),
 }
+
+
+@cache
+def n_unknown(name):
+    """The number of unknowns of variant ``name`` (its n_s default; built once per variant, not once per job)."""
+    return len(config_variant(config, name).unknown)
+
+
+def offline_options(wildcards, rule):
+    """The offline options the variant's job of ``rule`` uses (OFFLINE_USED; OfflineSettings.for_variant, as
+    hybridtwin.config.offline_for)."""
+    return OFFLINE.for_variant(wildcards.variant, n_unknown(wildcards.variant), OFFLINE_USED[rule])
+
+
 # the config's effects files (hybridtwin.config.user_effects: paths relative to the config folder): those a variant
 # uses are an input of every rule whose params.model carries them (variant_effects), so that editing one reruns the
 # jobs that build the variant; all of them of the diagnosis (its candidates)

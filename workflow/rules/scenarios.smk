@@ -16,7 +16,7 @@ rule sample_scenarios:
         "../envs/hybridtwin.yaml"
     params:
         model=variant_model,
-        offline=lambda wildcards: offline_for(config, wildcards.variant, OFFLINE_USED["sample_scenarios"]),
+        offline=lambda wildcards: offline_options(wildcards, "sample_scenarios"),
     script:
         "../../scripts/sample_scenarios.py"
 
@@ -71,7 +71,7 @@ rule sample_enrichment:
         "../envs/hybridtwin.yaml"
     params:
         model=variant_model,
-        offline=lambda wildcards: offline_for(config, wildcards.variant, OFFLINE_USED["sample_enrichment"]),
+        offline=lambda wildcards: offline_options(wildcards, "sample_enrichment"),
     script:
         "../../scripts/sample_enrichment.py"
 
