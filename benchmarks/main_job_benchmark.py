@@ -184,6 +184,7 @@ def protocol_comparison(folder: Path, variant_name: str, runs: list[str]) -> pd.
     from hybridtwin.identify import forward as fwd
     from hybridtwin.identify import identification as idn
     from hybridtwin.offline.library import Library
+    from hybridtwin.settings import IdentificationSettings
 
     config = yaml.safe_load((folder / "config" / "config.yaml").read_text())
     options = IdentificationSettings.from_config(config).for_variant(variant_name)
@@ -216,6 +217,7 @@ def joint_comparison(folder: Path, variant_name: str) -> dict:
     from hybridtwin.identify import identification as idn
     from hybridtwin.offline.library import Library
     from hybridtwin.identify.run_fits import fit_joint
+    from hybridtwin.settings import IdentificationSettings
 
     config = yaml.safe_load((folder / "config" / "config.yaml").read_text())
     variant = cfg.variant(config, variant_name, folder / "config")
@@ -247,7 +249,6 @@ import pickle, sys, time
 import pandas as pd, yaml
 from hybridtwin import config as cfg
 from hybridtwin.offline.scenarios import solve_runs
-from hybridtwin.settings import IdentificationSettings
 folder, variant_name, n, out = sys.argv[1], sys.argv[2], int(sys.argv[3]), sys.argv[4]
 config = yaml.safe_load(open(f"{folder}/config/config.yaml"))
 variant = cfg.variant(config, variant_name, __import__("pathlib").Path(folder) / "config")

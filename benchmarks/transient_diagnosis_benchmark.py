@@ -45,7 +45,7 @@ from hybridtwin.data.rig import RigSpec, generate, read_plan  # noqa: E402
 from hybridtwin.data.transient import track_record  # noqa: E402
 from hybridtwin.diagnose import diagnosis as dg  # noqa: E402
 from hybridtwin.model.candidates import candidates_for  # noqa: E402
-from hybridtwin.settings import diagnosis_settings
+from hybridtwin.settings import diagnosis_settings  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples/runup"
