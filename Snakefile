@@ -10,13 +10,15 @@ min_version("9.0")
 configfile: "config/config.yaml"
 
 
-# the whole config checked before any job is planned: the schema, then every name in it (variants,
+# the whole config checked before any job is planned, the one validation against the schema (the package's,
+# hybridtwin.settings.SCHEMA_FILE, whose default: entries are the only defaults), then every name in it (variants,
 # parameters, effects, candidates); each problem one line naming its file and line, key and allowed values
 from hybridtwin.config import check_or_exit
+from hybridtwin.settings import SCHEMA_FILE
 
 check_or_exit(
     config,
-    f"{workflow.basedir}/workflow/schemas/config.schema.yaml",
+    SCHEMA_FILE,
     ["config/config.yaml", *workflow.overwrite_configfiles],
     workflow.config_settings.config,
 )
@@ -59,7 +61,7 @@ rule all:
         expand("results/{variant}/runs/{run}/parameters.tsv", variant=VARIANTS, run=FIT_RUNS),
         expand("results/{variant}/parameters.tsv", variant=VARIANTS),
         expand("results/{variant}/validation.tsv", variant=VARIANTS),
-        expand("results/{variant}/design/next_runs.tsv", variant=VARIANTS if DESIGN["runs"] else []),
+        expand("results/{variant}/design/next_runs.tsv", variant=VARIANTS if DESIGN.runs else []),
         expand("results/{variant}/diagnosis.tsv", variant=VARIANTS),
         expand("results/{variant}/diagnosis.md", variant=VARIANTS),
         expand("results/{variant}/twin.yaml", variant=VARIANTS),  # the twin's card: `hybridtwin assess` reads it
@@ -75,4 +77,4 @@ rule all:
         ),
         expand("results/data/report/records/{run}/waterfall.png", run=[r["run"] for r in transient_records()]),
         # the twin online (config online:): every record of its sheet judged against the twin, and the trend
-        expand("results/online/{variant}/trend.tsv", variant=[ONLINE["variant"]] if ONLINE else []),
+        expand("results/online/{variant}/trend.tsv", variant=[ONLINE.variant] if ONLINE else []),

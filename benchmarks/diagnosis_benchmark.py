@@ -68,6 +68,7 @@ from hybridtwin.data.preprocessing import preprocess_run
 from hybridtwin.identify.protocol import ProtocolOptions
 from hybridtwin.data.rig import RigSpec, generate, read_plan
 from hybridtwin.model.variants import Variant
+from hybridtwin.settings import diagnosis_settings
 
 ROOT = Path(__file__).resolve().parents[1]
 log = logging.getLogger("diagnosis_benchmark")
@@ -232,7 +233,7 @@ def main() -> int:
     if args.per_run is not None:
         config["identification"]["per_run"] = [] if args.per_run == "none" else \
             [p.strip() for p in args.per_run.split(",") if p.strip()]
-    options = dg.settings(config)
+    options = diagnosis_settings(config).options()
     rows = []
     for case in cases:
         with tempfile.TemporaryDirectory() as tmp, threadpool_limits(1):

@@ -62,6 +62,7 @@ from hybridtwin.identify import uncertainty as unc
 from hybridtwin.model.candidates import builtin_candidates
 from hybridtwin.identify.protocol import ProtocolOptions
 from hybridtwin.model.variants import BUILTIN_VARIANTS, Variant
+from hybridtwin.settings import diagnosis_settings
 
 SIGMA = 8e-7  # m per real/imaginary part, the bundled records' (results/data/harmonics.tsv: 6-10e-7)
 RUNS = [("r350_m25p9", 350.0, 25.9), ("r500_m25p9", 500.0, 25.9), ("r650_m25p9", 650.0, 25.9),
@@ -238,7 +239,7 @@ def run_case(effect: str, strength: str, values: dict, seed: int, clean, harmoni
            "base_s": base_s, "base_status": fit.status}
     try:
         wall, cpu = time.perf_counter(), time.process_time()
-        result = dg.diagnose(base, candidates)
+        result = dg.diagnose(base, candidates, diagnosis_settings({}).options())
         wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
     except Exception as error:  # a crash is a finding: record it, go on
         return row | {"chi2_dof": np.nan, "rank1": "-", "verdict": f"CRASH {type(error).__name__}: {error}",

@@ -44,6 +44,7 @@ from hybridtwin.identify.profile import OPTIONS, threshold
 from hybridtwin.identify.protocol import ProtocolOptions
 from hybridtwin.identify.uncertainty import loose_entries
 from hybridtwin.model.variants import BUILTIN_VARIANTS, Variant
+from hybridtwin.settings import IdentificationSettings
 
 TRUTH = {"k_b": 2411.3, "zeta_s": 0.024, "zeta_bup": 0.016, "k_w": 324.2, "k_z": 301.1, "q_x": 0.002, "q_y": 0.0015}
 SIGMA = 8e-7  # m, the bundled records' harmonic sigma (results/data/harmonics.tsv: 6-10e-7)
@@ -121,7 +122,8 @@ def bundled(harmonics_path: str) -> None:
     variant = Variant.from_spec("geometric_slope", SPEC)
     table = idn.read_harmonics(harmonics_path)
     runs = fit_runs()
-    options = idn.rule_settings(config, "geometric", "joint") | {"per_run": ["q_x", "q_y"], "profile": False}
+    options = IdentificationSettings.from_config(config).rule("geometric", "joint") | {"per_run": ["q_x", "q_y"],
+                                                                                     "profile": False}
     start = time.process_time()
     fit = fit_joint(variant, options, [], table, {}, None, 5, runs=[r for r, _, _ in runs]).fit
     print(f"joint fit on the full solver: chi^2/dof {fit.chi2_dof:.4g}, {time.process_time() - start:.0f} s CPU")

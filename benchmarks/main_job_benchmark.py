@@ -184,9 +184,10 @@ def protocol_comparison(folder: Path, variant_name: str, runs: list[str]) -> pd.
     from hybridtwin.identify import forward as fwd
     from hybridtwin.identify import identification as idn
     from hybridtwin.offline.library import Library
+    from hybridtwin.settings import IdentificationSettings
 
     config = yaml.safe_load((folder / "config" / "config.yaml").read_text())
-    options = idn.settings(config, variant_name)
+    options = IdentificationSettings.from_config(config).for_variant(variant_name)
     harmonics = idn.read_harmonics(folder / "results" / "data" / "harmonics.tsv")
     validation = pd.read_csv(folder / "results" / variant_name / "library_validation.tsv", sep="\t")
     rows = []
@@ -216,10 +217,11 @@ def joint_comparison(folder: Path, variant_name: str) -> dict:
     from hybridtwin.identify import identification as idn
     from hybridtwin.offline.library import Library
     from hybridtwin.identify.run_fits import fit_joint
+    from hybridtwin.settings import IdentificationSettings
 
     config = yaml.safe_load((folder / "config" / "config.yaml").read_text())
     variant = cfg.variant(config, variant_name, folder / "config")
-    options = {**idn.rule_settings(config, variant_name, "joint"), "polish": False}
+    options = {**IdentificationSettings.from_config(config).rule(variant_name, "joint"), "polish": False}
     results = folder / "results" / variant_name
     runs = idn.runs_with_role(folder / config["runs"], "fit")
     libraries = [Library.load(results / "library" / f"{run}.zarr") for run in runs]

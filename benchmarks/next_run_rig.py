@@ -34,6 +34,7 @@ from hybridtwin.data.preprocessing import preprocess_run
 from hybridtwin.data.rig import RigSpec, generate
 from hybridtwin.identify import identification as idn
 from hybridtwin.identify.run_fits import fit_joint
+from hybridtwin.settings import IdentificationSettings
 
 
 def record_runs(chosen: pd.DataFrame, rig: dict, seed: int, out: Path) -> pd.DataFrame:
@@ -85,7 +86,7 @@ def main() -> int:
         print(f"{r.run}: usable {r.usable} ({r.note}), phase {r.phase_reference}", flush=True)
     table = pd.concat([harmonics, new], ignore_index=True)
     fit_runs = list(dict.fromkeys(now.loc[now["parameter"] == "phase", "run"]))
-    options = idn.rule_settings(config, args.variant, "joint")
+    options = IdentificationSettings.from_config(config).rule(args.variant, "joint")
     start = time.process_time()
     result = fit_joint(variant, options, [], table, {}, None, int(config["harmonics"]),
                        runs=fit_runs + new["run"].tolist())

@@ -45,6 +45,7 @@ from hybridtwin.data.rig import RigSpec, generate, read_plan  # noqa: E402
 from hybridtwin.data.transient import track_record  # noqa: E402
 from hybridtwin.diagnose import diagnosis as dg  # noqa: E402
 from hybridtwin.model.candidates import candidates_for  # noqa: E402
+from hybridtwin.settings import diagnosis_settings  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples/runup"
@@ -101,7 +102,7 @@ def main() -> int:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s", stream=sys.stderr)
     config = yaml.safe_load((ROOT / "config/config.yaml").read_text())
     config["identification"]["per_run"] = []  # the bow is the shaft's: shared by every band and record
-    options = dg.settings(config)
+    options = diagnosis_settings(config).options()
     rows = []
     for case in cases:
         with tempfile.TemporaryDirectory() as tmp, threadpool_limits(1):

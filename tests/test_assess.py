@@ -273,7 +273,7 @@ def test_the_workflow_plans_one_assessment_per_record_and_the_trend(tmp_path):
     bad = config | {"online": {"variant": "geometrik", "records": "data/online/runs.tsv", "alpha": 0.01}}
     with pytest.raises(ConfigError, match=r"online.variant: no variant named 'geometrik'"):
         with chdir(work):
-            check(bad, ROOT / "workflow" / "schemas" / "config.schema.yaml", ["config/config.yaml"])
+            check(bad, ROOT / "src" / "hybridtwin" / "config.schema.yaml", ["config/config.yaml"])
 
 
 # --- a run-up: many speed bands of one record ----------------------------------------------------------------------

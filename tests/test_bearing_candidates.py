@@ -106,7 +106,7 @@ def project(tmp_path, monkeypatch):
     config = yaml.safe_load((example / "config" / "config.yaml").read_text())
     config["effects_files"] = []
     monkeypatch.chdir(tmp_path)
-    return tmp_path, Path(__file__).resolve().parents[1] / "workflow" / "schemas" / "config.schema.yaml", config
+    return tmp_path, Path(__file__).resolve().parents[1] / "src" / "hybridtwin" / "config.schema.yaml", config
 
 
 @pytest.mark.parametrize("name, problem", [

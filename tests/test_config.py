@@ -12,11 +12,10 @@ import pytest
 import yaml
 from snakemake.utils import update_config
 
-from hybridtwin.identify import identification as idn
 from hybridtwin.config import ConfigError, check
 
 ROOT = Path(__file__).resolve().parents[1]
-SCHEMA = ROOT / "workflow" / "schemas" / "config.schema.yaml"
+SCHEMA = ROOT / "src" / "hybridtwin" / "config.schema.yaml"
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_workflow import NESTED, SMALL  # noqa: E402  (the workflow tests' base config and overlays)
 
@@ -204,18 +203,13 @@ def test_snakemake_stops_before_any_job_with_the_one_line_error(tmp_path):
     assert "Traceback" not in output and "Job stats" not in output
 
 
-# --- defaults in one place: the library's DEFAULTS, copied by the schema's default: entries --------------------
+# --- defaults in one place: the schema's default: entries, read by hybridtwin.settings ----------------------
 
 def _library_defaults() -> dict:
-    """Every default the library fills in, by config section (the one place each is set)."""
-    from hybridtwin.diagnose import diagnosis
-    from hybridtwin.identify import design, identification
-    from hybridtwin.config import OFFLINE_DEFAULTS, ONLINE_DEFAULTS
-    from hybridtwin.report import transient_plots
+    """Every default the library fills in, by config section: the schema's (hybridtwin.settings.defaults)."""
+    from hybridtwin.settings import defaults
 
-    return {"effects_files": [],  # hybridtwin.config.user_effects: no key, no effects files
-            "offline": OFFLINE_DEFAULTS, "identification": identification.DEFAULTS, "diagnosis": diagnosis.DEFAULTS,
-            "design": design.DEFAULTS, "report": {"transient": transient_plots.DEFAULTS}, "online": ONLINE_DEFAULTS}
+    return defaults()
 
 
 def _schema() -> dict:
@@ -242,19 +236,6 @@ def _same(a, b) -> bool:
     return type(a) is type(b) and a == b
 
 
-def _leaves(defaults: dict, schema: dict, path: tuple) -> list[tuple]:
-    """The library's defaults as paths: into a nested mapping where the schema has its properties (polish,
-    enrichment), else the mapping is one value (sparsity, spgd, n_scenarios)."""
-    out = []
-    for key, value in defaults.items():
-        sub = schema.get("properties", {}).get(key, {})
-        if isinstance(value, dict) and "properties" in sub:
-            out += _leaves(value, sub, path + (key,))
-        else:
-            out.append(path + (key,))
-    return out
-
-
 def _all_default_nodes(node, path: tuple = ()) -> list[tuple]:
     """The path (schema keys) of every schema node that declares a default."""
     found = []
@@ -270,35 +251,114 @@ def _all_default_nodes(node, path: tuple = ()) -> list[tuple]:
     return found
 
 
-def test_every_schema_default_is_the_librarys():
-    """The schema's default: entries equal the library's DEFAULTS (type included), every library default has one,
-    and the schema declares no default elsewhere: not for a required key (the config must set it), not under
-    $defs or a mapping of names (Snakemake's validate would fill it into every offline.spgd_variants entry)."""
-    schema, library = _schema(), _library_defaults()
+def _minimal() -> dict:
+    return {"runs": "runs.tsv", "harmonics": 5, "variants": {"v": {"effects": ["unbalance"]}}}
+
+
+def test_the_schema_is_the_packages_and_the_only_place_of_defaults():
+    """The schema ships with the package (found wherever it is installed) and the workflow validates against that
+    same file; no module of the package keeps a DEFAULTS dict of a config section (every default is the schema's);
+    the schema declares no default for a required key, nor under $defs or a mapping of names (a validator filling
+    them in would fill every offline.spgd_variants entry)."""
+    import ast
+
+    from hybridtwin import settings
+
+    assert settings.SCHEMA_FILE.resolve() == SCHEMA.resolve() and SCHEMA.is_file()
+    assert not (ROOT / "workflow" / "schemas" / "config.schema.yaml").exists()  # one file, not two
+    assert 'hybridtwin = ["config.schema.yaml"]' in (ROOT / "pyproject.toml").read_text()  # package data
+    kept = []
+    for path in sorted((ROOT / "src" / "hybridtwin").rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            targets = node.targets if isinstance(node, ast.Assign) else \
+                [node.target] if isinstance(node, ast.AnnAssign) else []
+            kept += [f"{path.name}: {t.id}" for t in targets if isinstance(t, ast.Name) and t.id.endswith("DEFAULTS")]
+    assert kept == []
+    schema = _schema()
     declared = _declared(schema)
-    for path, default in declared.items():
-        value = library
-        for key in path:
-            assert isinstance(value, dict) and key in value, f"schema default of {'.'.join(path)}: no library default"
-            value = value[key]
-        assert _same(default, value), f"{'.'.join(path)}: schema {default!r}, library {value!r}"
-    for section, defaults in library.items():
-        paths = _leaves(defaults, schema["properties"][section], (section,)) if isinstance(defaults, dict) \
-            else [(section,)]
-        missing = [".".join(p) for p in paths if p not in declared]
-        assert missing == [], f"library defaults the schema does not declare: {missing}"
     assert not set(declared) & {(key,) for key in schema["required"]}
     nowhere_else = [p for p in _all_default_nodes(schema) if tuple(k for k in p if k != "properties") not in declared]
     assert nowhere_else == []
 
 
+def test_the_schema_is_applied_once():
+    """The Snakefile's check validates the config against the schema; nothing in the workflow validates it again
+    (Snakemake's validate would also write the defaults into the config: the settings objects hold them)."""
+    sources = [ROOT / "Snakefile", *sorted((ROOT / "workflow" / "rules").glob("*.smk"))]
+    assert [str(p.name) for p in sources if "config.schema.yaml" in p.read_text()] == []
+    assert [str(p.name) for p in sources if "validate(config" in p.read_text()] == []
+    assert "check_or_exit(" in (ROOT / "Snakefile").read_text()
+    assert "SETTINGS = Settings.from_config(config)" in (ROOT / "workflow" / "rules" / "common.smk").read_text()
+
+
+def test_every_section_is_the_schemas_defaults_without_a_config():
+    """A config that sets no option: every section's values are the schema's defaults, type included (what a
+    validator filling them in would write), in every nesting (identification.polish, offline.enrichment...)."""
+    from dataclasses import fields
+
+    from hybridtwin.settings import Settings, defaults
+
+    built = Settings.from_config(_minimal() | {"online": {"variant": "v", "records": "runs.tsv"}})
+    schema_defaults = defaults()
+    for section, value in (("offline", built.offline.options()), ("design", built.design.as_dict()),
+                           ("diagnosis", built.diagnosis.as_dict()), ("online", built.online.as_dict()),
+                           ("identification", built.identification.as_dict())):
+        expected = schema_defaults[section]
+        if section == "identification":
+            assert value.pop("variant_per_run") == {}
+        if section == "online":
+            assert {k: value.pop(k) for k in ("variant", "records")} == {"variant": "v", "records": "runs.tsv"}
+        assert _same(value, expected), (section, value, expected)  # keys in any order, values and types alike
+    assert _same(built.transient.as_dict(), defaults("report")["transient"])
+    # every field of a section has a schema default but the required ones (online: variant, records)
+    declared = _declared(_schema())
+    for section, obj in (("offline", built.offline), ("design", built.design), ("diagnosis", built.diagnosis)):
+        assert [f.name for f in fields(obj) if (section, f.name) not in declared
+                and f.name != "enrichment"] == [], section
+    assert built.offline.enrichment.as_dict() == defaults("offline")["enrichment"]
+    assert Settings.from_config(_minimal()).online is None  # no online: section, no twin online
+
+
+def test_a_wrong_type_or_an_unknown_key_is_named():
+    """The schema checks every value first (hybridtwin.config.check); a config that skipped it and has a value of
+    the wrong type, or a key no setting has, stops with the key named."""
+    from hybridtwin.settings import Settings, SettingsError
+
+    cases = {"offline.chunks": {"offline": {"chunks": "4"}},
+             "offline.enrichment.chunks": {"offline": {"enrichment": {"chunks": 2.5}}},
+             "identification.polish.joint": {"identification": {"polish": {"joint": "yes"}}},
+             "diagnosis.alpha": {"diagnosis": {"alpha": "0.01"}},
+             "design.runs": {"design": {"runs": True}},
+             "report.transient.frame": {"report": {"transient": {"frame": 1}}},
+             "offline.chunk": {"offline": {"chunk": 4}},
+             "offline.spgd_variants": {"offline": {"spgd_variants": {"nope": {"degree": 8}}}}}
+    for key, section in cases.items():
+        with pytest.raises(SettingsError, match=rf"config {key}\b"):
+            Settings.from_config(_minimal() | section)
+    Settings.from_config(_minimal() | {"offline": {"sensor_range_mm": 14}})  # an int is a number (as written)
+
+
+def test_the_sections_are_frozen_and_travel_to_a_job():
+    """Each section is a frozen object; it pickles as it is (a rule's params, into a job's process)."""
+    import dataclasses
+    import pickle
+
+    from hybridtwin.settings import Settings
+
+    built = Settings.from_config(yaml.safe_load((ROOT / "config" / "config.yaml").read_text()))
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        built.offline.chunks = 8
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        built.identification.polish.joint = False
+    assert pickle.loads(pickle.dumps(built)) == built
+
+
 def test_the_defaults_are_a_valid_config():
-    """The library's defaults, written out as a config, pass the schema (a default the schema forbids, e.g. out of
+    """The schema's defaults, written out as a config, pass the schema (a default the schema forbids, e.g. out of
     range, would be a default no user could write)."""
     from jsonschema import Draft202012Validator
 
-    config = {"runs": "runs.tsv", "harmonics": 5, "variants": {"v": {"effects": ["unbalance"]}},
-              **copy.deepcopy(_library_defaults())}
+    config = {**_minimal(), **copy.deepcopy(_library_defaults())}
     config["online"] |= {"variant": "v", "records": "runs.tsv"}  # the section's required keys (no default)
     assert [error.message for error in Draft202012Validator(_schema()).iter_errors(config)] == []
 
@@ -310,13 +370,13 @@ def test_the_defaults_are_a_valid_config():
     "identification: {}\ndiagnosis: {}\noffline: {}\n",
 ])
 def test_snakemake_filling_in_the_schema_defaults_changes_no_option(overlay):
-    """common.smk validates the config with Snakemake's validate, which writes the schema's defaults into every
-    section the config gives: what each rule reads (its params) is the same with or without them."""
+    """The settings are the same whether a config leaves the defaults out or has them written in (as Snakemake's
+    validate writes them into every section the config gives; the workflow no longer calls it, but a user's config
+    may spell every default out): what each rule reads (its params) is the same either way."""
     from snakemake.utils import validate
 
     from hybridtwin import config as cfg
-    from hybridtwin.diagnose import diagnosis
-    from hybridtwin.identify import identification
+    from hybridtwin.settings import Settings
 
     config = _merged_text(SMALL, overlay)
     config["runs"] = str(ROOT / "data" / "default" / "runs.tsv")
@@ -325,17 +385,19 @@ def test_snakemake_filling_in_the_schema_defaults_changes_no_option(overlay):
     assert filled != config or overlay == ""  # defaults were filled in where the sections are given
 
     def options(c: dict) -> dict:
-        out = {"offline": cfg.offline(c), "diagnosis": diagnosis.settings(c), "effects": cfg.user_effects(c)}
+        built = Settings.from_config(c)
+        out = {"settings": built, "offline": cfg.offline(c), "diagnosis": built.diagnosis.options(),
+               "effects": cfg.user_effects(c)}
         for name in c["variants"]:
-            out[name] = (cfg.offline_for(c, name), identification.settings(c, name),
-                         [identification.rule_settings(c, name, rule) for rule in ("run", "joint", "validation")])
+            out[name] = (cfg.offline_for(c, name), built.identification.for_variant(name),
+                         [built.identification.rule(name, rule) for rule in ("run", "joint", "validation")])
         return out
 
     assert repr(options(filled)) == repr(options(config))  # repr: the params Snakemake compares
 
 
 def test_the_bundled_config_writes_out_the_defaults():
-    """config/config.yaml sets its offline, identification and diagnosis options to the library's defaults: the
+    """config/config.yaml sets its offline, identification and diagnosis options to the schema's defaults: the
     workflow and the Python API (which fills in the defaults) run alike."""
     bundled = yaml.safe_load((ROOT / "config" / "config.yaml").read_text())
     library = _library_defaults()
@@ -353,11 +415,11 @@ def test_the_offline_spgd_defaults_are_the_sparse_pgds():
     libraries and an sPGD built in Python fit alike)."""
     import inspect
 
-    from hybridtwin.config import OFFLINE_DEFAULTS, ONLINE_DEFAULTS
     from hybridtwin.offline.spgd import SparsePGD
+    from hybridtwin.settings import defaults
 
     signature = inspect.signature(SparsePGD).parameters
-    for key, value in OFFLINE_DEFAULTS["spgd"].items():
+    for key, value in defaults("offline")["spgd"].items():
         if key != "degree":
             assert _same(value, signature[key].default), (key, value, signature[key].default)
 
@@ -365,11 +427,14 @@ def test_the_offline_spgd_defaults_are_the_sparse_pgds():
 def test_a_variants_own_per_run_overrides_the_identification_default_for_it_alone():
     """variants.NAME.per_run (what a diagnosis recommends when the data do not need the bow per run) is the joint
     fit's per_run for that variant; the others keep identification.per_run."""
+    from hybridtwin.settings import IdentificationSettings
+
     config = {"identification": {"per_run": ["q_x", "q_y"]},
               "variants": {"geometric": {"effects": ["unbalance"]},
                            "geometric_lbc": {"effects": ["unbalance"], "per_run": []}}}
-    assert idn.rule_settings(config, "geometric_lbc", "joint")["per_run"] == []
-    assert idn.rule_settings(config, "geometric", "joint")["per_run"] == ["q_x", "q_y"]
+    identification = IdentificationSettings.from_config(config)
+    assert identification.rule("geometric_lbc", "joint")["per_run"] == []
+    assert identification.rule("geometric", "joint")["per_run"] == ["q_x", "q_y"]
 
 
 def test_the_readmes_quick_look_overlay_is_valid_and_does_what_it_says(project):
@@ -393,3 +458,34 @@ def test_the_readmes_quick_look_overlay_is_valid_and_does_what_it_says(project):
     assert offline(quick)["spgd"]["degree"] == 8 and offline(base)["spgd"]["degree"] != 8
     assert {k: v for k, v in offline(quick)["spgd"].items() if k != "degree"} == {
         k: v for k, v in offline(base)["spgd"].items() if k != "degree"}
+
+
+def test_no_literal_harmonics_default_in_a_signature():
+    """The harmonics a function or a dataclass takes when not told are named constants (issue 37, "no literal
+    defaults in signatures"): the analysis's solver.DEFAULT_HARMONICS (the config's ``harmonics`` is required, it
+    has no schema default) and transient.RESOLVED_HARMONICS (the time integration's and the rig truth's; ``rig:
+    NAME: harmonics`` has no schema default either), their values as before."""
+    import ast
+    import inspect
+
+    from hybridtwin.data.rig import RigSpec, solve_truth
+    from hybridtwin.solvers import solver, sweep, transient
+
+    literal = []
+    for path in sorted((ROOT / "src" / "hybridtwin").rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                args = node.args.posonlyargs + node.args.args
+                pairs = list(zip(args[len(args) - len(node.args.defaults):], node.args.defaults))
+                pairs += [(a, d) for a, d in zip(node.args.kwonlyargs, node.args.kw_defaults) if d is not None]
+                literal += [f"{path.name}:{node.lineno} {node.name}" for a, d in pairs
+                            if a.arg == "harmonics" and isinstance(d, ast.Constant) and d.value not in (None, 1)]
+            elif isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name) \
+                    and node.target.id == "harmonics" and isinstance(node.value, ast.Constant):
+                literal.append(f"{path.name}:{node.lineno} field harmonics")
+    assert literal == []  # (harmonics=1: the linear response's single harmonic, not a choice of H)
+    assert (solver.DEFAULT_HARMONICS, transient.RESOLVED_HARMONICS) == (5, 7)
+    for function in (sweep.start_state, sweep.integrate_sweep, transient.settle, transient.run_up_harmonics,
+                     solve_truth):
+        assert inspect.signature(function).parameters["harmonics"].default == transient.RESOLVED_HARMONICS
+    assert RigSpec().harmonics == transient.RESOLVED_HARMONICS

@@ -21,6 +21,7 @@ from hybridtwin.identify import design as dsg
 from hybridtwin.identify.arrow_problem import ArrowProblem, Layout
 from hybridtwin.identify import identification as idn
 from hybridtwin.identify.run_fits import fit_joint, ranges, solver_models
+from hybridtwin.settings import IdentificationSettings
 from test_validation_refit import H, TRUTH, _table
 
 FIT = [("r600", 600.0, 14.8), ("r700", 700.0, 25.9), ("r800", 800.0, 14.8), ("r850", 850.0, 0.0)]
@@ -32,9 +33,9 @@ def designed():
     config = yaml.safe_load(open(cfg.CONFIG_FILE))
     variant = cfg.variant(config, "geometric")
     table = _table(FIT, {})
-    options = idn.rule_settings(config, "geometric", "joint") | {"per_run": [], "profile": False}
+    options = IdentificationSettings.from_config(config).rule("geometric", "joint") | {"per_run": [], "profile": False}
     joint = fit_joint(variant, options, [], table, {}, None, H, runs=[r for r, _, _ in FIT]).fit.table()
-    settings = idn.rule_settings(config, "geometric", "validation") | {"per_run": []}
+    settings = IdentificationSettings.from_config(config).rule("geometric", "validation") | {"per_run": []}
     runs = table[["run", "rpm_true", "eccentric_mass_g"]].rename(columns={"rpm_true": "rpm"})
     design = dsg.design_runs(variant, joint, table, runs, settings, H, RPM, MASSES, 1, 14e-3, keyphasor=[False])
     return variant, config, options, settings, table, joint, design

@@ -29,6 +29,10 @@ from hybridtwin.model.effect_base import Parameter, PolynomialBearing, Term
 from hybridtwin.identify.protocol import ProtocolOptions
 from hybridtwin.identify.run_fits import theta_from_nested
 from hybridtwin.model.variants import BUILTIN_VARIANTS, Variant
+from hybridtwin.settings import diagnosis_settings
+
+#: the diagnosis options of a config that sets none: the schema's defaults (hybridtwin.settings)
+OPTIONS = diagnosis_settings({}).options()
 
 H = 3
 SIGMA = 8e-7  # m, the bundled records' harmonic sigma (results/data/harmonics.tsv: 6-10e-7)
@@ -72,6 +76,11 @@ CANDIDATES = ["slope_spring", "expansion_k4", "expansion_k2", "cross_coupled_sti
               "excitation_2x"]
 
 
+def _diagnose(base, candidates, options=None):
+    """``dg.diagnose`` with the default options (``OPTIONS``) unless given."""
+    return dg.diagnose(base, candidates, OPTIONS if options is None else options)
+
+
 def _candidates(names=CANDIDATES) -> list[Candidate]:
     available = builtin_candidates()
     return [available[n] for n in names]
@@ -111,7 +120,7 @@ def test_score_statistic_equals_the_linearised_chi2_drop(slope_base):
 
 
 def test_hidden_slope_force_is_ranked_first_and_confirmed(slope_base):
-    result = dg.diagnose(slope_base, _candidates())
+    result = _diagnose(slope_base, _candidates())
     table = result.table
     assert result.summary["misfit"]  # the geometric model misses the slope force: the misfit is real
     assert table.loc[0, "effect"] in ("slope_spring", "expansion_k4")  # the slope force (k4 u' is its linear part)
@@ -147,7 +156,7 @@ def test_estimate_of_the_linear_slope_term_matches_the_truth(slope_base):
 
 def test_no_false_alarm_without_a_hidden_effect():
     base = _base_fit(_data([], TRUTH, seed=3))
-    result = dg.diagnose(base, _candidates())
+    result = _diagnose(base, _candidates())
     assert not result.summary["misfit"]
     assert result.conclusion.startswith("no missing effect")
     assert not any(v.startswith("add") for v in result.table["verdict"])
@@ -160,7 +169,7 @@ def test_indistinguishable_candidates_are_called_confounded(slope_base):
                              parameters=(Parameter("k_t", "N", (-1000.0, 1000.0), 0.0, "tilt stiffness"),),
                              terms=(Term(lambda p: p.k_t, (0, 0, 1, 0), "k_t u'"),))
     candidates = _candidates(["expansion_k4", "expansion_k2"]) + [Candidate(tilt, ("k_t",))]
-    result = dg.diagnose(slope_base, candidates)
+    result = _diagnose(slope_base, candidates)
     verdicts = dict(zip(result.table["effect"], result.table["verdict"]))
     assert "confounded" in verdicts["expansion_k4"] and "confounded" in verdicts["tilt_force"]
     assert "cannot tell them apart" in result.conclusion
@@ -179,7 +188,7 @@ def test_the_same_local_sensitivities_are_not_confounded_when_the_refits_differ(
     scores = st.score_tests(slope_base, candidates)
     by_name = {s.candidate.name: s for s in scores.scores}
     assert st.nested(by_name["stiffening_tilt"].projected, by_name["expansion_k4"].projected)  # locally the same
-    result = dg.diagnose(slope_base, candidates)
+    result = _diagnose(slope_base, candidates)
     verdicts = dict(zip(result.table["effect"], result.table["verdict"]))
     assert verdicts["expansion_k4"].startswith("add") and "confounded" not in verdicts["expansion_k4"]
     assert "confounded" not in verdicts["stiffening_tilt"] and "cannot tell them apart" not in result.conclusion
@@ -189,7 +198,7 @@ def test_unexplained_discrepancy_when_no_candidate_fits():
     """A hidden 3X excitation while only linear 1X-type candidates are offered: say so, name none."""
     data = _data(["excitation_3x"], TRUTH | {"f3_c": 0.3, "f3_s": -0.2}, seed=4)
     base = _base_fit(data)
-    result = dg.diagnose(base, _candidates(["cross_coupled_stiffness", "speed_damping", "expansion_k2"]))
+    result = _diagnose(base, _candidates(["cross_coupled_stiffness", "speed_damping", "expansion_k2"]))
     assert result.summary["misfit"]
     assert result.conclusion.startswith("unexplained discrepancy")
     assert not any(v.startswith("add: explains the discrepancy") for v in result.table["verdict"])
@@ -290,7 +299,7 @@ def test_no_effect_shares_stay_finite(slope_base):
     """On data at the noise floor the predicted share of the excess chi^2 must not divide by ~0 (it printed
     3.2e14 % once): the excess is floored at one standard deviation of chi^2(dof)."""
     base = _base_fit(_data([], TRUTH, seed=3))
-    result = dg.diagnose(base, _candidates(["cross_coupled_stiffness", "expansion_k2"]))
+    result = _diagnose(base, _candidates(["cross_coupled_stiffness", "expansion_k2"]))
     drop = result.table["predicted_error_drop_pct"]
     # S ~ chi^2(1) under "absent": a few units over sqrt(2 dof) ~ 7 gives tens of percent, never 1e14
     assert np.isfinite(drop).all() and drop.max() < 1e3
@@ -301,7 +310,7 @@ def test_an_estimate_beyond_the_range_is_found_by_widening_it():
     the range towards -2000's side until the estimate is inside, and the truth lies in its interval."""
     data = _data(["lower_bearing_compliance"], TRUTH | {"dk_lo": -3000.0}, seed=6)
     base = _base_fit(data)
-    result = dg.diagnose(base, _candidates(["lower_bearing_compliance", "cross_coupled_stiffness"]))
+    result = _diagnose(base, _candidates(["lower_bearing_compliance", "cross_coupled_stiffness"]))
     assert result.table.loc[0, "effect"] == "lower_bearing_compliance"
     assert result.conclusion.startswith("add lower_bearing_compliance")
     cf = result.confirmations["lower_bearing_compliance"]
@@ -318,7 +327,7 @@ def test_two_hidden_effects_are_both_found_by_forward_selection():
     data = _data(["slope_spring", "excitation_2x"], TRUTH | {"k_w": 324.2, "k_z": 301.1, "f2_c": 0.1,
                                                              "f2_s": -0.05}, seed=7)
     base = _base_fit(data)
-    result = dg.diagnose(base, _candidates(["slope_spring", "excitation_2x", "cross_coupled_stiffness"]))
+    result = _diagnose(base, _candidates(["slope_spring", "excitation_2x", "cross_coupled_stiffness"]))
     path = result.path_table()
     assert set(path["effect"]) == {"slope_spring", "excitation_2x"}
     assert result.conclusion.startswith("add ") and "together they explain" in result.conclusion
@@ -335,7 +344,7 @@ def test_the_data_tell_which_law_the_2x_force_follows():
     the constant-amplitude law is ranked below it by the refits' Delta BIC."""
     data = _data(["excitation_2x_inertial"], TRUTH | {"e2_c": 3e-5, "e2_s": -1.5e-5}, seed=8)
     base = _base_fit(data)
-    result = dg.diagnose(base, _candidates(["excitation_2x", "excitation_2x_inertial"]))
+    result = _diagnose(base, _candidates(["excitation_2x", "excitation_2x_inertial"]))
     assert result.table.loc[0, "effect"] == "excitation_2x_inertial"
     assert result.table.loc[0, "verdict"].startswith("add")
     bic = result.table.set_index("effect")["delta_bic"]
@@ -367,7 +376,7 @@ def test_the_path_stops_when_no_quick_refit_comes_near_the_noise():
     from types import SimpleNamespace
 
     scores = SimpleNamespace(base_chi2=1000.0, base_dof=100)
-    o = dg.DEFAULTS
+    o = OPTIONS
     needed = 1000.0 - o["misfit_ratio"] * 100
     short, enough = 0.5 * needed / dg.REACH, needed / dg.REACH
     stop = dg._out_of_reach(scores, {"a": SimpleNamespace(chi2=1000.0 - short / 2),
@@ -383,7 +392,7 @@ def test_a_refit_whose_optimum_is_unstable_is_never_confirmed():
     (Floquet check, refit.confirm): then it is not, whatever its chi^2; not checked (None) or stable ([]) pass."""
     from types import SimpleNamespace
 
-    o = dg.DEFAULTS
+    o = OPTIONS
     cf = SimpleNamespace(lr_p_value=1e-30, delta_bic=-1e4, unstable_runs=None)
     assert conc._is_confirmed(cf, o, 1e-3)
     assert conc._is_confirmed(replace_ns(cf, unstable_runs=[]), o, 1e-3)
@@ -414,7 +423,7 @@ def test_backward_elimination_drops_a_stand_in_made_redundant_by_a_later_effect(
             conc.Step("expansion_k4", 0.0, k4.chi2 / k4.dof, k4.delta_bic, 0.0, k4)]
     placeholder = {s.candidate.name: (dg.Verdict.NOT_SIGNIFICANT, "") for s in scores.scores}
     result = conc.Diagnosis(conc._table(scores, {}, placeholder, []), "", "")
-    kept = elim._backward(slope_base, path, scores, dg.DEFAULTS, result)
+    kept = elim._backward(slope_base, path, scores, OPTIONS, result)
     assert [step.effect for step in kept] == ["expansion_k4"]
     final = kept[-1].confirmation
     assert final.chi2 / final.dof < 1 + 3 * np.sqrt(2 / final.dof)
@@ -446,7 +455,7 @@ def test_the_sharing_check_shares_a_bow_the_data_do_not_need_per_run(slope_data)
     base = _base_fit(slope_data, per_run=("q_x", "q_y"))
     path, scores, result = _one_step_path(base, "expansion_k4")
     assert path[-1].confirmation.fit.layout.local == ("q_x", "q_y")
-    shared = elim._sharing(base, path, scores, dg.DEFAULTS, result)
+    shared = elim._sharing(base, path, scores, OPTIONS, result)
     sharing = result.summary["sharing"]
     assert sharing["shared"] and sharing["lr_dof"] == 2 * (len(RUNS) - 1)
     assert sharing["chi2_shared"] >= sharing["chi2_per_run"] - 1e-6 * sharing["chi2_per_run"]  # nested fits
@@ -455,7 +464,7 @@ def test_the_sharing_check_shares_a_bow_the_data_do_not_need_per_run(slope_data)
     assert final.chi2 / final.dof < 1 + 3 * np.sqrt(2 / final.dof)
     assert final.estimates.set_index("parameter").loc["k4", "value"] == pytest.approx(324.2, rel=0.1)
     result.path = shared
-    conc._conclude_path(result, base, scores, dg.DEFAULTS)
+    conc._conclude_path(result, base, scores, OPTIONS)
     assert "need not be estimated per run" in result.conclusion
     spec = result.summary["recommended_variant"]["spec"]
     assert spec["per_run"] == [] and "per_run: []" in result.recommendation
@@ -488,7 +497,7 @@ def test_the_sharing_check_keeps_a_bow_that_differs_between_runs():
     light = _data(["slope_spring"], truth | {"q_x": 0.004}, seed=2)[2:]
     base = _base_fit(heavy + light, per_run=("q_x", "q_y"))
     path, scores, result = _one_step_path(base, "expansion_k4")
-    kept = elim._sharing(base, path, scores, dg.DEFAULTS, result)
+    kept = elim._sharing(base, path, scores, OPTIONS, result)
     assert not result.summary["sharing"]["shared"] and result.summary["sharing"]["lr"] > 100
     assert kept[-1].confirmation is path[-1].confirmation
 
@@ -501,7 +510,7 @@ def test_a_recommended_variant_name_is_valid_in_the_config():
 
     import yaml
 
-    schema = yaml.safe_load((Path(__file__).resolve().parents[1] / "workflow/schemas/config.schema.yaml").read_text())
+    schema = yaml.safe_load((Path(__file__).resolve().parents[1] / "src/hybridtwin/config.schema.yaml").read_text())
     pattern = schema["properties"]["variants"]["propertyNames"]["pattern"]
     name = rec._variant_name(["linear", "bearing_anisotropy@b", "cross_coupled_stiffness"])
     assert name == "linear_bearing_anisotropy_at_b_cross_coupled_stiffness" and re.fullmatch(pattern, name)
@@ -530,7 +539,7 @@ def test_the_recommended_variants_yaml_reads_back_as_numbers():
         for name, value in spec[section].items():
             assert not isinstance(read[section][name], str), (section, name, read[section][name])
             np.testing.assert_allclose(read[section][name], value, rtol=5e-6)
-    schema = yaml.safe_load((Path(__file__).resolve().parents[1] / "workflow/schemas/config.schema.yaml").read_text())
+    schema = yaml.safe_load((Path(__file__).resolve().parents[1] / "src/hybridtwin/config.schema.yaml").read_text())
     variant_schema = schema["properties"]["variants"]["additionalProperties"]
     jsonschema.validate(read, {**variant_schema, "definitions": schema.get("definitions", {}),
                                "$defs": schema.get("$defs", {})})
@@ -556,7 +565,7 @@ def test_a_plan_too_thin_to_decide_says_so_instead_of_no_missing_effect():
     values = TRUTH | {"k_w": 324.2, "k_z": 301.1}
     data = _data(["slope_spring"], values, seed=5)[:1]
     base = _base_fit(data)
-    result = dg.diagnose(base, _candidates(["slope_spring", "expansion_k4"]))
+    result = _diagnose(base, _candidates(["slope_spring", "expansion_k4"]))
     assert not result.summary["misfit"] and result.summary["base_dof"] < conc.MIN_DOF
     assert result.conclusion.startswith("no missing effect found, but these fit runs cannot rule one out")
     assert f"only {result.summary['base_dof']} degrees of freedom" in result.conclusion
@@ -596,22 +605,22 @@ def every_path(slope_data, slope_base):
     ``diagnosis._finish`` on a path built here where the full loop would not take that path on these data)."""
     out = {}
     scores, confirmations, path = _stand_in_then_k4(slope_base)
-    alpha = dg.DEFAULTS["alpha"] / len(scores.scores)
+    alpha = OPTIONS["alpha"] / len(scores.scores)
     data = _data(["slope_spring", "excitation_2x"], TRUTH | {"k_w": 324.2, "k_z": 301.1, "f2_c": 0.1, "f2_s": -0.05},
                  seed=7)  # as test_two_hidden_effects_are_both_found_by_forward_selection
-    out["forward"] = dg.diagnose(_base_fit(data), _candidates(["slope_spring", "excitation_2x"]))
-    first = conc._conclude(slope_base, scores, confirmations, dg.DEFAULTS, alpha)
-    out["backward elimination"] = dg._finish(first, slope_base, scores, list(path), dg.DEFAULTS)
+    out["forward"] = _diagnose(_base_fit(data), _candidates(["slope_spring", "excitation_2x"]))
+    first = conc._conclude(slope_base, scores, confirmations, OPTIONS, alpha)
+    out["backward elimination"] = dg._finish(first, slope_base, scores, list(path), OPTIONS)
     tilt = PolynomialBearing(name="tilt_force", meaning="force on the shaft tilt (a user's duplicate of k4 u')",
                              parameters=(Parameter("k_t", "N", (-1000.0, 1000.0), 0.0, "tilt stiffness"),),
                              terms=(Term(lambda p: p.k_t, (0, 0, 1, 0), "k_t u'"),))
-    out["confounded"] = dg.diagnose(slope_base, _candidates(["expansion_k4"]) + [Candidate(tilt, ("k_t",))])
+    out["confounded"] = _diagnose(slope_base, _candidates(["expansion_k4"]) + [Candidate(tilt, ("k_t",))])
     per_run = _base_fit(slope_data, per_run=("q_x", "q_y"))
     one, scores, result = _one_step_path(per_run, "expansion_k4")
-    result = conc._conclude(per_run, scores, {"expansion_k4": one[0].confirmation}, dg.DEFAULTS, dg.DEFAULTS["alpha"])
-    out["sharing"] = dg._finish(result, per_run, scores, one, dg.DEFAULTS)
+    result = conc._conclude(per_run, scores, {"expansion_k4": one[0].confirmation}, OPTIONS, OPTIONS["alpha"])
+    out["sharing"] = dg._finish(result, per_run, scores, one, OPTIONS)
     data = _data(["excitation_3x"], TRUTH | {"f3_c": 0.3, "f3_s": -0.2}, seed=4)
-    out["unexplained"] = dg.diagnose(_base_fit(data), _candidates(["cross_coupled_stiffness", "speed_damping"]))
+    out["unexplained"] = _diagnose(_base_fit(data), _candidates(["cross_coupled_stiffness", "speed_damping"]))
     return out
 
 
@@ -749,7 +758,7 @@ def test_the_forward_selection_does_not_take_a_negligible_step(monkeypatch):
     monkeypatch.setattr(ds, "NEGLIGIBLE_SHARE", np.inf)
     data = _data(["slope_spring", "excitation_2x"], TRUTH | {"k_w": 324.2, "k_z": 301.1, "f2_c": 0.1,
                                                              "f2_s": -0.05}, seed=7)
-    result = dg.diagnose(_base_fit(data), _candidates(["slope_spring", "excitation_2x"]))
+    result = _diagnose(_base_fit(data), _candidates(["slope_spring", "excitation_2x"]))
     assert len(result.path) == 1
     refused = result.summary["negligible_step"]
     assert refused["effect"] in {"slope_spring", "excitation_2x"} - {result.path[0].effect}
@@ -789,11 +798,11 @@ def test_what_to_do_names_the_project_it_was_run_in():
     """The recommendation names the config, command and ledger of the project: the root's by default, a project's
     run with --directory DIR (the workflow's project_place, common.smk) DIR's (issue 39: it named the root's)."""
     spec = {"description": "a test", "effects": ["unbalance"], "unknown": {"k_b": [2000, 3500]}}
-    root = rec.what_to_do("v", spec, dg.DEFAULTS)
+    root = rec.what_to_do("v", spec, OPTIONS)
     assert "in config/config.yaml, then run `snakemake --cores 2` " in root and "results/ledger.tsv:" in root
     place = {"config": "examples/quick/config/config.yaml", "command": "snakemake --cores 2 --directory examples/quick",
              "ledger": "examples/quick/results/ledger.tsv"}
-    text = rec.what_to_do("v", spec, dg.DEFAULTS | {"project": place})
+    text = rec.what_to_do("v", spec, OPTIONS | {"project": place})
     assert all(f"{value}" in text for value in place.values()) and "in config/config.yaml" not in text
     assert "  v:\n" in text  # the variant to paste follows
 
@@ -806,14 +815,15 @@ def test_what_to_do_sizes_the_new_variants_libraries_like_its_parents():
     none, the fits on the full solver)."""
     parent = variants.builtin_variant("geometric")
     spec = rec.variant_spec(parent, builtin_candidates()["expansion_k4"])
-    sized = dg.DEFAULTS | {"offline": {"scope": "run", "n_scenarios": {"geometric": 500}}}
+    sized = OPTIONS | {"offline": {"scope": "run", "n_scenarios": {"geometric": 500}}}
     text = rec.what_to_do("geometric_expansion_k4", spec, sized, parent)
     assert "`offline: n_scenarios:`" in text and "`geometric_expansion_k4: 900`" in text
     assert "beside geometric: 500" in text and "default, 1800, which it takes otherwise" in text
     assert rec.scenarios_entry(spec, parent, sized | {"offline": {"scope": "global", "n_scenarios": {"geometric": 2000}}}
                                ) == 3600
-    plain_text = rec.what_to_do("geometric_expansion_k4", spec, dg.DEFAULTS, parent)
-    assert "n_scenarios" not in plain_text and plain_text == rec.what_to_do("geometric_expansion_k4", spec, dg.DEFAULTS)
+    plain_text = rec.what_to_do("geometric_expansion_k4", spec, OPTIONS, parent)
+    assert "n_scenarios" not in plain_text
+    assert plain_text == rec.what_to_do("geometric_expansion_k4", spec, OPTIONS)
     for o in (sized | {"offline": {"scope": "none", "n_scenarios": {"geometric": 500}}},
               sized | {"offline": {"scope": "run", "n_scenarios": {"expansion": 500}}}):
         assert rec.what_to_do("geometric_expansion_k4", spec, o, parent) == plain_text

@@ -20,7 +20,7 @@ import pytest
 import yaml
 
 sys.path.insert(0, str(Path(__file__).parent))
-from test_diagnosis import _base_fit, _candidates, _not_plain, _same  # noqa: E402
+from test_diagnosis import OPTIONS, _base_fit, _candidates, _diagnose, _not_plain, _same  # noqa: E402
 
 from hybridtwin.data.measurements import read_runs
 from hybridtwin.data.preprocessing import preprocess_run
@@ -74,14 +74,14 @@ def test_a_truth_beyond_the_range_is_added_at_step_1_on_time_integrated_records(
     base = _base_fit(beyond_range)
     candidates = _candidates(["cross_coupled_stiffness", "upper_bearing_anisotropy", "cross_coupled_damping",
                               "speed_damping"])
-    o = dg.DEFAULTS | {"thorough": 1, "max_effects": 1}
+    o = OPTIONS | {"thorough": 1, "max_effects": 1}
     # the premise: ranked first by the score test, its quick refit (no widening) stalled, behind a stand-in's
     scores = st.score_tests(base, candidates)
     chosen, quick = dg._quick_refits(base, scores, o, o["alpha"] / len(candidates))
     assert sorted(chosen, key=st.by_score)[0].candidate.name == "cross_coupled_stiffness"
     assert quick["cross_coupled_stiffness"].at_limit == ["k_xy"]
     assert min(quick.values(), key=lambda cf: cf.delta_bic).candidate.name != "cross_coupled_stiffness"
-    result = dg.diagnose(base, candidates, o)
+    result = _diagnose(base, candidates, o)
     assert [step.effect for step in result.path] == ["cross_coupled_stiffness"]
     assert result.status is Status.ADD
     final = result.path[0].confirmation
@@ -109,7 +109,7 @@ def test_the_long_path_of_the_issue_ends_with_its_outputs_written(beyond_range, 
     base = _base_fit(beyond_range, per_run=("q_x", "q_y"))
     candidates = _candidates(["cross_coupled_stiffness", "upper_bearing_anisotropy", "cross_coupled_damping",
                               "speed_damping"])
-    result = dg.diagnose(base, candidates, dg.DEFAULTS | {"thorough": 1})
+    result = _diagnose(base, candidates, OPTIONS | {"thorough": 1})
     s = result.summary
     assert [e["effect"] for e in s.get("eliminated", [])] == ["upper_bearing_anisotropy"]
     assert s.get("sharing", {}).get("shared") and [step.effect for step in result.path] == ["cross_coupled_stiffness"]
@@ -128,7 +128,7 @@ def test_two_effects_of_another_form_are_added_and_their_intervals_own_up_to_the
     with the misfit (by sqrt(chi^2/dof)): without that growth one of them misses the truth on these records."""
     data = _rig_data("two_effects_other_form", tmp_path)
     base = _base_fit(data)
-    result = dg.diagnose(base, _candidates(["expansion_k4", "excitation_2x", "cross_coupled_damping",
+    result = _diagnose(base, _candidates(["expansion_k4", "excitation_2x", "cross_coupled_damping",
                                             "speed_damping"]))
     names = [step.effect for step in result.path]
     assert set(names[:2]) == {"excitation_2x", "expansion_k4"}

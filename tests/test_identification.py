@@ -410,7 +410,7 @@ def test_validation_runs_all_kept_out_still_give_a_full_validation_table(geometr
     import runpy
     from types import SimpleNamespace
 
-    from hybridtwin.identify.identification import rule_settings
+    from hybridtwin.settings import IdentificationSettings
 
     work, _ = geometric_truth
     config = yaml.safe_load((work / "config" / "config.yaml").read_text())
@@ -427,7 +427,8 @@ def test_validation_runs_all_kept_out_still_give_a_full_validation_table(geometr
                                refits=str(tmp_path / "refits.tsv")),
         params=SimpleNamespace(model={"variants": {"geometric": config["variants"]["geometric"]}, "machine": None,
                                       "effects_files": []},
-                               options=rule_settings(config, "geometric", "validation"), harmonics=config["harmonics"]),
+                               options=IdentificationSettings.from_config(config).rule("geometric", "validation"),
+                               harmonics=config["harmonics"]),
         log=[str(tmp_path / "log.txt")], wildcards=SimpleNamespace(variant="geometric"))
     monkeypatch.chdir(work)
     runpy.run_path(str(ROOT / "scripts" / "identify_validation.py"), init_globals={"snakemake": smk})

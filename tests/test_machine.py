@@ -375,7 +375,7 @@ def project(tmp_path, monkeypatch):
     (tmp_path / "data" / "default").mkdir(parents=True)
     shutil.copy(root / "data" / "default" / "runs.tsv", tmp_path / "data" / "default" / "runs.tsv")
     monkeypatch.chdir(tmp_path)
-    return tmp_path, root / "workflow" / "schemas" / "config.schema.yaml"
+    return tmp_path, root / "src" / "hybridtwin" / "config.schema.yaml"
 
 
 def _config(project, overlay: str):

@@ -27,7 +27,7 @@ from test_workflow import SNAKEMAKE  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "stepped_rotor"
-SCHEMA = ROOT / "workflow" / "schemas" / "config.schema.yaml"
+SCHEMA = ROOT / "src" / "hybridtwin" / "config.schema.yaml"
 
 
 @pytest.fixture

@@ -12,7 +12,7 @@ from hybridtwin.model.machine import Machine
 from hybridtwin.model.machine_parts import MachineSpecError, Sensor
 from hybridtwin.model.probes import ProbeAngleError, plane_xy, probe_readings, rotation
 
-SCHEMA = Path(__file__).parents[1] / "workflow" / "schemas" / "config.schema.yaml"
+SCHEMA = Path(__file__).parents[1] / "src" / "hybridtwin" / "config.schema.yaml"
 
 
 def test_probes_at_plus_minus_45_give_x_and_y():

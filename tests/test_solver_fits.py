@@ -17,6 +17,7 @@ from hybridtwin import config as cfg
 from hybridtwin.data.record_columns import harmonic_columns
 from hybridtwin.identify import identification as idn
 from hybridtwin.identify.run_fits import SOLVER_TRIALS, fit_joint, fit_run, solver_models
+from hybridtwin.settings import IdentificationSettings
 
 TRUTH = {"k_b": 2411.3, "zeta_s": 0.024, "zeta_bup": 0.016, "q_x": 0.002, "q_y": 0.0015}
 RUNS = [("r600", 600.0, 14.8), ("r700", 700.0, 25.9), ("r900", 900.0, 7.6), ("r950", 950.0, 0.0)]
@@ -27,7 +28,7 @@ H = 3
 def setup():
     config = yaml.safe_load(open(cfg.CONFIG_FILE))
     variant = cfg.variant(config, "geometric")
-    options = idn.rule_settings(config, "geometric", "joint") | {"per_run": []}
+    options = IdentificationSettings.from_config(config).rule("geometric", "joint") | {"per_run": []}
     data = [idn.RunData(run, rpm, mass, "fit", np.zeros((H, 2), complex), np.ones((H, 2))) for run, rpm, mass in RUNS]
     models = solver_models(variant, data, H)
     x = np.array([[2 * (TRUTH[p] - lo) / (hi - lo) - 1 for p, lo, hi in

@@ -12,6 +12,7 @@ from swept_signals import Response, Sweep, swept_record
 from hybridtwin.data.order_tracking import order_vector, speed_profile, track_orders
 from hybridtwin.report import transient_plots as tp
 from hybridtwin.report.response_plots import columns as dense_columns
+from hybridtwin.settings import defaults, transient_settings
 
 matplotlib.use("Agg")
 
@@ -128,8 +129,9 @@ def test_display_conventions():
     assert "lag" in pp.phase_label("x", 2) and "lead" in op.phase_label("x", 2)
     with pytest.raises(ValueError):
         tp.Display("rms", "lag")
-    assert tp.settings({}) == tp.DEFAULTS
-    assert tp.settings({"report": {"transient": {"phase": "lead"}}})["phase"] == "lead"
+    assert transient_settings({}).as_dict() == defaults("report")["transient"]  # the schema's, the only defaults
+    assert transient_settings({"report": {"transient": {"phase": "lead"}}}).phase == "lead"
+    assert tp.Display.of(transient_settings({}).as_dict()) == tp.Display("peak-to-peak", "lag")
 
 
 def test_the_probes_frame_shows_each_probe_as_it_reads():
@@ -256,14 +258,14 @@ def test_the_figures_are_written(tracked, tmp_path):
     """Bode, polar, waterfall and orbits of one record to PNG files, in either display and frame."""
     record, orders, bands = tracked
     model = _true_model(orders)
-    for display, frame in ((tp.Display(), "probes"), (tp.Display("0-peak", "lead"), "model")):
+    for display, frame in ((tp.Display("peak-to-peak", "lag"), "probes"), (tp.Display("0-peak", "lead"), "model")):
         table = tp.points(orders, model, np.eye(2), RECORD_ROW, bands, frame)
         for name, plot in (("bode", tp.plot_bode), ("polar", tp.plot_polar)):
             fig = plot(table, "v", display)
             fig.savefig(tmp_path / f"{name}_{frame}.png", dpi=40)
             tp.plt.close(fig)
     fall = tp.waterfall(record.time_s, record.channels, speed_profile(record, "runup").table())
-    fig = tp.plot_waterfall(fall, "up")
+    fig = tp.plot_waterfall(fall, "up", tp.Display.of({"frame": "probes", "amplitude": "peak-to-peak"}))
     fig.savefig(tmp_path / "waterfall.png", dpi=40)
     tp.plt.close(fig)
     profile = speed_profile(record, "runup")

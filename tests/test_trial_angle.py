@@ -28,6 +28,7 @@ from hybridtwin.model.machine import Machine
 from hybridtwin.model.model import Model
 from hybridtwin.model.sensor import sensor_dofs
 from hybridtwin.solvers.solver import solve
+from hybridtwin.settings import IdentificationSettings
 
 # the VARM with a linear spring (the lower bearing's) at the upper bearing instead of its nonlinear springs
 LINEAR = ["centrifugal_softening", "structural_damping", "upper_housing", "lower_bearing", "lower_bearing@upper",
@@ -124,7 +125,8 @@ def test_identification_on_angled_records_recovers_the_truth_and_ignoring_the_an
     out, truth, sheet, table = angled_rig
     config = yaml.safe_load(open(cfg.CONFIG_FILE))
     variant = cfg.variant(config, "final")  # the rig's truth: Geometric + slope spring
-    options = idn.rule_settings(config, "final", "joint") | {"per_run": [], "trials": 2, "polish": False}
+    options = IdentificationSettings.from_config(config).rule("final", "joint") | {"per_run": [], "trials": 2,
+                                                                                   "polish": False}
     runs = list(sheet["run"])
     H = 2
     fit = fit_joint(variant, options, [], table, {}, None, H, runs=runs).fit
@@ -195,7 +197,7 @@ def test_the_libraries_refuse_an_angled_run_naming_the_option(tmp_path):
     config = yaml.safe_load(open(cfg.CONFIG_FILE))
     variant = cfg.variant(config, "geometric")
     library = SimpleNamespace(parameters=["k_b"], lower=np.zeros(1), upper=np.ones(1))
-    options = idn.rule_settings(config, "geometric", "run")
+    options = IdentificationSettings.from_config(config).rule("geometric", "run")
     with pytest.raises(ValueError, match="eccentric_mass_angle_deg 45"):
         fit_run(variant, options, library, data, None, 2)
     sheet = pd.DataFrame({"run": ["a", "b"], "eccentric_mass_angle_deg": [0.0, 45.0]})

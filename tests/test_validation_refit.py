@@ -26,6 +26,7 @@ from hybridtwin.identify import validation as val
 from hybridtwin.identify import validation_refit as vr
 from hybridtwin.identify.run_fits import fit_joint, ranges
 from hybridtwin.model.variants import BUILTIN_VARIANTS, Variant
+from hybridtwin.settings import IdentificationSettings
 
 H = 3
 SIGMA = 8e-7  # m, the bundled records' harmonic sigma
@@ -58,9 +59,9 @@ def _explain(fit_runs, hidden: dict) -> vr.Explanation:
     config = yaml.safe_load(open(cfg.CONFIG_FILE))
     variant = cfg.variant(config, "geometric")
     table = _table([*fit_runs, VALIDATION], hidden)
-    options = idn.rule_settings(config, "geometric", "joint") | {"per_run": [], "profile": False}
+    options = IdentificationSettings.from_config(config).rule("geometric", "joint") | {"per_run": [], "profile": False}
     joint = fit_joint(variant, options, [], table, {}, None, H, runs=[r for r, _, _ in fit_runs]).fit.table()
-    settings = idn.rule_settings(config, "geometric", "validation") | {"per_run": []}
+    settings = IdentificationSettings.from_config(config).rule("geometric", "validation") | {"per_run": []}
     runs = table[["run", "rpm_true", "eccentric_mass_g"]].rename(columns={"rpm_true": "rpm"})
     data = idn.run_data(table, VALIDATION[0], H, keyphasor=True, channels=variant.channels)
     values = val.validation_values(joint, data, "law", runs)

@@ -1,15 +1,15 @@
 """Reading the workflow configuration (config/config.yaml) into package objects, and checking it.
 
-``check`` (called once by the Snakefile, before any job is planned) validates the configuration
-against workflow/schemas/config.schema.yaml and cross-checks every name in it: variants named under
-``offline``/``identification``/``diagnosis``, parameters (``per_run``), effects and candidates, effects
+``check`` (called once by the Snakefile, before any job is planned) validates the configuration against the
+package's schema (src/hybridtwin/config.schema.yaml, ``settings.SCHEMA_FILE``; its ``default:`` entries are the only
+defaults: ``hybridtwin.settings`` builds each section from them) and cross-checks every name in it: variants named
+under ``offline``/``identification``/``diagnosis``, parameters (``per_run``), effects and candidates, effects
 files, ranges. Each problem is one line naming the file (and line) the value comes from, the key, the
 bad value and the allowed names (``ConfigError``).
 """
 
 from __future__ import annotations
 
-import copy
 import difflib
 import logging
 import sys
@@ -26,12 +26,12 @@ from .model.bearing_candidates import at_bearing
 from .model.effects import Effect
 from .model.machine import Machine
 from .model.machine_parts import MachineSpecError
-from .offline.scenarios import default_n_scenarios
+from .solvers.solver import DEFAULT_HARMONICS
 from .model.variants import EffectsFileError, Variant, load_effects_files, unbalance_hint
+from .settings import SCHEMA_FILE, offline_settings
 
 CONFIG_DIR = Path("config")
 CONFIG_FILE = CONFIG_DIR / "config.yaml"
-SCHEMA_FILE = Path("workflow") / "schemas" / "config.schema.yaml"
 
 
 def user_effects(config: Mapping, config_dir: Path = CONFIG_DIR) -> dict[str, Effect]:
@@ -87,50 +87,18 @@ def variant(config: Mapping, name: str, config_dir: Path = CONFIG_DIR) -> Varian
                              shaft=rotor)
 
 
-# The ``offline:`` options' defaults (as identification.DEFAULTS and diagnosis.DEFAULTS for their sections): the
-# schema's ``default:`` entries copy them (tests/test_config.py checks they agree). n_scenarios: per variant, else
-# scenarios.default_n_scenarios; the sPGD options but degree are hybridtwin.offline.spgd.SparsePGD's defaults.
-OFFLINE_DEFAULTS: dict = {
-    "seed": 1, "speed": "measured", "n_scenarios": {}, "n_test": 200, "validation_fraction": 0.2,
-    "chunks": 4, "scope": "run", "pieces": "mode_scaling",
-    "sensor_range_mm": 14.0, "pod_energy_tolerance": 1e-10,
-    "spgd": {"degree": [8, 12], "max_terms": 60, "ridge": 1e-8, "patience": 8, "backfit_iterations": 3,
-             "tolerance": 0.0, "degree_search": "term", "degree_tolerance": 0.0},
-    "enrichment": {"observable_below": 0.3, "n_scenarios": 6000, "chunks": 2}, "spgd_variants": {},
-}
-
-
 def offline(config: Mapping) -> dict:
-    """The ``offline:`` options with their defaults (``OFFLINE_DEFAULTS``) filled in."""
-    defaults = copy.deepcopy(OFFLINE_DEFAULTS)
-    options = {**defaults, **(config.get("offline") or {})}
-    for nested in ("spgd", "enrichment"):
-        options[nested] = {**defaults[nested], **(options.get(nested) or {})}
-    options["spgd_variants"] = dict(options.get("spgd_variants") or {})
-    unknown = sorted(set(options["spgd_variants"]) - set(config.get("variants") or {}))
-    if unknown:
-        raise ValueError(f"config offline.spgd_variants: no variant named {unknown} "
-                         f"(declared: {sorted(config.get('variants') or {})})")
-    return options
-
-
-#: the ``online:`` section's defaults (the twin online, hybridtwin.online; the schema's default: entries copy them)
-ONLINE_DEFAULTS: dict = {"alpha": 0.01}  # the level of every test: beyond the noise at p < 0.01, as the README says
-
-
-def online(config: Mapping) -> dict:
-    """The ``online:`` section (the twin judging new records: ``variant``, ``records``, ``alpha``) with its defaults;
-    empty when the config has none."""
-    section = config.get("online")
-    return {} if not section else {**ONLINE_DEFAULTS, **section}
+    """The ``offline:`` options with the schema's defaults filled in (``settings.OfflineSettings.options``)."""
+    return offline_settings(config).options()
 
 
 def data_check_settings(config: Mapping) -> dict:
     """What the data checks take from a config, one derivation for the workflow's check_data and preprocess rules
-    (their params) and ``hybridtwin check-data`` (its defaults, each option overriding one): ``harmonics`` (H),
-    ``coverage`` (``rpm`` and ``eccentric_mass_g`` ranges, or empty), ``sensor_range_mm`` (offline.sensor_range_mm
-    with its default: the probes' range; a sheet's sensor_range_mm column overrides it run by run)."""
-    return {"harmonics": config.get("harmonics", 5), "coverage": config.get("coverage") or {},
+    (their params) and ``hybridtwin check-data`` (its defaults, each option overriding one): ``harmonics`` (H;
+    without a config, solver.DEFAULT_HARMONICS), ``coverage`` (``rpm`` and ``eccentric_mass_g`` ranges, or empty),
+    ``sensor_range_mm`` (offline.sensor_range_mm with its default: the probes' range; a sheet's sensor_range_mm
+    column overrides it run by run)."""
+    return {"harmonics": config.get("harmonics", DEFAULT_HARMONICS), "coverage": config.get("coverage") or {},
             "sensor_range_mm": offline(config)["sensor_range_mm"]}  # as written (a param's value: 14 stays 14)
 
 
@@ -139,27 +107,19 @@ def offline_for(config: Mapping, name: str, keys: Sequence[str] | None = None) -
     (``spgd`` updated by its ``spgd_variants`` entry) only, so that declaring another variant (and its
     n_s or sPGD options) never changes this one's rule parameters (nothing of it reruns); with
     ``keys``, only those options, so that a rule reruns only when an option it uses changes (the sPGD
-    options or the library scope never re-sample or re-solve the scenarios)."""
-    options = offline(config)
-    options["n_scenarios"] = n_scenarios(config, variant(config, name))
-    options["spgd"] = _variant_spgd(options, name)
-    del options["spgd_variants"]
-    return options if keys is None else {k: options[k] for k in keys}
+    options or the library scope never re-sample or re-solve the scenarios): ``OfflineSettings.for_variant``."""
+    return offline_settings(config).for_variant(name, len(variant(config, name).unknown), keys)
 
 
 def spgd_for(config: Mapping, name: str) -> dict:
     """The sPGD options of variant ``name`` (declared or not): ``offline.spgd`` updated by its
     ``offline.spgd_variants`` entry."""
-    return _variant_spgd(offline(config), name)
-
-
-def _variant_spgd(options: Mapping, name: str) -> dict:
-    return {**options["spgd"], **options["spgd_variants"].get(name, {})}
+    return offline_settings(config).spgd_for(name)
 
 
 def n_scenarios(config: Mapping, variant_: Variant) -> int:
     """n_s of a variant: the config's per-variant value or the paper's default for its unknown count."""
-    return int(offline(config)["n_scenarios"].get(variant_.name, default_n_scenarios(len(variant_.unknown))))
+    return offline_settings(config).n_scenarios_of(variant_.name, len(variant_.unknown))
 
 
 def run_plan(source: Mapping | str | Path | pd.DataFrame, measured: str | Path | None = None) -> pd.DataFrame:

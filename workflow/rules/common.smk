@@ -1,39 +1,34 @@
-# Shared helpers: config validation, the runs sheet, the variants, the offline options.
+# Shared helpers: the settings, the runs sheet, the variants, the offline options.
 import os
 import sys
 from functools import cache
 from pathlib import Path
 
 import pandas as pd
-from snakemake.utils import validate
 
 from hybridtwin.config import (
     CONFIG_DIR,
     angles_on_libraries,
     effects_files_used,
-    offline,
-    offline_for,
-    online as online_settings,
     run_plan,
     variant as config_variant,
 )
-from hybridtwin.diagnose.diagnosis import settings as diagnosis_settings
-from hybridtwin.identify.identification import settings as identification_settings
 from hybridtwin.data.measurements import DataError, read_runs, sheet_of
 from hybridtwin.data.run_kinds import is_transient_row
 from hybridtwin.model.variants import nested_parents, parent_variant
-from hybridtwin.report.transient_plots import settings as transient_settings
+from hybridtwin.settings import Settings
 
-validate(config, "../schemas/config.schema.yaml")
+# Every option section, built once from the config the Snakefile checked (its only validation against the schema):
+# frozen, typed objects, the schema's defaults where the config leaves a key out (hybridtwin.settings). The config
+# itself stays as written: nothing fills the defaults into it.
+SETTINGS = Settings.from_config(config)
+OFFLINE = SETTINGS.offline
 
 VARIANTS = list(config["variants"])
 # the variants fitted on sPGD libraries (offline.scope run or global); the others fit on the full solver (none)
-LIBRARY_VARIANTS = [v for v in VARIANTS if offline_for(config, v)["scope"] != "none"]
-OFFLINE = offline(config)
-CHUNKS = [f"{i:03d}" for i in range(OFFLINE["chunks"])]
-ENRICHMENT_CHUNKS = [
-    f"{i:03d}" for i in range(OFFLINE["enrichment"]["chunks"] if OFFLINE["enrichment"]["n_scenarios"] else 0)
-]
+LIBRARY_VARIANTS = list(VARIANTS) if OFFLINE.scope != "none" else []
+CHUNKS = [f"{i:03d}" for i in range(OFFLINE.chunks)]
+ENRICHMENT_CHUNKS = [f"{i:03d}" for i in range(OFFLINE.enrichment.chunks if OFFLINE.enrichment.n_scenarios else 0)]
 # The runs sheet, read once per plan, here, by the reader check-data uses (hybridtwin.data.measurements.read_runs):
 # white space, case, BOM, CRLF handled one way; any problem (a missing column, an unknown role, an empty mass, a
 # missing record...) stops here in one message naming file, line, column. Every rule's input function and param
@@ -54,12 +49,26 @@ OFFLINE_USED = {
     "spgd_library": ("scope", "sensor_range_mm", "spgd", "pieces"),
     "validate_library": ("sensor_range_mm",),
 }
+
+
+@cache
+def n_unknown(name):
+    """The number of unknowns of variant ``name`` (its n_s default; built once per variant, not once per job)."""
+    return len(config_variant(config, name).unknown)
+
+
+def offline_options(wildcards, rule):
+    """The offline options the variant's job of ``rule`` uses (OFFLINE_USED; OfflineSettings.for_variant, as
+    hybridtwin.config.offline_for)."""
+    return OFFLINE.for_variant(wildcards.variant, n_unknown(wildcards.variant), OFFLINE_USED[rule])
+
+
 # the config's effects files (hybridtwin.config.user_effects: paths relative to the config folder): those a variant
 # uses are an input of every rule whose params.model carries them (variant_effects), so that editing one reruns the
 # jobs that build the variant; all of them of the diagnosis (its candidates)
 EFFECTS_FILES = [str(CONFIG_DIR / path) for path in config.get("effects_files") or []]
 # the speeds the libraries are built at: refined from the records, or the sheet's nominal ones
-SPEEDS = "results/data/harmonics.tsv" if OFFLINE["speed"] == "measured" else config["runs"]
+SPEEDS = "results/data/harmonics.tsv" if OFFLINE.speed == "measured" else config["runs"]
 
 
 wildcard_constraints:
@@ -87,9 +96,9 @@ def diagnosis_options(wildcards):
     """The diagnosis's options, with where the project is (``project_place``) and, when the variant's libraries are
     sized under ``offline: n_scenarios:``, its scope and that entry (the recommendation sizes the new variant's alike:
     ``recommendation.scenarios_entry``); only this variant's entry, so that another's never reruns this diagnosis."""
-    options = diagnosis_settings(config) | {"project": project_place()}
-    counts = OFFLINE["n_scenarios"] or {}
-    scope = offline_for(config, wildcards.variant)["scope"]
+    options = SETTINGS.diagnosis.options() | {"project": project_place()}
+    counts = OFFLINE.n_scenarios or {}
+    scope = OFFLINE.scope
     if wildcards.variant in counts and scope != "none":
         options["offline"] = {
             "scope": scope,
@@ -100,7 +109,7 @@ def diagnosis_options(wildcards):
 
 def sparse_route_input(wildcards):
     """The paper's route shown side by side: the L1-sparse variant's joint fit, when declared and not this one."""
-    name = diagnosis_settings(config)["sparse_variant"]
+    name = SETTINGS.diagnosis.sparse_variant
     if name in config["variants"] and name != wildcards.variant:
         return {"sparse": f"results/{name}/parameters.tsv"}
     return {}
@@ -122,8 +131,8 @@ def nested_variants(name):
 def nested_fits_input(wildcards):
     """The joint fits of the simplest variants this one contains (identification: polish: nested): its polish
     also starts from each of them, mapped onto its own parameters."""
-    polish = identification_settings(config, wildcards.variant)["polish"]
-    if not (polish["joint"] and polish["nested"]):
+    polish = SETTINGS.identification.polish
+    if not (polish.joint and polish.nested):
         return {}
     parents = nested_variants(wildcards.variant)
     return {"nested": [f"results/{name}/parameters.tsv" for name in parents]} if parents else {}
@@ -166,7 +175,7 @@ def joint_effects(wildcards):
 def diagnosis_model(wildcards):
     """variant_model with the L1-sparse variant the diagnosis shows side by side, when it is an input
     (sparse_route_input)."""
-    sparse = [diagnosis_settings(config)["sparse_variant"]] if sparse_route_input(wildcards) else []
+    sparse = [SETTINGS.diagnosis.sparse_variant] if sparse_route_input(wildcards) else []
     return variant_model(wildcards, sparse, all_effects=True)  # the candidates: every effects file's
 
 
@@ -194,7 +203,7 @@ def gather_input(wildcards):
 
 def has_libraries(variant):
     """offline.scope run or global: the variant's fits run on sPGD libraries; none: on the full solver."""
-    return offline_for(config, variant)["scope"] != "none"
+    return OFFLINE.scope != "none"
 
 
 def fit_libraries(wildcards, runs):
@@ -213,7 +222,7 @@ def library_input(wildcards):
     """A run's library: fitted on its own snapshots and POD (offline.scope: run), or sliced from the variant's
     global library (offline.scope: global)."""
     inputs = {"snapshots": f"results/{wildcards.variant}/snapshots.zarr"}
-    if offline_for(config, wildcards.variant)["scope"] == "global":
+    if OFFLINE.scope == "global":
         return inputs | {"global_library": f"results/{wildcards.variant}/library_global.zarr"}
     return inputs | {"pod": f"results/{wildcards.variant}/pod.zarr"}
 
@@ -236,7 +245,7 @@ def measured_tables(wildcards):
 
 
 # the figures of run-ups and coast-downs (report_transient, report_waterfall; issue 38 item 7)
-TRANSIENT_DISPLAY = transient_settings(config)  # config report: transient: (frame, amplitude, phase, orbit_rpm)
+TRANSIENT = SETTINGS.transient  # config report: transient: (orbit_rpm, frame, amplitude, phase)
 
 
 def transient_records():

@@ -44,7 +44,7 @@ rule diagnose:
         "../envs/hybridtwin.yaml"
     params:
         model=diagnosis_model,
-        keyphasor=lambda wildcards: identification_settings(config, wildcards.variant)["keyphasor"],
+        keyphasor=SETTINGS.identification.keyphasor,
         options=diagnosis_options,
         harmonics=config["harmonics"],
     script:

@@ -5,8 +5,7 @@
 # The scripts read only their input, params and output: what a job uses of the config is in its params (a
 # change reruns only the jobs that use it).
 from hybridtwin.identify.identification import runs_with_role
-from hybridtwin.identify.identification import rule_settings
-from hybridtwin.identify.design import candidate_grid, settings as design_settings
+from hybridtwin.identify.design import candidate_grid
 
 FIT_RUNS = runs_with_role(SHEET, "fit")
 VALIDATION_RUNS = runs_with_role(SHEET, "validate")
@@ -33,7 +32,7 @@ rule identify_run:
     params:
         runs=FIT_RUNS,
         model=variant_model,
-        options=lambda wildcards: rule_settings(config, wildcards.variant, "run"),
+        options=lambda wildcards: SETTINGS.identification.rule(wildcards.variant, "run"),
         harmonics=config["harmonics"],
     script:
         "../../scripts/identify_run.py"
@@ -81,7 +80,7 @@ rule identify_joint:
         runs=FIT_RUNS,
         model=joint_model,
         parent=joint_parent,
-        options=lambda wildcards: rule_settings(config, wildcards.variant, "joint"),
+        options=lambda wildcards: SETTINGS.identification.rule(wildcards.variant, "joint"),
         harmonics=config["harmonics"],
     script:
         "../../scripts/identify_joint.py"
@@ -114,13 +113,13 @@ rule predict_validation:
     params:
         runs=VALIDATION_RUNS,
         model=variant_model,
-        options=lambda wildcards: rule_settings(config, wildcards.variant, "validation"),
+        options=lambda wildcards: SETTINGS.identification.rule(wildcards.variant, "validation"),
         harmonics=config["harmonics"],
     script:
         "../../scripts/identify_validation.py"
 
 
-DESIGN = design_settings(config)
+DESIGN = SETTINGS.design
 
 
 rule design_runs:
@@ -158,11 +157,11 @@ rule design_runs:
         "../envs/hybridtwin.yaml"
     params:
         model=variant_model,
-        options=lambda wildcards: rule_settings(config, wildcards.variant, "validation"),
+        options=lambda wildcards: SETTINGS.identification.rule(wildcards.variant, "validation"),
         harmonics=config["harmonics"],
-        grid=lambda wildcards: candidate_grid(DESIGN, run_plan(SHEET)),
-        runs=DESIGN["runs"],
-        keyphasor=DESIGN["keyphasor"],
-        sensor_range_mm=OFFLINE["sensor_range_mm"],
+        grid=lambda wildcards: candidate_grid(DESIGN.rpm, DESIGN.step_rpm, DESIGN.masses_g, run_plan(SHEET)),
+        runs=DESIGN.runs,
+        keyphasor=DESIGN.keyphasor,
+        sensor_range_mm=OFFLINE.sensor_range_mm,
     script:
         "../../scripts/design_runs.py"

@@ -17,7 +17,7 @@ rule spgd_global:
         "../envs/hybridtwin.yaml"
     params:
         model=variant_model,
-        offline=lambda wildcards: offline_for(config, wildcards.variant, OFFLINE_USED["spgd_global"]),
+        offline=lambda wildcards: offline_options(wildcards, "spgd_global"),
     script:
         "../../scripts/spgd_global.py"
 
@@ -40,7 +40,7 @@ rule spgd_library:
     params:
         runs=RUNS,
         model=variant_model,
-        offline=lambda wildcards: offline_for(config, wildcards.variant, OFFLINE_USED["spgd_library"]),
+        offline=lambda wildcards: offline_options(wildcards, "spgd_library"),
     script:
         "../../scripts/spgd_library.py"
 
@@ -73,6 +73,6 @@ rule validate_library:
         "../envs/hybridtwin.yaml"
     params:
         model=variant_model,
-        offline=lambda wildcards: offline_for(config, wildcards.variant, OFFLINE_USED["validate_library"]),
+        offline=lambda wildcards: offline_options(wildcards, "validate_library"),
     script:
         "../../scripts/validate_library.py"

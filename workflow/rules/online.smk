@@ -22,8 +22,8 @@ rule twin_card:
     params:
         model=variant_model,
         harmonics=config["harmonics"],
-        keyphasor=lambda wildcards: identification_settings(config, wildcards.variant)["keyphasor"],
-        candidates=diagnosis_settings(config)["candidates"],
+        keyphasor=SETTINGS.identification.keyphasor,
+        candidates=SETTINGS.diagnosis.candidates,
         sensor_range_mm=CHECK_SETTINGS["sensor_range_mm"],
     script:
         "../../scripts/twin_card.py"
@@ -32,8 +32,8 @@ rule twin_card:
 # Every record of the sheet config["online"]["records"] judged against the twin config["online"]["variant"]: one job
 # per record (a new record in the sheet is the only new job on a rerun), then the trend rebuilt from every
 # assessment (never appended to: a failed record leaves the last trend as it was).
-ONLINE = online_settings(config)
-ONLINE_SHEET = sheet_of(ONLINE["records"]) if ONLINE else None  # read once per plan, as the runs sheet
+ONLINE = SETTINGS.online  # None: the config has no online: section
+ONLINE_SHEET = sheet_of(ONLINE.records) if ONLINE else None  # read once per plan, as the runs sheet
 ONLINE_RECORDS = list(ONLINE_SHEET["run"]) if ONLINE else []
 
 
@@ -66,7 +66,7 @@ rule assess_record:
         "../envs/hybridtwin.yaml"
     params:
         row=lambda wildcards: sheet_entry(ONLINE_SHEET, wildcards.record),
-        alpha=lambda wildcards: ONLINE["alpha"],  # lazily: a config without online: plans no such job
+        alpha=lambda wildcards: ONLINE.alpha,  # lazily: a config without online: plans no such job
     script:
         "../../scripts/assess_record.py"
 

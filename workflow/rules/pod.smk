@@ -22,6 +22,6 @@ rule pod:
         "../envs/hybridtwin.yaml"
     params:
         model=variant_model,
-        offline=lambda wildcards: offline_for(config, wildcards.variant, OFFLINE_USED["pod"]),
+        offline=lambda wildcards: offline_options(wildcards, "pod"),
     script:
         "../../scripts/pod.py"

@@ -45,7 +45,7 @@ rule report_harmonics:
     conda:
         "../envs/hybridtwin.yaml"
     params:
-        options=lambda wildcards: rule_settings(config, wildcards.variant, "validation"),
+        options=lambda wildcards: SETTINGS.identification.rule(wildcards.variant, "validation"),
     script:
         "../../scripts/report_harmonics.py"
 
@@ -158,7 +158,7 @@ rule report_response:
         model=variant_model,
         runs=lambda wildcards: run_plan(SHEET).reindex(columns=TRIAL_RUN_COLUMNS + ["role"]).to_dict("list"),
         harmonics=config["harmonics"],
-        options=lambda wildcards: rule_settings(config, wildcards.variant, "validation"),
+        options=lambda wildcards: SETTINGS.identification.rule(wildcards.variant, "validation"),
     script:
         "../../scripts/report_response.py"
 
@@ -288,8 +288,8 @@ rule report_summary:
         validation_errors=expand("results/{variant}/report/validation_errors.tsv", variant=VARIANTS),
         diagnoses=expand("results/{variant}/diagnosis.yaml", variant=VARIANTS),
         validation=expand("results/{variant}/validation.tsv", variant=VARIANTS),  # why a validation run fails
-        next_runs=expand("results/{variant}/design/next_runs.tsv", variant=VARIANTS if DESIGN["runs"] else []),
-        intervals=expand("results/{variant}/design/intervals.tsv", variant=VARIANTS if DESIGN["runs"] else []),
+        next_runs=expand("results/{variant}/design/next_runs.tsv", variant=VARIANTS if DESIGN.runs else []),
+        intervals=expand("results/{variant}/design/intervals.tsv", variant=VARIANTS if DESIGN.runs else []),
         figures=expand("results/{variant}/report/runs", variant=VARIANTS),  # what the page links to
         harmonics="results/data/harmonics.tsv",  # the runs the data checks kept out (usable false)
     output:
@@ -306,13 +306,13 @@ rule report_summary:
     params:
         variants=VARIANTS,
         specs={name: {"effects": list(spec.get("effects", []))} for name, spec in config["variants"].items()},
-        design=bool(DESIGN["runs"]),
+        design=bool(DESIGN.runs),
     script:
         "../../scripts/report_summary.py"
 
 
 # Run-ups and coast-downs (issue 38, item 7): the pictures engineers read of each transient record of the sheet
-# (transient_records, transient_input and TRANSIENT_DISPLAY in common.smk).
+# (transient_records, transient_input and TRANSIENT in common.smk).
 rule report_transient:
     """Per transient record: Bode and polar plots of its tracked order vectors with the fitted twin on top and the
     residual in units of the noise, and its orbits at chosen speeds (hybridtwin.report.transient_plots)."""
@@ -350,8 +350,8 @@ rule report_transient:
             for r in transient_records()
         ],
         harmonics=config["harmonics"],
-        law=lambda wildcards: rule_settings(config, wildcards.variant, "validation")["validation_bow"],
-        display=TRANSIENT_DISPLAY,
+        law=lambda wildcards: SETTINGS.identification.rule(wildcards.variant, "validation")["validation_bow"],
+        display=TRANSIENT.as_dict(),
     script:
         "../../scripts/report_transient.py"
 
@@ -379,6 +379,6 @@ rule report_waterfall:
         "../envs/hybridtwin.yaml"
     params:
         **SENSOR_PARAMS,
-        display={k: TRANSIENT_DISPLAY[k] for k in ("frame", "amplitude")},
+        display={k: getattr(TRANSIENT, k) for k in ("frame", "amplitude")},
     script:
         "../../scripts/report_waterfall.py"

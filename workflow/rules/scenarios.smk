@@ -16,7 +16,7 @@ rule sample_scenarios:
         "../envs/hybridtwin.yaml"
     params:
         model=variant_model,
-        offline=lambda wildcards: offline_for(config, wildcards.variant, OFFLINE_USED["sample_scenarios"]),
+        offline=lambda wildcards: offline_options(wildcards, "sample_scenarios"),
     script:
         "../../scripts/sample_scenarios.py"
 
@@ -40,8 +40,8 @@ rule solve_chunk:
         mem_mb=2000,
     params:
         model=variant_model,
-        measured=OFFLINE["speed"] == "measured",
-        n_chunks=OFFLINE["chunks"],
+        measured=OFFLINE.speed == "measured",
+        n_chunks=OFFLINE.chunks,
         harmonics=config["harmonics"],
     script:
         "../../scripts/solve_chunk.py"
@@ -71,7 +71,7 @@ rule sample_enrichment:
         "../envs/hybridtwin.yaml"
     params:
         model=variant_model,
-        offline=lambda wildcards: offline_for(config, wildcards.variant, OFFLINE_USED["sample_enrichment"]),
+        offline=lambda wildcards: offline_options(wildcards, "sample_enrichment"),
     script:
         "../../scripts/sample_enrichment.py"
 
@@ -95,8 +95,8 @@ rule solve_enrichment:
         mem_mb=2000,
     params:
         model=variant_model,
-        measured=OFFLINE["speed"] == "measured",
-        n_chunks=OFFLINE["enrichment"]["chunks"],
+        measured=OFFLINE.speed == "measured",
+        n_chunks=OFFLINE.enrichment.chunks,
         harmonics=config["harmonics"],
     script:
         "../../scripts/solve_enrichment.py"

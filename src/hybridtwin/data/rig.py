@@ -70,7 +70,7 @@ from .rig_base import RANGE_SIGMAS, UNIT_SCALES, RigError, RigWarning, _rng, wri
 from ..model.model import rpm_to_rad_s
 from ..model.sensor import sensor_dofs, sensor_names
 from ..solvers.continuation import RUN_UP_FROM_RPM, ramp, solve_sweep
-from ..solvers.transient import NotSettledError, SettledPeriod, run_up_harmonics
+from ..solvers.transient import RESOLVED_HARMONICS, NotSettledError, SettledPeriod, run_up_harmonics
 from ..model.variants import EffectsFileError, Variant, load_effects_files
 
 Array = np.ndarray
@@ -248,7 +248,7 @@ class RigSpec:
     truth: Truth = field(default_factory=Truth.from_spec)
     imperfections: Imperfections = field(default_factory=Imperfections)
     seed: int = 0
-    harmonics: int = 7  # harmonics 0..H of the truth's steady state
+    harmonics: int = RESOLVED_HARMONICS  # harmonics 0..H of the truth's steady state
     start_rpm: float = RUN_UP_FROM_RPM  # run-up start
     step_rpm: float = 25.0  # largest continuation step
     rundown_margin_rpm: float = 200.0  # run-down starts this far above a mass's highest speed
@@ -365,7 +365,8 @@ class TruthResponse:
         return self.difference_rel < self.unique_tolerance
 
 
-def solve_truth(truth: Truth, runs: pd.DataFrame, harmonics: int = 7, start_rpm: float = RUN_UP_FROM_RPM,
+def solve_truth(truth: Truth, runs: pd.DataFrame, harmonics: int = RESOLVED_HARMONICS,
+                start_rpm: float = RUN_UP_FROM_RPM,
                 step_rpm: float = 25.0, rundown_margin_rpm: float = 200.0, integrator: str = "hb") -> TruthResponse:
     """Truth's sensor harmonics at each row's (rpm_true, eccentric_mass_g), run-up and run-down per mass.
 

@@ -62,27 +62,6 @@ from .score_test import BaseFit, Scores, by_score, extend, score_tests
 
 Array = np.ndarray
 
-#: the ``diagnosis:`` section's defaults (config/config.yaml; schema in workflow/schemas)
-DEFAULTS: dict = {
-    "candidates": None,  # names to test (built in or from effects_files); None: every built-in candidate
-    "confirm": "all",  # candidates refitted: every significant one, or the n best by score (+ any within
-    # confounded_bic of the best)
-    "starts": 4,  # points across a candidate's range a refit starts from, besides zero and the linear estimate
-    "widen": 4,  # times a refit may widen a candidate's range (x3 towards the edge its estimate sits at)
-    "thorough": 3,  # candidates, the best by a quick refit's Delta BIC, refitted again from every start with
-    # range widening (the quick refit: beta = 0 and the linear estimate, no widening, quick_iterations)
-    "quick_iterations": 12,
-    "max_effects": 3,  # effects the forward selection adds at most
-    "alpha": 0.01,  # family-wise false-alarm rate (Bonferroni over the candidates)
-    "explained": 0.9,  # share of the excess chi^2 an effect must remove to "explain the discrepancy"
-    "misfit_ratio": 1.2,  # chi^2/dof above which a significant misfit is called a discrepancy (sigma tolerance)
-    "confounded_bic": 6.0,  # candidates whose Delta BIC differ by less cannot be told apart ("strong" evidence)
-    "bic_threshold": -10.0,  # Delta BIC a confirmed effect must reach ("very strong" evidence, Kass & Raftery)
-    "max_iterations": 40,  # LM iterations of a confirmation refit
-    "sparse_variant": "expansion",  # the paper's route, shown side by side: that variant's L1-sparse fit (or null)
-}
-
-
 def _quick_refits(base: BaseFit, scores: Scores, o: Mapping, alpha_each: float) -> tuple[list, dict]:
     """The candidates to refit (every significant one with ``confirm: all``, or the ``confirm`` best plus any
     whose predicted drop is within ``confounded_bic`` of the best's) and their quick refits (from beta = 0 and the
@@ -174,13 +153,12 @@ def _out_of_reach(scores: Scores, quick: Mapping[str, Confirmation], o: Mapping)
             "explaining what is left")
 
 
-def diagnose(base: BaseFit, candidates: Sequence[Candidate], options: Mapping | None = None,
-             log=None) -> Diagnosis:
+def diagnose(base: BaseFit, candidates: Sequence[Candidate], options: Mapping, log=None) -> Diagnosis:
     """Score every candidate, refit every significant one, rank by the refits' Delta BIC and give verdicts
     (module docstring); then forward selection: while the best confirmed effect leaves a discrepancy, add it,
     score and refit the others at the extended fit, and stop when nothing significant is left (``max_effects``
     at most). The path (each step's effect, chi^2/dof, Delta BIC) is in ``Diagnosis.path``."""
-    o = DEFAULTS | dict(options or {})
+    o = dict(options)
     if not candidates:
         raise ValueError("no candidate effect to test (all are already in the variant, or none was listed)")
     scores = score_tests(base, candidates)
@@ -275,8 +253,3 @@ def refits_table(result: Diagnosis) -> pd.DataFrame:
         return pd.DataFrame(columns=["effect", "parameter", "run", "value", "normalised"])
     table = pd.concat(tables, ignore_index=True)
     return table[["effect"] + [c for c in table if c != "effect"]]
-
-
-def settings(config: Mapping) -> dict:
-    """The diagnosis options: defaults, then the config's ``diagnosis:`` section."""
-    return DEFAULTS | dict(config.get("diagnosis") or {})

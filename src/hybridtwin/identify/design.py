@@ -44,9 +44,6 @@ from .validation import values_along
 
 Array = np.ndarray
 
-#: the ``design:`` section's defaults (config/config.yaml; schema in workflow/schemas): runs to recommend (0: none),
-#: candidate speeds (null: the runs sheet's range) and their step, masses (null: the sheet's), keyphasor or not
-DEFAULTS: dict = {"runs": 3, "rpm": None, "step_rpm": 25.0, "masses_g": None, "keyphasor": [False, True]}
 #: without a loose parameter, the parameters of interest are those whose interval, relative to its range, is within
 #: this factor of the widest
 INTEREST_FACTOR = 3.0
@@ -80,20 +77,15 @@ class Design:
     notes: list[str]
 
 
-def settings(config: Mapping) -> dict:
-    """The design options: ``DEFAULTS``, then the config's ``design:`` section."""
-    return {**DEFAULTS, **(config.get("design") or {})}
-
-
-def candidate_grid(options: Mapping, plan: pd.DataFrame) -> tuple[list[float], list[float]]:
-    """Candidate speeds and eccentric masses: the options', else the runs sheet's range of steady speeds (in steps
-    of ``step_rpm``, both ends included) and its masses (``plan``: run_plan's rpm, eccentric_mass_g)."""
-    rpm = options["rpm"]
+def candidate_grid(rpm: Sequence[float] | None, step_rpm: float, masses: Sequence[float] | None,
+                   plan: pd.DataFrame) -> tuple[list[float], list[float]]:
+    """Candidate speeds and eccentric masses (config ``design:``, hybridtwin.settings.DesignSettings): speeds from
+    ``rpm`` (from, to), else the runs sheet's range of steady speeds, in steps of ``step_rpm`` (both ends included);
+    ``masses``, else the sheet's (``plan``: run_plan's rpm, eccentric_mass_g)."""
     speeds = pd.to_numeric(plan["rpm"], errors="coerce").dropna()
     low, high = (float(v) for v in (rpm if rpm is not None else (speeds.min(), speeds.max())))
-    step = float(options["step_rpm"])
+    step = float(step_rpm)
     grid = np.arange(low, high + 0.5 * step, step)
-    masses = options["masses_g"]
     if masses is None:
         masses = sorted(set(pd.to_numeric(plan["eccentric_mass_g"], errors="coerce").dropna().astype(float)))
     return [float(v) for v in grid], [float(m) for m in masses]
@@ -232,7 +224,8 @@ def design_runs(variant, joint: pd.DataFrame, harmonics: pd.DataFrame, runs: pd.
                 keyphasor: Sequence[bool] = (False, True), confidence: float = 0.95) -> Design:
     """The next ``n_runs`` runs (module docstring) among ``rpm`` x ``masses`` (x keyphasor or not, as allowed by
     ``keyphasor``) for the variant's joint fit ``joint`` (parameters.tsv) on the measured ``harmonics``; runs: the
-    fit runs' run, rpm, eccentric_mass_g (the bow's law); options: ``rule_settings(..., "validation")``."""
+    fit runs' run, rpm, eccentric_mass_g (the bow's law); options:
+    ``IdentificationSettings.rule(..., "validation")``."""
     information, shared, s2, data = fit_information(variant, joint, harmonics, options, n_harmonics)
     sigma = np.median(np.stack([d.sigma for d in data]), axis=0)  # (H, C) a new run's expected noise
     candidates, added = candidate_information(variant, joint, runs, shared, rpm, masses, sigma, options,

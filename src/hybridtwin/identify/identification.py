@@ -421,32 +421,6 @@ def theta_from_table(table: pd.DataFrame, layout: Layout) -> Array | None:
 
 # --- workflow configuration -------------------------------------------------------------
 
-#: the ``identification:`` section's defaults (config/config.yaml; schema in workflow/schemas)
-DEFAULTS: dict = {
-    "trials": 50,  # tau, random trials per fit (paper sec. 4.1)
-    "monte_carlo": 1000,  # n_MC repeats per per-run fit
-    # where a per-run fit's repeats start: the k best distinct optima of its trials on the measured data
-    # (hybridtwin.identify.protocol; 0: tau fresh random starts per repeat, the paper's literal protocol, ~15x the time)
-    "monte_carlo_starts": 8,
-    "sparsity": {"expansion": 0.1},  # lambda per variant (eq. 11); 0 for the others
-    "l1_epsilon": 1e-3,
-    "seed": 1,
-    "per_run": ["q_x", "q_y"],  # joint fit: estimated per run; the other unknowns are shared
-    "model_error": "median_error_pct",  # library error added to the weights (library_validation.tsv column | none)
-    "confidence": 0.95,
-    "max_iterations": 100,
-    # the joint fit's protocol; its repeats also start at the k best distinct optima of its trials (0: fresh
-    # random starts each, the literal protocol, 6-13x the time of the library stage of identify_joint)
-    "joint": {"trials": 50, "monte_carlo": 100, "monte_carlo_starts": 8},
-    "polish": {"joint": True, "runs": False, "max_iterations": 60, "nested": True},
-    "keyphasor": True,  # runs with a keyphasor: absolute phases, phase prior N(0, (Omega sigma_t)^2); false: free
-    "validation_bow": "law",  # per-run parameters of validation runs: law (c0 + c1 W^2 + c2 W^2 m_e) | mean
-    # a shared parameter of the joint fit at a range edge or not identifiable: the shared parameters' intervals over
-    # it (hybridtwin.identify.profile); false: the linearised ones, marked conditional on it
-    "profile": True,
-}
-
-
 def runs_with_role(sheet: str | Path, role: str) -> list[str]:
     """Runs of a runs sheet with this role (no role column: every run is a fit run), read as check-data reads it."""
     from ..data.measurements import runs_with_role as read_role  # the one reader of runs sheets
@@ -454,43 +428,9 @@ def runs_with_role(sheet: str | Path, role: str) -> list[str]:
     return read_role(sheet, role)
 
 
-def settings(config: Mapping, variant: str) -> dict:
-    """The identification options for ``variant``: defaults, then the config's section; lambda resolved; the
-    variant's own ``per_run`` (its entry under ``variants:``) over ``identification.per_run``."""
-    given = dict(config.get("identification") or {})
-    out = {**DEFAULTS, **given}
-    own = ((config.get("variants") or {}).get(variant) or {}).get("per_run")
-    if own is not None:
-        out["per_run"] = list(own)
-    for key in ("joint", "polish"):
-        out[key] = {**DEFAULTS[key], **(given.get(key) or {})}
-    sparsity = out["sparsity"]
-    out["lambda"] = float(sparsity.get(variant, 0.0) if isinstance(sparsity, Mapping) else sparsity)
-    return out
-
-
-def rule_settings(config: Mapping, variant: str, rule: str) -> dict:
-    """The part of ``settings`` a workflow rule depends on (its params: a change reruns only that rule)."""
-    options = settings(config, variant)
-    common = {k: options[k] for k in ("lambda", "l1_epsilon", "seed", "model_error", "confidence", "max_iterations",
-                                      "keyphasor")}
-    if rule == "run":
-        polish_runs = options["polish"]["runs"]
-        return common | {"trials": options["trials"], "monte_carlo": options["monte_carlo"],
-                         "monte_carlo_starts": options["monte_carlo_starts"],
-                         "polish": options["polish"]["max_iterations"] if polish_runs else False}
-    polish_joint = options["polish"]["max_iterations"] if options["polish"]["joint"] else False
-    if rule == "joint":
-        # polish: nested changes the job's input files (the nested fits), which reruns it by itself
-        return common | {"joint": options["joint"], "per_run": options["per_run"], "polish": polish_joint,
-                         "profile": bool(options["profile"])}
-    return {"validation_bow": options["validation_bow"], "model_error": options["model_error"],
-            "solver": bool(options["polish"]["joint"]), "keyphasor": options["keyphasor"],
-            "per_run": options["per_run"]}  # per_run: a failing validation run's refit with the fit runs
-
-
 def protocol_options(options: Mapping, joint: bool = False) -> ProtocolOptions:
-    """ProtocolOptions from ``settings``; ``joint`` takes the joint fit's trials, repeats and their starts."""
+    """ProtocolOptions from a fit's options (``hybridtwin.settings.IdentificationSettings.rule``); ``joint`` takes
+    the joint fit's trials, repeats and their starts."""
     source = options["joint"] if joint else options
     return ProtocolOptions(trials=int(source["trials"]), monte_carlo=int(source["monte_carlo"]),
                            sparsity=float(options["lambda"]), l1_epsilon=float(options["l1_epsilon"]),

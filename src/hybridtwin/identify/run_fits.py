@@ -18,7 +18,8 @@ the misfit stays large) on top. Measured on the run-up example: the offline libr
 the run's 755, while the full solver alone reached the same optimum from 4 random starts in 8 s
 (benchmarks/README.md, "Fits on the full solver").
 
-``options`` are the rule's (``identification.rule_settings``): a job reads nothing else of the config.
+``options`` are the rule's (``hybridtwin.settings.IdentificationSettings.rule``): a job reads nothing else of the
+config.
 """
 
 from __future__ import annotations
@@ -101,7 +102,7 @@ def refuse_angle_on_library(data: idn.RunData) -> None:
 
 def fit_run(variant: Variant, options: Mapping, library: Library | None, data: idn.RunData,
             validation: pd.DataFrame | None, harmonics: int) -> RunFit:
-    """``data``'s run alone on its ``library`` by the paper's protocol (``options``: ``identification.rule_settings``
+    """``data``'s run alone on its ``library`` by the paper's protocol (``options``: ``IdentificationSettings.rule``
     for rule "run"), polished with the full solver when ``options["polish"]`` (its iterations; False: no polish);
     without a library (None: ``offline.scope: none``) on the full solver itself (``solver_protocol``).
     A run that is not usable is not fitted: its table holds NaN and the reason."""
@@ -188,7 +189,7 @@ def fit_joint(variant: Variant, options: Mapping, libraries: Sequence[Library], 
               per_run: Mapping[str, pd.DataFrame], validation: pd.DataFrame | None, harmonics: int,
               parent_refit: tuple[str, str, pd.DataFrame] | None = None,
               nested: Sequence[tuple[Variant, pd.DataFrame]] = (), runs: Sequence[str] = ()) -> JointFit:
-    """All usable fit runs of ``variant`` at once (``options``: ``identification.rule_settings`` for rule
+    """All usable fit runs of ``variant`` at once (``options``: ``IdentificationSettings.rule`` for rule
     "joint"): the parameters in ``options["per_run"]`` per run, the others shared.
 
     The library protocol (``options["joint"]``'s trials and repeats) adds one start to its random trials: the

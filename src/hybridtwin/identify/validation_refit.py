@@ -167,7 +167,8 @@ def explain_run(variant, joint: pd.DataFrame, harmonics: pd.DataFrame, data: idn
                 runs: pd.DataFrame | None = None) -> Explanation:
     """Why ``data`` (a validation run, predicted with ``values`` and aligned ``phase``, chi^2 per residual
     ``chi2_predicted``) is predicted as it is (module docstring). joint: the variant's parameters.tsv; harmonics: the
-    measured harmonics of every run (the fit runs are the joint table's); options: ``rule_settings(..., "validation")``
+    measured harmonics of every run (the fit runs are the joint table's); options:
+    ``IdentificationSettings.rule(..., "validation")``
     (per_run, keyphasor, validation_bow); runs: the fit runs' run, rpm, eccentric_mass_g (the law's)."""
     from .run_fits import ranges, solver_models
 

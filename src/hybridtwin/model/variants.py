@@ -96,7 +96,7 @@ class Variant:
         placed = shaft.effects() if callable(getattr(shaft, "effects", None)) else {}
         registry = builtin_effects() | placed | dict(effects or {})
         # per_run: which unknowns the joint fit estimates per run, an identification option
-        # (``identification.settings``), not part of the model
+        # (``hybridtwin.settings.IdentificationSettings``), not part of the model
         unknown_keys = sorted(set(spec) - {"description", "effects", "unknown", "fixed", "per_run"})
         if unknown_keys:
             raise ValueError(f"variant {name!r}: unknown key(s) {unknown_keys} "

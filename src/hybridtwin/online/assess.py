@@ -40,9 +40,9 @@ import pandas as pd
 from scipy.special import chdtrc, ndtri  # chi^2's survival function, the normal quantile (not scipy.stats:
 # its import costs more than a consistent record's fits)
 
-from ..config import ONLINE_DEFAULTS
 from ..diagnose.fingerprint import Fingerprint, fingerprint
 from ..identify.arrow_problem import Layout
+from ..settings import defaults
 from . import fits
 from .intake import Intake
 from .twin import Twin
@@ -50,7 +50,7 @@ from .twin import Twin
 Array = np.ndarray
 
 #: the level of every test: a record is beyond the noise at p < ALPHA (the project's "beyond the noise", README)
-ALPHA = ONLINE_DEFAULTS["alpha"]
+ALPHA = defaults("online")["alpha"]  # config online.alpha's, the schema's default
 #: pairs of groups are tried among this many best single groups when none explains the record alone
 PAIRS_OF = 3
 #: two changes whose fits' chi^2 differ by less than this cannot be told apart by the record (one standard deviation

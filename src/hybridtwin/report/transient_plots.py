@@ -56,8 +56,6 @@ from .response_plots import SWEEPS, channels_of, dense_response  # noqa: E402
 
 Array = np.ndarray
 
-#: config ``report: transient:`` defaults (workflow/schemas/config.schema.yaml copies them)
-DEFAULTS = {"orbit_rpm": None, "frame": "probes", "amplitude": "peak-to-peak", "phase": "lag"}
 #: 95 % quantile of |z| for a complex residual with independent N(0, 1) parts: sqrt(-2 ln 0.05)
 RAYLEIGH_95 = float(np.sqrt(-2 * np.log(0.05)))
 #: the waterfall's frequency axis reaches this order of the record's top speed
@@ -71,28 +69,25 @@ POINT_COLUMNS = ["run", "kind", "role", "eccentric_mass_g", "window", "t_start_s
                  "z_re", "z_im", "z_abs", "status", "used"]
 
 
-def settings(config: Mapping) -> dict:
-    """``report: transient:`` of a config with the defaults filled in (DEFAULTS)."""
-    given = ((config.get("report") or {}).get("transient") or {})
-    return DEFAULTS | dict(given)
-
-
 @dataclass(frozen=True)
 class Display:
     """How amplitudes and phases are shown (never how they are stored): amplitude "0-peak" or "peak-to-peak",
-    phase "lag" (-arg U) or "lead" (arg U). Every label says which."""
+    phase "lag" (-arg U) or "lead" (arg U), or None for a figure that shows no phase (the waterfall). Every label
+    says which."""
 
-    amplitude: str = DEFAULTS["amplitude"]
-    phase: str = DEFAULTS["phase"]
+    amplitude: str
+    phase: str | None
 
     def __post_init__(self):
-        if self.amplitude not in ("0-peak", "peak-to-peak") or self.phase not in ("lag", "lead"):
+        if self.amplitude not in ("0-peak", "peak-to-peak") or self.phase not in ("lag", "lead", None):
             raise ValueError(f"display: amplitude must be 0-peak or peak-to-peak, phase lag or lead; got "
                              f"{self.amplitude!r}, {self.phase!r}")
 
     @classmethod
     def of(cls, options: Mapping) -> Display:
-        return cls(options.get("amplitude", DEFAULTS["amplitude"]), options.get("phase", DEFAULTS["phase"]))
+        """The display of config ``report: transient:`` (``hybridtwin.settings.TransientSettings``, its defaults
+        the schema's), as a rule's params carry it (the waterfall's carry no phase: it shows none)."""
+        return cls(options["amplitude"], options.get("phase"))
 
     @property
     def factor(self) -> float:
@@ -108,6 +103,8 @@ class Display:
 
     def angle(self, z) -> Array:
         """The shown phase [rad] of complex vectors: -arg for a lag, arg for a lead."""
+        if self.phase is None:
+            raise ValueError("display: no phase convention given (phase lag or lead)")
         a = np.angle(z)
         return -a if self.phase == "lag" else a
 
@@ -290,7 +287,7 @@ def _title(table: pd.DataFrame, what: str, variant: str, display: Display,
             f"{display.amplitude}, phase {display.phase}")
 
 
-def plot_bode(table: pd.DataFrame, variant: str, display: Display = Display(), orders: Sequence[int] = ORDERS
+def plot_bode(table: pd.DataFrame, variant: str, display: Display, orders: Sequence[int] = ORDERS
               ) -> plt.Figure:
     """Bode plot of one record's points table: per shown channel three rows (amplitude, phase, |z| on a log
     scale with 1 and RAYLEIGH_95 marked), a column per order; measured with 2 sigma bars (phase only where the
@@ -346,7 +343,7 @@ def plot_bode(table: pd.DataFrame, variant: str, display: Display = Display(), o
     return fig
 
 
-def plot_polar(table: pd.DataFrame, variant: str, display: Display = Display(), orders: Sequence[int] = ORDERS
+def plot_polar(table: pd.DataFrame, variant: str, display: Display, orders: Sequence[int] = ORDERS
                ) -> plt.Figure:
     """Polar plot of one record's points table: a row per shown channel, a column per order; angle the shown
     phase (lag or lead), radius the shown amplitude; measured points coloured by speed (hollow: kept out), the
@@ -441,7 +438,7 @@ def waterfall(time_s: Array, channels: Mapping[str, Array], speed: pd.DataFrame,
     return Waterfall(f, middle, rpm, out)
 
 
-def plot_waterfall(fall: Waterfall, run: str, display: Display = Display(), orders: int = 5) -> plt.Figure:
+def plot_waterfall(fall: Waterfall, run: str, display: Display, orders: int = 5) -> plt.Figure:
     """The waterfall as a colour map per channel: frequency [Hz] across, speed [RPM] up, colour the amplitude in
     dB re 1 um (the display's 0-peak or peak-to-peak), 80 dB below the strongest line; the orders 1X..``orders``X
     dashed (f = h rpm / 60)."""

@@ -38,7 +38,8 @@ CONVERGED, MAX_ITER, SINGULAR, DIVERGED, LINEAR_SINGULAR, INVALID, STALLED = 0, 
 # amplitude growth (vs the linear response) taken as "no bounded periodic solution found"
 _DIVERGENCE_FACTOR = 1e3
 _MAX_HALVINGS = 8  # backtracking steps of the damped Newton
-#: the highest harmonic H of the harmonic balance when nothing else is said (the config's ``harmonics`` default)
+#: the highest harmonic H of the harmonic balance when nothing else is said: the bundled config's ``harmonics`` (a
+#: required key, no schema default: the workflow always passes the config's)
 DEFAULT_HARMONICS = 5
 BLOCK = 256  # most scenarios per batched solve (``floquet_radius``; a sweep's ``continuation._in_blocks``)
 

@@ -53,8 +53,8 @@ from scipy.integrate import Radau
 from scipy.interpolate import CubicSpline, PPoly
 
 from ..model.model import LocalForce, Model, System, rpm_to_rad_s
-from .transient import (ATOL_FLOOR, DEFAULT_ATOL_RELATIVE, DEFAULT_RTOL, DEFAULT_VELOCITY_SCALE, FirstOrder,
-                        NotSettledError, PolynomialForce, local_forces, settle, state_tolerance)
+from .transient import (ATOL_FLOOR, DEFAULT_ATOL_RELATIVE, DEFAULT_RTOL, DEFAULT_VELOCITY_SCALE, RESOLVED_HARMONICS,
+                        FirstOrder, NotSettledError, PolynomialForce, local_forces, settle, state_tolerance)
 
 Array = np.ndarray
 
@@ -488,7 +488,7 @@ class SweepResult:
         return self.Omega * 30.0 / math.pi
 
 
-def start_state(system: SpeedSystem, rpm: float, dofs: Sequence[int], *, harmonics: int = 7,
+def start_state(system: SpeedSystem, rpm: float, dofs: Sequence[int], *, harmonics: int = RESOLVED_HARMONICS,
                 fast_forces: bool = True, **settle_options) -> tuple[Array, float, str]:
     """The periodic steady state at the constant speed ``rpm`` by time integration from rest
     (``transient.settle``): the state [q, q'] at rotor angle 0, the orbit's amplitude at ``dofs`` and a
@@ -500,7 +500,7 @@ def start_state(system: SpeedSystem, rpm: float, dofs: Sequence[int], *, harmoni
 
 
 def integrate_sweep(system: SpeedSystem, profile: SpeedProfile, t_eval: Array, dofs: Sequence[int], *,
-                    start: object = None, harmonics: int = 7, rtol: float = DEFAULT_RTOL,
+                    start: object = None, harmonics: int = RESOLVED_HARMONICS, rtol: float = DEFAULT_RTOL,
                     atol_relative: float = DEFAULT_ATOL_RELATIVE, atol: float | None = None,
                     velocity_scale: float = DEFAULT_VELOCITY_SCALE, max_displacement: float = 1.0,
                     fast_forces: bool = True, settle_options: Mapping | None = None) -> SweepResult:

@@ -75,6 +75,10 @@ Array = np.ndarray
 DEFAULT_METHOD = "Radau"
 #: default relative tolerance
 DEFAULT_RTOL = 1e-8
+#: the highest harmonic H of a steady state resolved in time (a settled period compared harmonic by harmonic, a
+#: run-up's harmonics) and of the virtual rig's truth (config ``rig: NAME: harmonics``, which has no schema default:
+#: hybridtwin.data.rig.RigSpec): beyond the analysis's (the config's ``harmonics``, solver.DEFAULT_HARMONICS)
+RESOLVED_HARMONICS = 7
 #: default absolute tolerance on displacements [m, rad]
 DEFAULT_ATOL = 1e-8
 #: velocities get the absolute tolerance atol * velocity_scale [rad/s]
@@ -488,7 +492,7 @@ class _Transition:
 def settle(
     first_order: FirstOrder,
     dofs: Sequence[int],
-    harmonics: int = 7,
+    harmonics: int = RESOLVED_HARMONICS,
     start: tuple[Array, Array] | Array | None = None,
     previous: FirstOrder | None = None,
     *,
@@ -579,7 +583,8 @@ def settle(
                           f"{change:.2e} of the largest, tolerance {tolerance:.1e}", budget=True)
 
 
-def run_up_harmonics(systems: Sequence[System], dofs: Sequence[int], harmonics: int = 7, *, scenario: int = 0,
+def run_up_harmonics(systems: Sequence[System], dofs: Sequence[int], harmonics: int = RESOLVED_HARMONICS, *,
+                     scenario: int = 0,
                      fast_forces: bool = True, **options) -> list[SettledPeriod]:
     """A quasi-static run-up (or run-down) in time through ``systems``, one speed each, in the given order.
 
