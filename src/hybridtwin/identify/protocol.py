@@ -82,9 +82,10 @@ class ProtocolResult:
 
 
 def random_starts(layout, n: int, rng: np.random.Generator) -> Array:
-    """n uniform random starts in [-1, 1] for the physical entries (phases set later), (n, layout.n)."""
+    """n uniform random starts in [-1, 1] for the physical entries (phases set later, runout offsets 0),
+    (n, layout.n)."""
     theta = rng.uniform(-1.0, 1.0, (n, layout.n))
-    theta[:, layout.is_phase] = 0.0
+    theta[:, getattr(layout, "is_nuisance", layout.is_phase)] = 0.0
     return theta
 
 
