@@ -9,20 +9,22 @@ Jacobian in the layout's block-arrow form (shared columns, one block per run) th
 
 Runout offsets. A transient record's slow-roll runout is estimated once (``hybridtwin.data.slow_roll``) and
 subtracted from all of its bands, so the estimate's error delta (per harmonic h and channel c, complex, each part
-~ N(0, s^2), s the band's ``RunData.runout_sigma``) is one and the same in every band of the record. Its weighted
-residuals are then r_i - delta / sigma_i (r_i the band's residual without it, sigma_i its own sigma without s), and
-the generalised-least-squares chi^2 with that common error,
+~ N(0, s^2), s the band's ``RunData.runout_sigma``) is one and the same in every band of the record. With
+r_i = (X_i - M_i) / sigma_i band i's weighted residual (sigma_i its own sigma, s taken out: sqrt(sigma^2 - s^2)),
+the generalised-least-squares chi^2 with that common error is, per record, harmonic, channel and part,
 
     chi^2_GLS = r^T (I + s^2 u u^T)^-1 r = min over delta of sum_i |r_i - delta / sigma_i|^2 + |delta / s|^2,
 
-u_i = 1 / sigma_i, is what the fit minimises with delta as a parameter and the prior row delta / s (the right side:
-a ridge regression's identity). We keep delta as parameters rather than profiling it out per step because the
+u_i = 1 / sigma_i (the minimum over delta in closed form gives the left side): the fit minimises the right side,
+with delta as a parameter added to every band's model and the prior row delta / s. We keep delta as parameters
+rather than profiling it out per step because the
 profiled residuals would couple every band of a record in every block column and break the block-arrow form, while
 the parameters keep it: they sit in the shared block (theta's entries for them are delta / s, prior N(0, 1), start
 0), zero Jacobian outside their record's bands. They are nuisance entries (``Layout.is_nuisance``: never physical,
 never "loose", kind "nuisance" in the parameter table, value in metres). They switch on only for records with at
 least two bands in a fit: for a single band the offset and the quadrature sum of ``slow_roll.compensate`` give the
-same fit, so a per-run fit and data without runout sigmas (steady runs) keep their layout, bit for bit.
+same fit, so a per-run fit and data without runout sigmas (steady runs) keep their layout, bit for bit. The
+Monte Carlo repeats draw delta once per record and repeat (``protocol.resample``).
 """
 
 from __future__ import annotations
