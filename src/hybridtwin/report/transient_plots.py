@@ -186,7 +186,7 @@ def model_at(dense: pd.DataFrame, mass_g: float, kind: str, rpm: Sequence[float]
     sweep = SWEEPS["down"] if str(kind).strip().lower() == "coastdown" else SWEEPS["up"]
     channels = channels_of(dense)
     part = dense[(dense["sweep"] == sweep) & np.isclose(dense["eccentric_mass_g"], mass_g)
-                 & np.isclose(dense.get("eccentric_mass_angle_deg", 0.0), np.mod(angle_deg, 360.0))]
+                 & np.isclose(dense["eccentric_mass_angle_deg"], np.mod(angle_deg, 360.0))]
     rpm = np.asarray(rpm, float)
     out = np.full((rpm.size, harmonics, len(channels)), np.nan + 0j)
     for h in range(1, harmonics + 1):
