@@ -116,11 +116,12 @@ def extended_problem(base: BaseFit, candidates: Sequence[Candidate],
     ext = extend(base.variant, candidates, ranges)
     lower, upper = zip(*ext.unknown.values())
     layout = Layout.build(list(ext.unknown), lower, upper, base.layout.runs,
-                          base.layout.local if per_run is None else per_run, base.layout.phase_sigma)
+                          base.layout.local if per_run is None else per_run, base.layout.phase_sigma,
+                          base.layout.offsets, base.layout.run_records)
     models = [SolverModel.for_data(ext, d, layout.parameters, np.array(lower), np.array(upper), base.harmonics)
               for d in base.data]
     known = dict(zip(base.layout.entries(), base.theta))
-    theta = np.array([known[e] if e in known else float(layout.normalise(e[0], 0.0)) for e in layout.entries()])
+    theta = np.array([known[e] if e in known else layout.theta_of(e, 0.0) for e in layout.entries()])
     return ArrowProblem(models, layout, base.sigma), theta
 
 
@@ -172,7 +173,7 @@ def score_tests(base: BaseFit, candidates: Sequence[Candidate]) -> Scores:
     entries = layout.entries()
     tested = {p.name for c in candidates for p in c.parameters}
     is_base = np.array([p not in tested for p, _ in entries])
-    free = is_base & (layout.is_phase | (np.abs(theta) < 1.0 - BOUND_TOLERANCE))
+    free = is_base & (layout.is_nuisance | (np.abs(theta) < 1.0 - BOUND_TOLERANCE))
     Q = column_basis(J[:, free])
     r_p = r - Q @ (Q.T @ r)
     scores = []

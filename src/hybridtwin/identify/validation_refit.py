@@ -188,8 +188,8 @@ def explain_run(variant, joint: pd.DataFrame, harmonics: pd.DataFrame, data: idn
     if any(e not in start for e in layout.entries()):
         return Explanation(data.run, "not_checked", chi2_predicted=chi2_predicted,
                            detail="the joint table lacks an entry of the fit with this run")
-    theta0 = np.clip([start[(p, run)] if p == "phase" else float(layout.normalise(p, start[(p, run)]))
-                      for p, run in layout.entries()], *layout.bounds())
+    theta0 = np.clip([layout.theta_of((p, run), start[(p, run)]) for p, run in layout.entries()],
+                     *layout.bounds())
     models = solver_models(variant, every, H)
     sigma = np.stack([d.sigma for d in every])
     X = np.stack([d.X for d in every])
