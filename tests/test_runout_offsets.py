@@ -7,6 +7,7 @@ sum alone, the old weights, does not)."""
 from __future__ import annotations
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from hybridtwin.data.measured import RunData
@@ -149,3 +150,16 @@ def test_monte_carlo_repeats_draw_the_offset_once_per_record():
     options = ProtocolOptions(trials=2, monte_carlo=300, seed=2, lm=LMOptions(max_iterations=50))
     row = identify(models, data, [], options, scale_by_residual=False).table().set_index("parameter").loc["a"]
     assert row["mc_std"] == pytest.approx(row["stderr"], rel=0.15)
+
+
+def test_the_twin_card_takes_the_fit_runs_not_the_records_of_the_runout_offsets():
+    """parameters.tsv of a joint fit on run-up bands holds a phase per band and, since the runout offsets, nuisance rows
+    whose run is a record's name: the twin's fit runs are the bands (the twin_card rule failed on the run-up example,
+    looking the records up among the bands)."""
+    from hybridtwin.online.twin import fit_runs
+
+    table = pd.DataFrame({
+        "parameter": ["k_b", "phase", "phase", "phase", "runout_x1_re", "runout_x1_im"],
+        "run": ["all", "up15_b0350", "up15_b0370", "down26_b0410", "up15", "up15"],
+        "kind": ["shared", "nuisance", "nuisance", "nuisance", "nuisance", "nuisance"]})
+    assert fit_runs(table) == ["up15_b0350", "up15_b0370", "down26_b0410"]
