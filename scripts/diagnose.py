@@ -16,7 +16,7 @@ variant = cfg.variant(model, smk.wildcards.variant)
 options = smk.params.options
 table = idn.read_parameters(smk.input.parameters)
 harmonics = idn.read_harmonics(smk.input.harmonics)
-runs = [r for r in dict.fromkeys(table["run"]) if r != "all"]
+runs = idn.fit_runs(table)  # the runs with a phase (a record's runout offsets are rows of its own)
 keyphasor = smk.params.keyphasor  # as the identification used it (identification: keyphasor)
 data = [idn.run_data(harmonics, run, keyphasor=keyphasor, channels=variant.channels) for run in runs]
 base = st.BaseFit.from_table(variant, table, data, int(smk.params.harmonics))

@@ -3,13 +3,13 @@ input, params and output."""
 
 from hybridtwin import config as cfg
 from hybridtwin.identify import identification as idn
-from hybridtwin.online.twin import fit_runs, make_card, write_card
+from hybridtwin.online.twin import make_card, write_card
 from hybridtwin.identify.run_fits import read_summary
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "twin_card")
 table = idn.read_parameters(smk.input.parameters)
-runs = fit_runs(table)
+runs = idn.fit_runs(table)
 measured = idn.read_harmonics(smk.input.harmonics).set_index("run").loc[runs].reset_index()
 measured["rpm"] = measured["rpm_true"].fillna(measured["rpm"])
 fit = read_summary(smk.input.summary)["final"]

@@ -156,7 +156,7 @@ def test_the_twin_card_takes_the_fit_runs_not_the_records_of_the_runout_offsets(
     """parameters.tsv of a joint fit on run-up bands holds a phase per band and, since the runout offsets, nuisance rows
     whose run is a record's name: the twin's fit runs are the bands (the twin_card rule failed on the run-up example,
     looking the records up among the bands)."""
-    from hybridtwin.online.twin import fit_runs
+    from hybridtwin.identify.identification import fit_runs
 
     table = pd.DataFrame({
         "parameter": ["k_b", "phase", "phase", "phase", "runout_x1_re", "runout_x1_im"],

@@ -347,6 +347,12 @@ class Identification:
                 "notes": list(u.notes) + (list(self.profile.notes) if self.profile is not None else [])}
 
 
+def fit_runs(table: pd.DataFrame) -> list[str]:
+    """The fit's runs in its order, from its parameter table (``Identification.table``): those with a phase. A
+    transient record's runout offsets are nuisance rows too, but per record (their run is the record's name)."""
+    return list(dict.fromkeys(table.loc[table["parameter"].astype(str) == "phase", "run"].astype(str)))
+
+
 def _stem_parts(stem: str, names: Sequence[str]) -> tuple[int, int]:
     """(h, channel column) of a runout offset's stem read back from a table (x1 -> 1; the channels numbered in
     order of appearance among the table's offsets): a read result has no problem, so these only label its layout."""

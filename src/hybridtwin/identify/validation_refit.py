@@ -176,7 +176,7 @@ def explain_run(variant, joint: pd.DataFrame, harmonics: pd.DataFrame, data: idn
     if not beyond_noise(chi2_predicted, n):
         return Explanation(data.run, "within_noise", chi2_predicted=chi2_predicted)
     names, lower, upper = ranges(variant)
-    fit_runs = list(dict.fromkeys(joint.loc[joint["parameter"] == "phase", "run"].astype(str)))
+    fit_runs = idn.fit_runs(joint)
     fitted = [idn.run_data(harmonics, r, keyphasor=options["keyphasor"], channels=variant.channels) for r in fit_runs]
     every = [*fitted, data]
     H = min(n_harmonics, *(d.H for d in every))

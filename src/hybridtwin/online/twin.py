@@ -52,12 +52,6 @@ class TwinError(ValueError):
     """A twin folder that cannot be assessed against: one line naming the file and the problem."""
 
 
-def fit_runs(parameters: pd.DataFrame) -> list[str]:
-    """The joint fit's runs in its order, from its parameter table (parameters.tsv): those with a phase. A transient
-    record's runout offsets are nuisance rows too, but per record (their run is the record's name), not runs."""
-    return list(dict.fromkeys(parameters.loc[parameters["parameter"] == "phase", "run"].astype(str)))
-
-
 def make_card(variant: str, model: Mapping, harmonics: int, keyphasor: bool, candidates: Sequence[str] | None,
               sensor_range_mm: float, runs: pd.DataFrame, fit: Mapping) -> dict:
     """The card's mapping (``write_card`` writes it, ``read_card`` reads it back): ``model`` as the workflow's jobs
