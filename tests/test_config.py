@@ -438,21 +438,23 @@ def test_a_variants_own_per_run_overrides_the_identification_default_for_it_alon
 
 
 def test_the_readmes_quick_look_overlay_is_valid_and_does_what_it_says(project):
-    """The README's "quicker first look" overlay (its yaml block) passes the checks, halves every bundled
-    variant's design (its comment says so), switches the enrichment off and keeps one sPGD degree; the options
-    it does not name keep their values (Snakemake merges nested keys)."""
+    """The README's overlay for the paper's libraries (its yaml block, under "The paper's libraries") passes the
+    checks, switches the libraries on, halves every bundled variant's design (its comment says so), switches the
+    enrichment off and keeps one sPGD degree; the options it does not name keep their values (Snakemake merges
+    nested keys)."""
     import re
 
     from hybridtwin.config import n_scenarios, offline, variant
 
     readme = (ROOT / "README.md").read_text()
-    block = re.search(r"\*\*A quicker first look\.\*\*.*?```yaml\n(.*?)```", readme, re.DOTALL).group(1)
+    block = re.search(r"\*\*The paper\'s libraries\.\*\*.*?```yaml\n(.*?)```", readme, re.DOTALL).group(1)
     assert _problems(block, project) == []
     base = _merged(Path("config/config.yaml"))
     quick = _merged(Path("config/config.yaml"), Path("overlay.yaml"))
     assert set(quick["offline"]["n_scenarios"]) == set(base["variants"])
     for name in base["variants"]:
         assert 2 * n_scenarios(quick, variant(quick, name)) == n_scenarios(base, variant(base, name)), name
+    assert offline(quick)["scope"] == "run" and offline(base)["scope"] == "none"
     assert offline(quick)["enrichment"]["n_scenarios"] == 0
     assert offline(quick)["enrichment"]["chunks"] == offline(base)["enrichment"]["chunks"]
     assert offline(quick)["spgd"]["degree"] == 8 and offline(base)["spgd"]["degree"] != 8

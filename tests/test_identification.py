@@ -341,7 +341,7 @@ def test_distinct_optima_are_ordered_by_loss_one_per_optimum_phases_wrapped():
 def small_config(runs_sheet: str) -> dict:
     return {
         "harmonics": 5, "runs": runs_sheet, "effects_files": [],
-        "offline": {"n_scenarios": {"geometric": 120}, "n_test": 20, "chunks": 2,
+        "offline": {"scope": "run", "n_scenarios": {"geometric": 120}, "n_test": 20, "chunks": 2,
                     "spgd": {"degree": 5, "max_terms": 30, "patience": 5},
                     "enrichment": {"n_scenarios": 40, "chunks": 1}},  # the default 6000 is for full-size runs
         "variants": {"geometric": {"effects": GEOMETRIC, "unknown": RANGES}},

@@ -19,7 +19,7 @@ from test_workflow import SMALL, _copy_workflow, _snakemake
 RUNS = ["r850_m14p8", "r900_m0p0", "r950_m0p0", "r1000_m0p0"]
 # the small configuration's settings where they fit (its Geometric variant), lighter identification and diagnosis
 LOOP = {"harmonics": 3, "runs": "data/small/runs.tsv", "effects_files": [],
-        "offline": {"n_scenarios": {"geometric": 80}, "n_test": 20, "chunks": 2,
+        "offline": {"scope": "run", "n_scenarios": {"geometric": 80}, "n_test": 20, "chunks": 2,
                     "spgd": {"degree": 3, "max_terms": 12, "patience": 4},
                     "enrichment": {"n_scenarios": 40, "chunks": 1}},  # the default (then 2000) cost ~2 min here
         "identification": {"trials": 8, "monte_carlo": 10, "joint": {"trials": 8, "monte_carlo": 0},

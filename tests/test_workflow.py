@@ -29,7 +29,7 @@ SMALL = """
 harmonics: 3
 runs: data/small/runs.tsv
 effects_files: []
-offline: {n_scenarios: {geometric: 80, final: 80}, n_test: 20, chunks: 2,
+offline: {scope: run, n_scenarios: {geometric: 80, final: 80}, n_test: 20, chunks: 2,
           spgd: {degree: [2, 3], max_terms: 12, patience: 4},
           enrichment: {observable_below: 1.01, n_scenarios: 10, chunks: 1}}
 variants:
