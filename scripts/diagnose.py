@@ -33,6 +33,7 @@ if "sparse" in smk.input.keys():
                                       "active": sparse.loc[sparse["active"], "parameter"].tolist()}
 dgr.write(result, smk.output.table, smk.output.recommendation, smk.output.summary, sparse, sparse_name)
 result.fingerprint.table().to_csv(smk.output.fingerprint, sep="\t", index=False, float_format="%.9g")
+result.intervals.write(smk.output.intervals)
 dg.refits_table(result).to_csv(smk.output.refits, sep="\t", index=False, float_format="%.12g")
 dgr.plot(result).savefig(smk.output.plot, dpi=120)
 interactive.write_html(interactive.diagnosis_figure(result), smk.output.plot_html)

@@ -22,13 +22,14 @@ from __future__ import annotations
 
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
 from scipy import optimize, stats
 
 from ..model.candidates import Candidate
+from .form_intervals import form_intervals, own_intervals
 from ..identify.forward import SolverModel
 from ..identify.arrow_problem import ArrowProblem, Layout
 from ..identify.identification import RunData, theta_from_table
@@ -51,6 +52,8 @@ class BaseFit:
     #: the fit's parameters the data left undetermined (not identifiable, or at a range edge), each with why:
     #: where a missing effect can hide (the diagnosis then cannot rule one out)
     undetermined: tuple[str, ...] = ()
+    #: the fit's reported 95 % interval [SI] of each shared parameter (parameters.tsv), where known
+    intervals: dict = field(default_factory=dict)
 
     @property
     def X(self) -> Array:
@@ -72,7 +75,8 @@ class BaseFit:
         if theta is None:
             raise ValueError("the parameter table lacks an entry or has a non-finite estimate: the fit failed, "
                              "nothing to diagnose")
-        return cls(variant, layout, theta, list(data), harmonics, undetermined_parameters(fitted))
+        return cls(variant, layout, theta, list(data), harmonics, undetermined_parameters(fitted),
+                   own_intervals(table) if {"ci_low", "ci_high", "kind"} <= set(table) else {})
 
 
 def undetermined_parameters(table: pd.DataFrame) -> tuple[str, ...]:
@@ -156,6 +160,14 @@ class Scores:
     projected_residual: Array  # r_p
     scores: list[Score]
     seconds: float
+    # the linearisation the scores come from (``form_intervals`` reuses it): J (m, n) over the extended problem's
+    # entries (the base's and every candidate's, at beta = 0), theta (n,), which base entries are free, and each
+    # candidate's columns; the extended layout (its ranges)
+    jacobian: Array | None = None
+    theta: Array | None = None
+    free: Array | None = None
+    columns: dict | None = None
+    layout: Layout | None = None
 
 
 def score_tests(base: BaseFit, candidates: Sequence[Candidate]) -> Scores:
@@ -176,12 +188,24 @@ def score_tests(base: BaseFit, candidates: Sequence[Candidate]) -> Scores:
     free = is_base & (layout.is_nuisance | (np.abs(theta) < 1.0 - BOUND_TOLERANCE))
     Q = column_basis(J[:, free])
     r_p = r - Q @ (Q.T @ r)
-    scores = []
+    scores, columns = [], {}
     for c in candidates:
         cols = [entries.index((p.name, "all")) for p in c.parameters]
+        columns[c.name] = cols
         scores.append(candidate_score(c, J[:, cols], Q, r_p, theta[cols]))
     dof = r.size - int(free.sum())
-    return Scores(float(r @ r), dof, r.size, r, r_p, scores, time.perf_counter() - start)
+    return Scores(float(r @ r), dof, r.size, r, r_p, scores, time.perf_counter() - start, J, theta, free, columns,
+                  layout)
+
+
+def intervals_over_candidates(scores: Scores, own: Mapping[str, tuple[float, float]] | None = None,
+                              confidence: float = 0.95):
+    """The shared parameters' intervals over each scored candidate (``form_intervals``), from the score tests'
+    linearisation; ``own``: the fit's reported intervals [SI]."""
+    L = scores.layout
+    lower, upper = dict(zip(L.parameters, L.lower)), dict(zip(L.parameters, L.upper))
+    return form_intervals(scores.jacobian, scores.residual, scores.theta, L.entries(), scores.free, scores.columns,
+                          dict(own or {}), lower, upper, scores.base_dof, confidence)
 
 
 def candidate_score(candidate: Candidate, G: Array, Q: Array, r_p: Array, theta: Array) -> Score:
