@@ -109,8 +109,8 @@ def _form_markdown(rows: list | None, units: dict) -> str:
             "of the candidates is present, as far as these data can tell")
     return ("## Intervals over the effects these data cannot exclude\n\n"
             "Each interval of the final model holds for its own form. With each candidate effect not in it added "
-            "(held to its range, linearised at the fit: `diagnosis_intervals.tsv`), the interval over all of them "
-            f"is the second column. {what}.\n\n" + "\n".join(lines) + "\n\n")
+            "(held to its range, linearised at the fit: `diagnosis_intervals.tsv`), the interval that holds over all "
+            f"of them is the column \"over the candidates\". {what}.\n\n" + "\n".join(lines) + "\n\n")
 
 
 def _intervals_markdown(intervals: dict | None) -> str:
