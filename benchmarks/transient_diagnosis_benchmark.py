@@ -125,7 +125,7 @@ def main() -> int:
                      "status": result.status.value, "chi2_dof_before": result.summary["base_chi2_dof"],
                      "chi2_dof_after": after, "path": " + ".join(s.effect for s in result.path),
                      "estimate_vs_truth": estimates(case, result),
-                     **dict(zip(("inside", "estimated"), coverage(case, result))),
+                     **dict(zip(("inside", "estimated", "inside_over_candidates"), coverage(case, result))),
                      "rig_s": rig_s, "fit_s": fit_s,
                      "diagnose_s": diagnose_s, "diagnose_cpu_s": diagnose_cpu_s,
                      "refits": len(result.summary["refitted"]),
@@ -150,8 +150,9 @@ def main() -> int:
                          "diagnose_s"] if c in table]
     print(table[shown].to_string(index=False, float_format=lambda v: f"{v:.3g}"))
     inside, estimated = int(table["inside"].sum()), int(table["estimated"].sum())
+    over = int(table["inside_over_candidates"].sum())
     print(f"\ncorrect: {int(table['correct'].sum())} of {len(table)}; hidden values inside their 95 % interval: "
-          f"{inside} of {estimated}; table written to {args.out}")
+          f"{inside} of {estimated}, inside the interval over the candidates: {over}; table written to {args.out}")
     return 0
 
 

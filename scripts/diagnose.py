@@ -16,7 +16,7 @@ variant = cfg.variant(model, smk.wildcards.variant)
 options = smk.params.options
 table = idn.read_parameters(smk.input.parameters)
 harmonics = idn.read_harmonics(smk.input.harmonics)
-runs = [r for r in dict.fromkeys(table["run"]) if r != "all"]
+runs = idn.fit_runs(table)  # the runs with a phase (a record's runout offsets are rows of its own)
 keyphasor = smk.params.keyphasor  # as the identification used it (identification: keyphasor)
 data = [idn.run_data(harmonics, run, keyphasor=keyphasor, channels=variant.channels) for run in runs]
 base = st.BaseFit.from_table(variant, table, data, int(smk.params.harmonics))
@@ -33,6 +33,7 @@ if "sparse" in smk.input.keys():
                                       "active": sparse.loc[sparse["active"], "parameter"].tolist()}
 dgr.write(result, smk.output.table, smk.output.recommendation, smk.output.summary, sparse, sparse_name)
 result.fingerprint.table().to_csv(smk.output.fingerprint, sep="\t", index=False, float_format="%.9g")
+result.intervals.write(smk.output.intervals)
 dg.refits_table(result).to_csv(smk.output.refits, sep="\t", index=False, float_format="%.12g")
 dgr.plot(result).savefig(smk.output.plot, dpi=120)
 interactive.write_html(interactive.diagnosis_figure(result), smk.output.plot_html)

@@ -9,7 +9,7 @@ from hybridtwin.identify.run_fits import read_summary
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "twin_card")
 table = idn.read_parameters(smk.input.parameters)
-runs = list(dict.fromkeys(table.loc[table["kind"] == "nuisance", "run"]))  # the joint fit's runs (a phase each)
+runs = idn.fit_runs(table)
 measured = idn.read_harmonics(smk.input.harmonics).set_index("run").loc[runs].reset_index()
 measured["rpm"] = measured["rpm_true"].fillna(measured["rpm"])
 fit = read_summary(smk.input.summary)["final"]

@@ -372,19 +372,34 @@ def test_a_base_fit_in_another_basin_is_left_by_the_profile():
 def test_the_path_stops_when_no_quick_refit_comes_near_the_noise():
     """The forward selection's stop rule (diagnosis._out_of_reach): with chi^2 1000 on 100 dof, the drop to
     chi^2/dof = misfit_ratio (1.2) is 880; a best quick refit removing half of 880 / REACH stops the path and
-    names that candidate (not the weaker one), one removing 880 / REACH lets it go on, and no refit never stops."""
+    names that candidate (not the weaker one), one removing 880 / REACH lets it go on, and no refit never stops.
+    Nor does a short step where a candidate among the ``thorough`` best by score stopped its quick refit at a range
+    edge it could widen (its truth may lie beyond: the lower bearing 60 % softer on run-ups); one ranked below them
+    does not keep the path going."""
     from types import SimpleNamespace
 
-    scores = SimpleNamespace(base_chi2=1000.0, base_dof=100)
+    def score(name, log_p):
+        return SimpleNamespace(candidate=SimpleNamespace(name=name), log_p=log_p, statistic=-log_p)
+
+    def refit(chi2, widenable=False):
+        return SimpleNamespace(chi2=chi2, widenable=widenable)
+
+    names = ["a", "b", "c", "d", "e"]
+    scores = SimpleNamespace(base_chi2=1000.0, base_dof=100, scores=[score(n, -50.0 + i) for i, n in enumerate(names)])
     o = OPTIONS
     needed = 1000.0 - o["misfit_ratio"] * 100
     short, enough = 0.5 * needed / dg.REACH, needed / dg.REACH
-    stop = dg._out_of_reach(scores, {"a": SimpleNamespace(chi2=1000.0 - short / 2),
-                                     "b": SimpleNamespace(chi2=1000.0 - short)}, o)
+    stop = dg._out_of_reach(scores, {"a": refit(1000.0 - short / 2), "b": refit(1000.0 - short)}, o)
     assert stop.startswith(f"the best remaining candidate, b, removes {short:.4g} of chi^2 1000")
     assert f"{needed:.4g} needed" in stop
-    assert dg._out_of_reach(scores, {"b": SimpleNamespace(chi2=1000.0 - enough)}, o) == ""
+    assert dg._out_of_reach(scores, {"b": refit(1000.0 - enough)}, o) == ""
     assert dg._out_of_reach(scores, {}, o) == ""
+    assert o["thorough"] < len(names)
+    within = names[o["thorough"] - 1]  # the last of the thorough best by score
+    beyond = names[o["thorough"]]
+    quick = {n: refit(1000.0 - short) for n in names}
+    assert dg._out_of_reach(scores, quick | {within: refit(1000.0 - short / 4, widenable=True)}, o) == ""
+    assert dg._out_of_reach(scores, quick | {beyond: refit(1000.0 - short / 4, widenable=True)}, o) != ""
 
 
 def test_a_refit_whose_optimum_is_unstable_is_never_confirmed():

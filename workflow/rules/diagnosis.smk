@@ -24,6 +24,12 @@ rule diagnose:
         summary="results/{variant}/diagnosis.yaml",
         refits="results/{variant}/diagnosis_refits.tsv",
         fingerprint="results/{variant}/diagnosis_fingerprint.tsv",
+        intervals=report(
+            "results/{variant}/diagnosis_intervals.tsv",
+            caption="../report/diagnosis_intervals.rst",
+            category="Diagnosis",
+            subcategory="{variant}",
+        ),
         plot=report(
             "results/{variant}/diagnosis.png",
             caption="../report/diagnosis_plot.rst",

@@ -18,7 +18,7 @@ import pandas as pd
 from .measurements import trial_angles
 from .preprocessing import harmonic_column, origin_share, table_channels
 from .record_columns import highest_harmonic
-from .slow_roll import RUNOUT_HARMONICS
+from .slow_roll import RUNOUT_HARMONICS, runout_sigma_column
 from ..model.sensor import DEFAULT_CHANNELS
 
 Array = np.ndarray
@@ -53,6 +53,12 @@ class RunData:
     sweep_from_rpm: float | None = None
     # the trial mass's angle [deg] at the keyphasor mark, from +x towards +y (the sheet's eccentric_mass_angle_deg)
     eccentric_mass_angle_deg: float = 0.0
+    # a transient band's record (the sheet's run, its ``parent_run``) and the sigma [m] (H, C) of the record's
+    # slow-roll runout estimate that the band's sigma holds in quadrature (0 where none was subtracted): an error
+    # common to all of the record's bands, which the identification fits as one offset per record (arrow_problem's
+    # "runout offsets"); None for a steady run or a table written before these columns
+    record: str | None = None
+    runout_sigma: Array | None = None
 
     @property
     def H(self) -> int:
@@ -140,9 +146,17 @@ def run_data(table: pd.DataFrame, run: str, harmonics: int | None = None, keypha
     usable = bool(row.get("usable", True)) and np.isfinite(X).all() and np.isfinite(sigma).all()
     compensated = str(row.get("slowroll_compensated", False)).strip().lower() in ("true", "1")
     down = str(row.get("kind", "")).strip().lower() == "coastdown"
+    record, runout = None, None
+    columns = [[runout_sigma_column(c, h) for c in channels] for h in range(1, H + 1)]
+    parent = str(row.get("parent_run", "") if pd.notna(row.get("parent_run", "")) else "").strip()
+    if compensated and parent and any(name in table for part in columns for name in part):
+        runout = np.array([[float(row.get(name, 0.0)) for name in part] for part in columns])
+        runout = np.where(np.isfinite(runout) & (runout > 0), runout, 0.0)
+        record = parent if runout.any() else None
+        runout = runout if runout.any() else None
     return RunData(str(run), rpm, float(row["eccentric_mass_g"]), str(row.get("role", "fit")), X, sigma, usable,
                    str(row.get("note", "ok")), phase_sigma, channels, RUNOUT_HARMONICS if compensated else (),
-                   float(row["rpm_start"]) if down else None, float(trial_angles(rows)[0]))
+                   float(row["rpm_start"]) if down else None, float(trial_angles(rows)[0]), record, runout)
 
 
 def total_sigma(data: RunData, relative_model_error: float = 0.0) -> Array:

@@ -147,6 +147,23 @@ def compensate(table: pd.DataFrame, runout_table: pd.DataFrame) -> pd.DataFrame:
     return out
 
 
+def runout_sigma_column(channel: str, h: int) -> str:
+    """The bands table's column of the runout's sigma [m] that ``compensate`` added in quadrature to channel
+    ``channel``'s harmonic ``h`` (x1_runout_sigma_m): the identification models that part as one offset per record
+    (``hybridtwin.identify.arrow_problem``, "runout offsets"), common to the record's bands, not as independent."""
+    return _harmonic_column(channel, h, "runout_sigma")
+
+
+def with_runout_sigma(table: pd.DataFrame, runout_table: pd.DataFrame) -> pd.DataFrame:
+    """``table`` (a record's bands, already ``compensate``d) with one ``runout_sigma_column`` per row of
+    ``runout_table``: the sigma its estimate added to every band, the same for all bands of the record."""
+    out = table.copy()
+    for row in runout_table.itertuples(index=False):
+        out[runout_sigma_column(row.channel, row.harmonic)] = float(row.runout_sigma_m)
+    out.attrs.update(table.attrs)
+    return out
+
+
 def slow_roll_compensation(table: pd.DataFrame, enabled: bool = True, band_rpm: Sequence[float] | None = None,
                            harmonics: Sequence[int] = RUNOUT_HARMONICS,
                            min_windows: int = MIN_WINDOWS) -> tuple[pd.DataFrame, pd.DataFrame]:

@@ -25,7 +25,9 @@ model's response at a band is the steady state reached by continuation, as the r
   span) the 1X and 2X vectors are runout (a mark on the shaft, turning with it, of constant size) plus the dynamic
   response, which at low speed grows as Omega^2: the runout is the intercept of R + b Omega^2, subtracted as a
   vector from every band's 1X and 2X, its uncertainty added in quadrature; a band holding dynamics is reported per
-  probe. Off with ``slowroll`` False.
+  probe. Off with ``slowroll`` False. That uncertainty is one error common to all of a record's bands: each band
+  also carries it as ``<channel><h>_runout_sigma_m`` (``slow_roll.runout_sigma_column``) and its record in
+  ``parent_run``, from which the identification fits it as one offset per record (``measured.RunData.record``).
 
 SI inside; rpm at the boundary. Conventions as everywhere: u(t) = Re(sum_h U_h exp(i h theta)), 0-peak.
 """
@@ -43,7 +45,7 @@ from .records import Record
 from .record_columns import carried_columns, harmonic_column, harmonic_columns, highest_harmonic
 from .run_kinds import BandPlan
 from .order_tracking import SpeedProfile, TrackingError, speed_profile, track_orders
-from .slow_roll import SlowRollWarning, compensate, runout as slow_roll_runout
+from .slow_roll import SlowRollWarning, compensate, runout as slow_roll_runout, with_runout_sigma
 
 Array = np.ndarray
 
@@ -232,7 +234,7 @@ def track_record(record: Record, sheet_row: Mapping, harmonics: int, sensor_rang
                             "slowroll_compensated": bool(slowroll)} | analysed)
     bands = pd.DataFrame(rows)
     if slowroll and not runout.empty:
-        bands = compensate(bands, runout)
+        bands = with_runout_sigma(compensate(bands, runout), runout)
     bands = check_sweep_rate(bands, names, plan)
     return TrackedRecord(bands, runout, profile.table(), orders, tuple(caught))
 

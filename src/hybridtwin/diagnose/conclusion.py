@@ -46,6 +46,8 @@ class Diagnosis:
     path: list = field(default_factory=list)  # forward selection, a Step per effect added
     fingerprint: Fingerprint | None = None  # of the residual left at the end of the path (or of the base)
     status: Status | None = None  # the overall outcome, a code (``summary["status"]``): act on it, not on the text
+    #: the final model's shared parameters' intervals over the candidates not in it (``form_intervals``)
+    intervals: object | None = None
 
     def estimates(self) -> pd.DataFrame:
         """The path's effects' parameters (``Identification.table`` rows, with ``effect``) at the path's final

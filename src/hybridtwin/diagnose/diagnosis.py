@@ -53,12 +53,13 @@ import pandas as pd
 
 from ..model.candidates import Candidate
 from .conclusion import (Diagnosis, Step, _conclude, _conclude_path, _excess, _fits_the_noise, _is_confirmed,
-                         _set_verdict)
+                         _path_ranges, _set_verdict)
 from .diagnosis_status import Status, Verdict, interval_note, negligible_step, plain
 from .elimination import _backward, _sharing
 from .fingerprint import Fingerprint, fingerprint
 from .refit import Confirmation, confirm
-from .score_test import BaseFit, Scores, by_score, extend, score_tests
+from .form_intervals import FormIntervals, own_intervals
+from .score_test import BaseFit, Scores, by_score, extend, intervals_over_candidates, score_tests
 
 Array = np.ndarray
 
@@ -134,14 +135,21 @@ def _refit_significant(base: BaseFit, scores: Scores, o: Mapping, alpha_each: fl
 #: 7925 vs 7431): a factor
 #: 10 leaves ample room. The first step never stops: its best candidate is the evidence of an unexplained
 #: discrepancy, and its base can be far from any linearisation (the lower bearing 60 % softer: quick refits at
-#: chi^2/dof 2e4, the profile at 1).
+#: chi^2/dof 2e4, the profile at 1). Nor does a step where one of the ``thorough`` best by score stopped its quick
+#: refit at a range edge it could widen: its truth may lie beyond the range, where a quick refit cannot go (the
+#: lower bearing 60 % softer on run-ups, second step after a speed-damping stand-in: its quick refit removed 2.4e4
+#: of chi^2 9.9e5, the thorough one, widened to -9900 N/m, fitted to the noise).
 REACH = 10.0
 
 
 def _out_of_reach(scores: Scores, quick: Mapping[str, Confirmation], o: Mapping) -> str:
     """Why the forward selection stops at this step (empty: it goes on): the best quick refit's chi^2 drop,
-    times REACH, is below the drop to chi^2/dof = ``misfit_ratio``."""
+    times REACH, is below the drop to chi^2/dof = ``misfit_ratio``, and none of the ``thorough`` best by score
+    stopped at a range edge it could widen (``Confirmation.widenable``: those are refitted thoroughly)."""
     if not quick:
+        return ""
+    ranked = sorted((s for s in scores.scores if s.candidate.name in quick), key=by_score)
+    if any(quick[s.candidate.name].widenable for s in ranked[: int(o["thorough"])]):
         return ""
     needed = scores.base_chi2 - o["misfit_ratio"] * scores.base_dof
     name, cf = min(quick.items(), key=lambda item: item[1].chi2)
@@ -223,12 +231,33 @@ def _finish(result: Diagnosis, base: BaseFit, scores: Scores, path: list[Step], 
     if path:  # how far the estimates' intervals can be trusted with the misfit the path leaves
         final = path[-1].confirmation
         result.summary["intervals"] = interval_note(final.chi2, final.dof, o["alpha"])
+    result.intervals = final_intervals(base, scores, path)
+    result.summary["intervals_over_candidates"] = intervals_summary(result.intervals)
     result.fingerprint = residual_fingerprint(base, path[-1].confirmation.fit.fun if path else scores.residual)
     result.summary["fingerprint"] = result.fingerprint.summary()
     if result.status in (Status.UNEXPLAINED, Status.ADD_NEARLY):
         result.conclusion += f". What the residual looks like: {result.fingerprint.summary()}"
         result.summary["conclusion"] = result.conclusion
     return result
+
+
+def final_intervals(base: BaseFit, scores: Scores, path: Sequence[Step]) -> FormIntervals:
+    """The final model's shared parameters' intervals over the candidates not in it (``form_intervals``): the
+    base's, from its score tests, when the path is empty; else the path's last fit, with every remaining candidate
+    scored at it (one batched solve)."""
+    if not path:
+        return intervals_over_candidates(scores, base.intervals)
+    final = path[-1].confirmation
+    added = {step.confirmation.candidate.name for step in path}
+    model = BaseFit(extend(base.variant, [step.confirmation.candidate for step in path], _path_ranges(path)),
+                    final.fit.layout, final.fit.theta, base.data, base.harmonics)
+    remaining = [s.candidate for s in scores.scores if s.candidate.name not in added]
+    return intervals_over_candidates(score_tests(model, remaining), own_intervals(final.fit.table()))
+
+
+def intervals_summary(intervals: FormIntervals) -> list[dict]:
+    """The union rows (``FormIntervals.union``) as plain types, for diagnosis.yaml."""
+    return plain(intervals.union().to_dict("records"), "summary.intervals_over_candidates")
 
 
 def residual_fingerprint(base: BaseFit, r: Array) -> Fingerprint:

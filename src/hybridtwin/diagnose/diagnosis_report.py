@@ -86,8 +86,31 @@ def markdown(result: Diagnosis, sparse: pd.DataFrame | None = None, sparse_name:
             f"{len(s['refitted'])} refitted.\n\n**{result.conclusion}**\n{recommendation}{path}\n"
             + (f"## What the residual looks like\n\n{result.fingerprint.summary()}\n\n"
                if result.fingerprint and result.status not in (Status.UNEXPLAINED, Status.ADD_NEARLY) else "")
+            + _form_markdown(s.get("intervals_over_candidates"), s.get("units", {}))
             + "## Candidates\n\n" + "\n".join(rows) + "\n"
             + ("" if sparse is None else _sparse_markdown(sparse, sparse_name)))
+
+
+def _form_markdown(rows: list | None, units: dict) -> str:
+    """The final model's shared parameters' intervals over the candidates not in it (``form_intervals``), a table;
+    empty when there are none."""
+    if not rows:
+        return ""
+    widened = [r for r in rows if r["widened_by"]]
+    lines = ["| parameter | estimate | 95 % interval, this form | over the candidates | widened most by |",
+             "|---|---|---|---|---|"]
+    for r in rows:
+        unit = f" {units[r['parameter']]}" if units.get(r["parameter"]) else ""
+        by = r["widened_by"].split(", ")
+        lines.append(f"| {r['parameter']} | {r['estimate']:.5g}{unit} | [{r['own_low']:.5g}, {r['own_high']:.5g}] | "
+                     f"[{r['low']:.5g}, {r['high']:.5g}] | {', '.join(by[:2]) + (' ...' if len(by) > 2 else '')} |")
+    what = ("These data leave room for some of them: where an interval widens, the estimate holds only if that effect "
+            "is absent (or small)" if widened else "None of them widens an interval: the estimates hold whichever "
+            "of the candidates is present, as far as these data can tell")
+    return ("## Intervals over the effects these data cannot exclude\n\n"
+            "Each interval of the final model holds for its own form. With each candidate effect not in it added "
+            "(held to its range, linearised at the fit: `diagnosis_intervals.tsv`), the interval that holds over all "
+            f"of them is the column \"over the candidates\". {what}.\n\n" + "\n".join(lines) + "\n\n")
 
 
 def _intervals_markdown(intervals: dict | None) -> str:

@@ -174,8 +174,7 @@ def _theta_in(layout: Layout, fit: Identification, pool=np.mean) -> Array:
         if run == "all":
             return float(pool([values[(name, r)] for r in fit.layout.runs]))
         return values[(name, "all")]
-    return np.array([value(*e) if e[0] == "phase" else float(layout.normalise(e[0], value(*e)))
-                     for e in layout.entries()])
+    return np.array([layout.theta_of(e, value(*e)) for e in layout.entries()])
 
 
 def _widened_starts(layout: Layout, fit: Identification, cols: list[int], names: Sequence[str],

@@ -22,13 +22,14 @@ from __future__ import annotations
 
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
 from scipy import optimize, stats
 
 from ..model.candidates import Candidate
+from .form_intervals import form_intervals, own_intervals
 from ..identify.forward import SolverModel
 from ..identify.arrow_problem import ArrowProblem, Layout
 from ..identify.identification import RunData, theta_from_table
@@ -51,6 +52,8 @@ class BaseFit:
     #: the fit's parameters the data left undetermined (not identifiable, or at a range edge), each with why:
     #: where a missing effect can hide (the diagnosis then cannot rule one out)
     undetermined: tuple[str, ...] = ()
+    #: the fit's reported 95 % interval [SI] of each shared parameter (parameters.tsv), where known
+    intervals: dict = field(default_factory=dict)
 
     @property
     def X(self) -> Array:
@@ -72,7 +75,8 @@ class BaseFit:
         if theta is None:
             raise ValueError("the parameter table lacks an entry or has a non-finite estimate: the fit failed, "
                              "nothing to diagnose")
-        return cls(variant, layout, theta, list(data), harmonics, undetermined_parameters(fitted))
+        return cls(variant, layout, theta, list(data), harmonics, undetermined_parameters(fitted),
+                   own_intervals(table) if {"ci_low", "ci_high", "kind"} <= set(table) else {})
 
 
 def undetermined_parameters(table: pd.DataFrame) -> tuple[str, ...]:
@@ -116,11 +120,12 @@ def extended_problem(base: BaseFit, candidates: Sequence[Candidate],
     ext = extend(base.variant, candidates, ranges)
     lower, upper = zip(*ext.unknown.values())
     layout = Layout.build(list(ext.unknown), lower, upper, base.layout.runs,
-                          base.layout.local if per_run is None else per_run, base.layout.phase_sigma)
+                          base.layout.local if per_run is None else per_run, base.layout.phase_sigma,
+                          base.layout.offsets, base.layout.run_records)
     models = [SolverModel.for_data(ext, d, layout.parameters, np.array(lower), np.array(upper), base.harmonics)
               for d in base.data]
     known = dict(zip(base.layout.entries(), base.theta))
-    theta = np.array([known[e] if e in known else float(layout.normalise(e[0], 0.0)) for e in layout.entries()])
+    theta = np.array([known[e] if e in known else layout.theta_of(e, 0.0) for e in layout.entries()])
     return ArrowProblem(models, layout, base.sigma), theta
 
 
@@ -155,6 +160,14 @@ class Scores:
     projected_residual: Array  # r_p
     scores: list[Score]
     seconds: float
+    # the linearisation the scores come from (``form_intervals`` reuses it): J (m, n) over the extended problem's
+    # entries (the base's and every candidate's, at beta = 0), theta (n,), which base entries are free, and each
+    # candidate's columns; the extended layout (its ranges)
+    jacobian: Array | None = None
+    theta: Array | None = None
+    free: Array | None = None
+    columns: dict | None = None
+    layout: Layout | None = None
 
 
 def score_tests(base: BaseFit, candidates: Sequence[Candidate]) -> Scores:
@@ -172,15 +185,27 @@ def score_tests(base: BaseFit, candidates: Sequence[Candidate]) -> Scores:
     entries = layout.entries()
     tested = {p.name for c in candidates for p in c.parameters}
     is_base = np.array([p not in tested for p, _ in entries])
-    free = is_base & (layout.is_phase | (np.abs(theta) < 1.0 - BOUND_TOLERANCE))
+    free = is_base & (layout.is_nuisance | (np.abs(theta) < 1.0 - BOUND_TOLERANCE))
     Q = column_basis(J[:, free])
     r_p = r - Q @ (Q.T @ r)
-    scores = []
+    scores, columns = [], {}
     for c in candidates:
         cols = [entries.index((p.name, "all")) for p in c.parameters]
+        columns[c.name] = cols
         scores.append(candidate_score(c, J[:, cols], Q, r_p, theta[cols]))
     dof = r.size - int(free.sum())
-    return Scores(float(r @ r), dof, r.size, r, r_p, scores, time.perf_counter() - start)
+    return Scores(float(r @ r), dof, r.size, r, r_p, scores, time.perf_counter() - start, J, theta, free, columns,
+                  layout)
+
+
+def intervals_over_candidates(scores: Scores, own: Mapping[str, tuple[float, float]] | None = None,
+                              confidence: float = 0.95):
+    """The shared parameters' intervals over each scored candidate (``form_intervals``), from the score tests'
+    linearisation; ``own``: the fit's reported intervals [SI]."""
+    L = scores.layout
+    lower, upper = dict(zip(L.parameters, L.lower)), dict(zip(L.parameters, L.upper))
+    return form_intervals(scores.jacobian, scores.residual, scores.theta, L.entries(), scores.free, scores.columns,
+                          dict(own or {}), lower, upper, scores.base_dof, confidence)
 
 
 def candidate_score(candidate: Candidate, G: Array, Q: Array, r_p: Array, theta: Array) -> Score:

@@ -70,7 +70,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .arrow_problem import ArrowProblem, Layout, wrap
+from .arrow_problem import OFFSET_PREFIX, ArrowProblem, Layout, wrap
 from .forward import HarmonicModel, SolverModel
 from ..data.measured import (  # noqa: F401 (the measured harmonics: hybridtwin.data.measured, also read from here)
     CHANNELS, RunData, model_errors, read_harmonics, run_data, table_harmonics, total_sigma,
@@ -204,7 +204,7 @@ class Identification:
         mc = L.to_si(self.protocol.monte_carlo) if len(self.protocol.monte_carlo) else None
         alpha = 100 * (0.5 - 0.5 * self.confidence)
         out = {name: np.full(L.n, np.nan) for name in STATISTICS if name not in _FLAGS + _TEXT}
-        out["at_bound"] = np.asarray(u.at_bound, bool) & ~L.is_phase
+        out["at_bound"] = np.asarray(u.at_bound, bool) & ~L.is_nuisance
         out["identifiable"] = np.asarray(u.identifiable, bool)
         for i, (p, _) in enumerate(L.entries()):
             out["stderr"][i], out["vif"][i] = u.stderr[i], u.vif[i]
@@ -216,7 +216,7 @@ class Identification:
             out["mc_std"][i] = values.std(ddof=1) if len(values) >= 2 else np.nan
             out["mc_ci_low"][i] = np.percentile(values, alpha)
             out["mc_ci_high"][i] = np.percentile(values, 100 - alpha)
-        out["mc_note"] = mc_notes(self.x, out["mc_mean"], out["mc_ci_low"], out["mc_ci_high"], L.is_phase,
+        out["mc_note"] = mc_notes(self.x, out["mc_mean"], out["mc_ci_low"], out["mc_ci_high"], L.is_nuisance,
                                   self.source == "solver")
         profiled = None
         if self.profile is not None:  # never narrower than the linearised interval (fmin/fmax skip its NaN), but a
@@ -232,26 +232,32 @@ class Identification:
         return out
 
     def ranges(self) -> tuple[Array, Array]:
-        """lower, upper of each entry of theta [SI]: its parameter's range, -pi and pi for a phase."""
+        """lower, upper of each entry of theta [SI]: its parameter's range, -pi and pi for a phase, -s and s for a
+        runout offset (its prior's sigma [m], not a range: ``from_table`` reads s back from it)."""
         if self.read_columns is not None:
             return self.read_columns["lower"], self.read_columns["upper"]
         L = self.layout
         bounds = dict(zip(L.parameters, zip(L.lower, L.upper))) | {"phase": (-np.pi, np.pi)}
-        return tuple(np.array([bounds[p][k] for p, _ in L.entries()], float) for k in (0, 1))
+        s = L.offset_sigma
+        return tuple(np.array([(-s[i], s[i])[k] if off else bounds[p][k]
+                               for i, ((p, _), off) in enumerate(zip(L.entries(), L.is_offset))], float)
+                     for k in (0, 1))
 
     def table(self) -> pd.DataFrame:
         """The parameter table (parameters.tsv), one row per entry of theta, columns ``TABLE_COLUMNS`` (SI):
         parameter, run ("all" for a shared one in a joint fit, the run itself in a per-run fit), kind ("shared",
-        "per_run", "physical" in a per-run fit, "nuisance" for the phases), unit, value, normalised, the
+        "per_run", "physical" in a per-run fit, "nuisance" for the phases and the runout offsets, whose
+        normalised value is delta / s), unit, value, normalised, the
         ``statistics``, lower, upper (the range), source. ``from_table`` reads it back."""
         L, (lower, upper) = self.layout, self.ranges()
         single = L.n_runs == 1
         parameters, runs = [p for p, _ in L.entries()], [r for _, r in L.entries()]
         columns = {
             "parameter": parameters, "run": [L.runs[0] if single else r for r in runs],
-            "kind": ["nuisance" if p == "phase" else "physical" if single else "shared" if r == "all" else "per_run"
-                     for p, r in L.entries()],
-            "unit": ["rad" if p == "phase" else self.units.get(p, "") for p in parameters],
+            "kind": ["nuisance" if nuisance else "physical" if single else "shared" if r == "all" else "per_run"
+                     for (p, r), nuisance in zip(L.entries(), L.is_nuisance)],
+            "unit": ["rad" if p == "phase" else "m" if off else self.units.get(p, "")
+                     for p, off in zip(parameters, L.is_offset)],
             "value": np.asarray(self.x, float), "normalised": np.where(L.is_phase, np.nan, self.theta),
             **self.statistics(), "lower": lower, "upper": upper, "source": self.source,
         }
@@ -271,8 +277,10 @@ class Identification:
         rows = table.reset_index(drop=True)
         names, kinds, runs = (rows[c].astype(str).tolist() for c in ("parameter", "kind", "run"))
         phase = np.array([p == "phase" for p in names])
-        if [k == "nuisance" for k in kinds] != phase.tolist():
-            raise ValueError("parameter table: the rows of kind 'nuisance' must be exactly the phases")
+        offset = np.array([p.startswith(OFFSET_PREFIX) and k == "nuisance" for p, k in zip(names, kinds)])
+        if [k == "nuisance" for k in kinds] != (phase | offset).tolist():
+            raise ValueError("parameter table: the rows of kind 'nuisance' must be exactly the phases and the "
+                             "runout offsets")
         fit_runs = list(dict.fromkeys(r for r, is_phase in zip(runs, phase) if is_phase))
         single = set(kinds) <= {"physical", "nuisance"}
         if single and len(fit_runs) != 1:
@@ -285,8 +293,10 @@ class Identification:
             raise ValueError(f"parameter table: parameters {shared + local} are not the given order {order}")
         first = {p: i for i, p in reversed(list(enumerate(names)))}
         lower, upper = (rows[c].to_numpy(float) for c in ("lower", "upper"))
+        offsets = [(r, p[len(OFFSET_PREFIX):-3], *_stem_parts(p[len(OFFSET_PREFIX):-3], names), hi)
+                   for p, r, off, hi in zip(names, runs, offset, upper) if off and p.endswith("_re")]
         layout = Layout.build(order, [lower[first[p]] for p in order], [upper[first[p]] for p in order], fit_runs,
-                              local)
+                              local, (), offsets, [""] * len(fit_runs))
         expected = [(p, fit_runs[0] if single else r) for p, r in layout.entries()]
         if expected != list(zip(names, runs)):
             raise ValueError("parameter table: its rows are not in the order Identification.table writes them "
@@ -297,7 +307,7 @@ class Identification:
         x = rows["value"].to_numpy(float)
         read = {c: rows[c].astype(str).tolist() if c in _TEXT else rows[c].to_numpy(bool if c in _FLAGS else float)
                 for c in STATISTICS + ("lower", "upper")}
-        units = {p: u for p, u, is_phase in zip(names, rows["unit"].tolist(), phase) if not is_phase}
+        units = {p: u for p, u, is_phase in zip(names, rows["unit"].tolist(), phase | offset) if not is_phase}
         return cls(layout, None, None, x, np.where(phase, x, rows["normalised"].to_numpy(float)), math.nan, math.nan,
                    None, None, 0, "read from a parameter table", None, math.nan, [], None, units, sources.pop(),
                    read_columns=read)
@@ -335,6 +345,26 @@ class Identification:
                 "lm_problems": int(self.protocol.n_lm), "seconds": float(self.protocol.seconds),
                 "sparsity": float(self.problem.sparsity),
                 "notes": list(u.notes) + (list(self.profile.notes) if self.profile is not None else [])}
+
+
+def fit_runs(table: pd.DataFrame) -> list[str]:
+    """The fit's runs in its order, from its parameter table (``Identification.table``): those with a phase. A
+    transient record's runout offsets are nuisance rows too, but per record (their run is the record's name)."""
+    return list(dict.fromkeys(table.loc[table["parameter"].astype(str) == "phase", "run"].astype(str)))
+
+
+def _stem_parts(stem: str, names: Sequence[str]) -> tuple[int, int]:
+    """(h, channel column) of a runout offset's stem read back from a table (x1 -> 1; the channels numbered in
+    order of appearance among the table's offsets): a read result has no problem, so these only label its layout."""
+    digits = len(stem) - len(stem.rstrip("0123456789"))
+    channel, h = stem.rsplit("_", 1) if "_" in stem else (stem[:-digits], stem[-digits:])
+    seen = []
+    for name in names:
+        if name.startswith(OFFSET_PREFIX):
+            own = name[len(OFFSET_PREFIX):-3]
+            key = own.rsplit("_", 1)[0] if "_" in own else own.rstrip("0123456789")
+            seen += [key] if key not in seen else []
+    return int(h), seen.index(channel) if channel in seen else 0
 
 
 def _unwrap_around(phases: Array, centre: float) -> Array:
@@ -414,8 +444,7 @@ def theta_from_table(table: pd.DataFrame, layout: Layout) -> Array | None:
     values = {(str(r.parameter), str(r.run)): float(r.value) for r in table.itertuples()}
     if any(e not in values for e in layout.entries()):
         return None
-    theta = np.array([values[(p, run)] if p == "phase" else float(layout.normalise(p, values[(p, run)]))
-                      for p, run in layout.entries()])
+    theta = np.array([layout.theta_of((p, run), values[(p, run)]) for p, run in layout.entries()])
     return np.clip(theta, *layout.bounds()) if np.isfinite(theta).all() else None
 
 

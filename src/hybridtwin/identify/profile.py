@@ -78,7 +78,7 @@ def profile_intervals(fit, options: LMOptions = OPTIONS, rounds: int = ROUNDS, g
     base = float(fit.problem.evaluate(fit.theta[None], fit.X[None], jacobian=False).objective[0])
     lower_si, upper_si = (np.asarray(v, float) for v in fit.ranges())
     half = 0.5 * (upper_si - lower_si)
-    stderr = np.where(L.is_phase, np.nan, u.stderr / np.where(half > 0, half, 1.0))  # normalised
+    stderr = np.where(L.is_nuisance, np.nan, u.stderr / np.where(half > 0, half, 1.0))  # normalised
     points: list[dict] = []
 
     def fits(theta0: Array, held: Array, labels: list[tuple[int, str]], k: int) -> tuple[Array, Array]:

@@ -82,9 +82,10 @@ class ProtocolResult:
 
 
 def random_starts(layout, n: int, rng: np.random.Generator) -> Array:
-    """n uniform random starts in [-1, 1] for the physical entries (phases set later), (n, layout.n)."""
+    """n uniform random starts in [-1, 1] for the physical entries (phases set later, runout offsets 0),
+    (n, layout.n)."""
     theta = rng.uniform(-1.0, 1.0, (n, layout.n))
-    theta[:, layout.is_phase] = 0.0
+    theta[:, getattr(layout, "is_nuisance", layout.is_phase)] = 0.0
     return theta
 
 
@@ -93,9 +94,10 @@ def run_protocol(problem, X: Array, sigma_noise: Array, options: ProtocolOptions
     """tau random trials (+ ``extra_starts``) on the data and on n_MC re-sampled copies, batched LM.
 
     X, sigma_noise: (R, H, C) measured harmonics (C channels) and the measured sigmas used for
-    re-sampling (X + sigma (N(0,1) + i N(0,1)), independently per repeat). The random numbers are drawn
-    in the same order in both modes (the noise of every repeat, then the trials' starts): the trials on
-    the measured data, hence the estimate, do not depend on ``monte_carlo_starts``.
+    re-sampling (X + sigma (N(0,1) + i N(0,1)), independently per repeat; with runout offsets in the layout,
+    ``resample``: their share s of sigma drawn once per record, common to its bands). The random numbers are
+    drawn in the same order in both modes (the noise of every repeat, the offsets' if any, then the trials'
+    starts): the trials on the measured data, hence the estimate, do not depend on ``monte_carlo_starts``.
     """
     start = time.perf_counter()
     rng = np.random.default_rng(options.seed)
@@ -106,7 +108,7 @@ def run_protocol(problem, X: Array, sigma_noise: Array, options: ProtocolOptions
         raise ValueError("the protocol needs at least one trial")
     noise = rng.standard_normal((options.monte_carlo, *X.shape)) + 1j * rng.standard_normal(
         (options.monte_carlo, *X.shape))
-    data = np.concatenate([X[None], X[None] + sigma_noise[None] * noise])  # (repeats, R, H, 2)
+    data = np.concatenate([X[None], X[None] + resample(layout, sigma_noise, noise, rng)])  # (repeats, R, H, C)
     if options.monte_carlo_starts <= 0 or options.monte_carlo == 0:
         repeats = 1 + options.monte_carlo
         theta0 = np.concatenate([np.concatenate([random_starts(layout, options.trials, rng), extra])
@@ -134,6 +136,24 @@ def run_protocol(problem, X: Array, sigma_noise: Array, options: ProtocolOptions
     rows = np.arange(options.monte_carlo)
     return ProtocolResult(trials, best, repeats.x.reshape(options.monte_carlo, k, -1)[rows, chosen],
                           loss[rows, chosen], time.perf_counter() - start, per_repeat + k * options.monte_carlo)
+
+
+def resample(layout, sigma: Array, noise: Array, rng: np.random.Generator) -> Array:
+    """The repeats' noise (n_MC, R, H, C): sigma times ``noise``; where the layout has runout offsets
+    (``arrow_problem``'s "Runout offsets"), the offset's s of a band's sigma is drawn once per repeat and record,
+    common to the record's bands (its own part sqrt(sigma^2 - s^2) per band), as the data hold it."""
+    if not getattr(layout, "n_offsets", 0) or not len(noise):
+        return sigma[None] * noise
+    common = rng.standard_normal((len(noise), layout.n_offsets))
+    own, out = sigma.copy(), np.zeros(noise.shape, complex)
+    first = len(layout.shared)
+    for k in range(layout.n_runs):
+        for i, h, c, s in layout.run_offsets(k):
+            if h <= sigma.shape[1]:
+                total = sigma[k, h - 1, c]
+                own[k, h - 1, c] = np.sqrt(max(total**2 - s**2, (1e-3 * total) ** 2))
+                out[:, k, h - 1, c] = s * (common[:, i - first] + 1j * common[:, i - first + 1])
+    return out + own[None] * noise
 
 
 def distinct_optima(trials: LMResult, is_phase: Array, most: int, tolerance: float = SAME_OPTIMUM) -> Array:

@@ -101,7 +101,7 @@ def analyse_uncertainty(J: Array, r: Array, theta: Array, layout, scale_by_resid
         correlation = covariance / np.outer(stderr, stderr)
     null = (Vt[~keep] ** 2).sum(0) if (~keep).any() else np.zeros(n)
     gamma, vif = _collinearity(J, free, layout)
-    width = np.where(layout.is_phase, np.inf, 2.0 * scale)  # the range width [SI]
+    width = np.where(nuisance(layout), np.inf, 2.0 * scale)  # the range width [SI]
     identifiable = free & (null < 0.1) & (2 * 1.96 * stderr < width) & np.isfinite(stderr)
     notes = _uncertainty_notes(layout, at_bound, identifiable, gamma, chi2, dof)
     if undefined.any():
@@ -112,14 +112,21 @@ def analyse_uncertainty(J: Array, r: Array, theta: Array, layout, scale_by_resid
                        notes)
 
 
+def nuisance(layout) -> Array:
+    """The layout's nuisance entries (``Layout.is_nuisance``: phases and runout offsets), its phases for a layout
+    without that property (duck-typed)."""
+    return np.asarray(getattr(layout, "is_nuisance", layout.is_phase), bool)
+
+
 def _collinearity(J: Array, free: Array, layout) -> tuple[float, Array]:
-    """Brun's collinearity index of the free physical entries, phases projected out, and their VIFs."""
-    phys = free & ~layout.is_phase
+    """Brun's collinearity index of the free physical entries, the nuisance ones (phases, runout offsets)
+    projected out, and their VIFs."""
+    phys = free & ~nuisance(layout)
     vif = np.full(layout.n, np.nan)
     if not phys.any():
         return float("nan"), vif
     S = J[:, phys]
-    phases = J[:, free & layout.is_phase]
+    phases = J[:, free & nuisance(layout)]
     if phases.size:
         Q, _ = np.linalg.qr(phases)
         S = S - Q @ (Q.T @ S)
@@ -141,14 +148,14 @@ def _uncertainty_notes(layout, at_bound: Array, identifiable: Array, gamma: floa
                        dof: int) -> list[str]:
     notes = []
     names = [p if run == "all" else f"{p}[{run}]" for p, run in layout.entries()]
-    bound = [n for n, b, ph in zip(names, at_bound, layout.is_phase) if b and not ph]
+    bound = [n for n, b, ph in zip(names, at_bound, nuisance(layout)) if b and not ph]
     if bound:
         caveat = (" (the parameters are poorly identifiable together here, so an edge estimate may only mean "
                   "that the data do not determine it)" if np.isfinite(gamma) and gamma > COLLINEARITY_LIMIT else "")
         notes.append(f"estimate at a range edge for {', '.join(bound)}: revise the range (widen it and rebuild "
                      "the library); their own intervals are not valid there, and the others' include their "
                      f"uncertainty (computed as if they were free){caveat}")
-    weak = [n for n, ok, b, ph in zip(names, identifiable, at_bound, layout.is_phase) if not ok and not b and not ph]
+    weak = [n for n, ok, b, ph in zip(names, identifiable, at_bound, nuisance(layout)) if not ok and not b and not ph]
     if weak:
         notes.append(f"not identifiable from these data: {', '.join(weak)} (null direction of the Jacobian or "
                      "95 % interval wider than the range)")

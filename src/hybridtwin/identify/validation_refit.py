@@ -176,7 +176,7 @@ def explain_run(variant, joint: pd.DataFrame, harmonics: pd.DataFrame, data: idn
     if not beyond_noise(chi2_predicted, n):
         return Explanation(data.run, "within_noise", chi2_predicted=chi2_predicted)
     names, lower, upper = ranges(variant)
-    fit_runs = list(dict.fromkeys(joint.loc[joint["parameter"] == "phase", "run"].astype(str)))
+    fit_runs = idn.fit_runs(joint)
     fitted = [idn.run_data(harmonics, r, keyphasor=options["keyphasor"], channels=variant.channels) for r in fit_runs]
     every = [*fitted, data]
     H = min(n_harmonics, *(d.H for d in every))
@@ -188,8 +188,8 @@ def explain_run(variant, joint: pd.DataFrame, harmonics: pd.DataFrame, data: idn
     if any(e not in start for e in layout.entries()):
         return Explanation(data.run, "not_checked", chi2_predicted=chi2_predicted,
                            detail="the joint table lacks an entry of the fit with this run")
-    theta0 = np.clip([start[(p, run)] if p == "phase" else float(layout.normalise(p, start[(p, run)]))
-                      for p, run in layout.entries()], *layout.bounds())
+    theta0 = np.clip([layout.theta_of((p, run), start[(p, run)]) for p, run in layout.entries()],
+                     *layout.bounds())
     models = solver_models(variant, every, H)
     sigma = np.stack([d.sigma for d in every])
     X = np.stack([d.X for d in every])

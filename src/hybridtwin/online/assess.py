@@ -357,7 +357,7 @@ def _candidates(twin: Twin, problem: fits.RecordProblem, base: fits.RecordFit) -
 
     variant, found = twin.variant, twin.candidates()
     lower, upper = zip(*variant.unknown.values())
-    layout = Layout.for_data(list(variant.unknown), lower, upper, problem.data, problem.local)
+    layout = Layout.for_data(list(variant.unknown), lower, upper, problem.data, problem.local, runout=False)
     theta = np.array([base.v[problem.column[(p, None if run == "all" else layout.runs.index(run))]]
                       for p, run in layout.entries()])
     extended, theta = extended_problem(BaseFit(variant, layout, theta, problem.data, problem.H), found)
