@@ -33,5 +33,6 @@ if best["variant"] in designs:
     chosen, intervals = (read_design_table(path) for path in designs[best["variant"]])
     line = summary.next_runs_line(best["variant"], chosen, intervals)
 with open(smk.output.page, "w") as stream:
-    stream.write(summary.landing_rst(table, errors, summary.kept_out(read_harmonics(smk.input.harmonics)), why, line))
+    stream.write(summary.landing_rst(table, errors, summary.kept_out(read_harmonics(smk.input.harmonics)), why, line,
+                                     summary.assumptions_line(best["variant"], diagnoses[best["variant"]])))
 log.info("best variant %s (chi^2/dof %.4g); %s", best["variant"], best["chi2_dof"], best["conclusion"])

@@ -504,6 +504,42 @@ def test_first_page_names_the_next_runs_to_take(three_variants, tmp_path):
     assert summary.next_runs_line("x", chosen.iloc[:0], intervals) == ""
 
 
+def test_first_page_says_what_the_best_variants_estimates_assume(three_variants):
+    """diagnosis.yaml's intervals over the candidates (hybridtwin.diagnose.form_intervals), as the diagnosis writes
+    them and read back: a parameter whose interval over the candidates is more than ASSUMED wider than its own is
+    named with the candidate that widens it most and both intervals (to the digits that tell them apart), the
+    widest first; one widened less is not named; none widened, no line."""
+    from docutils.core import publish_parts
+
+    from hybridtwin.diagnose.diagnosis_report import read_summary, write_summary
+
+    rows = [{"parameter": "k_b", "estimate": 2411.6, "own_low": 2410.7, "own_high": 2412.5, "low": 2410.6,
+             "high": 2412.6, "widened_by": "lower_bearing_compliance"},  # 11 % wider: not named
+            {"parameter": "zeta_s", "estimate": 0.0245, "own_low": 0.02407, "own_high": 0.02494, "low": 0.01945,
+             "high": 0.02494, "widened_by": "speed_damping, expansion_k6"},
+            {"parameter": "zeta_bup", "estimate": 0.0138, "own_low": 0.01188, "own_high": 0.01571, "low": 0.01188,
+             "high": 0.01683, "widened_by": "expansion_k6, slope_spring"}]
+    import tempfile
+    from pathlib import Path
+
+    with tempfile.TemporaryDirectory() as tmp:
+        write_summary({"intervals_over_candidates": rows}, Path(tmp) / "diagnosis.yaml")
+        diagnosis = read_summary(Path(tmp) / "diagnosis.yaml")
+    line = summary.assumptions_line("base_slope", diagnosis)
+    page = summary.landing_rst(three_variants.table, three_variants.errors, assumptions=line)
+    html = publish_parts(page, writer="html", settings_overrides={"halt_level": 2})["html_body"]
+    import html as markup
+
+    text = markup.unescape(re.sub(r"<[^>]+>", "", html))
+    first = "zeta_s [0.02407, 0.02494] holds if speed_damping is absent ([0.01945, 0.02494] over the candidates)"
+    # digits by each interval's own width: zeta_s's is 3.5 % of its estimate (4 digits), zeta_bup's 28 % (3)
+    second = "zeta_bup [0.0119, 0.0157] holds if expansion_k6 is absent ([0.0119, 0.0168] over the candidates)"
+    assert first in text and second in text and text.index(first) < text.index(second)
+    assert "k_b [" not in text
+    assert summary.assumptions_line("base_slope", {"intervals_over_candidates": rows[:1]}) == ""
+    assert summary.assumptions_line("base_slope", {}) == ""
+
+
 def test_first_page_links_only_the_worst_runs_of_a_variant_failing_everywhere():
     chi2_dof = {f"r{i}": 10.0 + i for i in range(9)}
     errors = {"bad": _errors(chi2_dof, beyond=set(chi2_dof), validation=())}

@@ -321,6 +321,34 @@ def next_runs_line(variant: str, chosen: pd.DataFrame, intervals: pd.DataFrame) 
             f"half-widths {shrink}.")
 
 
+#: the first page names a parameter whose interval over the candidates is wider than its own by this share of it
+ASSUMED = 0.25
+
+
+def assumptions_line(variant: str, diagnosis: Mapping) -> str:
+    """The first page's line on what ``variant``'s estimates assume (its diagnosis.yaml's
+    ``intervals_over_candidates``, ``hybridtwin.diagnose.form_intervals``): each shared parameter whose interval over
+    the candidates the data cannot exclude is wider than its own by more than ASSUMED of it, with the candidate that
+    widens it most and both intervals; empty when none is (or the diagnosis has no such intervals)."""
+    rows = []
+    for r in diagnosis.get("intervals_over_candidates") or []:
+        own = float(r["own_high"]) - float(r["own_low"])
+        wider = (float(r["high"]) - float(r["low"])) - own
+        if r.get("widened_by") and own > 0 and wider > ASSUMED * own:
+            digits = max(3, int(np.ceil(np.log10(max(abs(float(r["estimate"])), 1e-300) / own))) + 2)
+            ends = [f"{float(r[k]):.{digits}g}" for k in ("own_low", "own_high", "low", "high")]
+            first = str(r["widened_by"]).split(", ")[0]
+            rows.append((wider / own, f"{_text(r['parameter'])} [{ends[0]}, {ends[1]}] holds if {_text(first)} is "
+                                      f"absent ([{ends[2]}, {ends[3]}] over the candidates)"))
+    if not rows:
+        return ""
+    rows = [text for _, text in sorted(rows, key=lambda row: -row[0])]
+    more = f"; and {len(rows) - 3} more" if len(rows) > 3 else ""
+    return (f"**What the estimates of {_text(variant)} assume** (intervals over the effects these data cannot exclude, "
+            + result_link("diagnosis.md", f"results/{variant}/diagnosis.md") + "): " + "; ".join(rows[:3]) + more
+            + ".")
+
+
 def kept_out(harmonics: pd.DataFrame) -> pd.DataFrame:
     """The runs the data checks kept out (results/data/harmonics.tsv's usable false): run, role, note."""
     return measured.kept_out(harmonics)[["run", "role", "note"]]
@@ -337,11 +365,12 @@ def _kept_out_line(runs: pd.DataFrame) -> str:
 
 def landing_rst(summary: pd.DataFrame, errors: Mapping[str, pd.DataFrame],
                 excluded: pd.DataFrame | None = None, why: Mapping[str, Mapping[str, str]] | None = None,
-                next_runs: str = "") -> str:
+                next_runs: str = "", assumptions: str = "") -> str:
     """The report's first page: the best variant, the runs the data checks kept out (``excluded``: ``kept_out``),
     the ledger, what the diagnoses recommend and where each variant fails, with links that open the figures in
     the report, a failing validation run followed by why (``why``: per variant, ``explanations``), and the next
-    runs to take for the best variant (``next_runs``: ``next_runs_line``).
+    runs to take for the best variant (``next_runs``: ``next_runs_line``) and what its estimates assume
+    (``assumptions``: ``assumptions_line``).
     reStructuredText, included by workflow/report/workflow.rst; short, to fit a window (see above)."""
     why = why or {}
     excluded = excluded if excluded is not None else pd.DataFrame(columns=["run", "role", "note"])
@@ -355,6 +384,6 @@ def landing_rst(summary: pd.DataFrame, errors: Mapping[str, pd.DataFrame],
         (f"**Where each variant fails**: runs beyond the noise (p < {ALPHA:g}), worst first, with their "
          "chi^2/dof; a link opens the run's figure:"),
         "\n".join(f"- {_failures(r.variant, errors[r.variant], why.get(r.variant))}" for r in summary.itertuples()),
-        next_runs,
+        assumptions, next_runs,
         "Every run of every variant in one figure: " + result_link("summary.png", "results/summary.png") + "."]
         if part) + "\n"
