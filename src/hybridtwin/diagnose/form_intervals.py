@@ -27,6 +27,11 @@ of the fit's own interval and every I_c: it holds whichever of the candidates (o
 to first order. Without candidate (beta empty) the same formula gives the fit's linearised interval, which the
 tests check against the identification's.
 
+Listed are the shared parameters the fit leaves free (one held at a range edge has the identification's profile
+interval, parameters.tsv). A candidate whose columns the model already spans (the same term under another name)
+changes nothing: the pseudo-inverse leaves out its direction. ``beta_low``, ``beta_high``: the stretch of the
+candidate's (first) parameter, normalised, that the data leave open.
+
 This is the linearisation at the fit: a candidate whose beta the data leave free far across its range (a response
 that bends with beta) is only approximated; ``tests/test_form_intervals.py`` compares it with the profile of the
 extended model refitted on the full solver.
