@@ -144,6 +144,29 @@ def test_hidden_slope_force_is_ranked_first_and_confirmed(slope_base):
     dgr.plot(result)
 
 
+def test_the_diagnosis_stands_when_its_intervals_over_the_candidates_cannot_be_had(slope_base, monkeypatch,
+                                                                                   tmp_path):
+    """The intervals over the candidates are an addition at the end of the diagnosis: where the solver fails next
+    to the final fit (score_tests' RuntimeError), the verdict, the path and the outputs are written as before, the
+    intervals table empty and the failure in the summary; with them, the final model's shared parameters are
+    listed (here the path's last fit: geometric + the slope force's linear term)."""
+    with_them = _diagnose(slope_base, _candidates(["expansion_k4", "expansion_k2"]))
+    union = with_them.intervals.union()
+    assert {"k_b", "zeta_s"} <= set(union["parameter"]) and (union["low"] <= union["own_low"]).all()
+
+    def fail(*args, **kwargs):
+        raise RuntimeError("the full solver failed at the base optimum")
+
+    monkeypatch.setattr(dg, "final_intervals", fail)
+    result = _diagnose(slope_base, _candidates(["expansion_k4", "expansion_k2"]))
+    assert result.status == with_them.status and [s.effect for s in result.path] == [s.effect for s in with_them.path]
+    assert result.intervals.table.empty and result.summary["intervals_over_candidates"] == []
+    assert "solver failed" in result.summary["intervals_over_candidates_failed"]
+    dgr.write(result, tmp_path / "d.tsv", tmp_path / "d.md", tmp_path / "d.yaml")
+    result.intervals.write(tmp_path / "i.tsv")
+    assert "Intervals over the effects" not in (tmp_path / "d.md").read_text()
+
+
 def test_estimate_of_the_linear_slope_term_matches_the_truth(slope_base):
     """k4 u' alone stands for k_w u' + k_z u'^3 with small slopes: k4 near k_w = 324.2 N (within 10 %: the
     cubic part, 301.1 (u')^3 with u' ~ 0.02, adds ~0.04 % of the linear force, the rest is noise)."""

@@ -231,7 +231,13 @@ def _finish(result: Diagnosis, base: BaseFit, scores: Scores, path: list[Step], 
     if path:  # how far the estimates' intervals can be trusted with the misfit the path leaves
         final = path[-1].confirmation
         result.summary["intervals"] = interval_note(final.chi2, final.dof, o["alpha"])
-    result.intervals = final_intervals(base, scores, path)
+    try:
+        result.intervals = final_intervals(base, scores, path)
+    except RuntimeError as error:  # the solver failed next to the final fit: the diagnosis stands without them
+        result.intervals = FormIntervals.empty()
+        result.summary["intervals_over_candidates_failed"] = str(error)
+        if log:
+            log.warning("no intervals over the candidates: %s", error)
     result.summary["intervals_over_candidates"] = intervals_summary(result.intervals)
     result.fingerprint = residual_fingerprint(base, path[-1].confirmation.fit.fun if path else scores.residual)
     result.summary["fingerprint"] = result.fingerprint.summary()

@@ -85,6 +85,11 @@ class FormIntervals:
                          "widened_by": ", ".join(widening["candidate"])})
         return pd.DataFrame(rows, columns=UNION_COLUMNS)
 
+    @classmethod
+    def empty(cls) -> "FormIntervals":
+        """No intervals (the final fit could not be linearised): an empty table, written and read like any."""
+        return cls(pd.DataFrame(columns=COLUMNS), 0.95, float("nan"))
+
     def write(self, path) -> None:
         """``diagnosis_intervals.tsv``; ``read`` is its inverse."""
         self.table.to_csv(path, sep="\t", index=False, float_format="%.12g")
