@@ -101,6 +101,8 @@ def test_the_reported_interval_is_kept_and_the_table_reads_back(tmp_path):
     back = fi.FormIntervals.read(path)
     pd.testing.assert_frame_equal(back.table, result.table, check_exact=False, rtol=1e-11)
     pd.testing.assert_frame_equal(back.union(), result.union(), check_exact=False, rtol=1e-11)
+    nothing_free = fi.form_intervals(J, r, theta, entries, np.zeros(len(entries), bool), columns, {}, lower, upper, 50)
+    assert nothing_free.table.empty and nothing_free.union().empty  # every parameter held: no row, no error
     with pytest.raises(ValueError, match="not a table of intervals"):
         pd.DataFrame({"parameter": ["a"]}).to_csv(tmp_path / "bad.tsv", sep="\t", index=False)
         fi.FormIntervals.read(tmp_path / "bad.tsv")

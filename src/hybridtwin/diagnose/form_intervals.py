@@ -169,8 +169,7 @@ def form_intervals(J: Array, r: Array, theta: Array, entries: Sequence[tuple[str
             b = grid[inside]
             rows.append({"parameter": name, "candidate": candidate, "estimate": estimate, "low": lo, "high": hi,
                          "beta_low": float(b[:, 0].min()), "beta_high": float(b[:, 0].max())})
-    table = pd.DataFrame(rows)
-    return FormIntervals(table[COLUMNS], confidence, chi2 / max(dof, 1))
+    return FormIntervals(pd.DataFrame(rows, columns=COLUMNS), confidence, chi2 / max(dof, 1))
 
 
 def own_intervals(table: pd.DataFrame) -> dict[str, tuple[float, float]]:
