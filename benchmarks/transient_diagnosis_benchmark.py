@@ -101,7 +101,7 @@ def truth_floor(data: list, case: str, config: dict, harmonics: int) -> float:
     q_x = truth["q_x"]
     spec = {"effects": geometric["effects"] + list(effects), "unknown": {"q_x": [q_x * (1 - 1e-9), q_x * (1 + 1e-9)]},
             "fixed": {k: v for k, v in truth.items() if k != "q_x"}}
-    variant = Variant.from_spec(case, spec)
+    variant = Variant.from_spec(case, spec, {"midspan_cubic": MIDSPAN_CUBIC})  # the one no candidate models too
     names = list(variant.unknown)
     lower, upper = (np.array(v, float) for v in zip(*variant.unknown.values()))
     models = [fwd.SolverModel.for_data(variant, d, names, lower, upper, harmonics) for d in data]
