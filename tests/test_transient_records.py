@@ -40,7 +40,7 @@ def rpm_profile(t, duration, lo, hi):
 
 
 def swept_record(path, duration=60.0, lo=100.0, hi=1100.0, noise=2e-6, runout=True, seed=0, keyphasor=True,
-                 kind_profile=rpm_profile):
+                 kind_profile=rpm_profile, u3=U3, u1=U1):
     rng = np.random.default_rng(seed)
     t = np.arange(int(duration * FS)) / FS
     rpm = kind_profile(t, duration, lo, hi)
@@ -48,7 +48,7 @@ def swept_record(path, duration=60.0, lo=100.0, hi=1100.0, noise=2e-6, runout=Tr
     theta = np.concatenate(([0.0], np.cumsum(0.5 * (omega[1:] + omega[:-1]) / FS))) + 0.3
     signals = {}
     for name, angle in (("x", 0.0), ("y", -np.pi / 2)):
-        u = 1e-4 + np.real(U1(omega) * np.exp(1j * (theta + angle))) + np.real(U3(omega) * np.exp(3j * (theta + angle)))
+        u = 1e-4 + np.real(u1(omega) * np.exp(1j * (theta + angle))) + np.real(u3(omega) * np.exp(3j * (theta + angle)))
         if runout:
             u = u + sum(np.real(R * np.exp(1j * h * theta)) for h, R in RUNOUT.items())
         signals[name] = u + noise * rng.standard_normal(t.size)
@@ -169,6 +169,47 @@ def test_bands_where_the_sweep_is_too_fast_are_kept_out_with_a_note(tmp_path):
     noisy, _ = swept_record(tmp_path / "noisy.csv", noise=2e-4)
     loud = track_record(noisy, ROW, harmonics=3).bands
     assert (loud["sweep_check"] == "too fast").sum() < (bands["sweep_check"] == "too fast").sum()
+
+
+#: a 3X of constant force amplitude meeting two modes, at 400 and 700 RPM (its frequency 3 times the speed)
+W3 = (2 * np.pi * 3 * 400 / 60, 2 * np.pi * 3 * 700 / 60)
+
+
+def U3_two_modes(omega):
+    """The 3X response [m] through both modes (zeta 0.03 each): 67 um at the first, 33 um at the second."""
+    w = 3 * omega
+    return sum(a * wn**2 / (wn**2 - w**2 + 2j * ZETA * wn * w) for a, wn in zip((4e-6, 2e-6), W3))
+
+
+def test_every_resonance_of_an_order_is_checked_not_only_its_strongest(tmp_path):
+    """A 3X that crosses two modes (as a 3X force on the VARM does, at ~425 and ~640 RPM): the second, weaker one is
+    swept at 3 times the frequency rate too, and its bands must be judged by its own lag. The reference is the
+    closed form of the sweep's first-order lag with the TRUE second mode (solvers.sweep_rate, checked against time
+    integration in tests/test_sweep.py): at its peak it is ~Omega' 3 / (zeta^2 (3 Omega)^2) ~ 0.1 of 33 um, about
+    a hundred of the band's sigma (2 um of noise per sample over ~2500 samples: ~0.06 um), so that band is "too
+    fast", whatever the fitted mode's small errors (the 1X is kept small, so that its own lag does not decide there); midway between the resonances the true lags of both modes are
+    below the threshold and the bands stay. Checking only the strongest 3X mode (the code before) kept the
+    700-RPM bands in, as "ok"."""
+    from hybridtwin.solvers.sweep_rate import adiabatic_correction
+
+    # a 1X of 10 um at its peak: its own lag stays below the threshold away from 960 RPM, so the 3X decides
+    record, _ = swept_record(tmp_path / "up.csv", u3=U3_two_modes, u1=lambda omega: U1(omega, gain=2e-8))
+    bands = track_record(record, ROW, harmonics=3).bands.set_index("run")
+    second = bands.loc[bands["rpm_true"].sub(700).abs().idxmin()]
+    assert second["sweep_check"] == "too fast" and not second["usable"], second["note"]
+    assert "3X resonance at" in second["note"]
+    found = float(second["note"].split("3X resonance at ")[1].split(" RPM")[0])
+    assert abs(found - 700) < 0.03 * 700, second["note"]  # the second mode's own crossing, not the first's (400)
+    # the true lag of the second mode at its peak band, over that band's largest 3X sigma: far beyond the threshold
+    rate = float(np.abs(bands["sweep_rpm_per_s"]).max()) * np.pi / 30
+    w = 3 * second["rpm_true"] * np.pi / 30
+    lag = abs(adiabatic_correction(np.array([w]), 3 * rate, W3[1], ZETA, centrifugal=False, forcing="constant")[0])
+    lag *= 2e-6 * W3[1] ** 2  # the closed form is per unit force over the mode's stiffness: scaled as U3_two_modes
+    sigma = max(second["x3_sigma_m"], second["y3_sigma_m"])
+    assert lag / sigma > 10 * 2.0, (lag, sigma)
+    # midway (520-580 RPM), far from both crossings, the bands stay
+    middle = bands[bands["rpm_true"].between(520, 580)]
+    assert len(middle) >= 2 and (middle["sweep_check"] == "ok").all(), middle["note"].tolist()
 
 
 def test_a_bands_sigma_keeps_its_noise_when_read_for_the_fit(tmp_path):

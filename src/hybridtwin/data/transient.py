@@ -243,21 +243,25 @@ def track_record(record: Record, sheet_row: Mapping, harmonics: int, sensor_rang
 SWEEP_LAG_SIGMAS = 2.0
 #: an order above 1 is checked where its resonance improves the chi^2 of a constant by this many sigmas squared
 ORDER_SIGNIFICANCE = 3.0
-#: ... and where its damping ratio in rotor speed is at least this share of the 1X's (``_order_mode``)
+#: ... and where its damping ratio in rotor speed is at least this share of the 1X's (``_resonances``)
 ORDER_ZETA_SHARE = 0.5
 
 
 def check_sweep_rate(bands: pd.DataFrame, names: Sequence[str], plan: BandPlan) -> pd.DataFrame:
     """The bands where the sweep is too fast for the quasi-steady model kept out, with a note (issue 38 item 5).
 
-    The mode is the record's own (``one_mode_fit``: the strongest channel's 1X over the bands, a resonance seen
+    The modes are the record's own (``one_mode_fit``: the strongest channel's 1X over the bands, a resonance seen
     whole or only on its flank); the expected lag of the swept response per band is the first-order adiabatic
     correction (``solvers.sweep_rate.sweep_rate_check``, measured against time integration on the rig:
     benchmarks/README.md, "Sweep rate") at the record's fastest rate, scaled to the mode's peak, and a band is
     kept out where it exceeds SWEEP_LAG_SIGMAS of the band's sigma. Every order of the table is checked: the h-th
     order sweeps its mode at h times the frequency rate (``sweep_rate_check(order=h)``), at its own resonance and
-    scaled to its own resonant part (``_order_mode``: a 2X force's response peaks where 2X meets the mode, where 1X
-    is quiet); an order without a resonance in sight is not checked. Columns added: sweep_lag_m (the expected lag of the order that decides, the largest against its
+    scaled to its own resonant part (``_order_modes``: a 2X force's response peaks where 2X meets the mode, where 1X
+    is quiet); an order without a resonance in sight is not checked. Every resonance an order shows is checked, not
+    only its strongest (``_resonances``: each found in what the ones before leave): a 3X force meets the VARM's
+    first mode at ~425 RPM and its second at ~640 RPM, and the bands at the second, left unchecked, carried a
+    quasi-steady error of up to 3.4 sigma (benchmarks/README.md, "Why the fits' own intervals missed on run-ups").
+    Columns added: sweep_lag_m (the expected lag of the order and mode that decide, the largest against its
     sigma), sweep_check ("ok", "too fast", or "no mode found" where no resonance is in sight)."""
     from ..solvers.sweep_rate import sweep_rate_check
 
@@ -279,46 +283,89 @@ def check_sweep_rate(bands: pd.DataFrame, names: Sequence[str], plan: BandPlan) 
     rate = float(np.nanmax(np.abs(out["sweep_rpm_per_s"].to_numpy(float))))
     width_rpm = plan.bands[0][1] - plan.bands[0][0]
     fine = np.linspace(plan.bands[0][0], plan.bands[-1][1], 4001) * math.pi / 30.0
-    ratio, lag, order = np.zeros(len(out)), np.zeros(len(out)), np.ones(len(out), int)
-    modes = {1: (omega_n, zeta, gain * float(np.abs(fine**2 / (omega_n**2 - fine**2
-                                                              + 2j * zeta * omega_n * fine)).max()))}
+    ratio, lag, order, which = np.zeros(len(out)), np.zeros(len(out)), np.ones(len(out), int), np.zeros(len(out), int)
+    first = _resonances(rpm[usable] * math.pi / 30.0, X1[usable], sigma[usable, c], ORDER_ZETA_SHARE * zeta, mode)
+    modes = {1: [(w, z, g * _peak(w, z, fine)) for w, z, g in first]}
     for h in range(2, highest_harmonic(out, names) + 1):
-        found = _order_mode(out, names, h, usable, fine, zeta)
-        if found is not None:
+        found = _order_modes(out, names, h, usable, fine, zeta)
+        if found:
             modes[h] = found
-    for h, (omega_h, zeta_h, peak) in modes.items():
-        # sweep_rate_check scales each band's lag to the order's largest response over the record's bands
-        checks = sweep_rate_check([(omega_h, zeta_h)], rate, 0.0, plan.bands[0][0], plan.bands[-1][1],
-                                  band_rpm=width_rpm, centrifugal=False, order=h)
-        lag_h = np.array([ch.expected_error for ch in checks])[: len(out)] * peak
+    for h, found in modes.items():
         sigma_h = np.column_stack([out[harmonic_column(name, h, "sigma")] for name in names])
         sigma_h = np.where(np.isfinite(sigma_h), sigma_h, 0.0).max(axis=1)  # a band not fitted: 0 (never marked)
-        ratio_h = np.divide(lag_h, sigma_h, out=np.zeros_like(lag_h), where=sigma_h > 0)
-        worse = ratio_h > ratio
-        ratio[worse], lag[worse], order[worse] = ratio_h[worse], lag_h[worse], h
+        for k, (omega_h, zeta_h, peak) in enumerate(found):
+            # sweep_rate_check scales each band's lag to the order's largest response over the record's bands
+            checks = sweep_rate_check([(omega_h, zeta_h)], rate, 0.0, plan.bands[0][0], plan.bands[-1][1],
+                                      band_rpm=width_rpm, centrifugal=False, order=h)
+            lag_h = np.array([ch.expected_error for ch in checks])[: len(out)] * peak
+            ratio_h = np.divide(lag_h, sigma_h, out=np.zeros_like(lag_h), where=sigma_h > 0)
+            worse = ratio_h > ratio
+            ratio[worse], lag[worse], order[worse], which[worse] = ratio_h[worse], lag_h[worse], h, k
     too_fast = usable & (ratio > SWEEP_LAG_SIGMAS)
     out["sweep_lag_m"] = lag
     out["sweep_check"] = np.where(too_fast, "too fast", "ok")
     for i in np.flatnonzero(too_fast):
-        h = int(order[i])
+        h, (omega_h, zeta_h, _) = int(order[i]), modes[int(order[i])][int(which[i])]
         out.loc[i, "usable"] = False
         out.loc[i, "note"] = (f"sweep too fast for a quasi-steady model: expected {h}X lag {1e6 * lag[i]:.1f} um "
                               f"against a {h}X sigma of {1e6 * lag[i] / ratio[i]:.2f} um at {rate:.1f} RPM/s near "
-                              f"the {h}X resonance at {modes[h][0] * 30 / math.pi / h:.0f} RPM (zeta "
-                              f"{modes[h][1]:.3f}, fitted to the record): kept out")
+                              f"the {h}X resonance at {omega_h * 30 / math.pi / h:.0f} RPM (zeta "
+                              f"{zeta_h:.3f}, fitted to the record): kept out")
         out.loc[i, "flags"] = "sweep_too_fast"
     return out
 
 
-def _order_mode(bands: pd.DataFrame, names: Sequence[str], h: int, usable: Array, fine: Array, zeta_1: float
-                ) -> tuple[float, float, float] | None:
-    """(omega_h [rad/s], zeta_h, peak [m]) of the h-th order's own resonance: the one-mode fit (``one_mode_fit``)
-    of the strongest probe's h-th order over the usable bands, in rotor speed: the order crosses the mode at
-    Omega_h, and omega_h = h Omega_h is the mode's frequency as that order drives it. Its own, not the 1X mode's
+#: at most this many resonances of one order are checked (``_resonances``)
+MAX_ORDER_MODES = 3
+
+
+def _peak(omega_n: float, zeta: float, fine: Array) -> float:
+    """The largest modulus over ``fine`` [rad/s] of the one-mode shape Omega^2 / (omega_n^2 - Omega^2 + 2 i zeta
+    omega_n Omega) (``one_mode_fit``'s, unit gain)."""
+    return float(np.abs(fine**2 / (omega_n**2 - fine**2 + 2j * zeta * omega_n * fine)).max())
+
+
+def _resonances(Omega: Array, X: Array, s: Array, zeta_floor: float,
+                first: tuple[float, float, float] | None = None) -> list[tuple[float, float, float]]:
+    """The resonances one order shows over the bands, strongest first: [(Omega_n [rad/s, rotor speed], zeta,
+    gain [m])]. Each is the one-mode fit (``one_mode_fit``) of what the ones before leave (their resonant parts
+    A shape subtracted), so a second mode the strongest hides is found in its own bands; ``first``: the first one,
+    when already fitted (the 1X's, which is kept without the tests below). A further one counts where its fit
+    beats a constant on the same rest by ORDER_SIGNIFICANCE^2 in chi^2 (otherwise the noise, scaled to a resonance
+    no band shows, would keep bands out) and its damping ratio is at least ``zeta_floor`` (a band or two fitted as
+    a needle-sharp peak between the bands is no mode: ``_order_modes``); at most MAX_ORDER_MODES."""
+    found: list[tuple[float, float, float]] = []
+    rest = np.asarray(X, complex)
+    while len(found) < MAX_ORDER_MODES:
+        given = first is not None and not found
+        mode = first if given else one_mode_fit(Omega, rest, s)
+        if mode is None:
+            break
+        Omega_n, zeta, gain = mode
+        if not given and zeta < zeta_floor:
+            break
+        shape = Omega**2 / (Omega_n**2 - Omega**2 + 2j * zeta * Omega_n * Omega)
+        A = np.column_stack([shape, np.ones_like(shape)]) / s[:, None]
+        coef, *_ = np.linalg.lstsq(A, rest / s, rcond=None)
+        chi2_mode = float(np.sum(np.abs(A @ coef - rest / s) ** 2))
+        mean = np.sum(rest / s**2) / np.sum(1 / s**2)
+        chi2_constant = float(np.sum(np.abs((rest - mean) / s) ** 2))
+        if not given and chi2_constant - chi2_mode < ORDER_SIGNIFICANCE**2:
+            break
+        found.append((Omega_n, zeta, gain))
+        rest = rest - coef[0] * shape
+    return found
+
+
+def _order_modes(bands: pd.DataFrame, names: Sequence[str], h: int, usable: Array, fine: Array, zeta_1: float
+                 ) -> list[tuple[float, float, float]]:
+    """[(omega_h [rad/s], zeta_h, peak [m])] of the h-th order's own resonances (``_resonances`` of the strongest
+    probe's h-th order over the usable bands, in rotor speed): the order crosses a mode at Omega_h, and omega_h =
+    h Omega_h is the mode's frequency as that order drives it. Its own, not the 1X mode's
     divided by h: a speed-dependent stiffness moves the crossings apart (the VARM's centrifugal softening
     K - Omega^2 M puts 1X at omega_0 / sqrt(2) and 2X at omega_0 / sqrt(5), 950 and 600 RPM, not 950 / 2).
-    peak: the fitted resonant part's largest modulus over ``fine`` [rad/s]. None where the order shows no
-    resonance of the mode: the fit no better than a constant by ORDER_SIGNIFICANCE^2 in chi^2 (otherwise the
+    peak: the fitted resonant part's largest modulus over ``fine`` [rad/s]. Empty where the order shows no
+    resonance of a mode: the fit no better than a constant by ORDER_SIGNIFICANCE^2 in chi^2 (otherwise the
     noise, scaled to a resonance no band shows, would keep bands out of a record with no such order), no mode
     found, or a damping ratio below ORDER_ZETA_SHARE of the 1X's ``zeta_1``: the same mode driven by the h-th
     order shows in rotor speed a damping ratio zeta_0 h / sqrt(s + h^2) for a stiffness K - s Omega^2 M, at 2X
@@ -331,25 +378,11 @@ def _order_mode(bands: pd.DataFrame, names: Sequence[str], h: int, usable: Array
     s = np.column_stack([bands[harmonic_column(n, h, "sigma")].to_numpy(float) for n in names])
     keep = usable & np.isfinite(X).all(1) & np.isfinite(s).all(1) & (s > 0).all(1)
     if keep.sum() < 6:
-        return None
+        return []
     c = int(np.argmax(np.abs(X[keep]).max(axis=0)))
     X, s, Omega = X[keep, c], s[keep, c], Omega[keep]
-    mode = one_mode_fit(Omega, X, s)
-    if mode is None:
-        return None
-    Omega_h, zeta, gain = mode
-    if zeta < ORDER_ZETA_SHARE * zeta_1:
-        return None
-    shape = Omega**2 / (Omega_h**2 - Omega**2 + 2j * zeta * Omega_h * Omega)
-    A = np.column_stack([shape, np.ones_like(shape)]) / s[:, None]
-    coef, *_ = np.linalg.lstsq(A, X / s, rcond=None)
-    chi2_mode = float(np.sum(np.abs(A @ coef - X / s) ** 2))
-    mean = np.sum(X / s**2) / np.sum(1 / s**2)
-    chi2_constant = float(np.sum(np.abs((X - mean) / s) ** 2))
-    if chi2_constant - chi2_mode < ORDER_SIGNIFICANCE**2:
-        return None
-    peak = gain * float(np.abs(fine**2 / (Omega_h**2 - fine**2 + 2j * zeta * Omega_h * fine)).max())
-    return h * Omega_h, zeta, peak
+    return [(h * Omega_h, zeta, gain * _peak(Omega_h, zeta, fine))
+            for Omega_h, zeta, gain in _resonances(Omega, X, s, ORDER_ZETA_SHARE * zeta_1)]
 
 
 def summary_row(tracked: TrackedRecord, names: Sequence[str]) -> dict:
