@@ -74,14 +74,22 @@ def fit_truth_form(case: str, data: list, harmonics: int, config: dict):
                                                          lm=lm.LMOptions(max_iterations=60)))
 
 
+def fit_sigmas(fit) -> dict:
+    """{run: (H, C) sigma [m]} as the fit weighs each band: its sigma with the runout estimate's share taken out
+    where the record's runout offsets are fitted (``arrow_problem``'s module docstring), else the band's own."""
+    return {d.run: fit.problem.sigma[k] for k, d in enumerate(fit.data)}
+
+
 def per_order(fit, sigma_of=None) -> list[tuple[float, int]]:
-    """Each order's (chi^2, numbers) at the fit; ``sigma_of``: {run: (H, C) sigma} to measure in instead."""
+    """Each order's (chi^2, numbers) at the fit (the fitted runout offsets in the model, the sigmas the fit weighs
+    with); ``sigma_of``: {run: (H, C) sigma} to measure in instead."""
     F = fit.fitted()
+    sigma_of = fit_sigmas(fit) if sigma_of is None else sigma_of
     out = []
     for h in range(F.shape[1]):
         chi2 = n = 0
         for k, d in enumerate(fit.data):
-            s = d.sigma[h] if sigma_of is None else sigma_of[d.run][h]
+            s = sigma_of[d.run][h]
             z = (d.X[h] - F[k, h]) / s
             chi2, n = chi2 + float(np.sum(z.real ** 2 + z.imag ** 2)), n + 2 * z.size
         out.append((chi2, n))
@@ -157,8 +165,8 @@ def main() -> int:
                 "imperfections"]["noise_mm"]
             make_data(args.case, quiet_dir, args.seed, args.harmonics, imperfections={"noise_mm": args.quiet * noise_mm})
             bands = all_bands(quiet_dir, args.harmonics)
-            sigma_of = {d.run: d.sigma for d in noisy}
             for label, data in sets:
+                sigma_of = fit_sigmas(fits[label])  # the noisy fit's weights, band by band
                 quiet = [bands[d.run] for d in data]
                 fit = fit_truth_form(args.case, quiet, args.harmonics, config)
                 report(f"quiet records (noise x {args.quiet:g}), {label}", fit, truth, fits[label], sigma_of)
