@@ -1,7 +1,7 @@
 """Why the fits' own intervals miss on run-ups: the systematic part of an estimate, per order and band.
 
     python benchmarks/transient_interval_study.py --case excitation_3x [--seed 38] [--quiet 0.1]
-        [--drop up0:600,up0:620] [--data results/benchmarks/transient_diagnosis_data]
+        [--quiet-sweep-rate 5] [--drop up0:600,up0:620] [--data results/benchmarks/transient_diagnosis_data]
 
 On one case of ``benchmarks/transient_diagnosis_benchmark.py`` (its records, kept in ``--data`` and reused), the
 Geometric model plus the case's hidden effect(s), every parameter free (the hidden ones in a range of +-10 times
@@ -17,6 +17,8 @@ Printed:
    systematic part (what does not shrink with the noise) against the noisy fit's standard error, and the bands whose
    residual in the quiet records is largest in units of the noisy sigma (a systematic below the noise per band that
    many bands share);
+   ``--quiet-sweep-rate R``: the quiet records swept at R RPM/s instead of the example's rate (a systematic that
+   scales with R is the sweep's, a first-order transient effect the quasi-steady model leaves out);
 4. with ``--drop RUN:RPM,...``: both fits again without those bands (the band of record RUN nearest RPM).
 """
 
@@ -132,6 +134,8 @@ def main() -> int:
     parser.add_argument("--seed", type=int, default=38)
     parser.add_argument("--harmonics", type=int, default=3)
     parser.add_argument("--quiet", type=float, default=None, help="noise factor of the quiet records (e.g. 0.1)")
+    parser.add_argument("--quiet-sweep-rate", type=float, default=None,
+                        help="the quiet records' sweep rate [RPM/s] (default: the example's)")
     parser.add_argument("--drop", default="", help="bands left out, RUN:RPM,... (the band of RUN nearest RPM)")
     parser.add_argument("--data", default=str(ROOT / "results/benchmarks/transient_diagnosis_data"))
     args = parser.parse_args()
@@ -159,15 +163,22 @@ def main() -> int:
             fits[label] = fit_truth_form(args.case, data, args.harmonics, config)
             report(f"noisy records, {label}", fits[label], truth)
         if args.quiet:
-            quiet_dir = Path(args.data) / f"quiet{args.quiet:g}_seed{args.seed}" / args.case
+            rate = "" if args.quiet_sweep_rate is None else f"_rate{args.quiet_sweep_rate:g}"
+            quiet_dir = Path(args.data) / f"quiet{args.quiet:g}{rate}_seed{args.seed}" / args.case
             quiet_dir.mkdir(parents=True, exist_ok=True)
             noise_mm = yaml.safe_load((EXAMPLE / "config/config.yaml").read_text())["rig"]["runup"][
                 "imperfections"]["noise_mm"]
-            make_data(args.case, quiet_dir, args.seed, args.harmonics, imperfections={"noise_mm": args.quiet * noise_mm})
+            override = {"noise_mm": args.quiet * noise_mm}
+            if args.quiet_sweep_rate is not None:
+                override["sweep_rate_rpm_s"] = args.quiet_sweep_rate
+            make_data(args.case, quiet_dir, args.seed, args.harmonics, imperfections=override)
             bands = all_bands(quiet_dir, args.harmonics)
             for label, data in sets:
                 sigma_of = fit_sigmas(fits[label])  # the noisy fit's weights, band by band
-                quiet = [bands[d.run] for d in data]
+                missing = [d.run for d in data if d.run not in bands]
+                if missing:
+                    print(f"  the quiet records have no band {', '.join(missing)}: left out of both fits below")
+                quiet = [bands[d.run] for d in data if d.run in bands]
                 fit = fit_truth_form(args.case, quiet, args.harmonics, config)
                 report(f"quiet records (noise x {args.quiet:g}), {label}", fit, truth, fits[label], sigma_of)
                 F = fit.fitted()
