@@ -76,18 +76,22 @@ def make_data(case: str, out: Path, seed: int, harmonics: int, runs: list[str] |
     if not (out / "runs.tsv").is_file():  # records kept from an earlier run (--data) are reused
         generate(plan, RigSpec.from_mapping(spec, {"midspan_cubic": MIDSPAN_CUBIC}), out)
     seconds = time.perf_counter() - start
-    sheet = read_runs(out / "runs.tsv")
-    sensors = example["machine"]["sensors"]
-    bands = []
-    for _, row in sheet.iterrows():
-        record = read_record(row["record"], sensors)
-        table = track_record(record, row.to_dict(), harmonics).bands
-        table.attrs = {}  # the runout table rides along in attrs; pandas cannot concatenate frames holding frames
-        bands.append(table)
-    table = pd.concat(bands, ignore_index=True)
+    table = band_table(out, harmonics)
     data = [run_data(table, run, harmonics) for run in table["run"]]
     usable = [d for d in data if d.usable]
     return usable, seconds, len(data) - len(usable)
+
+
+def band_table(where: Path, harmonics: int) -> pd.DataFrame:
+    """Every band of the records in ``where`` (its runs.tsv), tracked as the workflow's ``track_record`` rule
+    does, one table (usable or not)."""
+    sensors = yaml.safe_load((EXAMPLE / "config/config.yaml").read_text())["machine"]["sensors"]
+    bands = []
+    for _, row in read_runs(where / "runs.tsv").iterrows():
+        table = track_record(read_record(row["record"], sensors), row.to_dict(), harmonics).bands
+        table.attrs = {}  # the runout table rides along in attrs; pandas cannot concatenate frames holding frames
+        bands.append(table)
+    return pd.concat(bands, ignore_index=True)
 
 
 def truth_floor(data: list, case: str, config: dict, harmonics: int) -> float:

@@ -29,18 +29,14 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 import yaml
 from threadpoolctl import threadpool_limits
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from diagnosis_benchmark import CASES, MIDSPAN_CUBIC, TRUTH  # noqa: E402
-from transient_diagnosis_benchmark import EXAMPLE, make_data  # noqa: E402
+from transient_diagnosis_benchmark import EXAMPLE, band_table, make_data  # noqa: E402
 
 from hybridtwin.data.measured import run_data  # noqa: E402
-from hybridtwin.data.measurements import read_runs  # noqa: E402
-from hybridtwin.data.records import read_record  # noqa: E402
-from hybridtwin.data.transient import track_record  # noqa: E402
 from hybridtwin.identify import forward as fwd, identification as idn, lm  # noqa: E402
 from hybridtwin.identify.protocol import ProtocolOptions  # noqa: E402
 from hybridtwin.model.variants import Variant  # noqa: E402
@@ -51,14 +47,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def all_bands(where: Path, harmonics: int) -> dict:
     """Every band of the records in ``where`` (usable or not), by run name: the quiet records' bands are chosen by
     the noisy records' selection, not by their own sweep check (whose sigmas are F times smaller)."""
-    sensors = yaml.safe_load((EXAMPLE / "config/config.yaml").read_text())["machine"]["sensors"]
-    tables = []
-    for _, row in read_runs(where / "runs.tsv").iterrows():
-        table = track_record(read_record(row["record"], sensors), row.to_dict(), harmonics).bands
-        table.attrs = {}
-        table["usable"] = True
-        tables.append(table)
-    table = pd.concat(tables, ignore_index=True)
+    table = band_table(where, harmonics).assign(usable=True)
     return {run: run_data(table, run, harmonics) for run in table["run"]}
 
 
@@ -117,13 +106,14 @@ def sandwich_ratio(fit) -> np.ndarray:
 def report(label: str, fit, truth: dict, reference=None, sigma_of=None) -> None:
     stats = fit.statistics()
     ref = fit if reference is None else reference
+    ref_stderr = ref.statistics()["stderr"]
     print(f"{label}: {len(fit.data)} bands, chi^2/dof {fit.chi2_dof:.4f}; per order (chi^2 / numbers"
           f"{' in the noisy sigmas' if sigma_of else ''}): "
           + ", ".join(f"{h + 1}X {c:.1f}/{n}" for h, (c, n) in enumerate(per_order(fit, sigma_of))))
     ratio = sandwich_ratio(fit)
     for name, value in truth.items():
         i, j = fit.entry(name), ref.entry(name)
-        se = ref.statistics()["stderr"][j]
+        se = ref_stderr[j]
         print(f"  {name:9s} {fit.x[i]:.6g} +- {stats['stderr'][i]:.3g} (truth {value:g}: off by "
               f"{(fit.x[i] - value) / se:+.2f} of the noisy fit's stderr); sandwich / linearised {ratio[i]:.2f}")
 

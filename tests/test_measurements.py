@@ -563,3 +563,14 @@ def test_a_record_the_fast_reader_cannot_vouch_for_is_read_cell_by_cell(tmp_path
     else:
         record = read_record(path)
         assert np.array_equal(record.x_m, careful[0]["x_mm"] * 1e-3)
+
+
+def test_a_harmonic_stem_reads_back_to_its_channel_and_harmonic():
+    """split_stem is harmonic_stem's inverse, for channel names with and without a trailing digit or underscore
+    (x1 -> x, 1; x1_1 -> x1, 1; probe_a12 -> probe_a, 12): a runout offset's row of parameters.tsv is read back by
+    it. A wrong split would give another channel or harmonic for one of these."""
+    from hybridtwin.data.record_columns import harmonic_stem, split_stem
+
+    for channel in ("x", "y", "x1", "probe_a", "p_12", "p12"):
+        for h in (1, 2, 12):
+            assert split_stem(harmonic_stem(channel, h)) == (channel, h)

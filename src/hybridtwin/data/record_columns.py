@@ -244,6 +244,16 @@ def harmonic_stem(channel: str, h: int) -> str:
     return f"{channel}{'_' if channel[-1:].isdigit() else ''}{h}"
 
 
+def split_stem(stem: str) -> tuple[str, int]:
+    """``harmonic_stem``'s inverse: (channel, h) of a stem (x1 -> (x, 1), x1_1 -> (x1, 1))."""
+    if "_" in stem:
+        channel, h = stem.rsplit("_", 1)
+        if channel[-1:].isdigit():
+            return channel, int(h)
+    channel = stem.rstrip("0123456789")
+    return channel, int(stem[len(channel):])
+
+
 def carried_columns(sheet_row: Mapping, analysed: Iterable[str]) -> dict:
     """The runs sheet's columns carried into a result row: all but the resolved record path, and one named like a
     column of the analysis (note, usable, unit, keyphasor, status, ...) as sheet_<name>, not overwritten."""

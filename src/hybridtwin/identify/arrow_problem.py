@@ -190,6 +190,19 @@ class Layout:
         return [(len(self.shared) + 2 * i, h, c, s) for i, (rec, _, h, c, s) in enumerate(self.offsets)
                 if record and rec == record]
 
+    def own_sigma(self, sigma: Array) -> Array:
+        """The bands' sigmas (R, H, C) [m] with each runout offset's share s taken out where it applies (module
+        docstring): sqrt(sigma^2 - s^2), at least 1e-3 sigma; ``sigma`` itself without offsets."""
+        if not self.offsets:
+            return sigma
+        out = np.array(sigma, float, copy=True)
+        for k in range(self.n_runs):
+            for _, h, c, s in self.run_offsets(k):
+                if h <= out.shape[1]:
+                    total = out[k, h - 1, c]
+                    out[k, h - 1, c] = math.sqrt(max(total**2 - s**2, (1e-3 * total) ** 2))
+        return out
+
     def theta_of(self, entry: tuple[str, str], value: float) -> float:
         """An entry's theta from its value as ``to_si`` gives it (phase [rad], offset [m], parameter [SI])."""
         p, _ = entry
@@ -305,15 +318,9 @@ class ArrowProblem:
         self.H = int(sigma.shape[1])
         if any(m.H < self.H for m in models):
             raise ValueError(f"a model has fewer harmonics than the data's H = {self.H}")
-        self.sigma = np.asarray(sigma, float)  # (R, H, C), C channels (the sensors; x, y on the VARM)
+        # (R, H, C), C channels (the sensors; x, y on the VARM); a runout offset's s leaves its bands' sigma
+        self.sigma = layout.own_sigma(np.asarray(sigma, float))
         self.C = int(self.sigma.shape[2])
-        if layout.offsets:  # a runout offset's s leaves its bands' sigma (module docstring)
-            self.sigma = self.sigma.copy()
-            for k in range(layout.n_runs):
-                for _, h, c, s in layout.run_offsets(k):
-                    if h <= self.H:
-                        total = self.sigma[k, h - 1, c]
-                        self.sigma[k, h - 1, c] = math.sqrt(max(total**2 - s**2, (1e-3 * total) ** 2))
         self.sparsity = float(sparsity)
         self.l1_epsilon = float(l1_epsilon)
         self.l1_a, self.l1_b = layout.l1_scale()

@@ -71,6 +71,7 @@ import numpy as np
 import pandas as pd
 
 from .arrow_problem import OFFSET_PREFIX, ArrowProblem, Layout, wrap
+from ..data.record_columns import split_stem
 from .forward import HarmonicModel, SolverModel
 from ..data.measured import (  # noqa: F401 (the measured harmonics: hybridtwin.data.measured, also read from here)
     CHANNELS, RunData, model_errors, read_harmonics, run_data, table_harmonics, total_sigma,
@@ -293,8 +294,12 @@ class Identification:
             raise ValueError(f"parameter table: parameters {shared + local} are not the given order {order}")
         first = {p: i for i, p in reversed(list(enumerate(names)))}
         lower, upper = (rows[c].to_numpy(float) for c in ("lower", "upper"))
-        offsets = [(r, p[len(OFFSET_PREFIX):-3], *_stem_parts(p[len(OFFSET_PREFIX):-3], names), hi)
-                   for p, r, off, hi in zip(names, runs, offset, upper) if off and p.endswith("_re")]
+        # a runout offset's (record, stem, h, channel column, s): s is its "upper" (``ranges``); a read result has no
+        # problem, so h and the channel's column (numbered in order of appearance) only label its layout
+        stems = [(r, p[len(OFFSET_PREFIX):-3], hi) for p, r, off, hi in zip(names, runs, offset, upper)
+                 if off and p.endswith("_re")]
+        channels = list(dict.fromkeys(split_stem(stem)[0] for _, stem, _ in stems))
+        offsets = [(r, stem, split_stem(stem)[1], channels.index(split_stem(stem)[0]), hi) for r, stem, hi in stems]
         layout = Layout.build(order, [lower[first[p]] for p in order], [upper[first[p]] for p in order], fit_runs,
                               local, (), offsets, [""] * len(fit_runs))
         expected = [(p, fit_runs[0] if single else r) for p, r in layout.entries()]
@@ -351,20 +356,6 @@ def fit_runs(table: pd.DataFrame) -> list[str]:
     """The fit's runs in its order, from its parameter table (``Identification.table``): those with a phase. A
     transient record's runout offsets are nuisance rows too, but per record (their run is the record's name)."""
     return list(dict.fromkeys(table.loc[table["parameter"].astype(str) == "phase", "run"].astype(str)))
-
-
-def _stem_parts(stem: str, names: Sequence[str]) -> tuple[int, int]:
-    """(h, channel column) of a runout offset's stem read back from a table (x1 -> 1; the channels numbered in
-    order of appearance among the table's offsets): a read result has no problem, so these only label its layout."""
-    digits = len(stem) - len(stem.rstrip("0123456789"))
-    channel, h = stem.rsplit("_", 1) if "_" in stem else (stem[:-digits], stem[-digits:])
-    seen = []
-    for name in names:
-        if name.startswith(OFFSET_PREFIX):
-            own = name[len(OFFSET_PREFIX):-3]
-            key = own.rsplit("_", 1)[0] if "_" in own else own.rstrip("0123456789")
-            seen += [key] if key not in seen else []
-    return int(h), seen.index(channel) if channel in seen else 0
 
 
 def _unwrap_around(phases: Array, centre: float) -> Array:

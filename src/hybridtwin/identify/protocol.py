@@ -145,15 +145,13 @@ def resample(layout, sigma: Array, noise: Array, rng: np.random.Generator) -> Ar
     if not getattr(layout, "n_offsets", 0) or not len(noise):
         return sigma[None] * noise
     common = rng.standard_normal((len(noise), layout.n_offsets))
-    own, out = sigma.copy(), np.zeros(noise.shape, complex)
+    out = np.zeros(noise.shape, complex)
     first = len(layout.shared)
     for k in range(layout.n_runs):
         for i, h, c, s in layout.run_offsets(k):
             if h <= sigma.shape[1]:
-                total = sigma[k, h - 1, c]
-                own[k, h - 1, c] = np.sqrt(max(total**2 - s**2, (1e-3 * total) ** 2))
                 out[:, k, h - 1, c] = s * (common[:, i - first] + 1j * common[:, i - first + 1])
-    return out + own[None] * noise
+    return out + layout.own_sigma(sigma)[None] * noise
 
 
 def distinct_optima(trials: LMResult, is_phase: Array, most: int, tolerance: float = SAME_OPTIMUM) -> Array:
