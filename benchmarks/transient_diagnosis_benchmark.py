@@ -94,23 +94,30 @@ def band_table(where: Path, harmonics: int) -> pd.DataFrame:
     return pd.concat(bands, ignore_index=True)
 
 
+def fit_case_form(case: str, data: list, config: dict, harmonics: int, unknown: dict, fixed: dict | None = None,
+                  trials: int = 2):
+    """The Geometric variant plus the case's hidden effect(s) (the mid-span cubic spring too, which no candidate
+    models), ``unknown`` {name: [low, high]} and ``fixed`` {name: value}, fitted to ``data`` on the full solver
+    (``trials`` random starts, no Monte Carlo)."""
+    effects, _, _ = CASES[case]
+    spec = {"effects": config["variants"]["geometric"]["effects"] + list(effects), "unknown": unknown}
+    variant = Variant.from_spec(case, spec | ({"fixed": fixed} if fixed else {}), {"midspan_cubic": MIDSPAN_CUBIC})
+    names = list(variant.unknown)
+    lower, upper = (np.array(v, float) for v in zip(*variant.unknown.values()))
+    models = [fwd.SolverModel.for_data(variant, d, names, lower, upper, harmonics) for d in data]
+    return idn.identify(models, data, [], ProtocolOptions(trials=trials, monte_carlo=0, seed=1,
+                                                         lm=lm.LMOptions(max_iterations=60)))
+
+
 def truth_floor(data: list, case: str, config: dict, harmonics: int) -> float:
     """The truth's own chi^2/dof on these bands: the Geometric model plus the case's hidden effect(s), every physical
     parameter at its hidden value (the bow q_x held to a 1e-9 range around it), only the phases and runout offsets
     fitted. The floor these bands allow (their sigmas, the tracking, the quasi-steady model), case by case: a case
     whose bands hold a sweep lag below the check's threshold sits above the clean case's floor, whatever is fitted."""
-    effects, values, _ = CASES[case]
-    truth = dict(TRUTH) | dict(values)
-    geometric = config["variants"]["geometric"]
+    truth = dict(TRUTH) | dict(CASES[case][1])
     q_x = truth["q_x"]
-    spec = {"effects": geometric["effects"] + list(effects), "unknown": {"q_x": [q_x * (1 - 1e-9), q_x * (1 + 1e-9)]},
-            "fixed": {k: v for k, v in truth.items() if k != "q_x"}}
-    variant = Variant.from_spec(case, spec, {"midspan_cubic": MIDSPAN_CUBIC})  # the one no candidate models too
-    names = list(variant.unknown)
-    lower, upper = (np.array(v, float) for v in zip(*variant.unknown.values()))
-    models = [fwd.SolverModel.for_data(variant, d, names, lower, upper, harmonics) for d in data]
-    fit = idn.identify(models, data, [], ProtocolOptions(trials=2, monte_carlo=0, seed=1,
-                                                         lm=lm.LMOptions(max_iterations=60)))
+    fit = fit_case_form(case, data, config, harmonics, {"q_x": [q_x * (1 - 1e-9), q_x * (1 + 1e-9)]},
+                        {k: v for k, v in truth.items() if k != "q_x"})
     return float(fit.chi2_dof)
 
 

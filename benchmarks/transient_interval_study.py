@@ -33,13 +33,10 @@ import yaml
 from threadpoolctl import threadpool_limits
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from diagnosis_benchmark import CASES, MIDSPAN_CUBIC, TRUTH  # noqa: E402
-from transient_diagnosis_benchmark import EXAMPLE, band_table, make_data  # noqa: E402
+from diagnosis_benchmark import CASES, TRUTH  # noqa: E402
+from transient_diagnosis_benchmark import EXAMPLE, band_table, fit_case_form, make_data  # noqa: E402
 
 from hybridtwin.data.measured import run_data  # noqa: E402
-from hybridtwin.identify import forward as fwd, identification as idn, lm  # noqa: E402
-from hybridtwin.identify.protocol import ProtocolOptions  # noqa: E402
-from hybridtwin.model.variants import Variant  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -52,17 +49,12 @@ def all_bands(where: Path, harmonics: int) -> dict:
 
 
 def fit_truth_form(case: str, data: list, harmonics: int, config: dict):
-    """The Geometric variant plus the case's hidden effect(s), every parameter free, fitted to ``data``."""
-    effects, values, _ = CASES[case]
-    spec = dict(config["variants"]["geometric"])
-    spec["effects"] = spec["effects"] + list(effects)
-    spec["unknown"] = dict(spec["unknown"]) | {p: sorted([v - 10 * abs(v), v + 10 * abs(v)]) for p, v in values.items()}
-    variant = Variant.from_spec(case, spec, {"midspan_cubic": MIDSPAN_CUBIC})
-    names = list(variant.unknown)
-    lower, upper = (np.array(v, float) for v in zip(*variant.unknown.values()))
-    models = [fwd.SolverModel.for_data(variant, d, names, lower, upper, harmonics) for d in data]
-    return idn.identify(models, data, [], ProtocolOptions(trials=3, monte_carlo=0, seed=1,
-                                                         lm=lm.LMOptions(max_iterations=60)))
+    """The Geometric variant plus the case's hidden effect(s), every parameter free (the hidden ones in +-10 times
+    their value around it), fitted to ``data``."""
+    values = CASES[case][1]
+    unknown = dict(config["variants"]["geometric"]["unknown"]) | {p: sorted([v - 10 * abs(v), v + 10 * abs(v)])
+                                                                  for p, v in values.items()}
+    return fit_case_form(case, data, config, harmonics, unknown, trials=3)
 
 
 def fit_sigmas(fit) -> dict:
