@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .lm import LMOptions, LMResult, _batches, levenberg_marquardt
+from .uncertainty import nuisance
 
 Array = np.ndarray
 
@@ -85,7 +86,7 @@ def random_starts(layout, n: int, rng: np.random.Generator) -> Array:
     """n uniform random starts in [-1, 1] for the physical entries (phases set later, runout offsets 0),
     (n, layout.n)."""
     theta = rng.uniform(-1.0, 1.0, (n, layout.n))
-    theta[:, getattr(layout, "is_nuisance", layout.is_phase)] = 0.0
+    theta[:, nuisance(layout)] = 0.0
     return theta
 
 
