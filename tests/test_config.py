@@ -454,7 +454,7 @@ def test_the_readmes_quick_look_overlay_is_valid_and_does_what_it_says(project):
     assert set(quick["offline"]["n_scenarios"]) == set(base["variants"])
     for name in base["variants"]:
         assert 2 * n_scenarios(quick, variant(quick, name)) == n_scenarios(base, variant(base, name)), name
-    assert offline(quick)["scope"] == "run" and offline(base)["scope"] == "none"
+    assert offline(quick)["scope"] == "run" and offline(base)["scope"] == "run"
     assert offline(quick)["enrichment"]["n_scenarios"] == 0
     assert offline(quick)["enrichment"]["chunks"] == offline(base)["enrichment"]["chunks"]
     assert offline(quick)["spgd"]["degree"] == 8 and offline(base)["spgd"]["degree"] != 8

@@ -104,7 +104,9 @@ class LowerBearing(Effect):
 
 
 def _unbalance_nodes(ctx: Context) -> Array:
-    return np.array([ctx.shaft.node_at(z) for z in np.broadcast_to(ctx.p.z_me, ctx.Omega.shape)])
+    """The node nearest z_me, per scenario (each distinct z_me looked up once: a sweep asks at every step)."""
+    z, which = np.unique(np.broadcast_to(ctx.p.z_me, ctx.Omega.shape), return_inverse=True)
+    return np.array([ctx.shaft.node_at(value) for value in z], dtype=int)[which.reshape(-1)]
 
 
 #: the angle of a run's trial (eccentric) mass at t = 0 (the keyphasor mark), from +x towards +y, the sense of
