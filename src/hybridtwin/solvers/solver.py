@@ -178,7 +178,9 @@ class _Condensed:
         self.H0, self.Hh = Hc[:, 0].real.copy(), Hc[:, 1:].copy()  # h = 0 (real), h = 1..H (``_receptance_times``)
 
     def _linear_solves(self) -> tuple[Array, Array]:
-        """Q_lin,h = D_h^-1 F_h and R_h = D_h^-1 B for h = 0..H, block by uncoupled block."""
+        """Q_lin,h = D_h^-1 F_h and R_h = D_h^-1 B for h = 0..H, block by uncoupled block; blocks whose matrices
+        are equal in every scenario (the two bending planes of an isotropic rotor) share one factorisation, their
+        right-hand sides side by side (``_twin_blocks``)."""
         s = self.system
         S, n, c = s.n_scenarios, s.n_dof, len(self.dofs)
         unknown = sorted(h for h in s.forcing if h > self.H or h < 0)
@@ -186,21 +188,27 @@ class _Condensed:
             raise ValueError(f"the forcing has harmonic(s) {unknown} outside 0..H = {self.H}: raise H")
         X_lin = np.zeros((S, self.H + 1, n), complex)
         R = np.zeros((S, self.H + 1, n, c), complex)
-        for block in uncoupled_blocks(s.K, s.C, s.M):
-            cols = np.flatnonzero(np.isin(self.dofs, block))  # nonlinear DOFs inside this block
-            B = (block[:, None] == self.dofs[cols][None, :]).astype(float)
-            Kb, Cb, Mb = (A[:, block[:, None], block[None, :]] for A in (s.K, s.C, s.M))
+        for group in _twin_blocks(uncoupled_blocks(s.K, s.C, s.M), s.K, s.C, s.M):
+            first = group[0]
+            Kb, Cb, Mb = (A[:, first[:, None], first[None, :]] for A in (s.K, s.C, s.M))
+            cols = [np.flatnonzero(np.isin(self.dofs, block)) for block in group]  # nonlinear DOFs in each block
+            B = [(block[:, None] == self.dofs[k][None, :]).astype(float) for block, k in zip(group, cols)]
             for h in range(self.H + 1):
                 F = s.forcing.get(h)
-                if F is None and cols.size == 0:
+                solved = [i for i, k in enumerate(cols) if F is not None or k.size]
+                if not solved:
                     continue
-                F = np.zeros((S, block.size)) if F is None else F[:, block]
                 w = h * s.Omega[:, None, None]
                 D = Kb + 1j * w * Cb - w * w * Mb
-                rhs = np.concatenate([F[:, :, None].astype(complex), np.broadcast_to(B, (S,) + B.shape)], axis=2)
-                sol = _batched_solve(D, rhs, self.linear_ok)
-                X_lin[:, h, block] = sol[:, :, 0]
-                R[:, h, block[:, None], cols[None, :]] = sol[:, :, 1:]
+                rhs = [np.concatenate([(np.zeros((S, first.size)) if F is None else F[:, group[i]])[:, :, None].astype(
+                    complex), np.broadcast_to(B[i], (S,) + B[i].shape)], axis=2) for i in solved]
+                sol = _batched_solve(D, rhs[0] if len(rhs) == 1 else np.concatenate(rhs, axis=2), self.linear_ok)
+                start = 0
+                for i, part in zip(solved, rhs):
+                    block, k, width = group[i], cols[i], part.shape[2]
+                    X_lin[:, h, block] = sol[:, :, start]
+                    R[:, h, block[:, None], k[None, :]] = sol[:, :, start + 1:start + width]
+                    start += width
         return X_lin, R
 
     def _force_series(self, x: Array, idx: Array, jacobian: bool) -> tuple[Array, Array | None]:
@@ -256,6 +264,24 @@ def uncoupled_blocks(*matrices: Array) -> list[Array]:
         pattern |= np.any(A != 0, axis=0)
     n_blocks, labels = connected_components(pattern | pattern.T, directed=False)
     return [np.flatnonzero(labels == b) for b in range(n_blocks)]
+
+
+def _twin_blocks(blocks: list[Array], *matrices: Array) -> list[list[Array]]:
+    """``blocks`` grouped where every matrix is equal on them in every scenario (same size, same entries in the
+    same order): the linear solves of a group need one factorisation (an isotropic rotor's two planes: half the
+    work of the linear solves that every continuation step pays)."""
+    groups: list[list[Array]] = []
+    for block in blocks:
+        for group in groups:
+            first = group[0]
+            if first.size == block.size and all(
+                    np.array_equal(A[:, first[:, None], first[None, :]], A[:, block[:, None], block[None, :]])
+                    for A in matrices):
+                group.append(block)
+                break
+        else:
+            groups.append([block])
+    return groups
 
 
 def _to_real(X: Array) -> Array:
