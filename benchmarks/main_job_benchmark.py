@@ -35,6 +35,10 @@ Usage (from the repository root, in the project's environment):
     # thread, twice in turn: CPU seconds and how far the steady states differ
     python benchmarks/main_job_benchmark.py --solves FOLDER --old-src OLD/src --variant expansion --scenarios 200
 
+    # the per-rule table of one finished run of the main job (every variant): job-seconds, jobs and sampled CPU per
+    # rule, largest first, and the wall and CPU of the whole run from `/usr/bin/time -v` output if given
+    python benchmarks/main_job_benchmark.py --rules FOLDER [--time-log FILE]
+
     # did the results move? two finished runs of the main job: the ledger's columns, every estimate (in standard
     # errors of the old one), each diagnosis's verdict, the libraries' test errors and the per-run protocol's estimates
     python benchmarks/main_job_benchmark.py --results OLD_FOLDER NEW_FOLDER
@@ -90,6 +94,46 @@ def jobs(results: Path, variant: str) -> pd.DataFrame:
                      "cpu_time": pd.to_numeric(table.get("cpu_time", pd.Series([float("nan")])), errors="coerce")
                      .iloc[-1]})
     return pd.DataFrame(rows)
+
+
+def rule_of(path: Path, rules: list[str]) -> str:
+    """The rule a benchmark file belongs to: the longest rule name its stem is or starts with (then ``_``)."""
+    name = path.stem
+    matches = [rule for rule in rules if name == rule or name.startswith(rule + "_")]
+    return max(matches, key=len) if matches else name
+
+
+def workflow_rules(folder: Path) -> list[str]:
+    """The rule names declared in ``folder``'s workflow (Snakefile and workflow/rules/*.smk)."""
+    import re
+
+    sources = [folder / "Snakefile", *sorted((folder / "workflow" / "rules").glob("*.smk"))]
+    return sorted({m for path in sources if path.exists() for m in re.findall(r"^rule (\w+):", path.read_text(), re.M)})
+
+
+def per_rule(folder: Path) -> pd.DataFrame:
+    """job-s, jobs and sampled CPU per rule over every variant of a finished run in ``folder``, largest first,
+    with the total."""
+    table = jobs(folder / "results", "all")
+    rules = workflow_rules(folder)
+    table["rule"] = [rule_of(Path(file), rules) for file in table["file"]]
+    grouped = table.groupby("rule").agg(job_s=("s", "sum"), jobs=("s", "size"), cpu_s=("cpu_time", "sum"))
+    grouped = grouped.sort_values("job_s", ascending=False)
+    grouped.loc["total"] = grouped.sum()
+    return grouped
+
+
+def time_log(path: Path) -> dict:
+    """Wall [s], CPU (user + system) [s] and peak resident memory [GB] from a `/usr/bin/time -v` output."""
+    import re
+
+    text = path.read_text()
+    def field(label: str) -> str:
+        return re.search(re.escape(label) + r":\s*(\S+)", text).group(1)
+    parts = [float(p) for p in field("Elapsed (wall clock) time (h:mm:ss or m:ss)").split(":")]
+    wall = sum(p * 60 ** i for i, p in enumerate(reversed(parts)))
+    return {"wall_s": wall, "cpu_s": float(field("User time (seconds)")) + float(field("System time (seconds)")),
+            "max_rss_gb": float(field("Maximum resident set size (kbytes)")) / 1e6}
 
 
 def breakdown(results: Path, variant: str) -> pd.DataFrame:
@@ -366,6 +410,8 @@ def main() -> None:
     parser.add_argument("--solves", type=Path, help="folder of a workflow run: time one chunk's solves, old vs new")
     parser.add_argument("--old-src", type=Path, help="with --solves: the older source tree (its src folder)")
     parser.add_argument("--scenarios", type=int, default=200, help="with --solves: the first N scenarios")
+    parser.add_argument("--rules", type=Path, help="folder of a finished main job: the per-rule table")
+    parser.add_argument("--time-log", type=Path, help="with --rules: the run's `/usr/bin/time -v` output")
     parser.add_argument("--results", type=Path, nargs=2, metavar=("OLD", "NEW"),
                         help="two finished runs of the main job: how far the results moved")
     args = parser.parse_args()
@@ -374,8 +420,19 @@ def main() -> None:
     if args.run and not args.old_commit:
         parser.error("--run needs --old-commit")
     stage_table = args.run or args.old is not None
-    if not (args.results or args.solves or args.joint or args.protocol or stage_table):
-        parser.error("give --old FOLDER (or --run --old-commit COMMIT), --results, --solves, --joint or --protocol")
+    if not (args.results or args.solves or args.joint or args.protocol or args.rules or stage_table):
+        parser.error("give --old FOLDER (or --run --old-commit COMMIT), --rules, --results, --solves, --joint or "
+                     "--protocol")
+    if args.rules:
+        table = per_rule(args.rules)
+        print("| rule | job-s | jobs | CPU s* |\n|---|---|---|---|")
+        for rule, row in table.iterrows():
+            print(f"| {rule} | {row.job_s:.0f} | {row.jobs:.0f} | {row.cpu_s:.0f} |")
+        print("\n*CPU as Snakemake samples it (a lower bound for jobs longer than 15 s).")
+        if args.time_log:
+            whole = time_log(args.time_log)
+            print(f"\nthe whole run: {whole['wall_s']:.0f} s wall ({whole['wall_s'] / 60:.1f} min), "
+                  f"{whole['cpu_s']:.0f} s CPU (user + system), {whole['max_rss_gb']:.2f} GB peak resident (one process)")
     # each requested comparison in turn (several may be asked at once), the stage table last
     if args.results:
         results_comparison(*args.results)
