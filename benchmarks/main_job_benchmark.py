@@ -97,10 +97,13 @@ def jobs(results: Path, variant: str) -> pd.DataFrame:
 
 
 def rule_of(path: Path, rules: list[str]) -> str:
-    """The rule a benchmark file belongs to: the longest rule name its stem is or starts with (then ``_``)."""
+    """The rule a benchmark file belongs to: the longest rule name its stem is or starts with (then ``_``), or its
+    folder's name where the rule writes one file per run into a folder of its own (data/preprocess/{run}.tsv)."""
     name = path.stem
     matches = [rule for rule in rules if name == rule or name.startswith(rule + "_")]
-    return max(matches, key=len) if matches else name
+    if matches:
+        return max(matches, key=len)
+    return path.parent.name if path.parent.name in rules else name
 
 
 def workflow_rules(folder: Path) -> list[str]:
