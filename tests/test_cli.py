@@ -243,11 +243,12 @@ def test_console_script_is_installed():
 
 
 def _readme_effects_example() -> tuple[str, str]:
-    """The README's own effects file (the python block defining a PolynomialBearing) and its command line."""
-    readme = (ROOT / "README.md").read_text()
+    """The guide's own effects file (docs/commands.md, moved there from the README: the python block defining a
+    PolynomialBearing) and its command line."""
+    readme = (ROOT / "docs" / "commands.md").read_text()
     code = next(block for block in re.findall(r"```python\n(.*?)```", readme, re.DOTALL) if "PolynomialBearing(" in block)
     command = re.search(r"`(hybridtwin simulate --effects-file my_effects\.py[^`]*)`", readme)
-    assert command, "README: the command line using my_effects.py is gone"
+    assert command, "docs/commands.md: the command line using my_effects.py is gone"
     return code, command.group(1)
 
 

@@ -437,17 +437,24 @@ def test_a_variants_own_per_run_overrides_the_identification_default_for_it_alon
     assert identification.rule("geometric", "joint")["per_run"] == ["q_x", "q_y"]
 
 
-def test_the_readmes_quick_look_overlay_is_valid_and_does_what_it_says(project):
-    """The README's overlay for the paper's libraries (its yaml block, under "The paper's libraries") passes the
-    checks, switches the libraries on, halves every bundled variant's design (its comment says so), switches the
-    enrichment off and keeps one sPGD degree; the options it does not name keep their values (Snakemake merges
-    nested keys)."""
+def _workflow_overlay(heading: str) -> str:
+    """The yaml block under ``heading`` in docs/workflow.md (the overlays moved there from the README, issue 55)."""
     import re
 
+    page = (ROOT / "docs" / "workflow.md").read_text()
+    found = re.search(rf"^### {re.escape(heading)}\n.*?```yaml\n(.*?)```", page, re.DOTALL | re.MULTILINE)
+    assert found, f"docs/workflow.md: no yaml block under '### {heading}'"
+    return found.group(1)
+
+
+def test_the_readmes_quick_look_overlay_is_valid_and_does_what_it_says(project):
+    """The guide's overlay for a smaller library design (its yaml block in docs/workflow.md, under "The paper's
+    libraries, and a smaller design"; the README's until issue 55) passes the checks, keeps the libraries (the
+    default), halves every bundled variant's design (its comment says so), switches the enrichment off and keeps one
+    sPGD degree; the options it does not name keep their values (Snakemake merges nested keys)."""
     from hybridtwin.config import n_scenarios, offline, variant
 
-    readme = (ROOT / "README.md").read_text()
-    block = re.search(r"\*\*The paper\'s libraries\.\*\*.*?```yaml\n(.*?)```", readme, re.DOTALL).group(1)
+    block = _workflow_overlay("The paper's libraries, and a smaller design")
     assert _problems(block, project) == []
     base = _merged(Path("config/config.yaml"))
     quick = _merged(Path("config/config.yaml"), Path("overlay.yaml"))
@@ -460,6 +467,22 @@ def test_the_readmes_quick_look_overlay_is_valid_and_does_what_it_says(project):
     assert offline(quick)["spgd"]["degree"] == 8 and offline(base)["spgd"]["degree"] != 8
     assert {k: v for k, v in offline(quick)["spgd"].items() if k != "degree"} == {
         k: v for k, v in offline(base)["spgd"].items() if k != "degree"}
+
+
+def test_the_shortcut_for_small_machines_overlay_is_valid_and_does_what_it_says(project):
+    """The guide's shortcut (docs/workflow.md, "The shortcut for small machines") passes the checks and switches the
+    libraries off (the bundled config's default is the paper's library per run) and nothing else: every other option,
+    offline or not, keeps its value."""
+    from hybridtwin.config import offline
+
+    block = _workflow_overlay("The shortcut for small machines")
+    assert _problems(block, project) == []
+    base = _merged(Path("config/config.yaml"))
+    small = _merged(Path("config/config.yaml"), Path("overlay.yaml"))
+    assert offline(base)["scope"] == "run" and offline(small)["scope"] == "none"
+    assert {k: v for k, v in offline(small).items() if k != "scope"} == {
+        k: v for k, v in offline(base).items() if k != "scope"}
+    assert {k: v for k, v in small.items() if k != "offline"} == {k: v for k, v in base.items() if k != "offline"}
 
 
 def test_no_literal_harmonics_default_in_a_signature():

@@ -162,7 +162,10 @@ def test_nothing_in_the_project_points_outside_the_repository():
 
 # --- the README's command lines ------------------------------------------------------------------------
 
-README = (ROOT / "README.md").read_text()
+#: the user guide: the README and the pages its command line, data and workflow sections moved to (issue 55)
+GUIDE_PAGES = [ROOT / "README.md", *(ROOT / "docs" / name for name in (
+    "commands.md", "own-machine.md", "workflow.md", "results.md", "loop.md", "runups.md", "cluster.md"))]
+README = "\n".join(page.read_text() for page in GUIDE_PAGES)
 
 
 def readme_commands(text: str = README) -> list[list[str]]:
@@ -192,6 +195,27 @@ def _help(subcommand: str) -> str:
 def test_the_readme_shows_the_command_line():
     subcommands = {command[1] for command in readme_commands() if len(command) > 1}
     assert {"simulate", "effects", "variants", "check-data", "rig"} <= subcommands
+    top = {command[1] for command in readme_commands((ROOT / "README.md").read_text()) if len(command) > 1}
+    assert {"check-data", "assess"} <= top  # the README itself: check your records, judge a new one
+
+
+def quoted_figures(text: str) -> list[str]:
+    """The measured times a page quotes: each number written before "s of CPU", "minutes" or "s of wall time"."""
+    return re.findall(r"(\d+(?:\.\d+)?)(?=\s+(?:s of CPU|minutes|s of wall time))", _prose(text))
+
+
+def test_a_time_the_readme_quotes_is_the_benchmarks_latest():
+    """Every time the README quotes (a number before "s of CPU", "minutes" or "s of wall time") is in
+    benchmarks/README.md, where each figure stands with its command and commit (issue 55): the README never carries
+    a figure of its own that could drift. The main job's time is not quoted at all: the README names the section."""
+    readme = (ROOT / "README.md").read_text()
+    benchmarks = (ROOT / "benchmarks" / "README.md").read_text()
+    missing = [number for number in quoted_figures(readme)
+               if not re.search(rf"(?<![\d.]){re.escape(number)}(?![\d])", benchmarks)]
+    assert not missing, f"README quotes times benchmarks/README.md does not have: {missing}"
+    assert 'benchmarks/README.md, section "The main job"' in readme and "the-main-job" in anchors(benchmarks)
+    # the check itself finds a quoted time
+    assert quoted_figures("in 4.5 minutes of wall time (272 s of wall time), 467 s of CPU") == ["4.5", "272", "467"]
 
 
 @pytest.mark.parametrize("command", readme_commands(), ids=shlex.join)
