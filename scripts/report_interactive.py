@@ -7,6 +7,6 @@ from hybridtwin.report import interactive_pages as pages
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "report_interactive")
 entries = [(key, label, pages.read_figure(path))
-           for key, label, path in zip(smk.params.keys, smk.params.labels, smk.input.figures, strict=True)]
+           for key, label, path in zip(smk.params.figure_keys, smk.params.labels, smk.input.figures, strict=True)]
 pages.write_gallery(entries, smk.output.page, title="hybridtwin: interactive figures")
 log.info("%d figures in one page with one copy of plotly.js", len(entries))

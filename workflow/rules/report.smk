@@ -318,7 +318,7 @@ rule report_interactive:
     conda:
         "../envs/hybridtwin.yaml"
     params:
-        keys=[key for key, _, _ in INTERACTIVE_FIGURES],
+        figure_keys=[key for key, _, _ in INTERACTIVE_FIGURES],
         labels=[label for _, _, label in INTERACTIVE_FIGURES],
     script:
         "../../scripts/report_interactive.py"
