@@ -22,7 +22,8 @@ log = logging.getLogger("preprocess")
 try:
     # once, for the harmonics and the spectrum; one channel per sensor of the config's machine (params.sensors, its
     # config form; absent: the VARM's x, y)
-    record = read_record(smk.params.row["record"], getattr(smk.params, "sensors", None))
+    record = read_record(smk.params.row["record"], getattr(smk.params, "sensors", None),
+                         smk.params.row.get("channels"))
     table, waves = preprocess_run(smk.params.row, smk.params.harmonics, smk.params.sensor_range_mm * 1e-3,
                                   record=record)
 except DataError as err:  # check_data has passed the record: only a record changed since fails here

@@ -61,7 +61,7 @@ for record, table, band, runout, path in zip(records, orders, bands, runouts, sm
         figure = plot(points, variant.name, display)
         figure.savefig(out / f"{name}.png", dpi=90)
         tp.plt.close(figure)
-    data = read_record(path, sensors)  # the orbits: the record's own samples over the chosen windows
+    data = read_record(path, sensors, record.get("channels"))  # the orbits: the record's own samples over the chosen windows
     profile = speed_profile(data, record["kind"])
     inside = (data.time_s >= profile.marks_s[0]) & (data.time_s <= profile.marks_s[-1])
     theta = np.where(inside, profile.theta(np.where(inside, data.time_s, profile.marks_s[0])), np.nan)

@@ -10,7 +10,7 @@ from hybridtwin.report import transient_plots as tp
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "report_waterfall")
 options = smk.params.display  # frame, amplitude (config report: transient:)
-record = read_record(smk.input.record, getattr(smk.params, "sensors", None))
+record = read_record(smk.input.record, getattr(smk.params, "sensors", None), smk.params.channels)
 # frame probes: what each probe read (before a rotated pair is turned into x, y); model: the plane's x and y
 channels = record.readings if options["frame"] == "probes" and record.readings else record.channels
 fall = tp.waterfall(record.time_s, channels, read_tsv(smk.input.speed))

@@ -17,7 +17,7 @@ logging.basicConfig(filename=smk.log[0], level=logging.INFO, format="%(asctime)s
 log = logging.getLogger("track_record")
 row = smk.params.row
 try:
-    record = read_record(row["record"], getattr(smk.params, "sensors", None))
+    record = read_record(row["record"], getattr(smk.params, "sensors", None), row.get("channels"))
     tracked = track_record(record, row, smk.params.harmonics, smk.params.sensor_range_mm * 1e-3)
 except DataError as err:  # check_data has passed the record: only a record changed since fails here
     log.error("%s", err)

@@ -393,5 +393,6 @@ rule report_waterfall:
     params:
         **SENSOR_PARAMS,
         display={k: getattr(TRANSIENT, k) for k in ("frame", "amplitude")},
+        channels=lambda wildcards: sheet_entry(SHEET, wildcards.run).get("channels"),  # an instrument's file
     script:
         "../../scripts/report_waterfall.py"
