@@ -13,9 +13,11 @@ from hybridtwin.data.measurements import DataError
 from hybridtwin.data.records import read_record
 from hybridtwin.data.measured import write_harmonics
 from hybridtwin.data.preprocessing import preprocess_run, spectrum, write_tsv
+from hybridtwin.config import on_disk_full
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 logging.basicConfig(filename=smk.log[0], level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s")
+on_disk_full(logging.getLogger("preprocess"))  # a full disk: one message naming the file and what to free
 logging.captureWarnings(True)
 log = logging.getLogger("preprocess")
 

@@ -11,9 +11,11 @@ from hybridtwin.data.measured import write_harmonics
 from hybridtwin.data.order_tracking import write_orders
 from hybridtwin.data.preprocessing import write_tsv
 from hybridtwin.data.transient import track_record
+from hybridtwin.config import on_disk_full
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 logging.basicConfig(filename=smk.log[0], level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s")
+on_disk_full(logging.getLogger("track_record"))  # a full disk: one message naming the file and what to free
 log = logging.getLogger("track_record")
 row = smk.params.row
 try:
