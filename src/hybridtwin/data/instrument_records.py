@@ -22,7 +22,6 @@ counted where a CSV line would be (sample 1 is the first).
 
 from __future__ import annotations
 
-import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,7 +29,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .measurements import DataError
+from .measurements import DataError, parse_channels
 
 Array = np.ndarray
 
@@ -43,35 +42,12 @@ LIBRARIES = {"mat": "scipy (v7.3 files: h5py)", "hdf5": "h5py", "tdms": "npTDMS"
 DISPLACEMENT_UNITS = {"mm": "mm", "m": "m", "um": "um", "µm": "um", "μm": "um", "micron": "um", "microns": "um",
                      "mil": "mils", "mils": "mils"}
 TIME_UNITS = {"s": 1.0, "sec": 1.0, "ms": 1e-3}
-#: the column's names in the sheet
-CHANNELS_COLUMN = "channels"
 RATE_NAMES = ("sample_rate_hz", "fs", "Fs")
-_ENTRY = re.compile(r"^\s*([A-Za-z0-9_]+)\s*=\s*(.*?)\s*(?:\[\s*([^\]]*?)\s*\])?\s*$")
 
 
 def is_instrument_file(path: str | Path) -> bool:
     """Whether ``path`` is read by this module (its suffix names an instrument format), not as a CSV record."""
     return Path(path).suffix.lower() in FORMATS
-
-
-def parse_channels(text) -> dict[str, tuple[str, str | None]]:
-    """The sheet's channels cell as {name: (the file's channel, unit or None)}; empty or NaN: {}. ValueError
-    naming the entry that is not ``<name>=<channel>[unit]`` or a name given twice."""
-    if text is None or (isinstance(text, float) and np.isnan(text)) or not str(text).strip():
-        return {}
-    out = {}
-    for entry in str(text).split(";"):
-        if not entry.strip():
-            continue
-        found = _ENTRY.match(entry)
-        if not found or not found.group(2):
-            raise ValueError(f"channels entry {entry.strip()!r} is not <name>=<channel> (e.g. x=Probe1 or "
-                             "x=Probe1[mm]; entries separated by ';')")
-        name, channel, unit = found.group(1), found.group(2), found.group(3)
-        if name in out:
-            raise ValueError(f"channels: {name!r} given twice")
-        out[name] = (channel, unit or None)
-    return out
 
 
 @dataclass
