@@ -239,3 +239,32 @@ def test_the_channels_cell_is_parsed_and_a_bad_one_refused_by_the_sheet(tmp_path
     sheet.write_text("run\trpm\teccentric_mass_g\tpath\tchannels\nr1\t1000\t0\tr1.mat\tx:A\n")
     with pytest.raises(DataError, match=r"line 2, column channels: channels entry 'x:A' is not <name>=<channel>"):
         read_runs(sheet, check_files=False)
+
+
+def test_the_workflow_reads_an_instrument_record_as_its_csv_twin(tmp_path):
+    """The workflow's data stage (check_data, preprocess, measured_harmonics) on a sheet of a bundled run and its
+    twin written as a .mat file with a channels cell: both pass the checks, and the harmonics table has the same
+    numbers for both (the loop downstream reads only that table, so the fits and the ledger follow)."""
+    from scipy import io as sio
+
+    from hybridtwin.data.measured import read_harmonics
+    from workflow_helpers import copy_workflow, snakemake
+
+    work = copy_workflow(tmp_path, ["r650_m25p9"])
+    small = work / "data" / "small"
+    source = pd.read_csv(small / "records" / "r650_m25p9.csv")
+    sio.savemat(small / "records" / "twin.mat", {"t": source["time_s"].to_numpy(), "PX": source["x_mm"].to_numpy(),
+                                                 "PY": source["y_mm"].to_numpy()})
+    sheet = pd.read_csv(small / "runs.tsv", sep="\t")
+    twin = sheet.iloc[0].copy()
+    twin["run"], twin["path"] = "twin_mat", "records/twin.mat"
+    sheet = pd.concat([sheet, twin.to_frame().T], ignore_index=True)
+    sheet["channels"] = ["", "time=t; x=PX[mm]; y=PY[mm]"]
+    sheet.to_csv(small / "runs.tsv", sep="\t", index=False)
+    done = snakemake(work, "results/data/harmonics.tsv")
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    table = read_harmonics(work / "results" / "data" / "harmonics.tsv").set_index("run")
+    numbers = table.select_dtypes("number")
+    assert numbers.shape[1] > 10 and bool(table.loc["twin_mat", "usable"])
+    np.testing.assert_allclose(numbers.loc["twin_mat"].to_numpy(float), numbers.loc["r650_m25p9"].to_numpy(float),
+                               rtol=1e-9, atol=1e-15, equal_nan=True)
