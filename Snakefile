@@ -69,6 +69,7 @@ rule all:
         "results/ledger.tsv",
         "results/ledger.png",
         "results/summary.tsv",
+        "results/interactive.html",  # every interactive figure in one page (the report's, plotly.js once)
         # a sheet with run-ups or coast-downs: their Bode, polar and orbit figures per variant, and waterfalls
         expand(
             "results/{variant}/report/{name}",

@@ -9,6 +9,7 @@ from hybridtwin.online.assess import assess
 from hybridtwin.online.assess_plots import plot_assessment
 from hybridtwin.online.intake import RecordError, intake
 from hybridtwin.online.twin import load_twin
+from hybridtwin.plots import save_png
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "assess_record")
@@ -24,6 +25,6 @@ for warning in result.warnings:
 for band, why in record.left_out.items():
     log.info("%s left out: %s", band, why)
 result.write(Path(smk.output.summary).parent)
-plot_assessment(result).savefig(smk.output.figure, dpi=110)
+save_png(plot_assessment(result), smk.output.figure, dpi=110)
 log.info("%s", result.line())
 print(result.line())

@@ -12,9 +12,11 @@ from snakemake.utils import validate
 from hybridtwin.data.measurements import DataError, DataWarning, read_runs
 from hybridtwin.data.preprocessing import check_data, has_usable_fit_run, write_tsv
 from hybridtwin.data.shared_problems import group_messages, group_problems
+from hybridtwin.config import on_disk_full
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 logging.basicConfig(filename=smk.log[0], level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s")
+on_disk_full(logging.getLogger("check_data"))  # a full disk: one message naming the file and what to free
 log = logging.getLogger("check_data")
 
 try:

@@ -6,6 +6,7 @@ Reads only the rule's input, params and output.
 from hybridtwin import config as cfg
 from hybridtwin.identify import design
 from hybridtwin.identify import identification as idn
+from hybridtwin.plots import save_png
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "design_runs")
@@ -26,4 +27,4 @@ for row in result.intervals.itertuples():
 for note in result.notes:
     log.warning("%s", note)
 design.write_design(result, smk.output.chosen, smk.output.intervals, smk.output.candidates)
-design.plot_design(result, variant.name).savefig(smk.output.plot, dpi=110)
+save_png(design.plot_design(result, variant.name), smk.output.plot, dpi=110)

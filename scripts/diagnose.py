@@ -8,6 +8,7 @@ from hybridtwin.identify import identification as idn
 from hybridtwin.diagnose import score_test as st
 from hybridtwin.model.candidates import candidates_for
 from hybridtwin.report import interactive
+from hybridtwin.plots import save_png
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "diagnose")
@@ -35,6 +36,6 @@ dgr.write(result, smk.output.table, smk.output.recommendation, smk.output.summar
 result.fingerprint.table().to_csv(smk.output.fingerprint, sep="\t", index=False, float_format="%.9g")
 result.intervals.write(smk.output.intervals)
 dg.refits_table(result).to_csv(smk.output.refits, sep="\t", index=False, float_format="%.12g")
-dgr.plot(result).savefig(smk.output.plot, dpi=120)
+save_png(dgr.plot(result), smk.output.plot, dpi=120)
 interactive.write_html(interactive.diagnosis_figure(result), smk.output.plot_html)
 log.info("%s", result.conclusion)

@@ -13,6 +13,7 @@ from hybridtwin.identify import identification as idn
 from hybridtwin.offline.library import Library, read_library_validation
 from hybridtwin.report import drift as dft
 from hybridtwin.identify.run_fits import fit_joint, write_fit, write_summary
+from hybridtwin.plots import save_png
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "identify_joint")
@@ -45,7 +46,7 @@ runs = result.runs()
 write_fit(smk.output.fit, fit, runs["rpm"].tolist())
 drift = dft.drift_table([per_run[r] for r in per_run if r in set(runs["run"])], runs)
 idn.write_parameters(drift, smk.output.per_run)
-dft.plot_per_run(drift, joint, variant.name).savefig(smk.output.plot, dpi=120)
+save_png(dft.plot_per_run(drift, joint, variant.name), smk.output.plot, dpi=120)
 write_summary(result.summary, smk.output.summary)
 for warning in result.warnings:
     log.warning("%s", warning)

@@ -6,6 +6,7 @@ from hybridtwin import config as cfg
 from hybridtwin.report import report
 from hybridtwin.report import report_plots
 from hybridtwin.identify.run_fits import read_summary
+from hybridtwin.plots import save_png
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "ledger")
@@ -19,4 +20,4 @@ for variant, summary_path, fit_path, validation_path in zip(smk.params.variants,
     log.info("%s: chi^2/dof %.4g, BIC %.6g", variant, rows[-1]["chi2_dof"], rows[-1]["bic"])
 ledger = report.ledger_table(rows)
 report.write_ledger(ledger, smk.output.table)
-report_plots.plot_ledger(ledger, errors).savefig(smk.output.plot, dpi=100)
+save_png(report_plots.plot_ledger(ledger, errors), smk.output.plot, dpi=100)

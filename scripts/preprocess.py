@@ -13,16 +13,19 @@ from hybridtwin.data.measurements import DataError
 from hybridtwin.data.records import read_record
 from hybridtwin.data.measured import write_harmonics
 from hybridtwin.data.preprocessing import preprocess_run, spectrum, write_tsv
+from hybridtwin.config import on_disk_full
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 logging.basicConfig(filename=smk.log[0], level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s")
+on_disk_full(logging.getLogger("preprocess"))  # a full disk: one message naming the file and what to free
 logging.captureWarnings(True)
 log = logging.getLogger("preprocess")
 
 try:
     # once, for the harmonics and the spectrum; one channel per sensor of the config's machine (params.sensors, its
     # config form; absent: the VARM's x, y)
-    record = read_record(smk.params.row["record"], getattr(smk.params, "sensors", None))
+    record = read_record(smk.params.row["record"], getattr(smk.params, "sensors", None),
+                         smk.params.row.get("channels"))
     table, waves = preprocess_run(smk.params.row, smk.params.harmonics, smk.params.sensor_range_mm * 1e-3,
                                   record=record)
 except DataError as err:  # check_data has passed the record: only a record changed since fails here

@@ -9,6 +9,7 @@ from hybridtwin import config as cfg
 from hybridtwin.data.preprocessing import read_tsv
 from hybridtwin.identify import identification as idn
 from hybridtwin.report import response_plots as rp
+from hybridtwin.plots import save_png
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "report_cascade")
@@ -18,5 +19,5 @@ runs = pd.DataFrame({"run": table["run"], "rpm": table["rpm_true"].fillna(table[
 spectra = {Path(path).parent.name: read_tsv(path) for path in smk.input.spectra}
 log.info("cascade of %d runs' spectra", len(spectra))
 figure = rp.plot_cascade(spectra, runs)
-figure.savefig(smk.output.cascade, dpi=100)
+save_png(figure, smk.output.cascade, dpi=100)
 rp.plt.close(figure)

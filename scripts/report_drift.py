@@ -3,6 +3,7 @@
 from hybridtwin import config as cfg
 from hybridtwin.identify import identification as idn
 from hybridtwin.report import drift
+from hybridtwin.plots import save_png
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "report_drift")
@@ -13,4 +14,4 @@ statistics.to_csv(smk.output.table, sep="\t", index=False, float_format="%.6g")
 for row in statistics.itertuples():
     log.info("%s: %s", row.parameter, row.verdict)
 figure = drift.plot_drift(per_run, statistics, joint, smk.wildcards.variant)
-figure.savefig(smk.output.plot, dpi=100)
+save_png(figure, smk.output.plot, dpi=100)

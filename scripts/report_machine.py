@@ -12,6 +12,7 @@ from hybridtwin import config as cfg
 from hybridtwin.identify import identification as idn
 from hybridtwin.report import interactive, interactive_machine
 from hybridtwin.report import machine_plots as mp
+from hybridtwin.plots import save_png
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "report_machine")
@@ -25,7 +26,7 @@ speeds = mp.report_speeds(runs["rpm"])
 title = f"Campbell diagram, {smk.wildcards.variant} on {machine} (eccentric mass {mass_g:g} g)"
 figure = mp.campbell_figure(variant.model, values, speeds, run_rpm=runs["rpm"], n_modes=6, title=title)
 figure.campbell.to_csv(smk.output.table, sep="\t", index=False, float_format="%.9g")
-figure.savefig(smk.output.campbell, dpi=100)
+save_png(figure, smk.output.campbell, dpi=100)
 interactive.write_html(interactive_machine.campbell_figure(variant.model, values, speeds, run_rpm=runs["rpm"],
                                                            n_modes=6, title=title, table=figure.campbell),
                        smk.output.campbell_html)
@@ -35,7 +36,7 @@ mp.plt.close(figure)
 rpm = float(np.median(runs["rpm"]))
 title = f"Undamped mode shapes at {rpm:g} RPM (the runs' median speed), {smk.wildcards.variant} on {machine}"
 figure = mp.mode_shape_figure(variant.model, values, rpm, n_modes=4, title=title)
-figure.savefig(smk.output.modes, dpi=100)
+save_png(figure, smk.output.modes, dpi=100)
 interactive.write_html(interactive_machine.mode_shapes_figure(variant.model, values, rpm, n_modes=4, title=title),
                        smk.output.modes_html)
 for row in figure.modes.itertuples():

@@ -12,6 +12,7 @@ from hybridtwin import config as cfg
 from hybridtwin.identify import identification as idn
 from hybridtwin.report import interactive, report
 from hybridtwin.report import response_plots as rp
+from hybridtwin.plots import save_png
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "report_response")
@@ -38,6 +39,6 @@ for row in rp.multivalued(dense).dropna().itertuples():
 for name, plot, live in (("bode", rp.plot_bode, interactive.bode_figure),
                          ("polar", rp.plot_polar, interactive.polar_figure)):
     figure = plot(dense, comparisons, variant.name)
-    figure.savefig(smk.output[name], dpi=100)
+    save_png(figure, smk.output[name], dpi=100)
     rp.plt.close(figure)
     interactive.write_html(live(dense, comparisons, variant.name), smk.output[f"{name}_html"])  # beside the PNG

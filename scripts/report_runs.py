@@ -5,6 +5,7 @@ from pathlib import Path
 
 from hybridtwin import config as cfg
 from hybridtwin.report import interactive, report, report_plots
+from hybridtwin.plots import save_png
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "report_runs")
@@ -15,7 +16,7 @@ pairs = report_plots.sensor_pair_names(getattr(smk.params, "sensors", None))
 comparisons = report.load_comparisons(smk.input.table)
 for comparison in comparisons:
     figure = report_plots.plot_run(comparison, smk.wildcards.variant, pairs)
-    figure.savefig(folder / f"{comparison.run}.png", dpi=100)
+    save_png(figure, folder / f"{comparison.run}.png", dpi=100)
     report_plots.plt.close(figure)
     log.info("%s: chi^2/dof %.4g", comparison.run, comparison.chi2_dof)
 interactive.write_html(interactive.runs_figure(comparisons, smk.wildcards.variant, pairs), smk.output.interactive)

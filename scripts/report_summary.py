@@ -5,6 +5,7 @@ import pandas as pd
 from hybridtwin import config as cfg
 from hybridtwin.identify.design import read_design_table
 from hybridtwin.identify.validation_refit import read_validation
+from hybridtwin.plots import png_palette_bytes
 from hybridtwin.report import interactive, report, summary
 from hybridtwin.data.measured import read_harmonics
 from hybridtwin.diagnose.diagnosis_report import read_summary
@@ -22,7 +23,7 @@ for variant, fit_path, validation_path, diagnosis_path, explained in zip(
 table = summary.summary_table(ledger, errors, diagnoses, smk.params.specs)
 table.to_csv(smk.output.table, sep="\t", index=False, float_format="%.6g")
 figure = summary.plot_summary(ledger, errors)
-png = summary.png_bytes(figure)
+png = png_palette_bytes(figure)  # at most 256 colours: the report embeds it
 with open(smk.output.plot, "wb") as stream:
     stream.write(png)
 interactive.write_html(interactive.summary_figure(ledger, errors), smk.output.plot_html)

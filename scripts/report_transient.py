@@ -20,6 +20,7 @@ from hybridtwin.data.order_tracking import read_orders, speed_profile, table_cha
 from hybridtwin.identify import identification as idn
 from hybridtwin.identify.forward import SLOW_ROLL_RPM
 from hybridtwin.report import transient_plots as tp
+from hybridtwin.plots import save_png
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "report_transient")
@@ -59,9 +60,9 @@ for record, table, band, runout, path in zip(records, orders, bands, runouts, sm
     out.mkdir(parents=True, exist_ok=True)
     for name, plot in (("bode", tp.plot_bode), ("polar", tp.plot_polar)):
         figure = plot(points, variant.name, display)
-        figure.savefig(out / f"{name}.png", dpi=90)
+        save_png(figure, out / f"{name}.png", dpi=90)
         tp.plt.close(figure)
-    data = read_record(path, sensors)  # the orbits: the record's own samples over the chosen windows
+    data = read_record(path, sensors, record.get("channels"))  # the orbits: the record's own samples over the chosen windows
     profile = speed_profile(data, record["kind"])
     inside = (data.time_s >= profile.marks_s[0]) & (data.time_s <= profile.marks_s[-1])
     theta = np.where(inside, profile.theta(np.where(inside, data.time_s, profile.marks_s[0])), np.nan)
@@ -71,7 +72,7 @@ for record, table, band, runout, path in zip(records, orders, bands, runouts, sm
         log.warning("%s: %s", record["run"], note)
     figure = tp.plot_orbits(orbits, record["run"], variant.name, [(names[i], names[j]) for i, j in pairs],
                             probe_angles(sensors))
-    figure.savefig(out / "orbits.png", dpi=90)
+    save_png(figure, out / "orbits.png", dpi=90)
     tp.plt.close(figure)
     log.info("%s: orbits at %s RPM", record["run"], ", ".join(f"{o['rpm']:.0f}" for o in orbits))
 pd.concat(tables, ignore_index=True).to_csv(smk.output.table, sep="\t", index=False, float_format="%.17g")

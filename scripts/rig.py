@@ -6,9 +6,11 @@ from pathlib import Path
 from hybridtwin.model.machine import Machine
 from hybridtwin.data.rig import RigSpec, generate, peak_columns, read_plan
 from hybridtwin.model.variants import load_effects_file
+from hybridtwin.config import on_disk_full
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 logging.basicConfig(filename=smk.log[0], level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s")
+on_disk_full(logging.getLogger("rig"))  # a full disk: one message naming the file and what to free
 logging.captureWarnings(True)  # non-unique steady states, records beyond the sensor range
 log = logging.getLogger("rig")
 

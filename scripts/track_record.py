@@ -11,13 +11,15 @@ from hybridtwin.data.measured import write_harmonics
 from hybridtwin.data.order_tracking import write_orders
 from hybridtwin.data.preprocessing import write_tsv
 from hybridtwin.data.transient import track_record
+from hybridtwin.config import on_disk_full
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 logging.basicConfig(filename=smk.log[0], level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s")
+on_disk_full(logging.getLogger("track_record"))  # a full disk: one message naming the file and what to free
 log = logging.getLogger("track_record")
 row = smk.params.row
 try:
-    record = read_record(row["record"], getattr(smk.params, "sensors", None))
+    record = read_record(row["record"], getattr(smk.params, "sensors", None), row.get("channels"))
     tracked = track_record(record, row, smk.params.harmonics, smk.params.sensor_range_mm * 1e-3)
 except DataError as err:  # check_data has passed the record: only a record changed since fails here
     log.error("%s", err)

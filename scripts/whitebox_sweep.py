@@ -4,6 +4,7 @@ params and output."""
 from hybridtwin import config as cfg
 from hybridtwin.plots import plot_sweep
 from hybridtwin.offline.scenarios import solve_operating_points
+from hybridtwin.plots import save_png
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "whitebox_sweep")
@@ -20,4 +21,4 @@ unstable = table[table["success"] & ~table["stable"]]
 if len(unstable):
     log.warning("%d run(s) whose periodic solution is unstable: %s", len(unstable), ", ".join(unstable["run"]))
 table.to_csv(smk.output.table, sep="\t", index=False, float_format="%.9e")
-plot_sweep(table, variant.name).savefig(smk.output.plot, dpi=120)
+save_png(plot_sweep(table, variant.name), smk.output.plot, dpi=120)

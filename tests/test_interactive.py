@@ -12,8 +12,12 @@ computed in the page from the subplot's axes, dispatched to the element under it
 label that gives the point's value and unit; in the comparison per run and the Bode figure, a click on a legend
 entry (mouse down and up) shows or hides that run's (probe's) traces and no other; the check itself fails on a
 figure whose hover is switched off. A small script injected into a copy of the file writes its findings into
-<pre id="result">, read from ``chromium --dump-dom``. Skipped, saying why, where /usr/bin/chromium is absent;
-.ci/run installs it and runs this file. About a minute (a browser start per figure).
+<pre id="result">, read from ``chromium --dump-dom``. The same check on the report's page of all figures
+(``interactive_pages.write_gallery``: plotly.js once), each figure chosen by the URL's fragment: the same
+interactivity there. Skipped, saying why, where /usr/bin/chromium is absent; .ci/run installs it and runs this
+file. About two minutes (a browser start per figure and page).
+
+(c) The pages read back their figures exactly, and the gallery holds plotly.js once.
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ from hybridtwin.diagnose.conclusion import Diagnosis
 from hybridtwin.diagnose.diagnosis_status import VERDICT_COLOUR, Verdict
 from hybridtwin.model.model import Model, campbell
 from hybridtwin.report import interactive as ia
+from hybridtwin.report import interactive_pages as pages
 from hybridtwin.report import interactive_machine as im
 from hybridtwin.report import report, summary
 from hybridtwin.report import response_plots as rp
@@ -439,15 +444,17 @@ browser = pytest.mark.skipif(not CHROMIUM.exists(), reason=f"no {CHROMIUM} (a he
                              "figures: apt-get install -y chromium; .ci/run installs it where it can)")
 
 
-def in_browser(figure_html: Path, targets: list[dict], work: Path, toggles: list[dict] = ()) -> dict:
+def in_browser(figure_html: Path, targets: list[dict], work: Path, toggles: list[dict] = (), key: str = "") -> dict:
     """What the page says (``CHECK``) once Chromium has loaded a copy of ``figure_html`` with the check injected.
-    toggles: legend entries to click, {"entry": its text, "group": its legend group}."""
+    toggles: legend entries to click, {"entry": its text, "group": its legend group}. key: the figure a gallery
+    shows (the URL's fragment)."""
     page = work / f"checked_{figure_html.name}"
     text = figure_html.read_text()
     assert text.count("</body>") == 1
     points = [{k: t[k] for k in t if k != "expect"} for t in targets]
     page.write_text(text.replace("</body>", CHECK % (json.dumps(points), json.dumps(list(toggles))) + "</body>"))
-    done = subprocess.run([str(CHROMIUM), *FLAGS, f"--user-data-dir={work / 'chromium-profile'}", page.as_uri()],
+    done = subprocess.run([str(CHROMIUM), *FLAGS, f"--user-data-dir={work / 'chromium-profile'}",
+                           page.as_uri() + (f"#{key}" if key else "")],
                           capture_output=True, text=True, timeout=300, check=False)
     found = re.search(r'<pre id="result">(.*?)</pre>', done.stdout, re.DOTALL)
     assert found, f"no result in the page (exit {done.returncode}): {done.stderr[-1500:]}"
@@ -552,13 +559,54 @@ def figures(comparisons, dense, rotor, ledger_errors, diagnosis):
     return _figures(comparisons, dense, rotor, ledger_errors, diagnosis)
 
 
+NAMES = ["runs", "bode", "polar", "campbell", "modes", "summary", "diagnosis"]
+
+
+@pytest.fixture(scope="module")
+def gallery(figures, tmp_path_factory) -> Path:
+    """Every figure in one page (the report's), keyed as the workflow keys them: "<variant>/<figure>"."""
+    path = tmp_path_factory.mktemp("gallery") / "interactive.html"
+    pages.write_gallery([(f"demo/{name}", f"demo: {name}", figures[name][0]) for name in NAMES], path)
+    return path
+
+
+def _as_data(fig) -> dict:
+    """A figure as plain data (its JSON parsed): equal for equal figures, whatever the order of their keys."""
+    return json.loads(fig.to_json())
+
+
+def test_a_page_reads_back_its_figures_and_the_gallery_holds_plotly_once(figures, gallery, tmp_path):
+    """write_figure/read_figure and write_gallery/read_gallery are exact inverses (the figures' JSON equal); the
+    gallery carries plotly.js once, and otherwise only the figures' data and a few kB of page: smaller than two
+    pages of one figure each."""
+    for name in NAMES:
+        ia.write_html(figures[name][0], tmp_path / f"{name}.html")
+        assert _as_data(pages.read_figure(tmp_path / f"{name}.html")) == _as_data(figures[name][0])
+    back = pages.read_gallery(gallery)
+    assert [(key, label) for key, label, _ in back] == [(f"demo/{n}", f"demo: {n}") for n in NAMES]
+    assert all(_as_data(fig) == _as_data(figures[n][0]) for (_, _, fig), n in zip(back, NAMES, strict=True))
+    text = gallery.read_text(encoding="utf-8")
+    js = pages.plotly_js()
+    assert text.count(js[:2000]) == 1 and js in text
+    data = sum(len(pages.figure_json(figures[n][0])) for n in NAMES)
+    assert len(text) < len(js) + data + 10_000, (len(text), len(js), data)
+    two = sum(len((tmp_path / f"{n}.html").read_text(encoding="utf-8")) for n in NAMES[:2])
+    assert len(text) < two
+
+
 @browser
-@pytest.mark.parametrize("name", ["runs", "bode", "polar", "campbell", "modes", "summary", "diagnosis"])
-def test_the_figure_renders_and_its_hover_gives_the_points_value_in_a_browser(figures, name, tmp_path):
+@pytest.mark.parametrize("in_gallery", [False, True], ids=["own page", "gallery"])
+@pytest.mark.parametrize("name", NAMES)
+def test_the_figure_renders_and_its_hover_gives_the_points_value_in_a_browser(figures, gallery, name, in_gallery,
+                                                                              tmp_path):
+    """The check, on the figure's own page and on the gallery showing it (chosen by the URL's fragment)."""
     fig, targets, *toggles = figures[name]
     toggles = toggles[0] if toggles else []
-    ia.write_html(fig, tmp_path / f"{name}.html")
-    result = in_browser(tmp_path / f"{name}.html", targets, tmp_path, toggles)
+    if in_gallery:
+        result = in_browser(gallery, targets, tmp_path, toggles, key=f"demo/{name}")
+    else:
+        ia.write_html(fig, tmp_path / f"{name}.html")
+        result = in_browser(tmp_path / f"{name}.html", targets, tmp_path, toggles)
     assert "error" not in result, result
     visible = sum(1 for t in fig.data if t.visible in (None, True))
     assert result["svg"] >= 1 and result["traces"] == len(fig.data)

@@ -258,6 +258,42 @@ def test_machine_commands_refuse_bad_input_in_one_line(capsys, jeffcott, tmp_pat
     assert len(lines) == 1 and message in lines[0], err
 
 
+def _project(tmp_path: Path, sheet: str) -> Path:
+    """A project folder as the workflow lays it out: config/config.yaml (the one-mode rotor, ``runs: runs.tsv``)
+    and the runs sheet beside config/ (its records need not exist for the machine commands)."""
+    project = tmp_path / "project"
+    (project / "config").mkdir(parents=True)
+    (project / "config" / "config.yaml").write_text(JEFFCOTT + "runs: runs.tsv\n")
+    (project / "runs.tsv").write_text(sheet)
+    return project
+
+
+def test_campbell_takes_its_speeds_from_the_runs_sheet_and_writes_under_results(capsys, tmp_path, monkeypatch):
+    """Issue 55: without --rpm and --out, the speeds are 0 to 1.25 times the sheet's fastest run (the report's
+    Campbell diagram's: a run-up's end counts), the files land in <project>/results/machine/<variant>/, whatever
+    the current folder."""
+    project = _project(tmp_path, "run\trpm\teccentric_mass_g\tpath\tkind\trpm_start\trpm_end\n"
+                                 "r1\t600\t10\tr1.csv\tsteady\t\t\n"
+                                 "up\t\t10\tup.csv\trunup\t300\t1400\n")
+    monkeypatch.chdir(tmp_path)
+    code, _, err = _run(capsys, "campbell", "--config", project / "config" / "config.yaml", "--speeds", 11)
+    assert code == 0, err
+    out = project / "results" / "machine" / "linear"
+    table = read_table(out / "campbell.tsv")
+    np.testing.assert_allclose(np.unique(table["rpm"]), np.linspace(0.0, 1.25 * 1400.0, 11), rtol=1e-12)
+    assert (out / "critical_speeds.tsv").exists() and (out / "campbell.png").exists()
+    assert "runs sheet" in err and str(project / "runs.tsv") in err
+
+
+def test_a_runs_sheet_that_cannot_be_read_is_named(capsys, tmp_path):
+    project = _project(tmp_path, "run\tspeed\n")
+    code, out, err = _run(capsys, "campbell", "--config", project / "config" / "config.yaml")
+    lines = [line for line in err.strip().splitlines() if not line.startswith("#")]
+    assert code == 2 and out == "" and len(lines) == 1, err
+    assert "runs: runs.tsv" in lines[0] and "rpm" in lines[0]
+    assert not (project / "results").exists()
+
+
 def test_machine_commands_refuse_an_out_that_is_a_file_and_need_the_mass(capsys, jeffcott, tmp_path):
     (tmp_path / "file").write_text("")
     code, _, err = _run(capsys, "modes", "--config", jeffcott, "--out", tmp_path / "file")

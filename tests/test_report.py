@@ -2,6 +2,7 @@
 harmonics, and that every figure is written (seconds, no solver); the report's first page (hybridtwin.report.summary) on
 known tables; and `snakemake --report report.html` on a small run of the workflow (about a minute)."""
 
+import base64
 import html as htmllib
 import io
 import json
@@ -21,6 +22,7 @@ from scipy import stats
 from hybridtwin.identify import identification as idn
 from hybridtwin.report import report
 from hybridtwin.report import drift, report_plots
+from hybridtwin.report import interactive_pages
 from hybridtwin.report import summary
 from hybridtwin.identify import validation as val
 from hybridtwin.identify.run_fits import write_fit
@@ -627,10 +629,40 @@ def test_report_opens_on_the_ledger_the_recommendation_and_the_failing_runs(repo
     worst = errors.loc[errors["chi2_dof"].idxmax(), "run"]
     assert f"results/geometric/report/runs/{worst}.png" in links
     assert {"results/summary.png", "results/summary.tsv"} <= set(results)
-    # the interactive figures beside their PNGs (hybridtwin.report.interactive), each in the report
-    assert {"results/summary.html", "results/geometric/diagnosis.html"} | {
-        f"results/geometric/report/{name}.html" for name in ("runs", "bode", "polar", "campbell", "mode_shapes")
-    } <= set(results)
+    # the interactive figures beside their PNGs (hybridtwin.report.interactive), in the report as one page
+    assert "results/interactive.html" in results
+
+
+def _embedded_file(entry: dict) -> bytes:
+    """The bytes of a file the report embeds (its data URI: "data:<mime>;...;base64,<the file>")."""
+    return base64.b64decode(entry["data_uri"].split("base64,", 1)[1])
+
+
+def test_the_report_embeds_plotly_once_in_one_page_of_every_interactive_figure(reported):
+    """Issue 55: the report embeds plotly.js once, in results/interactive.html, which holds every interactive figure
+    (the summary's, and each variant's six), read back equal to its own page's; no figure's own page is embedded.
+    The report's size: a few MB besides that one page (the PNGs and tables of the small run)."""
+    work, runs = reported
+    report_html = runs["final"]
+    results = _embedded(report_html, "results")
+    marker = interactive_pages.plotly_js()[:2000].encode()
+    holders = [path for path, entry in results.items() if marker in _embedded_file(entry)]
+    assert holders == ["results/interactive.html"]
+    assert not [path for path in results if path.endswith(".html") and path != "results/interactive.html"]
+    gallery = interactive_pages.read_gallery(work / "results" / "interactive.html")
+    figures = {"runs": "report/runs.html", "bode": "report/bode.html", "polar": "report/polar.html",
+               "campbell": "report/campbell.html", "mode_shapes": "report/mode_shapes.html",
+               "diagnosis": "diagnosis.html"}
+    expected = {"summary": work / "results" / "summary.html"} | {
+        f"geometric/{name}": work / "results" / "geometric" / path for name, path in figures.items()}
+    assert {key for key, _, _ in gallery} >= set(expected)
+    for key, _, fig in gallery:
+        if key in expected:
+            own = interactive_pages.read_figure(expected[key])
+            assert json.loads(fig.to_json()) == json.loads(own.to_json()), key
+    page = len(results["results/interactive.html"]["data_uri"])
+    assert page < len(interactive_pages.plotly_js()) * 4 / 3 + 4e6  # plotly.js once (base64: 4/3), MBs of data
+    assert len(report_html) - page < 20e6
 
 
 def test_report_made_before_the_end_says_so_instead_of_failing(reported):
@@ -678,3 +710,33 @@ def test_first_page_counts_one_run_in_the_singular():
                                                     errors["one"])])
     page = summary.landing_rst(summary.summary_table(ledger, errors, {}, {"one": {"effects": []}}), errors)
     assert "on its 1 fit run (1 = the noise floor)" in page
+
+
+def test_a_figure_saved_for_the_report_keeps_its_picture_in_256_colours(tmp_path):
+    """``plots.save_png`` (every workflow PNG): a palette PNG of at most 256 colours, the same size in pixels as
+    matplotlib's own render and the same picture to the eye (mean error below 2 of 255 levels; 99.9 % of the
+    pixels' channels within 48 levels: only antialiased edges move), at most half the bytes, and the same bytes
+    each time (the workflow's reruns compare results)."""
+    from PIL import Image
+
+    from hybridtwin.plots import PNG_COLOURS, save_png
+
+    fig, ax = report_plots.plt.subplots(figsize=(8, 4))
+    x = np.linspace(0.0, 10.0, 400)
+    for k in range(6):
+        ax.plot(x, np.sin(x + k) * (1 + k / 5), label=f"run {k}", lw=1.2)
+    ax.fill_between(x, -0.3, 0.3, color="0.85")
+    ax.legend(fontsize=7)
+    ax.set_title("six runs, a band, text")
+    full = io.BytesIO()
+    fig.savefig(full, format="png", dpi=100)
+    save_png(fig, tmp_path / "a.png", dpi=100)
+    save_png(fig, tmp_path / "b.png", dpi=100)
+    report_plots.plt.close(fig)
+    assert (tmp_path / "a.png").read_bytes() == (tmp_path / "b.png").read_bytes()
+    saved, reference = Image.open(tmp_path / "a.png"), Image.open(io.BytesIO(full.getvalue()))
+    assert saved.mode == "P" and len(saved.getcolors(maxcolors=1024)) <= PNG_COLOURS
+    assert saved.size == reference.size
+    error = np.abs(np.asarray(saved.convert("RGB"), float) - np.asarray(reference.convert("RGB"), float))
+    assert error.mean() < 2.0 and np.percentile(error, 99.9) <= 48, (error.mean(), np.percentile(error, 99.9))
+    assert (tmp_path / "a.png").stat().st_size < len(full.getvalue()) / 2

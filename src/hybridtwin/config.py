@@ -11,12 +11,16 @@ bad value and the allowed names (``ConfigError``).
 from __future__ import annotations
 
 import difflib
+import errno
 import logging
+import os
+import shutil
 import sys
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
+from traceback import extract_tb
 
 import pandas as pd
 import yaml
@@ -169,11 +173,85 @@ def angles_on_libraries(config: Mapping, sheet: pd.DataFrame) -> str | None:
 
 
 def rule_logger(log_path: str, name: str) -> logging.Logger:
-    """A logger writing to the rule's log file; BLAS pinned to one thread (jobs run in parallel)."""
+    """A logger writing to the rule's log file; BLAS pinned to one thread (jobs run in parallel); a full disk
+    said in one message (``on_disk_full``)."""
     threadpool_limits(1)
     logging.basicConfig(filename=log_path, level=logging.INFO, force=True,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    return logging.getLogger(name)
+    log = logging.getLogger(name)
+    on_disk_full(log)
+    return log
+
+
+# --- a full disk in a job (issue 55) ----------------------------------------------------------------
+
+
+def disk_full(err: BaseException | None) -> OSError | None:
+    """The "No space left on device" (errno ENOSPC, 28; EDQUOT, a quota, alike) in ``err`` or the exceptions it
+    was raised from (a writer wraps it: zarr, pandas), or None."""
+    seen = set()
+    while err is not None and id(err) not in seen:
+        seen.add(id(err))
+        if isinstance(err, OSError) and err.errno in (errno.ENOSPC, errno.EDQUOT):
+            return err
+        err = err.__cause__ or err.__context__
+    return None
+
+
+def _size(path: Path) -> int:
+    total = 0
+    for root, _, files in os.walk(path):
+        for name in files:
+            try:
+                total += os.lstat(os.path.join(root, name)).st_size
+            except OSError:
+                pass
+    return total
+
+
+def disk_full_message(err: OSError, outputs: Sequence[str] = (), workdir: str | Path = ".", largest: int = 3
+                      ) -> str:
+    """What a job says when the disk is full: the file (or store) it was writing (the error's, else the job's
+    outputs), the space left on that file system, what to free (the largest folders of the workflow's results/,
+    and .snakemake/), and that the same command then resumes."""
+    written = err.filename or ", ".join(map(str, outputs)) or "its outputs"
+    folder = Path(str(err.filename or (outputs[0] if outputs else workdir))).absolute().parent
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    free = shutil.disk_usage(folder).free
+    workdir = Path(workdir)
+    folders = [p for p in (workdir / "results").glob("*/*") if p.is_dir()] if (workdir / "results").is_dir() else []
+    sizes = sorted(((_size(p), p) for p in folders), key=lambda item: -item[0])[:largest]
+    cache_dir = workdir / ".snakemake"
+    biggest = ", ".join(f"{p} ({n / 1e6:.0f} MB)" for n, p in sizes if n) or "none"
+    cached = f"; .snakemake/ holds {_size(cache_dir) / 1e6:.0f} MB (its conda/ and singularity/ can go)" \
+        if cache_dir.is_dir() else ""
+    return (f"disk full (errno {err.errno}, {os.strerror(err.errno)}) while writing {written}: "
+            f"{free / 1e6:.0f} MB free on the file system of {folder}. Free space there, e.g. results of a variant "
+            f"no longer in the config, or another run's folder; the largest under results/: {biggest}{cached}. "
+            "Then run the same snakemake command again: the jobs that finished are kept, this job's partial outputs "
+            "are removed by Snakemake and it runs again, then the rest.")
+
+
+def on_disk_full(log: logging.Logger) -> None:
+    """Make a full disk end the job (the script Snakemake runs) with ``disk_full_message`` on standard error and
+    in the log (with where it was raised, one line: Snakemake shows a failed job's log, and a traceback there would
+    bury the message), instead of the writer's traceback. Other errors: unchanged."""
+    previous = sys.excepthook
+
+    def hook(kind, value, traceback):
+        full = disk_full(value)
+        if full is None:
+            return previous(kind, value, traceback)
+        job = getattr(sys.modules.get("__main__"), "snakemake", None)
+        outputs = [str(path) for path in getattr(job, "output", [])]
+        message = disk_full_message(full, outputs)
+        where = extract_tb(traceback)[-1] if traceback is not None else None
+        log.error("%s (%s: %s%s)", message, kind.__name__, value,
+                  f", raised at {where.filename}:{where.lineno} in {where.name}" if where else "")
+        print(f"{log.name}: error: {message}", file=sys.stderr)
+
+    sys.excepthook = hook
 
 
 # --- checking a configuration before any job runs ---------------------------------------------------

@@ -259,6 +259,7 @@ def transient_records():
             "eccentric_mass_g": float(r["eccentric_mass_g"]),
             "eccentric_mass_angle_deg": float(r.get("eccentric_mass_angle_deg") or 0.0),  # no such column: 0
             "record": str(r["record"]),
+            "channels": r.get("channels") if isinstance(r.get("channels"), str) else "",  # an instrument's file
         }
         for r in rows
         if is_transient_row(r)

@@ -36,12 +36,7 @@ rule diagnose:
             category="Diagnosis",
             subcategory="{variant}",
         ),
-        plot_html=report(
-            "results/{variant}/diagnosis.html",
-            caption="../report/interactive.rst",
-            category="Diagnosis",
-            subcategory="{variant}",
-        ),
+        plot_html="results/{variant}/diagnosis.html",  # in the report: results/interactive.html
     log:
         "logs/{variant}/diagnose.log",
     benchmark:

@@ -25,6 +25,21 @@ REPORT_FILES = [
     "mode_shapes.html",
 ]
 
+# The interactive figures (each also its own page, plotly.js inside, beside its PNG) go into the report as one page
+# with one copy of plotly.js (issue 55): (menu key, file, menu label), the summary first, then per variant.
+INTERACTIVE_FIGURES = [("summary", "results/summary.html", "summary: chi^2/dof per run and variant")] + [
+    (f"{variant}/{name}", f"results/{variant}/{path}", f"{variant}: {label}")
+    for variant in VARIANTS
+    for name, path, label in (
+        ("runs", "report/runs.html", "measured vs model per run"),
+        ("bode", "report/bode.html", "Bode plot"),
+        ("polar", "report/polar.html", "polar plot"),
+        ("campbell", "report/campbell.html", "Campbell diagram"),
+        ("mode_shapes", "report/mode_shapes.html", "mode shapes"),
+        ("diagnosis", "diagnosis.html", "diagnosis"),
+    )
+]
+
 
 rule report_harmonics:
     """Measured and model harmonics of every fit and validation run, in the model's frame."""
@@ -63,13 +78,7 @@ rule report_runs:
             subcategory="{variant}",
             labels={"variant": "{variant}", "run": "{run}"},
         ),
-        interactive=report(
-            "results/{variant}/report/runs.html",
-            caption="../report/report_runs_html.rst",
-            category="Comparison per run",
-            subcategory="{variant}",
-            labels={"variant": "{variant}", "run": "all runs (interactive)"},
-        ),
+        interactive="results/{variant}/report/runs.html",  # in the report: results/interactive.html
     log:
         "logs/{variant}/report_runs.log",
     benchmark:
@@ -136,18 +145,8 @@ rule report_response:
             category="Comparison",
             subcategory="{variant}",
         ),
-        bode_html=report(
-            "results/{variant}/report/bode.html",
-            caption="../report/interactive.rst",
-            category="Comparison",
-            subcategory="{variant}",
-        ),
-        polar_html=report(
-            "results/{variant}/report/polar.html",
-            caption="../report/interactive.rst",
-            category="Comparison",
-            subcategory="{variant}",
-        ),
+        bode_html="results/{variant}/report/bode.html",
+        polar_html="results/{variant}/report/polar.html",
     log:
         "logs/{variant}/report_response.log",
     benchmark:
@@ -204,18 +203,8 @@ rule report_machine:
             category="Machine",
             subcategory="{variant}",
         ),
-        campbell_html=report(
-            "results/{variant}/report/campbell.html",
-            caption="../report/interactive.rst",
-            category="Machine",
-            subcategory="{variant}",
-        ),
-        modes_html=report(
-            "results/{variant}/report/mode_shapes.html",
-            caption="../report/interactive.rst",
-            category="Machine",
-            subcategory="{variant}",
-        ),
+        campbell_html="results/{variant}/report/campbell.html",
+        modes_html="results/{variant}/report/mode_shapes.html",
     log:
         "logs/{variant}/report_machine.log",
     benchmark:
@@ -295,7 +284,7 @@ rule report_summary:
     output:
         table=report("results/summary.tsv", caption="../report/summary_table.rst", category="Summary"),
         plot=report("results/summary.png", caption="../report/summary_plot.rst", category="Summary"),
-        plot_html=report("results/summary.html", caption="../report/interactive.rst", category="Summary"),
+        plot_html="results/summary.html",  # in the report: results/interactive.html
         page="results/summary.rst",
     log:
         "logs/report_summary.log",
@@ -309,6 +298,30 @@ rule report_summary:
         design=bool(DESIGN.runs),
     script:
         "../../scripts/report_summary.py"
+
+
+rule report_interactive:
+    """Every interactive figure in one page with one copy of plotly.js, a menu to choose the figure: the report's
+    one HTML entry (hybridtwin.report.interactive_pages.write_gallery)."""
+    input:
+        figures=[path for _, path, _ in INTERACTIVE_FIGURES],
+    output:
+        page=report(
+            "results/interactive.html",
+            caption="../report/interactive.rst",
+            category="Interactive figures",
+        ),
+    log:
+        "logs/report_interactive.log",
+    benchmark:
+        "results/benchmarks/report_interactive.tsv"
+    conda:
+        "../envs/hybridtwin.yaml"
+    params:
+        figure_keys=[key for key, _, _ in INTERACTIVE_FIGURES],
+        labels=[label for _, _, label in INTERACTIVE_FIGURES],
+    script:
+        "../../scripts/report_interactive.py"
 
 
 # Run-ups and coast-downs (issue 38, item 7): the pictures engineers read of each transient record of the sheet
@@ -380,5 +393,6 @@ rule report_waterfall:
     params:
         **SENSOR_PARAMS,
         display={k: getattr(TRANSIENT, k) for k in ("frame", "amplitude")},
+        channels=lambda wildcards: sheet_entry(SHEET, wildcards.run).get("channels"),  # an instrument's file
     script:
         "../../scripts/report_waterfall.py"

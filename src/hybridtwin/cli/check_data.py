@@ -26,8 +26,9 @@ def add_check_data_command(sub) -> None:
         "check-data", help="validate a runs sheet and its records; per-run summary (speed, noise, offsets, harmonics)",
         description="Validate a runs sheet (TSV: run, rpm, eccentric_mass_g, path, role) and every record it "
                     "lists (CSV: time_s, one column <sensor>_mm or <sensor>_m per sensor of the machine, x_mm, y_mm "
-                    "on the VARM, optional keyphasor), then print per run and channel: samples, duration, sample "
-                    "rate, the true speed refined from the record vs the nominal one, noise level, DC offsets, "
+                    "on the VARM, optional keyphasor; or the file an instrument wrote, .mat, HDF5, TDMS, UFF 58, "
+                    "MDF, its channels chosen in the sheet's channels column), then print per run and channel: "
+                    "samples, duration, sample rate, the true speed refined from the record vs the nominal one, noise level, DC offsets, "
                     "amplitude per harmonic and saturation. Exit status 1 on invalid input.")
     parser.add_argument("runs", type=Path, help="the runs sheet (TSV); record paths are relative to its folder")
     parser.add_argument("--harmonics", type=int, default=None,

@@ -25,7 +25,8 @@ import numpy as np
 import pandas as pd
 from threadpoolctl import threadpool_limits
 
-from .common import UsageError, _positive_int, _non_negative, _parameter, _positive, chosen_variant, variant_values
+from .common import (UsageError, _non_negative, _parameter, _positive, _positive_int, chosen_variant, config_file,
+                     read_config, variant_values)
 
 # the report's modules (matplotlib, the solvers) are imported by the commands that use them, not by every command
 # line: `hybridtwin simulate` starts as fast as before
@@ -120,24 +121,66 @@ def _model_options(parser: argparse.ArgumentParser, common) -> None:
     common(parser)
     parser.add_argument("--set", dest="values", type=_parameter, action="append", default=[], metavar="NAME=VALUE",
                         help="parameter value in SI units (repeatable), e.g. --set k_a=2.5e7 (default: nominal)")
-    parser.add_argument("--out", type=Path, required=True, help="output folder (made if missing)")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="output folder (made if missing; default results/machine/<variant>/ in the project "
+                             "folder, beside the workflow's results)")
 
 
 def _speed_range(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rpm", type=_non_negative, nargs=2, metavar=("LOW", "HIGH"), default=None,
-                        help="speed range [RPM] (default 0 to 1.25 times the top of --operating-range)")
+                        help="speed range [RPM] (default 0 to 1.25 times the top of --operating-range, else 0 to "
+                             "1.25 times the fastest run of the config's runs sheet, as the report's Campbell "
+                             "diagram)")
     parser.add_argument("--operating-range", type=_positive, nargs=2, metavar=("MIN", "MAX"), default=None,
                         help="the machine's operating speed range [RPM]: each critical speed's separation margin "
                              "from it")
+
+
+def project_folder(config: Path | None) -> Path:
+    """The folder the workflow runs in for ``config``: the workflow's layout is <project>/config/config.yaml, and
+    its relative paths (``runs:``, results/) start at <project>; a config elsewhere: its own folder; none: here."""
+    if config is None:
+        return Path(".")
+    return config.parent.parent if config.parent.name == "config" else config.parent
+
+
+def sheet_speeds(config: Path | None) -> tuple[list[float], Path | None]:
+    """The speeds [RPM] of the runs sheet the config names (``runs:``, relative to the project folder), steady
+    runs' rpm and the ends of run-ups and coast-downs, and the sheet's path; ([], None) without a config or a
+    ``runs:`` entry. A sheet that cannot be read is a UsageError naming it (``measurements.read_runs``'s
+    message)."""
+    from ..data.measurements import DataError, read_runs
+
+    if config is None:
+        return [], None
+    entry = read_config(config).get("runs")
+    if not entry:
+        return [], None
+    path = Path(entry) if Path(entry).is_absolute() else project_folder(config) / entry
+    try:
+        sheet = read_runs(path, check_files=False)
+    except (DataError, OSError) as err:
+        raise UsageError(f"the runs sheet of {config} (runs: {entry}): {err}") from None
+    speeds = pd.concat([sheet[c] for c in ("rpm", "rpm_start", "rpm_end") if c in sheet]).dropna()
+    return [float(v) for v in speeds if v > 0], path
 
 
 def _speeds(args: argparse.Namespace) -> tuple[float, float]:
     if args.operating_range is not None and args.operating_range[0] > args.operating_range[1]:
         raise UsageError(f"--operating-range {args.operating_range[0]:g} {args.operating_range[1]:g}: MIN above MAX")
     if args.rpm is None:
-        if args.operating_range is None:
-            raise UsageError("give the speeds: --rpm LOW HIGH, or --operating-range MIN MAX (then 0 to 1.25 MAX)")
-        return 0.0, 1.25 * args.operating_range[1]
+        if args.operating_range is not None:
+            return 0.0, 1.25 * args.operating_range[1]
+        config = config_file(args.config)
+        speeds, sheet = sheet_speeds(config)
+        if not speeds:
+            where = (f"{config} names no runs sheet with a speed (runs:)" if config is not None else
+                     "no config (./config/config.yaml or --config) names a runs sheet")
+            raise UsageError(f"give the speeds: --rpm LOW HIGH, or --operating-range MIN MAX (then 0 to 1.25 MAX); "
+                             f"{where}")
+        hi = 1.25 * max(speeds)
+        print(f"# speeds 0 to {hi:g} RPM: 1.25 times the fastest run of the runs sheet {sheet}", file=sys.stderr)
+        return 0.0, hi
     lo, hi = args.rpm
     if not hi > lo:
         raise UsageError(f"--rpm {lo:g} {hi:g}: HIGH must be above LOW")
@@ -147,7 +190,7 @@ def _speeds(args: argparse.Namespace) -> tuple[float, float]:
 def _setup(args: argparse.Namespace):
     variant, source = chosen_variant(args)
     values = variant_values(variant, args)
-    out = args.out
+    out = args.out if args.out is not None else project_folder(source) / "results" / "machine" / variant.name
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out {out}: is a file, not a folder")
     try:

@@ -53,6 +53,10 @@ SENSOR_COLUMNS = ("sensor_range_mm", "sensor_resolution_mm")
 #: optional: the angle of a run's trial (eccentric) mass [deg] at the keyphasor mark, from +x towards +y (the sense
 #: of rotation); empty or absent: 0 (docs/measurement-format.md)
 TRIAL_ANGLE_COLUMN = "eccentric_mass_angle_deg"
+#: optional: which of a binary record's channels are the sensors, the keyphasor and the time, with units
+#: ("x=Probe1[mm]; y=Probe2[mm]; keyphasor=Tacho"; hybridtwin.data.instrument_records)
+CHANNELS_COLUMN = "channels"
+_CHANNEL_ENTRY = re.compile(r"^\s*([A-Za-z0-9_]+)\s*=\s*(.*?)\s*(?:\[\s*([^\]]*?)\s*\])?\s*$")
 ROLES = ("fit", "validate")
 RUN_ID = re.compile(r"^[A-Za-z0-9_-]+$")
 #: run ids that pandas reads as missing values (its default NA strings that are valid ids): they would vanish from
@@ -61,6 +65,26 @@ MISSING_LOOKING_IDS = ("NA", "NULL", "NaN", "None", "nan", "null")
 
 #: an eccentric mass below this [g] (but above 0) looks like kilograms written in the grams column
 KG_LOOKING_MASS_G = 0.1
+
+
+def parse_channels(text) -> dict[str, tuple[str, str | None]]:
+    """The sheet's channels cell as {name: (the file's channel, unit or None)}; empty or NaN: {}. ValueError
+    naming the entry that is not ``<name>=<channel>[unit]`` or a name given twice."""
+    if text is None or (isinstance(text, float) and np.isnan(text)) or not str(text).strip():
+        return {}
+    out = {}
+    for entry in str(text).split(";"):
+        if not entry.strip():
+            continue
+        found = _CHANNEL_ENTRY.match(entry)
+        if not found or not found.group(2):
+            raise ValueError(f"channels entry {entry.strip()!r} is not <name>=<channel> (e.g. x=Probe1 or "
+                             "x=Probe1[mm]; entries separated by ';')")
+        name, channel, unit = found.group(1), found.group(2), found.group(3)
+        if name in out:
+            raise ValueError(f"channels: {name!r} given twice")
+        out[name] = (channel, unit or None)
+    return out
 
 
 def kg_looking(mass_g: float) -> str:
@@ -188,7 +212,7 @@ def read_runs(path: str | Path, check_files: bool = True, require_path: bool = T
     sheet may be a bare run plan without a path column (the virtual rig's input).
     """
     path = Path(path)
-    known = SHEET_COLUMNS + SENSOR_COLUMNS + SWEEP_COLUMNS + (TRIAL_ANGLE_COLUMN,)
+    known = SHEET_COLUMNS + SENSOR_COLUMNS + SWEEP_COLUMNS + (TRIAL_ANGLE_COLUMN, CHANNELS_COLUMN)
     table, line = read_text_table(path, "\t", known)
     required = REQUIRED_SHEET_COLUMNS if require_path else REQUIRED_SHEET_COLUMNS[:3]
     if "kind" in table.columns:  # a sheet of transient records (run_kinds) may leave out rpm
@@ -242,6 +266,12 @@ def read_runs(path: str | Path, check_files: bool = True, require_path: bool = T
     if TRIAL_ANGLE_COLUMN in table:  # any finite angle (taken modulo 360 by the model); empty: 0
         angle, found = numeric_column(table[TRIAL_ANGLE_COLUMN], TRIAL_ANGLE_COLUMN, line, allow_empty=True)
         problems += found
+    if CHANNELS_COLUMN in table:  # its syntax here; the names against the file and the machine when it is read
+        for n, cell in zip(line, table[CHANNELS_COLUMN]):
+            try:
+                parse_channels(cell)
+            except ValueError as err:
+                problems.append(f"line {n}, column {CHANNELS_COLUMN}: {err}")
     rel = table["path"]
     if require_path:
         problems += [f"line {n}, column path: empty (the record of run {r!r} is not given)"

@@ -498,7 +498,7 @@ def preprocess_run(sheet_row: Mapping, harmonics: int = DEFAULT_HARMONICS, senso
     its channels named after ``sensors`` (the machine's, ``records.record_channels``; None: x, y).
     """
     sensor = Sensor.for_run(sheet_row, sensor_range_m, sensor_resolution_m)
-    record = read_record(sheet_row["record"], sensors) if record is None else record
+    record = read_record(sheet_row["record"], sensors, sheet_row.get("channels")) if record is None else record
     analysis = analyse_record(record, float(sheet_row["rpm"]), harmonics, sensor.range_m,
                               sensor_resolution_m=sensor.resolution_m)
     analysed = run_row(analysis, harmonics)
@@ -522,7 +522,7 @@ def summarise_runs(runs: pd.DataFrame, harmonics: int = DEFAULT_HARMONICS, senso
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("always", DataWarning)  # every flagged run is reported, not just the first
-                record = read_record(sheet_row["record"], sensors)
+                record = read_record(sheet_row["record"], sensors, sheet_row.get("channels"))
                 if is_transient_row(sheet_row):  # a run-up or coast-down: its speed bands (data/transient.py)
                     tracked = track_record(record, sheet_row, harmonics, sensor.range_m)
                     analysed = summary_row(tracked, record.names)

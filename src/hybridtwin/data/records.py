@@ -14,6 +14,7 @@ Inside, everything is SI: ``read_record`` converts millimetres (micrometres, mil
 from __future__ import annotations
 
 import difflib
+import re
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -23,6 +24,7 @@ import numpy as np
 import pandas as pd
 
 from ..model.sensor import DEFAULT_CHANNELS, machine_order, sensor_pairs
+from .instrument_records import is_instrument_file
 from .measurements import DataError, DataWarning, _decode, _format, _require_columns, read_text_table
 from .record_columns import (fast_numeric_table, keyphasor_column, keyphasor_marks, numeric_column, time_problems,
                              uniform_time_base)
@@ -276,11 +278,15 @@ class Saturation:
 # --- a record ---------------------------------------------------------------------------
 
 
-def read_record(path: str | Path, sensors=None) -> Record:
+def read_record(path: str | Path, sensors=None, channels: str | Mapping | None = None) -> Record:
     """Read and validate one record (docs/measurement-format.md, "A record").
 
     sensors: the machine whose sensors name the channels (a ``Machine``, its
     sensors, or their names; ``record_channels``); None: the VARM's x and y.
+    A file an instrument wrote (.mat, .h5/.hdf5, .tdms, .uff/.unv, .mf4/.mdf:
+    ``instrument_records``) is read by its format's library, the channels
+    chosen by ``channels`` (the runs sheet's channels cell), then checked as a
+    CSV record is, a sample counted where a CSV line would be.
     Checks: the file exists and parses (``read_text_table``); a time_s column
     and one displacement column per sensor with a known unit (<sensor>_mm or
     <sensor>_m, e.g. x_mm/y_mm), no column of an unknown sensor; every cell
@@ -297,10 +303,14 @@ def read_record(path: str | Path, sensors=None) -> Record:
     """
     path = Path(path)
     names, pairs = record_channels(sensors)
-    values, keyphasor, line, time_col, chosen = _clean_record(path, names) or _checked_record(path, names)
+    instrument = is_instrument_file(path)
+    if instrument:
+        values, keyphasor, line, time_col, chosen = _instrument_record(path, names, channels)
+    else:
+        values, keyphasor, line, time_col, chosen = _clean_record(path, names) or _checked_record(path, names)
     problems = time_problems(values[time_col], line)
     if problems:
-        raise DataError(_format(path, problems))
+        raise DataError(_format(path, _as_samples(problems) if instrument else problems))
     time_s = uniform_time_base(values[time_col])  # the written stamps less their rounding and jitter
     channels = {name: values[column] * UNITS[unit] for name, (column, unit) in chosen.items()}
     readings = channels
@@ -346,6 +356,45 @@ def _checked_record(path: Path, names: Sequence[str]) -> tuple:
         problems += found
     if problems:
         raise DataError(_format(path, problems))
+    return values, keyphasor, line, time_col, chosen
+
+
+def _as_samples(problems: Sequence[str]) -> list[str]:
+    """A CSV record's messages for a binary one: its samples counted where the CSV's lines are."""
+    return [re.sub(r"\bline(s?)\b", r"sample\1", p).replace("line(s)", "sample(s)") for p in problems]
+
+
+def _as_text(values: Array) -> pd.Series:
+    """Numbers as the cells a CSV would hold them in ("nan" for NaN, shortest exact decimal otherwise)."""
+    return pd.Series(np.asarray(values, float).astype(str), dtype=object)
+
+
+def _instrument_record(path: Path, names: Sequence[str], channels) -> tuple:
+    """``read_record``'s columns from an instrument's file (``instrument_records.instrument_table``), with the
+    CSV record's checks: its columns (``_record_columns``), every value finite, the keyphasor two-level."""
+    from .instrument_records import instrument_table
+
+    table = instrument_table(path, names, channels)
+    line = np.arange(1, len(table) + 1)
+    time_col, chosen = _record_columns(path, table.columns, names)
+    if len(table) < 3:
+        raise DataError(f"{path}: only {len(table)} sample(s); a record needs many revolutions of samples")
+    problems: list[str] = []
+    values = {}
+    for column in (time_col, *(c for c, _ in chosen.values())):
+        values[column] = table[column].to_numpy(float)
+        if not np.isfinite(values[column]).all():  # the CSV's messages, from the numbers written as text
+            problems += numeric_column(_as_text(values[column]), column, line, allow_empty=False)[1]
+    keyphasor = None
+    if "keyphasor" in table:
+        levels = table["keyphasor"].to_numpy(float)
+        distinct = np.unique(levels)
+        keyphasor = keyphasor_marks(levels > distinct[0]) if distinct.size == 2 else None
+        if keyphasor is None or not keyphasor.any():
+            keyphasor, found = keyphasor_column(_as_text(levels), line)
+            problems += found
+    if problems:
+        raise DataError(_format(path, _as_samples(problems)))
     return values, keyphasor, line, time_col, chosen
 
 

@@ -108,7 +108,7 @@ def intake(twin: Twin, row: Mapping, timestamp: str | None = None) -> Intake:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", DataWarning)
         try:
-            record = read_record(path, machine)
+            record = read_record(path, machine, row.get("channels"))
             if is_transient_row(row):
                 tracked = track_record(record, row, twin.harmonics, range_m)
                 table, found = tracked.bands, list(tracked.warnings)

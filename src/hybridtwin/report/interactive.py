@@ -25,7 +25,8 @@ residuals), a phase in deg, a speed in RPM, a frequency in Hz; every hover label
 
 Legend groups: a click on an entry hides or shows its group, a double click shows it alone. Per run (and, in the
 comparison per run, per probe: ``<run>: <probe>``), per eccentric mass's model sweep, per branch of the Campbell
-diagram. ``write_html`` writes a figure.
+diagram. ``write_html`` writes a figure (its own page, plotly.js inside); the report shows them all in one page
+with one copy of plotly.js (``interactive_pages.write_gallery``).
 """
 
 from __future__ import annotations
@@ -41,13 +42,14 @@ from plotly.subplots import make_subplots
 from scipy import stats
 
 from ..diagnose.diagnosis_status import verdict_colour
+from . import interactive_pages as pages
 from . import response_plots as rp
 from . import summary as sm
 from .report import ALPHA, NOISE_FLOOR, RunComparison, waveform, waveform_noise, whirl, whirl_noise
 from .report_plots import MICRO, MILLI, ORDERS, VALIDATION_STYLE, probe_pairs
 
 #: the plotly.js options of every file: no plotly logo; the camera button saves a PNG of the current view
-CONFIG = {"displaylogo": False, "toImageButtonOptions": {"format": "png", "scale": 2}}
+CONFIG = pages.CONFIG
 #: the validation runs' colour, as in the PNGs
 VALIDATION = to_hex(VALIDATION_STYLE["color"])
 #: matplotlib line styles -> plotly dashes
@@ -84,9 +86,10 @@ def _finish(fig: go.Figure, title: str, height: float, width: float | None = Non
 
 def write_html(fig: go.Figure, path: str | Path) -> None:
     """``fig`` as one self-contained HTML file at ``path``: plotly.js embedded (opens offline, no network needed),
-    a fixed element id so that the same figure gives the same bytes (the workflow's reruns compare results)."""
-    fig.write_html(str(path), include_plotlyjs=True, full_html=True, config=CONFIG, div_id="figure",
-                   auto_open=False)
+    the same figure giving the same bytes (the workflow's reruns compare results); ``interactive_pages.write_figure``,
+    read back by ``interactive_pages.read_figure``. The report embeds these figures in one page instead
+    (``interactive_pages.write_gallery``: plotly.js once)."""
+    pages.write_figure(fig, path, title=fig.layout.title.text or "figure")
 
 
 class _Shown:

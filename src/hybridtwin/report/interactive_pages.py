@@ -1,0 +1,154 @@
+"""The interactive figures as HTML pages (issue 55, item 1): one figure per page, or every figure in one page with
+one copy of plotly.js.
+
+plotly.js is about 4.9 MB. A page per figure that carries its own copy stands alone (it opens offline, mailed or
+from results/), but Snakemake's single-file report embeds every report file (base64, a third larger), so 25 such
+pages made a 209 MB report. The report therefore embeds one page, ``write_gallery``'s: plotly.js once and each
+figure's data (its JSON, parsed and drawn only when chosen), with a menu (grouped per variant) to choose the figure
+shown; the URL's fragment (``#<key>``) chooses one too. A figure behaves there as in its own page: the same data,
+layout and plotly options (``CONFIG``), so the same zoom, hover and legend clicks.
+
+Each page is ours, not plotly's ``write_html``: the figure's JSON sits in a ``<script type="application/json">``
+element (every "<" written as its JSON escape, so that no "</script>" can end it early), which ``read_figure`` and
+``read_gallery`` read back, the exact inverses of ``write_figure`` and ``write_gallery``. Same figure, same bytes
+(a fixed element id, no random names): the workflow's reruns compare results.
+"""
+
+from __future__ import annotations
+
+import html
+import json
+import re
+from collections.abc import Sequence
+from functools import lru_cache
+from pathlib import Path
+
+import plotly.graph_objects as go
+import plotly.io as pio
+from plotly.offline import get_plotlyjs
+
+#: the plotly.js options of every figure: no plotly logo; the camera button saves a PNG of the current view; the
+#: figure follows the window's width
+CONFIG = {"displaylogo": False, "toImageButtonOptions": {"format": "png", "scale": 2}, "responsive": True}
+#: the element the figure is drawn in (also the id plotly's own pages use for a fixed div_id)
+FIGURE_ID = "figure"
+_DATA = re.compile(r'<script type="application/json" class="figure-data" data-key="([^"]*)" '
+                   r'data-label="([^"]*)">(.*?)</script>', re.DOTALL)
+
+
+@lru_cache(maxsize=1)
+def plotly_js() -> str:
+    """The plotly.js bundle of the installed plotly package (minified, offline)."""
+    return get_plotlyjs()
+
+
+def figure_json(fig: go.Figure) -> str:
+    """``fig``'s data and layout as JSON that can sit inside a <script> element: every "<" as "\\u003c" (it occurs
+    only inside strings, as in "<br>", and json.loads gives it back)."""
+    return fig.to_json(validate=False).replace("<", "\\u003c")
+
+
+def _read_json(text: str) -> go.Figure:
+    return pio.from_json(text, skip_invalid=False)
+
+
+_HEAD = """<!DOCTYPE html>
+<html>
+<head>
+<meta charset="utf-8">
+<title>{title}</title>
+<style>
+body {{ margin: 0; font-family: sans-serif; }}
+#bar {{ padding: 6px 10px; border-bottom: 1px solid #ddd; font-size: 14px; }}
+#bar select {{ font-size: 14px; max-width: 90vw; }}
+#bar span {{ color: #666; font-size: 12px; margin-left: 1em; }}
+</style>
+</head>
+<body>
+<script type="text/javascript">window.PlotlyConfig = {{MathJaxConfig: 'local'}};</script>
+<script type="text/javascript">{plotly}</script>
+"""
+
+_DRAW = """<script type="text/javascript">
+(function () {
+  var config = %s;
+  var blocks = {};
+  document.querySelectorAll('script.figure-data').forEach(function (el) { blocks[el.dataset.key] = el; });
+  var choose = document.getElementById('choose');
+  var gd = document.getElementById('%s');
+  function show(key) {
+    if (!(key in blocks)) { key = Object.keys(blocks)[0]; }
+    var spec = JSON.parse(blocks[key].textContent);
+    Plotly.purge(gd);
+    Plotly.newPlot(gd, spec.data, spec.layout, config);
+    if (choose) { choose.value = key; }
+    document.title = blocks[key].dataset.label;
+  }
+  if (choose) {
+    choose.addEventListener('change', function () {
+      try { history.replaceState(null, '', '#' + encodeURIComponent(choose.value)); } catch (e) { }
+      show(choose.value);
+    });
+  }
+  window.addEventListener('hashchange', function () { show(decodeURIComponent(location.hash.slice(1))); });
+  show(decodeURIComponent(location.hash.slice(1)));
+})();
+</script>
+</body>
+</html>
+"""
+
+
+def _block(key: str, label: str, fig: go.Figure) -> str:
+    return (f'<script type="application/json" class="figure-data" data-key="{html.escape(key)}" '
+            f'data-label="{html.escape(label)}">{figure_json(fig)}</script>\n')
+
+
+def _page(entries: Sequence[tuple[str, str, go.Figure]], title: str, menu: bool) -> str:
+    keys = [key for key, _, _ in entries]
+    if not entries or len(set(keys)) != len(keys):
+        raise ValueError(f"a page needs figures with distinct keys, got {keys}")
+    parts = [_HEAD.format(title=html.escape(title), plotly=plotly_js())]
+    if menu:
+        groups: dict[str, list[tuple[str, str]]] = {}
+        for key, label, _ in entries:
+            groups.setdefault(key.split("/")[0] if "/" in key else "", []).append((key, label))
+        options = []
+        for group, items in groups.items():
+            inner = "".join(f'<option value="{html.escape(k)}">{html.escape(lab)}</option>' for k, lab in items)
+            options.append(f'<optgroup label="{html.escape(group)}">{inner}</optgroup>' if group else inner)
+        parts.append(f'<div id="bar"><label for="choose">figure </label><select id="choose">{"".join(options)}'
+                     f'</select><span>{len(entries)} figures; hover a point for its value, drag to zoom, a legend '
+                     'entry shows or hides its group</span></div>\n')
+    parts.append(f'<div id="{FIGURE_ID}" class="plotly-graph-div" style="width:100%;"></div>\n')
+    parts += [_block(key, label, fig) for key, label, fig in entries]
+    parts.append(_DRAW % (json.dumps(CONFIG), FIGURE_ID))
+    return "".join(parts)
+
+
+def write_figure(fig: go.Figure, path: str | Path, title: str = "figure") -> None:
+    """``fig`` as one self-contained HTML page at ``path``: plotly.js inside (opens offline), the figure drawn on
+    load. ``read_figure`` reads it back."""
+    Path(path).write_text(_page([("figure", title, fig)], title, menu=False), encoding="utf-8")
+
+
+def read_figure(path: str | Path) -> go.Figure:
+    """The figure of a page written by ``write_figure`` (or the first of a gallery's)."""
+    return read_gallery(path)[0][2]
+
+
+def write_gallery(entries: Sequence[tuple[str, str, go.Figure]], path: str | Path,
+                  title: str = "interactive figures") -> None:
+    """Every figure of ``entries`` (key, label, figure) in one HTML page at ``path`` with one copy of plotly.js: a
+    menu chooses the figure drawn (the first on opening, or the one the URL's fragment ``#<key>`` names). Keys:
+    distinct; "<group>/<name>" puts the figure in the menu's group <group> (a variant)."""
+    Path(path).write_text(_page(entries, title, menu=True), encoding="utf-8")
+
+
+def read_gallery(path: str | Path) -> list[tuple[str, str, go.Figure]]:
+    """The (key, label, figure) entries of a page written by ``write_gallery`` or ``write_figure``, in order."""
+    text = Path(path).read_text(encoding="utf-8")
+    found = [(html.unescape(key), html.unescape(label), _read_json(data)) for key, label, data in _DATA.findall(text)]
+    if not found:
+        raise ValueError(f"{path}: no figure data in it (not a page of hybridtwin.report.interactive_pages)")
+    return found
