@@ -68,37 +68,61 @@ def _scalar(values) -> float | None:
 
 
 def _shaft(rotor) -> tuple[list[ShaftSegment], bool, bool]:
-    elements = sorted(rotor.shaft_elements, key=lambda el: el.n)
-    if [el.n for el in elements] != list(range(len(elements))):
-        raise ValueError(f"ROSS rotor {rotor.tag!r}: shaft elements at nodes {[el.n for el in elements]}; only one "
-                         "element per node, nodes 0, 1, 2, ... (no layered or multi-rotor shafts) can be read")
+    elements = sorted(rotor.shaft_elements, key=lambda el: el.n)  # stable: ROSS's order within a node
+    nodes = sorted({el.n for el in elements})
+    if nodes != list(range(len(nodes))):
+        raise ValueError(f"ROSS rotor {rotor.tag!r}: shaft elements at nodes {nodes}; the nodes must be 0, 1, 2, ... "
+                         "(one shaft, no gaps)")
     for setting in ("shear_effects", "rotary_inertia", "gyroscopic"):
         found = {bool(getattr(el, setting)) for el in elements}
         if len(found) > 1:
             raise ValueError(f"ROSS rotor {rotor.tag!r}: mixed {setting} (elements with and without it); our machine "
                              f"has one setting for the whole shaft")
-    runs: list[list] = []  # [(element length, d_in, d_out, E, rho, G), count] of consecutive identical elements
+    chain: list[list] = []  # [key, count] of consecutive identical elements along the shaft (the first at each node)
+    layers: list[list] = []  # [key, first node, count] of the others at a node (layers), runs over consecutive nodes
+    base: dict[int, float] = {}
     for el in elements:
-        where = f"ROSS shaft element {el.tag!r} (node {el.n})"
-        if el.idl != el.idr or el.odl != el.odr:
-            raise ValueError(f"{where}: tapered (idl {el.idl:g}, idr {el.idr:g}, odl {el.odl:g}, odr {el.odr:g} m); "
-                             "our segments are uniform: split it into uniform elements")
-        for name in ("axial_force", "torque", "alpha", "beta"):
-            if float(getattr(el, name, 0) or 0) != 0:
-                raise ValueError(f"{where}: {name} = {getattr(el, name)!r} is not modelled here (must be 0)")
-        if getattr(el, "shear_method_calc", "cowper") != "cowper":
-            raise ValueError(f"{where}: shear_method_calc {el.shear_method_calc!r}; ours is Cowper's coefficient")
-        material = el.material
-        G = None if material.G_s == material.E / 2.6 else float(material.G_s)  # E / 2.6: our default
-        key = (float(el.L), float(el.idl), float(el.odl), float(material.E), float(material.rho), G)
-        if runs and runs[-1][0] == key:
-            runs[-1][1] += 1
+        key = _key(el)
+        if el.n not in base:
+            base[el.n] = float(el.L)
+            if chain and chain[-1][0] == key:
+                chain[-1][1] += 1
+            else:
+                chain.append([key, 1])
+            continue
+        if not np.isclose(float(el.L), base[el.n], rtol=1e-9, atol=0.0):
+            raise ValueError(f"ROSS shaft element {el.tag!r} (node {el.n}): a layer {float(el.L):g} m long on an element "
+                             f"{base[el.n]:g} m long; layered elements at one node must have the same length")
+        run = next((r for r in layers if r[0] == key and r[1] + r[2] == el.n), None)
+        if run is not None:
+            run[2] += 1
         else:
-            runs.append([key, 1])
-    out = []
-    for (h, d_in, d_out, E, rho, G), n in runs:
-        out.append(ShaftSegment(length=h * n, d_out=d_out, E=E, rho=rho, d_in=d_in, n_elements=n, G=G))
+            layers.append([key, int(el.n), 1])
+    out = [_segment(key, n) for key, n in chain] + [_segment(key, n, node) for key, node, n in layers]
     return out, bool(elements[0].shear_effects), bool(elements[0].rotary_inertia)
+
+
+def _key(el) -> tuple:
+    """(element length, d_in, d_out, E, rho, G) of a uniform ROSS shaft element, or ValueError naming what we lack."""
+    where = f"ROSS shaft element {el.tag!r} (node {el.n})"
+    if el.idl != el.idr or el.odl != el.odr:
+        raise ValueError(f"{where}: tapered (idl {el.idl:g}, idr {el.idr:g}, odl {el.odl:g}, odr {el.odr:g} m); "
+                         "our segments are uniform: split it into uniform elements")
+    for name in ("axial_force", "torque", "alpha", "beta"):
+        if float(getattr(el, name, 0) or 0) != 0:
+            raise ValueError(f"{where}: {name} = {getattr(el, name)!r} is not modelled here (must be 0)"
+                             + ("; alpha, beta: the element's proportional damping alpha M + beta K"
+                                if name in ("alpha", "beta") else ""))
+    if getattr(el, "shear_method_calc", "cowper") != "cowper":
+        raise ValueError(f"{where}: shear_method_calc {el.shear_method_calc!r}; ours is Cowper's coefficient")
+    material = el.material
+    G = None if material.G_s == material.E / 2.6 else float(material.G_s)  # E / 2.6: our default
+    return float(el.L), float(el.idl), float(el.odl), float(material.E), float(material.rho), G
+
+
+def _segment(key: tuple, n: int, node: int | None = None) -> ShaftSegment:
+    h, d_in, d_out, E, rho, G = key
+    return ShaftSegment(length=h * n, d_out=d_out, E=E, rho=rho, d_in=d_in, n_elements=n, G=G, node=node)
 
 
 def _name(tag, fallback: str) -> str:
@@ -146,6 +170,10 @@ def machine_from_ross(rotor, name: str | None = None, unbalance_planes: Sequence
         if not Path(rotor).is_file():
             raise FileNotFoundError(f"{rotor}: no such ROSS rotor file (.toml or .json, from rotor.save)")
         rotor = ross.Rotor.load(rotor)
+    kind = type(rotor).__name__
+    if kind != "Rotor" and any(c.__name__ in ("CoAxialRotor", "MultiRotor") for c in type(rotor).__mro__):
+        raise ValueError(f"ROSS rotor {rotor.tag!r}: a {kind} (several shafts, coaxial or geared); our machine is "
+                         "one shaft")
     if getattr(rotor, "point_mass_elements", None):
         raise ValueError(f"ROSS rotor {rotor.tag!r}: point masses ({[p.tag for p in rotor.point_mass_elements]}) "
                          "are not modelled here")
@@ -171,16 +199,20 @@ def machine_to_ross(machine: Machine, file: str | Path | None = None):
     """A ``ross.Rotor`` of our ``machine`` (module docstring); with ``file`` also saved there (ROSS's
     ``rotor.save``: .toml or .json). A machine ROSS cannot represent raises ValueError naming what."""
     ross = _ross()
-    shaft = []
+    shaft, layers, node = [], [], 0
     for i, s in enumerate(machine.segments):
         if s.I is not None or s.m is not None:
             raise ValueError(f"machine {machine.name!r}, segment {i}: gives I or m directly; ROSS computes them "
                              "from the diameters and rho")
         material = ross.Material(name=f"{_name(machine.name, 'machine')}_segment_{i}", rho=s.rho, E=s.E,
                                  G_s=s.shear_modulus)
-        shaft += [ross.ShaftElement(L=s.h, idl=s.d_in, odl=s.d_out, material=material, shear_effects=machine.shear,
-                                    rotary_inertia=machine.rotary_inertia, gyroscopic=True)
-                  for _ in range(s.n_elements)]
+        first = node if s.node is None else s.node  # a layer: ROSS's elements at the nodes it lies on
+        (shaft if s.node is None else layers).extend(
+            ross.ShaftElement(L=s.h, idl=s.d_in, odl=s.d_out, material=material, n=first + j,
+                              shear_effects=machine.shear, rotary_inertia=machine.rotary_inertia, gyroscopic=True)
+            for j in range(s.n_elements))
+        node += s.n_elements if s.node is None else 0
+    shaft += layers  # after the shaft's: ROSS sorts by node, keeping the order within one (the shaft's element first)
     disks = [ross.DiskElement(n=d.node, m=d.mass, Id=d.I_d, Ip=d.I_p, tag=d.name or None) for d in machine.disks]
     bearings = []
     for b in machine.bearings:
