@@ -340,3 +340,74 @@ def test_every_coefficient_reaches_ross_in_its_place(rs):
     K, C = element.K(123.0), element.C(123.0)
     assert K[:2, :2].tolist() == [[values["kxx"], values["kxy"]], [values["kyx"], values["kyy"]]]
     assert C[:2, :2].tolist() == [[values["cxx"], values["cxy"]], [values["cyx"], values["cyy"]]]
+
+
+# --- a ROSS rotor file in the config (issue 53 item 2) -------------------------------------------------------------
+
+
+def _layered_file(rs, folder):
+    """The stepped rotor of ``_ross_rotor`` with a sleeve (two layered elements at nodes 9 and 10), saved with ROSS's
+    ``rotor.save`` in ``folder``; the rotor and the file."""
+    base = _ross_rotor(rs)
+    sleeve = rs.Material(name="Sleeve_check", rho=RHO, E=0.3 * E, G_s=0.3 * G)
+    layers = [rs.ShaftElement(L=0.05, idl=0.05, odl=0.07, material=sleeve, n=n) for n in (9, 10)]
+    rotor = rs.Rotor(base.shaft_elements + layers, base.disk_elements, base.bearing_elements)
+    rotor.save(folder / "stepped.toml")
+    return rotor, folder / "stepped.toml"
+
+
+ROSS_MACHINE = {"ross": "stepped.toml", "name": "stepped_ross", "unbalance_planes": {"disk": 8},
+                "sensors": {"x1": {"node": 8, "direction": "x"}, "y1": {"node": 8, "direction": "y"}}}
+
+
+def test_a_ross_file_in_the_config_is_the_machine(rs, project, capsys):  # noqa: F811 (the fixture)
+    """machine: {ross: stepped.toml, ...}: the config's machine is machine_from_ross of the file (relative to the
+    config's folder) with our name, plane and probes; the check passes with a variant on its tables and the
+    plane; ``hybridtwin machine`` prints what was read (the file, the layer, the tables)."""
+    from hybridtwin import config as cfg
+    from hybridtwin.cli import main
+    from hybridtwin.model.ross_io import machine_from_ross
+
+    folder, _ = project
+    rotor, path = _layered_file(rs, folder / "config")
+    overlay = {"machine": ROSS_MACHINE, "variants": {"ross_linear": {
+        "effects": ["bearing_table@drive_end", "bearing_table@free_end", "gyroscopic", "unbalance@disk"],
+        "unknown": {"m_e": [0.001, 0.01]}}}}
+    config, problems = _config(project, yaml.safe_dump(overlay))
+    assert problems == []
+    machine = cfg.machine(config)
+    expected = machine_from_ross(path, name="stepped_ross", unbalance_planes=machine.unbalance_planes,
+                                 sensors=machine.sensors)
+    assert machine.to_mapping() == expected.to_mapping()
+    assert [s.node for s in machine.segments if s.node is not None] == [9] and machine.n_nodes == len(rotor.nodes)
+    assert cfg.variant(config, "ross_linear").model.shaft.to_mapping() == machine.to_mapping()
+    assert main(["machine", "--config", str(folder / "config" / "config.yaml")]) == 0
+    out = capsys.readouterr().out
+    assert f"machine read from the ROSS rotor file {folder / 'config' / 'stepped.toml'}" in out
+    assert "machine stepped_ross: 20 elements, 21 nodes" in out and "layer 3: nodes 9..11" in out
+    assert "bearing drive_end at node 2: table of 5 speeds" in out and "sensor y1 at node 8" in out
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"ross": "missing.toml"}, "machine.ross: config/missing.toml: no such file (a ROSS rotor saved with rotor.save"),
+    ({"segments": []}, "unknown key(s) ['segments'] (allowed: name, ross, sensors, unbalance_planes)"),
+    ({"unbalance_planes": {"disk": 40}}, "unbalance plane 'disk' at node 40: nodes are the integers 0..20"),
+])
+def test_a_bad_ross_machine_in_the_config_is_one_line(rs, project, change, message):  # noqa: F811 (the fixture)
+    folder, _ = project
+    _layered_file(rs, folder / "config")
+    _, problems = _config(project, yaml.safe_dump({"machine": ROSS_MACHINE | change}))
+    assert any(message in p and "config.yaml, line" in p for p in problems), problems
+
+
+def test_a_ross_file_we_cannot_represent_is_refused_at_its_key(rs, project):  # noqa: F811 (the fixture)
+    folder, _ = project
+    steel = rs.Material(name="Steel_check", rho=RHO, E=E, G_s=G)
+    elements = [rs.ShaftElement(L=0.05, idl=0.0, odl=0.05, odr=0.06 if n == 3 else 0.05, material=steel)
+                for n in range(8)]
+    rs.Rotor(elements, [], [rs.BearingElement(n=0, kxx=1e7, cxx=10.0), rs.BearingElement(n=8, kxx=1e7, cxx=10.0)]
+             ).save(folder / "config" / "stepped.toml")
+    _, problems = _config(project, yaml.safe_dump({"machine": ROSS_MACHINE | {"unbalance_planes": {"disk": 4},
+                                                                              "sensors": {}}}))
+    assert any("machine.ross: config/stepped.toml: ROSS shaft element 'ShaftElement 3' (node 3): tapered" in p
+               for p in problems), problems

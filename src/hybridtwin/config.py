@@ -60,7 +60,7 @@ def _effects_defined(path: str, mtime_ns: int) -> frozenset[str]:
 def candidate_effects(config: Mapping, config_dir: Path = CONFIG_DIR) -> dict[str, Effect]:
     """Effects the diagnosis may test besides the built-in candidates: the config's effects files', and the
     candidates the machine sizes to each of its bearings with nominal k (``bearing_candidates``), by name."""
-    return user_effects(config, config_dir) | machine(config).candidates()
+    return user_effects(config, config_dir) | machine(config, config_dir).candidates()
 
 
 def candidate_names(names: Sequence[str] | None, config: Mapping) -> list[str] | None:
@@ -73,16 +73,17 @@ def candidate_names(names: Sequence[str] | None, config: Mapping) -> list[str] |
     return placed or None
 
 
-def machine(config: Mapping) -> Machine:
-    """The rotor of the ``machine:`` section (hybridtwin.model.machine; absent: the VARM)."""
-    return Machine.from_mapping(config.get("machine"))
+def machine(config: Mapping, config_dir: Path = CONFIG_DIR) -> Machine:
+    """The rotor of the ``machine:`` section (hybridtwin.model.machine; absent: the VARM; a ROSS rotor file named
+    under ``ross:`` is relative to ``config_dir``)."""
+    return Machine.from_mapping(config.get("machine"), config_dir)
 
 
 def variant(config: Mapping, name: str, config_dir: Path = CONFIG_DIR) -> Variant:
     """The variant ``name`` declared under ``variants:``, built on the config's machine."""
     if name not in config["variants"]:
         raise KeyError(f"variant {name!r} is not declared in the config (declared: {sorted(config['variants'])})")
-    rotor = machine(config)
+    rotor = machine(config, config_dir)
     return Variant.from_spec(name, config["variants"][name], user_effects(config, config_dir) | rotor.effects(),
                              shaft=rotor)
 
@@ -461,7 +462,7 @@ def _name_problems(config: Mapping, config_dir: Path) -> Iterable[Problem]:
 
     rotor, machine_ok = Machine.varm(), False
     try:
-        rotor = Machine.from_mapping(config.get("machine"))
+        rotor = Machine.from_mapping(config.get("machine"), config_dir)
         rotor.sensor_node  # at least one x, y probe pair (its orbit); the records hold a channel per sensor
         machine_ok = True
     except MachineSpecError as err:

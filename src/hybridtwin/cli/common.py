@@ -127,7 +127,7 @@ def config_machine(config: Path | None, data: Mapping | None = None) -> Machine:
         return default_machine()
     data = read_config(config) if data is None else data
     try:
-        return Machine.from_mapping(data.get("machine"))
+        return Machine.from_mapping(data.get("machine"), config.parent)
     except MachineSpecError as err:
         raise UsageError(f"config file {config}: {err}") from None
 
