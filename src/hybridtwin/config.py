@@ -73,10 +73,15 @@ def candidate_names(names: Sequence[str] | None, config: Mapping) -> list[str] |
     return placed or None
 
 
-def machine(config: Mapping, config_dir: Path = CONFIG_DIR) -> Machine:
-    """The rotor of the ``machine:`` section (hybridtwin.model.machine; absent: the VARM; a ROSS rotor file named
-    under ``ross:`` is relative to ``config_dir``)."""
-    return Machine.from_mapping(config.get("machine"), config_dir)
+def machine(config: Mapping, config_dir: str | Path = CONFIG_DIR) -> Machine:
+    """The rotor of the ``machine:`` section (``Machine.from_mapping``; absent: the VARM), or of the ROSS rotor file
+    it names (``{ross: rotor.toml, ...}``, relative to ``config_dir``: ``ross_io.machine_from_section``)."""
+    spec = config.get("machine")
+    if isinstance(spec, Mapping) and "ross" in spec:
+        from .model.ross_io import machine_from_section
+
+        return machine_from_section(spec, config_dir)
+    return Machine.from_mapping(spec)
 
 
 def variant(config: Mapping, name: str, config_dir: Path = CONFIG_DIR) -> Variant:
@@ -462,7 +467,7 @@ def _name_problems(config: Mapping, config_dir: Path) -> Iterable[Problem]:
 
     rotor, machine_ok = Machine.varm(), False
     try:
-        rotor = Machine.from_mapping(config.get("machine"), config_dir)
+        rotor = machine(config, config_dir)
         rotor.sensor_node  # at least one x, y probe pair (its orbit); the records hold a channel per sensor
         machine_ok = True
     except MachineSpecError as err:

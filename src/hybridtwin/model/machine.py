@@ -29,13 +29,11 @@ form (``MachineSpecError``) are ``hybridtwin.model.machine_parts``'; the parts a
 from __future__ import annotations
 
 import copy
-import functools
 import re
 import dataclasses
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
-from pathlib import Path
 
 import numpy as np
 
@@ -183,7 +181,7 @@ class Machine(DofCounts):
         )
 
     @classmethod
-    def from_mapping(cls, spec: Mapping | None, config_dir: str | Path | None = None) -> "Machine":
+    def from_mapping(cls, spec: Mapping | None) -> "Machine":
         """A machine from its config form (``machine:`` in config/config.yaml; None: the VARM)::
 
             name: test_rig
@@ -198,10 +196,8 @@ class Machine(DofCounts):
             rotary_inertia: false           # the sections' rotary inertia (Rayleigh beams)
             shear: false                    # Timoshenko beams (a segment's shear modulus G optional)
 
-        Or the rotor from a file ROSS's ``rotor.save`` wrote (``ross``: its path, relative to ``config_dir``, the
-        config's folder; read by ``ross_io.machine_from_ross``, which needs the ``ross`` extra), with our names
-        beside it: ``{ross: rotor.toml, name: compressor, unbalance_planes: {...}, sensors: {...}}`` (ROSS has no
-        unbalance planes or probes; the name defaults to the file's stem).
+        A section naming a ROSS rotor file (``{ross: rotor.toml, ...}``) is ``ross_io.machine_from_section``'s
+        (``hybridtwin.config.machine`` reads either).
 
         A section that gives only ``sensors`` (and optionally ``name``) is the VARM's shaft, bearings and
         unbalance plane with those sensors (probes at other angles or nodes of the VARM, e.g.
@@ -212,8 +208,6 @@ class Machine(DofCounts):
             return cls.varm()
         if not isinstance(spec, Mapping):
             raise MachineSpecError((), f"must be a mapping, got {spec!r}")
-        if "ross" in spec:
-            return cls._from_ross(spec, Path("." if config_dir is None else config_dir))
         _known(spec, (), {"name", "segments", "disks", "bearings", "unbalance_planes", "sensors", "rotary_inertia",
                           "shear"})
         sensors = [_build(Sensor, {"name": name, **_mapping(item, ("sensors", name))}, ("sensors", name),
@@ -232,31 +226,6 @@ class Machine(DofCounts):
         try:
             return cls(str(spec.get("name", "machine")), segments, disks, bearings, planes, sensors,
                        bool(spec.get("rotary_inertia", False)), bool(spec.get("shear", False)))
-        except ValueError as err:
-            raise MachineSpecError((), str(err)) from None
-
-    @classmethod
-    def _from_ross(cls, spec: Mapping, config_dir: Path) -> "Machine":
-        """``from_mapping`` of a section naming a ROSS rotor file (``ross``) and our names beside it."""
-        _known(spec, (), {"ross", "name", "unbalance_planes", "sensors"})
-        if not isinstance(spec["ross"], str):
-            raise MachineSpecError(("ross",), f"must be the path of a ROSS rotor file, got {spec['ross']!r}")
-        path = config_dir / spec["ross"]
-        if not path.is_file():
-            raise MachineSpecError(("ross",), f"{path}: no such file (a ROSS rotor saved with rotor.save, .toml or "
-                                              f".json; the path is relative to {config_dir}/)")
-        try:
-            rotor = ross_machine(str(path.resolve()), path.stat().st_mtime_ns)
-        except (ImportError, ValueError) as err:
-            raise MachineSpecError(("ross",), f"{path}: {err}") from None
-        sensors = [_build(Sensor, {"name": name, **_mapping(item, ("sensors", name))}, ("sensors", name),
-                          {"name", "node", "direction"}, {"angle_deg"})
-                   for name, item in _mapping(spec.get("sensors"), ("sensors",)).items()]
-        planes = [_build(UnbalancePlane, {"name": name, "node": node}, ("unbalance_planes", name), {"name", "node"},
-                         set()) for name, node in _mapping(spec.get("unbalance_planes"), ("unbalance_planes",)).items()]
-        try:
-            return cls(str(spec.get("name", path.stem)), rotor.segments, rotor.disks, rotor.bearings, planes, sensors,
-                       rotor.rotary_inertia, rotor.shear)
         except ValueError as err:
             raise MachineSpecError((), str(err)) from None
 
@@ -638,15 +607,6 @@ class MachineUnbalance(Unbalance):
             "z_me", "m", (0.0, float(length)), np.nan if z is None else float(z),
             f"axial position of the eccentric mass along machine {machine!r} (0-{length:g} m; nominal {where})",
             (0.0, float(length))), ANGLE_ME)
-
-
-@functools.cache
-def ross_machine(path: str, mtime_ns: int) -> Machine:
-    """The machine of a ROSS rotor file (``ross_io.machine_from_ross``), read once per version of the file (ROSS
-    takes seconds to build a large rotor; the config's machine is asked for often)."""
-    from .ross_io import machine_from_ross  # ross_io builds Machines: imported here, when a config names a file
-
-    return machine_from_ross(path)
 
 
 def default_machine() -> Machine:

@@ -31,15 +31,17 @@ and ``Rotor.load`` makes it ROSS's spline again.
 
 from __future__ import annotations
 
+import functools
 import re
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
 
 from .bearing_table import COEFFICIENTS, BearingTable
 from .machine import Machine
-from .machine_parts import Bearing, Disk, Sensor, ShaftSegment, UnbalancePlane
+from .machine_parts import (Bearing, Disk, MachineSpecError, Sensor, ShaftSegment, UnbalancePlane, _build, _known,
+                            _mapping)
 
 INSTALL = 'pip install -e ".[ross]"'
 #: the attribute a ROSS bearing made by ``machine_to_ross`` carries when it evaluates its table as ours
@@ -184,6 +186,41 @@ def machine_from_ross(rotor, name: str | None = None, unbalance_planes: Sequence
     bearings = [_bearing(ross, el, i) for i, el in enumerate(rotor.bearing_elements)]
     return Machine(name or str(rotor.tag), segments, disks, bearings, unbalance_planes, sensors,
                    rotary_inertia=rotary_inertia, shear=shear)
+
+
+def machine_from_section(spec: Mapping, config_dir: str | Path = ".") -> Machine:
+    """The config's ``machine:`` section naming a ROSS rotor file, ``{ross: rotor.toml, name: compressor,
+    unbalance_planes: {...}, sensors: {...}}``: ``machine_from_ross`` of the file (its path relative to
+    ``config_dir``, the config's folder) with our name (default the file's stem), unbalance planes and probes beside
+    it, in the forms of ``Machine.from_mapping``. A problem raises ``MachineSpecError`` (the file's, at ``ross``)."""
+    _known(spec, (), {"ross", "name", "unbalance_planes", "sensors"})
+    if not isinstance(spec["ross"], str):
+        raise MachineSpecError(("ross",), f"must be the path of a ROSS rotor file, got {spec['ross']!r}")
+    path = Path(config_dir) / spec["ross"]
+    if not path.is_file():
+        raise MachineSpecError(("ross",), f"{path}: no such file (a ROSS rotor saved with rotor.save, .toml or "
+                                          f".json; the path is relative to {config_dir}/)")
+    try:
+        rotor = _read(str(path.resolve()), path.stat().st_mtime_ns)
+    except (ImportError, ValueError) as err:
+        raise MachineSpecError(("ross",), f"{path}: {err}") from None
+    sensors = [_build(Sensor, {"name": name, **_mapping(item, ("sensors", name))}, ("sensors", name),
+                      {"name", "node", "direction"}, {"angle_deg"})
+               for name, item in _mapping(spec.get("sensors"), ("sensors",)).items()]
+    planes = [_build(UnbalancePlane, {"name": name, "node": node}, ("unbalance_planes", name), {"name", "node"}, set())
+              for name, node in _mapping(spec.get("unbalance_planes"), ("unbalance_planes",)).items()]
+    try:
+        return Machine(str(spec.get("name", path.stem)), rotor.segments, rotor.disks, rotor.bearings, planes, sensors,
+                       rotor.rotary_inertia, rotor.shear)
+    except ValueError as err:
+        raise MachineSpecError((), str(err)) from None
+
+
+@functools.cache
+def _read(path: str, mtime_ns: int) -> Machine:
+    """``machine_from_ross`` of a file, once per version of it (ROSS takes seconds to build a large rotor, and the
+    config's machine is asked for often)."""
+    return machine_from_ross(path)
 
 
 def _linear(el, table: BearingTable) -> None:
