@@ -296,7 +296,6 @@ def test_a_linear_table_goes_to_ross_as_ours(rs, tmp_path):
               "segments are uniform"),
     ("mixed_shear", "ROSS rotor 'stepped': mixed shear_effects (elements with and without it)"),
     ("link", "ROSS bearing 'drive_end' (node 2): linked to node 20"),
-    ("mass", "ROSS bearing 'drive_end' (node 2): mass coefficient mxx is not modelled here"),
 ])
 def test_rotors_we_cannot_represent_are_refused(rs, change, message):
     from hybridtwin.model.ross_io import machine_from_ross
@@ -309,7 +308,7 @@ def test_rotors_we_cannot_represent_are_refused(rs, change, message):
     if change == "mixed_shear":
         elements[5] = rs.ShaftElement(L=0.05, idl=0.0, odl=0.05, material=steel, shear_effects=False)
     bearing = dict(n=2, kxx=1e7, cxx=100.0, tag="drive_end")
-    bearing |= {"link": {"n_link": 20}, "mass": {"mxx": 1.0}}.get(change, {})
+    bearing |= {"link": {"n_link": 20}}.get(change, {})
     rotor = rs.Rotor(elements, [], [rs.BearingElement(**bearing), rs.BearingElement(n=16, kxx=1e7, cxx=100.0)],
                      tag="stepped")
     with pytest.raises(ValueError) as err:
@@ -409,5 +408,42 @@ def test_a_ross_file_we_cannot_represent_is_refused_at_its_key(rs, project):  # 
              ).save(folder / "config" / "stepped.toml")
     _, problems = _config(project, yaml.safe_dump({"machine": ROSS_MACHINE | {"unbalance_planes": {"disk": 4},
                                                                               "sensors": {}}}))
-    assert any("machine.ross: config/stepped.toml: ROSS shaft element 'ShaftElement 3' (node 3): tapered" in p
+    assert any("machine.ross: config/stepped.toml: ROSS shaft element 'Shaft Element 3' (node 3): tapered" in p
                for p in problems), problems
+
+
+def test_bearing_mass_coefficients_match_ross(rs):  # noqa: F811 (the fixture)
+    """A bearing with speed-dependent, anisotropic, cross-coupled mass coefficients (a seal's added mass): ours in the
+    table (mxx .. myy), at rest in the mass and its change with speed in the system's M at each speed; ROSS's M at
+    those speeds is ours, and so are the Campbell data (frequencies, damping ratios), to 1e-6 (the tolerance of
+    this module; the mass moves the frequencies by far more, asserted)."""
+    from hybridtwin.model.ross_io import machine_from_ross
+
+    mass = dict(mxx=20 + 10 * np.sin(FREQUENCY / 300), myy=15 + 0.02 * FREQUENCY, mxy=2 * FREQUENCY / 1000,
+                myx=-1.5 * FREQUENCY / 1000)
+    base = _ross_rotor(rs)
+    drive = rs.BearingElement(n=2, frequency=FREQUENCY, **DRIVE_END, **mass, tag="drive_end")
+    rotor = rs.Rotor(base.shaft_elements, base.disk_elements, [drive, base.bearing_elements[1]], tag="stepped")
+    machine = machine_from_ross(rotor)
+    table = machine.bearings[0].table
+    assert table.has_mass and "mxx" in table.to_mapping() and "mxx 20.." in table.describe()
+    fx = machine.effects()
+    model = Model([fx["bearing_table@drive_end"], fx["bearing_table@free_end"], fx["gyroscopic"]], machine)
+    speeds = np.array([0.0, 350.0, 900.0])  # rad/s
+    system = model.system({}, speeds * 60 / (2 * np.pi))
+    u, v = machine.dof("u2"), machine.dof("v2")
+    for s, speed in enumerate(speeds):
+        theirs = rotor.M(speed)[np.ix_([12, 13], [12, 13])]  # ROSS's node 2: x, y
+        ours = system.M[s][np.ix_([u, v], [u, v])]
+        np.testing.assert_allclose(ours, theirs, rtol=1e-12, atol=1e-12 * np.abs(theirs).max())  # the spline's 1e-15
+    ours = campbell(model, {}, speeds * 60 / (2 * np.pi), n_modes=8)
+    plain = campbell(Model([fx["bearing_table@free_end"], fx["gyroscopic"], machine_from_ross(base).effects()[
+        "bearing_table@drive_end"]], machine_from_ross(base)), {}, speeds * 60 / (2 * np.pi), n_modes=8)
+    for speed, rpm in zip(speeds, sorted(set(ours.rpm))):
+        modal = rotor.run_modal(speed, num_modes=40, sparse=False)
+        lateral = np.array([w is not None and w != "None" for w in modal.whirl_direction()])
+        at = ours[ours.rpm == rpm]
+        np.testing.assert_allclose(at.frequency_hz.to_numpy() * 2 * np.pi, modal.wd[lateral][:8], rtol=RTOL)
+        np.testing.assert_allclose(at.damping_ratio.to_numpy(), modal.damping_ratio[lateral][:8], rtol=RTOL, atol=1e-9)
+    change = np.abs(ours.frequency_hz.to_numpy() / plain.frequency_hz.to_numpy() - 1)
+    assert change.max() > 1e3 * RTOL, change.max()

@@ -4,11 +4,12 @@
 
 ``machine_from_ross(rotor)``:
 
-- ROSS's ShaftElements (one per node, in order) become ``ShaftSegment``s, consecutive identical elements (length,
-  diameters, material) merged into one segment of ``n_elements``; the material's E, rho and G_s give E, rho, G.
+- ROSS's ShaftElements become ``ShaftSegment``s: the first at each node the shaft's, the others at that node layers
+  (``ShaftSegment.node``; their matrices add, as in ROSS); consecutive identical elements (length, diameters,
+  material) merged into one segment of ``n_elements``; the material's E, rho and G_s give E, rho, G.
   ROSS's ``shear_effects`` and ``rotary_inertia`` become the machine's ``shear`` and ``rotary_inertia`` (they must
-  be the same for every element). Refused with a message: tapered elements (idl != idr or odl != odr), several
-  elements at one node (layered shafts), mixed shear, rotary-inertia or gyroscopic settings, axial force,
+  be the same for every element). Refused with a message: rotors of several shafts (CoAxialRotor, MultiRotor),
+  tapered elements (idl != idr or odl != odr), a layer of another length than the shaft's element, mixed shear, rotary-inertia or gyroscopic settings, axial force,
   torque, ROSS's proportional damping (alpha, beta), a shear coefficient other than Cowper's.
 - DiskElements become ``Disk``s at ROSS's node (m, Ip, Id; the tag as name unless ROSS made it up).
 - BearingElements (and seals) become ``Bearing``s named after their tags (non-identifier characters as ``_``):
@@ -16,8 +17,9 @@
   ``BearingTable`` of the eight coefficients, at ROSS's ``frequency`` [rad/s] converted to RPM (14 significant
   digits), with
   ``interpolation: ross`` (ROSS 2.3.0's own spline, so both codes evaluate the same coefficients at any speed;
-  ``bearing_table``). Refused: a bearing linked to another node (``n_link``), mass coefficients (mxx ...),
-  elements whose K or C are not ROSS's table (magnetic bearings, ...), point masses. Axial coefficients (kzz,
+  ``bearing_table``). Mass coefficients (mxx, mxy, myx, myy; ROSS's added mass) go into the table too. Refused: a
+  bearing linked to another node (``n_link``), elements whose K or C are not ROSS's table (magnetic bearings, ...),
+  point masses. Axial coefficients (kzz,
   czz) are dropped: the model has no axial DOFs.
 - ROSS has no unbalance planes or probes: give them (``unbalance_planes``, ``sensors``) to have them.
 
@@ -38,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .bearing_table import COEFFICIENTS, BearingTable
+from .bearing_table import COEFFICIENTS, COLUMNS, MASSES, BearingTable
 from .machine import Machine
 from .machine_parts import (Bearing, Disk, MachineSpecError, Sensor, ShaftSegment, UnbalancePlane, _build, _known,
                             _mapping)
@@ -46,7 +48,6 @@ from .machine_parts import (Bearing, Disk, MachineSpecError, Sensor, ShaftSegmen
 INSTALL = 'pip install -e ".[ross]"'
 #: the attribute a ROSS bearing made by ``machine_to_ross`` carries when it evaluates its table as ours
 MARK = "hybridtwin_interpolation"
-_MASS = ("mxx", "mxy", "myx", "myy")
 
 
 def _ross():
@@ -140,17 +141,16 @@ def _bearing(ross, el, index: int) -> Bearing:
     if type(el).K is not ross.BearingElement.K or type(el).C is not ross.BearingElement.C:
         raise ValueError(f"{where}: a {type(el).__name__} computes its K or C itself; only tables of coefficients "
                          "(BearingElement, SealElement) can be read")
-    for name in _MASS:
-        if np.any(np.asarray(getattr(el, name, 0.0), dtype=float) != 0):
-            raise ValueError(f"{where}: mass coefficient {name} is not modelled here (must be 0)")
     name = _name(el.tag, f"bearing_{index}")
-    columns = {k: np.atleast_1d(np.asarray(getattr(el, k), dtype=float)) for k in COEFFICIENTS}
+    columns = {k: np.atleast_1d(np.asarray(getattr(el, k, 0.0), dtype=float)) for k in COLUMNS}
     if el.frequency is None or np.size(el.frequency) == 1:
         values = {k: _scalar(v) for k, v in columns.items()}
         if values["kxx"] == values["kyy"] and values["cxx"] == values["cyy"] and not any(
-                values[k] for k in ("kxy", "kyx", "cxy", "cyx")):
+                values[k] for k in ("kxy", "kyx", "cxy", "cyx") + MASSES):
             return Bearing(name, int(el.n), k=values["kxx"], c=values["cxx"])
         return Bearing(name, int(el.n), table=BearingTable.constant(**values))
+    n = np.size(el.frequency)
+    columns = {k: np.broadcast_to(v, (n,)) if v.size == 1 else v for k, v in columns.items()}  # ROSS's zeros
     # ROSS's frequency is rad/s; to 14 significant digits, so that a table written from RPM comes back as it was
     rpm = [float(f"{w * 60.0 / (2.0 * np.pi):.14g}") for w in np.asarray(el.frequency, dtype=float)]
     try:
@@ -226,7 +226,7 @@ def _read(path: str, mtime_ns: int) -> Machine:
 def _linear(el, table: BearingTable) -> None:
     """Make the ROSS bearing ``el`` evaluate ``table`` as our linear rule does (its ``*_interpolated``)."""
     speeds = np.asarray(table.rpm) * (2.0 * np.pi / 60.0)
-    for key in COEFFICIENTS:
+    for key in COLUMNS:
         values = np.asarray(getattr(table, key))
         setattr(el, f"{key}_interpolated", lambda omega, v=values: np.interp(omega, speeds, v))
     setattr(el, MARK, "linear")
@@ -256,7 +256,7 @@ def machine_to_ross(machine: Machine, file: str | Path | None = None):
         if b.table is not None:
             t = b.table
             frequency = np.asarray(t.rpm) * (2.0 * np.pi / 60.0)
-            columns = {k: np.asarray(getattr(t, k)) for k in COEFFICIENTS}
+            columns = {k: np.asarray(getattr(t, k)) for k in COLUMNS}
             if len(t.rpm) == 1:
                 el = ross.BearingElement(n=b.node, **{k: float(v[0]) for k, v in columns.items()}, tag=b.name)
             else:
