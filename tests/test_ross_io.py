@@ -12,6 +12,7 @@ and is far below the effects the test sees: the bearings' change with speed move
 (asserted), and ROSS's spline differs from a linear interpolation of the same table by up to 0.8 % between its rows).
 """
 
+import re
 import sys
 
 import numpy as np
@@ -447,3 +448,17 @@ def test_bearing_mass_coefficients_match_ross(rs):  # noqa: F811 (the fixture)
         np.testing.assert_allclose(at.damping_ratio.to_numpy(), modal.damping_ratio[lateral][:8], rtol=RTOL, atol=1e-9)
     change = np.abs(ours.frequency_hz.to_numpy() / plain.frequency_hz.to_numpy() - 1)
     assert change.max() > 1e3 * RTOL, change.max()
+
+
+def test_a_support_with_a_point_mass_is_refused_naming_it(rs):  # noqa: F811 (the fixture)
+    """ROSS's point masses are a support's (on the node a bearing links the shaft to): refused, naming the point mass
+    and the reason, before its bearing's link is."""
+    from hybridtwin.model.ross_io import machine_from_ross
+
+    base = _ross_rotor(rs)
+    pedestal = [base.bearing_elements[0], rs.BearingElement(n=16, n_link=21, kxx=1e7, cxx=500.0, tag="free end"),
+                rs.BearingElement(n=21, kxx=1e8, cxx=100.0, tag="pedestal")]  # the free end on a support of 10 kg
+    rotor = rs.Rotor(base.shaft_elements, base.disk_elements, pedestal,
+                     point_mass_elements=[rs.PointMass(n=21, m=10.0, tag="pm")])
+    with pytest.raises(ValueError, match=re.escape("ROSS point mass 'pm' (node 21): a support's mass")):
+        machine_from_ross(rotor)

@@ -19,7 +19,7 @@
   ``interpolation: ross`` (ROSS 2.3.0's own spline, so both codes evaluate the same coefficients at any speed;
   ``bearing_table``). Mass coefficients (mxx, mxy, myx, myy; ROSS's added mass) go into the table too. Refused: a
   bearing linked to another node (``n_link``), elements whose K or C are not ROSS's table (magnetic bearings, ...),
-  point masses. Axial coefficients (kzz,
+  point masses (ROSS's are a support's, on the node a bearing links to). Axial coefficients (kzz,
   czz) are dropped: the model has no axial DOFs.
 - ROSS has no unbalance planes or probes: give them (``unbalance_planes``, ``sensors``) to have them.
 
@@ -176,13 +176,13 @@ def machine_from_ross(rotor, name: str | None = None, unbalance_planes: Sequence
     if kind != "Rotor" and any(c.__name__ in ("CoAxialRotor", "MultiRotor") for c in type(rotor).__mro__):
         raise ValueError(f"ROSS rotor {rotor.tag!r}: a {kind} (several shafts, coaxial or geared); our machine is "
                          "one shaft")
-    if getattr(rotor, "point_mass_elements", None):
-        raise ValueError(f"ROSS rotor {rotor.tag!r}: point masses ({[p.tag for p in rotor.point_mass_elements]}) "
-                         "are not modelled here")
     segments, shear, rotary_inertia = _shaft(rotor)
     disks = [Disk(int(d.n), float(d.m), I_p=float(d.Ip), I_d=float(d.Id),
                   name="" if re.fullmatch(r"Disk \d+", str(d.tag or "Disk 0")) else _name(d.tag, ""))
              for d in rotor.disk_elements]
+    for p in getattr(rotor, "point_mass_elements", None) or []:
+        raise ValueError(f"ROSS point mass {p.tag!r} (node {p.n}): a support's mass (ROSS places point masses where "
+                         "bearings link the shaft to a support of its own, n_link); supports are not modelled here")
     bearings = [_bearing(ross, el, i) for i, el in enumerate(rotor.bearing_elements)]
     return Machine(name or str(rotor.tag), segments, disks, bearings, unbalance_planes, sensors,
                    rotary_inertia=rotary_inertia, shear=shear)
