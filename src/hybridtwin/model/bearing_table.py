@@ -169,7 +169,8 @@ class BearingTable:
         return K, C
 
     def mass_matrix(self, Omega: Array) -> Array:
-        """The mass coefficients over (x, y) at the speeds ``Omega`` [rad/s] (S,): (S, 2, 2), [[mxx, mxy], [myx, myy]]."""
+        """The mass coefficients over (x, y) at the speeds ``Omega`` [rad/s] (S,): (S, 2, 2),
+        [[mxx, mxy], [myx, myy]]."""
         values = self.at(np.atleast_1d(Omega))
         M = np.zeros(np.shape(values["mxx"]) + (2, 2))
         for suffix, (i, j) in _PLACE.items():

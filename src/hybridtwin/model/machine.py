@@ -217,7 +217,8 @@ class Machine(DofCounts):
             varm = cls.varm()
             spec = {**varm.to_mapping(), "name": spec.get("name", varm.name)}
         segments = [_build(ShaftSegment, item, ("segments", i), {"length", "d_out", "E", "rho"},
-                           {"d_in", "n_elements", "I", "m", "G", "node"}) for i, item in enumerate(_sequence(spec, "segments"))]
+                           {"d_in", "n_elements", "I", "m", "G", "node"})
+                    for i, item in enumerate(_sequence(spec, "segments"))]
         disks = [_build(Disk, item, ("disks", i), {"node", "mass"}, {"I_p", "I_d", "name"})
                  for i, item in enumerate(_sequence(spec, "disks"))]
         bearings = [_bearing(name, item) for name, item in _mapping(spec.get("bearings"), ("bearings",)).items()]

@@ -9,8 +9,9 @@
   material) merged into one segment of ``n_elements``; the material's E, rho and G_s give E, rho, G.
   ROSS's ``shear_effects`` and ``rotary_inertia`` become the machine's ``shear`` and ``rotary_inertia`` (they must
   be the same for every element). Refused with a message: rotors of several shafts (CoAxialRotor, MultiRotor),
-  tapered elements (idl != idr or odl != odr), a layer of another length than the shaft's element, mixed shear, rotary-inertia or gyroscopic settings, axial force,
-  torque, ROSS's proportional damping (alpha, beta), a shear coefficient other than Cowper's.
+  tapered elements (idl != idr or odl != odr), a layer of another length than the shaft's element, mixed shear,
+  rotary-inertia or gyroscopic settings, axial force, torque, ROSS's proportional damping (alpha, beta), a shear
+  coefficient other than Cowper's.
 - DiskElements become ``Disk``s at ROSS's node (m, Ip, Id; the tag as name unless ROSS made it up).
 - BearingElements (and seals) become ``Bearing``s named after their tags (non-identifier characters as ``_``):
   constant isotropic coefficients (kxx = kyy, cxx = cyy, no cross terms) as ``k``, ``c``; anything else as a
@@ -94,8 +95,8 @@ def _shaft(rotor) -> tuple[list[ShaftSegment], bool, bool]:
                 chain.append([key, 1])
             continue
         if not np.isclose(float(el.L), base[el.n], rtol=1e-9, atol=0.0):
-            raise ValueError(f"ROSS shaft element {el.tag!r} (node {el.n}): a layer {float(el.L):g} m long on an element "
-                             f"{base[el.n]:g} m long; layered elements at one node must have the same length")
+            raise ValueError(f"ROSS shaft element {el.tag!r} (node {el.n}): a layer {float(el.L):g} m long on an "
+                             f"element {base[el.n]:g} m long; layered elements at one node must have the same length")
         run = next((r for r in layers if r[0] == key and r[1] + r[2] == el.n), None)
         if run is not None:
             run[2] += 1
