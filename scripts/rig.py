@@ -3,7 +3,7 @@
 import logging
 from pathlib import Path
 
-from hybridtwin.model.machine import Machine
+from hybridtwin.config import CONFIG_DIR, machine as config_machine
 from hybridtwin.data.rig import RigSpec, generate, peak_columns, read_plan
 from hybridtwin.model.variants import load_effects_file
 from hybridtwin.config import on_disk_full
@@ -17,7 +17,7 @@ log = logging.getLogger("rig")
 effects = {}
 for path in smk.params.effects_files:
     effects |= load_effects_file(path)
-machine = Machine.from_mapping(smk.params.machine)  # the config's machine: section (None: the VARM)
+machine = config_machine({"machine": smk.params.machine}, CONFIG_DIR)  # the config's machine: (None: the VARM)
 spec = RigSpec.from_mapping(smk.params.spec, effects, machine)
 log.info("truth on machine %s", machine.name)
 plan = read_plan(smk.input.plan)

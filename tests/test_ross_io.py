@@ -12,6 +12,7 @@ and is far below the effects the test sees: the bearings' change with speed move
 (asserted), and ROSS's spline differs from a linear interpolation of the same table by up to 0.8 % between its rows).
 """
 
+import re
 import sys
 
 import numpy as np
@@ -296,7 +297,6 @@ def test_a_linear_table_goes_to_ross_as_ours(rs, tmp_path):
               "segments are uniform"),
     ("mixed_shear", "ROSS rotor 'stepped': mixed shear_effects (elements with and without it)"),
     ("link", "ROSS bearing 'drive_end' (node 2): linked to node 20"),
-    ("mass", "ROSS bearing 'drive_end' (node 2): mass coefficient mxx is not modelled here"),
 ])
 def test_rotors_we_cannot_represent_are_refused(rs, change, message):
     from hybridtwin.model.ross_io import machine_from_ross
@@ -309,7 +309,7 @@ def test_rotors_we_cannot_represent_are_refused(rs, change, message):
     if change == "mixed_shear":
         elements[5] = rs.ShaftElement(L=0.05, idl=0.0, odl=0.05, material=steel, shear_effects=False)
     bearing = dict(n=2, kxx=1e7, cxx=100.0, tag="drive_end")
-    bearing |= {"link": {"n_link": 20}, "mass": {"mxx": 1.0}}.get(change, {})
+    bearing |= {"link": {"n_link": 20}}.get(change, {})
     rotor = rs.Rotor(elements, [], [rs.BearingElement(**bearing), rs.BearingElement(n=16, kxx=1e7, cxx=100.0)],
                      tag="stepped")
     with pytest.raises(ValueError) as err:
@@ -340,3 +340,125 @@ def test_every_coefficient_reaches_ross_in_its_place(rs):
     K, C = element.K(123.0), element.C(123.0)
     assert K[:2, :2].tolist() == [[values["kxx"], values["kxy"]], [values["kyx"], values["kyy"]]]
     assert C[:2, :2].tolist() == [[values["cxx"], values["cxy"]], [values["cyx"], values["cyy"]]]
+
+
+# --- a ROSS rotor file in the config (issue 53 item 2) -------------------------------------------------------------
+
+
+def _layered_file(rs, folder):
+    """The stepped rotor of ``_ross_rotor`` with a sleeve (two layered elements at nodes 9 and 10), saved with ROSS's
+    ``rotor.save`` in ``folder``; the rotor and the file."""
+    base = _ross_rotor(rs)
+    sleeve = rs.Material(name="Sleeve_check", rho=RHO, E=0.3 * E, G_s=0.3 * G)
+    layers = [rs.ShaftElement(L=0.05, idl=0.05, odl=0.07, material=sleeve, n=n) for n in (9, 10)]
+    rotor = rs.Rotor(base.shaft_elements + layers, base.disk_elements, base.bearing_elements)
+    rotor.save(folder / "stepped.toml")
+    return rotor, folder / "stepped.toml"
+
+
+ROSS_MACHINE = {"ross": "stepped.toml", "name": "stepped_ross", "unbalance_planes": {"disk": 8},
+                "sensors": {"x1": {"node": 8, "direction": "x"}, "y1": {"node": 8, "direction": "y"}}}
+
+
+def test_a_ross_file_in_the_config_is_the_machine(rs, project, capsys):  # noqa: F811 (the fixture)
+    """machine: {ross: stepped.toml, ...}: the config's machine is machine_from_ross of the file (relative to the
+    config's folder) with our name, plane and probes; the check passes with a variant on its tables and the
+    plane; ``hybridtwin machine`` prints what was read (the file, the layer, the tables)."""
+    from hybridtwin import config as cfg
+    from hybridtwin.cli import main
+    from hybridtwin.model.ross_io import machine_from_ross
+
+    folder, _ = project
+    rotor, path = _layered_file(rs, folder / "config")
+    overlay = {"machine": ROSS_MACHINE, "variants": {"ross_linear": {
+        "effects": ["bearing_table@drive_end", "bearing_table@free_end", "gyroscopic", "unbalance@disk"],
+        "unknown": {"m_e": [0.001, 0.01]}}}}
+    config, problems = _config(project, yaml.safe_dump(overlay))
+    assert problems == []
+    machine = cfg.machine(config)
+    expected = machine_from_ross(path, name="stepped_ross", unbalance_planes=machine.unbalance_planes,
+                                 sensors=machine.sensors)
+    assert machine.to_mapping() == expected.to_mapping()
+    assert [s.node for s in machine.segments if s.node is not None] == [9] and machine.n_nodes == len(rotor.nodes)
+    assert cfg.variant(config, "ross_linear").model.shaft.to_mapping() == machine.to_mapping()
+    assert main(["machine", "--config", str(folder / "config" / "config.yaml")]) == 0
+    out = capsys.readouterr().out
+    assert f"machine read from the ROSS rotor file {folder / 'config' / 'stepped.toml'}" in out
+    assert "machine stepped_ross: 20 elements, 21 nodes" in out and "layer 3: nodes 9..11" in out
+    assert "bearing drive_end at node 2: table of 5 speeds" in out and "sensor y1 at node 8" in out
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"ross": "missing.toml"}, "machine.ross: config/missing.toml: no such file (a ROSS rotor saved with rotor.save"),
+    ({"segments": []}, "unknown key(s) ['segments'] (allowed: name, ross, sensors, unbalance_planes)"),
+    ({"unbalance_planes": {"disk": 40}}, "unbalance plane 'disk' at node 40: nodes are the integers 0..20"),
+])
+def test_a_bad_ross_machine_in_the_config_is_one_line(rs, project, change, message):  # noqa: F811 (the fixture)
+    folder, _ = project
+    _layered_file(rs, folder / "config")
+    _, problems = _config(project, yaml.safe_dump({"machine": ROSS_MACHINE | change}))
+    assert any(message in p and "config.yaml, line" in p for p in problems), problems
+
+
+def test_a_ross_file_we_cannot_represent_is_refused_at_its_key(rs, project):  # noqa: F811 (the fixture)
+    folder, _ = project
+    steel = rs.Material(name="Steel_check", rho=RHO, E=E, G_s=G)
+    elements = [rs.ShaftElement(L=0.05, idl=0.0, odl=0.05, odr=0.06 if n == 3 else 0.05, material=steel)
+                for n in range(8)]
+    rs.Rotor(elements, [], [rs.BearingElement(n=0, kxx=1e7, cxx=10.0), rs.BearingElement(n=8, kxx=1e7, cxx=10.0)]
+             ).save(folder / "config" / "stepped.toml")
+    _, problems = _config(project, yaml.safe_dump({"machine": ROSS_MACHINE | {"unbalance_planes": {"disk": 4},
+                                                                              "sensors": {}}}))
+    assert any("machine.ross: config/stepped.toml: ROSS shaft element 'Shaft Element 3' (node 3): tapered" in p
+               for p in problems), problems
+
+
+def test_bearing_mass_coefficients_match_ross(rs):  # noqa: F811 (the fixture)
+    """A bearing with speed-dependent, anisotropic, cross-coupled mass coefficients (a seal's added mass): ours in the
+    table (mxx .. myy), at rest in the mass and its change with speed in the system's M at each speed; ROSS's M at
+    those speeds is ours, and so are the Campbell data (frequencies, damping ratios), to 1e-6 (the tolerance of
+    this module; the mass moves the frequencies by far more, asserted)."""
+    from hybridtwin.model.ross_io import machine_from_ross
+
+    mass = dict(mxx=20 + 10 * np.sin(FREQUENCY / 300), myy=15 + 0.02 * FREQUENCY, mxy=2 * FREQUENCY / 1000,
+                myx=-1.5 * FREQUENCY / 1000)
+    base = _ross_rotor(rs)
+    drive = rs.BearingElement(n=2, frequency=FREQUENCY, **DRIVE_END, **mass, tag="drive_end")
+    rotor = rs.Rotor(base.shaft_elements, base.disk_elements, [drive, base.bearing_elements[1]], tag="stepped")
+    machine = machine_from_ross(rotor)
+    table = machine.bearings[0].table
+    assert table.has_mass and "mxx" in table.to_mapping() and "mxx 20.." in table.describe()
+    fx = machine.effects()
+    model = Model([fx["bearing_table@drive_end"], fx["bearing_table@free_end"], fx["gyroscopic"]], machine)
+    speeds = np.array([0.0, 350.0, 900.0])  # rad/s
+    system = model.system({}, speeds * 60 / (2 * np.pi))
+    u, v = machine.dof("u2"), machine.dof("v2")
+    for s, speed in enumerate(speeds):
+        theirs = rotor.M(speed)[np.ix_([12, 13], [12, 13])]  # ROSS's node 2: x, y
+        ours = system.M[s][np.ix_([u, v], [u, v])]
+        np.testing.assert_allclose(ours, theirs, rtol=1e-12, atol=1e-12 * np.abs(theirs).max())  # the spline's 1e-15
+    ours = campbell(model, {}, speeds * 60 / (2 * np.pi), n_modes=8)
+    plain = campbell(Model([fx["bearing_table@free_end"], fx["gyroscopic"], machine_from_ross(base).effects()[
+        "bearing_table@drive_end"]], machine_from_ross(base)), {}, speeds * 60 / (2 * np.pi), n_modes=8)
+    for speed, rpm in zip(speeds, sorted(set(ours.rpm))):
+        modal = rotor.run_modal(speed, num_modes=40, sparse=False)
+        lateral = np.array([w is not None and w != "None" for w in modal.whirl_direction()])
+        at = ours[ours.rpm == rpm]
+        np.testing.assert_allclose(at.frequency_hz.to_numpy() * 2 * np.pi, modal.wd[lateral][:8], rtol=RTOL)
+        np.testing.assert_allclose(at.damping_ratio.to_numpy(), modal.damping_ratio[lateral][:8], rtol=RTOL, atol=1e-9)
+    change = np.abs(ours.frequency_hz.to_numpy() / plain.frequency_hz.to_numpy() - 1)
+    assert change.max() > 1e3 * RTOL, change.max()
+
+
+def test_a_support_with_a_point_mass_is_refused_naming_it(rs):  # noqa: F811 (the fixture)
+    """ROSS's point masses are a support's (on the node a bearing links the shaft to): refused, naming the point mass
+    and the reason, before its bearing's link is."""
+    from hybridtwin.model.ross_io import machine_from_ross
+
+    base = _ross_rotor(rs)
+    pedestal = [base.bearing_elements[0], rs.BearingElement(n=16, n_link=21, kxx=1e7, cxx=500.0, tag="free end"),
+                rs.BearingElement(n=21, kxx=1e8, cxx=100.0, tag="pedestal")]  # the free end on a support of 10 kg
+    rotor = rs.Rotor(base.shaft_elements, base.disk_elements, pedestal,
+                     point_mass_elements=[rs.PointMass(n=21, m=10.0, tag="pm")])
+    with pytest.raises(ValueError, match=re.escape("ROSS point mass 'pm' (node 21): a support's mass")):
+        machine_from_ross(rotor)

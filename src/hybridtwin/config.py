@@ -64,7 +64,7 @@ def _effects_defined(path: str, mtime_ns: int) -> frozenset[str]:
 def candidate_effects(config: Mapping, config_dir: Path = CONFIG_DIR) -> dict[str, Effect]:
     """Effects the diagnosis may test besides the built-in candidates: the config's effects files', and the
     candidates the machine sizes to each of its bearings with nominal k (``bearing_candidates``), by name."""
-    return user_effects(config, config_dir) | machine(config).candidates()
+    return user_effects(config, config_dir) | machine(config, config_dir).candidates()
 
 
 def candidate_names(names: Sequence[str] | None, config: Mapping) -> list[str] | None:
@@ -77,16 +77,22 @@ def candidate_names(names: Sequence[str] | None, config: Mapping) -> list[str] |
     return placed or None
 
 
-def machine(config: Mapping) -> Machine:
-    """The rotor of the ``machine:`` section (hybridtwin.model.machine; absent: the VARM)."""
-    return Machine.from_mapping(config.get("machine"))
+def machine(config: Mapping, config_dir: str | Path = CONFIG_DIR) -> Machine:
+    """The rotor of the ``machine:`` section (``Machine.from_mapping``; absent: the VARM), or of the ROSS rotor file
+    it names (``{ross: rotor.toml, ...}``, relative to ``config_dir``: ``ross_io.machine_from_section``)."""
+    spec = config.get("machine")
+    if isinstance(spec, Mapping) and "ross" in spec:
+        from .model.ross_io import machine_from_section
+
+        return machine_from_section(spec, config_dir)
+    return Machine.from_mapping(spec)
 
 
 def variant(config: Mapping, name: str, config_dir: Path = CONFIG_DIR) -> Variant:
     """The variant ``name`` declared under ``variants:``, built on the config's machine."""
     if name not in config["variants"]:
         raise KeyError(f"variant {name!r} is not declared in the config (declared: {sorted(config['variants'])})")
-    rotor = machine(config)
+    rotor = machine(config, config_dir)
     return Variant.from_spec(name, config["variants"][name], user_effects(config, config_dir) | rotor.effects(),
                              shaft=rotor)
 
@@ -539,7 +545,7 @@ def _name_problems(config: Mapping, config_dir: Path) -> Iterable[Problem]:
 
     rotor, machine_ok = Machine.varm(), False
     try:
-        rotor = Machine.from_mapping(config.get("machine"))
+        rotor = machine(config, config_dir)
         rotor.sensor_node  # at least one x, y probe pair (its orbit); the records hold a channel per sensor
         machine_ok = True
     except MachineSpecError as err:

@@ -152,8 +152,11 @@ def variant_model(wildcards, nested=(), all_effects=False):
 
 
 def model_effects(model):
-    """The effects files of a job's params.model as its input paths: editing one reruns the job."""
-    return [str(CONFIG_DIR / path) for path in model["effects_files"]]
+    """The effects files of a job's params.model as its input paths, and the machine's ROSS rotor file when the
+    config names one (machine: {ross: ...}): editing one reruns the job."""
+    machine = model["machine"] or {}
+    rotor = [str(CONFIG_DIR / machine["ross"])] if "ross" in machine else []
+    return [str(CONFIG_DIR / path) for path in model["effects_files"]] + rotor
 
 
 def variant_effects(wildcards):

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from .. import config as config_module
 from ..data.measurements import kg_looking
 from ..model.effect_base import Effect
 from ..model.effects import builtin_effects, trial_angle_rad
@@ -127,7 +128,7 @@ def config_machine(config: Path | None, data: Mapping | None = None) -> Machine:
         return default_machine()
     data = read_config(config) if data is None else data
     try:
-        return Machine.from_mapping(data.get("machine"))
+        return config_module.machine(data, config.parent)
     except MachineSpecError as err:
         raise UsageError(f"config file {config}: {err}") from None
 

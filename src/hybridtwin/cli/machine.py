@@ -1,5 +1,8 @@
-"""``hybridtwin campbell | modes | response``: the machine of the config before any data, at nominal values (or those
-given with --set), as tables (TSV) and figures (PNG) in an output folder, and a summary on standard output.
+"""``hybridtwin machine | campbell | modes | response``: the machine of the config before any data, at nominal values
+(or those given with --set), as tables (TSV) and figures (PNG) in an output folder, and a summary on standard output.
+
+- ``machine``: what was read (``Machine.describe``): segments and layers, disks, bearings and their tables, unbalance
+  planes, probes, and the ROSS rotor file it came from when the config names one (``machine: {ross: ...}``).
 
 - ``campbell``: natural frequencies, damping ratios and log decrements of every whirl branch vs speed
   (``model.campbell``, ``machine_plots.campbell_figure``), the critical speeds (1X crossings) with their damping and,
@@ -25,8 +28,8 @@ import numpy as np
 import pandas as pd
 from threadpoolctl import threadpool_limits
 
-from .common import (UsageError, _non_negative, _parameter, _positive, _positive_int, chosen_variant, config_file,
-                     read_config, variant_values)
+from .common import (UsageError, _positive_int, _non_negative, _parameter, _positive, chosen_variant, config_file,
+                     config_machine, read_config, variant_values)
 
 # the report's modules (matplotlib, the solvers) are imported by the commands that use them, not by every command
 # line: `hybridtwin simulate` starts as fast as before
@@ -63,6 +66,16 @@ def read_table(path) -> pd.DataFrame:
 def add_machine_commands(sub, common) -> None:
     """Register ``campbell``, ``modes`` and ``response`` on the CLI's subparsers (``common``: the options every
     model command shares, --variant, --add-effect, --config, --effects-file)."""
+    parser = sub.add_parser(
+        "machine", help="what the config's machine is: shaft, layers, disks, bearings, planes, probes",
+        description="The rotor the config describes (its 'machine:' section; the VARM without one) as it was read: "
+                    "the shaft's segments and the layers on them, disks, bearings and seals (their coefficient "
+                    "tables), unbalance planes and probes, and the ROSS rotor file it was read from when the section "
+                    "names one (machine: {ross: rotor.toml, ...}).")
+    parser.add_argument("--config", type=Path, default=None,
+                        help="YAML with 'machine:', default ./config/config.yaml when it exists, else the VARM")
+    parser.set_defaults(handler=machine_command)
+
     intro = ("of the config's machine (its 'machine:' section; the VARM without one) at nominal values, or those "
              "given with --set, before any data")
     parser = sub.add_parser(
@@ -106,6 +119,24 @@ def add_machine_commands(sub, common) -> None:
     parser.add_argument("--harmonics", type=_positive_int, default=None,
                         help="highest harmonic H (default 1 for a linear model, 3 for a nonlinear one)")
     parser.set_defaults(handler=_single_threaded(response_command))
+
+
+def machine_command(args: argparse.Namespace) -> int:
+    """Print the config's machine as read (``Machine.describe``) and where it came from."""
+    source = config_file(args.config)
+    machine = config_machine(source)
+    spec = read_config(source).get("machine") if source is not None else None
+    if source is None or not spec:
+        print(f"# the VARM (the bundled default: {'no config' if source is None else f'{source} has no machine:'})")
+    elif isinstance(spec, dict) and "ross" in spec:
+        print(f"# {source}: machine read from the ROSS rotor file {source.parent / spec['ross']}; unbalance planes "
+              "and probes from the config")
+    else:
+        print(f"# {source}: machine:")
+    print(machine.describe())
+    print(f"  {machine.n_dof} DOFs ({machine.n_nodes} nodes x 4), shear {'on' if machine.shear else 'off'}, rotary "
+          f"inertia {'on' if machine.rotary_inertia else 'off'}")
+    return 0
 
 
 def _single_threaded(command):

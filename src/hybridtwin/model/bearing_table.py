@@ -37,6 +37,9 @@ from .effect_base import Array, Context, Effect, Parameter
 
 #: the eight coefficients, in the order of a table's columns: stiffness [N/m], then damping [N s/m]
 COEFFICIENTS = ("kxx", "kxy", "kyx", "kyy", "cxx", "cxy", "cyx", "cyy")
+#: the optional mass coefficients [kg] (a seal's or a squeeze film's added mass; ROSS's mxx ..), zero when not given
+MASSES = ("mxx", "mxy", "myx", "myy")
+COLUMNS = COEFFICIENTS + MASSES
 INTERPOLATIONS = ("linear", "ross")
 #: (row, column) of each coefficient in the bearing's 2 x 2 block over (x, y)
 _PLACE = {"xx": (0, 0), "xy": (0, 1), "yx": (1, 0), "yy": (1, 1)}
@@ -58,9 +61,17 @@ class BearingTable:
     cyx: tuple[float, ...]
     cyy: tuple[float, ...]
     interpolation: str = "linear"
+    mxx: tuple[float, ...] = ()
+    mxy: tuple[float, ...] = ()
+    myx: tuple[float, ...] = ()
+    myy: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
-        for key in ("rpm",) + COEFFICIENTS:
+        for key in MASSES:  # not given: zero at every speed
+            if isinstance(getattr(self, key), (tuple, list)) and len(getattr(self, key)) == 0:
+                rows = len(self.rpm) if isinstance(self.rpm, (tuple, list, np.ndarray)) else 0
+                object.__setattr__(self, key, (0.0,) * rows)
+        for key in ("rpm",) + COLUMNS:
             values = getattr(self, key)
             if isinstance(values, (str, bytes, Mapping)) or not isinstance(values, (Sequence, np.ndarray)):
                 raise ValueError(f"{key}: must be a list of numbers, got {values!r}")
@@ -73,7 +84,7 @@ class BearingTable:
             raise ValueError("rpm: the table needs at least one speed")
         if self.rpm[0] < 0 or any(b <= a for a, b in zip(self.rpm, self.rpm[1:])):
             raise ValueError(f"rpm: speeds must be >= 0 and strictly increasing, got {list(self.rpm)}")
-        for key in COEFFICIENTS:
+        for key in COLUMNS:
             if len(getattr(self, key)) != n:
                 raise ValueError(f"{key}: has {len(getattr(self, key))} values, rpm has {n}")
         if self.interpolation not in INTERPOLATIONS:
@@ -86,28 +97,37 @@ class BearingTable:
         ``interpolation`` optional (default linear)."""
         if not isinstance(spec, Mapping):
             raise ValueError(f"must be a mapping (rpm, kxx, ...), got {spec!r}")
-        stray = sorted(set(map(str, spec)) - {"rpm", "interpolation", *COEFFICIENTS})
+        stray = sorted(set(map(str, spec)) - {"rpm", "interpolation", *COLUMNS})
         if stray:
-            raise ValueError(f"unknown key(s) {stray} (allowed: rpm, {', '.join(COEFFICIENTS)}, interpolation)")
+            raise ValueError(f"unknown key(s) {stray} (allowed: rpm, {', '.join(COLUMNS)}, interpolation)")
         missing = [k for k in ("rpm", "kxx") if k not in spec]
         if missing:
             raise ValueError(f"missing key(s) {missing}")
         rpm = spec["rpm"]
         n = len(rpm) if isinstance(rpm, Sequence) and not isinstance(rpm, (str, bytes)) else 0
-        default = {"kyy": spec["kxx"], "cyy": spec.get("cxx", [0.0] * n)}
-        columns = {k: spec.get(k, default.get(k, [0.0] * n)) for k in COEFFICIENTS}
+        default = {"kyy": spec["kxx"], "cyy": spec.get("cxx", [0.0] * n), "myy": spec.get("mxx", [0.0] * n)}
+        columns = {k: spec.get(k, default.get(k, [0.0] * n)) for k in COLUMNS}
         return cls(rpm, **columns, interpolation=str(spec.get("interpolation", "linear")))
 
+    @property
+    def has_mass(self) -> bool:
+        """Whether any mass coefficient is nonzero."""
+        return any(any(getattr(self, k)) for k in MASSES)
+
     def to_mapping(self) -> dict:
-        """The config form (all eight columns; ``interpolation`` only when not linear)."""
+        """The config form (all eight columns, the four mass columns when one is nonzero; ``interpolation`` only
+        when not linear)."""
         out = {"rpm": list(self.rpm)} | {k: list(getattr(self, k)) for k in COEFFICIENTS}
+        out |= {k: list(getattr(self, k)) for k in MASSES} if self.has_mass else {}
         return out | ({"interpolation": self.interpolation} if self.interpolation != "linear" else {})
 
     @classmethod
     def constant(cls, kxx: float, kxy: float, kyx: float, kyy: float, cxx: float, cxy: float, cyx: float,
-                 cyy: float) -> "BearingTable":
-        """The same eight coefficients at every speed (a table of one row, at 0 RPM)."""
-        values = dict(kxx=kxx, kxy=kxy, kyx=kyx, kyy=kyy, cxx=cxx, cxy=cxy, cyx=cyx, cyy=cyy)
+                 cyy: float, mxx: float = 0.0, mxy: float = 0.0, myx: float = 0.0, myy: float = 0.0
+                 ) -> "BearingTable":
+        """The same coefficients at every speed (a table of one row, at 0 RPM)."""
+        values = dict(kxx=kxx, kxy=kxy, kyx=kyx, kyy=kyy, cxx=cxx, cxy=cxy, cyx=cyx, cyy=cyy, mxx=mxx, mxy=mxy,
+                      myx=myx, myy=myy)
         return cls((0.0,), **{k: (v,) for k, v in values.items()})
 
     @cached_property
@@ -117,7 +137,7 @@ class BearingTable:
 
         speeds = np.asarray(self.rpm) * (2.0 * np.pi / 60.0)
         out = {}
-        for key in COEFFICIENTS:
+        for key in COLUMNS:
             values = np.asarray(getattr(self, key))
             if len(values) == 1:
                 out[key] = lambda omega, v=values[0]: np.full(np.shape(omega), v)
@@ -136,7 +156,7 @@ class BearingTable:
         if self.interpolation == "ross":
             return {k: np.asarray(f(Omega), dtype=float).reshape(Omega.shape) for k, f in self._ross.items()}
         rpm = Omega * (60.0 / (2.0 * np.pi))
-        return {k: np.interp(rpm, self.rpm, getattr(self, k)) for k in COEFFICIENTS}  # constant beyond the ends
+        return {k: np.interp(rpm, self.rpm, getattr(self, k)) for k in COLUMNS}  # constant beyond the ends
 
     def matrices(self, Omega: Array) -> tuple[Array, Array]:
         """K and C over (x, y) at the speeds ``Omega`` [rad/s] (S,): two (S, 2, 2) arrays."""
@@ -148,6 +168,15 @@ class BearingTable:
             C[..., i, j] = values[f"c{suffix}"]
         return K, C
 
+    def mass_matrix(self, Omega: Array) -> Array:
+        """The mass coefficients over (x, y) at the speeds ``Omega`` [rad/s] (S,): (S, 2, 2),
+        [[mxx, mxy], [myx, myy]]."""
+        values = self.at(np.atleast_1d(Omega))
+        M = np.zeros(np.shape(values["mxx"]) + (2, 2))
+        for suffix, (i, j) in _PLACE.items():
+            M[..., i, j] = values[f"m{suffix}"]
+        return M
+
     def describe(self) -> str:
         """One line: the speed range, kxx, kyy and cxx at its ends (a one-row table: its constant values)."""
         if len(self.rpm) == 1:
@@ -156,7 +185,7 @@ class BearingTable:
         lo, hi = self.rpm[0], self.rpm[-1]
         return (f"table of {len(self.rpm)} speeds {lo:g}..{hi:g} RPM ({self.interpolation}): kxx {self.kxx[0]:g}.."
                 f"{self.kxx[-1]:g}, kyy {self.kyy[0]:g}..{self.kyy[-1]:g} N/m, cxx {self.cxx[0]:g}..{self.cxx[-1]:g} "
-                "N s/m")
+                "N s/m" + (f", mxx {self.mxx[0]:g}..{self.mxx[-1]:g} kg" if self.has_mass else ""))
 
 
 @dataclass(eq=False)
@@ -164,7 +193,8 @@ class TableBearing(Effect):
     """The effect ``bearing_table@<bearing>``: the table's K(Omega) and C(Omega) at the bearing's node (u, v).
 
     K(0) is in the stiffness at rest (``stiffness``), K(Omega) - K(0) in ``speed_stiffness``, C(Omega) in
-    ``damping``; ``ctx.Omega`` per scenario. No parameters."""
+    ``damping``; the mass coefficients, when the table has them, M(0) in ``mass`` and M(Omega) - M(0) in
+    ``speed_mass``; ``ctx.Omega`` per scenario. No parameters."""
 
     name: str = "bearing_table"
     bearing: str = ""
@@ -196,3 +226,13 @@ class TableBearing(Effect):
 
     def damping(self, ctx: Context) -> Array:
         return self._block(ctx, self.table.matrices(ctx.Omega)[1])
+
+    def mass(self, ctx: Context) -> Array | None:
+        if not self.table.has_mass:
+            return None
+        return self._block(ctx, self.table.mass_matrix(np.zeros(ctx.n_scenarios)))
+
+    def speed_mass(self, ctx: Context) -> Array | None:
+        if not self.table.has_mass:
+            return None
+        return self._block(ctx, self.table.mass_matrix(ctx.Omega) - self.table.mass_matrix(np.zeros(ctx.n_scenarios)))

@@ -10,6 +10,8 @@ through any of these hooks, all vectorised over S scenarios:
 
 - ``mass(ctx)``, ``stiffness(ctx)``: linear terms at rest, arrays broadcastable
   to (S, n, n);
+- ``speed_mass(ctx)``: a mass term that changes with the speed (a bearing's or seal's added mass from a table
+  over speed), evaluated at each scenario's speed and added to its mass matrix;
 - ``speed_stiffness(ctx)``, ``damping(ctx)``: linear terms that may use the
   speed ``ctx.Omega``, the assembled mass ``ctx.M``, the first mode
   (``ctx.omega_1``, ``ctx.Phi_1``) or the support stiffness ``ctx.K_support``;
@@ -172,6 +174,9 @@ class Effect:
         return None
 
     def stiffness(self, ctx: Context) -> Array | None:
+        return None
+
+    def speed_mass(self, ctx: Context) -> Array | None:
         return None
 
     def speed_stiffness(self, ctx: Context) -> Array | None:

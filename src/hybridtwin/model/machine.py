@@ -106,14 +106,26 @@ class Machine(DofCounts):
                 object.__setattr__(self, attr, _tuple(getattr(self, attr), kind))
             except TypeError as err:
                 raise ValueError(f"{where}: {attr}: {err}") from None
-        if not self.segments:
-            raise ValueError(f"{where}: the shaft needs at least one segment")
+        if not self.chain:
+            raise ValueError(f"{where}: the shaft needs at least one segment (not a layer: without node)")
         # the channel order (sensor.machine_order, also the records' as read with the config's sensors): plane
         # by plane (in order of first appearance) its x probe, then its y probe; probes without a partner after them,
         # as declared. The whirl checks read channels 0 and 1 as the first plane's x and y; a config written with
         # sorted keys (x1, x2, y1, y2) would otherwise have them read x1 and x2.
         object.__setattr__(self, "sensors", tuple(self.sensors[i] for i in machine_order(self.sensors)))
-        n_nodes = sum(s.n_elements for s in self.segments) + 1
+        n_nodes = sum(s.n_elements for s in self.chain) + 1
+        h = np.repeat([s.h for s in self.chain], [s.n_elements for s in self.chain])  # each element's length
+        for i, layer in enumerate(self.segments):
+            if layer.node is None:
+                continue
+            if layer.node + layer.n_elements > n_nodes - 1:
+                raise ValueError(f"{where}: segment {i} (a layer from node {layer.node}, {layer.n_elements} "
+                                 f"elements) reaches beyond the shaft's last node {n_nodes - 1}")
+            under = h[layer.node:layer.node + layer.n_elements]
+            if not np.allclose(under, layer.h, rtol=1e-9, atol=0.0):
+                raise ValueError(f"{where}: segment {i} (a layer from node {layer.node}): its elements are "
+                                 f"{layer.h:g} m long, the shaft's there {', '.join(f'{x:g}' for x in under)} m; a "
+                                 "layer's elements must span the shaft's")
         names: dict[str, int] = {}
         for kind, items in (("disk", self.disks), ("bearing", self.bearings),
                             ("unbalance plane", self.unbalance_planes), ("sensor", self.sensors)):
@@ -175,6 +187,7 @@ class Machine(DofCounts):
             name: test_rig
             segments:                       # along z, from node 0
               - {length: 0.2, d_out: 0.04, E: 2.11e+11, rho: 7810, n_elements: 4}   # d_in, I, m optional
+              - {length: 0.1, d_out: 0.06, d_in: 0.04, E: 2.11e+11, rho: 7810, n_elements: 2, node: 1}  # a layer
             disks: [{node: 8, mass: 15.3, I_p: 0.12, I_d: 0.062, name: impeller}]
             bearings: {drive_end: {node: 2, k: 2.0e+7, c: 800}, free_end: {node: 16}}
             # or a bearing's eight coefficients against speed: {node: 16, table: {rpm: [...], kxx: [...], ...}}
@@ -182,6 +195,9 @@ class Machine(DofCounts):
             sensors: {x1: {node: 8, direction: x}, y1: {node: 8, direction: y}}   # angle_deg optional
             rotary_inertia: false           # the sections' rotary inertia (Rayleigh beams)
             shear: false                    # Timoshenko beams (a segment's shear modulus G optional)
+
+        A section naming a ROSS rotor file (``{ross: rotor.toml, ...}``) is ``ross_io.machine_from_section``'s
+        (``hybridtwin.config.machine`` reads either).
 
         A section that gives only ``sensors`` (and optionally ``name``) is the VARM's shaft, bearings and
         unbalance plane with those sensors (probes at other angles or nodes of the VARM, e.g.
@@ -201,7 +217,8 @@ class Machine(DofCounts):
             varm = cls.varm()
             spec = {**varm.to_mapping(), "name": spec.get("name", varm.name)}
         segments = [_build(ShaftSegment, item, ("segments", i), {"length", "d_out", "E", "rho"},
-                           {"d_in", "n_elements", "I", "m", "G"}) for i, item in enumerate(_sequence(spec, "segments"))]
+                           {"d_in", "n_elements", "I", "m", "G", "node"})
+                    for i, item in enumerate(_sequence(spec, "segments"))]
         disks = [_build(Disk, item, ("disks", i), {"node", "mass"}, {"I_p", "I_d", "name"})
                  for i, item in enumerate(_sequence(spec, "disks"))]
         bearings = [_bearing(name, item) for name, item in _mapping(spec.get("bearings"), ("bearings",)).items()]
@@ -215,25 +232,39 @@ class Machine(DofCounts):
 
     # --- discretisation: the interface of Shaft ------------------------------------------------------
 
+    @property
+    def chain(self) -> tuple[ShaftSegment, ...]:
+        """The segments that make up the shaft one after another (``node`` None); the others are layers on it."""
+        return tuple(s for s in self.segments if s.node is None)
+
     @cached_property
-    def _segment_of_element(self) -> np.ndarray:
-        return np.repeat(np.arange(len(self.segments)), [s.n_elements for s in self.segments])
+    def _elements(self) -> list[tuple[int, ShaftSegment]]:
+        """(element index, its segment) of every beam element: the shaft's, then each layer's (several at one
+        element where layers lie: their matrices add)."""
+        out, e = [], 0
+        for segment in self.chain:
+            out += [(e + i, segment) for i in range(segment.n_elements)]
+            e += segment.n_elements
+        for segment in self.segments:
+            if segment.node is not None:
+                out += [(segment.node + i, segment) for i in range(segment.n_elements)]
+        return out
 
     @property
     def n(self) -> int:
-        """Number of beam elements."""
-        return int(sum(s.n_elements for s in self.segments))
+        """Number of beam elements along the shaft (layers lie on them)."""
+        return int(sum(s.n_elements for s in self.chain))
 
     @property
     def L(self) -> float:
-        """Shaft length [m], the sum of the segments' lengths."""
-        return float(sum(s.length for s in self.segments))
+        """Shaft length [m], the sum of the segments' lengths (layers not counted)."""
+        return float(sum(s.length for s in self.chain))
 
     @cached_property
     def z(self) -> np.ndarray:
         """Node positions [m]: each segment's nodes at its start + i h."""
         parts, start = [np.zeros(1)], 0.0
-        for segment in self.segments:
+        for segment in self.chain:
             local = np.arange(1, segment.n_elements + 1) * segment.h
             parts.append(start + local)
             start = start + segment.length
@@ -252,8 +283,7 @@ class Machine(DofCounts):
     def _plane(self) -> tuple[np.ndarray, np.ndarray]:
         K = np.zeros((self.n_plane, self.n_plane))
         M = np.zeros_like(K)
-        for e, s in enumerate(self._segment_of_element):
-            segment = self.segments[s]
+        for e, segment in self._elements:
             phi = segment.phi(self.shear)
             K_e, M_e = beam_element(segment.h, segment.E * segment.bending_I, segment.mass_per_length, phi)
             sl = slice(2 * e, 2 * e + 4)
@@ -282,8 +312,7 @@ class Machine(DofCounts):
     @cached_property
     def _gyroscopic(self) -> np.ndarray:
         R = np.zeros((self.n_plane, self.n_plane))
-        for e, s in enumerate(self._segment_of_element):
-            segment = self.segments[s]
+        for e, segment in self._elements:
             sl = slice(2 * e, 2 * e + 4)
             R[sl, sl] += slope_element(segment.h, 2.0 * segment.rho * segment.section_I,  # rho I_p = 2 rho I
                                        segment.phi(self.shear))
@@ -412,6 +441,7 @@ class Machine(DofCounts):
             item |= {"d_in": float(s.d_in)} if s.d_in else {}
             item["n_elements"] = int(s.n_elements)
             item |= {k: float(getattr(s, k)) for k in ("I", "m", "G") if getattr(s, k) is not None}
+            item |= {"node": int(s.node)} if s.node is not None else {}
             segments.append(item)
         out = {"name": self.name, "segments": segments}
         if self.disks:
@@ -451,11 +481,13 @@ class Machine(DofCounts):
         lines = [f"machine {self.name}: {self.n} elements, {self.n_nodes} nodes, L = {self.L:g} m"]
         node = 0
         for i, s in enumerate(self.segments):
-            lines.append(f"  segment {i}: nodes {node}..{node + s.n_elements}, length {s.length:g} m, "
+            first = node if s.node is None else s.node
+            lines.append(f"  {'segment' if s.node is None else 'layer'} {i}: nodes {first}..{first + s.n_elements}, "
+                         f"length {s.length:g} m, "
                          f"d_out {s.d_out:g} m, d_in {s.d_in:g} m, E {s.E:g} Pa, rho {s.rho:g} kg/m^3"
                          + (f", I {s.I:g} m^4" if s.I is not None else "")
                          + (f", m {s.m:g} kg/m" if s.m is not None else ""))
-            node += s.n_elements
+            node += s.n_elements if s.node is None else 0
         for d in self.disks:
             lines.append(f"  disk {d.name or ''} at node {d.node}: mass {d.mass:g} kg, I_p {d.I_p:g}, "
                          f"I_d {d.I_d:g} kg m^2")

@@ -29,6 +29,11 @@ class ShaftSegment:
     Table 1 values). The sections' rotary and polar inertia always come from the diameters and rho. ``G``: the
     shear modulus [Pa], read only by a machine with ``shear`` (Timoshenko beams); default E / (2 (1 + 0.3)),
     steel's Poisson ratio 0.3.
+
+    ``node``: None (the default), the segment continues the shaft after the previous one. An integer: the segment is
+    a *layer* lying over the shaft from that node on (a sleeve shrunk on it, an impeller's hub; ROSS's several shaft
+    elements at one node): its ``n_elements`` elements each span the shaft's element there (the same length) and
+    their matrices add to the shaft's (``Machine``).
     """
 
     length: float
@@ -40,6 +45,7 @@ class ShaftSegment:
     I: float | None = None
     m: float | None = None
     G: float | None = None
+    node: int | None = None
 
     def __post_init__(self) -> None:
         for name in ("length", "d_out", "E", "rho"):
@@ -55,6 +61,9 @@ class ShaftSegment:
             value = getattr(self, name)
             if value is not None and not value > 0:
                 raise ValueError(f"shaft segment: {name} must be positive when given, got {value!r}")
+        if self.node is not None and (isinstance(self.node, bool) or not isinstance(self.node, (int, np.integer))
+                                      or self.node < 0):
+            raise ValueError(f"shaft segment: node (a layer's first node) must be an integer >= 0, got {self.node!r}")
 
     @property
     def area(self) -> float:

@@ -206,7 +206,7 @@ class Model:
             LocalForce(e.name, np.array([self.shaft.dof(d) for d in e.dofs]), bind(e), e.degree)
             for e in _nonlinear_forces(self.effects)
         ]
-        M = np.broadcast_to(ctx.M, K.shape).copy()
+        M = np.broadcast_to(ctx.M, K.shape) + self._sum("speed_mass", ctx)  # a table's mass at the speed
         C = np.broadcast_to(C, K.shape).copy()
         problems = np.where(np.isnan(ctx.omega_1), "the structure at rest is unstable (a natural frequency of "
                             "the x plane at Omega = 0 is not real): no steady state", "").astype(object)

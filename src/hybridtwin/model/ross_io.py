@@ -4,20 +4,23 @@
 
 ``machine_from_ross(rotor)``:
 
-- ROSS's ShaftElements (one per node, in order) become ``ShaftSegment``s, consecutive identical elements (length,
-  diameters, material) merged into one segment of ``n_elements``; the material's E, rho and G_s give E, rho, G.
+- ROSS's ShaftElements become ``ShaftSegment``s: the first at each node the shaft's, the others at that node layers
+  (``ShaftSegment.node``; their matrices add, as in ROSS); consecutive identical elements (length, diameters,
+  material) merged into one segment of ``n_elements``; the material's E, rho and G_s give E, rho, G.
   ROSS's ``shear_effects`` and ``rotary_inertia`` become the machine's ``shear`` and ``rotary_inertia`` (they must
-  be the same for every element). Refused with a message: tapered elements (idl != idr or odl != odr), several
-  elements at one node (layered shafts), mixed shear, rotary-inertia or gyroscopic settings, axial force,
-  torque, ROSS's proportional damping (alpha, beta), a shear coefficient other than Cowper's.
+  be the same for every element). Refused with a message: rotors of several shafts (CoAxialRotor, MultiRotor),
+  tapered elements (idl != idr or odl != odr), a layer of another length than the shaft's element, mixed shear,
+  rotary-inertia or gyroscopic settings, axial force, torque, ROSS's proportional damping (alpha, beta), a shear
+  coefficient other than Cowper's.
 - DiskElements become ``Disk``s at ROSS's node (m, Ip, Id; the tag as name unless ROSS made it up).
 - BearingElements (and seals) become ``Bearing``s named after their tags (non-identifier characters as ``_``):
   constant isotropic coefficients (kxx = kyy, cxx = cyy, no cross terms) as ``k``, ``c``; anything else as a
   ``BearingTable`` of the eight coefficients, at ROSS's ``frequency`` [rad/s] converted to RPM (14 significant
   digits), with
   ``interpolation: ross`` (ROSS 2.3.0's own spline, so both codes evaluate the same coefficients at any speed;
-  ``bearing_table``). Refused: a bearing linked to another node (``n_link``), mass coefficients (mxx ...),
-  elements whose K or C are not ROSS's table (magnetic bearings, ...), point masses. Axial coefficients (kzz,
+  ``bearing_table``). Mass coefficients (mxx, mxy, myx, myy; ROSS's added mass) go into the table too. Refused: a
+  bearing linked to another node (``n_link``), elements whose K or C are not ROSS's table (magnetic bearings, ...),
+  point masses (ROSS's are a support's, on the node a bearing links to). Axial coefficients (kzz,
   czz) are dropped: the model has no axial DOFs.
 - ROSS has no unbalance planes or probes: give them (``unbalance_planes``, ``sensors``) to have them.
 
@@ -31,20 +34,21 @@ and ``Rotor.load`` makes it ROSS's spline again.
 
 from __future__ import annotations
 
+import functools
 import re
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
 
-from .bearing_table import COEFFICIENTS, BearingTable
+from .bearing_table import COEFFICIENTS, COLUMNS, MASSES, BearingTable
 from .machine import Machine
-from .machine_parts import Bearing, Disk, Sensor, ShaftSegment, UnbalancePlane
+from .machine_parts import (Bearing, Disk, MachineSpecError, Sensor, ShaftSegment, UnbalancePlane, _build, _known,
+                            _mapping)
 
 INSTALL = 'pip install -e ".[ross]"'
 #: the attribute a ROSS bearing made by ``machine_to_ross`` carries when it evaluates its table as ours
 MARK = "hybridtwin_interpolation"
-_MASS = ("mxx", "mxy", "myx", "myy")
 
 
 def _ross():
@@ -68,37 +72,61 @@ def _scalar(values) -> float | None:
 
 
 def _shaft(rotor) -> tuple[list[ShaftSegment], bool, bool]:
-    elements = sorted(rotor.shaft_elements, key=lambda el: el.n)
-    if [el.n for el in elements] != list(range(len(elements))):
-        raise ValueError(f"ROSS rotor {rotor.tag!r}: shaft elements at nodes {[el.n for el in elements]}; only one "
-                         "element per node, nodes 0, 1, 2, ... (no layered or multi-rotor shafts) can be read")
+    elements = sorted(rotor.shaft_elements, key=lambda el: el.n)  # stable: ROSS's order within a node
+    nodes = sorted({el.n for el in elements})
+    if nodes != list(range(len(nodes))):
+        raise ValueError(f"ROSS rotor {rotor.tag!r}: shaft elements at nodes {nodes}; the nodes must be 0, 1, 2, ... "
+                         "(one shaft, no gaps)")
     for setting in ("shear_effects", "rotary_inertia", "gyroscopic"):
         found = {bool(getattr(el, setting)) for el in elements}
         if len(found) > 1:
             raise ValueError(f"ROSS rotor {rotor.tag!r}: mixed {setting} (elements with and without it); our machine "
                              f"has one setting for the whole shaft")
-    runs: list[list] = []  # [(element length, d_in, d_out, E, rho, G), count] of consecutive identical elements
+    chain: list[list] = []  # [key, count] of consecutive identical elements along the shaft (the first at each node)
+    layers: list[list] = []  # [key, first node, count] of the others at a node (layers), runs over consecutive nodes
+    base: dict[int, float] = {}
     for el in elements:
-        where = f"ROSS shaft element {el.tag!r} (node {el.n})"
-        if el.idl != el.idr or el.odl != el.odr:
-            raise ValueError(f"{where}: tapered (idl {el.idl:g}, idr {el.idr:g}, odl {el.odl:g}, odr {el.odr:g} m); "
-                             "our segments are uniform: split it into uniform elements")
-        for name in ("axial_force", "torque", "alpha", "beta"):
-            if float(getattr(el, name, 0) or 0) != 0:
-                raise ValueError(f"{where}: {name} = {getattr(el, name)!r} is not modelled here (must be 0)")
-        if getattr(el, "shear_method_calc", "cowper") != "cowper":
-            raise ValueError(f"{where}: shear_method_calc {el.shear_method_calc!r}; ours is Cowper's coefficient")
-        material = el.material
-        G = None if material.G_s == material.E / 2.6 else float(material.G_s)  # E / 2.6: our default
-        key = (float(el.L), float(el.idl), float(el.odl), float(material.E), float(material.rho), G)
-        if runs and runs[-1][0] == key:
-            runs[-1][1] += 1
+        key = _key(el)
+        if el.n not in base:
+            base[el.n] = float(el.L)
+            if chain and chain[-1][0] == key:
+                chain[-1][1] += 1
+            else:
+                chain.append([key, 1])
+            continue
+        if not np.isclose(float(el.L), base[el.n], rtol=1e-9, atol=0.0):
+            raise ValueError(f"ROSS shaft element {el.tag!r} (node {el.n}): a layer {float(el.L):g} m long on an "
+                             f"element {base[el.n]:g} m long; layered elements at one node must have the same length")
+        run = next((r for r in layers if r[0] == key and r[1] + r[2] == el.n), None)
+        if run is not None:
+            run[2] += 1
         else:
-            runs.append([key, 1])
-    out = []
-    for (h, d_in, d_out, E, rho, G), n in runs:
-        out.append(ShaftSegment(length=h * n, d_out=d_out, E=E, rho=rho, d_in=d_in, n_elements=n, G=G))
+            layers.append([key, int(el.n), 1])
+    out = [_segment(key, n) for key, n in chain] + [_segment(key, n, node) for key, node, n in layers]
     return out, bool(elements[0].shear_effects), bool(elements[0].rotary_inertia)
+
+
+def _key(el) -> tuple:
+    """(element length, d_in, d_out, E, rho, G) of a uniform ROSS shaft element, or ValueError naming what we lack."""
+    where = f"ROSS shaft element {el.tag!r} (node {el.n})"
+    if el.idl != el.idr or el.odl != el.odr:
+        raise ValueError(f"{where}: tapered (idl {el.idl:g}, idr {el.idr:g}, odl {el.odl:g}, odr {el.odr:g} m); "
+                         "our segments are uniform: split it into uniform elements")
+    for name in ("axial_force", "torque", "alpha", "beta"):
+        if float(getattr(el, name, 0) or 0) != 0:
+            raise ValueError(f"{where}: {name} = {getattr(el, name)!r} is not modelled here (must be 0)"
+                             + ("; alpha, beta: the element's proportional damping alpha M + beta K"
+                                if name in ("alpha", "beta") else ""))
+    if getattr(el, "shear_method_calc", "cowper") != "cowper":
+        raise ValueError(f"{where}: shear_method_calc {el.shear_method_calc!r}; ours is Cowper's coefficient")
+    material = el.material
+    G = None if material.G_s == material.E / 2.6 else float(material.G_s)  # E / 2.6: our default
+    return float(el.L), float(el.idl), float(el.odl), float(material.E), float(material.rho), G
+
+
+def _segment(key: tuple, n: int, node: int | None = None) -> ShaftSegment:
+    h, d_in, d_out, E, rho, G = key
+    return ShaftSegment(length=h * n, d_out=d_out, E=E, rho=rho, d_in=d_in, n_elements=n, G=G, node=node)
 
 
 def _name(tag, fallback: str) -> str:
@@ -114,17 +142,16 @@ def _bearing(ross, el, index: int) -> Bearing:
     if type(el).K is not ross.BearingElement.K or type(el).C is not ross.BearingElement.C:
         raise ValueError(f"{where}: a {type(el).__name__} computes its K or C itself; only tables of coefficients "
                          "(BearingElement, SealElement) can be read")
-    for name in _MASS:
-        if np.any(np.asarray(getattr(el, name, 0.0), dtype=float) != 0):
-            raise ValueError(f"{where}: mass coefficient {name} is not modelled here (must be 0)")
     name = _name(el.tag, f"bearing_{index}")
-    columns = {k: np.atleast_1d(np.asarray(getattr(el, k), dtype=float)) for k in COEFFICIENTS}
+    columns = {k: np.atleast_1d(np.asarray(getattr(el, k, 0.0), dtype=float)) for k in COLUMNS}
     if el.frequency is None or np.size(el.frequency) == 1:
         values = {k: _scalar(v) for k, v in columns.items()}
         if values["kxx"] == values["kyy"] and values["cxx"] == values["cyy"] and not any(
-                values[k] for k in ("kxy", "kyx", "cxy", "cyx")):
+                values[k] for k in ("kxy", "kyx", "cxy", "cyx") + MASSES):
             return Bearing(name, int(el.n), k=values["kxx"], c=values["cxx"])
         return Bearing(name, int(el.n), table=BearingTable.constant(**values))
+    n = np.size(el.frequency)
+    columns = {k: np.broadcast_to(v, (n,)) if v.size == 1 else v for k, v in columns.items()}  # ROSS's zeros
     # ROSS's frequency is rad/s; to 14 significant digits, so that a table written from RPM comes back as it was
     rpm = [float(f"{w * 60.0 / (2.0 * np.pi):.14g}") for w in np.asarray(el.frequency, dtype=float)]
     try:
@@ -146,22 +173,61 @@ def machine_from_ross(rotor, name: str | None = None, unbalance_planes: Sequence
         if not Path(rotor).is_file():
             raise FileNotFoundError(f"{rotor}: no such ROSS rotor file (.toml or .json, from rotor.save)")
         rotor = ross.Rotor.load(rotor)
-    if getattr(rotor, "point_mass_elements", None):
-        raise ValueError(f"ROSS rotor {rotor.tag!r}: point masses ({[p.tag for p in rotor.point_mass_elements]}) "
-                         "are not modelled here")
+    kind = type(rotor).__name__
+    if kind != "Rotor" and any(c.__name__ in ("CoAxialRotor", "MultiRotor") for c in type(rotor).__mro__):
+        raise ValueError(f"ROSS rotor {rotor.tag!r}: a {kind} (several shafts, coaxial or geared); our machine is "
+                         "one shaft")
     segments, shear, rotary_inertia = _shaft(rotor)
     disks = [Disk(int(d.n), float(d.m), I_p=float(d.Ip), I_d=float(d.Id),
                   name="" if re.fullmatch(r"Disk \d+", str(d.tag or "Disk 0")) else _name(d.tag, ""))
              for d in rotor.disk_elements]
+    for p in getattr(rotor, "point_mass_elements", None) or []:
+        raise ValueError(f"ROSS point mass {p.tag!r} (node {p.n}): a support's mass (ROSS places point masses where "
+                         "bearings link the shaft to a support of its own, n_link); supports are not modelled here")
     bearings = [_bearing(ross, el, i) for i, el in enumerate(rotor.bearing_elements)]
     return Machine(name or str(rotor.tag), segments, disks, bearings, unbalance_planes, sensors,
                    rotary_inertia=rotary_inertia, shear=shear)
 
 
+def machine_from_section(spec: Mapping, config_dir: str | Path = ".") -> Machine:
+    """The config's ``machine:`` section naming a ROSS rotor file, ``{ross: rotor.toml, name: compressor,
+    unbalance_planes: {...}, sensors: {...}}``: ``machine_from_ross`` of the file (its path relative to
+    ``config_dir``, the config's folder) with our name (default the file's stem), unbalance planes and probes beside
+    it, in the forms of ``Machine.from_mapping``. A problem raises ``MachineSpecError`` (the file's, at ``ross``)."""
+    _known(spec, (), {"ross", "name", "unbalance_planes", "sensors"})
+    if not isinstance(spec["ross"], str):
+        raise MachineSpecError(("ross",), f"must be the path of a ROSS rotor file, got {spec['ross']!r}")
+    path = Path(config_dir) / spec["ross"]
+    if not path.is_file():
+        raise MachineSpecError(("ross",), f"{path}: no such file (a ROSS rotor saved with rotor.save, .toml or "
+                                          f".json; the path is relative to {config_dir}/)")
+    try:
+        rotor = _read(str(path.resolve()), path.stat().st_mtime_ns)
+    except (ImportError, ValueError) as err:
+        raise MachineSpecError(("ross",), f"{path}: {err}") from None
+    sensors = [_build(Sensor, {"name": name, **_mapping(item, ("sensors", name))}, ("sensors", name),
+                      {"name", "node", "direction"}, {"angle_deg"})
+               for name, item in _mapping(spec.get("sensors"), ("sensors",)).items()]
+    planes = [_build(UnbalancePlane, {"name": name, "node": node}, ("unbalance_planes", name), {"name", "node"}, set())
+              for name, node in _mapping(spec.get("unbalance_planes"), ("unbalance_planes",)).items()]
+    try:
+        return Machine(str(spec.get("name", path.stem)), rotor.segments, rotor.disks, rotor.bearings, planes, sensors,
+                       rotor.rotary_inertia, rotor.shear)
+    except ValueError as err:
+        raise MachineSpecError((), str(err)) from None
+
+
+@functools.cache
+def _read(path: str, mtime_ns: int) -> Machine:
+    """``machine_from_ross`` of a file, once per version of it (ROSS takes seconds to build a large rotor, and the
+    config's machine is asked for often)."""
+    return machine_from_ross(path)
+
+
 def _linear(el, table: BearingTable) -> None:
     """Make the ROSS bearing ``el`` evaluate ``table`` as our linear rule does (its ``*_interpolated``)."""
     speeds = np.asarray(table.rpm) * (2.0 * np.pi / 60.0)
-    for key in COEFFICIENTS:
+    for key in COLUMNS:
         values = np.asarray(getattr(table, key))
         setattr(el, f"{key}_interpolated", lambda omega, v=values: np.interp(omega, speeds, v))
     setattr(el, MARK, "linear")
@@ -171,23 +237,27 @@ def machine_to_ross(machine: Machine, file: str | Path | None = None):
     """A ``ross.Rotor`` of our ``machine`` (module docstring); with ``file`` also saved there (ROSS's
     ``rotor.save``: .toml or .json). A machine ROSS cannot represent raises ValueError naming what."""
     ross = _ross()
-    shaft = []
+    shaft, layers, node = [], [], 0
     for i, s in enumerate(machine.segments):
         if s.I is not None or s.m is not None:
             raise ValueError(f"machine {machine.name!r}, segment {i}: gives I or m directly; ROSS computes them "
                              "from the diameters and rho")
         material = ross.Material(name=f"{_name(machine.name, 'machine')}_segment_{i}", rho=s.rho, E=s.E,
                                  G_s=s.shear_modulus)
-        shaft += [ross.ShaftElement(L=s.h, idl=s.d_in, odl=s.d_out, material=material, shear_effects=machine.shear,
-                                    rotary_inertia=machine.rotary_inertia, gyroscopic=True)
-                  for _ in range(s.n_elements)]
+        first = node if s.node is None else s.node  # a layer: ROSS's elements at the nodes it lies on
+        (shaft if s.node is None else layers).extend(
+            ross.ShaftElement(L=s.h, idl=s.d_in, odl=s.d_out, material=material, n=first + j,
+                              shear_effects=machine.shear, rotary_inertia=machine.rotary_inertia, gyroscopic=True)
+            for j in range(s.n_elements))
+        node += s.n_elements if s.node is None else 0
+    shaft += layers  # after the shaft's: ROSS sorts by node, keeping the order within one (the shaft's element first)
     disks = [ross.DiskElement(n=d.node, m=d.mass, Id=d.I_d, Ip=d.I_p, tag=d.name or None) for d in machine.disks]
     bearings = []
     for b in machine.bearings:
         if b.table is not None:
             t = b.table
             frequency = np.asarray(t.rpm) * (2.0 * np.pi / 60.0)
-            columns = {k: np.asarray(getattr(t, k)) for k in COEFFICIENTS}
+            columns = {k: np.asarray(getattr(t, k)) for k in COLUMNS}
             if len(t.rpm) == 1:
                 el = ross.BearingElement(n=b.node, **{k: float(v[0]) for k, v in columns.items()}, tag=b.name)
             else:
