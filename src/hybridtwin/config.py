@@ -27,6 +27,7 @@ from .model.effects import Effect
 from .model.machine import Machine
 from .model.machine_parts import MachineSpecError
 from .solvers.solver import DEFAULT_HARMONICS
+from .model.whirl import WhirlModel
 from .model.variants import EffectsFileError, Variant, load_effects_files, unbalance_hint
 from .settings import SCHEMA_FILE, offline_settings
 
@@ -85,6 +86,26 @@ def variant(config: Mapping, name: str, config_dir: Path = CONFIG_DIR) -> Varian
     rotor = machine(config)
     return Variant.from_spec(name, config["variants"][name], user_effects(config, config_dir) | rotor.effects(),
                              shaft=rotor)
+
+
+def whirl_settings(config: Mapping) -> dict:
+    """What the data checks' whirl rule takes from a config (``whirl_model``'s input, a rule's params): its
+    ``machine``, ``variants`` and ``effects_files`` when it describes a machine of its own; empty for the VARM
+    (its one plane's 1X whirls forward at every speed of its isotropic models: the model-free rule holds, and
+    an edit of a variant reruns no data check)."""
+    if config.get("machine") is None or not config.get("variants"):
+        return {}
+    return {key: config[key] for key in ("machine", "variants", "effects_files") if config.get(key) is not None}
+
+
+def whirl_model(config: Mapping, config_dir: Path = CONFIG_DIR) -> WhirlModel | None:
+    """The machine's model of the 1X whirl (``hybridtwin.model.whirl.WhirlModel``) for the data checks: every
+    variant the config declares, built on its machine; None without a ``machine:`` section or variants
+    (``whirl_settings``), where the checks keep their model-free rule (docs/data-checks.md)."""
+    settings = whirl_settings(config)
+    if not settings:
+        return None
+    return WhirlModel([variant(settings, name, config_dir) for name in settings["variants"]])
 
 
 def offline(config: Mapping) -> dict:
