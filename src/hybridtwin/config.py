@@ -22,7 +22,6 @@ import pandas as pd
 import yaml
 from threadpoolctl import threadpool_limits
 
-from .model.bearing_candidates import at_bearing
 from .model.effects import Effect
 from .model.machine import Machine
 from .model.machine_parts import MachineSpecError
@@ -64,14 +63,19 @@ def candidate_effects(config: Mapping, config_dir: Path = CONFIG_DIR) -> dict[st
     return user_effects(config, config_dir) | machine(config).candidates()
 
 
+#: the built-in candidate a machine of your own is offered besides those sized to it (effects.SpeedDependentDamping)
+SPEED_DAMPING = "speed_damping"
+
+
 def candidate_names(names: Sequence[str] | None, config: Mapping) -> list[str] | None:
     """The candidates to test: ``names`` (``diagnosis: candidates``) when given; when null, None (every built-in
-    candidate) on the VARM, and on a machine of your own (``config``'s ``machine:``) the candidates sized to its
-    bearings (the built-in ones act at the VARM's upper bearing, node 0)."""
+    candidate) on the VARM, and on a machine of your own (``config``'s ``machine:``) the candidates sized to it
+    (``Machine.sized_candidates``: at its bearings and unbalance planes; the built-in ones act at the VARM's upper
+    bearing, node 0) and the speed-dependent damping (mass-proportional, dimensionless: any machine's)."""
     if names is not None or config.get("machine") is None:
         return None if names is None else list(names)
-    placed = [c.name for b in machine(config).bearings for c in at_bearing(b.name, b.k, b.c)]
-    return placed or None
+    placed = list(machine(config).sized_candidates())
+    return placed + [SPEED_DAMPING] if placed else None
 
 
 def machine(config: Mapping) -> Machine:
