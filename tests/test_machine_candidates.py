@@ -94,7 +94,7 @@ def test_a_wrong_known_bearing_stiffness_is_diagnosed_as_that_bearings_complianc
     the candidates of both bearings names bearing_compliance@b, the truth -1.5e6 N/m within dkiso_b's interval."""
     machine = stepped_machine()
     H, sigma = 1, 2e-8
-    runs = [(f"r{int(r)}", r, 20.0) for r in (3000.0, 3500.0, 3800.0, 3950.0, 4100.0, 4400.0, 4800.0)]
+    runs = [(f"r{int(r)}", r, 20.0) for r in (3000.0, 3800.0, 3950.0, 4100.0, 4800.0)]
     truth = Variant.from_spec("truth", {"effects": EFFECTS, "unknown": {k: [-1e12, 1e12] for k in
                                                                         ("k_a", "c_a", "c_b", "k_b")}}, shaft=machine)
     values = np.array([2.2e7, 900.0, 450.0, 8.5e6])
@@ -120,7 +120,8 @@ def test_a_wrong_known_bearing_stiffness_is_diagnosed_as_that_bearings_complianc
     candidates.append(Candidate.of(sized["bearing_compliance@a"]))
     # the diagnosis with fewer refits than the defaults (the score tests rank moment_stiffness@b first: to first
     # order it looks alike; the refits tell them apart)
-    options = diagnosis_settings({"diagnosis": {"thorough": 1, "starts": 0, "widen": 1, "max_effects": 1}}).options()
+    options = diagnosis_settings({"diagnosis": {"thorough": 1, "starts": 0, "widen": 0, "max_effects": 1,
+                                                  "quick_iterations": 6, "max_iterations": 20}}).options()
     result = dg.diagnose(base, candidates, options)
     assert result.table.loc[0, "effect"] == "bearing_compliance@b"
     assert result.conclusion.startswith("add bearing_compliance@b: it explains the discrepancy")
