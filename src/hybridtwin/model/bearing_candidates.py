@@ -142,16 +142,16 @@ class BearingSpeedDamping(AtBearing):
         return dof_entries(ctx, {(f"u{node}", f"u{node}"): value, (f"v{node}", f"v{node}"): value})
 
 
-def excitations_at(place: str, node: int, force_n: float) -> list[HarmonicExcitation]:
-    """The 2X and 3X forward-rotating forces at ``place`` (a bearing or an unbalance plane at ``node``), range
-    +-``force_n`` [N], limits ten times that (module docstring)."""
+def excitations_at(place: str, node: int, force_n: float, kind: str = "bearing") -> list[HarmonicExcitation]:
+    """The 2X and 3X forward-rotating forces at ``place`` (a ``kind``, "bearing" or "unbalance plane", at
+    ``node``), range +-``force_n`` [N], limits ten times that (module docstring)."""
     if not force_n > 0:
         return []
     return [HarmonicExcitation(name=f"excitation_{h}x@{place}", harmonic=h, node=node, place=place,
                                bounds=(-force_n, force_n), limits=(-EXCITATION_LIMIT * force_n,
                                                                    EXCITATION_LIMIT * force_n),
-                               meaning=f"{h}X rotating force at {place} (node {node}; misalignment, coupling, rub, "
-                                       "crack), in-phase and quadrature to the unbalance")
+                               meaning=f"{h}X rotating force at {kind} {place} (node {node}; misalignment, coupling, "
+                                       "rub, crack), in-phase and quadrature to the unbalance")
             for h in (2, 3)]
 
 

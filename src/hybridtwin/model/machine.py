@@ -412,9 +412,10 @@ class Machine(DofCounts):
             for candidate in at_bearing(bearing.name, bearing.k, bearing.c, self.tilt_stiffness(bearing.node)):
                 out[candidate.name] = candidate
         force = EXCITATION_DISPLACEMENT_M * sum(b.k for b in self.bearings if b.k)
-        places = [(b.name, b.node) for b in self.bearings if b.k] + [(p.name, p.node) for p in self.unbalance_planes]
-        for place, node in places if force > 0 else ():
-            for excitation in excitations_at(place, node, force):
+        places = ([(b.name, b.node, "bearing") for b in self.bearings if b.k]
+                  + [(p.name, p.node, "unbalance plane") for p in self.unbalance_planes])
+        for place, node, kind in places if force > 0 else ():
+            for excitation in excitations_at(place, node, force, kind):
                 out[excitation.name] = excitation
         return out
 
