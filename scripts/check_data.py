@@ -10,6 +10,7 @@ import warnings
 from snakemake.utils import validate
 
 from hybridtwin.data.measurements import DataError, DataWarning, read_runs
+from hybridtwin.config import whirl_model
 from hybridtwin.data.preprocessing import check_data, has_usable_fit_run, write_tsv
 from hybridtwin.data.shared_problems import group_messages, group_problems
 from hybridtwin.config import on_disk_full
@@ -27,7 +28,8 @@ try:
         summary, errors = check_data(smk.input.sheet, smk.params.harmonics, coverage.get("rpm"),
                                      coverage.get("eccentric_mass_g"), smk.params.sensor_range_mm * 1e-3,
                                      range_names=("config coverage.rpm", "config coverage.eccentric_mass_g"),
-                                     sensors=getattr(smk.params, "sensors", None))  # the records' channels
+                                     sensors=getattr(smk.params, "sensors", None),  # the records' channels
+                                     whirl=whirl_model(getattr(smk.params, "whirl", None) or {}))  # model's 1X whirl
 except DataError as err:
     log.error("%s", err)
     sys.exit(f"check_data: error: {err}")

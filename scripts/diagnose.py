@@ -7,6 +7,7 @@ from hybridtwin.diagnose import diagnosis_report as dgr
 from hybridtwin.identify import identification as idn
 from hybridtwin.diagnose import score_test as st
 from hybridtwin.model.candidates import candidates_for
+from hybridtwin.model.fixed_values import fixed_value_candidates
 from hybridtwin.report import interactive
 from hybridtwin.plots import save_png
 
@@ -23,6 +24,7 @@ data = [idn.run_data(harmonics, run, keyphasor=keyphasor, channels=variant.chann
 base = st.BaseFit.from_table(variant, table, data, int(smk.params.harmonics))
 candidates = candidates_for([e.name for e in variant.model.effects], cfg.candidate_names(options["candidates"], model),
                             cfg.candidate_effects(model))
+candidates += fixed_value_candidates(variant)  # each fixed value freed: "zeta_s fixed at 0.0271 is wrong"
 log.info("diagnosing %s on %d fit runs: %d candidates (%s)", variant.name, len(data), len(candidates),
          ", ".join(c.name for c in candidates))
 result = dg.diagnose(base, candidates, options, log)

@@ -9,6 +9,7 @@ import sys
 
 import math
 
+from hybridtwin.config import whirl_model
 from hybridtwin.data.measurements import DataError
 from hybridtwin.data.records import read_record
 from hybridtwin.data.measured import write_harmonics
@@ -27,7 +28,7 @@ try:
     record = read_record(smk.params.row["record"], getattr(smk.params, "sensors", None),
                          smk.params.row.get("channels"))
     table, waves = preprocess_run(smk.params.row, smk.params.harmonics, smk.params.sensor_range_mm * 1e-3,
-                                  record=record)
+                                  record=record, whirl=whirl_model(getattr(smk.params, "whirl", None) or {}))
 except DataError as err:  # check_data has passed the record: only a record changed since fails here
     log.error("%s", err)
     sys.exit(f"preprocess: error: {err}")

@@ -26,11 +26,11 @@ import pandas as pd
 import yaml
 from threadpoolctl import threadpool_limits
 
-from .model.bearing_candidates import at_bearing
 from .model.effects import Effect
 from .model.machine import Machine
 from .model.machine_parts import MachineSpecError
 from .solvers.solver import DEFAULT_HARMONICS
+from .model.whirl import WhirlModel
 from .model.variants import EffectsFileError, Variant, load_effects_files, unbalance_hint
 from .settings import SCHEMA_FILE, offline_settings
 
@@ -67,14 +67,19 @@ def candidate_effects(config: Mapping, config_dir: Path = CONFIG_DIR) -> dict[st
     return user_effects(config, config_dir) | machine(config, config_dir).candidates()
 
 
+#: the built-in candidate a machine of your own is offered besides those sized to it (effects.SpeedDependentDamping)
+SPEED_DAMPING = "speed_damping"
+
+
 def candidate_names(names: Sequence[str] | None, config: Mapping) -> list[str] | None:
     """The candidates to test: ``names`` (``diagnosis: candidates``) when given; when null, None (every built-in
-    candidate) on the VARM, and on a machine of your own (``config``'s ``machine:``) the candidates sized to its
-    bearings (the built-in ones act at the VARM's upper bearing, node 0)."""
+    candidate) on the VARM, and on a machine of your own (``config``'s ``machine:``) the candidates sized to it
+    (``Machine.sized_candidates``: at its bearings and unbalance planes; the built-in ones act at the VARM's upper
+    bearing, node 0) and the speed-dependent damping (mass-proportional, dimensionless: any machine's)."""
     if names is not None or config.get("machine") is None:
         return None if names is None else list(names)
-    placed = [c.name for b in machine(config).bearings for c in at_bearing(b.name, b.k, b.c)]
-    return placed or None
+    placed = list(machine(config).sized_candidates())
+    return placed + [SPEED_DAMPING] if placed else None
 
 
 def machine(config: Mapping, config_dir: str | Path = CONFIG_DIR) -> Machine:
@@ -95,6 +100,26 @@ def variant(config: Mapping, name: str, config_dir: Path = CONFIG_DIR) -> Varian
     rotor = machine(config, config_dir)
     return Variant.from_spec(name, config["variants"][name], user_effects(config, config_dir) | rotor.effects(),
                              shaft=rotor)
+
+
+def whirl_settings(config: Mapping) -> dict:
+    """What the data checks' whirl rule takes from a config (``whirl_model``'s input, a rule's params): its
+    ``machine``, ``variants`` and ``effects_files`` when it describes a machine of its own; empty for the VARM
+    (its one plane's 1X whirls forward at every speed of its isotropic models: the model-free rule holds, and
+    an edit of a variant reruns no data check)."""
+    if config.get("machine") is None or not config.get("variants"):
+        return {}
+    return {key: config[key] for key in ("machine", "variants", "effects_files") if config.get(key) is not None}
+
+
+def whirl_model(config: Mapping, config_dir: Path = CONFIG_DIR) -> WhirlModel | None:
+    """The machine's model of the 1X whirl (``hybridtwin.model.whirl.WhirlModel``) for the data checks: every
+    variant the config declares, built on its machine; None without a ``machine:`` section or variants
+    (``whirl_settings``), where the checks keep their model-free rule (docs/data-checks.md)."""
+    settings = whirl_settings(config)
+    if not settings:
+        return None
+    return WhirlModel([variant(settings, name, config_dir) for name in settings["variants"]])
 
 
 def offline(config: Mapping) -> dict:

@@ -3,7 +3,7 @@
 # The sheet (config key `runs`, paths in it relative to its folder) is common.smk's SHEET, read once per plan.
 import os
 
-from hybridtwin.config import data_check_settings
+from hybridtwin.config import data_check_settings, whirl_settings
 from hybridtwin.data.measurements import sheet_entry
 
 RUNS_SHEET = config.get("runs", "data/default/runs.tsv")
@@ -13,6 +13,9 @@ RUNS_SHEET = config.get("runs", "data/default/runs.tsv")
 SENSOR_PARAMS = {"sensors": config["machine"].get("sensors")} if config.get("machine") else {}
 # what the data checks take from the config, derived once (as `hybridtwin check-data` derives its defaults)
 CHECK_SETTINGS = data_check_settings(config)
+# the machine's model of the 1X whirl (its machine, variants, effects files): backward whirl is flagged only where
+# the model predicts forward (docs/data-checks.md); without a machine none, the VARM's jobs keep their params
+WHIRL_PARAMS = {"whirl": whirl_settings(config)} if whirl_settings(config) else {}
 
 
 rule check_data:
@@ -34,6 +37,7 @@ rule check_data:
     params:
         **CHECK_SETTINGS,  # harmonics, coverage, sensor_range_mm (the lasers'; a sheet's column overrides it)
         **SENSOR_PARAMS,
+        **WHIRL_PARAMS,
     script:
         "../../scripts/check_data.py"
 
@@ -58,6 +62,7 @@ rule preprocess:
         "../envs/hybridtwin.yaml"
     params:
         **SENSOR_PARAMS,
+        **WHIRL_PARAMS,
         row=lambda wildcards: sheet_entry(SHEET, wildcards.run),
         harmonics=CHECK_SETTINGS["harmonics"],
         sensor_range_mm=CHECK_SETTINGS["sensor_range_mm"],
@@ -87,6 +92,7 @@ rule track_record:
         "../envs/hybridtwin.yaml"
     params:
         **SENSOR_PARAMS,
+        **WHIRL_PARAMS,
         row=lambda wildcards: sheet_entry(SHEET, wildcards.run),
         harmonics=CHECK_SETTINGS["harmonics"],
         sensor_range_mm=CHECK_SETTINGS["sensor_range_mm"],

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import data_check_settings
+from ..config import data_check_settings, whirl_model
 from ..data.measurements import DataError, DataWarning
 from ..data.records import MIN_REVOLUTIONS, SENSOR_RANGE_MM, SENSOR_RESOLUTION_MM
 from ..data.preprocessing import check_data, format_summary, has_usable_fit_run, write_tsv
@@ -82,6 +82,11 @@ def check_data_command(args) -> int:
         print(f"hybridtwin check-data: error: {err}", file=sys.stderr)
         return 2
     settings = data_check_settings(data)  # the workflow's, from the config (its defaults without one)
+    try:  # the machine's model of the 1X whirl: backward whirl flagged only where it predicts forward
+        whirl = whirl_model(data, source.parent) if source is not None else None
+    except (ValueError, OSError) as err:
+        print(f"hybridtwin check-data: error: config file {source}: {err}", file=sys.stderr)
+        return 2
     harmonics = args.harmonics if args.harmonics is not None else int(settings["harmonics"])
     if harmonics < 1:
         print(f"hybridtwin check-data: error: --harmonics must be >= 1, got {harmonics}", file=sys.stderr)
@@ -97,7 +102,8 @@ def check_data_command(args) -> int:
         warnings.simplefilter("always", DataWarning)
         try:
             summary, errors = check_data(args.runs, harmonics, rpm_range, mass_range, mm["range"],
-                                         args.min_revolutions, mm["resolution"], names, sensors=machine)
+                                         args.min_revolutions, mm["resolution"], names, sensors=machine,
+                                         whirl=whirl)
         except DataError as err:
             print(f"hybridtwin check-data: error: {err}", file=sys.stderr)
             return 1

@@ -43,7 +43,10 @@ checks that its numbers can be what the sensor measured on this machine:
   away from the critical speeds (the shaft turns from +x towards +y): when every
   plane whirls backward, x and y are swapped or one channel's sign reversed; one
   plane backward while another whirls forward can be real (between the split
-  critical speeds of an anisotropic support): a warning, the run stays; no single spikes: a sample further than
+  critical speeds of an anisotropic support): a warning, the run stays. With the machine's model of the
+  whirl (``hybridtwin.model.whirl.WhirlModel``: a config with a machine of its own) the check is plane by
+  plane instead: backward where some model of the machine whirls backward at that speed is physics (between
+  split critical speeds), backward where every model whirls forward is flagged; no single spikes: a sample further than
   SPIKE_SIGMAS robust standard deviations (1.4826 x the median absolute
   deviation) from the synchronous-average waveform (for Gaussian noise a
   1e-15 chance per sample).
@@ -296,13 +299,18 @@ def check_speed(record: Record, rpm_nominal: float, tolerance: float = SPEED_TOL
 
 
 def response_flags(record: Record, harmonics: Array, sigma: Array, residual: Array | None,
-                   skip: tuple[str, ...] = ()) -> list[Flag]:
+                   skip: tuple[str, ...] = (), rpm: float | None = None, whirl=None) -> list[Flag]:
     """Flags of an analysed record (module docstring), each also emitted as a ``DataWarning``.
 
     harmonics, sigma: (C, H+1) synchronous averages and their standard
     uncertainty per real/imaginary part [m] (C channels, the record's); residual: (N, C)
     record minus the averaged waveform, every sample [m]; skip: channels not
     judged for spikes (already flagged as clipped: their tops are no spikes).
+    whirl: the machine's model of the whirl (``hybridtwin.model.whirl.WhirlModel``, anything with
+    ``backward_probes(rpm)`` and ``describe()``) and rpm the run's speed: a plane whose 1X whirls backward
+    where some model of it does too is physics (between split critical speeds) and neither flagged nor warned
+    about; a plane whirling backward where every model whirls forward is flagged, whatever the other planes do.
+    None: the model-free rule (module docstring).
     """
     flags = []
     X1, s1 = harmonics[:, 1], sigma[:, 1]
@@ -329,19 +337,28 @@ def response_flags(record: Record, harmonics: Array, sigma: Array, residual: Arr
         judged.append((ix, iy))
         if backward_amp - forward_amp > WHIRL_SIGMAS * float(np.hypot(s1[ix], s1[iy])):
             backward.append((ix, iy, forward_amp, backward_amp))
+    modelled = whirl is not None and rpm is not None and np.isfinite(rpm)
+    if modelled:  # the model's verdict plane by plane: backward where it can be is physics, elsewhere a wiring error
+        expected = whirl.backward_probes(float(rpm))
+        backward = [b for b in backward if (record.names[b[0]], record.names[b[1]]) not in expected]
     for ix, iy, forward_amp, backward_amp in backward:
         pair = record.names[ix] + record.names[iy]
         swapped = "x and y swapped?" if pair == "xy" else f"{record.names[ix]} and {record.names[iy]} swapped?"
         orbit = "the 1X orbit" if pair == "xy" else f"the 1X orbit of {record.names[ix]}, {record.names[iy]}"
-        whirl = (f"{orbit} whirls backward (forward {forward_amp * 1e3:.4f} mm, backward {backward_amp * 1e3:.4f} mm)")
-        if len(backward) == len(judged):
+        orbit_text = (f"{orbit} whirls backward (forward {forward_amp * 1e3:.4f} mm, backward {backward_amp * 1e3:.4f} "
+                      "mm)")
+        if modelled:
             flags.append(Flag(record.path, pair, "backward_whirl", f"1X whirls backward ({swapped})",
-                              f"{whirl} while the unbalance response whirls forward (the shaft turns from +x towards "
-                              f"+y): {swapped[:-1]}, or one channel's sign reversed?"))
+                              f"{orbit_text} while the machine's model whirls forward at {rpm:.1f} RPM "
+                              f"({whirl.describe()}): {swapped[:-1]}, or one channel's sign reversed?"))
+        elif len(backward) == len(judged):
+            flags.append(Flag(record.path, pair, "backward_whirl", f"1X whirls backward ({swapped})",
+                              f"{orbit_text} while the unbalance response whirls forward (the shaft turns from +x "
+                              f"towards +y): {swapped[:-1]}, or one channel's sign reversed?"))
         else:
             forward_planes = ", ".join(f"{record.names[a]}, {record.names[b]}" for a, b in judged
                                        if (a, b) not in {(c[0], c[1]) for c in backward})
-            warnings.warn(f"{record.path}: {whirl} while the orbit of {forward_planes} whirls forward: real between "
+            warnings.warn(f"{record.path}: {orbit_text} while the orbit of {forward_planes} whirls forward: real between "
                           f"the backward and forward critical speeds of an anisotropic support, or {swapped} The run "
                           "stays in the fit", DataWarning, stacklevel=2)
     if residual is not None:

@@ -370,7 +370,8 @@ def _to_real(X: Array) -> Array:
 
 
 def analyse_record(record: Record, rpm_nominal: float, harmonics: int = DEFAULT_HARMONICS, sensor_range_m: float | None = None,
-                   min_revolutions: float = MIN_REVOLUTIONS, sensor_resolution_m: float | None = None) -> RunAnalysis:
+                   min_revolutions: float = MIN_REVOLUTIONS, sensor_resolution_m: float | None = None,
+                   whirl=None) -> RunAnalysis:
     """Checks and steps 1-3 for one record (docs/data-checks.md).
 
     Errors (``DataError``): too short or too coarsely sampled, values the
@@ -380,7 +381,9 @@ def analyse_record(record: Record, rpm_nominal: float, harmonics: int = DEFAULT_
     ``usable``): a flat channel (returned unanalysed), a clipped one (flat tops
     or the noisy rail of the sensor's range), a channel of noise only, a
     backward 1X whirl, spikes. The sensor: +-``sensor_range_m`` (default 14 mm)
-    and ``sensor_resolution_m`` (default 1 um).
+    and ``sensor_resolution_m`` (default 1 um). whirl: the machine's model of the 1X whirl
+    (``hybridtwin.model.whirl.WhirlModel``): backward whirl is flagged only where it predicts forward
+    (``plausibility.response_flags``); None: the model-free rule.
     """
     sensor = Sensor(SENSOR_RANGE_MM * 1e-3 if sensor_range_m is None else sensor_range_m,
                     SENSOR_RESOLUTION_MM * 1e-3 if sensor_resolution_m is None else sensor_resolution_m)
@@ -398,7 +401,8 @@ def analyse_record(record: Record, rpm_nominal: float, harmonics: int = DEFAULT_
     A = design_matrix(record.time_s - analysis.origin.time_s, analysis.speed.omega, orders.H)
     residual = record.data - A @ _to_real(orders.harmonics).T
     clipped = tuple(f.channel for f in analysis.findings if f.kind == "clipped")
-    analysis.findings += response_flags(record, orders.harmonics, orders.sigma, residual, skip=clipped)
+    analysis.findings += response_flags(record, orders.harmonics, orders.sigma, residual, skip=clipped,
+                                        rpm=analysis.speed.rpm, whirl=whirl)
     return analysis
 
 
@@ -488,33 +492,34 @@ def spectrum(record: Record, rpm: float, max_order: float = 10.0) -> pd.DataFram
 
 
 def preprocess_run(sheet_row: Mapping, harmonics: int = DEFAULT_HARMONICS, sensor_range_m: float | None = None,
-                   sensor_resolution_m: float | None = None, record: Record | None = None, sensors=None
-                   ) -> tuple[pd.DataFrame, pd.DataFrame]:
+                   sensor_resolution_m: float | None = None, record: Record | None = None, sensors=None,
+                   whirl=None) -> tuple[pd.DataFrame, pd.DataFrame]:
     """One runs-sheet row (with its resolved ``record`` path) -> (one-row tidy table, waveforms).
 
     The sensor: the row's sensor_range_mm / sensor_resolution_mm, else the
     given defaults [m], else the built-in ones (``records.Sensor``).
     record: the row's record already read (``read_record``), e.g. for its ``spectrum`` too; else read here,
     its channels named after ``sensors`` (the machine's, ``records.record_channels``; None: x, y).
+    whirl: the machine's model of the 1X whirl, as in ``analyse_record``.
     """
     sensor = Sensor.for_run(sheet_row, sensor_range_m, sensor_resolution_m)
     record = read_record(sheet_row["record"], sensors, sheet_row.get("channels")) if record is None else record
     analysis = analyse_record(record, float(sheet_row["rpm"]), harmonics, sensor.range_m,
-                              sensor_resolution_m=sensor.resolution_m)
+                              sensor_resolution_m=sensor.resolution_m, whirl=whirl)
     analysed = run_row(analysis, harmonics)
     return pd.DataFrame([_carried(sheet_row, analysed) | analysed]), waveforms(analysis)
 
 
 def summarise_runs(runs: pd.DataFrame, harmonics: int = DEFAULT_HARMONICS, sensor_range_m: float | None = None,
-                   min_revolutions: float = MIN_REVOLUTIONS, sensor_resolution_m: float | None = None, sensors=None
-                   ) -> tuple[pd.DataFrame, dict[str, str]]:
+                   min_revolutions: float = MIN_REVOLUTIONS, sensor_resolution_m: float | None = None, sensors=None,
+                   whirl=None) -> tuple[pd.DataFrame, dict[str, str]]:
     """check-data: every run of a validated sheet analysed; (summary table, {run: error message}).
 
     The summary has the sheet's columns, then the per-run figures of
     ``run_row`` without the complex parts (amplitudes and uncertainties only)
     and ``status`` ("ok", "excluded: ...", or "invalid: <error>"). Runs whose
     record is invalid keep their row (status invalid) and their error is
-    returned, so nothing is dropped silently. The sensor and ``sensors`` as in ``preprocess_run``.
+    returned, so nothing is dropped silently. The sensor, ``sensors`` and ``whirl`` as in ``preprocess_run``.
     """
     rows, errors = [], {}
     for _, sheet_row in runs.iterrows():
@@ -529,7 +534,7 @@ def summarise_runs(runs: pd.DataFrame, harmonics: int = DEFAULT_HARMONICS, senso
                     rows.append(_carried(sheet_row, analysed) | analysed)
                     continue
                 analysis = analyse_record(record, float(sheet_row["rpm"]), harmonics, sensor.range_m,
-                                          min_revolutions, sensor.resolution_m)
+                                          min_revolutions, sensor.resolution_m, whirl)
             analysed = run_row(analysis, harmonics, complex_parts=False) | {"status": analysis.note}
             rows.append(_carried(sheet_row, analysed) | analysed)
         except DataError as err:
@@ -606,18 +611,19 @@ def read_tsv(path: str | Path) -> pd.DataFrame | None:
 def check_data(sheet: str | Path, harmonics: int = DEFAULT_HARMONICS, rpm_range: tuple[float, float] | None = None,
                mass_range_g: tuple[float, float] | None = None, sensor_range_m: float | None = None,
                min_revolutions: float = MIN_REVOLUTIONS, sensor_resolution_m: float | None = None,
-               range_names: tuple[str, str] = ("--rpm-range", "--mass-range-g"), sensors=None
+               range_names: tuple[str, str] = ("--rpm-range", "--mass-range-g"), sensors=None, whirl=None
                ) -> tuple[pd.DataFrame, dict[str, str]]:
     """Validate a runs sheet and every record; (summary table, {run: error}).
 
     The sheet is read as the workflow reads it (``read_runs`` with every mass
     required) and must be valid, like its coverage (``check_coverage``): both
     raise ``DataError``; record problems are collected per run (``summarise_runs``). sensors: the machine
-    whose sensors name the records' channels (``records.record_channels``; None: the VARM's x, y).
+    whose sensors name the records' channels (``records.record_channels``; None: the VARM's x, y). whirl: the
+    machine's model of the 1X whirl (``analyse_record``; ``config.whirl_model``).
     """
     runs = read_runs(sheet, require_mass=True)
     check_coverage(runs, rpm_range, mass_range_g, sheet, range_names)
-    return summarise_runs(runs, harmonics, sensor_range_m, min_revolutions, sensor_resolution_m, sensors)
+    return summarise_runs(runs, harmonics, sensor_range_m, min_revolutions, sensor_resolution_m, sensors, whirl)
 
 
 def has_usable_fit_run(summary: pd.DataFrame) -> bool:

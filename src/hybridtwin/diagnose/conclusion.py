@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
+from ..model.fixed_values import is_fixed_value
 from .diagnosis_status import NEARLY_EXPLAINED, Status, Verdict, opening, plain, share_text, verdict_text
 from .fingerprint import Fingerprint
 from .recommendation import _variant_name, variant_spec, what_to_do
@@ -280,6 +281,10 @@ def _estimate_text(cf: Confirmation, estimates: pd.DataFrame | None = None) -> s
             return (f"{r.parameter} = {r.value:.4g} {r.unit} (at the edge of its range [{lo:.4g}, {hi:.4g}], "
                     f"{why})")
         d = _digits(r.value, r.ci_high - r.ci_low)
+        if is_fixed_value(cf.candidate):  # "zeta_s fixed at 0.0271: the data say 0.024 [...]"
+            freed = cf.candidate.effect
+            d = _digits(freed.fixed_value + r.value, r.ci_high - r.ci_low)
+            return freed.value_text(r.value, r.ci_low, r.ci_high, d) + note
         return f"{r.parameter} = {r.value:.{d}g} [{r.ci_low:.{d}g}, {r.ci_high:.{d}g}] {r.unit}".rstrip() + note
     return "; ".join(one(r) for r in (cf.estimates if estimates is None else estimates).itertuples())
 

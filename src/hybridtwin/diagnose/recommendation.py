@@ -11,6 +11,8 @@ import re
 from collections.abc import Mapping, Sequence
 
 from ..model.candidates import Candidate
+from ..model.fixed_values import KIND as FIXED
+from ..model.fixed_values import is_fixed_value
 from ..model.variants import Variant
 from ..offline.scenarios import default_n_scenarios
 
@@ -19,7 +21,7 @@ def _variant_name(parts: Sequence[str]) -> str:
     """A recommended variant's name, valid in the config (a letter, then letters, digits, _): the base's and the
     effects' names joined by _, an effect placed at a bearing (``cross_coupled_stiffness@b``) spelled ``..._at_b``,
     any other character an effect's name may hold (``oil-film_b``) as _."""
-    name = re.sub(r"[^A-Za-z0-9_]", "_", "_".join(parts).replace("@", "_at_"))
+    name = re.sub(r"[^A-Za-z0-9_]", "_", "_".join(parts).replace(f"{FIXED}@", "free_").replace("@", "_at_"))
     return name if name[:1].isalpha() else f"v_{name}"
 
 
@@ -31,12 +33,22 @@ def variant_spec(base: Variant, candidate: Candidate | Sequence[Candidate],
     ``per_run`` key, overriding ``identification.per_run``; None: not set)."""
     added = [candidate] if isinstance(candidate, Candidate) else list(candidate)
     ranges = dict(ranges or {})
-    unknown = dict(base.unknown) | {p.name: tuple(ranges.get(p.name, p.bounds)) for c in added for p in c.parameters}
-    spec = {"description": f"{base.name} + " + " + ".join(f"{c.name}: {c.meaning}" for c in added),
-            "effects": [e.name for e in base.model.effects] + [c.name for c in added],
+    # a fixed value freed (``fixed_values``) is no effect to add: its parameter moves from fixed: to unknown:, its
+    # range the fixed value plus the shift's
+    freed = {c.effect.fixed_parameter: tuple(c.effect.fixed_value + x for x in ranges.get(c.parameters[0].name,
+                                                                                         c.parameters[0].bounds))
+             for c in added if is_fixed_value(c)}
+    effects = [c for c in added if not is_fixed_value(c)]
+    unknown = (dict(base.unknown) | freed
+               | {p.name: tuple(ranges.get(p.name, p.bounds)) for c in effects for p in c.parameters})
+    said = [f"free {c.effect.fixed_parameter} (fixed at {c.effect.fixed_value:g})" if is_fixed_value(c)
+            else f"{c.name}: {c.meaning}" for c in added]
+    spec = {"description": f"{base.name} + " + " + ".join(said),
+            "effects": [e.name for e in base.model.effects] + [c.name for c in effects],
             "unknown": {k: [float(lo), float(hi)] for k, (lo, hi) in unknown.items()}}
-    if base.fixed:
-        spec["fixed"] = {k: float(v) for k, v in base.fixed.items()}
+    fixed = {k: float(v) for k, v in base.fixed.items() if k not in freed}
+    if fixed:
+        spec["fixed"] = fixed
     if per_run is not None:
         spec["per_run"] = list(per_run)
     return spec

@@ -37,7 +37,7 @@ from functools import cached_property
 
 import numpy as np
 
-from .bearing_candidates import at_bearing
+from .bearing_candidates import EXCITATION_DISPLACEMENT_M, at_bearing, excitations_at
 from .bearing_table import TableBearing
 from .effect_base import Context, Effect, Parameter
 from .effects import ANGLE_ME, Unbalance, builtin_effects, trial_force
@@ -399,10 +399,10 @@ class Machine(DofCounts):
     def effects(self) -> dict[str, Effect]:
         """The effects this machine adds to the built-in ones, by name (for a variant's effect list):
         ``gyroscopic``; ``linear_bearing@<bearing>`` for each bearing with nominal coefficients (and
-        ``bearing_table@<bearing>`` for one with a table of coefficients against speed), and the
-        candidates sized to them (``bearing_candidates.at_bearing``: bearing_anisotropy, cross_coupled_stiffness,
-        cross_coupled_damping); every placeable built-in effect at every bearing, ``<effect>@<bearing>``; ``unbalance@<plane>`` for each
-        unbalance plane (the run's eccentric mass m_e at that plane)."""
+        ``bearing_table@<bearing>`` for one with a table of coefficients against speed); every placeable built-in
+        effect at every bearing, ``<effect>@<bearing>``; ``unbalance@<plane>`` for each unbalance plane (the run's
+        eccentric mass m_e at that plane); and the candidates sized to the machine (``sized_candidates``, over a
+        placed built-in of the same name)."""
         out: dict[str, Effect] = {"gyroscopic": Gyroscopic()}
         placeable = [e for e in builtin_effects().values() if hasattr(e, "node")]
         for bearing in self.bearings:
@@ -416,14 +416,36 @@ class Machine(DofCounts):
             for effect in placeable:
                 placed = self.place(effect, bearing.name)
                 out[placed.name] = placed
-            for candidate in at_bearing(bearing.name, bearing.k, bearing.c):  # sized to the bearing's k, c
-                out[candidate.name] = candidate
         for plane in self.unbalance_planes:
             out[f"unbalance@{plane.name}"] = PlaneUnbalance(name=f"unbalance@{plane.name}", node=plane.node)
+        out |= self.sized_candidates()  # sized to the bearings' k, c and the shaft (over a placed VARM one's name)
         if not self.varm_structure:  # the plain `unbalance` along this shaft, not at the VARM's 0.425 m
             first = self.unbalance_planes[0] if self.unbalance_planes else None
             out["unbalance"] = MachineUnbalance(self.name, self.L, None if first is None else
                                                 float(self.z[first.node]))
+        return out
+
+    def tilt_stiffness(self, node: int) -> float:
+        """4 E I / h of the stiffest shaft element at ``node`` [N m/rad]: the moment that turns the element's end by
+        one radian with the other end clamped, the scale of a bearing's moment stiffness there."""
+        elements = [e for e in (node - 1, node) if 0 <= e < self.n]
+        return max(4 * s.E * s.bending_I / s.h for s in (self.segments[self._segment_of_element[e]] for e in elements))
+
+    def sized_candidates(self) -> dict[str, Effect]:
+        """The candidates sized to this machine (``bearing_candidates``), by name: at each bearing with nominal k its
+        anisotropy, cross-coupled stiffness and damping, compliance, moment stiffness and speed-dependent damping;
+        at each such bearing and each unbalance plane the 2X and 3X forces, their range the force that moves the
+        rotor 10 um on its supports (sum of the bearings' k). None on the VARM (no nominal k)."""
+        out: dict[str, Effect] = {}
+        for bearing in self.bearings:
+            for candidate in at_bearing(bearing.name, bearing.k, bearing.c, self.tilt_stiffness(bearing.node)):
+                out[candidate.name] = candidate
+        force = EXCITATION_DISPLACEMENT_M * sum(b.k for b in self.bearings if b.k)
+        places = ([(b.name, b.node, "bearing") for b in self.bearings if b.k]
+                  + [(p.name, p.node, "unbalance plane") for p in self.unbalance_planes])
+        for place, node, kind in places if force > 0 else ():
+            for excitation in excitations_at(place, node, force, kind):
+                out[excitation.name] = excitation
         return out
 
     def candidates(self) -> dict[str, Effect]:
