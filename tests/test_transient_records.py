@@ -146,6 +146,44 @@ def test_bad_transient_records_are_refused_with_the_file_named(tmp_path):
         track_record(record, late, 3)
 
 
+def linear_profile(t, duration, lo, hi):
+    return lo + (hi - lo) * t / duration
+
+
+def test_a_fast_runup_gets_the_slow_roll_windows_its_estimate_needs(tmp_path):
+    """A run-up at 1200 RPM/min (20 RPM/s) from 300 RPM: the sheet's default slow-roll band, [300, 350] RPM (10 %
+    of the span), is crossed in 2.5 s, ~13 revolutions: 2 windows of 6, where the estimate needs 3. It was refused;
+    the band now reaches over the next window (18 revolutions, to ~375 RPM) and the runout comes out within its
+    sigmas (the same runout on both probes, the same 4 sqrt(2) sigma bound as the slow sweep's above). The band the
+    sheet gives (slowroll_rpm) is taken as given, and when too short the message names the slowroll_rpm that would
+    do, which then does."""
+    record, _ = swept_record(tmp_path / "fast.csv", duration=25.0, lo=300.0, hi=800.0, kind_profile=linear_profile)
+    row = {**ROW, "rpm_start": 300.0, "rpm_end": 800.0}
+    tracked = track_record(record, row, harmonics=3)
+    found = tracked.runout
+    assert (found["n_windows"] == 3).all() and (found["band_rpm_high"] > 350.0).all()
+    for _, r in found.iterrows():
+        got = complex(r["runout_re_m"], r["runout_im_m"])
+        assert abs(got - RUNOUT[r["harmonic"]]) < 4 * math.sqrt(2) * r["runout_sigma_m"], (r["channel"], r["harmonic"])
+    low = tracked.bands[tracked.bands["band_hi_rpm"] <= 600.0]  # far below the resonance: every band fitted
+    assert len(low) > 10 and low["usable"].all()
+    with pytest.raises(DataError, match=r"fast\.csv: 2 window\(s\) in the slow-roll band \[300, 350\] RPM.*"
+                                        r"slowroll_rpm to at least \d+ RPM") as refused:
+        track_record(record, {**row, "slowroll_rpm": 350.0}, 3)
+    named = float(str(refused.value).split("slowroll_rpm to at least ")[1].split(" RPM")[0])
+    assert 350.0 < named < 400.0
+    assert (track_record(record, {**row, "slowroll_rpm": named}, 3).runout["n_windows"] == 3).all()
+
+
+def test_a_record_too_short_for_any_runout_estimate_names_the_remedy(tmp_path):
+    """~16 revolutions in all (300 -> 360 RPM in 3 s): 2 windows of 6, fewer than the estimate needs whatever
+    the band; the message says what would do (a record longer at slow roll, or the compensation off)."""
+    record, _ = swept_record(tmp_path / "short.csv", duration=3.0, lo=300.0, hi=360.0, kind_profile=linear_profile)
+    with pytest.raises(DataError, match=r"short\.csv: 2 window\(s\) of 6 revolutions, fewer than the 3 .*"
+                                        r"record longer at slow roll.*compensation off"):
+        track_record(record, {**ROW, "rpm_start": 300.0, "rpm_end": 360.0, "band_rpm": 5.0}, 3)
+
+
 def test_a_band_the_record_never_reaches_is_kept_with_its_reason(tmp_path):
     record, _ = swept_record(tmp_path / "up.csv", duration=60.0, hi=900.0)  # the sheet says 1100
     bands = track_record(record, ROW, harmonics=3).bands

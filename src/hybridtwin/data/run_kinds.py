@@ -114,7 +114,8 @@ def sheet_kinds(runs: pd.DataFrame) -> pd.Series:
 #: changes nearly linearly across it (the VARM's resonance is ~36 RPM wide at half power; the band fit carries a
 #: linear term), wide enough to hold >= MIN_BAND_REVOLUTIONS at the sweep rates of a rig (10-20 RPM/s)
 DEFAULT_BAND_RPM = 20.0
-#: the slow-roll band, unless the sheet's slowroll_rpm gives its top: the lowest 10 % of the sweep's span
+#: the slow-roll band, unless the sheet's slowroll_rpm gives its top: the lowest 10 % of the sweep's span (where
+#: the bands start; the runout estimate reaches further when it needs to, ``slow_roll.slow_roll_band``)
 SLOWROLL_SHARE = 0.1
 
 
@@ -135,11 +136,13 @@ def _number(row: Mapping, key: str, default: float) -> float:
 
 @dataclass(frozen=True)
 class BandPlan:
-    """A transient row's speed bands [RPM]: the slow-roll band and the fitted bands (lo, hi) in rising order."""
+    """A transient row's speed bands [RPM]: the slow-roll band and the fitted bands (lo, hi) in rising order;
+    ``slowroll_given``: the slow-roll band's top is the sheet's ``slowroll_rpm`` (else the default share)."""
 
     run: str
     slowroll: tuple[float, float]
     bands: tuple[tuple[float, float], ...]
+    slowroll_given: bool = False
 
     @staticmethod
     def band_id(run: str, lo: float, hi: float) -> str:
@@ -161,7 +164,8 @@ class BandPlan:
                              f"band_rpm {width}, slowroll_rpm {top}")
         n = int(math.floor((hi - top) / width + 1e-9))
         bands = tuple((top + k * width, top + (k + 1) * width) for k in range(n))
-        return cls(str(row["run"]), (lo, top), bands)
+        given = not math.isnan(_number(row, "slowroll_rpm", math.nan))
+        return cls(str(row["run"]), (lo, top), bands, given)
 
 
 def expand_bands(sheet: pd.DataFrame) -> pd.DataFrame:

@@ -6,10 +6,14 @@ eccentric journal; electrical: the probe track's conductivity), a vector fixed t
 carries unchanged. ``runout`` estimates it per channel and harmonic from the windows of the slow-roll band and
 ``compensate`` subtracts it; ``slow_roll_compensation`` does both and can be switched off.
 
-- **The band**: windows whose mean speed lies in ``band_rpm`` = [low, high], by default up to the record's
-  lowest window speed + BAND_FRACTION (10 %) of its speed span, and at least MIN_WINDOWS (3) windows (the
-  lowest three when the default band holds fewer). Fewer windows than that in the record (or in a given band)
-  is a ``TrackingError`` naming the file.
+- **The band** holds what the estimate needs: MIN_WINDOWS (3) windows, i.e. MIN_WINDOWS times the windows'
+  revolutions at the record's slowest speeds (18 revolutions with windows of 6), whatever share of the sweep
+  that is; a fast sweep crosses many RPM in them (1200 RPM/min from 300 RPM: ~70 RPM). By default the band is
+  the slowest windows up to the record's lowest window speed + BAND_FRACTION (10 %) of its speed span, or up to
+  ``band_rpm``'s top when that is the sheet's default (``extend``), and in either case over as many of the next
+  windows as it takes to hold MIN_WINDOWS. A band the user gave (the runs sheet's ``slowroll_rpm``) is taken as
+  given. A record with fewer windows than that, or a given band holding fewer, is a ``TrackingError`` naming the
+  file and the remedy (the ``slowroll_rpm`` the record would need, or a record longer at slow roll).
 - **The estimate**: per channel and harmonic the weighted (1/sigma^2) least-squares fit a + b Omega^2 of the
   band's vectors (complex a, b); the runout is a, the vector at Omega -> 0, free of the dynamic response's
   leading Omega^2 part (an unbalance response grows as Omega^2 well below the first critical speed; a plain
@@ -31,6 +35,7 @@ flagged (bool), note (the flag's message, or "").
 
 from __future__ import annotations
 
+import math
 import warnings
 from collections.abc import Sequence
 
@@ -57,17 +62,35 @@ class SlowRollWarning(UserWarning):
     """A slow-roll band whose response looks like dynamics, not runout (the message names the probe)."""
 
 
+def _windows_remedy(table: pd.DataFrame, min_windows: int) -> str:
+    """What the record would need: the ``slowroll_rpm`` that holds ``min_windows`` of its slowest windows, or a
+    record longer at slow roll when it has fewer windows than that."""
+    rpm = np.sort(table["rpm"].to_numpy(float))
+    revolutions = table.attrs.get("revolutions", "?")
+    if rpm.size >= min_windows:
+        return (f"set the runs sheet's slowroll_rpm to at least {math.ceil(rpm[min_windows - 1] + 0.5):g} RPM (the "
+                f"record's {min_windows} slowest windows of {revolutions} revolutions), or leave it empty for the "
+                "default, which takes the windows the estimate needs")
+    return (f"the estimate needs {min_windows} windows of {revolutions} revolutions at the slowest speeds: record "
+            "longer at slow roll (start the run-up lower or hold its first speed, let the coast-down run out), or "
+            "use the record with the slow-roll compensation off")
+
+
 def slow_roll_band(table: pd.DataFrame, band_rpm: Sequence[float] | None = None,
-                   min_windows: int = MIN_WINDOWS) -> np.ndarray:
-    """The indexes (rows) of the windows of the slow-roll band (module docstring), or ``TrackingError``."""
+                   min_windows: int = MIN_WINDOWS, extend: bool = False) -> np.ndarray:
+    """The indexes (rows) of the windows of the slow-roll band (module docstring), or ``TrackingError``.
+
+    band_rpm None: the default band (the slowest windows up to BAND_FRACTION of the span, at least
+    ``min_windows``); ``extend`` True: ``band_rpm`` is a default too (the sheet's plan), extended to
+    ``min_windows`` windows the same way; else ``band_rpm`` is the user's, taken as given."""
     path = table.attrs.get("path", "record")
     rpm = table["rpm"].to_numpy(float)
-    if band_rpm is None:
-        if rpm.size < min_windows:
-            raise TrackingError(f"{path}: {rpm.size} window(s) of {table.attrs.get('revolutions', '?')} revolutions, "
-                                f"fewer than the {min_windows} a slow-roll band needs: the record is too short for "
-                                "the slow-roll compensation (a longer record, shorter windows, or compensation off)")
-        top = rpm.min() + BAND_FRACTION * (rpm.max() - rpm.min())
+    if rpm.size < min_windows:
+        raise TrackingError(f"{path}: {rpm.size} window(s) of {table.attrs.get('revolutions', '?')} revolutions, "
+                            f"fewer than the {min_windows} a slow-roll band needs: the record is too short for "
+                            f"the slow-roll compensation; {_windows_remedy(table, min_windows)}")
+    if band_rpm is None or extend:
+        top = rpm.min() + BAND_FRACTION * (rpm.max() - rpm.min()) if band_rpm is None else float(band_rpm[1])
         inside = np.flatnonzero(rpm <= top)
         if inside.size < min_windows:
             inside = np.argsort(rpm, kind="stable")[:min_windows]
@@ -77,16 +100,19 @@ def slow_roll_band(table: pd.DataFrame, band_rpm: Sequence[float] | None = None,
         raise ValueError(f"slow-roll band {list(band_rpm)} RPM is not [low, high] with low < high")
     inside = np.flatnonzero((rpm >= low) & (rpm <= high))
     if inside.size < min_windows:
+        remedy = (_windows_remedy(table, min_windows) if low <= rpm.min() else
+                  "the band misses the record's slowest speeds: lower its bottom to the record's")
         raise TrackingError(f"{path}: {inside.size} window(s) in the slow-roll band [{low:g}, {high:g}] RPM (the "
                             f"record's windows span {rpm.min():.1f}-{rpm.max():.1f} RPM), fewer than {min_windows}: "
-                            "the record is too short for the band, or the band misses the record's slowest speeds")
+                            f"{remedy}")
     return inside
 
 
 def runout(table: pd.DataFrame, band_rpm: Sequence[float] | None = None,
            harmonics: Sequence[int] = RUNOUT_HARMONICS, min_windows: int = MIN_WINDOWS,
-           mode: tuple[float, float] | None = None) -> pd.DataFrame:
-    """The runout table of an order table (module docstring): one row per channel and harmonic.
+           mode: tuple[float, float] | None = None, extend: bool = False) -> pd.DataFrame:
+    """The runout table of an order table (module docstring): one row per channel and harmonic; ``band_rpm`` and
+    ``extend`` as ``slow_roll_band``'s.
 
     mode: (omega_n [rad/s], zeta) of the record's first resonance (``transient.one_mode_fit``), when known: the
     dynamic part's shape is then the one-mode response g_h = Omega^2 omega_n^2 / (omega_n^2 - (h Omega)^2 + 2 i zeta
@@ -95,7 +121,7 @@ def runout(table: pd.DataFrame, band_rpm: Sequence[float] | None = None,
     puts ~1 um of the dynamics into the runout (measured on the run-up example's coast-down), an error common to
     every speed of the record."""
     path = table.attrs.get("path", "record")
-    rows = table.iloc[slow_roll_band(table, band_rpm, min_windows)]
+    rows = table.iloc[slow_roll_band(table, band_rpm, min_windows, extend)]
     omega = 2 * np.pi * rows["rpm"].to_numpy(float) / 60.0
     low, high = float(rows["rpm"].min()), float(rows["rpm"].max())
     out = []

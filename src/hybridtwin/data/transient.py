@@ -21,13 +21,15 @@ model's response at a band is the steady state reached by continuation, as the r
   standard deviation through (A^T A)^-1 (white noise; the bands hold disjoint samples, so their errors are
   independent and the identification's weights need no correlation).
 - **Slow-roll runout** (``hybridtwin.data.slow_roll`` on the order vectors of ``order_tracking``): in the slow-roll
-  band (the lowest speeds of the record, below ``slowroll_rpm``, default the lowest SLOWROLL_SHARE of the sweep's
-  span) the 1X and 2X vectors are runout (a mark on the shaft, turning with it, of constant size) plus the dynamic
-  response, which at low speed grows as Omega^2: the runout is the intercept of R + b Omega^2, subtracted as a
-  vector from every band's 1X and 2X, its uncertainty added in quadrature; a band holding dynamics is reported per
-  probe. Off with ``slowroll`` False. That uncertainty is one error common to all of a record's bands: each band
-  also carries it as ``<channel><h>_runout_sigma_m`` (``slow_roll.runout_sigma_column``) and its record in
-  ``parent_run``, from which the identification fits it as one offset per record (``measured.RunData.record``).
+  band (the lowest speeds of the record, below ``slowroll_rpm``; by default the lowest SLOWROLL_SHARE of the
+  sweep's span and as many windows above as the estimate needs, ``slow_roll.MIN_WINDOWS``: on a fast sweep it then
+  overlaps the first bands, a correlation of their errors with the runout's that is not modelled) the 1X and 2X
+  vectors are runout (a mark on the shaft, turning with it, of constant size) plus the dynamic response, which at
+  low speed grows as Omega^2: the runout is the intercept of R + b Omega^2, subtracted as a vector from every
+  band's 1X and 2X, its uncertainty added in quadrature; a band holding dynamics is reported per probe. Off with
+  ``slowroll`` False. That uncertainty is one error common to all of a record's bands: each band also carries it
+  as ``<channel><h>_runout_sigma_m`` (``slow_roll.runout_sigma_column``) and its record in ``parent_run``, from
+  which the identification fits it as one offset per record (``measured.RunData.record``).
 
 SI inside; rpm at the boundary. Conventions as everywhere: u(t) = Re(sum_h U_h exp(i h theta)), 0-peak.
 """
@@ -199,7 +201,8 @@ def track_record(record: Record, sheet_row: Mapping, harmonics: int, sensor_rang
             with warnings.catch_warnings(record=True) as found:
                 warnings.simplefilter("always", SlowRollWarning)
                 runout = slow_roll_runout(orders, band_rpm=(min(plan.slowroll[0], float(profile.rpm.min())),
-                                                            plan.slowroll[1]), mode=record_mode(orders, record.names))
+                                                            plan.slowroll[1]), mode=record_mode(orders, record.names),
+                                          extend=not plan.slowroll_given)
             caught = [str(w.message) for w in found]
             orders = compensate(orders, runout)
     except TrackingError as err:

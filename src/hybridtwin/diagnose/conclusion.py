@@ -79,6 +79,9 @@ class Step:
     delta_bic: float
     share: float  # of the base's excess chi^2 removed by the path up to this step
     confirmation: Confirmation
+    #: the scale the step was judged at (its score tests, likelihood ratio and Delta BIC): 1 for the first (the
+    #: stated sigmas), the remaining misfit chi^2 / dof of the fit it extends for the others (a quasi-likelihood)
+    dispersion: float = 1.0
 
     def row(self) -> dict:
         return {"step": None, "effect": self.effect, "chi2_dof_before": float(self.chi2_dof_before),
@@ -192,8 +195,8 @@ def _conclude_path(result: Diagnosis, base: BaseFit, scores: Scores, o: Mapping)
     excess chi^2: the small misfit left is reported as a form the candidates do not quite capture, with its
     fingerprint); otherwise "unexplained", the path as evidence."""
     path = result.path
-    result.summary["path"] = plain([dict(step.row(), step=i + 1, ranges=step.confirmation.ranges)
-                                    for i, step in enumerate(path)], "summary.path")
+    result.summary["path"] = plain([dict(step.row(), step=i + 1, ranges=step.confirmation.ranges,
+                                         judged_at=step.dispersion) for i, step in enumerate(path)], "summary.path")
     if not path:
         return
     final, share = path[-1].confirmation, path[-1].share

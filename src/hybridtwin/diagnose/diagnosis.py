@@ -37,6 +37,17 @@ mistake surrogate error for physics.
    no candidate explains most of it: the evidence (chi^2/dof, the best
    candidate's share) is given instead of a least-bad name.
 
+The stop rule (issue 51). The first step is judged at the stated sigmas: the base's misfit is what is to be
+explained. Every later step is judged at the scale the data show, a quasi-likelihood: with the dispersion
+phi = chi^2 / dof of the fit it extends (the remaining misfit), each score statistic and likelihood ratio is divided
+by phi, its p-value is from F(k, dof) ((S / k) / phi, the F test of a nested model with an estimated scale; chi^2(k)
+of S / phi as dof grows), and Delta BIC = -LR / phi + k ln n. A misfit of form the candidates do not capture (the
+quasi-steady model around a resonance, an effect of a slightly different law) inflates phi, and a candidate that
+removes a small part of it no longer counts as an effect; a fit within the stated noise goes on to the score tests
+too (no stop at chi^2/dof <= ``misfit_ratio``): where the stated sigmas are too large (records whose right model
+gives chi^2/dof 0.85-0.9), phi < 1 and an effect hidden below the stated noise but above the data's own floor is
+still found. The path's table gives each step's Delta BIC at its scale, the summary its ``judged_at`` phi.
+
 Here: the refits of the significant candidates and the forward selection (``diagnose``: while the best confirmed
 effect leaves a discrepancy, add it and test the others again), and the fingerprint of the residual left at its
 end. After it, backward elimination and the sharing check: ``hybridtwin.diagnose.elimination``; the result, the
@@ -59,7 +70,7 @@ from .elimination import _backward, _sharing
 from .fingerprint import Fingerprint, fingerprint
 from .refit import Confirmation, confirm
 from .form_intervals import FormIntervals, own_intervals
-from .score_test import BaseFit, Scores, by_score, extend, intervals_over_candidates, score_tests
+from .score_test import BaseFit, Scores, at_scale, by_score, extend, intervals_over_candidates, score_tests
 
 Array = np.ndarray
 
@@ -163,9 +174,10 @@ def _out_of_reach(scores: Scores, quick: Mapping[str, Confirmation], o: Mapping)
 
 def diagnose(base: BaseFit, candidates: Sequence[Candidate], options: Mapping, log=None) -> Diagnosis:
     """Score every candidate, refit every significant one, rank by the refits' Delta BIC and give verdicts
-    (module docstring); then forward selection: while the best confirmed effect leaves a discrepancy, add it,
-    score and refit the others at the extended fit, and stop when nothing significant is left (``max_effects``
-    at most). The path (each step's effect, chi^2/dof, Delta BIC) is in ``Diagnosis.path``."""
+    (module docstring); then forward selection: add the best confirmed effect, score and refit the others at the
+    extended fit judged at its remaining misfit (module docstring, "the stop rule"), and stop when nothing
+    significant is left at that scale (``max_effects`` at most). The path (each step's effect, chi^2/dof, Delta
+    BIC, the scale it was judged at) is in ``Diagnosis.path``."""
     o = dict(options)
     if not candidates:
         raise ValueError("no candidate effect to test (all are already in the variant, or none was listed)")
@@ -180,20 +192,27 @@ def diagnose(base: BaseFit, candidates: Sequence[Candidate], options: Mapping, l
     path: list[Step] = []
     best = first.best
     current, remaining, before = base, list(candidates), scores.base_chi2 / scores.base_dof
+    dispersion = 1.0  # the first step is judged at the stated sigmas: the base's misfit is what is to be explained
     while best is not None:
         path.append(Step(best.candidate.name, before, best.chi2 / best.dof, best.delta_bic,
-                         (scores.base_chi2 - best.chi2) / excess, best))
+                         (scores.base_chi2 - best.chi2) / excess, best, dispersion))
         remaining = [c for c in remaining if c.name != best.candidate.name]
-        if _fits_the_noise(best, o) or len(path) >= int(o["max_effects"]) or not remaining:
+        if len(path) >= int(o["max_effects"]) or not remaining:
             break
         current = BaseFit(extend(current.variant, [best.candidate], best.ranges), best.fit.layout, best.fit.theta,
                           current.data, current.harmonics)
-        step_scores = score_tests(current, remaining)
+        # the next step is judged at the scale the data show, not at the stated sigmas (module docstring, "the
+        # stop rule"): the remaining misfit divides each statistic, and a fit within the stated noise goes on to
+        # the score tests too (the stated sigmas can be too large: what they hide is looked for)
+        raw_scores = score_tests(current, remaining)
+        dispersion = raw_scores.base_chi2 / raw_scores.base_dof
+        step_scores = at_scale(raw_scores, dispersion)
         step_alpha = o["alpha"] / len(remaining)
         if log:
             top = sorted(step_scores.scores, key=lambda s: -s.statistic)[:4]
-            log.info("step %d scores at chi^2 %.4g (dof %d): %s", len(path) + 1, step_scores.base_chi2,
-                     step_scores.base_dof, ", ".join(f"{s.candidate.name} {s.statistic:.4g}" for s in top))
+            log.info("step %d scores at chi^2 %.4g (dof %d), judged at the remaining misfit %.4g: %s", len(path) + 1,
+                     step_scores.base_chi2, step_scores.base_dof, dispersion,
+                     ", ".join(f"{s.candidate.name} {s.statistic:.4g} (p {s.p_value:.3g})" for s in top))
         chosen, quick = _quick_refits(current, step_scores, o, step_alpha)
         stop = _out_of_reach(step_scores, quick, o)
         if stop:  # no remaining candidate comes near fitting the noise: the path ends, "unexplained" is what is left
@@ -202,6 +221,7 @@ def diagnose(base: BaseFit, candidates: Sequence[Candidate], options: Mapping, l
                 log.info("forward selection stops before step %d: %s", len(path) + 1, stop)
             break
         refits = _refit_significant(current, step_scores, o, step_alpha, log, (chosen, quick))
+        refits = {name: cf.at_scale(dispersion, raw_scores.base_dof) for name, cf in refits.items()}
         confirmed = [cf for cf in refits.values() if _is_confirmed(cf, o, step_alpha)]
         before = best.chi2 / best.dof
         previous, best = best, min(confirmed, key=lambda cf: cf.delta_bic) if confirmed else None

@@ -102,4 +102,4 @@ def _sharing(base: BaseFit, path: list[Step], scores: Scores, o: Mapping, result
         return path
     last = path[-1]
     return path[:-1] + [Step(last.effect, last.chi2_dof_before, cf.chi2 / cf.dof, last.delta_bic,
-                             (scores.base_chi2 - cf.chi2) / _excess(scores), cf)]
+                             (scores.base_chi2 - cf.chi2) / _excess(scores), cf, last.dispersion)]

@@ -25,7 +25,7 @@ from ..identify.arrow_problem import ArrowProblem, Layout
 from ..identify.identification import Identification, conclude, units
 from ..identify.lm import MAX_ITERATIONS, STALLED, LMOptions, LMResult, levenberg_marquardt
 from ..identify.protocol import ProtocolResult
-from .score_test import BaseFit, Score, Scores, extended_problem
+from .score_test import BaseFit, Score, Scores, extended_problem, scale_p_value
 
 Array = np.ndarray
 
@@ -69,6 +69,17 @@ class Confirmation:
         """Parameters whose estimate still sits at a range edge away from zero (the physical limit reached)."""
         edge = self.estimates["at_bound"].astype(bool) & (self.estimates["value"].abs() > 0)
         return self.estimates.loc[edge, "parameter"].tolist()
+
+    def at_scale(self, dispersion: float, dof: int) -> "Confirmation":
+        """The refit judged at the data's scale (a quasi-likelihood, ``score_test.scale_p_value``): the likelihood
+        ratio divided by the dispersion phi of the fit it extends (its chi^2 / dof, ``dof`` degrees of freedom),
+        its p-value from F(k, dof), Delta BIC = -LR / phi + k ln n. phi = 1: the refit as it is."""
+        if dispersion == 1.0:
+            return self
+        k = len(self.candidate.parameters)
+        penalty = self.delta_bic + self.lr  # k ln n
+        p, _ = scale_p_value(self.lr, k, dispersion, dof)
+        return replace(self, lr_p_value=p, delta_bic=float(-self.lr / dispersion + penalty))
 
     @property
     def widenable(self) -> bool:

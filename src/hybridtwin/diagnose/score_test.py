@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pandas as pd
@@ -226,6 +226,30 @@ def candidate_score(candidate: Candidate, G: Array, Q: Array, r_p: Array, theta:
     beyond = bool(np.any(np.abs(theta + step) > 1.0))
     return Score(candidate, statistic, float(stats.chi2.sf(statistic, k)), float(stats.chi2.logsf(statistic, k)),
                  step, G, beyond)
+
+
+def scale_p_value(statistic: float, k: int, dispersion: float, dof: int) -> tuple[float, float]:
+    """(p, log p) of a chi^2 drop ``statistic`` on ``k`` parameters judged at the scale the data show: with the
+    quasi-likelihood's dispersion phi (the remaining misfit chi^2 / dof, estimated on ``dof`` degrees of freedom),
+    (statistic / k) / phi ~ F(k, dof) when the effect is absent (McCullagh and Nelder, Generalized Linear Models,
+    sec. 9.2: the F test of a nested model with an estimated scale; chi^2(k) of statistic / phi as dof -> inf).
+    phi = 1 and dof -> inf give the plain chi^2(k) test of the stated sigmas."""
+    f = max(statistic, 0.0) / (k * dispersion)
+    return float(stats.f.sf(f, k, max(dof, 1))), float(stats.f.logsf(f, k, max(dof, 1)))
+
+
+def at_scale(scores: Scores, dispersion: float) -> Scores:
+    """The score tests judged at the data's scale (a quasi-likelihood, ``scale_p_value``): each statistic divided
+    by the dispersion phi (the chi^2 drop in units of the remaining misfit), its p-value from F(k, dof); the
+    residuals, steps and sensitivities as they are. phi = 1: the tests as stated, p-values from chi^2(k)."""
+    if dispersion == 1.0:
+        return scores
+    judged = []
+    for s in scores.scores:
+        k = s.projected.shape[1]
+        p, log_p = scale_p_value(s.statistic, k, dispersion, scores.base_dof)
+        judged.append(replace(s, statistic=s.statistic / dispersion, p_value=p, log_p=log_p))
+    return replace(scores, scores=judged)
 
 
 def by_score(score: Score) -> tuple[float, float]:
