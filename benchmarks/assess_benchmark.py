@@ -17,6 +17,12 @@ twin's speeds are refused by design). Cases:
 - ``power``: per parameter of the twin, the detection rate (an alarm) at several sizes of change (``--power``
   records each, harmonic balance: the power scan needs many records); the smallest size detected at >= 95 %.
 
+``--routes`` (a twin built with an sPGD library, ``offline.scope`` run or global): every record judged three ways,
+side by side: as ``hybridtwin assess`` does (``route="auto"``: the library's verdict, the full solver confirming where
+the library's error bound cannot decide), the library's own verdict (``route="library"``) and the full solver's
+(``route="solver"``), with their times; prints the verdict counts of each, how many agree with the solver's, how many
+the solver confirmed, and the median times (benchmarks/README.md, "The library answers online").
+
 ``--integrator time`` (default) makes the records by time integration (no harmonic balance: independent of the solver
 the twin uses); the power scan uses harmonic balance (``hb``) for speed. The rig's records are kept in ``--data``
 (made once, reused). Prints the tables for benchmarks/README.md and writes ``records.tsv`` (every record's
@@ -52,7 +58,9 @@ POWER = {"k_b": [-0.005, -0.01, -0.02, -0.05], "zeta_s": [0.2, 0.5, 1.0, 2.0], "
          "k_xy": [10.0, 20.0, 50.0, 100.0]}
 
 
-ARGS = argparse.Namespace(records_only=False)
+ARGS = argparse.Namespace(records_only=False, routes=False)
+#: the ways a record is judged side by side (``--routes``)
+ROUTES = ("auto", "library", "solver")
 
 
 def cpu() -> float:
@@ -77,6 +85,8 @@ def records(folder: Path, twin, n: int, values: dict, effects: list, integrator:
 def judge(twin, rows: list[dict], case: str, size: float, alpha: float) -> list[dict]:
     if ARGS.records_only:
         return []
+    if ARGS.routes:
+        return judge_routes(twin, rows, case, alpha)
     out = []
     for row in rows:
         w, c = time.perf_counter(), cpu()
@@ -101,6 +111,66 @@ def judge(twin, rows: list[dict], case: str, size: float, alpha: float) -> list[
                     "chi2_dof": s["chi2_dof"], "truth_inside": inside, "wall_s": time.perf_counter() - w,
                     "cpu_s": cpu() - c})
     return out
+
+
+def judge_routes(twin, rows: list[dict], case: str, alpha: float) -> list[dict]:
+    """Each record judged on every route of ``ROUTES`` (``--routes``): one row per record with each route's verdict,
+    named change, p-value and times (wall, CPU), and where the first verdict came from."""
+    out = []
+    for row in rows:
+        try:
+            record = intake(twin, row)
+        except RecordError as err:
+            print(f"# {row['run']}: {err}", file=sys.stderr)
+            continue
+        entry = {"case": case, "record": row["run"], "rpm": record.data[0].rpm,
+                 "eccentric_mass_g": record.eccentric_mass_g}
+        for route in ROUTES:
+            w, c = time.perf_counter(), cpu()
+            s = assess(twin, record, alpha, candidates=False, route=route).summary
+            entry |= {f"{route}_verdict": s["verdict"], f"{route}_changed": s["changed"],
+                      f"{route}_p_value": s["p_value"], f"{route}_wall_s": time.perf_counter() - w,
+                      f"{route}_cpu_s": cpu() - c}
+            if route == "auto":
+                entry |= {"auto_route": s["route"], "library": s["library"], "library_p_low": s["library_p_low"],
+                          "library_p_high": s["library_p_high"], "first_verdict_s": s["library_seconds"],
+                          "route_note": s["route_note"]}
+        out.append(entry)
+    return out
+
+
+def report_routes(table: pd.DataFrame) -> None:
+    """The side-by-side table of ``--routes``."""
+    def counts(rows, route):
+        return ", ".join(f"{v} {n}" for v, n in rows[f"{route}_verdict"].value_counts().items())
+
+    def named(rows, route):
+        return rows[f"{route}_verdict"] + ":" + rows[f"{route}_changed"].fillna("")
+
+    print("\n| case | records | on the library (its own verdict) | as `assess` answers (library, solver confirming) "
+          "| on the solver | library = solver | assess = solver | confirmed on the solver |\n|---|---|---|---|---|---|---|---|")
+    for case, rows in table.groupby("case", sort=False):
+        agree_lib = int((named(rows, "library") == named(rows, "solver")).sum())
+        agree = int((named(rows, "auto") == named(rows, "solver")).sum())
+        print(f"| {case} | {len(rows)} | {counts(rows, 'library')} | {counts(rows, 'auto')} | {counts(rows, 'solver')} "
+              f"| {agree_lib} | {agree} | {int((rows['auto_route'] == 'solver').sum())} |")
+    on_library = table[table["auto_route"] == "library"]
+    confirmed = table[table["auto_route"] == "solver"]
+    print("\ntimes per record (assess(): fits, verdict, tables; no import, no figure, no candidates), median wall / CPU "
+          "[s]:")
+    print("| | records | wall | CPU |\n|---|---|---|---|")
+    for label, rows, route in (("the library's verdict (route library)", table, "library"),
+                               ("the solver's verdict (route solver)", table, "solver"),
+                               ("assess, answered by the library", on_library, "auto"),
+                               ("assess, confirmed on the solver", confirmed, "auto")):
+        if len(rows):
+            print(f"| {label} | {len(rows)} | {rows[f'{route}_wall_s'].median():.3f} | "
+                  f"{rows[f'{route}_cpu_s'].median():.3f} |")
+    if len(on_library):
+        print(f"\nthe library's first verdict: median {on_library['first_verdict_s'].median():.3f} s, max "
+              f"{on_library['first_verdict_s'].max():.3f} s (wall, in assess())")
+    for note, n in table.loc[table["auto_route"] == "solver", "route_note"].str.split(" \\(").str[0].value_counts().items():
+        print(f"# confirmed on the solver, {n} record(s): {note}")
 
 
 def right(row: pd.Series) -> bool:
@@ -145,8 +215,10 @@ def main(argv=None) -> int:
     parser.add_argument("--alpha", type=float, default=ALPHA)
     parser.add_argument("--cases", default=",".join(CASES), help="the cases to judge (comma-separated)")
     parser.add_argument("--records-only", action="store_true", help="make the rig's records, judge nothing")
+    parser.add_argument("--routes", action="store_true",
+                        help="judge each record on the library, as assess does, and on the solver, side by side")
     args = parser.parse_args(argv)
-    ARGS.records_only = args.records_only
+    ARGS.records_only, ARGS.routes = args.records_only, args.routes
     twin = load_twin(args.twin)
     args.out.mkdir(parents=True, exist_ok=True)
     tag = f"{args.integrator}_{'kp' if args.keyphasor else 'nokp'}"
@@ -174,7 +246,11 @@ def main(argv=None) -> int:
     if args.records_only:
         return 0
     table = pd.DataFrame(rows)
-    table.to_csv(args.out / f"records_{tag}.tsv", sep="\t", index=False, float_format="%.6g")
+    table.to_csv(args.out / f"records_{tag}{'_routes' if args.routes else ''}.tsv", sep="\t", index=False,
+                 float_format="%.6g")
+    if args.routes:
+        report_routes(table)
+        return 0
     report(table, args)
     return 0
 

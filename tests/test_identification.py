@@ -578,3 +578,122 @@ def test_the_bow_law_uses_only_the_terms_the_fit_runs_vary():
     assert coef[2] == 0 and coef[1] != 0
     coef, predict = val.bow_law(table([600.0], [14.8]), "q_x")
     assert coef[1] == coef[2] == 0 and float(predict(900.0, 20.0)) == pytest.approx(coef[0])
+
+
+# --- the twin online answers from these libraries (issue 50) -------------------------------------------------------
+# The same project's twin card (rule twin_card: the libraries anchored on the solver at the twin) and new records of
+# its truth made by the rig (fresh noise and speed errors): each judged as `hybridtwin assess` does (the library
+# first) and on the full solver alone, the reference.
+
+
+@pytest.fixture(scope="module")
+def library_twin(geometric_truth):
+    from hybridtwin.online.twin import load_twin
+
+    work, _ = geometric_truth
+    run = subprocess.run([sys.executable, "-m", "snakemake", "--cores", "2", "results/geometric/twin.yaml"],
+                         cwd=work, capture_output=True, text=True)
+    assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-3000:]
+    return load_twin(work / "results" / "geometric")
+
+
+def _records(folder: Path, twin, runs: list[tuple[str, float, float]], values: dict | None = None, seed: int = 7,
+             noise_mm: float = 0.05, duration_s: float = 16.0):
+    """Rig records of the truth (``values`` changed) at (run, rpm, eccentric mass g), the fixture's imperfections
+    unless said; each taken in by the assessment's intake."""
+    from hybridtwin.online.intake import intake, read_sheet
+
+    plan = pd.DataFrame({"run": [r for r, _, _ in runs], "rpm": [v for _, v, _ in runs],
+                         "eccentric_mass_g": [m for _, _, m in runs], "role": "fit"})
+    spec = RigSpec.from_mapping({"seed": seed, "harmonics": 7,
+                                 "truth": {"effects": GEOMETRIC, "values": TRUTH | dict(values or {})},
+                                 "imperfections": {"noise_mm": noise_mm, "duration_s": duration_s, "keyphasor": True}})
+    generate(plan, spec, folder)
+    return [intake(twin, row) for row in read_sheet(folder / "runs.tsv")]
+
+
+def test_the_twin_card_names_its_libraries_anchored_on_the_solver(library_twin):
+    """The card says which library the twin has (scope run: one per run of the sheet, with its test errors), and
+    each library plus its anchor's shift is the full solver at the twin's values at the run's operating point
+    (the solver evaluated here again, independently of the card's solve: to its round-off)."""
+    from hybridtwin.online.library_route import _twin_values, load
+
+    twin = library_twin
+    library = twin.library
+    assert library["scope"] == "run" and [r["run"] for r in library["runs"]] == FIT + VALIDATE
+    assert "a library per run" in twin.library_line()
+    names = list(twin.variant.unknown)
+    lower, upper = (np.array(v, float) for v in zip(*twin.variant.unknown.values()))
+    for entry in library["runs"]:
+        anchor = entry["anchor"]
+        assert anchor is not None and 0 <= anchor["error_pct"] < entry["max_error_pct"] + anchor["raw_error_pct"]
+        x0 = 2 * (_twin_values(twin, entry["rpm"], entry["eccentric_mass_g"]) - lower) / (upper - lower) - 1
+        np.testing.assert_allclose(x0[0], anchor["x"], rtol=0, atol=1e-12)
+        solver = fwd.SolverModel(twin.variant, entry["run"], entry["rpm"], entry["eccentric_mass_g"], names, lower,
+                                 upper, twin.harmonics).evaluate(x0, False)[0][0]
+        surrogate = fwd.SensorSurrogate(load(twin.folder / library["file"].format(run=entry["run"])), twin.harmonics)
+        shifted = surrogate.evaluate(x0, False)[0][0] + np.array(anchor["offset_re_m"]) + 1j * np.array(
+            anchor["offset_im_m"])
+        # the same solve twice (batched in the card, alone here): Newton converged to 1e-10 of the state or better
+        np.testing.assert_allclose(shifted, solver, rtol=0, atol=1e-8 * np.abs(solver).max())
+
+
+def test_a_record_answered_by_the_library_has_the_solvers_verdict(library_twin, tmp_path):
+    """Records of the unchanged machine and of a bearing 5 % softer: the verdict `assess` gives (the library first,
+    the solver confirming where the library's error cannot decide) is the full solver's, and where the library
+    answered alone, the solver's p-value lies inside the interval the library's error bound gave it. The records
+    are short and noisy (2 mm, 1 s: sigmas of a few percent of the response), so that the anchored libraries'
+    errors near the twin (0.25-0.6 % at 850 and 1000 RPM) are small against them and can decide; with the
+    fixture's own records (0.05 mm, 16 s) they cannot (next test's second half)."""
+    from hybridtwin.online.assess import assess
+
+    twin = library_twin
+    runs = [("n850", 850.0, 0.0), ("n1000", 1000.0, 0.0), ("m850", 850.0, 0.0)]
+    same = _records(tmp_path / "same", twin, runs, noise_mm=2.0, duration_s=1.0)
+    soft = _records(tmp_path / "soft", twin, runs[:1], {"k_b": 0.95 * TRUTH["k_b"]}, noise_mm=2.0, duration_s=1.0)
+    answered = 0
+    for record in same + soft:
+        first, solver = assess(twin, record), assess(twin, record, route="solver")
+        assert (first.verdict, first.changed) == (solver.verdict, solver.changed), (first.line(), solver.line())
+        s = first.summary
+        assert s["library"].startswith("library/") and s["library_verdict"] in ("consistent", "changed",
+                                                                                  "new_discrepancy")
+        if s["route"] == "library":
+            answered += 1
+            assert s["library_p_low"] <= solver.summary["p_value"] <= s["library_p_high"], s
+            assert s["library_verdict"] == solver.verdict.value
+        else:
+            assert s["route_note"].startswith("the full solver confirms"), s["route_note"]
+    assert answered >= 1  # the library answers (the unchanged machine, at least once)
+    assert solver.verdict.value == "changed" and solver.changed == ["k_b"]  # the soft bearing named
+
+
+def test_a_record_the_librarys_error_cannot_decide_goes_to_the_solver(library_twin, tmp_path):
+    """The same twin with its libraries' errors a hundred times larger: no verdict can be decided on them, and the
+    full solver answers and says why; a record at a speed without a library goes to the solver, named."""
+    from hybridtwin.online.assess import assess
+    from hybridtwin.online.twin import load_twin, read_card, write_card
+
+    folder = tmp_path / "results" / "geometric"
+    shutil.copytree(library_twin.folder, folder, symlinks=True)
+    shutil.copytree(library_twin.folder.parent.parent / "config", tmp_path / "config")
+    card = read_card(folder / "twin.yaml")
+    for entry in card["library"]["runs"]:
+        entry["anchor"]["error_pct"] *= 100
+        entry["max_error_pct"] *= 100
+    write_card(card, folder / "twin.yaml")
+    twin = load_twin(folder)
+    record, = _records(tmp_path / "same", twin, [("s900", 900.0, 0.0)])
+    result, solver = assess(twin, record), assess(twin, record, route="solver")
+    s = result.summary
+    assert s["route"] == "solver" and s["route_note"].startswith("the full solver confirms"), s
+    assert s["library_p_low"] < 0.01 <= s["library_p_high"]  # the library's p-value interval straddles the level
+    assert (result.verdict, result.summary["p_value"]) == (solver.verdict, solver.summary["p_value"])
+    elsewhere, = _records(tmp_path / "elsewhere", library_twin, [("e875", 875.0, 0.0)])
+    s = assess(library_twin, elsewhere).summary
+    assert s["route"] == "solver" and "no library within" in s["route_note"] and s["library"] == "", s
+    # the fixture's own records (sigmas 0.01-0.1 % of the response) against the libraries' 0.25-3 % near the twin:
+    # the library cannot decide, and the solver confirms, with its own verdict
+    precise, = _records(tmp_path / "precise", library_twin, [("p900", 900.0, 0.0)])
+    result, solver = assess(library_twin, precise), assess(library_twin, precise, route="solver")
+    assert result.summary["route"] == "solver" and result.verdict is solver.verdict, result.summary["route_note"]

@@ -1,6 +1,7 @@
 # The twin online (issue 40): a built twin's card, and every new record of a folder judged against it.
 # results/{variant}/ is the twin; its card twin.yaml says what the twin is (the variant as configured, its fit runs,
-# harmonics, keyphasor, candidates), so that `hybridtwin assess RECORD --twin results/{variant}` needs nothing else.
+# harmonics, keyphasor, candidates, the sPGD library it has), so that `hybridtwin assess RECORD --twin results/{variant}`
+# needs nothing else; with a library, the record's first verdict comes from it (hybridtwin.online.library_route).
 
 
 rule twin_card:
@@ -10,6 +11,8 @@ rule twin_card:
         correlation="results/{variant}/identification/correlation.tsv",
         summary="results/{variant}/identification/summary.yaml",
         harmonics="results/data/harmonics.tsv",
+        library=library_validation_input,  # the library's test errors (none without libraries): the card names it
+        libraries=lambda wildcards: fit_libraries(wildcards, RUNS),  # anchored on the solver at the twin
         effects=variant_effects,  # their contents build the variant (params.model has only the paths)
     output:
         card="results/{variant}/twin.yaml",
@@ -25,6 +28,7 @@ rule twin_card:
         keyphasor=SETTINGS.identification.keyphasor,
         candidates=SETTINGS.diagnosis.candidates,
         sensor_range_mm=CHECK_SETTINGS["sensor_range_mm"],
+        scope=OFFLINE.scope,
     script:
         "../../scripts/twin_card.py"
 

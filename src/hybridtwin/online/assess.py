@@ -43,7 +43,7 @@ from scipy.special import chdtrc, ndtri  # chi^2's survival function, the normal
 from ..diagnose.fingerprint import Fingerprint, fingerprint
 from ..identify.arrow_problem import Layout
 from ..settings import defaults
-from . import fits
+from . import fits, library_route
 from .intake import Intake
 from .twin import Twin
 
@@ -83,8 +83,11 @@ CANDIDATE_COLUMNS = ["candidate", "statistic", "dof", "p_value", "log_p", "beyon
 SUMMARY_COLUMNS = ["record", "path", "kind", "timestamp", "timestamp_source", "twin", "verdict", "alpha", "n_runs",
                    "rpm_low", "rpm_high", "eccentric_mass_g", "n_data", "chi2", "dof", "chi2_dof", "p_value", "p_fit",
                    "move", "p_move", "changed", "alternatives", "best", "best_chi2", "best_dof", "best_p_value",
-                   "twin_chi2_dof",
-                   "left_out", "seconds"]
+                   "twin_chi2_dof", "left_out",
+                   # where the verdict came from (``library_route``): "library" or "solver", the library used, its
+                   # own verdict and the interval of its p-value across its error bound, its time, and why
+                   "route", "library", "library_verdict", "library_p_low", "library_p_high", "library_bound",
+                   "library_seconds", "route_note", "seconds"]
 
 
 @dataclass
@@ -112,7 +115,8 @@ class Assessment:
     def line(self) -> str:
         """The one-line verdict for the console."""
         s = self.summary
-        head = (f"{s['record']}: {OPENINGS[self.verdict]} ({s['twin']}): chi^2/dof {s['chi2_dof']:.3g} on {s['dof']} "
+        where = "library" if s.get("route") == "library" else "solver"
+        head = (f"{s['record']}: {OPENINGS[self.verdict]} ({s['twin']}, on the {where}): chi^2/dof {s['chi2_dof']:.3g} on {s['dof']} "
                 f"dof (p {s['p_fit']:.2g}), largest move {s['move']} (p {s['p_move']:.2g}): p = {s['p_value']:.2g}")
         if self.verdict is Verdict.CONSISTENT:
             return head
@@ -163,7 +167,7 @@ class Assessment:
 def read_summary(path: str | Path) -> pd.DataFrame:
     """assessment.tsv (or rows of them), text columns as text, numbers as numbers (``SUMMARY_COLUMNS``)."""
     text = {"record", "path", "kind", "timestamp", "timestamp_source", "twin", "verdict", "move", "changed",
-            "alternatives", "best", "left_out"}
+            "alternatives", "best", "left_out", "route", "library", "library_verdict", "route_note"}
     table = _read(path, text)
     for column in ("n_runs", "n_data", "dof", "best_dof"):
         table[column] = table[column].astype(int)
@@ -189,18 +193,35 @@ def _move(row) -> str:
 # --- the assessment ------------------------------------------------------------------------------
 
 
-def assess(twin: Twin, record: Intake, alpha: float = ALPHA, candidates: bool = True) -> Assessment:
-    """``record`` judged against ``twin`` at level ``alpha`` (module docstring); ``candidates`` False skips the
-    score tests of a new discrepancy (the benchmark's speed)."""
-    start = time.perf_counter()
-    prior = twin.prior([(d.rpm, d.eccentric_mass_g) for d in record.data])
-    problem = fits.RecordProblem(twin.variant, record.data, prior, twin.harmonics)
-    groups = [(p,) for p in problem.shared if p not in prior.undetermined] + ([tuple(problem.local)]
-                                                                               if problem.local else [])
+@dataclass
+class _Judgement:
+    """The tests of a record on one forward model (module docstring): the twin's fit, the groups' first-order moves
+    (``linear``), the groups' fits (``singles``: the full fits after an alarm, else the first-order ones), every fit
+    tried, the verdict and the change named."""
+
+    verdict: Verdict
+    base: fits.RecordFit
+    linear: list
+    singles: list
+    tried: list
+    named: fits.RecordFit | None
+    alternatives: list[str]
+    best: fits.RecordFit
+    p_fit: float
+    move: str
+    p_move: float
+    pairs: bool = False
+
+
+def _judge(problem: fits.RecordProblem, alpha: float) -> _Judgement:
+    """The verdict of the record in ``problem`` at level ``alpha`` (module docstring, steps 1-3 without the
+    candidates)."""
+    groups = [(p,) for p in problem.shared if p not in problem.prior.undetermined] + (
+        [tuple(problem.local)] if problem.local else [])
     base = fits.fit(problem, [fits.Hypothesis()])[0]
-    singles = [fits.linearised(problem, base, fits.Hypothesis((g,))) for g in groups]
-    p_fit, move, p_move = base.p_value, *_largest_move(problem, base, singles)
-    named, alternatives, best, ranked, found = None, [], base, pd.DataFrame(columns=CANDIDATE_COLUMNS), None
+    singles = linear = [fits.linearised(problem, base, fits.Hypothesis((g,))) for g in groups]
+    p_fit, (move, p_move) = base.p_value, _largest_move(problem, base, singles)
+    named, alternatives, best, tried, pairs = None, [], base, [], False
     verdict = Verdict.CONSISTENT
     if min(1.0, 2 * min(p_fit, p_move)) < alpha:  # an alarm: the fit beyond the noise, or a move beyond the prior
         singles = fits.fit(problem, [fits.Hypothesis((g,)) for g in groups], base)
@@ -209,10 +230,10 @@ def assess(twin: Twin, record: Intake, alpha: float = ALPHA, candidates: bool = 
         explaining = [f for f in tried if f.p_value >= alpha and 2 * len(groups) * _lr(problem, base, f)[2] < alpha]
         if not explaining and p_fit < alpha and len(groups) > 1:
             top = sorted(singles, key=lambda f: f.chi2)[:PAIRS_OF]
-            pairs = [fits.Hypothesis(a.hypothesis.groups + b.hypothesis.groups)
-                     for a, b in itertools.combinations(top, 2)]
-            tried += fits.fit(problem, pairs, base)
-            explaining = [f for f in tried if f.p_value >= alpha]
+            combined = [fits.Hypothesis(a.hypothesis.groups + b.hypothesis.groups)
+                        for a, b in itertools.combinations(top, 2)]
+            tried += fits.fit(problem, combined, base)
+            explaining, pairs = [f for f in tried if f.p_value >= alpha], True
         if explaining:
             explaining = _ranked(problem, base, explaining)
             verdict, named = Verdict.CHANGED, explaining[0]
@@ -220,23 +241,69 @@ def assess(twin: Twin, record: Intake, alpha: float = ALPHA, candidates: bool = 
             alternatives = [f.hypothesis.name for f in explaining[1:]]
         elif p_fit < alpha:
             verdict, best = Verdict.NEW_DISCREPANCY, min(tried, key=lambda f: f.chi2)
-            found = _fingerprint(problem, best)
-            if candidates:
-                ranked = _candidates(twin, problem, base)
         # else: the move the first-order test saw does not hold up in the full fits, and the fit is at the noise
-    table = parameter_table(twin, problem, base, singles, named, alpha)
+    return _Judgement(verdict, base, linear, singles, tried, named, alternatives, best, p_fit, move, p_move, pairs)
+
+
+def assess(twin: Twin, record: Intake, alpha: float = ALPHA, candidates: bool = True,
+           route: str = "auto") -> Assessment:
+    """``record`` judged against ``twin`` at level ``alpha`` (module docstring); ``candidates`` False skips the
+    score tests of a new discrepancy (the benchmark's speed). ``route``: "auto" (the twin's library first when it
+    has one for the record, the full solver where the library's error cannot decide: ``library_route``), "solver"
+    (the full solver only) or "library" (the library's verdict even where it cannot decide: a benchmark's
+    comparison)."""
+    if route not in ("auto", "solver", "library"):
+        raise ValueError(f"route {route!r}: auto, solver or library")
+    start = time.perf_counter()
+    prior = twin.prior([(d.rpm, d.eccentric_mass_g) for d in record.data])
+    info = {"route": "solver", "library": "", "library_verdict": "", "library_p_low": math.nan,
+            "library_p_high": math.nan, "library_bound": math.nan, "library_seconds": math.nan, "route_note": ""}
+    judgement = None
+    if route != "solver":
+        choice, why = library_route.choose(twin, record)
+        if choice is None:
+            info["route_note"] = f"on the full solver: {why}"
+        else:
+            problem = fits.RecordProblem(twin.variant, record.data, prior, twin.harmonics, choice.libraries,
+                                         choice.sigma_error, choice.offsets)
+            judgement = _judge(problem, alpha)
+            decision = library_route.decide(problem, judgement, alpha, choice, TIE)
+            info |= {"library": choice.name, "library_verdict": judgement.verdict.value,
+                     "library_p_low": decision.p_low, "library_p_high": decision.p_high,
+                     "library_bound": decision.bound, "library_seconds": time.perf_counter() - start}
+            notes = "; ".join(choice.notes)
+            if decision.decided or route == "library":
+                info["route"] = "library"
+                info["route_note"] = (f"the library decides: p in [{decision.p_low:.2g}, {decision.p_high:.2g}] "
+                                      f"across its error" if decision.decided else
+                                      f"the library's verdict, undecided: {decision.why}") + (
+                                      f" ({notes})" if notes else "")
+            else:
+                info["route_note"] = f"the full solver confirms: {decision.why}" + (f" ({notes})" if notes else "")
+                judgement = None
+    if judgement is None:
+        problem = fits.RecordProblem(twin.variant, record.data, prior, twin.harmonics)
+        judgement = _judge(problem, alpha)
+    j = judgement
+    ranked, found = pd.DataFrame(columns=CANDIDATE_COLUMNS), None
+    if j.verdict is Verdict.NEW_DISCREPANCY:
+        found = _fingerprint(problem, j.best)
+        if candidates:
+            ranked = _candidates(twin, problem, j.base)
+    table = parameter_table(twin, problem, j.base, j.singles, j.named, alpha)
     lo, hi = min(d.rpm for d in record.data), max(d.rpm for d in record.data)
+    base, best, named = j.base, j.best, j.named
     summary = {
         "record": record.run, "path": str(record.path), "kind": record.kind, "timestamp": record.timestamp,
-        "timestamp_source": record.timestamp_source, "twin": twin.name, "verdict": verdict.value, "alpha": alpha,
+        "timestamp_source": record.timestamp_source, "twin": twin.name, "verdict": j.verdict.value, "alpha": alpha,
         "n_runs": len(record.data), "rpm_low": lo, "rpm_high": hi, "eccentric_mass_g": record.eccentric_mass_g,
         "n_data": int(problem.X.size * 2), "chi2": base.chi2, "dof": base.dof, "chi2_dof": base.chi2 / max(base.dof, 1),
-        "p_value": min(1.0, 2 * min(p_fit, p_move)), "p_fit": p_fit, "move": move, "p_move": p_move,
+        "p_value": min(1.0, 2 * min(j.p_fit, j.p_move)), "p_fit": j.p_fit, "move": j.move, "p_move": j.p_move,
         "changed": ",".join(named.hypothesis.free) if named else "",
-        "alternatives": "; ".join(alternatives), "best": best.hypothesis.name, "best_chi2": best.chi2,
+        "alternatives": "; ".join(j.alternatives), "best": best.hypothesis.name, "best_chi2": best.chi2,
         "best_dof": best.dof, "best_p_value": best.p_value, "twin_chi2_dof": float(twin.card["fit"]["chi2_dof"]),
         "left_out": "; ".join(f"{run}: {why}" for run, why in record.left_out.items()),
-        "seconds": time.perf_counter() - start}
+        **info, "seconds": time.perf_counter() - start}
     return Assessment(summary, table, harmonic_table(problem, base, best), ranked, found, list(record.warnings))
 
 

@@ -33,8 +33,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.special import chdtrc  # chi^2's survival function (scipy.stats costs ~1 s to import)
 
-from ..data.measured import RunData
-from ..identify.forward import SolverModel, evaluate_runs
+from ..data.measured import RunData, total_sigma
+from ..identify.forward import SensorSurrogate, SolverModel, evaluate_runs
 from ..model.variants import Variant
 from .twin import Prior
 
@@ -99,18 +99,34 @@ class RecordFit:
 
 
 class RecordProblem:
-    """The record's least squares for any hypothesis (module docstring)."""
+    """The record's least squares for any hypothesis (module docstring).
 
-    def __init__(self, variant: Variant, data: Sequence[RunData], prior: Prior, harmonics: int):
+    ``libraries`` (one sPGD ``Library`` per run of ``data``, over the variant's unknowns and ranges): the responses
+    from them instead of the full solver (``library_route``), each shifted by its run's ``offsets`` (H', C) complex
+    [m] when given (the anchor), the sigmas then the measured ones and each run's relative ``model_error`` in
+    quadrature (``measured.total_sigma``, as the identification on the libraries); ``measured_sigma`` keeps the
+    measured ones alone."""
+
+    def __init__(self, variant: Variant, data: Sequence[RunData], prior: Prior, harmonics: int,
+                 libraries: Sequence | None = None, model_error: Sequence[float] | None = None,
+                 offsets: Sequence[Array | None] | None = None):
         self.variant, self.data, self.prior = variant, list(data), prior
         self.names = list(variant.unknown)
         lower, upper = (np.array(v, float) for v in zip(*variant.unknown.values()))
         self.lower, self.upper = lower, upper
         H = min(harmonics, min(d.H for d in data))
+        if libraries is not None:
+            H = min([H] + [library.n_harmonics - 1 for library in libraries]
+                    + [len(o) for o in offsets or () if o is not None])
         self.H, self.R = H, len(data)
-        self.models = [SolverModel.for_data(variant, d, self.names, lower, upper, H) for d in data]
+        self.libraries = None if libraries is None else list(libraries)
+        self.models = ([SolverModel.for_data(variant, d, self.names, lower, upper, H) for d in data]
+                       if libraries is None else [Shifted(SensorSurrogate(library, H), o) for library, o in
+                                                  zip(libraries, offsets or [None] * len(libraries))])
         self.X = np.stack([d.X[:H] for d in data])  # (R, H, C)
-        self.sigma = np.stack([d.sigma[:H] for d in data])
+        self.measured_sigma = np.stack([d.sigma[:H] for d in data])
+        self.sigma = self.measured_sigma if model_error is None else np.stack(
+            [total_sigma(d, e)[:H] for d, e in zip(data, model_error)])
         self.C = self.X.shape[2]
         self.local = [p for p in self.names if (p, 0) in prior.names]
         self.shared = [p for p in self.names if p not in self.local]
@@ -159,15 +175,19 @@ class RecordProblem:
 
     # --- residuals and Jacobian -------------------------------------------------------------
 
-    def responses(self, V: Array) -> list[tuple[Array, Array]]:
-        """Every run's model M (N, H, C) and dM/dx (N, H, C, d) at the rows of V (N, n), one batched solve."""
+    def run_x(self, V: Array) -> list[Array]:
+        """Every run's normalised parameters x (N, d) at the rows of V (N, n), in the variant's order."""
         xs = []
         for k in range(self.R):
             x = np.empty((V.shape[0], len(self.names)))
             for j, p in enumerate(self.names):
                 x[:, j] = V[:, self.column[(p, None) if p in self.shared else (p, k)]]
             xs.append(x)
-        return [(M[:, : self.H], dM[:, : self.H]) for M, dM in evaluate_runs(self.models, xs, True)]
+        return xs
+
+    def responses(self, V: Array) -> list[tuple[Array, Array]]:
+        """Every run's model M (N, H, C) and dM/dx (N, H, C, d) at the rows of V (N, n), one batched solve."""
+        return [(M[:, : self.H], dM[:, : self.H]) for M, dM in evaluate_runs(self.models, self.run_x(V), True)]
 
     def residuals(self, V: Array, responses, hypotheses: Sequence[Hypothesis]) -> list[tuple[Array, Array, int]]:
         """Per row of V: the residual vector, its Jacobian (rows, n) and the number of data rows."""
@@ -226,6 +246,19 @@ class RecordProblem:
         """The model of row ``row`` in the record's frame (R, H, C)."""
         return np.stack([np.exp(1j * self.h * V[row, self.column[("phase", k)]])[:, None] * M[row]
                          for k, (M, _) in enumerate(responses)])
+
+
+class Shifted:
+    """A forward model (``forward.HarmonicModel``) plus a constant ``offset`` (H', C) complex [m] on its response
+    (None: none): a library anchored on the full solver (``library_route``)."""
+
+    def __init__(self, model, offset: Array | None):
+        self.model, self.offset = model, offset
+        self.parameters, self.lower, self.upper, self.H = model.parameters, model.lower, model.upper, model.H
+
+    def evaluate(self, x: Array, jacobian: bool = True) -> tuple[Array, Array | None]:
+        M, dM = self.model.evaluate(x, jacobian)
+        return (M if self.offset is None else M + self.offset[None, : M.shape[1]]), dM
 
 
 def fit(problem: RecordProblem, hypotheses: Sequence[Hypothesis], start: RecordFit | None = None

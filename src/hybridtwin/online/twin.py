@@ -9,7 +9,11 @@ A twin is what the workflow leaves in ``results/{variant}/``. What the online as
   chi^2/dof. Effects files are named as in the config, relative to the project's ``config/`` folder (the project:
   the folder holding ``results/``);
 - ``parameters.tsv``, the joint fit (``Identification.table``): the estimates and their standard errors;
-- ``identification/correlation.tsv``: the joint fit's correlation of every entry.
+- ``identification/correlation.tsv``: the joint fit's correlation of every entry;
+- its sPGD library, when it was built with one (``offline.scope`` run or global; the card's ``library``,
+  ``library_card``): ``library/{run}.zarr`` per run of the runs sheet (scope run) or ``library_global.zarr`` over
+  the unknowns, rpm and eccentric mass (scope global), with each run's test errors against the full solver from
+  ``library_validation.tsv``. A record's first verdict comes from it (``library_route``).
 
 The prior (``Twin.prior``): the twin's estimates as a Gaussian over what a new record's fit estimates. Shared
 parameters at their joint estimates with their joint covariance; a per-run parameter (the bow q_x, q_y on the VARM)
@@ -52,11 +56,35 @@ class TwinError(ValueError):
     """A twin folder that cannot be assessed against: one line naming the file and the problem."""
 
 
+#: the library's files in the twin's folder (``library_card``)
+LIBRARY_FILES = {"run": "library/{run}.zarr", "global": "library_global.zarr", "validation": "library_validation.tsv"}
+#: the library errors the card keeps of library_validation.tsv, per run and over all runs [%]
+LIBRARY_ERRORS = ["median_error_pct", "p95_error_pct", "max_error_pct"]
+
+
+def library_card(scope: str, validation: pd.DataFrame | None) -> dict | None:
+    """The card's ``library`` entry: which library the twin has (None: none, ``offline.scope: none``), from its
+    validation table (``offline.library.read_library_validation``): the scope, the files (``LIBRARY_FILES``), and
+    per run of the sheet its speed as solved, eccentric mass and test errors, and the errors over all runs."""
+    if scope == "none" or validation is None:
+        return None
+    if scope not in ("run", "global"):
+        raise ValueError(f"offline.scope {scope!r}: run, global or none")
+    runs = validation[validation["run"] != "all runs"]
+    pooled = validation[validation["run"] == "all runs"]
+    return {"scope": scope, "validation": LIBRARY_FILES["validation"],
+            "file": LIBRARY_FILES["global"] if scope == "global" else LIBRARY_FILES["run"],
+            "runs": [{"run": str(r["run"]), "rpm": float(r["rpm"]), "eccentric_mass_g": float(r["eccentric_mass_g"]),
+                      **{c: float(r[c]) for c in LIBRARY_ERRORS}} for r in runs.to_dict("records")],
+            "all_runs": {c: float(pooled[c].iloc[0]) if len(pooled) else math.nan for c in LIBRARY_ERRORS}}
+
+
 def make_card(variant: str, model: Mapping, harmonics: int, keyphasor: bool, candidates: Sequence[str] | None,
-              sensor_range_mm: float, runs: pd.DataFrame, fit: Mapping) -> dict:
+              sensor_range_mm: float, runs: pd.DataFrame, fit: Mapping, library: Mapping | None = None) -> dict:
     """The card's mapping (``write_card`` writes it, ``read_card`` reads it back): ``model`` as the workflow's jobs
     receive it (``variants: {variant: spec}``, ``machine``, ``effects_files``), ``runs`` the fit runs (run, rpm,
-    eccentric_mass_g), ``fit`` the joint fit's summary (chi2_dof, dof)."""
+    eccentric_mass_g), ``fit`` the joint fit's summary (chi2_dof, dof), ``library`` the twin's sPGD library
+    (``library_card``; None: none)."""
     return {
         "format": FORMAT, "package": _version(), "variant": str(variant),
         "model": {"variants": {variant: _plain(model["variants"][variant])}, "machine": _plain(model.get("machine")),
@@ -67,6 +95,7 @@ def make_card(variant: str, model: Mapping, harmonics: int, keyphasor: bool, can
         "runs": [{"run": str(r.run), "rpm": float(r.rpm), "eccentric_mass_g": float(r.eccentric_mass_g)}
                  for r in runs.itertuples()],
         "fit": {"chi2_dof": float(fit["chi2_dof"]), "dof": int(fit["dof"])},
+        "library": None if library is None else _plain(dict(library)),
     }
 
 
@@ -124,6 +153,24 @@ class Twin:
     @property
     def name(self) -> str:
         return str(self.card["variant"])
+
+    @property
+    def library(self) -> dict | None:
+        """The twin's sPGD library as its card says (``library_card``), None when it has none (or its card predates
+        the entry)."""
+        return self.card.get("library") or None
+
+    def library_line(self) -> str:
+        """Which library the twin has, in words."""
+        library = self.library
+        if library is None:
+            return "no library (offline.scope: none): every verdict on the full solver"
+        if library["scope"] == "global":
+            return (f"one global library ({library['file']}) over the unknowns, rpm and eccentric mass; test error "
+                    f"median {library['all_runs']['median_error_pct']:.3g} %, max "
+                    f"{library['all_runs']['max_error_pct']:.3g} %")
+        return (f"a library per run ({library['file']}, {len(library['runs'])} runs); test error median "
+                f"{library['all_runs']['median_error_pct']:.3g} %, max {library['all_runs']['max_error_pct']:.3g} %")
 
     @property
     def harmonics(self) -> int:
