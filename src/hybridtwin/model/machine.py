@@ -427,9 +427,10 @@ class Machine(DofCounts):
 
     def tilt_stiffness(self, node: int) -> float:
         """4 E I / h of the stiffest shaft element at ``node`` [N m/rad]: the moment that turns the element's end by
-        one radian with the other end clamped, the scale of a bearing's moment stiffness there."""
+        one radian with the other end clamped, the scale of a bearing's moment stiffness there (the layers lying on an
+        element add theirs: their matrices add, ``_elements``)."""
         elements = [e for e in (node - 1, node) if 0 <= e < self.n]
-        return max(4 * s.E * s.bending_I / s.h for s in (self.segments[self._segment_of_element[e]] for e in elements))
+        return max(sum(4 * s.E * s.bending_I / s.h for element, s in self._elements if element == e) for e in elements)
 
     def sized_candidates(self) -> dict[str, Effect]:
         """The candidates sized to this machine (``bearing_candidates``), by name: at each bearing with nominal k its
