@@ -158,8 +158,7 @@ ROTOR_MODULES = ("ross.rotor_assembly", "ross.multi_rotor")
 REFUSED = {
     "coaxrotor_example": "a CoAxialRotor (several shafts",
     "two_shaft_rotor_example": "a MultiRotor (several shafts",
-    "rotor_amb_example": "alpha = 2.5 is not modelled here (must be 0); alpha, beta: the element's proportional",
-    "rotor_example_with_damping": "alpha = 8.0501 is not modelled here",
+    "rotor_amb_example": "ROSS bearing 'Magnetic Bearing 0' (node 12): a MagneticBearingElement (an active magnetic",
 }
 
 
@@ -185,8 +184,8 @@ def test_every_example_rotor_of_ross_imports_or_is_refused(rs):  # noqa: F811 (t
                 continue
             seen[function] = "imported"
             assert machine.n_nodes == len(rotor.nodes), function
-    assert {"rotor_example", "compressor_example", "rotor_example_6dof"} <= {k for k, v in seen.items()
-                                                                           if v == "imported"}, seen
+    assert {"rotor_example", "compressor_example", "rotor_example_6dof", "rotor_example_with_damping"} <= {
+        k for k, v in seen.items() if v == "imported"}, seen
     assert set(REFUSED) <= set(seen), seen
 
 
@@ -235,3 +234,55 @@ def test_layer_config_form_round_trips_and_bad_layers_are_one_line():
         Machine.from_mapping({"segments": [SHAFT, spec["segments"][1] | {"length": 0.05}]})
     with pytest.raises(MachineSpecError, match=r"the shaft needs at least one segment \(not a layer"):
         Machine.from_mapping({"segments": [spec["segments"][1]]})
+
+
+def test_proportional_damping_matches_ross(rs):  # noqa: F811 (the fixture)
+    """ROSS's ``rotor_example_with_damping()`` (elements with alpha M + beta K): the segments carry alpha and beta, with
+    the bearings' the effect ``shaft_damping`` makes ROSS's C (``Rotor.C``), and the Campbell data
+    (frequencies, damping ratios) of the 6 lowest lateral modes at 0 and 800 rad/s are ROSS's (RTOL); without the
+    shaft's damping the damping ratios move far beyond it (asserted)."""
+    from hybridtwin.model.ross_io import machine_from_ross
+
+    rotor = importlib.import_module("ross.rotor_assembly").rotor_example_with_damping()
+    machine = machine_from_ross(rotor)
+    assert {(s.alpha, s.beta) for s in machine.segments} == {(8.0501, 1e-5)}
+    fx = machine.effects()
+    bearings = [fx[k] for k in fx if k.startswith(("linear_bearing@", "bearing_table@"))]
+    index, sign = _ross_dofs(machine)
+    model = Model(bearings + [fx["shaft_damping"], fx["gyroscopic"]], machine)
+    values = {k: p.nominal for k, p in model.parameters.items()}
+    ours = Model(bearings + [fx["shaft_damping"]], machine).system(values, [0.0]).C[0]  # shaft and bearings, at rest
+    _close(ours, rotor.C(0.0)[np.ix_(index, index)] * np.outer(sign, sign), MATRIX_RTOL)
+    speeds = np.array([0.0, 800.0])
+    table = campbell(model, values, speeds * 60 / (2 * np.pi), n_modes=6)
+    undamped = campbell(Model(bearings + [fx["gyroscopic"]], machine), values, speeds * 60 / (2 * np.pi), n_modes=6)
+    for speed, rpm in zip(speeds, sorted(set(table.rpm))):
+        modal = rotor.run_modal(speed, num_modes=40, sparse=False)
+        lateral = np.array([w is not None and w != "None" for w in modal.whirl_direction()])
+        at = table[table.rpm == rpm]
+        np.testing.assert_allclose(at.frequency_hz.to_numpy() * 2 * np.pi, modal.wd[lateral][:6], rtol=RTOL)
+        np.testing.assert_allclose(at.damping_ratio.to_numpy(), modal.damping_ratio[lateral][:6], rtol=RTOL)
+    change = np.abs(table.damping_ratio.to_numpy() / undamped.damping_ratio.to_numpy() - 1)
+    assert change.max() > 1e3 * RTOL, change.max()
+
+
+def test_shaft_damping_is_alpha_m_plus_beta_k_of_the_segments():
+    """Without disks and with one segment, the effect ``shaft_damping`` is alpha M + beta K of the shaft's own
+    matrices (rotary inertia in M); a layer's damping adds where it lies only; the config form round-trips."""
+    from hybridtwin.model.model import Model
+
+    spec = {"segments": [SHAFT | {"alpha": 3.0, "beta": 2e-5}], "rotary_inertia": True, "shear": True}
+    machine = Machine.from_mapping(spec)
+    K, M = machine.matrices()
+    C = Model([machine.effects()["shaft_damping"]], machine).system({}, [1000.0]).C[0]
+    np.testing.assert_allclose(C, 3.0 * M + 2e-5 * K, rtol=1e-12, atol=1e-12 * np.abs(C).max())
+    assert Machine.from_mapping(machine.to_mapping()).to_mapping() == machine.to_mapping()
+    assert "damping alpha 3 1/s, beta 2e-05 s" in machine.describe()
+    assert "shaft_damping" not in Machine.from_mapping({"segments": [SHAFT]}).effects()
+    sleeve = SHAFT | {"length": 0.1, "n_elements": 2, "node": 2, "d_out": 0.08, "d_in": 0.05, "alpha": 1.0}
+    layered = Machine.from_mapping({"segments": [SHAFT, sleeve]})
+    C = layered.shaft_damping_matrix()
+    touched = np.flatnonzero(np.abs(C).sum(axis=0))
+    assert {layered.dof(f"u{i}") for i in (2, 3, 4)} <= set(touched) and layered.dof("u1") not in touched
+    with pytest.raises(MachineSpecError, match="alpha \\(proportional damping\\) must be a number >= 0"):
+        Machine.from_mapping({"segments": [SHAFT | {"alpha": -1.0}]})

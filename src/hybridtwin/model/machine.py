@@ -217,7 +217,7 @@ class Machine(DofCounts):
             varm = cls.varm()
             spec = {**varm.to_mapping(), "name": spec.get("name", varm.name)}
         segments = [_build(ShaftSegment, item, ("segments", i), {"length", "d_out", "E", "rho"},
-                           {"d_in", "n_elements", "I", "m", "G", "node"})
+                           {"d_in", "n_elements", "I", "m", "G", "node", "alpha", "beta"})
                     for i, item in enumerate(_sequence(spec, "segments"))]
         disks = [_build(Disk, item, ("disks", i), {"node", "mass"}, {"I_p", "I_d", "name"})
                  for i, item in enumerate(_sequence(spec, "disks"))]
@@ -310,6 +310,29 @@ class Machine(DofCounts):
         return np.block([[K_p, zero], [zero, K_p]]), np.block([[M_p, zero], [zero, M_p]])
 
     @cached_property
+    def _damping(self) -> np.ndarray:
+        C = np.zeros((self.n_plane, self.n_plane))
+        for e, segment in self._elements:
+            if not (segment.alpha or segment.beta):
+                continue
+            phi = segment.phi(self.shear)
+            K_e, M_e = beam_element(segment.h, segment.E * segment.bending_I, segment.mass_per_length, phi)
+            if self.rotary_inertia:
+                M_e = M_e + slope_element(segment.h, segment.rho * segment.section_I, phi)
+            sl = slice(2 * e, 2 * e + 4)
+            C[sl, sl] += segment.alpha * M_e + segment.beta * K_e
+        zero = np.zeros_like(C)
+        C = np.block([[C, zero], [zero, C]])
+        C.flags.writeable = False
+        return C
+
+    def shaft_damping_matrix(self) -> np.ndarray:
+        """The shaft's proportional damping (n_dof square, both planes): sum over the elements of every segment and
+        layer of alpha M_e + beta K_e, M_e with the sections' rotary inertia when the machine has it (ROSS's
+        ShaftElement.C). Zero unless a segment gives alpha or beta."""
+        return self._damping.copy()
+
+    @cached_property
     def _gyroscopic(self) -> np.ndarray:
         R = np.zeros((self.n_plane, self.n_plane))
         for e, segment in self._elements:
@@ -398,12 +421,14 @@ class Machine(DofCounts):
 
     def effects(self) -> dict[str, Effect]:
         """The effects this machine adds to the built-in ones, by name (for a variant's effect list):
-        ``gyroscopic``; ``linear_bearing@<bearing>`` for each bearing with nominal coefficients (and
-        ``bearing_table@<bearing>`` for one with a table of coefficients against speed); every placeable built-in
-        effect at every bearing, ``<effect>@<bearing>``; ``unbalance@<plane>`` for each unbalance plane (the run's
-        eccentric mass m_e at that plane); and the candidates sized to the machine (``sized_candidates``, over a
-        placed built-in of the same name)."""
+        ``gyroscopic``; ``shaft_damping`` when a segment gives alpha or beta; ``linear_bearing@<bearing>`` for each
+        bearing with nominal coefficients (and ``bearing_table@<bearing>`` for one with a table of coefficients against
+        speed); every placeable built-in effect at every bearing, ``<effect>@<bearing>``; ``unbalance@<plane>`` for
+        each unbalance plane (the run's eccentric mass m_e at that plane); and the candidates sized to the machine
+        (``sized_candidates``, over a placed built-in of the same name)."""
         out: dict[str, Effect] = {"gyroscopic": Gyroscopic()}
+        if any(s.alpha or s.beta for s in self.segments):
+            out["shaft_damping"] = ShaftDamping()
         placeable = [e for e in builtin_effects().values() if hasattr(e, "node")]
         for bearing in self.bearings:
             if bearing.k is not None:
@@ -465,6 +490,7 @@ class Machine(DofCounts):
             item["n_elements"] = int(s.n_elements)
             item |= {k: float(getattr(s, k)) for k in ("I", "m", "G") if getattr(s, k) is not None}
             item |= {"node": int(s.node)} if s.node is not None else {}
+            item |= {k: float(getattr(s, k)) for k in ("alpha", "beta") if getattr(s, k)}
             segments.append(item)
         out = {"name": self.name, "segments": segments}
         if self.disks:
@@ -509,7 +535,8 @@ class Machine(DofCounts):
                          f"length {s.length:g} m, "
                          f"d_out {s.d_out:g} m, d_in {s.d_in:g} m, E {s.E:g} Pa, rho {s.rho:g} kg/m^3"
                          + (f", I {s.I:g} m^4" if s.I is not None else "")
-                         + (f", m {s.m:g} kg/m" if s.m is not None else ""))
+                         + (f", m {s.m:g} kg/m" if s.m is not None else "")
+                         + (f", damping alpha {s.alpha:g} 1/s, beta {s.beta:g} s" if s.alpha or s.beta else ""))
             node += s.n_elements if s.node is None else 0
         for d in self.disks:
             lines.append(f"  disk {d.name or ''} at node {d.node}: mass {d.mass:g} kg, I_p {d.I_p:g}, "
@@ -546,6 +573,18 @@ class Gyroscopic(Effect):
     def damping(self, ctx: Context) -> Array:
         G = _structure(ctx, self.name).gyroscopic_matrix()
         return ctx.Omega[:, None, None] * G[None]
+
+
+class ShaftDamping(Effect):
+    """The shaft's proportional damping C = sum alpha M_e + beta K_e of its segments
+    (``Machine.shaft_damping_matrix``), offered when a segment gives alpha or beta."""
+
+    name = "shaft_damping"
+    meaning = "the shaft's proportional (Rayleigh) damping alpha M_e + beta K_e of its segments' elements"
+
+    def damping(self, ctx: Context) -> Array:
+        C = _structure(ctx, self.name).shaft_damping_matrix()
+        return np.broadcast_to(C, (ctx.n_scenarios,) + C.shape)
 
 
 @dataclass(eq=False)

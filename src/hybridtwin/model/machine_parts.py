@@ -34,6 +34,9 @@ class ShaftSegment:
     a *layer* lying over the shaft from that node on (a sleeve shrunk on it, an impeller's hub; ROSS's several shaft
     elements at one node): its ``n_elements`` elements each span the shaft's element there (the same length) and
     their matrices add to the shaft's (``Machine``).
+
+    ``alpha`` [1/s], ``beta`` [s]: proportional (Rayleigh) damping of the segment's elements, C_e = alpha M_e + beta K_e
+    (ROSS's ShaftElement alpha, beta), the effect ``shaft_damping`` (``Machine.effects``); default 0.
     """
 
     length: float
@@ -46,6 +49,8 @@ class ShaftSegment:
     m: float | None = None
     G: float | None = None
     node: int | None = None
+    alpha: float = 0.0
+    beta: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("length", "d_out", "E", "rho"):
@@ -64,6 +69,10 @@ class ShaftSegment:
         if self.node is not None and (isinstance(self.node, bool) or not isinstance(self.node, (int, np.integer))
                                       or self.node < 0):
             raise ValueError(f"shaft segment: node (a layer's first node) must be an integer >= 0, got {self.node!r}")
+        for name in ("alpha", "beta"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not value >= 0:
+                raise ValueError(f"shaft segment: {name} (proportional damping) must be a number >= 0, got {value!r}")
 
     @property
     def area(self) -> float:

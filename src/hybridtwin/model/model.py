@@ -216,7 +216,8 @@ class Model:
         n = self.shaft.n_dof
         total = np.zeros((ctx.n_scenarios, n, n))
         for effect in self.effects:
-            term = getattr(effect, hook)(ctx)
+            method = getattr(effect, hook, None)  # an effect written before a hook existed (speed_mass) has none
+            term = None if method is None else method(ctx)
             if term is not None:
                 total += term
         return total

@@ -10,8 +10,8 @@
   ROSS's ``shear_effects`` and ``rotary_inertia`` become the machine's ``shear`` and ``rotary_inertia`` (they must
   be the same for every element). Refused with a message: rotors of several shafts (CoAxialRotor, MultiRotor),
   tapered elements (idl != idr or odl != odr), a layer of another length than the shaft's element, mixed shear,
-  rotary-inertia or gyroscopic settings, axial force, torque, ROSS's proportional damping (alpha, beta), a shear
-  coefficient other than Cowper's.
+  rotary-inertia or gyroscopic settings, axial force, torque, a shear coefficient other than Cowper's. The elements'
+  proportional damping (alpha, beta) is the segments' (the effect ``shaft_damping``).
 - DiskElements become ``Disk``s at ROSS's node (m, Ip, Id; the tag as name unless ROSS made it up).
 - BearingElements (and seals) become ``Bearing``s named after their tags (non-identifier characters as ``_``):
   constant isotropic coefficients (kxx = kyy, cxx = cyy, no cross terms) as ``k``, ``c``; anything else as a
@@ -112,21 +112,21 @@ def _key(el) -> tuple:
     if el.idl != el.idr or el.odl != el.odr:
         raise ValueError(f"{where}: tapered (idl {el.idl:g}, idr {el.idr:g}, odl {el.odl:g}, odr {el.odr:g} m); "
                          "our segments are uniform: split it into uniform elements")
-    for name in ("axial_force", "torque", "alpha", "beta"):
+    for name in ("axial_force", "torque"):
         if float(getattr(el, name, 0) or 0) != 0:
-            raise ValueError(f"{where}: {name} = {getattr(el, name)!r} is not modelled here (must be 0)"
-                             + ("; alpha, beta: the element's proportional damping alpha M + beta K"
-                                if name in ("alpha", "beta") else ""))
+            raise ValueError(f"{where}: {name} = {getattr(el, name)!r} is not modelled here (must be 0)")
     if getattr(el, "shear_method_calc", "cowper") != "cowper":
         raise ValueError(f"{where}: shear_method_calc {el.shear_method_calc!r}; ours is Cowper's coefficient")
     material = el.material
     G = None if material.G_s == material.E / 2.6 else float(material.G_s)  # E / 2.6: our default
-    return float(el.L), float(el.idl), float(el.odl), float(material.E), float(material.rho), G
+    return (float(el.L), float(el.idl), float(el.odl), float(material.E), float(material.rho), G,
+            float(el.alpha or 0.0), float(el.beta or 0.0))
 
 
 def _segment(key: tuple, n: int, node: int | None = None) -> ShaftSegment:
-    h, d_in, d_out, E, rho, G = key
-    return ShaftSegment(length=h * n, d_out=d_out, E=E, rho=rho, d_in=d_in, n_elements=n, G=G, node=node)
+    h, d_in, d_out, E, rho, G, alpha, beta = key
+    return ShaftSegment(length=h * n, d_out=d_out, E=E, rho=rho, d_in=d_in, n_elements=n, G=G, node=node,
+                        alpha=alpha, beta=beta)
 
 
 def _name(tag, fallback: str) -> str:
@@ -139,6 +139,10 @@ def _bearing(ross, el, index: int) -> Bearing:
     if getattr(el, "n_link", None) is not None:
         raise ValueError(f"{where}: linked to node {el.n_link} (a support of its own); only bearings to ground "
                          "can be read")
+    magnetic = getattr(ross, "MagneticBearingElement", None)
+    if magnetic is not None and isinstance(el, magnetic):
+        raise ValueError(f"{where}: a MagneticBearingElement (an active magnetic bearing: its coefficients stand for "
+                         "its controller); only tables of coefficients (BearingElement, SealElement) can be read")
     if type(el).K is not ross.BearingElement.K or type(el).C is not ross.BearingElement.C:
         raise ValueError(f"{where}: a {type(el).__name__} computes its K or C itself; only tables of coefficients "
                          "(BearingElement, SealElement) can be read")
@@ -247,7 +251,8 @@ def machine_to_ross(machine: Machine, file: str | Path | None = None):
         first = node if s.node is None else s.node  # a layer: ROSS's elements at the nodes it lies on
         (shaft if s.node is None else layers).extend(
             ross.ShaftElement(L=s.h, idl=s.d_in, odl=s.d_out, material=material, n=first + j,
-                              shear_effects=machine.shear, rotary_inertia=machine.rotary_inertia, gyroscopic=True)
+                              shear_effects=machine.shear, rotary_inertia=machine.rotary_inertia, gyroscopic=True,
+                              alpha=s.alpha, beta=s.beta)
             for j in range(s.n_elements))
         node += s.n_elements if s.node is None else 0
     shaft += layers  # after the shaft's: ROSS sorts by node, keeping the order within one (the shaft's element first)
