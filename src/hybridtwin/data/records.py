@@ -339,12 +339,19 @@ def _clean_record(path: Path, names: Sequence[str]) -> tuple | None:
     return values, keyphasor, line, time_col, chosen
 
 
-def _checked_record(path: Path, names: Sequence[str]) -> tuple:
-    """``read_record``'s columns read cell by cell (``read_text_table``), every problem raised as one DataError."""
-    table, line = read_text_table(path, ",")
+def _record_layout(path: Path, table: pd.DataFrame, names: Sequence[str]) -> tuple:
+    """A record's time column and chosen channels (``_record_columns``), refused with fewer than 3 samples: the
+    checks a CSV record and an instrument's file share."""
     time_col, chosen = _record_columns(path, table.columns, names)
     if len(table) < 3:
         raise DataError(f"{path}: only {len(table)} sample(s); a record needs many revolutions of samples")
+    return time_col, chosen
+
+
+def _checked_record(path: Path, names: Sequence[str]) -> tuple:
+    """``read_record``'s columns read cell by cell (``read_text_table``), every problem raised as one DataError."""
+    table, line = read_text_table(path, ",")
+    time_col, chosen = _record_layout(path, table, names)
     problems: list[str] = []
     values = {}
     for column in (time_col, *(c for c, _ in chosen.values())):
@@ -376,9 +383,7 @@ def _instrument_record(path: Path, names: Sequence[str], channels) -> tuple:
 
     table = instrument_table(path, names, channels)
     line = np.arange(1, len(table) + 1)
-    time_col, chosen = _record_columns(path, table.columns, names)
-    if len(table) < 3:
-        raise DataError(f"{path}: only {len(table)} sample(s); a record needs many revolutions of samples")
+    time_col, chosen = _record_layout(path, table, names)
     problems: list[str] = []
     values = {}
     for column in (time_col, *(c for c, _ in chosen.values())):
