@@ -122,12 +122,13 @@ def test_backward_whirl_the_model_cannot_produce_is_flagged():
                                   whirl=WhirlModel([variant(machine, "none")]))
     assert len(_whirl_flags(analysis)) == 2 and not analysis.usable
     assert "machine's model whirls forward" in _whirl_flags(analysis)[0].message
-    # one plane's probes swapped where every model whirls forward: that plane is flagged, though the other
-    # whirls forward (the model-free rule would only warn), with the anisotropic model asked
-    with pytest.warns(Warning):
+    # one plane's probes swapped where every model whirls forward, the other plane forward: warned about, the run
+    # stays (as the model-free rule does): the same orbits come from an anisotropy no variant has, the evidence the
+    # diagnosis needs (tests/test_example_machine.py: the stepped rotor's hidden anisotropy, a variant without it)
+    with pytest.warns(Warning, match="model whirls forward"):
         analysis = analyse_record(record(machine, BELOW_RPM, swap=("x2", "y2")), BELOW_RPM, 1,
                                   whirl=WhirlModel([variant(machine, "unknown")]))
-    assert [f.channel for f in _whirl_flags(analysis)] == ["x2y2"]
+    assert _whirl_flags(analysis) == [] and analysis.usable
 
 
 def test_the_config_gives_the_model_of_a_machine_of_its_own_only():

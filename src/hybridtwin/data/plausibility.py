@@ -46,7 +46,7 @@ checks that its numbers can be what the sensor measured on this machine:
   critical speeds of an anisotropic support): a warning, the run stays. With the machine's model of the
   whirl (``hybridtwin.model.whirl.WhirlModel``: a config with a machine of its own) the check is plane by
   plane instead: backward where some model of the machine whirls backward at that speed is physics (between
-  split critical speeds), backward where every model whirls forward is flagged; no single spikes: a sample further than
+  split critical speeds), backward where every model whirls forward is judged as without a model; no single spikes: a sample further than
   SPIKE_SIGMAS robust standard deviations (1.4826 x the median absolute
   deviation) from the synchronous-average waveform (for Gaussian noise a
   1e-15 chance per sample).
@@ -309,7 +309,9 @@ def response_flags(record: Record, harmonics: Array, sigma: Array, residual: Arr
     whirl: the machine's model of the whirl (``hybridtwin.model.whirl.WhirlModel``, anything with
     ``backward_probes(rpm)`` and ``describe()``) and rpm the run's speed: a plane whose 1X whirls backward
     where some model of it does too is physics (between split critical speeds) and neither flagged nor warned
-    about; a plane whirling backward where every model whirls forward is flagged, whatever the other planes do.
+    about; where every model whirls forward the run is kept out only as the model-free rule keeps it out (every
+    plane judged whirls backward), and otherwise warned about: a missing effect (an anisotropic support no variant
+    has) makes such runs, and they are what tells the diagnosis so.
     None: the model-free rule (module docstring).
     """
     flags = []
@@ -347,10 +349,15 @@ def response_flags(record: Record, harmonics: Array, sigma: Array, residual: Arr
         orbit = "the 1X orbit" if pair == "xy" else f"the 1X orbit of {record.names[ix]}, {record.names[iy]}"
         orbit_text = (f"{orbit} whirls backward (forward {forward_amp * 1e3:.4f} mm, backward {backward_amp * 1e3:.4f} "
                       "mm)")
-        if modelled:
+        if modelled and len(backward) == len(judged):
             flags.append(Flag(record.path, pair, "backward_whirl", f"1X whirls backward ({swapped})",
                               f"{orbit_text} while the machine's model whirls forward at {rpm:.1f} RPM "
                               f"({whirl.describe()}): {swapped[:-1]}, or one channel's sign reversed?"))
+        elif modelled:  # another plane forward: swapped probes, or an effect the models lack (an anisotropic
+            # support the variants do not have): the run is the evidence the diagnosis needs, so it stays
+            warnings.warn(f"{record.path}: {orbit_text} at {rpm:.1f} RPM where the machine's model whirls forward "
+                          f"({whirl.describe()}), while another plane whirls forward: an effect the model lacks (an "
+                          f"anisotropic support), or {swapped} The run stays in the fit", DataWarning, stacklevel=2)
         elif len(backward) == len(judged):
             flags.append(Flag(record.path, pair, "backward_whirl", f"1X whirls backward ({swapped})",
                               f"{orbit_text} while the unbalance response whirls forward (the shaft turns from +x "
