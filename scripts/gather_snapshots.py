@@ -12,7 +12,7 @@ import pandas as pd
 
 from hybridtwin import config as cfg
 from hybridtwin.offline.scenarios import read_scenarios
-from hybridtwin.offline.snapshots import UNSTABLE, gather
+from hybridtwin.offline.snapshots import UNSTABLE, failure_summary, gather
 from hybridtwin.offline.stores import CorruptStoreError
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
@@ -33,6 +33,7 @@ except CorruptStoreError as error:
     sys.exit(message)
 failures = snapshots.failures()
 failures.to_csv(smk.output.failures, sep="\t", index=False)
+failure_summary(failures).to_csv(smk.output.summary, sep="\t", index=False)  # the report's view (counts)
 unstable = failures["reason"] == UNSTABLE
 log.info("%d scenarios (%d from the enrichment) x %d runs gathered; %d failed solves, %d unstable steady states "
          "(left out downstream)", snapshots.success.shape[1], int((snapshots.design == "enrichment").sum()),

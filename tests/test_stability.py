@@ -188,6 +188,12 @@ def test_unstable_points_are_flagged_by_solve_runs_and_kept_in_the_stores(mixed)
     failures = store.failures()  # failures.tsv: every point without a steady state, each with its reason
     assert sorted(set(failures["scenario"])) == [9, 10, 11] and len(failures) == 6
     assert failures["message"].str.startswith("unstable periodic solution: largest Floquet multiplier").all()
+    # the report's view (failures_summary.tsv): the same points counted per run, split and reason
+    summary = snapshots.failure_summary(failures)
+    expected = failures.groupby(["run", "split", "reason"]).size()
+    assert summary.set_index(["run", "split", "reason"])["n_scenarios"].sort_index().equals(expected.sort_index())
+    assert summary["n_scenarios"].sum() == len(failures) and set(summary["first_scenario"]) <= {9, 10, 11}
+    assert snapshots.failure_summary(failures.iloc[:0]).empty
 
 
 def test_the_pod_leaves_unstable_points_out_and_counts_them(mixed):

@@ -108,6 +108,19 @@ class Snapshots:
                              "reason": np.where(unstable, UNSTABLE, FAILED)})
 
 
+def failure_summary(failures: pd.DataFrame) -> pd.DataFrame:
+    """``Snapshots.failures`` in counts (the report's view of failures.tsv, which lists every point): per run,
+    split and reason the number of scenarios, and the solver's sentence for the first of them (its numbers are that
+    scenario's), in the runs' order of first appearance."""
+    columns = ["run", "split", "reason", "n_scenarios", "first_scenario", "first_message"]
+    if failures.empty:
+        return pd.DataFrame(columns=columns)
+    grouped = failures.groupby(["run", "split", "reason"], sort=False)
+    out = grouped.agg(n_scenarios=("scenario", "size"), first_scenario=("scenario", "first"),
+                      first_message=("message", "first")).reset_index()
+    return out[columns]
+
+
 def write_chunk(path: str | Path, variant: str, scenarios: pd.DataFrame, parameters: Sequence[str],
                 solutions: RunSolutions, design: str = "hypercube") -> None:
     """One chunk job's result: its scenarios at every run (``design``: hypercube or enrichment)."""

@@ -16,6 +16,7 @@ element (every "<" written as its JSON escape, so that no "</script>" can end it
 
 from __future__ import annotations
 
+import base64
 import html
 import json
 import re
@@ -23,6 +24,7 @@ from collections.abc import Sequence
 from functools import lru_cache
 from pathlib import Path
 
+import numpy as np
 import plotly.graph_objects as go
 import plotly.io as pio
 from plotly.offline import get_plotlyjs
@@ -44,8 +46,25 @@ def plotly_js() -> str:
 
 def figure_json(fig: go.Figure) -> str:
     """``fig``'s data and layout as JSON that can sit inside a <script> element: every "<" as "\\u003c" (it occurs
-    only inside strings, as in "<br>", and json.loads gives it back)."""
-    return fig.to_json(validate=False).replace("<", "\\u003c")
+    only inside strings, as in "<br>", and json.loads gives it back); its float arrays in single precision
+    (``single_precision``)."""
+    return single_precision(fig.to_json(validate=False)).replace("<", "\\u003c")
+
+
+#: a float array as plotly writes it: typed binary data, base64 (its "/" written as the JSON escape "\\u002f")
+_FLOATS = re.compile(r'\{"dtype":\s*"(f8|f4)",\s*"bdata":\s*"([^"]*)"')
+
+
+def single_precision(text: str) -> str:
+    """A figure's JSON ``text`` with its float64 arrays (plotly's ``{"dtype":"f8","bdata":...}``) as float32:
+    7 significant digits, more than a screen or the hover's 4 show, in half the bytes (the main job's report: its
+    figures' data 11.5 -> 6.1 MB, issue 55; base64's "/" written plainly, not as plotly's 6-byte escape);
+    plotly.js draws float32 arrays as it draws float64 ones. Idempotent: what a page stores reads back
+    (``read_figure``) and writes again to the same text."""
+    def shorter(match: re.Match) -> str:
+        values = np.frombuffer(base64.b64decode(match[2].replace("\\u002f", "/")), "<" + match[1]).astype("<f4")
+        return '{"dtype":"f4","bdata":"' + base64.b64encode(values.tobytes()).decode("ascii") + '"'
+    return _FLOATS.sub(shorter, text)
 
 
 def _read_json(text: str) -> go.Figure:
