@@ -117,8 +117,12 @@ def solve_runs(variant: Variant, runs: pd.DataFrame, values: Mapping[str, Array 
     groups = list(runs.groupby("eccentric_mass_g", sort=True))
     if not groups:
         return out
+    # the masses' run-ups side by side, the longest first: the scenarios still on their ramp at a step are then the
+    # first columns, and each step's system slices the assembled matrices as a view, not a copy
     ramps = [ramp(start_rpm, group["rpm"].to_numpy(float), step_rpm) for _, group in groups]
-    speeds = padded_speeds(ramps, S)  # column g S + s: mass g, scenario s
+    order = sorted(range(len(groups)), key=lambda g: -len(ramps[g]))
+    groups, ramps = [groups[g] for g in order], [ramps[g] for g in order]
+    speeds = padded_speeds(ramps, S)  # column g S + s: mass g (in that order), scenario s
     scenario_values = {k: np.tile(np.broadcast_to(v, (S,)), len(groups)) for k, v in base.items()}
     if "m_e" not in values:  # an unknown m_e keeps each scenario's own value
         scenario_values["m_e"] = np.repeat([float(mass_g) * 1e-3 for mass_g, _ in groups], S)
