@@ -26,11 +26,11 @@ ROOT="$(cd "$HERE/../.." && pwd)"
 CONF=/etc/slurm/slurm.conf
 MARKER="written by tests/slurm/run_slurm_test.sh (hybridtwin)"
 INJECT_COMMENT=rule_solve_chunk_wildcards_geometric_000   # the job cancelled on its first attempt
-# the small configuration's measured runs, white box and offline library of one variant: every kind of job
-# up to the libraries, 13 Slurm jobs in 6 stages (the other variant and the identification would only add
-# more of the same jobs; their rerun identity is tested in tests/test_resilience.py)
-TARGETS=(results/data/check.tsv results/geometric/whitebox/sweep.png results/geometric/pod.tsv
-         results/geometric/library_parity.png)
+# the small configuration's whole default pipeline (offline.scope: run): the measured runs, each variant's
+# scenarios in zarr chunks, POD, a sPGD library per run, the fits per run and joint on the libraries with the
+# polish on the full solver, the diagnosis, the reports and the ledger (issue 50, item 5): the ledger and every
+# other result must equal the local run's byte for byte
+TARGETS=(results/ledger.tsv results/summary.tsv results/geometric/diagnosis.tsv)
 
 say() { printf '[slurm-test] %s\n' "$*"; }
 die() { say "FAILED: $*"; exit 1; }
