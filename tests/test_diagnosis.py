@@ -5,6 +5,7 @@ real/imaginary part), shared bow: small enough to fit and refit with the full so
 code paths as the workflow's diagnose rule.
 """
 
+import re
 from dataclasses import replace
 
 import numpy as np
@@ -536,9 +537,13 @@ def test_the_sharing_check_shares_a_bow_the_data_do_not_need_per_run(slope_data)
     assert final.fit.layout.local == () and final.chi2 == pytest.approx(sharing["chi2_shared"])
     assert final.chi2 / final.dof < 1 + 3 * np.sqrt(2 / final.dof)
     assert final.estimates.set_index("parameter").loc["k4", "value"] == pytest.approx(324.2, rel=0.1)
+    # the step's share of the base's excess is the effect's, as the base was fitted (per run): the shared fit has
+    # 2 (runs - 1) more dof and a higher chi^2, which is not a negative share
+    assert shared[-1].share == path[-1].share
     result.path = shared
     conc._conclude_path(result, base, scores, OPTIONS)
     assert "need not be estimated per run" in result.conclusion
+    assert "-" not in re.search(r"\((-?\d+) % of the excess", result.conclusion).group(1)
     spec = result.summary["recommended_variant"]["spec"]
     assert spec["per_run"] == [] and "per_run: []" in result.recommendation
     assert "per run (q_x, q_y)" in dgr._sharing_markdown(sharing) and "`per_run: []`" in dgr._sharing_markdown(sharing)
