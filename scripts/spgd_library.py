@@ -19,7 +19,7 @@ if options["scope"] == "global":
 else:
     infos = build_run_libraries(partial(cfg.variant, smk.params.model, smk.wildcards.variant), smk.params.runs, smk.input.snapshots,
                                 smk.input.pod, list(smk.output), options["sensor_range_mm"] * 1e-3, options["spgd"],
-                                options["pieces"], workers=smk.threads)
+                                options["pieces"], workers=smk.threads, log=log)
     for run, info in zip(smk.params.runs, infos):
         log.info("run %s: %d training / %d validation scenarios (left out: %s), %d POD modes, %d sPGD terms, "
                  "validation error %.3g%s", run, info["n_train"], info["n_validation"], info["n_left_out"],

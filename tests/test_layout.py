@@ -1,6 +1,6 @@
 """The package's layout reads like the method (issue 37): one subpackage per stage, imports that run downward only.
 
-Stages, from the bottom: the shared plotting helper (``plots``), then model -> solvers -> offline -> data ->
+Stages, from the bottom: the shared helpers (``plots``; ``progress``, a long job's progress in its log), then model -> solvers -> offline -> data ->
 identify -> diagnose -> report, the front door (``settings``: the config's sections as typed objects, their
 defaults the schema's; then ``config``: reading and checking the config), the twin online (``online``: a built twin
 judging new records, which reads the twin's own config through ``config``) and on top the command line (``cli``). A
@@ -13,7 +13,7 @@ import ast
 from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parents[1] / "src" / "hybridtwin"
-ORDER = ["plots", "model", "solvers", "offline", "data", "identify", "diagnose", "report", "settings", "config",
+ORDER = ["plots", "progress", "model", "solvers", "offline", "data", "identify", "diagnose", "report", "settings", "config",
          "online", "cli"]
 
 
@@ -47,7 +47,7 @@ def imports(path: Path) -> list[tuple[int, str]]:
                 target = node.module or ""
             if not target.startswith("hybridtwin"):
                 continue
-            if node.module is None or target.count(".") == 1 and target.split(".")[1] in ORDER[1:8] + ["online"]:
+            if node.module is None or target.count(".") == 1 and target.split(".")[1] in ORDER[2:9] + ["online"]:
                 # "from . import x" / "from ..data import rig": the names are modules of that package
                 out += [(node.lineno, f"{target}.{a.name}") for a in node.names]
             else:
@@ -59,7 +59,7 @@ def imports(path: Path) -> list[tuple[int, str]]:
 
 def test_every_module_lives_in_a_stage_folder():
     loose = sorted(p.name for p in PACKAGE.glob("*.py")) 
-    assert loose == ["__init__.py", "config.py", "plots.py", "settings.py"], loose
+    assert loose == ["__init__.py", "config.py", "plots.py", "progress.py", "settings.py"], loose
     assert sorted(p.name for p in PACKAGE.iterdir() if p.is_dir() and p.name != "__pycache__") == sorted(
         ["model", "solvers", "offline", "data", "identify", "diagnose", "report", "online", "cli"])
 

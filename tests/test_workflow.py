@@ -84,6 +84,12 @@ def test_offline_stage_builds_and_scores_libraries(workdir):
     for variant, allowed in SMALL_LIBRARY_ERROR_PCT.items():
         table = pd.read_csv(workdir / "results" / variant / "library_validation.tsv", sep="\t")
         assert table["run"].tolist() == RUNS + ["all runs"]  # every run scored, none dropped
+        # the job's progress in its log, a line per run's library, the last without a time left (issue 55)
+        lines = [line for line in (workdir / "logs" / variant / "spgd_library.log").read_text().splitlines()
+                 if "runs' libraries" in line]
+        assert [line.split("spgd_library: ")[1].split(" (")[0] for line in lines] == [
+            f"{k} of {len(RUNS)} runs' libraries" for k in range(1, len(RUNS) + 1)]
+        assert "left" in lines[0] and "left" not in lines[-1]
         assert (table["n_test"].iloc[:-1] > 0).all()
         # one of the candidate degrees per library, or per piece ("3/2*"): the Geometric mode scaling switches
         # node at k_b = 2753 N/m (offline.pieces: mode_scaling), the Final one with k_b and k_w (one sPGD)

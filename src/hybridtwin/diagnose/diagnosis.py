@@ -63,6 +63,7 @@ import numpy as np
 import pandas as pd
 
 from ..model.candidates import Candidate
+from ..progress import Progress
 from .conclusion import (Diagnosis, Step, _conclude, _conclude_path, _excess, _fits_the_noise, _is_confirmed,
                          _path_ranges, _set_verdict)
 from .diagnosis_status import Status, Verdict, interval_note, negligible_step, plain
@@ -121,6 +122,7 @@ def _refit_significant(base: BaseFit, scores: Scores, o: Mapping, alpha_each: fl
         deep |= {s.candidate.name for s in sorted(chosen, key=by_score)[: int(o["thorough"])]
                  if quick[s.candidate.name].widenable}
     confirmations, fitted = {}, False
+    progress = Progress(log, len(deep), f"thorough refits of {base.variant.name}")
     for s in ranked:
         name = s.candidate.name
         cf = quick[name]
@@ -129,6 +131,7 @@ def _refit_significant(base: BaseFit, scores: Scores, o: Mapping, alpha_each: fl
                          far=not fitted, far_misfit=s is ranked[0])
             cf.seconds += quick[name].seconds
             fitted = fitted or _fits_the_noise(cf, o)
+            progress.done(note=name)
         confirmations[name] = cf
         if log:
             widened = "; ".join(f"{p} range widened to [{new[0]:.4g}, {new[1]:.4g}]" for p, _, new in cf.widened)

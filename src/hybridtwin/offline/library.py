@@ -13,7 +13,7 @@ import json
 import multiprocessing
 import warnings
 from collections.abc import Callable, Mapping, Sequence
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -30,6 +30,7 @@ from ..model.shaft import Shaft
 from .spgd import SparsePGD, fit_spgd, relative_error
 from .stores import open_verified, write_manifest
 from ..model.variants import Variant
+from ..progress import Progress
 
 #: the extra sPGD dimensions of a global library, after the unknowns (SI/boundary units: RPM, g)
 OPERATING_POINT = ["rpm", "eccentric_mass_g"]
@@ -372,7 +373,7 @@ def build_run_library(variant: Variant, run: str, snapshots_path: str, pod_path:
 
 def build_run_libraries(make_variant: Callable[[], Variant], runs: Sequence[str], snapshots_path: str,
                         pod_path: str, outputs: Sequence[str], sensor_range_m: float, spgd_options: dict,
-                        pieces: str = "mode_scaling", workers: int = 1) -> list[dict]:
+                        pieces: str = "mode_scaling", workers: int = 1, log=None) -> list[dict]:
     """``build_run_library`` for every run of ``runs``, each saved to its path in ``outputs``, on ``workers``
     processes: the libraries of a variant in one workflow job (one job per run paid the start-up, the
     snapshots' loading and the mode-scaling probe once per run, for a fit of a few seconds). The runs with the
@@ -381,20 +382,28 @@ def build_run_libraries(make_variant: Callable[[], Variant], runs: Sequence[str]
     ``make_variant`` (a picklable callable, e.g. ``functools.partial(hybridtwin.config.variant, config, name)``: its
     effects do not pickle). The processes are forked (a spawned
     one would run the calling Snakemake script again; zarr resets its I/O loop in a forked child). Returns the
-    libraries' ``info``, in the order of ``runs``."""
+    libraries' ``info``, in the order of ``runs``. ``log``: a logger for the progress after each run's library (the
+    count, the time so far and an estimate of the time left: ``Progress``)."""
     if len(outputs) != len(runs):
         raise ValueError(f"{len(runs)} runs for {len(outputs)} library paths")
     jobs = [(make_variant, run, snapshots_path, pod_path, path, sensor_range_m, spgd_options, pieces)
             for run, path in zip(runs, outputs)]
     size = [int(np.sum(load_pod(pod_path, run)[1])) for run in runs]
     order = sorted(range(len(runs)), key=lambda i: -size[i])
+    progress = Progress(log, len(runs), "runs' libraries")
+    done = {}
     if workers <= 1 or len(runs) == 1:
-        done = {i: _build_and_save(jobs[i]) for i in order}
+        for i in order:
+            done[i] = _build_and_save(jobs[i])
+            progress.done(note=f"{runs[i]}: {done[i]['n_terms']} sPGD terms")
     else:
         context = multiprocessing.get_context("fork")
         with ProcessPoolExecutor(min(workers, len(runs)), mp_context=context) as pool:
-            futures = {i: pool.submit(_build_and_save, jobs[i]) for i in order}
-            done = {i: future.result() for i, future in futures.items()}
+            futures = {pool.submit(_build_and_save, jobs[i]): i for i in order}
+            for future in as_completed(futures):
+                i = futures[future]
+                done[i] = future.result()
+                progress.done(note=f"{runs[i]}: {done[i]['n_terms']} sPGD terms")
     return [done[i] for i in range(len(runs))]
 
 
