@@ -4,7 +4,7 @@ The small configuration and the workflow copy are test_workflow's own (imported,
 "Same results" here means byte-identical files: the same code, seeds and binaries, with BLAS
 pinned to one thread in every job (hybridtwin.config.rule_logger), do the same floating-point
 operations in the same order, so any difference is a real change, never rounding. Only wall
-times are left out: results/benchmarks/ (Snakemake's per-job timings) and the `seconds`
+times are left out: results/benchmarks/ (Snakemake's per-job timings) and the `seconds` and `*_seconds`
 entries of YAML summaries. (Across different machines, e.g. CPUs with other SIMD paths in
 BLAS, bit-identity is not promised; a tolerance would be needed there.)
 
@@ -30,7 +30,7 @@ __all__ = ["RUNS", "SMALL", "SNAKEMAKE", "copy_workflow", "snakemake", "result_f
 copy_workflow = _copy_workflow
 snakemake = _snakemake
 
-WALL_TIME_KEYS = {"seconds"}
+WALL_TIME_KEYS = {"seconds"}  # and every key ending in "_seconds" (the diagnosis's score_seconds)
 NOT_COMPARED_DIRS = {"benchmarks"}
 NOT_COMPARED_FILES = {".snakemake_timestamp"}
 
@@ -45,7 +45,8 @@ def result_files(work: Path) -> dict[str, Path]:
 
 def _without_wall_times(data):
     if isinstance(data, dict):
-        return {k: _without_wall_times(v) for k, v in data.items() if k not in WALL_TIME_KEYS}
+        return {k: _without_wall_times(v) for k, v in data.items()
+                if k not in WALL_TIME_KEYS and not str(k).endswith("_seconds")}
     if isinstance(data, list):
         return [_without_wall_times(v) for v in data]
     return data
