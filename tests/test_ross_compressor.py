@@ -2,7 +2,8 @@
 elements, 36 of them layers at a node already holding one, 7 impellers, 2 fluid-film bearings and 12 seals with
 speed-dependent, cross-coupled coefficients) through ``ross_io.machine_from_ross`` against ROSS itself: first the
 assembled matrices (they localise any convention difference), then the Campbell data (damped frequencies and
-logarithmic decrements) and the unbalance response; and every example rotor ROSS ships imports or is refused naming
+logarithmic decrements), the critical speeds and the unbalance response, with ROSS 2.3 (Python 3.11), 3.0 (3.12) and
+3.1 (3.13); and every example rotor ROSS ships imports or is refused naming
 the element and the reason.
 
 Tolerances. The two codes build the same matrices from the same element formulas (ROSS's Timoshenko beams, Cowper's
@@ -19,6 +20,7 @@ layer's own checks (config form, errors) run always.
 
 import dataclasses
 import importlib
+import inspect
 import warnings
 
 import numpy as np
@@ -116,6 +118,31 @@ def test_compressor_campbell_matches_ross(compressor):
             theirs = [w.lower() for w in whirl[lateral][:8]]
             clear = [i for i, w in enumerate(theirs) if w in ("forward", "backward")]
             assert len(clear) >= 6 and [theirs[i] for i in clear] == [ours.whirl.iloc[i] for i in clear]
+
+
+def test_compressor_critical_speeds_match_ross(compressor):
+    """The 1X critical speeds and their log decrements: ours where the Campbell branches cross 1X
+    (``machine_plots.critical_speeds``: linear interpolation between speeds 10 rad/s apart), ROSS's
+    ``run_critical_speed`` (Newton on s = w_d(s) per mode, to rtol 1e-9), those in 800-1300 rad/s (the first pair of
+    lightly damped modes; ROSS's Newton follows the modes by their order at rest and passes over the heavily damped
+    ones crossing 1X lower, log decrement > 6, which ours lists). Held at 1e-3, the issue's 0.1 %: the linear
+    interpolation over 10 rad/s of nearly straight branches is far inside it (observed 6e-6)."""
+    from hybridtwin.report.machine_plots import critical_speeds
+
+    rotor, machine, effects = compressor
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # ROSS warns where its seals' tables extrapolate
+        theirs = rotor.run_critical_speed(num_modes=16, rtol=1e-9)
+    wd, whirl, log_dec = np.asarray(theirs.wd()), np.asarray(theirs.whirl_direction), np.asarray(theirs.log_dec)
+    inside = (wd > 800.0) & (wd < 1300.0)
+    assert inside.sum() >= 2, wd
+    table = campbell(Model(effects, machine), {}, np.arange(800.0, 1301.0, 10.0) * 60 / (2 * np.pi), n_modes=12)
+    ours = critical_speeds(table)
+    for w, sense, delta in zip(wd[inside], whirl[inside], log_dec[inside]):
+        same = ours[ours.whirl == str(sense).lower()]
+        nearest = same.iloc[np.argmin(np.abs(same.rpm.to_numpy() * 2 * np.pi / 60 - w))]
+        np.testing.assert_allclose(nearest.rpm * 2 * np.pi / 60, w, rtol=1e-3)
+        np.testing.assert_allclose(nearest.log_decrement, delta, rtol=1e-3)
 
 
 def test_compressor_unbalance_response_matches_ross(compressor, rs):  # noqa: F811 (the fixture)
@@ -222,6 +249,38 @@ def test_every_example_rotor_of_ross_imports_or_is_refused(rs):  # noqa: F811 (t
     assert {"rotor_example", "compressor_example", "rotor_example_6dof"} <= {
         k for k, v in seen.items() if v == "imported"}, seen
     assert set(refused) - {"coaxrotor_example"} <= set(seen), seen  # ROSS 3.1 has no coaxial example any more
+
+
+def test_rotor_wide_damping_matches_ross_and_point_masses_are_refused(rs):  # noqa: F811 (the fixture)
+    """ROSS's ``rotor_example()`` without its disks, with rotor-wide proportional damping (alpha M0 + beta K0 of the
+    shaft alone: our segments' alpha, beta): our C is ROSS's (MATRIX_RTOL) and the 6 lowest lateral modes' damped
+    frequencies and damping ratios at 500 rad/s ROSS's (RTOL). Refused, naming them: rotor-wide alpha with disks
+    (alpha M0 damps their mass too) and a point mass (ROSS gives it DOFs of its own: a support's mass)."""
+    from hybridtwin.model.ross_io import machine_from_ross
+
+    example = rs.rotor_example()
+    mass = rs.PointMass(n=len(example.nodes), m=4.0, tag="pedestal")
+    with pytest.raises(ValueError, match="ROSS point mass 'pedestal' .*: a support's mass"):
+        machine_from_ross(rs.Rotor(example.shaft_elements, [], example.bearing_elements, point_mass_elements=[mass]))
+    if "alpha" not in inspect.signature(rs.Rotor).parameters:
+        return
+    rotor = rs.Rotor(example.shaft_elements, [], example.bearing_elements, alpha=3.0, beta=2e-5)
+    machine = machine_from_ross(rotor)
+    assert {(s.alpha, s.beta) for s in machine.segments} == {(3.0, 2e-5)}
+    fx = machine.effects()
+    index, sign = _ross_dofs(machine)
+    linear = [fx[k] for k in fx if k.startswith(("linear_bearing@", "bearing_table@", "shaft_damping"))]
+    model = Model(linear + [fx["gyroscopic"]], machine)
+    values = {k: p.nominal for k, p in model.parameters.items()}
+    _close(Model(linear, machine).system(values, [0.0]).C[0], rotor.C(0.0)[np.ix_(index, index)] * np.outer(sign, sign),
+           MATRIX_RTOL)
+    table = campbell(model, values, [500.0 * 60 / (2 * np.pi)], n_modes=6)
+    modal = rotor.run_modal(500.0, num_modes=40, sparse=False)
+    lateral = np.array([w is not None and w != "None" for w in modal.whirl_direction()])
+    np.testing.assert_allclose(table.frequency_hz.to_numpy() * 2 * np.pi, modal.wd[lateral][:6], rtol=RTOL)
+    np.testing.assert_allclose(table.damping_ratio.to_numpy(), modal.damping_ratio[lateral][:6], rtol=RTOL)
+    with pytest.raises(ValueError, match=r"rotor-wide mass-proportional damping \(alpha 3 1/s\) acts on the disks'"):
+        machine_from_ross(rs.Rotor(example.shaft_elements, example.disk_elements, example.bearing_elements, alpha=3.0))
 
 
 # --- layers without ROSS -------------------------------------------------------------------------------------------

@@ -192,7 +192,7 @@ def _bearing(ross, el, index: int) -> Bearing:
 
 
 def _rotor_damping(rotor, elemental: bool) -> tuple[float, float]:
-    """ROSS 3's rotor-wide proportional damping (``Rotor(alpha=, beta=)``: alpha M0 + beta K0 of the shaft and the
+    """ROSS's rotor-wide proportional damping (``Rotor(alpha=, beta=)``: alpha M0 + beta K0 of the shaft and the
     disks) as the segments' (alpha, beta), or ValueError where ours cannot be it: modal damping, alpha with disks
     (ours damps the shaft's mass only), or beside the elements' own (ROSS then drops theirs)."""
     parameters = getattr(rotor, "parameters", None) or {}
@@ -237,24 +237,12 @@ def machine_from_ross(rotor, name: str | None = None, unbalance_planes: Sequence
     disks = [Disk(int(d.n), float(d.m), I_p=float(d.Ip), I_d=float(d.Id),
                   name="" if re.fullmatch(r"Disk \d+", str(d.tag or "Disk 0")) else _name(d.tag, ""))
              for d in rotor.disk_elements]
-    shaft_nodes = 1 + sum(s.n_elements for s in segments if s.node is None)
     for p in getattr(rotor, "point_mass_elements", None) or []:
-        disks.append(_point_mass(p, shaft_nodes))
+        raise ValueError(f"ROSS point mass {p.tag!r} (node {p.n}): a support's mass (ROSS gives a point mass DOFs of "
+                         "its own, where bearings link the shaft to a support, n_link); supports are not modelled here")
     bearings = [_bearing(ross, el, i) for i, el in enumerate(rotor.bearing_elements)]
     return Machine(name or str(rotor.tag), segments, disks, bearings, unbalance_planes, sensors,
                    rotary_inertia=rotary_inertia, shear=shear)
-
-
-def _point_mass(p, shaft_nodes: int) -> Disk:
-    """A ROSS point mass on a shaft node as a disk without inertia, or ValueError: on a support's node (beyond the
-    shaft's, where a bearing links it, n_link), or of other masses in x and y."""
-    where = f"ROSS point mass {p.tag!r} (node {p.n})"
-    if int(p.n) >= shaft_nodes:
-        raise ValueError(f"{where}: a support's mass (its node is beyond the shaft's {shaft_nodes - 1}, where a "
-                         "bearing links the shaft to a support of its own, n_link); supports are not modelled here")
-    if float(p.mx) != float(p.my):
-        raise ValueError(f"{where}: mass {float(p.mx):g} kg in x, {float(p.my):g} kg in y; ours is the same in both")
-    return Disk(int(p.n), float(p.mx), name=_name(p.tag, ""))
 
 
 def machine_from_section(spec: Mapping, config_dir: str | Path = ".") -> Machine:
