@@ -259,9 +259,13 @@ def test_rotor_wide_damping_matches_ross_and_point_masses_are_refused(rs):  # no
     from hybridtwin.model.ross_io import machine_from_ross
 
     example = rs.rotor_example()
-    mass = rs.PointMass(n=len(example.nodes), m=4.0, tag="pedestal")
+    pedestal = len(example.nodes)  # ROSS's node of a support: the shaft's last node links to it
+    mass = rs.PointMass(n=pedestal, m=4.0, tag="pedestal")
+    support = [rs.BearingElement(n=pedestal - 1, n_link=pedestal, kxx=1e7, cxx=0.0, tag="link"),
+               rs.BearingElement(n=pedestal, kxx=1e8, cxx=0.0, tag="ground")]
     with pytest.raises(ValueError, match="ROSS point mass 'pedestal' .*: a support's mass"):
-        machine_from_ross(rs.Rotor(example.shaft_elements, [], example.bearing_elements, point_mass_elements=[mass]))
+        machine_from_ross(rs.Rotor(example.shaft_elements, [], example.bearing_elements + support,
+                                   point_mass_elements=[mass]))
     if "alpha" not in inspect.signature(rs.Rotor).parameters:
         return
     rotor = rs.Rotor(example.shaft_elements, [], example.bearing_elements, alpha=3.0, beta=2e-5)
@@ -281,6 +285,36 @@ def test_rotor_wide_damping_matches_ross_and_point_masses_are_refused(rs):  # no
     np.testing.assert_allclose(table.damping_ratio.to_numpy(), modal.damping_ratio[lateral][:6], rtol=RTOL)
     with pytest.raises(ValueError, match=r"rotor-wide mass-proportional damping \(alpha 3 1/s\) acts on the disks'"):
         machine_from_ross(rs.Rotor(example.shaft_elements, example.disk_elements, example.bearing_elements, alpha=3.0))
+
+
+def test_fluid_film_bearings_import_as_their_tables(rs):  # noqa: F811 (the fixture)
+    """ROSS's ``rotor_example()`` on two of ROSS's fluid-film bearings (``CylindricalBearing``: the short-bearing
+    solution, its eight coefficients computed by ROSS at 5 speeds, cross-coupled, anisotropic): they import as
+    their tables (by ROSS's own rule of the version) and the 6 lowest lateral modes' damped frequencies and log
+    decrements at 3 speeds, one between the table's rows, are ROSS's (RTOL)."""
+    from hybridtwin.model.ross_io import machine_from_ross
+
+    example = rs.rotor_example()
+    speeds = rs.Q_([500.0, 1000.0, 1500.0, 2500.0, 4000.0], "RPM")
+    film = [rs.CylindricalBearing(n=b.n, speed=speeds, weight=300.0, bearing_length=rs.Q_(30, "mm"),
+                                  journal_diameter=rs.Q_(100, "mm"), radial_clearance=rs.Q_(0.1, "mm"),
+                                  oil_viscosity=0.1, tag=f"film_{i}")
+            for i, b in enumerate(example.bearing_elements)]
+    rotor = rs.Rotor(example.shaft_elements, example.disk_elements, film)
+    machine = machine_from_ross(rotor)
+    table = machine.bearings[0].table
+    assert len(table.rpm) == 5 and min(table.kxy) != 0 and table.kxx != table.kyy
+    fx = machine.effects()
+    model = Model([fx[f"bearing_table@{b.name}"] for b in machine.bearings] + [fx["gyroscopic"]], machine)
+    speeds = np.array([100.0, 200.0, 300.0])  # rad/s
+    ours = campbell(model, {}, speeds * 60 / (2 * np.pi), n_modes=6)
+    for speed, rpm in zip(speeds, sorted(set(ours.rpm))):
+        modal = rotor.run_modal(speed, num_modes=40, sparse=False)
+        lateral = np.array([w is not None and w != "None" for w in modal.whirl_direction()])
+        at = ours[ours.rpm == rpm]
+        zeta = at.damping_ratio.to_numpy()
+        np.testing.assert_allclose(at.frequency_hz.to_numpy() * 2 * np.pi, modal.wd[lateral][:6], rtol=RTOL)
+        np.testing.assert_allclose(2 * np.pi * zeta / np.sqrt(1 - zeta**2), modal.log_dec[lateral][:6], rtol=RTOL)
 
 
 # --- layers without ROSS -------------------------------------------------------------------------------------------
