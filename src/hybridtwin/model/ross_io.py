@@ -1,6 +1,7 @@
 """ROSS in and out: a ``Machine`` from a ROSS rotor (the object or its saved file) and a ROSS rotor from a
-``Machine`` (docs/model.md, "ROSS in and out"). ROSS is ross-rotordynamics 2.3.0, the ``ross`` extra
-(``pip install -e ".[ross]"``); it is imported inside the functions, so this module imports without it.
+``Machine`` (docs/model.md, "ROSS in and out"). ROSS is ross-rotordynamics 2.3.0 (Python 3.11), 3.0 (3.12) or 3.1
+(3.13), the ``ross`` extra (``pip install -e ".[ross]"``); it is imported inside the functions, so this module
+imports without it.
 
 ``machine_from_ross(rotor)``:
 
@@ -15,21 +16,25 @@
 - DiskElements become ``Disk``s at ROSS's node (m, Ip, Id; the tag as name unless ROSS made it up).
 - BearingElements (and seals) become ``Bearing``s named after their tags (non-identifier characters as ``_``):
   constant isotropic coefficients (kxx = kyy, cxx = cyy, no cross terms) as ``k``, ``c``; anything else as a
-  ``BearingTable`` of the eight coefficients, at ROSS's ``frequency`` [rad/s] converted to RPM (14 significant
-  digits), with
-  ``interpolation: ross`` (ROSS 2.3.0's own spline, so both codes evaluate the same coefficients at any speed;
-  ``bearing_table``). Mass coefficients (mxx, mxy, myx, myy; ROSS's added mass) go into the table too. Refused: a
+  ``BearingTable`` of the eight coefficients, at the table's speeds [rad/s] converted to RPM (14 significant
+  digits), by ROSS's own rule, so both codes evaluate the same coefficients at any speed (``bearing_table``):
+  ROSS 2's ``frequency`` (the speed) with ``interpolation: ross`` (its spline); ROSS 3's ``speed`` with ``pchip``
+  or ``linear_extrapolated`` (its ``interpolation``); a ROSS 3 table over the whirl ``frequency`` alone read
+  synchronously (whirl = speed, ROSS's default in every analysis); one over both axes refused. Fluid-film bearings
+  and seals whose coefficients ROSS computed when they were made are such tables. Mass coefficients (mxx, mxy, myx, myy; ROSS's added mass) go into the table too. Refused: a
   bearing linked to another node (``n_link``), elements whose K or C are not ROSS's table (magnetic bearings, ...),
-  point masses (ROSS's are a support's, on the node a bearing links to). Axial coefficients (kzz,
+  point masses (ROSS's are a support's, DOFs of their own where a bearing links), a motor element, modal damping,
+  ROSS 3's rotor-wide mass-proportional damping on a rotor with disks (it damps their mass; a rotor's alpha, beta
+  that act on the shaft alone become the segments'). Axial coefficients (kzz,
   czz) are dropped: the model has no axial DOFs.
 - ROSS has no unbalance planes or probes: give them (``unbalance_planes``, ``sensors``) to have them.
 
 ``machine_to_ross(machine)`` is the inverse (segments of explicit ``I`` or ``m`` refused: ROSS computes them from
 the diameters; a bearing with neither k nor a table refused: ROSS needs coefficients). ROSS's gyroscopic terms are
-on (``gyroscopic=True``); in our model they are the effect ``gyroscopic``, listed or not by a variant. A table with
-``interpolation: linear`` is given to ROSS with its coefficients' interpolants replaced by ours (linear, constant
-beyond the ends), so the rotor in memory evaluates what our model does; ROSS's file form keeps only the table,
-and ``Rotor.load`` makes it ROSS's spline again.
+on (``gyroscopic=True``); in our model they are the effect ``gyroscopic``, listed or not by a variant. A table whose
+rule is not the ROSS release's own is given to ROSS with its coefficients' interpolants replaced by ours
+(``_OurRule``), so the rotor in memory evaluates what our model does; ROSS's file form keeps only the table (and
+ROSS 3 its own rule), and ``Rotor.load`` gives it ROSS's rule again.
 """
 
 from __future__ import annotations
