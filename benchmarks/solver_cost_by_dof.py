@@ -100,8 +100,8 @@ def main() -> None:
             lower, upper = np.array([model.parameters[n].bounds for n in names]).T
             steps = 1e-4 * np.where(upper > lower, upper - lower, np.abs(lower) + 1.0)
 
-            def build(v):
-                return model.system(v, rpm)
+            def build(v):  # the perturbed assemblies come stacked (parameter, sign, scenario): the speeds tiled
+                return model.system(v, np.tile(rpm, len(next(iter(v.values()))) // len(rpm)))
 
             t_sens = best(lambda: sensitivity(build, values, names, state, steps), args.repeats)
             t_stab = best(lambda: assess_stability(system, solve(system, H, stability=False)), args.repeats) - t_solve

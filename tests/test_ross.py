@@ -1,4 +1,4 @@
-"""Independent check of a described machine against ROSS (ross-rotordynamics 2.3.0, the `ross` extra):
+"""Independent check of a described machine against ROSS (ross-rotordynamics 2.3.0, 3.0 or 3.1 by the Python, the `ross` extra):
 a stepped shaft (three sections) with two disks, one overhung, on two linear bearings inside the span
 (neither at a shaft end), gyroscopic coupling on: Euler-Bernoulli beams with and without the sections' rotary
 inertia, and Timoshenko beams (shear on, rotary inertia on: ROSS's default element).

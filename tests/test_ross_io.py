@@ -184,7 +184,9 @@ def test_ross_rotor_with_speed_dependent_bearings_has_our_campbell(rs, tmp_path)
     assert machine.to_mapping() | {"name": "stepped"} == machine_from_ross(rotor).to_mapping()  # the file has no tag
     assert machine.shear and machine.rotary_inertia and len(machine.segments) == 3
     drive, free = machine.bearings
-    assert (drive.name, drive.node, drive.table.interpolation, free.name) == ("drive_end", 2, "ross", "free_end")
+    # ROSS 2's frequency is the speed (its spline, ours "ross"); ROSS 3's is the whirl frequency, read synchronously
+    # (whirl = speed, as its run_modal and unbalance response evaluate it) by its PCHIP rule
+    assert (drive.name, drive.node, drive.table.interpolation, free.name) == ("drive_end", 2, _native(rs), "free_end")
     np.testing.assert_allclose(drive.table.rpm, FREQUENCY * 60 / (2 * np.pi), rtol=1e-13)  # 14 digits
     fx = machine.effects()
     model = Model([fx["bearing_table@drive_end"], fx["bearing_table@free_end"], fx["gyroscopic"]], machine)
@@ -270,25 +272,34 @@ def test_our_stepped_rotor_round_trips_through_ross(rs):
         assert back.to_mapping() == machine.to_mapping()
 
 
-def test_a_linear_table_goes_to_ross_as_ours(rs, tmp_path):
-    """A table with our linear rule: ROSS's bearing in memory evaluates it as ours does (between the rows and
-    beyond them, where ROSS's own rule would extrapolate) and it comes back linear; the file keeps the table only
-    (ROSS's spline again once loaded)."""
+def _native(rs):  # noqa: F811 (the module)
+    """The rule of ROSS's own tables: ROSS 2.3's spline ("ross"), ROSS 3's PCHIP ("pchip")."""
+    return "ross" if int(rs.__version__.split(".")[0]) < 3 else "pchip"
+
+
+@pytest.mark.parametrize("rule", ["linear", "ross", "pchip", "linear_extrapolated"])
+def test_a_table_goes_to_ross_as_ours(rs, tmp_path, rule):  # noqa: F811 (the fixture)
+    """A table by any of our rules: ROSS's bearing in memory evaluates it as ours does (between the rows and
+    beyond them, where ROSS's own rule would extrapolate otherwise) and it comes back with its rule; the file keeps
+    the table and ROSS's own rule only (ROSS 3 keeps its linear: ours linear_extrapolated; else ROSS's native)."""
     from hybridtwin.model.ross_io import machine_from_ross, machine_to_ross
 
     ours = _ours(True, True)[0]
-    table = BearingTable.from_mapping(TABLE | {"kyy": [0.8e7, 1.9e7, 2.2e7], "cyx": [0.0, -5.0, 7.0]})
+    rows = {"rpm": [500.0, 1500.0, 2500.0, 4000.0], "kxx": [1e7, 1.5e7, 3e7, 3.2e7], "kyy": [0.8e7, 1.9e7, 2.2e7, 3e7],
+            "cxx": [500.0, 450.0, 300.0, 320.0], "cyx": [0.0, -5.0, 7.0, 2.0], "interpolation": rule}
+    table = BearingTable.from_mapping(rows)
     machine = Machine(ours.name, ours.segments, ours.disks, [Bearing("drive_end", 2, table=table), ours.bearings[1]],
                       shear=True, rotary_inertia=True)
     rotor = machine_to_ross(machine, tmp_path / "linear.json")
     element = rotor.bearing_elements[0]
-    for rpm in (500.0, 2500.0, 5000.0):
+    for rpm in (100.0, 1000.0, 3000.0, 5000.0):  # before, inside and after the table
         K, C = table.matrices(_rad_s([rpm]))
         np.testing.assert_allclose(element.K(_rad_s(rpm))[:2, :2], K[0], rtol=1e-14)
         np.testing.assert_allclose(element.C(_rad_s(rpm))[:2, :2], C[0], rtol=1e-14)
     assert machine_from_ross(rotor).bearings[0].table == table
     loaded = machine_from_ross(tmp_path / "linear.json").bearings[0].table
-    assert loaded.interpolation == "ross"
+    kept = rule if rule in ("pchip", "linear_extrapolated") and _native(rs) == "pchip" else _native(rs)
+    assert loaded.interpolation == kept
     np.testing.assert_allclose(loaded.kyy, table.kyy, rtol=1e-15)
 
 

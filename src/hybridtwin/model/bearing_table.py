@@ -17,7 +17,12 @@ them at any speed, vectorised over scenarios, by one of two rules (``interpolati
   FITPACK's default smoothing s = number of rows, which does not quite pass through the rows where the values are
   small); three rows, the quadratic through them; two, the line; one, a constant. Beyond the table's ends ROSS
   *extrapolates* (the spline's end polynomial, the parabola, the line), and so does this rule. It is what
-  ``ross_io.machine_from_ross`` gives a ROSS bearing, so that our model and ROSS evaluate the same coefficients.
+  ``ross_io.machine_from_ross`` gives a ROSS 2.3 bearing, so that our model and ROSS evaluate the same coefficients.
+- ``pchip``: ROSS 3's rule (its ``BearingCoefficient``, ``interpolation="pchip"``, the default): the
+  shape-preserving piecewise cubic Hermite interpolant (``scipy.interpolate.PchipInterpolator``) of the rows over
+  rad/s, continued beyond the table's ends as a line with the end slopes; two rows, the line; one, a constant.
+- ``linear_extrapolated``: ROSS 3's ``interpolation="linear"``: piecewise linear, continued beyond the ends as the
+  end segments' lines (``scipy.interpolate.interp1d(..., fill_value="extrapolate")``).
 
 ``TableBearing`` is the effect ``bearing_table@<bearing>`` (``Machine.effects``): the coefficients at rest
 (Omega = 0) in the stiffness at rest (so the first mode at rest sees the bearing), the change with speed in
@@ -40,7 +45,7 @@ COEFFICIENTS = ("kxx", "kxy", "kyx", "kyy", "cxx", "cxy", "cyx", "cyy")
 #: the optional mass coefficients [kg] (a seal's or a squeeze film's added mass; ROSS's mxx ..), zero when not given
 MASSES = ("mxx", "mxy", "myx", "myy")
 COLUMNS = COEFFICIENTS + MASSES
-INTERPOLATIONS = ("linear", "ross")
+INTERPOLATIONS = ("linear", "ross", "pchip", "linear_extrapolated")
 #: (row, column) of each coefficient in the bearing's 2 x 2 block over (x, y)
 _PLACE = {"xx": (0, 0), "xy": (0, 1), "yx": (1, 0), "yy": (1, 1)}
 
@@ -48,7 +53,7 @@ _PLACE = {"xx": (0, 0), "xy": (0, 1), "yx": (1, 0), "yy": (1, 1)}
 @dataclass(frozen=True)
 class BearingTable:
     """The eight coefficients of a bearing at the speeds ``rpm`` (strictly increasing, >= 0): ``kxx`` .. ``kyy``
-    [N/m], ``cxx`` .. ``cyy`` [N s/m], one value per speed; ``interpolation`` ``"linear"`` or ``"ross"`` (module
+    [N/m], ``cxx`` .. ``cyy`` [N s/m], one value per speed; ``interpolation`` one of ``INTERPOLATIONS`` (module
     docstring). A problem raises ValueError naming the key."""
 
     rpm: tuple[float, ...]
@@ -150,11 +155,30 @@ class BearingTable:
                 out[key] = interpolate.interp1d(speeds, values, kind=len(values) - 1, fill_value="extrapolate")
         return out
 
+    @cached_property
+    def _ross3(self) -> dict:
+        """ROSS 3's interpolants (``bearing_seal_element._AxisInterpolator``) of each column over rad/s: PCHIP
+        (``pchip``) or piecewise linear (``linear_extrapolated``), both continued linearly beyond the ends."""
+        from scipy import interpolate
+
+        speeds = np.asarray(self.rpm) * (2.0 * np.pi / 60.0)
+        out = {}
+        for key in COLUMNS:
+            values = np.asarray(getattr(self, key))
+            if len(values) == 1:
+                out[key] = lambda omega, v=values[0]: np.full(np.shape(omega), v)
+            elif len(values) == 2 or self.interpolation == "linear_extrapolated":
+                out[key] = interpolate.interp1d(speeds, values, kind="linear", fill_value="extrapolate")
+            else:
+                out[key] = _pchip_extrapolated(speeds, values)
+        return out
+
     def at(self, Omega: Array) -> dict[str, Array]:
         """Each coefficient at the speeds ``Omega`` [rad/s] (any shape), by ``interpolation``."""
         Omega = np.asarray(Omega, dtype=float)
-        if self.interpolation == "ross":
-            return {k: np.asarray(f(Omega), dtype=float).reshape(Omega.shape) for k, f in self._ross.items()}
+        if self.interpolation != "linear":
+            rule = self._ross if self.interpolation == "ross" else self._ross3
+            return {k: np.asarray(f(Omega), dtype=float).reshape(Omega.shape) for k, f in rule.items()}
         rpm = Omega * (60.0 / (2.0 * np.pi))
         return {k: np.interp(rpm, self.rpm, getattr(self, k)) for k in COLUMNS}  # constant beyond the ends
 
@@ -236,3 +260,20 @@ class TableBearing(Effect):
         if not self.table.has_mass:
             return None
         return self._block(ctx, self.table.mass_matrix(ctx.Omega) - self.table.mass_matrix(np.zeros(ctx.n_scenarios)))
+
+
+def _pchip_extrapolated(speeds: Array, values: Array):
+    """PCHIP through the rows, beyond the ends the line with the end slope (ROSS 3's ``_AxisInterpolator``)."""
+    from scipy import interpolate
+
+    pchip = interpolate.PchipInterpolator(speeds, values, extrapolate=True)
+    slope = pchip.derivative()
+    lo, hi = speeds[0], speeds[-1]
+    end_slopes = (float(slope(lo)), float(slope(hi)))
+
+    def evaluate(omega):
+        omega = np.asarray(omega, dtype=float)
+        clipped = np.clip(omega, lo, hi)
+        return pchip(clipped) + (omega - clipped) * np.where(omega < lo, end_slopes[0], end_slopes[1])
+
+    return evaluate

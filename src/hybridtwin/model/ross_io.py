@@ -1,6 +1,7 @@
 """ROSS in and out: a ``Machine`` from a ROSS rotor (the object or its saved file) and a ROSS rotor from a
-``Machine`` (docs/model.md, "ROSS in and out"). ROSS is ross-rotordynamics 2.3.0, the ``ross`` extra
-(``pip install -e ".[ross]"``); it is imported inside the functions, so this module imports without it.
+``Machine`` (docs/model.md, "ROSS in and out"). ROSS is ross-rotordynamics 2.3.0 (Python 3.11), 3.0 (3.12) or 3.1
+(3.13), the ``ross`` extra (``pip install -e ".[ross]"``); it is imported inside the functions, so this module
+imports without it.
 
 ``machine_from_ross(rotor)``:
 
@@ -15,25 +16,30 @@
 - DiskElements become ``Disk``s at ROSS's node (m, Ip, Id; the tag as name unless ROSS made it up).
 - BearingElements (and seals) become ``Bearing``s named after their tags (non-identifier characters as ``_``):
   constant isotropic coefficients (kxx = kyy, cxx = cyy, no cross terms) as ``k``, ``c``; anything else as a
-  ``BearingTable`` of the eight coefficients, at ROSS's ``frequency`` [rad/s] converted to RPM (14 significant
-  digits), with
-  ``interpolation: ross`` (ROSS 2.3.0's own spline, so both codes evaluate the same coefficients at any speed;
-  ``bearing_table``). Mass coefficients (mxx, mxy, myx, myy; ROSS's added mass) go into the table too. Refused: a
+  ``BearingTable`` of the eight coefficients, at the table's speeds [rad/s] converted to RPM (14 significant
+  digits), by ROSS's own rule, so both codes evaluate the same coefficients at any speed (``bearing_table``):
+  ROSS 2's ``frequency`` (the speed) with ``interpolation: ross`` (its spline); ROSS 3's ``speed`` with ``pchip``
+  or ``linear_extrapolated`` (its ``interpolation``); a ROSS 3 table over the whirl ``frequency`` alone read
+  synchronously (whirl = speed, ROSS's default in every analysis); one over both axes refused. Fluid-film bearings
+  and seals whose coefficients ROSS computed when they were made are such tables. Mass coefficients (mxx, mxy, myx, myy; ROSS's added mass) go into the table too. Refused: a
   bearing linked to another node (``n_link``), elements whose K or C are not ROSS's table (magnetic bearings, ...),
-  point masses (ROSS's are a support's, on the node a bearing links to). Axial coefficients (kzz,
+  point masses (ROSS's are a support's, DOFs of their own where a bearing links), a motor element, modal damping,
+  ROSS 3's rotor-wide mass-proportional damping on a rotor with disks (it damps their mass; a rotor's alpha, beta
+  that act on the shaft alone become the segments'). Axial coefficients (kzz,
   czz) are dropped: the model has no axial DOFs.
 - ROSS has no unbalance planes or probes: give them (``unbalance_planes``, ``sensors``) to have them.
 
 ``machine_to_ross(machine)`` is the inverse (segments of explicit ``I`` or ``m`` refused: ROSS computes them from
 the diameters; a bearing with neither k nor a table refused: ROSS needs coefficients). ROSS's gyroscopic terms are
-on (``gyroscopic=True``); in our model they are the effect ``gyroscopic``, listed or not by a variant. A table with
-``interpolation: linear`` is given to ROSS with its coefficients' interpolants replaced by ours (linear, constant
-beyond the ends), so the rotor in memory evaluates what our model does; ROSS's file form keeps only the table,
-and ``Rotor.load`` makes it ROSS's spline again.
+on (``gyroscopic=True``); in our model they are the effect ``gyroscopic``, listed or not by a variant. A table whose
+rule is not the ROSS release's own is given to ROSS with its coefficients' interpolants replaced by ours
+(``_OurRule``), so the rotor in memory evaluates what our model does; ROSS's file form keeps only the table (and
+ROSS 3 its own rule), and ``Rotor.load`` gives it ROSS's rule again.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import re
 from collections.abc import Mapping, Sequence
@@ -134,6 +140,30 @@ def _name(tag, fallback: str) -> str:
     return name if name.isidentifier() else f"_{name}"
 
 
+def _major(ross) -> int:
+    """ROSS's major version (2 or 3: their bearing tables differ, module docstring)."""
+    return int(str(getattr(ross, "__version__", "2")).split(".")[0])
+
+
+def _axis(el, ross) -> tuple[np.ndarray | None, str]:
+    """The speeds [rad/s] of a ROSS bearing's table (None: constant) and the rule that interpolates them, or
+    ValueError: ROSS 2's ``frequency`` (the speed, its spline); ROSS 3's ``speed`` or ``frequency`` (whirl) axis."""
+    where = f"ROSS bearing {el.tag!r} (node {el.n})"
+    if _major(ross) < 3:
+        return el.frequency, getattr(el, MARK, "ross")
+    speed, whirl = getattr(el, "speed", None), getattr(el, "frequency", None)
+    rule = getattr(el, MARK, None) or {"pchip": "pchip", "linear": "linear_extrapolated"}.get(
+        getattr(el, "interpolation", "pchip"))
+    if rule is None:
+        raise ValueError(f"{where}: interpolation {el.interpolation!r}; only ROSS's pchip and linear are known here")
+    if speed is not None and whirl is not None and np.size(speed) > 1 and np.size(whirl) > 1:
+        raise ValueError(f"{where}: a table over speed and whirl frequency ({np.size(speed)} x {np.size(whirl)}); "
+                         "our bearings' coefficients depend on the speed only (a whirl-frequency table alone is read "
+                         "synchronously, whirl = speed)")
+    axes = [a for a in (speed, whirl) if a is not None and np.size(a) > 1]
+    return (axes[0] if axes else None), rule
+
+
 def _bearing(ross, el, index: int) -> Bearing:
     where = f"ROSS bearing {el.tag!r} (node {el.n})"
     if getattr(el, "n_link", None) is not None:
@@ -147,23 +177,44 @@ def _bearing(ross, el, index: int) -> Bearing:
         raise ValueError(f"{where}: a {type(el).__name__} computes its K or C itself; only tables of coefficients "
                          "(BearingElement, SealElement) can be read")
     name = _name(el.tag, f"bearing_{index}")
-    columns = {k: np.atleast_1d(np.asarray(getattr(el, k, 0.0), dtype=float)) for k in COLUMNS}
-    if el.frequency is None or np.size(el.frequency) == 1:
+    speeds, rule = _axis(el, ross)
+    columns = {k: np.atleast_1d(np.asarray(getattr(el, k, 0.0), dtype=float)).ravel() for k in COLUMNS}
+    if speeds is None or np.size(speeds) == 1:
         values = {k: _scalar(v) for k, v in columns.items()}
         if values["kxx"] == values["kyy"] and values["cxx"] == values["cyy"] and not any(
                 values[k] for k in ("kxy", "kyx", "cxy", "cyx") + MASSES):
             return Bearing(name, int(el.n), k=values["kxx"], c=values["cxx"])
         return Bearing(name, int(el.n), table=BearingTable.constant(**values))
-    n = np.size(el.frequency)
+    n = np.size(speeds)
     columns = {k: np.broadcast_to(v, (n,)) if v.size == 1 else v for k, v in columns.items()}  # ROSS's zeros
-    # ROSS's frequency is rad/s; to 14 significant digits, so that a table written from RPM comes back as it was
-    rpm = [float(f"{w * 60.0 / (2.0 * np.pi):.14g}") for w in np.asarray(el.frequency, dtype=float)]
+    # ROSS's speeds are rad/s; to 14 significant digits, so that a table written from RPM comes back as it was
+    rpm = [float(f"{w * 60.0 / (2.0 * np.pi):.14g}") for w in np.asarray(speeds, dtype=float)]
     try:
-        table = BearingTable(tuple(rpm), **{k: tuple(v) for k, v in columns.items()},
-                             interpolation=getattr(el, MARK, "ross"))
+        table = BearingTable(tuple(rpm), **{k: tuple(v) for k, v in columns.items()}, interpolation=rule)
     except ValueError as err:
         raise ValueError(f"{where}: {err}") from None
     return Bearing(name, int(el.n), table=table)
+
+
+def _rotor_damping(rotor, elemental: bool) -> tuple[float, float]:
+    """ROSS's rotor-wide proportional damping (``Rotor(alpha=, beta=)``: alpha M0 + beta K0 of the shaft and the
+    disks) as the segments' (alpha, beta), or ValueError where ours cannot be it: modal damping, alpha with disks
+    (ours damps the shaft's mass only), or beside the elements' own (ROSS then drops theirs)."""
+    parameters = getattr(rotor, "parameters", None) or {}
+    where = f"ROSS rotor {rotor.tag!r}"
+    if parameters.get("modal_damping_ratio") is not None:
+        raise ValueError(f"{where}: modal damping (modal_damping_ratio); only proportional damping of the shaft "
+                         "(alpha, beta) can be read")
+    alpha, beta = float(parameters.get("alpha") or 0.0), float(parameters.get("beta") or 0.0)
+    if not (alpha or beta):
+        return 0.0, 0.0
+    if elemental:
+        raise ValueError(f"{where}: rotor-wide damping (alpha {alpha:g}, beta {beta:g}) beside the shaft elements' "
+                         "own; ROSS keeps the rotor's only: give one of them")
+    if alpha and rotor.disk_elements:
+        raise ValueError(f"{where}: rotor-wide mass-proportional damping (alpha {alpha:g} 1/s) acts on the disks' "
+                         "mass too; ours damps the shaft's (give alpha to the shaft elements instead)")
+    return alpha, beta
 
 
 def machine_from_ross(rotor, name: str | None = None, unbalance_planes: Sequence[UnbalancePlane] = (),
@@ -181,13 +232,19 @@ def machine_from_ross(rotor, name: str | None = None, unbalance_planes: Sequence
     if kind != "Rotor" and any(c.__name__ in ("CoAxialRotor", "MultiRotor") for c in type(rotor).__mro__):
         raise ValueError(f"ROSS rotor {rotor.tag!r}: a {kind} (several shafts, coaxial or geared); our machine is "
                          "one shaft")
+    if getattr(rotor, "motor_element", None) is not None:
+        raise ValueError(f"ROSS rotor {rotor.tag!r}: a motor element (its electromagnetic forces) is not modelled "
+                         "here")
     segments, shear, rotary_inertia = _shaft(rotor)
+    alpha, beta = _rotor_damping(rotor, any(s.alpha or s.beta for s in segments))
+    if alpha or beta:
+        segments = [dataclasses.replace(s, alpha=alpha, beta=beta) for s in segments]
     disks = [Disk(int(d.n), float(d.m), I_p=float(d.Ip), I_d=float(d.Id),
                   name="" if re.fullmatch(r"Disk \d+", str(d.tag or "Disk 0")) else _name(d.tag, ""))
              for d in rotor.disk_elements]
     for p in getattr(rotor, "point_mass_elements", None) or []:
-        raise ValueError(f"ROSS point mass {p.tag!r} (node {p.n}): a support's mass (ROSS places point masses where "
-                         "bearings link the shaft to a support of its own, n_link); supports are not modelled here")
+        raise ValueError(f"ROSS point mass {p.tag!r} (node {p.n}): a support's mass (ROSS gives a point mass DOFs of "
+                         "its own, where bearings link the shaft to a support, n_link); supports are not modelled here")
     bearings = [_bearing(ross, el, i) for i, el in enumerate(rotor.bearing_elements)]
     return Machine(name or str(rotor.tag), segments, disks, bearings, unbalance_planes, sensors,
                    rotary_inertia=rotary_inertia, shear=shear)
@@ -228,19 +285,31 @@ def _read(path: str, mtime_ns: int) -> Machine:
     return machine_from_ross(path)
 
 
-def _linear(el, table: BearingTable) -> None:
-    """Make the ROSS bearing ``el`` evaluate ``table`` as our linear rule does (its ``*_interpolated``)."""
-    speeds = np.asarray(table.rpm) * (2.0 * np.pi / 60.0)
+class _OurRule:
+    """One coefficient of ``table`` as a ROSS bearing's ``<coefficient>_interpolated``: called by ROSS 2 with the
+    speed (``frequency``), by ROSS 3 with the whirl frequency and the speed (default the whirl frequency); the speed
+    is what ours depends on."""
+
+    def __init__(self, table: BearingTable, key: str):
+        self.table, self.key = table, key
+
+    def __call__(self, frequency=None, speed=None):
+        at = np.asarray(speed if speed is not None else frequency, dtype=float)
+        return self.table.at(at)[self.key]
+
+
+def _ours(el, table: BearingTable) -> None:
+    """Make the ROSS bearing ``el`` evaluate ``table`` by our rule (where ROSS's own differs)."""
     for key in COLUMNS:
-        values = np.asarray(getattr(table, key))
-        setattr(el, f"{key}_interpolated", lambda omega, v=values: np.interp(omega, speeds, v))
-    setattr(el, MARK, "linear")
+        setattr(el, f"{key}_interpolated", _OurRule(table, key))
+    setattr(el, MARK, table.interpolation)
 
 
 def machine_to_ross(machine: Machine, file: str | Path | None = None):
     """A ``ross.Rotor`` of our ``machine`` (module docstring); with ``file`` also saved there (ROSS's
     ``rotor.save``: .toml or .json). A machine ROSS cannot represent raises ValueError naming what."""
     ross = _ross()
+    three = _major(ross) >= 3
     shaft, layers, node = [], [], 0
     for i, s in enumerate(machine.segments):
         if s.I is not None or s.m is not None:
@@ -265,10 +334,16 @@ def machine_to_ross(machine: Machine, file: str | Path | None = None):
             columns = {k: np.asarray(getattr(t, k)) for k in COLUMNS}
             if len(t.rpm) == 1:
                 el = ross.BearingElement(n=b.node, **{k: float(v[0]) for k, v in columns.items()}, tag=b.name)
+            elif three:
+                native = {"pchip": "pchip", "linear_extrapolated": "linear"}.get(t.interpolation)
+                el = ross.BearingElement(n=b.node, **columns, speed=frequency, interpolation=native or "pchip",
+                                         tag=b.name)
+                if native is None:
+                    _ours(el, t)
             else:
                 el = ross.BearingElement(n=b.node, **columns, frequency=frequency, tag=b.name)
-                if t.interpolation == "linear":
-                    _linear(el, t)
+                if t.interpolation != "ross":
+                    _ours(el, t)
         elif b.k is not None:
             el = ross.BearingElement(n=b.node, kxx=b.k, cxx=b.c, tag=b.name)
         else:
