@@ -14,10 +14,11 @@ Tolerances, from what each side leaves out (module docstring of ross_faults):
   3X within 4 s (its forcing sums three products of the loss's and the response's harmonics); and it shrinks with
   the share: from depth ratio 0.2 to 0.1 the 2X difference falls with s to within a factor 1.6 (measured 0.281 at
   s = 0.201, 0.062 at s = 0.048: 1.40 and 1.29 times s).
-- rub (friction 0 and contact damping 0: the conventions differ there): the same contact spring on both sides; ROSS's
-  force lags one time step (its Newmark takes the fault's force at the previous step's deflection), a phase of
-  Omega dt = 0.013 rad on the 1X; held at 5 % of ROSS's largest 1X, and the 3X (the orbit's clipping) at 30 % of
-  ROSS's 3X, a harmonic 100 times smaller that the same lag turns by 3 Omega dt.
+- rub (friction 0 and contact damping 0: the conventions differ there): the same contact spring on both sides. Our
+  periodic orbit is unstable there (Floquet radius 1.03, asserted) and ROSS's motion wanders around it: a component
+  near 39.5 Hz comes and goes (2-10 um) beside a steady 1X (81-82 um over the last 5 s). The 1X is held at 5 % of
+  ROSS's (measured 1.8 %): ROSS's force lags one time step (its Newmark takes the fault's force at the previous
+  step's deflection, a negative damping k dt = 110 N s/m in contact) and the wandering part leaks into the 1X.
 
 ROSS's integrations take 1-3 minutes each: this file runs in the CI's ROSS step (.ci/run), skipped without ROSS.
 """
@@ -77,7 +78,6 @@ def test_crack_agrees_within_its_left_out_share_and_converges_with_it(rotor):
 def test_rub_agrees_at_rosss_contact_spring(rotor):
     result = run_case(rotor, "rub")
     assert result.converged
-    theirs = np.abs(result.theirs)
-    assert theirs[1].max() > 7.95e-5  # the orbit reaches the clearance: the rub acts
+    assert np.abs(result.theirs[1]).max() > 7.95e-5  # the orbit reaches the clearance: the rub acts
     assert result.difference(1) < 0.05
-    assert result.difference(3) < 0.3
+    assert result.floquet_radius > 1.0  # our periodic orbit is unstable: ROSS's 2X is not a steady one to compare
