@@ -3,7 +3,7 @@
 ROSS 2.3.0's ``rotor_example_with_damping()`` (two disks on a 19 mm shaft, anisotropic bearings) at 1200 RPM, an
 unbalance at the first disk; ROSS integrates each fault from rest (Newmark, direct, dt = 1e-4 s); its steady 1X, 2X,
 3X at both disks (x and y) over the last 20 turns (``order_harmonics``) against our harmonic balance (5 harmonics)
-of the same rotor with our effect for the same fault (``ross_faults.CASES``, ``run_case``). One row per case: the
+of the same rotor with our effect for the same fault (``ross_fault_cases.CASES``, ``run_case``). One row per case: the
 largest amplitude of each harmonic, the largest difference relative to ROSS's largest amplitude there, and for the
 crack the share of the term our crack leaves out (``parametric_share``), and our periodic orbit's Floquet radius
 (> 1: unstable, the motion then wanders around it).
@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from hybridtwin.model.ross_faults import (CASE_PROBE_NODES, CASE_RPM, CASE_TURNS, CASES, ross_example_rotor,
-                                          run_case)
+from hybridtwin.solvers.ross_fault_cases import (CASE_PROBE_NODES, CASE_RPM, CASE_TURNS, CASES,
+                                                 ross_example_rotor, run_case)
 
 
 def main() -> None:

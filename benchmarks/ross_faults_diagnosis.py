@@ -1,6 +1,6 @@
 """Does the diagnosis name a fault in records ROSS made with it? (issue 54; docs/diagnosis.md)
 
-ROSS 2.3.0's ``rotor_example_with_damping()`` integrated in time with each fault of ``ross_faults.CASES`` (crack,
+ROSS 2.3.0's ``rotor_example_with_damping()`` integrated in time with each fault of ``ross_fault_cases.CASES`` (crack,
 flexible-coupling misalignment, rub) and without one, at a few constant speeds; each run's probe signals (x, y at
 both disks) order-tracked over their last 20 turns (``order_harmonics``, harmonics 1..3), complex Gaussian noise of
 ``--noise`` m added to each part with that sigma, a keyphasor's phase (ROSS's t = 0). The base variant is the
@@ -25,8 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
-from hybridtwin.model.ross_faults import (CASE_DT, CASE_PLANE_NODE, CASE_PROBE_NODES, CASE_TURNS, CASES,
-                                          order_harmonics, ross_dof, ross_example_rotor, ross_fault_run)
+from hybridtwin.model.ross_faults import order_harmonics, ross_dof, ross_fault_run
+from hybridtwin.solvers.ross_fault_cases import (CASE_DT, CASE_PLANE_NODE, CASE_PROBE_NODES, CASE_TURNS, CASES,
+                                                 ross_example_rotor)
 
 #: the speeds of each fault's runs [RPM]: whole samples a turn at dt 1e-4 s, below the first critical speeds (1730
 #: and 1790 RPM); 1200 RPM is the comparison's (benchmarks/ross_faults_benchmark.py: its runs serve here too). Two
