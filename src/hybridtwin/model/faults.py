@@ -86,6 +86,9 @@ BREATHING = {
 #: time samples a turn for the crack's forcing harmonics (the Gasch wave's 35th harmonic times the 2nd of the
 #: rotation, the 37th, folds to the 91st and beyond: no harmonic up to 36 is touched)
 CRACK_SAMPLES = 128
+#: the crack's forcing harmonics: 1X .. 3X, the whole of Mayes's law acting on the sag (Gasch's square wave has
+#: more, cut here: the data's harmonics rarely reach beyond 3X)
+CRACK_HARMONICS = 3
 #: the weight's acceleration along x and y [m/s^2] of a horizontal machine, y up (ROSS's convention)
 GRAVITY_M_S2 = (0.0, -9.81)
 
@@ -134,7 +137,7 @@ class Crack(Effect):
     element_length_m: float = 0.0
     model: str = "mayes"
     cross_terms: bool = True
-    harmonics: int = 3
+    harmonics: int = CRACK_HARMONICS
     gravity_m_s2: tuple[float, float] = GRAVITY_M_S2
     sag_m: tuple[float, float] | None = None
     bounds_n_m: tuple[float, float] = (0.0, 1e6)

@@ -41,7 +41,12 @@ ROSS_DOFS = 6
 BLACKMAN_HARRIS = (0.35875, 0.48829, 0.14128, 0.01168)
 
 
-def order_harmonics(y: np.ndarray, dt: float, rpm: float, periods: int, harmonics: int = 3) -> np.ndarray:
+#: the orders ``order_harmonics`` returns by default: 0 .. 3X, those the faults compared show
+TRACKED_HARMONICS = 3
+
+
+def order_harmonics(y: np.ndarray, dt: float, rpm: float, periods: int,
+                    harmonics: int = TRACKED_HARMONICS) -> np.ndarray:
     """The complex harmonics 0..``harmonics`` (h, d) of the last ``periods`` whole turns of the signals y (N, d)
     sampled every ``dt`` from t = 0, y = Re(sum_h X_h exp(i h Omega t)): a DFT at the orders, the Blackman-Harris
     window against the transients' leakage (exact for a steady periodic signal of whole turns)."""
