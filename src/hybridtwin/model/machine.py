@@ -38,6 +38,7 @@ from functools import cached_property
 import numpy as np
 
 from .bearing_candidates import EXCITATION_DISPLACEMENT_M, at_bearing, excitations_at
+from .faults import fault_candidates
 from .bearing_table import TableBearing
 from .effect_base import Context, Effect, Parameter
 from .effects import ANGLE_ME, Unbalance, builtin_effects, trial_force
@@ -461,7 +462,9 @@ class Machine(DofCounts):
         """The candidates sized to this machine (``bearing_candidates``), by name: at each bearing with nominal k its
         anisotropy, cross-coupled stiffness and damping, compliance, moment stiffness and speed-dependent damping;
         at each such bearing and each unbalance plane the 2X and 3X forces, their range the force that moves the
-        rotor 10 um on its supports (sum of the bearings' k). None on the VARM (no nominal k)."""
+        rotor 10 um on its supports (sum of the bearings' k); the faults (``faults.fault_candidates``): looseness and
+        a coupling's misalignment at each such bearing, a breathing crack at each unbalance plane. None on the VARM
+        (no nominal k)."""
         out: dict[str, Effect] = {}
         for bearing in self.bearings:
             for candidate in at_bearing(bearing.name, bearing.k, bearing.c, self.tilt_stiffness(bearing.node)):
@@ -472,6 +475,8 @@ class Machine(DofCounts):
         for place, node, kind in places if force > 0 else ():
             for excitation in excitations_at(place, node, force, kind):
                 out[excitation.name] = excitation
+        for fault in fault_candidates(self, force):  # looseness, misalignment at the bearings, a crack at each plane
+            out[fault.name] = fault
         return out
 
     def candidates(self) -> dict[str, Effect]:
