@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from hybridtwin.data.rig import DEFAULT_TRUTH, Imperfections, RigSpec, Truth, generate
+from hybridtwin.rig.rig import DEFAULT_TRUTH, Imperfections, RigSpec, Truth, generate
 from hybridtwin.online.assess import ALPHA, Verdict, assess
 from hybridtwin.online.intake import RecordError, intake, read_sheet
 from hybridtwin.online.twin import load_twin

@@ -20,7 +20,7 @@ import yaml
 
 from hybridtwin.cli import main
 from hybridtwin.config import ConfigError, check
-from hybridtwin.data.rig import DEFAULT_TRUTH, Imperfections, RigSpec, Truth, generate
+from hybridtwin.rig.rig import DEFAULT_TRUTH, Imperfections, RigSpec, Truth, generate
 from hybridtwin.online.assess import Assessment, Verdict, assess
 from hybridtwin.data.measured import RunData
 from hybridtwin.identify.forward import SolverModel

@@ -493,7 +493,7 @@ def test_no_literal_harmonics_default_in_a_signature():
     import ast
     import inspect
 
-    from hybridtwin.data.rig import RigSpec, solve_truth
+    from hybridtwin.rig.rig import RigSpec, solve_truth
     from hybridtwin.solvers import solver, sweep, transient
 
     literal = []

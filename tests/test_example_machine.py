@@ -85,7 +85,7 @@ def test_example_data_are_the_rigs_output_from_its_config(tmp_path):
     """data/ is what the config's rig entry writes (the rig rule's script, byte for byte): config, plan and data
     cannot drift apart."""
     from hybridtwin.model.machine import Machine
-    from hybridtwin.data.rig import RigSpec, generate, read_plan
+    from hybridtwin.rig.rig import RigSpec, generate, read_plan
     from hybridtwin.model.variants import load_effects_files
 
     config = _example_config()
