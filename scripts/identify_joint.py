@@ -12,7 +12,7 @@ from hybridtwin import config as cfg
 from hybridtwin.identify import identification as idn
 from hybridtwin.offline.library import Library, read_library_validation
 from hybridtwin.report import drift as dft
-from hybridtwin.identify.run_fits import fit_joint, write_fit, write_summary
+from hybridtwin.identify.run_fits import fit_joint, write_fit, write_fit_summary
 from hybridtwin.plots import save_png
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
@@ -47,6 +47,6 @@ write_fit(smk.output.fit, fit, runs["rpm"].tolist())
 drift = dft.drift_table([per_run[r] for r in per_run if r in set(runs["run"])], runs)
 idn.write_parameters(drift, smk.output.per_run)
 save_png(dft.plot_per_run(drift, joint, variant.name), smk.output.plot, dpi=120)
-write_summary(result.summary, smk.output.summary)
+write_fit_summary(result.summary, smk.output.summary)
 for warning in result.warnings:
     log.warning("%s", warning)

@@ -113,25 +113,27 @@ def f(fit, failures, note, t, row):
 def test_diagnosis_verdict_codes():
     """Every verdict code has its sentence and a colour; the figure's colours follow the code column (the sentence
     of each code as it was, e.g. "add: explains ..." green, "... (confounded with X)" on the best orange)."""
-    from hybridtwin.diagnose.diagnosis_status import Verdict, verdict_colour, verdict_text
+    from hybridtwin.diagnose.diagnosis_status import CandidateVerdict, verdict_colour, verdict_text
 
-    for code in Verdict:
+    for code in CandidateVerdict:
         assert verdict_text(code, pct=50, tied="", others="a", with_="", share="99 %", best="b", bic=1.0,
                             best_bic=0.5, inside="c", runs="r1", step=2, fraction=0.1, drop=1e-5, verb="is", lr=1.0)
-    assert verdict_text(Verdict.ADD) == "add: explains the discrepancy"
-    assert verdict_text(Verdict.ADD_PART, pct=62.4, tied=" (confounded with x)") == (
+    assert verdict_text(CandidateVerdict.ADD) == "add: explains the discrepancy"
+    assert verdict_text(CandidateVerdict.ADD_PART, pct=62.4, tied=" (confounded with x)") == (
         "add: explains 62 % of the excess chi^2; a discrepancy remains (confounded with x)")
-    assert verdict_text(Verdict.CONFOUNDED, best="k", bic=-12.34, best_bic=-13.0) == (
+    assert verdict_text(CandidateVerdict.CONFOUNDED, best="k", bic=-12.34, best_bic=-13.0) == (
         "confounded with k: these data cannot tell them apart (Delta BIC -12.3 vs -13.0)")
-    colours = {code: verdict_colour(code.value) for code in Verdict}
+    colours = {code: verdict_colour(code.value) for code in CandidateVerdict}
     assert {c for c, colour in colours.items() if colour == "tab:green"} == {
-        Verdict.ADD, Verdict.ADD_PART, Verdict.ADD_WITH, Verdict.ADD_NEARLY}
-    assert {c for c, colour in colours.items() if colour == "tab:red"} == {Verdict.CONFIRMED_WEAKER,
-                                                                          Verdict.SIGNIFICANT}
-    assert colours[Verdict.EXPLAINS_ONLY_TIED] == "tab:orange" and colours[Verdict.EXPLAINS_ONLY] == "tab:gray"
+        CandidateVerdict.ADD, CandidateVerdict.ADD_PART, CandidateVerdict.ADD_WITH, CandidateVerdict.ADD_NEARLY}
+    assert {c for c, colour in colours.items() if colour == "tab:red"} == {CandidateVerdict.CONFIRMED_WEAKER,
+                                                                          CandidateVerdict.SIGNIFICANT}
+    assert colours[CandidateVerdict.EXPLAINS_ONLY_TIED] == "tab:orange"
+    assert colours[CandidateVerdict.EXPLAINS_ONLY] == "tab:gray"
     # the old rule on the sentences, for every sentence: the code's colour is the one the sentence had
-    for code in Verdict:
-        v = verdict_text(code, pct=40, tied=" (confounded with z)" if code is Verdict.EXPLAINS_ONLY_TIED else "",
+    for code in CandidateVerdict:
+        tied = " (confounded with z)" if code is CandidateVerdict.EXPLAINS_ONLY_TIED else ""
+        v = verdict_text(code, pct=40, tied=tied,
                          others="a", with_="", share="99 %", best="b", bic=1.0, best_bic=0.5, inside="c", runs="r1",
                          step=2, fraction=0.1, drop=1e-5, verb="is", lr=1.0)
         old = ("tab:green" if v.startswith("add") else "tab:orange" if "confounded" in v or "part of" in v
@@ -211,7 +213,7 @@ def test_table_has_verdict_code_column():
     from hybridtwin.diagnose import conclusion, diagnosis
 
     assert '"verdict_code"' in inspect.getsource(conclusion._table)
-    assert pd.Series([v.value for v in diagnosis.Verdict]).is_unique
+    assert pd.Series([v.value for v in diagnosis.CandidateVerdict]).is_unique
 
 
 # --- one contract per table between rules: each writer's output read back by its reader ---------------------------
@@ -364,36 +366,37 @@ def _equal(a, b) -> bool:
 
 
 def test_joint_fit_summary_round_trip(tmp_path):
-    """identification/summary.yaml: run_fits.write_summary, read back by read_summary as the same mapping (its
+    """identification/summary.yaml: run_fits.write_fit_summary, read back by read_fit_summary as the same mapping (its
     order, types and NaN included), what ledger, report_harmonics and twin_card read."""
-    from hybridtwin.identify.run_fits import read_summary, write_summary
+    from hybridtwin.identify.run_fits import read_fit_summary, write_fit_summary
 
     final = {"runs": ["001", "r2"], "shared": ["k_b"], "per_run": ["q_x"], "keyphasor_runs": [], "n_data": 56,
              "dof": 49, "chi2": 51.25, "chi2_dof": 1.0459183673469388, "loss": float("nan"), "status": 2,
              "message": "`ftol` termination: 1e-12", "notes": ["k_b: at its range edge"], "sparsity": 0.125}
     summary = {"library": dict(final, chi2=60.5), "solver": {"failed": "no periodic solution", "seconds": 1.5},
                "profile": {"loose": ["zeta"], "seconds": 3.0}, "final": final}
-    write_summary(summary, tmp_path / "summary.yaml")
-    read = read_summary(tmp_path / "summary.yaml")
+    write_fit_summary(summary, tmp_path / "summary.yaml")
+    read = read_fit_summary(tmp_path / "summary.yaml")
     assert _equal(summary, read) and read["final"]["chi2_dof"] == final["chi2_dof"]
-    write_summary(read, tmp_path / "again.yaml")
+    write_fit_summary(read, tmp_path / "again.yaml")
     assert (tmp_path / "again.yaml").read_text() == (tmp_path / "summary.yaml").read_text()
     assert not _equal(summary, dict(summary, final=dict(final, dof=49.0)))  # the check tells a type apart
 
 
 def test_diagnosis_summary_round_trip(tmp_path):
-    """diagnosis.yaml: diagnosis_report.write_summary, read back by read_summary (what report_summary reads)."""
-    from hybridtwin.diagnose.diagnosis_report import read_summary, write_summary
+    """diagnosis.yaml: diagnosis_report.write_diagnosis_summary, read back by read_diagnosis_summary (what
+    report_summary reads)."""
+    from hybridtwin.diagnose.diagnosis_report import read_diagnosis_summary, write_diagnosis_summary
 
     summary = {"variant": "linear", "status": "add", "conclusion": "add expansion_k4: explains the discrepancy",
                "misfit": True, "base_chi2_dof": 1234.5, "confounded": [], "delta_bic": float("nan"),
                "path": [{"effect": "expansion_k4", "chi2_dof": 1.02, "step": 1}],
                "recommended_variant": {"name": "linear_expansion_k4", "spec": {"effects": ["expansion_k4"],
                                                                               "unknown": {"k4": [0.0, 1e9]}}}}
-    write_summary(summary, tmp_path / "diagnosis.yaml")
-    read = read_summary(tmp_path / "diagnosis.yaml")
+    write_diagnosis_summary(summary, tmp_path / "diagnosis.yaml")
+    read = read_diagnosis_summary(tmp_path / "diagnosis.yaml")
     assert _equal(summary, read)
-    write_summary(read, tmp_path / "again.yaml")
+    write_diagnosis_summary(read, tmp_path / "again.yaml")
     assert (tmp_path / "again.yaml").read_text() == (tmp_path / "diagnosis.yaml").read_text()
 
 

@@ -105,9 +105,9 @@ def test_example_data_are_the_rigs_output_from_its_config(tmp_path):
 
 
 def test_the_diagnosis_recommends_the_hidden_effect(example):
-    from hybridtwin.diagnose.diagnosis_report import read_summary
+    from hybridtwin.diagnose.diagnosis_report import read_diagnosis_summary
 
-    summary = read_summary(example / "results" / "linear" / "diagnosis.yaml")
+    summary = read_diagnosis_summary(example / "results" / "linear" / "diagnosis.yaml")
     assert HIDDEN in _truth()["effects"] and HIDDEN not in _example_config()["variants"]["linear"]["effects"]
     # the linear variant misses it by far (chi^2/dof of thousands), one effect then explains the discrepancy
     assert summary["misfit"] and summary["base_chi2_dof"] > 100

@@ -152,3 +152,27 @@ def test_every_module_imports():
             failed[info.name] = repr(err)
     assert not failed, failed
 
+
+def _private(name: str) -> bool:
+    return name.startswith("_") and not name.startswith("__")
+
+
+def test_no_module_imports_another_modules_private_names():
+    """A leading underscore says "this module's own": no module of the package imports such a name from another
+    (``from .x import _helper``) or reaches it through the other module (``x._helper``); a helper two modules share
+    is public in the one that owns it (issue 52). Attributes of objects (``self._cache``) are not counted."""
+    wrong = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        tree = ast.parse(path.read_text())
+        modules = set()  # names bound to a module of the package in this file
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom) and (node.level or (node.module or "").startswith("hybridtwin")):
+                wrong += [f"{path.relative_to(PACKAGE)}:{node.lineno} imports {a.name} from "
+                          f"{'.' * node.level}{node.module or ''}" for a in node.names if _private(a.name)]
+                modules |= {a.asname or a.name for a in node.names}
+            elif isinstance(node, ast.Import):
+                modules |= {a.asname or a.name for a in node.names if a.name.startswith("hybridtwin")}
+        wrong += [f"{path.relative_to(PACKAGE)}:{node.lineno} reaches {node.value.id}.{node.attr}"
+                  for node in ast.walk(tree) if isinstance(node, ast.Attribute) and _private(node.attr)
+                  and isinstance(node.value, ast.Name) and node.value.id in modules]
+    assert not wrong, "private names used outside their module:\n" + "\n".join(wrong)

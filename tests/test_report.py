@@ -513,7 +513,7 @@ def test_first_page_says_what_the_best_variants_estimates_assume(three_variants)
     widest first; one widened less is not named; none widened, no line."""
     from docutils.core import publish_parts
 
-    from hybridtwin.diagnose.diagnosis_report import read_summary, write_summary
+    from hybridtwin.diagnose.diagnosis_report import read_diagnosis_summary, write_diagnosis_summary
 
     rows = [{"parameter": "k_b", "estimate": 2411.6, "own_low": 2410.7, "own_high": 2412.5, "low": 2410.6,
              "high": 2412.6, "widened_by": "lower_bearing_compliance"},  # 11 % wider: not named
@@ -525,8 +525,8 @@ def test_first_page_says_what_the_best_variants_estimates_assume(three_variants)
     from pathlib import Path
 
     with tempfile.TemporaryDirectory() as tmp:
-        write_summary({"intervals_over_candidates": rows}, Path(tmp) / "diagnosis.yaml")
-        diagnosis = read_summary(Path(tmp) / "diagnosis.yaml")
+        write_diagnosis_summary({"intervals_over_candidates": rows}, Path(tmp) / "diagnosis.yaml")
+        diagnosis = read_diagnosis_summary(Path(tmp) / "diagnosis.yaml")
     line = summary.assumptions_line("base_slope", diagnosis)
     page = summary.landing_rst(three_variants.table, three_variants.errors, assumptions=line)
     html = publish_parts(page, writer="html", settings_overrides={"halt_level": 2})["html_body"]

@@ -28,8 +28,8 @@ import numpy as np
 import pandas as pd
 from threadpoolctl import threadpool_limits
 
-from .common import (UsageError, _positive_int, _non_negative, _parameter, _positive, chosen_variant, config_file,
-                     config_machine, read_config, variant_values)
+from .common import (UsageError, positive_int_arg, non_negative_arg, parameter_setting, positive_arg, chosen_variant,
+                     config_file, config_machine, read_config, variant_values)
 
 # the report's modules (matplotlib, the solvers) are imported by the commands that use them, not by every command
 # line: `hybridtwin simulate` starts as fast as before
@@ -87,8 +87,8 @@ def add_machine_commands(sub, common) -> None:
                     "prints the critical speeds.")
     _model_options(parser, common)
     _speed_range(parser)
-    parser.add_argument("--speeds", type=_positive_int, default=121, help="number of speeds (default 121)")
-    parser.add_argument("--modes", type=_positive_int, default=6, help="lowest modes followed (default 6)")
+    parser.add_argument("--speeds", type=positive_int_arg, default=121, help="number of speeds (default 121)")
+    parser.add_argument("--modes", type=positive_int_arg, default=6, help="lowest modes followed (default 6)")
     parser.set_defaults(handler=_single_threaded(campbell_command))
 
     parser = sub.add_parser(
@@ -98,8 +98,8 @@ def add_machine_commands(sub, common) -> None:
                     "ellipse's semi-major axis, largest +1). Writes modes.tsv, mode_shapes.tsv (z_m, one column "
                     "per mode) and mode_shapes.png to --out; prints the modes.")
     _model_options(parser, common)
-    parser.add_argument("--rpm", type=_non_negative, default=0.0, help="speed [RPM] (default 0)")
-    parser.add_argument("--modes", type=_positive_int, default=4, help="modes drawn (default 4)")
+    parser.add_argument("--rpm", type=non_negative_arg, default=0.0, help="speed [RPM] (default 0)")
+    parser.add_argument("--modes", type=positive_int_arg, default=4, help="modes drawn (default 4)")
     parser.set_defaults(handler=_single_threaded(modes_command))
 
     parser = sub.add_parser(
@@ -112,11 +112,11 @@ def add_machine_commands(sub, common) -> None:
                     "polar.png to --out; prints the peaks.")
     _model_options(parser, common)
     _speed_range(parser)
-    parser.add_argument("--eccentric-mass-g", type=_non_negative, required=True,
+    parser.add_argument("--eccentric-mass-g", type=non_negative_arg, required=True,
                         help="the unbalance: eccentric mass [g] at radius r_me on the unbalance plane")
-    parser.add_argument("--speeds", type=_positive_int, default=121,
+    parser.add_argument("--speeds", type=positive_int_arg, default=121,
                         help="evenly spaced speeds (default 121), besides those refined at each critical speed")
-    parser.add_argument("--harmonics", type=_positive_int, default=None,
+    parser.add_argument("--harmonics", type=positive_int_arg, default=None,
                         help="highest harmonic H (default 1 for a linear model, 3 for a nonlinear one)")
     parser.set_defaults(handler=_single_threaded(response_command))
 
@@ -150,7 +150,8 @@ def _single_threaded(command):
 
 def _model_options(parser: argparse.ArgumentParser, common) -> None:
     common(parser)
-    parser.add_argument("--set", dest="values", type=_parameter, action="append", default=[], metavar="NAME=VALUE",
+    parser.add_argument("--set", dest="values", type=parameter_setting, action="append", default=[],
+                        metavar="NAME=VALUE",
                         help="parameter value in SI units (repeatable), e.g. --set k_a=2.5e7 (default: nominal)")
     parser.add_argument("--out", type=Path, default=None,
                         help="output folder (made if missing; default results/machine/<variant>/ in the project "
@@ -158,11 +159,11 @@ def _model_options(parser: argparse.ArgumentParser, common) -> None:
 
 
 def _speed_range(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--rpm", type=_non_negative, nargs=2, metavar=("LOW", "HIGH"), default=None,
+    parser.add_argument("--rpm", type=non_negative_arg, nargs=2, metavar=("LOW", "HIGH"), default=None,
                         help="speed range [RPM] (default 0 to 1.25 times the top of --operating-range, else 0 to "
                              "1.25 times the fastest run of the config's runs sheet, as the report's Campbell "
                              "diagram)")
-    parser.add_argument("--operating-range", type=_positive, nargs=2, metavar=("MIN", "MAX"), default=None,
+    parser.add_argument("--operating-range", type=positive_arg, nargs=2, metavar=("MIN", "MAX"), default=None,
                         help="the machine's operating speed range [RPM]: each critical speed's separation margin "
                              "from it")
 

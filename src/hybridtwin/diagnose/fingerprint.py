@@ -45,6 +45,8 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from ..identify.uncertainty import ALPHA
+
 Array = np.ndarray
 
 WHIRL = 0.8  # forward share above which a residual "whirls forward" (below 1 - WHIRL: backward)
@@ -271,7 +273,7 @@ def _check(measured, model, sigma, rpm, eccentric_mass_g, runs):
     return measured.astype(complex), model.astype(complex), sigma, rpm, mass, runs
 
 
-def fingerprint(measured, model, sigma, rpm, eccentric_mass_g, runs=None, alpha: float = 0.01,
+def fingerprint(measured, model, sigma, rpm, eccentric_mass_g, runs=None, alpha: float = ALPHA,
                 include_dc: bool = False) -> Fingerprint:
     """The fingerprint of E = measured - model (module docstring).
 

@@ -272,15 +272,15 @@ def fit_joint(variant: Variant, options: Mapping, libraries: Sequence[Library], 
     return JointFit(fit, library_fit, comparison, summary, data, messages, warnings)
 
 
-def write_summary(summary: Mapping, path: str | Path) -> None:
+def write_fit_summary(summary: Mapping, path: str | Path) -> None:
     """The joint fit's summary (identification/summary.yaml: ``JointFit.summary``, plain types: library, solver,
-    the intervals' profile when a parameter is loose, final); ``read_summary`` is its inverse."""
+    the intervals' profile when a parameter is loose, final); ``read_fit_summary`` is its inverse."""
     with open(path, "w") as stream:
         yaml.safe_dump(dict(summary), stream, sort_keys=False)
 
 
-def read_summary(path: str | Path) -> dict:
-    """A summary written by ``write_summary``: the same mapping (its ``final`` block: the final fit's
+def read_fit_summary(path: str | Path) -> dict:
+    """A summary written by ``write_fit_summary``: the same mapping (its ``final`` block: the final fit's
     ``Identification.summary``, n_data, dof, chi2, chi2_dof, ...)."""
     with open(path) as stream:
         return dict(yaml.safe_load(stream))

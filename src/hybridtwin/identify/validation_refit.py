@@ -38,12 +38,11 @@ from . import identification as idn
 from .lm import levenberg_marquardt
 from .profile import OPTIONS, threshold
 from .protocol import ProtocolResult
+from .uncertainty import ALPHA  # a run is beyond the noise below this p-value, as the report counts it
 from .validation import bow_law
 
 Array = np.ndarray
 
-#: a run is beyond the noise below this p-value (the report's ALPHA, hybridtwin.report.report)
-ALPHA = 0.01
 #: the explanation codes of validation.tsv's ``explanation`` column; the sentence a user reads is derived from them
 EXPLANATIONS = {
     "within_noise": "predicted within the noise",

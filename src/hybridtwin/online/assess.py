@@ -22,7 +22,7 @@
    ranked by their score test at the twin (``diagnose.score_test``, with every parameter's sensitivity and its prior
    projected out, so a candidate scores what no parameter change the twin allows can absorb).
 
-The outcome is a code (``Verdict``); the sentences are derived from it (``Assessment.line``).
+The outcome is a code (``RecordVerdict``); the sentences are derived from it (``Assessment.line``).
 """
 
 from __future__ import annotations
@@ -60,14 +60,14 @@ TIE = 1.0
 Z95 = float(ndtri(0.975))
 
 
-class Verdict(str, Enum):
+class RecordVerdict(str, Enum):
     CONSISTENT = "consistent"
     CHANGED = "changed"
     NEW_DISCREPANCY = "new_discrepancy"
 
 
-OPENINGS = {Verdict.CONSISTENT: "consistent with the twin", Verdict.CHANGED: "CHANGED",
-            Verdict.NEW_DISCREPANCY: "NEW DISCREPANCY"}
+OPENINGS = {RecordVerdict.CONSISTENT: "consistent with the twin", RecordVerdict.CHANGED: "CHANGED",
+            RecordVerdict.NEW_DISCREPANCY: "NEW DISCREPANCY"}
 
 #: the parameter table's columns (``Assessment.parameters``, parameters.tsv of an assessment)
 PARAMETER_COLUMNS = ["parameter", "run", "unit", "twin_value", "twin_stderr", "value", "stderr", "ci_low", "ci_high",
@@ -104,8 +104,8 @@ class Assessment:
     warnings: list[str] = field(default_factory=list)
 
     @property
-    def verdict(self) -> Verdict:
-        return Verdict(self.summary["verdict"])
+    def verdict(self) -> RecordVerdict:
+        return RecordVerdict(self.summary["verdict"])
 
     @property
     def changed(self) -> list[str]:
@@ -118,9 +118,9 @@ class Assessment:
         where = "library" if s.get("route") == "library" else "solver"
         head = (f"{s['record']}: {OPENINGS[self.verdict]} ({s['twin']}, on the {where}): chi^2/dof {s['chi2_dof']:.3g} on {s['dof']} "
                 f"dof (p {s['p_fit']:.2g}), largest move {s['move']} (p {s['p_move']:.2g}): p = {s['p_value']:.2g}")
-        if self.verdict is Verdict.CONSISTENT:
+        if self.verdict is RecordVerdict.CONSISTENT:
             return head
-        if self.verdict is Verdict.CHANGED:
+        if self.verdict is RecordVerdict.CHANGED:
             moved = self.parameters[self.parameters["moved"]]
             moves = [_move(row) for row in moved.itertuples() if row.run == "all" or moved["run"].nunique() == 1]
             spread = moved[moved["run"] != "all"]
@@ -153,7 +153,7 @@ class Assessment:
     def read(cls, folder: str | Path) -> "Assessment":
         """The exact inverse of ``write`` (the warnings, said on the console, are not kept)."""
         folder = Path(folder)
-        summary = read_summary(folder / "assessment.tsv").iloc[0].to_dict()
+        summary = read_assessment(folder / "assessment.tsv").iloc[0].to_dict()
         parameters = _read(folder / "parameters.tsv", {"parameter", "run", "unit", "estimate", "note"},
                            {"explains", "moved"})
         harmonics = _read(folder / "harmonics.tsv", {"run", "channel"})
@@ -164,7 +164,7 @@ class Assessment:
         return cls(summary, parameters, harmonics, candidates, found)
 
 
-def read_summary(path: str | Path) -> pd.DataFrame:
+def read_assessment(path: str | Path) -> pd.DataFrame:
     """assessment.tsv (or rows of them), text columns as text, numbers as numbers (``SUMMARY_COLUMNS``)."""
     text = {"record", "path", "kind", "timestamp", "timestamp_source", "twin", "verdict", "move", "changed",
             "alternatives", "best", "left_out", "route", "library", "library_verdict", "route_note"}
@@ -199,7 +199,7 @@ class _Judgement:
     (``linear``), the groups' fits (``singles``: the full fits after an alarm, else the first-order ones), every fit
     tried, the verdict and the change named."""
 
-    verdict: Verdict
+    verdict: RecordVerdict
     base: fits.RecordFit
     linear: list
     singles: list
@@ -222,7 +222,7 @@ def _judge(problem: fits.RecordProblem, alpha: float) -> _Judgement:
     singles = linear = [fits.linearised(problem, base, fits.Hypothesis((g,))) for g in groups]
     p_fit, (move, p_move) = base.p_value, _largest_move(problem, base, singles)
     named, alternatives, best, tried, pairs = None, [], base, [], False
-    verdict = Verdict.CONSISTENT
+    verdict = RecordVerdict.CONSISTENT
     if min(1.0, 2 * min(p_fit, p_move)) < alpha:  # an alarm: the fit beyond the noise, or a move beyond the prior
         singles = fits.fit(problem, [fits.Hypothesis((g,)) for g in groups], base)
         move, p_move = _largest_move(problem, base, singles)
@@ -236,11 +236,11 @@ def _judge(problem: fits.RecordProblem, alpha: float) -> _Judgement:
             explaining, pairs = [f for f in tried if f.p_value >= alpha], True
         if explaining:
             explaining = _ranked(problem, base, explaining)
-            verdict, named = Verdict.CHANGED, explaining[0]
+            verdict, named = RecordVerdict.CHANGED, explaining[0]
             best = named
             alternatives = [f.hypothesis.name for f in explaining[1:]]
         elif p_fit < alpha:
-            verdict, best = Verdict.NEW_DISCREPANCY, min(tried, key=lambda f: f.chi2)
+            verdict, best = RecordVerdict.NEW_DISCREPANCY, min(tried, key=lambda f: f.chi2)
         # else: the move the first-order test saw does not hold up in the full fits, and the fit is at the noise
     return _Judgement(verdict, base, linear, singles, tried, named, alternatives, best, p_fit, move, p_move, pairs)
 
@@ -286,7 +286,7 @@ def assess(twin: Twin, record: Intake, alpha: float = ALPHA, candidates: bool = 
         judgement = _judge(problem, alpha)
     j = judgement
     ranked, found = pd.DataFrame(columns=CANDIDATE_COLUMNS), None
-    if j.verdict is Verdict.NEW_DISCREPANCY:
+    if j.verdict is RecordVerdict.NEW_DISCREPANCY:
         found = _fingerprint(problem, j.best)
         if candidates:
             ranked = _candidates(twin, problem, j.base)

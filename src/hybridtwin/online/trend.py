@@ -21,7 +21,7 @@ import numpy as np
 import pandas as pd
 from scipy.special import chdtri, ndtri  # chi^2's inverse survival function, the normal quantile
 
-from .assess import Assessment, Verdict
+from .assess import Assessment, RecordVerdict
 
 #: the trend's columns: the record's, then its parameter rows' (the parameter test's dof and p-value renamed)
 RECORD_COLUMNS = ["timestamp", "record", "kind", "verdict", "alpha", "chi2_dof", "dof", "p_value", "changed"]
@@ -29,7 +29,8 @@ ENTRY_COLUMNS = ["parameter", "run", "unit", "twin_value", "twin_stderr", "value
                  "z", "statistic", "test_dof", "test_p_value", "moved"]
 TREND_COLUMNS = RECORD_COLUMNS + ENTRY_COLUMNS
 _TEXT = {"timestamp", "record", "kind", "verdict", "changed", "parameter", "run", "unit"}
-COLOURS = {Verdict.CONSISTENT.value: "tab:blue", Verdict.CHANGED.value: "tab:red", Verdict.NEW_DISCREPANCY.value: "k"}
+COLOURS = {RecordVerdict.CONSISTENT.value: "tab:blue", RecordVerdict.CHANGED.value: "tab:red",
+           RecordVerdict.NEW_DISCREPANCY.value: "k"}
 
 
 def rows(assessment: Assessment) -> pd.DataFrame:

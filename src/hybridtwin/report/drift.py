@@ -32,7 +32,7 @@ from scipy import stats
 
 from ..identify.validation import spans
 from ..plots import plt
-from .report import ALPHA
+from ..identify.uncertainty import ALPHA
 from .report_plots import mass_colours
 
 Array = np.ndarray

@@ -32,7 +32,7 @@ from ..model.model import Model, campbell
 from ..model.sensor import sensor_channels, sensor_names
 from ..solvers.continuation import solve_sweep
 from . import machine_plots as mp
-from .response_plots import SWEEPS, _curve, bode_axes, channels_of, columns
+from .response_plots import SWEEPS, response_curve, bode_axes, channels_of, columns
 
 Array = np.ndarray
 MICRO = 1e6
@@ -263,10 +263,10 @@ def bode_figure(table: pd.DataFrame, peaks: pd.DataFrame | None = None, harmonic
             # eight decades below the channel's largest harmonic: a harmonic that is zero shows its round-off nowhere
             floor = 1e-8 * a.max() if a.size else 1e-12
             sweeps = {sweep: rows for sweep, rows in part.groupby("sweep")}
-            up = _curve(amp, ph, sweeps[SWEEPS["up"]], j, "C0", "-", "run-up", floor) \
+            up = response_curve(amp, ph, sweeps[SWEEPS["up"]], j, "C0", "-", "run-up", floor) \
                 if SWEEPS["up"] in sweeps else None
             if SWEEPS["down"] in sweeps:
-                _curve(amp, ph, sweeps[SWEEPS["down"]], j, "C1", "--", "run-down", floor, up)
+                response_curve(amp, ph, sweeps[SWEEPS["down"]], j, "C1", "--", "run-down", floor, up)
             if peaks is not None and h == 1:
                 for row in peaks[(peaks["channel"] == channel) & (peaks["sweep"] == SWEEPS["up"])].itertuples():
                     amp.plot(row.rpm_peak, row.amplitude_0pk_m * MICRO, "v", color="k", ms=5, gid="peak")

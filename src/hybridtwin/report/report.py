@@ -53,11 +53,10 @@ from ..identify import identification as idn
 from ..data.measured import flags
 from ..data.measurements import trial_angles
 from ..identify import validation as val
+from ..identify.uncertainty import ALPHA  # the false-alarm rate of one test (a run beyond noise, a drifting parameter)
 
 Array = np.ndarray
 
-#: false-alarm rate of one test (a run beyond noise, a drifting parameter)
-ALPHA = 0.01
 #: chi^2 / dof of a model that explains the data to within the noise
 NOISE_FLOOR = 1.0
 #: columns of ``error_table`` (errors.tsv, validation_errors.tsv)

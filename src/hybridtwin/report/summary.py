@@ -31,7 +31,8 @@ from scipy import stats
 
 from ..data import measured
 from ..plots import plt
-from .report import ALPHA, NOISE_FLOOR
+from ..identify.uncertainty import ALPHA
+from .report import NOISE_FLOOR
 from .report_plots import VALIDATION_STYLE
 
 #: columns of ``summary_table`` (results/summary.tsv)
@@ -103,7 +104,7 @@ def run_order(errors: Mapping[str, pd.DataFrame]) -> pd.DataFrame:
         columns="order").reset_index(drop=True)
 
 
-def _short(value: float) -> str:
+def short_number(value: float) -> str:
     """A chi^2/dof for a small cell: two significant digits, whole numbers from 100 on."""
     return f"{value:.0f}" if value >= 100 else f"{value:.2g}"
 
@@ -166,7 +167,7 @@ def plot_summary(ledger: pd.DataFrame, errors: Mapping[str, pd.DataFrame]) -> pl
     for (i, j), value in np.ndenumerate(grid):
         if np.isfinite(value):
             dark = not 0.2 < norm(max(value, 0.1)) < 0.8  # white text on the scale's dark ends
-            ax_runs.text(j, i, _short(value), ha="center", va="center", fontsize=7,
+            ax_runs.text(j, i, short_number(value), ha="center", va="center", fontsize=7,
                          color="w" if dark else "k", fontweight="bold" if beyond[i, j] else "normal")
     labels = [f"{'* ' if r.role != 'fit' else ''}{r.run}  ({r.rpm:.0f} RPM, {r.eccentric_mass_g:g} g)"
               for r in runs.itertuples()]
