@@ -444,3 +444,91 @@ def test_rule_scripts_read_tables_through_their_readers():
                 if "smk.input" in source and inputs & owned:
                     problems.append(f"{path.name}:{node.lineno}: {ast.unparse(node)}")
     assert not problems, "tables read by hand (use the table's reader):\n" + "\n".join(problems)
+
+
+# --- the table layer (issue 52): every table between rules declared once, written and read by one pair ---------
+
+def _sample(table) -> pd.DataFrame:
+    """A frame of ``table``'s layout with awkward values: text with an empty cell and words pandas would read as
+    missing, numbers at the ends of the float range, a NaN, an integer column, a flag."""
+    columns = list(table.columns) if table.columns is not None else [*table.text, *table.flags, "value_m", "count"]
+    rng = np.random.default_rng(52)
+    data = {}
+    for i, c in enumerate(columns):
+        if c in table.text:
+            data[c] = ["a b", "" if table.na_text else "c", "NA" if table.na_text else "d"]
+        elif c in table.flags or c in ("selected", "used", "drifts", "flagged", "best", "recommended_in_config"):
+            data[c] = [True, False, True]
+        elif c in ("harmonic", "count", "mode", "trial", "iteration", "window", "round"):
+            data[c] = [1, 2, 3]
+        else:
+            data[c] = [rng.normal() * 10.0 ** rng.integers(-12, 6), 1.0 / 3.0, np.nan if i % 2 else 2.5e-9]
+    frame = pd.DataFrame(data)
+    if table.index:
+        frame.index = ["p", "q[r1]", "r"]
+    return frame
+
+
+@pytest.mark.parametrize("name", sorted(__import__("hybridtwin.tables", fromlist=["TABLES"]).TABLES))
+def test_every_table_is_read_back_as_written(name, tmp_path):
+    """Every table of the registry: ``read`` is ``write``'s inverse. Writing what was read gives the same bytes
+    (the file is the contract), the text cells come back as written, the numbers to the table's float format (half
+    a unit in its last digit: %.6g 5e-6 relative, %.9g 5e-9, %.9e and %.10g 5e-10, %.12g 5e-12; 0 for every digit,
+    %.17g and pandas' shortest repr)."""
+    from hybridtwin import tables
+
+    table = tables.TABLES[name]
+    frame = _sample(table)
+    table.write(frame, tmp_path / "a.tsv")
+    read = table.read(tmp_path / "a.tsv")
+    table.write(read, tmp_path / "b.tsv")
+    assert (tmp_path / "a.tsv").read_bytes() == (tmp_path / "b.tsv").read_bytes()
+    assert list(read.columns) == list(frame.columns)
+    for c in frame:
+        if c in table.text:
+            assert read[c].tolist() == frame[c].tolist(), c
+        elif frame[c].dtype == bool:
+            assert read[c].astype(bool).tolist() == frame[c].tolist(), c
+        else:
+            rtol = {None: 0.0, tables.EXACT: 0.0, tables.SHORT: 5e-6, tables.FIT: 5e-9, tables.METRES: 5e-10,
+                    tables.SHEET: 5e-10, tables.REFIT: 5e-12}[table.float_format]
+            np.testing.assert_allclose(read[c].to_numpy(float), frame[c].to_numpy(float), rtol=rtol, err_msg=c)
+    if table.columns is not None:
+        with pytest.raises(tables.TableError):
+            table.write(frame.iloc[:, ::-1], tmp_path / "c.tsv")
+
+
+def test_no_script_writes_or_reads_a_table_itself():
+    """The rule scripts write and read tables through the layer (``hybridtwin.tables`` or a stage's own reader),
+    never by hand: no ``to_csv``, ``read_csv``, ``read_table`` or ``savetxt`` call in scripts/ (ast)."""
+    found = []
+    for path in sorted((ROOT / "scripts").glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr in (
+                    "to_csv", "read_csv", "read_table", "savetxt", "loadtxt"):
+                found.append(f"{path.name}:{node.lineno} {node.func.attr}")
+    assert not found, found
+
+
+def test_the_long_harmonics_and_their_wide_view():
+    """The long harmonic table (run, harmonic, channel, re_m, im_m, sigma_m) and the wide view of harmonics.tsv
+    are one table: the wide columns the preprocessing writes (record_columns.harmonic_columns, an independent
+    writer of the same numbers) come back from the long form, the amplitude as the modulus (to 1 ulp-level
+    rounding, rtol 1e-15: hypot and abs of a complex round alike), for a channel whose name ends in a digit too."""
+    from hybridtwin import tables
+    from hybridtwin.data.record_columns import harmonic_columns
+
+    rng = np.random.default_rng(5)
+    names, H = ["x", "y2"], 3
+    rows = []
+    for run in ("r1", "r2"):
+        X = rng.normal(size=(2, H + 1)) + 1j * rng.normal(size=(2, H + 1))
+        rows.append({"run": run, "rpm": 900.0} | harmonic_columns(names, H, X * 1e-5, rng.uniform(size=(2, H + 1)),
+                                                                 np.ones(2)))
+    wide = pd.DataFrame(rows)
+    long = tables.long_harmonics(wide, names)
+    assert list(long.columns) == list(tables.HARMONICS_LONG.columns) and len(long) == 2 * H * 2
+    back = tables.wide_harmonics(long)
+    for c in back.columns[1:]:
+        np.testing.assert_allclose(back[c].to_numpy(), wide[c].to_numpy(), rtol=1e-15, atol=0, err_msg=c)
+    assert back["run"].tolist() == ["r1", "r2"]

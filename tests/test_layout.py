@@ -1,10 +1,11 @@
 """The package's layout reads like the method (issue 37): one subpackage per stage, imports that run downward only.
 
-Stages, from the bottom: the shared plotting helper (``plots``), then model -> solvers -> offline -> data -> rig ->
+Stages, from the bottom: the tables between the rules (``tables``: each declared once, with its writer and
+reader), the shared plotting helper (``plots``), then model -> solvers -> offline -> data -> rig ->
 identify -> diagnose -> report (``rig``, the virtual rig, writes records from a solved truth: it reads plans and
 writes records in the data stage's formats and runs the solvers, and no stage below it imports it, issue 52), the
-front door (``settings``: the config's sections as typed objects, their defaults the schema's; then ``config``: reading and checking the config), the twin online (``online``: a built twin
-judging new records, which reads the twin's own config through ``config``) and on top the command line (``cli``). A
+front door (``settings``: the config's sections as typed objects, their defaults the schema's; then ``config``:
+reading and checking the config), the twin online (``online``: a built twin judging new records, which reads the twin's own config through ``config``) and on top the command line (``cli``). A
 module may import from its own stage and from the stages below it, never from a later one; an import inside a
 function counts too (it runs back up just the same), and so does one under ``if TYPE_CHECKING:`` (an annotation that
 names a later stage's type says the code belongs to that stage: model/sensor's two tables of a solved steady state
@@ -14,7 +15,7 @@ import ast
 from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parents[1] / "src" / "hybridtwin"
-ORDER = ["plots", "model", "solvers", "offline", "data", "rig", "identify", "diagnose", "report", "settings",
+ORDER = ["tables", "plots", "model", "solvers", "offline", "data", "rig", "identify", "diagnose", "report", "settings",
          "config", "online", "cli"]
 #: the stages that are packages (folders); the others are single modules
 PACKAGES = ["model", "solvers", "offline", "data", "rig", "identify", "diagnose", "report", "online", "cli"]
@@ -62,7 +63,7 @@ def imports(path: Path) -> list[tuple[int, str]]:
 
 def test_every_module_lives_in_a_stage_folder():
     loose = sorted(p.name for p in PACKAGE.glob("*.py")) 
-    assert loose == ["__init__.py", "config.py", "plots.py", "settings.py"], loose
+    assert loose == ["__init__.py", "config.py", "plots.py", "settings.py", "tables.py"], loose
     assert sorted(p.name for p in PACKAGE.iterdir() if p.is_dir() and p.name != "__pycache__") == sorted(PACKAGES)
 
 

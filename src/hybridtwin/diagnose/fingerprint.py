@@ -46,6 +46,7 @@ import numpy as np
 import pandas as pd
 
 from ..identify.uncertainty import ALPHA
+from ..tables import FINGERPRINT
 
 Array = np.ndarray
 
@@ -114,7 +115,7 @@ class Fingerprint:
             values.update(share=self.harmonic_share[i], coefficient_re=self.coefficient[i].real,
                           coefficient_im=self.coefficient[i].imag)
             rows += [("harmonic", str(int(h)), q, float(values[q])) for q in _HARMONIC]
-        return pd.DataFrame(rows, columns=["scope", "key", "quantity", "value"])
+        return pd.DataFrame(rows, columns=FINGERPRINT.columns)
 
     @classmethod
     def from_table(cls, table: pd.DataFrame) -> Fingerprint:

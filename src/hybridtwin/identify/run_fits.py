@@ -33,6 +33,7 @@ import numpy as np
 import pandas as pd
 import yaml
 
+from .. import tables
 from . import forward as fwd
 from .arrow_problem import Layout
 from . import identification as idn
@@ -50,11 +51,6 @@ Array = np.ndarray
 NESTED_MISMATCH = 1e-6
 #: random starts of a fit on the full solver (no libraries, ``offline.scope: none``; module docstring)
 SOLVER_TRIALS = 4
-#: polish.tsv's columns (an empty table when there was no polish)
-COMPARISON_COLUMNS = ["parameter", "run", "unit", "library_value", "solver_value", "difference", "difference_rel",
-                      "difference_in_stderr", "stderr"]
-#: polish_starts.tsv's columns
-STARTS_COLUMNS = ["start", "chi2_start", "chi2", "chi2_dof", "iterations", "status", "selected"]
 
 
 @dataclass
@@ -177,7 +173,7 @@ class JointFit:
 
     def starts_table(self) -> pd.DataFrame:
         """The polish's starts and where each ended (polish_starts.tsv; empty without a polish)."""
-        return self.fit.starts if self.fit.starts is not None else pd.DataFrame(columns=STARTS_COLUMNS)
+        return self.fit.starts if self.fit.starts is not None else pd.DataFrame(columns=tables.POLISH_STARTS.columns)
 
     def runs(self) -> pd.DataFrame:
         """The runs fitted: run, rpm, eccentric_mass_g."""
@@ -234,7 +230,7 @@ def fit_joint(variant: Variant, options: Mapping, libraries: Sequence[Library], 
                     f"{time.perf_counter() - start:.1f} s, loss {fit.loss:.4g}, chi^2/dof {fit.chi2_dof:.3g} "
                     f"({fit.message})")
     library_fit, summary = fit, {"library": fit.summary()}
-    comparison = pd.DataFrame(columns=COMPARISON_COLUMNS)
+    comparison = pd.DataFrame(columns=tables.POLISH.columns)
     if options["polish"]:
         solver = models if on_solver else solver_models(variant, data, harmonics)
         start = time.perf_counter()

@@ -196,7 +196,7 @@ class Profiled:
     high: Array
     loose: tuple[str, ...]
     threshold: Array
-    points: object = None  # a pandas table (``profile.POINT_COLUMNS``)
+    points: object = None  # a pandas table (``tables.PROFILE``)
     notes: list[str] = field(default_factory=list)
     seconds: float = 0.0
 

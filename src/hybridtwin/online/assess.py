@@ -43,6 +43,7 @@ from scipy.special import chdtrc, ndtri  # chi^2's survival function, the normal
 from ..diagnose.fingerprint import Fingerprint, fingerprint
 from ..identify.arrow_problem import Layout
 from ..settings import defaults
+from ..tables import FINGERPRINT
 from . import fits, library_route
 from .intake import Intake
 from .twin import Twin
@@ -147,7 +148,7 @@ class Assessment:
                             ("candidates", self.candidates)):
             table.to_csv(folder / f"{name}.tsv", sep="\t", index=False, float_format="%.9g")
         if self.fingerprint is not None:
-            self.fingerprint.table().to_csv(folder / "fingerprint.tsv", sep="\t", index=False, float_format="%.9g")
+            FINGERPRINT.write(self.fingerprint.table(), folder / "fingerprint.tsv")
 
     @classmethod
     def read(cls, folder: str | Path) -> "Assessment":
@@ -159,8 +160,7 @@ class Assessment:
         harmonics = _read(folder / "harmonics.tsv", {"run", "channel"})
         candidates = _read(folder / "candidates.tsv", {"candidate"}, {"beyond_range"})
         path = folder / "fingerprint.tsv"
-        found = Fingerprint.from_table(pd.read_csv(path, sep="\t", dtype={"key": str}, keep_default_na=False,
-                                                   na_values={"value": ["", "nan", "NaN"]})) if path.is_file() else None
+        found = Fingerprint.from_table(FINGERPRINT.read(path)) if path.is_file() else None
         return cls(summary, parameters, harmonics, candidates, found)
 
 

@@ -1,0 +1,233 @@
+"""The tables between the workflow's rules, declared once: each its file, columns, text columns, layout and float
+format, written by one writer and read by its inverse (issue 52).
+
+A table is a ``Table``: ``write`` writes a frame as tab-separated text (the project's one separator for tables,
+``SEP``) with the table's float format, ``read`` reads such a file back with the table's text columns as text, so
+that writing what was read gives the same bytes again (tests/test_contracts.py checks this for every table of
+``TABLES``). A table whose columns are fixed declares them, and its writer refuses a frame with other columns; a
+table whose columns follow the data (a parameter per column, a channel per harmonic) says so in its ``layout``.
+
+The harmonics of a run at its channels are one quantity in three layouts across the workflow; the long form,
+(run, harmonic, channel, re_m, im_m, sigma_m) a row, is ``HARMONICS_LONG``; ``long_harmonics`` makes it from the
+wide harmonics table (results/data/harmonics.tsv: a run a row, a column per channel, harmonic and part, named by
+``harmonic_column``), and ``wide_harmonics`` is its inverse, the wide view.
+
+The module sits below every stage (it imports none): the stages declare their tables here and write them here.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+#: the separator of every table between rules (tab-separated values)
+SEP = "\t"
+
+#: the float formats in use, from the fewest digits to every digit: a table's format is one of these
+SHORT = "%.6g"  # figures for people: the ledger, summaries, statistics
+FIT = "%.9g"  # fit results: estimates, starts, histories
+REFIT = "%.12g"  # tables a later fit starts from (refits, intervals, scenarios)
+METRES = "%.9e"  # measured and solved displacements [m]: 10 significant digits at any magnitude
+SHEET = "%.10g"  # the runs sheet the rig writes
+EXACT = "%.17g"  # every bit of a double (predictions, responses other rules compute from)
+FORMATS = (None, SHORT, FIT, REFIT, METRES, SHEET, EXACT)
+
+
+class TableError(ValueError):
+    """A frame that is not the table it is written as (its columns differ from the declared ones)."""
+
+
+@dataclass(frozen=True)
+class Table:
+    """One table between rules: ``name`` its file (under results/, {variant} and {run} its wildcards), ``columns``
+    its columns in order (None: they follow the data, see ``layout``), ``text`` the columns read as text (the
+    others as numbers or, where they hold True/False, booleans), ``float_format`` its floats' format (None: pandas'
+    shortest repr), ``index`` whether the first column is the frame's index (a matrix), ``layout`` one line on its
+    rows and columns; ``na_text``: the text columns' cells kept as written (an empty one "", not NaN), ``flags``:
+    the columns of True/False read as bool."""
+
+    name: str
+    columns: tuple[str, ...] | None
+    float_format: str | None
+    layout: str
+    text: tuple[str, ...] = ()
+    index: bool = False
+    na_text: bool = False  # text cells as written ("", "NA", "None" stay text); a number's NaN is "", nan or NaN
+    flags: tuple[str, ...] = ()  # true/false columns, read as bool (True/true; anything else false)
+    extra: Mapping = field(default_factory=dict)  # further to_csv keywords (a line terminator)
+
+    def __post_init__(self):
+        if self.float_format not in FORMATS and not callable(self.float_format):
+            raise TableError(f"{self.name}: float format {self.float_format!r} is none of {FORMATS}")
+
+    def check(self, frame: pd.DataFrame) -> None:
+        """Raise ``TableError`` when the table declares its columns and ``frame`` has others."""
+        if self.columns is not None and list(frame.columns) != list(self.columns):
+            raise TableError(f"{self.name}: columns {list(frame.columns)}, declared {list(self.columns)}")
+
+    def write(self, frame: pd.DataFrame, path: str | Path) -> None:
+        """``frame`` as this table at ``path`` (its folder made)."""
+        self.check(frame)
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        frame.to_csv(path, sep=SEP, index=self.index, float_format=self.float_format, **self.extra)
+
+    def read(self, path: str | Path, **options) -> pd.DataFrame:
+        """The table at ``path`` as written by ``write``: text columns as text, the first column as the index of
+        a matrix. ``options``: further ``pandas.read_csv`` keywords (converters, an engine)."""
+        header = pd.read_csv(path, sep=SEP, nrows=0).columns
+        text = {c: str for c in header if c in self.text}
+        if self.na_text:
+            options = {"keep_default_na": False, "na_values": {c: ["nan", "NaN", ""] for c in header
+                                                               if c not in text and c not in self.flags}} | options
+        table = pd.read_csv(path, sep=SEP, dtype=text or None, index_col=0 if self.index else None, **options)
+        for column in set(self.flags) & set(header):
+            table[column] = table[column].astype(str).str.lower().eq("true")
+        return table
+
+
+def write(table: Table, frame: pd.DataFrame, path: str | Path) -> None:
+    """Write ``frame`` as ``table`` (``Table.write``)."""
+    table.write(frame, path)
+
+
+def read(table: Table, path: str | Path, **options) -> pd.DataFrame:
+    """Read ``table`` at ``path`` (``Table.read``)."""
+    return table.read(path, **options)
+
+
+# --- the offline library ------------------------------------------------------------------------------------
+
+FAILURES = Table("{variant}/failures.tsv", ("run", "scenario", "split", "message", "reason"), None,
+                 "a (run, scenario) without a steady state a row: reason FAILED or UNSTABLE, the solver's message",
+                 text=("run", "split", "message", "reason"))
+ENRICHMENT_SUMMARY = Table("{variant}/enrichment_summary.tsv", None, None,
+                           "a run the enrichment sampled more scenarios for a row (offline.sample_enrichment's "
+                           "summary)", text=("run",))
+POD = Table("{variant}/pod.tsv", None, SHORT, "a run a row: the POD's modes and its energy captured")
+WHITEBOX = Table("{variant}/whitebox/sweep.tsv", None, METRES,
+                 "a run of the white-box sweep a row: the solver's sensor harmonics, a column per channel and part",
+                 text=("run", "message"))
+
+# --- the identification -----------------------------------------------------------------------------------
+
+POLISH = Table("{variant}/identification/polish.tsv",
+               ("parameter", "run", "unit", "library_value", "solver_value", "difference", "difference_rel",
+                "difference_in_stderr", "stderr"), FIT,
+               "a parameter (per run: one per run) a row: the library's estimate, the polished one, their difference",
+               text=("parameter", "run", "unit"))
+POLISH_STARTS = Table("{variant}/identification/polish_starts.tsv",
+                      ("start", "chi2_start", "chi2", "chi2_dof", "iterations", "status", "selected"), FIT,
+                      "a start of the polish a row: its chi^2 before and after, whether it was selected",
+                      text=("start", "status"))
+PROFILE = Table("{variant}/identification/profile.tsv",
+                ("parameter", "side", "round", "value", "normalised", "chi2_rise", "threshold", "status"), FIT,
+                "a fit of the intervals' profile over a loose parameter a row", text=("parameter", "side", "status"))
+CORRELATION = Table("{variant}/identification/correlation.tsv", None, SHORT,
+                    "the estimates' correlation matrix: a parameter (p or p[run]) a row and a column", index=True)
+HISTORY = Table("{variant}/identification/history.tsv", ("trial", "iteration", "loss", "selected"), FIT,
+                "the loss of every trial after each iteration a row (long form; also runs/{run}/history.tsv)")
+
+# --- the diagnosis ----------------------------------------------------------------------------------------
+
+FINGERPRINT = Table("{variant}/diagnosis_fingerprint.tsv", ("scope", "key", "quantity", "value"), FIT,
+                    "long form: scope (all, run, harmonic), key (a run's name, a harmonic), quantity, value "
+                    "(also an online assessment's fingerprint.tsv)", text=("scope", "key", "quantity"), na_text=True)
+DIAGNOSIS_REFITS = Table("{variant}/diagnosis_refits.tsv", None, REFIT,
+                         "every refit's parameter table (effect first, then a parameter table's columns)",
+                         text=("effect", "parameter", "run", "kind", "unit", "interval", "source"), na_text=True)
+
+# --- the report -------------------------------------------------------------------------------------------
+
+SUMMARY = Table("summary.tsv",
+                ("variant", "chi2_dof", "p_value", "validation_chi2_dof", "delta_bic", "fit_runs",
+                 "fit_runs_beyond_noise", "validation_runs", "validation_runs_beyond_noise", "worst_run",
+                 "worst_run_chi2_dof", "conclusion", "status", "recommended_variant", "recommended_in_config"), SHORT,
+                "a variant a row, the best first: its misfit, its runs beyond the noise, its diagnosis",
+                text=("variant", "worst_run", "conclusion", "status", "recommended_variant"))
+DRIFT = Table("{variant}/report/drift.tsv",
+              ("parameter", "unit", "kind", "n_runs", "n_used", "n_at_bound", "sigma_source", "joint_value",
+               "weighted_mean", "weighted_mean_stderr", "chi2", "dof", "chi2_dof", "p_value", "slope_per_rpm",
+               "slope_centre_rpm", "slope_stderr_per_rpm", "slope_t", "slope_p_value", "drifts", "flagged",
+               "verdict"), SHORT,
+              "a per-run parameter a row: is its per-run estimate constant along speed",
+              text=("parameter", "unit", "kind", "sigma_source", "verdict"))
+TRANSIENT = Table("{variant}/report/transient.tsv",
+                  ("run", "kind", "role", "eccentric_mass_g", "window", "t_start_s", "t_end_s", "rpm", "frame",
+                   "channel", "harmonic", "measured_re_m", "measured_im_m", "sigma_m", "model_re_m", "model_im_m",
+                   "z_re", "z_im", "z_abs", "status", "used"), EXACT,
+                  "long form: a transient record's window, shown channel and harmonic a row, measured and model",
+                  text=("run", "kind", "role", "frame", "channel", "status"))
+CAMPBELL = Table("{variant}/report/campbell.tsv", None, FIT,
+                 "a (speed, mode) a row: its whirl frequency, damping, whirl and branch (model.campbell's table with "
+                 "report.machine_plots' branches)", text=("whirl",))
+
+# --- the harmonics: the long form and its wide view -------------------------------------------------------
+
+HARMONICS_LONG = Table("harmonics_long.tsv", ("run", "harmonic", "channel", "re_m", "im_m", "sigma_m"), METRES,
+                       "long form: a (run, harmonic, channel) a row, the harmonic's real and imaginary parts [m] and "
+                       "the standard uncertainty of each", text=("run", "channel"))
+
+def harmonic_stem(channel: str, h: int) -> str:
+    """Channel ``channel``'s harmonic ``h`` in column names: x1 for channel x, x1_1 for channel x1."""
+    return f"{channel}{'_' if channel[-1:].isdigit() else ''}{h}"
+
+
+def harmonic_column(channel: str, h: int, part: str) -> str:
+    """The wide harmonics table's column of channel ``channel``, harmonic ``h``, ``part`` re, im, amp or sigma [m]:
+    x1_re_m for channel x (the VARM's), x1_1_re_m for channel x1 (an underscore when the name ends in a digit)."""
+    return f"{harmonic_stem(channel, h)}_{part}_m"
+
+
+def wide_channels(wide: pd.DataFrame, channels: Sequence[str]) -> list[tuple[str, int]]:
+    """(channel, h) of every harmonic of ``channels`` the wide table holds (its re column), channel by channel."""
+    out = []
+    for c in channels:
+        h = 1
+        while harmonic_column(c, h, "re") in wide:
+            out.append((c, h))
+            h += 1
+    return out
+
+
+def long_harmonics(wide: pd.DataFrame, channels: Sequence[str]) -> pd.DataFrame:
+    """The long form (``HARMONICS_LONG``) of a wide harmonics table's ``channels``: a (run, harmonic, channel) a row,
+    the runs in the table's order, then harmonic, then channel in the order given."""
+    pairs = wide_channels(wide, channels)
+    harmonics = sorted({h for _, h in pairs})
+    rows = []
+    for _, row in wide.iterrows():
+        for h in harmonics:
+            for c in channels:
+                if (c, h) in pairs:
+                    rows.append((str(row["run"]), h, c, row[harmonic_column(c, h, "re")],
+                                 row[harmonic_column(c, h, "im")], row[harmonic_column(c, h, "sigma")]))
+    return pd.DataFrame(rows, columns=list(HARMONICS_LONG.columns)).astype(
+        {"harmonic": int, "re_m": float, "im_m": float, "sigma_m": float})
+
+
+def wide_harmonics(long: pd.DataFrame) -> pd.DataFrame:
+    """The wide view of a long harmonics table: a run a row (first seen first), per channel and harmonic its
+    <c><h>_re_m, _im_m, _amp_m (the modulus) and _sigma_m columns, channel by channel, harmonic by harmonic."""
+    runs = list(dict.fromkeys(long["run"]))
+    channels = list(dict.fromkeys(long["channel"]))
+    out = pd.DataFrame({"run": runs})
+    for c in channels:
+        part = long[long["channel"] == c]
+        for h in sorted(set(part["harmonic"])):
+            rows = part[part["harmonic"] == h].set_index("run").reindex(runs)
+            re_, im_ = rows["re_m"].to_numpy(float), rows["im_m"].to_numpy(float)
+            out[harmonic_column(c, h, "re")] = re_
+            out[harmonic_column(c, h, "im")] = im_
+            out[harmonic_column(c, h, "amp")] = np.hypot(re_, im_)
+            out[harmonic_column(c, h, "sigma")] = rows["sigma_m"].to_numpy(float)
+    return out
+
+
+#: every table of the layer, by the name a rule writes it under
+TABLES: dict[str, Table] = {t.name: t for t in (
+    FAILURES, ENRICHMENT_SUMMARY, POD, WHITEBOX, POLISH, POLISH_STARTS, PROFILE, CORRELATION, HISTORY, FINGERPRINT,
+    DIAGNOSIS_REFITS, SUMMARY, DRIFT, TRANSIENT, CAMPBELL, HARMONICS_LONG)}
