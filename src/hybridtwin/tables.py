@@ -37,6 +37,15 @@ EXACT = "%.17g"  # every bit of a double (predictions, responses other rules com
 FORMATS = (None, SHORT, FIT, REFIT, METRES, SHEET, EXACT)
 
 
+#: the cells a number column reads as NaN when text cells are kept as written (``Table.na_text``)
+NA_CELLS = ("", "nan", "NaN", "NA")
+
+
+def flags(column: pd.Series) -> pd.Series:
+    """A true/false column as written (True/False, true/false, 1/0, in any case; empty or NaN: false) as bool."""
+    return column.map(lambda v: str(v).strip().lower() in ("true", "1", "1.0")).astype(bool)
+
+
 class TableError(ValueError):
     """A frame that is not the table it is written as (its columns differ from the declared ones)."""
 
@@ -56,8 +65,9 @@ class Table:
     layout: str
     text: tuple[str, ...] = ()
     index: bool = False
-    na_text: bool = False  # text cells as written ("", "NA", "None" stay text); a number's NaN is "", nan or NaN
-    flags: tuple[str, ...] = ()  # true/false columns, read as bool (True/true; anything else false)
+    na_text: bool = False  # text cells as written ("", "NA", "None" stay text); a number's NaN is NA_CELLS
+    flags: tuple[str, ...] = ()  # true/false columns, read as bool (``flags``)
+    floats: tuple[str, ...] | None = ()  # number columns read as float also when all empty (None: every other one)
     extra: Mapping = field(default_factory=dict)  # further to_csv keywords (a line terminator)
 
     def __post_init__(self):
@@ -81,11 +91,15 @@ class Table:
         header = pd.read_csv(path, sep=SEP, nrows=0).columns
         text = {c: str for c in header if c in self.text}
         if self.na_text:
-            options = {"keep_default_na": False, "na_values": {c: ["nan", "NaN", ""] for c in header
+            options = {"keep_default_na": False, "na_values": {c: list(NA_CELLS) for c in header
                                                                if c not in text and c not in self.flags}} | options
         table = pd.read_csv(path, sep=SEP, dtype=text or None, index_col=0 if self.index else None, **options)
-        for column in set(self.flags) & set(header):
-            table[column] = table[column].astype(str).str.lower().eq("true")
+        for column in [c for c in table.columns if c in self.flags]:
+            table[column] = flags(table[column])
+        numbers = [c for c in table.columns if c not in text and c not in self.flags] if self.floats is None else [
+            c for c in self.floats if c in table.columns and c not in text]
+        for column in numbers:
+            table[column] = table[column].astype(float)
         return table
 
 
@@ -114,6 +128,56 @@ WHITEBOX = Table("{variant}/whitebox/sweep.tsv", None, METRES,
 
 # --- the identification -----------------------------------------------------------------------------------
 
+#: a parameter table's columns (``identification.Identification.table``), in order
+PARAMETER_COLUMNS = ("parameter", "run", "kind", "unit", "value", "normalised", "stderr", "ci_low", "ci_high",
+                     "interval", "loose", "at_bound", "identifiable", "lower", "upper", "mc_mean", "mc_std",
+                     "mc_ci_low", "mc_ci_high", "mc_note", "vif", "source")
+#: its true/false columns (read as pandas reads True/False) and its text ones (with the columns other tables of
+#: parameters add: a per-run fit's note, a refit's effect or validation run)
+PARAMETER_FLAGS = ("at_bound", "identifiable")
+PARAMETER_TEXT = ("parameter", "run", "kind", "unit", "interval", "loose", "mc_note", "source", "note", "effect",
+                  "validation_run")
+PARAMETERS = Table("{variant}/parameters.tsv", None, FIT,
+                   "an entry of the fit (a parameter; per run: one per run; a phase) a row, ``PARAMETER_COLUMNS`` "
+                   "(SI); also library_parameters.tsv, runs/{run}/parameters.tsv (with a note), the drift table "
+                   "(identification/per_run.tsv), validation_refits.tsv (validation_run first)",
+                   text=PARAMETER_TEXT, na_text=True,
+                   floats=tuple(c for c in PARAMETER_COLUMNS if c not in PARAMETER_TEXT + PARAMETER_FLAGS))
+
+#: validation.tsv's columns about why a run is predicted as it is (besides run, model, error_rel, chi2_per_residual)
+VALIDATION_EXPLAINED = ("beyond_noise", "explanation", "explanation_note", "pinned", "refit_chi2_per_residual",
+                        "fit_runs_chi2_rise", "allowed_chi2_rise")
+#: validation.tsv's columns, in order (a prediction's own, e.g. <parameter>_used, come between)
+VALIDATION_COLUMNS = ("run", "rpm", "eccentric_mass_g", "model", "error_rel", "chi2_per_residual", "note",
+                      *VALIDATION_EXPLAINED)
+VALIDATION = Table("{variant}/validation.tsv", None, FIT,
+                   "a (validation run, model) a row: ``VALIDATION_COLUMNS``, a prediction's own columns between "
+                   "(<parameter>_used); every declared column also when no run could be predicted",
+                   text=("run", "model", "note", "explanation", "explanation_note", "pinned", "outside_range"),
+                   na_text=True, flags=("beyond_noise",))
+VALIDATION_REFITS = Table("{variant}/validation_refits.tsv", ("validation_run", *PARAMETER_COLUMNS), FIT,
+                          "the parameter table of each refit with a validation run included, and which run",
+                          text=PARAMETER_TEXT, na_text=True, floats=PARAMETERS.floats)
+PREDICTIONS = Table("{variant}/validation_harmonics.tsv",
+                    ("run", "model", "phase_rad", "harmonic", "channel", "model_re_m", "model_im_m"), EXACT,
+                    "long form: a (validation run, model, harmonic, channel) a row, the predicted harmonic [m] and "
+                    "the phase it was aligned by", text=("run", "model", "channel"))
+#: the design's true/false columns (read one way: ``flags``) and its text ones
+DESIGN_FLAGS = ("keyphasor", "feasible", "interest")
+_DESIGN_TEXT = ("parameter", "unit", "interval", "reason")
+DESIGN_NEXT_RUNS = Table("{variant}/design/next_runs.tsv",
+                         ("step", "rpm", "eccentric_mass_g", "keyphasor", "gain", "log_det", "gain_with_keyphasor"),
+                         SHORT, "a run to take next a row, in the order chosen, with its gain (log det)",
+                         text=_DESIGN_TEXT, flags=DESIGN_FLAGS)
+DESIGN_INTERVALS = Table("{variant}/design/intervals.tsv",
+                         ("parameter", "unit", "value", "ci_low", "ci_high", "interval", "lower", "upper",
+                          "linear_half_width", "expected_half_width", "shrink", "interest"), SHORT,
+                         "a shared parameter a row: its interval now and the one expected after the next runs",
+                         text=_DESIGN_TEXT, flags=DESIGN_FLAGS)
+DESIGN_CANDIDATES = Table("{variant}/design/candidates.tsv",
+                          ("rpm", "eccentric_mass_g", "keyphasor", "feasible", "reason", "peak_mm", "floquet_radius",
+                           "gain"), SHORT, "a candidate run (speed, mass, keyphasor) a row: feasible or why not, gain",
+                          text=_DESIGN_TEXT, flags=DESIGN_FLAGS)
 POLISH = Table("{variant}/identification/polish.tsv",
                ("parameter", "run", "unit", "library_value", "solver_value", "difference", "difference_rel",
                 "difference_in_stderr", "stderr"), FIT,
@@ -142,6 +206,24 @@ DIAGNOSIS_REFITS = Table("{variant}/diagnosis_refits.tsv", None, REFIT,
 
 # --- the report -------------------------------------------------------------------------------------------
 
+COMPARISONS = Table("{variant}/report/harmonics.tsv", None, FIT,
+                    "long form: a (run, harmonic, channel) a row: run, role, rpm, eccentric_mass_g, "
+                    "eccentric_mass_angle_deg, source, dof, harmonic, channel, measured_re_m, measured_im_m, "
+                    "model_re_m, model_im_m, sigma_m (the fitted model against the measured harmonics)",
+                    text=("run",))
+ERRORS = Table("{variant}/report/errors.tsv",
+               ("run", "rpm", "eccentric_mass_g", "role", "source", "chi2", "dof", "chi2_dof", "p_value",
+                "beyond_noise", "error_pct", "signal_m"), SHORT,
+               "a run a row: its chi^2, p-value, beyond the noise or not, relative error (also "
+               "report/validation_errors.tsv)", text=("run", "role", "source"), flags=("beyond_noise",))
+#: the ledger's columns (results/ledger.tsv; workflow/report/ledger.rst), then chi2_dof_{run} per run
+LEDGER_COLUMNS = ("variant", "description", "source", "n_data", "k", "dof", "chi2", "chi2_dof",
+                  "excess_over_noise_pct", "bic", "delta_bic", "error_pct", "run_chi2_dof_median",
+                  "run_chi2_dof_max", "worst_run", "runs_beyond_noise", "validation_chi2_dof",
+                  "validation_error_pct", "worst_validation_run")
+LEDGER = Table("ledger.tsv", None, SHORT, "a variant a row, in the config's order: ``LEDGER_COLUMNS``, then "
+               "chi2_dof_{run} per run", text=("variant", "description", "source", "worst_run",
+                                                "worst_validation_run"))
 SUMMARY = Table("summary.tsv",
                 ("variant", "chi2_dof", "p_value", "validation_chi2_dof", "delta_bic", "fit_runs",
                  "fit_runs_beyond_noise", "validation_runs", "validation_runs_beyond_noise", "worst_run",
@@ -167,6 +249,13 @@ CAMPBELL = Table("{variant}/report/campbell.tsv", None, FIT,
 
 # --- the harmonics: the long form and its wide view -------------------------------------------------------
 
+#: the true/false columns of a harmonics table, read one way (``flags``): a column a table lacks stays absent
+HARMONICS_FLAGS = ("usable", "keyphasor", "flat", "saturated", "slowroll_compensated")
+HARMONICS = Table("data/harmonics.tsv", None, METRES,
+                  "the wide view: a run (a record's band, a window) a row: its conditions and checks, then per channel "
+                  "noise_<c>_m, offset_<c>_m, offset_<c>_sigma_m and per harmonic <c><h>_re_m, _im_m, _amp_m, "
+                  "_sigma_m (``harmonic_column``); also data/runs/{run}/harmonics.tsv and a record's bands.tsv",
+                  text=("run",), flags=HARMONICS_FLAGS)
 HARMONICS_LONG = Table("harmonics_long.tsv", ("run", "harmonic", "channel", "re_m", "im_m", "sigma_m"), METRES,
                        "long form: a (run, harmonic, channel) a row, the harmonic's real and imaginary parts [m] and "
                        "the standard uncertainty of each", text=("run", "channel"))
@@ -229,5 +318,6 @@ def wide_harmonics(long: pd.DataFrame) -> pd.DataFrame:
 
 #: every table of the layer, by the name a rule writes it under
 TABLES: dict[str, Table] = {t.name: t for t in (
-    FAILURES, ENRICHMENT_SUMMARY, POD, WHITEBOX, POLISH, POLISH_STARTS, PROFILE, CORRELATION, HISTORY, FINGERPRINT,
-    DIAGNOSIS_REFITS, SUMMARY, DRIFT, TRANSIENT, CAMPBELL, HARMONICS_LONG)}
+    FAILURES, ENRICHMENT_SUMMARY, POD, WHITEBOX, PARAMETERS, VALIDATION, VALIDATION_REFITS, PREDICTIONS,
+    DESIGN_NEXT_RUNS, DESIGN_INTERVALS, DESIGN_CANDIDATES, POLISH, POLISH_STARTS, PROFILE, CORRELATION, HISTORY, FINGERPRINT,
+    DIAGNOSIS_REFITS, COMPARISONS, ERRORS, LEDGER, SUMMARY, DRIFT, TRANSIENT, CAMPBELL, HARMONICS, HARMONICS_LONG)}

@@ -105,7 +105,7 @@ def fit_run(variant: Variant, options: Mapping, library: Library | None, data: i
     run, units = data.run, idn.units(variant)
     names, lower, upper = (library.parameters, library.lower, library.upper) if library else ranges(variant)
     if not data.usable:
-        empty = pd.DataFrame(columns=["trial", "iteration", "loss", "selected"])
+        empty = pd.DataFrame(columns=tables.HISTORY.columns)
         return RunFit(run, excluded_table(data, names, lower, upper, units), empty, None, data, [],
                       [f"run {run} is not usable ({data.note}): not fitted"])
     errors = idn.model_errors(validation, [run], options["model_error"])
@@ -139,7 +139,7 @@ def write_run_fit(result: RunFit, parameters: str, history: str, fit: str) -> No
     """A run's three files: parameters.tsv, history.tsv and fit.zarr (``write_fit``; for a run
     that was not fitted, a group naming the reason)."""
     idn.write_parameters(result.parameters, parameters)
-    result.history.to_csv(history, sep="\t", index=False, float_format="%.9g")
+    tables.HISTORY.write(result.history, history)
     if result.fit is not None:
         write_fit(fit, result.fit, [result.data.rpm])
         return
