@@ -34,7 +34,14 @@ REFIT = "%.12g"  # tables a later fit starts from (refits, intervals, scenarios)
 METRES = "%.9e"  # measured and solved displacements [m]: 10 significant digits at any magnitude
 SHEET = "%.10g"  # the runs sheet the rig writes
 EXACT = "%.17g"  # every bit of a double (predictions, responses other rules compute from)
-FORMATS = (None, SHORT, FIT, REFIT, METRES, SHEET, EXACT)
+
+
+def shortest_repr(value: float) -> str:
+    """A float as its shortest exact repr (``0.0``, ``1e-05``: a float stays a float, to the last bit)."""
+    return repr(float(value))
+
+
+FORMATS = (None, SHORT, FIT, REFIT, METRES, SHEET, EXACT, shortest_repr)
 
 
 #: the cells a number column reads as NaN when text cells are kept as written (``Table.na_text``)
@@ -71,7 +78,7 @@ class Table:
     extra: Mapping = field(default_factory=dict)  # further to_csv keywords (a line terminator)
 
     def __post_init__(self):
-        if self.float_format not in FORMATS and not callable(self.float_format):
+        if self.float_format not in FORMATS:
             raise TableError(f"{self.name}: float format {self.float_format!r} is none of {FORMATS}")
 
     def check(self, frame: pd.DataFrame) -> None:
@@ -121,6 +128,15 @@ FAILURES = Table("{variant}/failures.tsv", ("run", "scenario", "split", "message
 ENRICHMENT_SUMMARY = Table("{variant}/enrichment_summary.tsv", None, None,
                            "a run the enrichment sampled more scenarios for a row (offline.sample_enrichment's "
                            "summary)", text=("run",))
+SCENARIOS = Table("{variant}/scenarios.tsv", None, REFIT,
+                  "a scenario a row: scenario, split (train or validate), one column per unknown (the values the "
+                  "chunks solve)", text=("split",))
+ENRICHMENT_SCENARIOS = Table("{variant}/enrichment.tsv", None, None,
+                             "an enrichment scenario a row: scenario, split, eccentric_mass_g, one column per unknown "
+                             "(every digit)", text=("split",))
+LIBRARY_VALIDATION = Table("{variant}/library_validation.tsv", None, SHORT,
+                           "a run a row: its library's errors against the full solver on held-out scenarios",
+                           text=("run",))
 POD = Table("{variant}/pod.tsv", None, SHORT, "a run a row: the POD's modes and its energy captured")
 WHITEBOX = Table("{variant}/whitebox/sweep.tsv", None, METRES,
                  "a run of the white-box sweep a row: the solver's sensor harmonics, a column per channel and part",
@@ -200,6 +216,12 @@ HISTORY = Table("{variant}/identification/history.tsv", ("trial", "iteration", "
 FINGERPRINT = Table("{variant}/diagnosis_fingerprint.tsv", ("scope", "key", "quantity", "value"), FIT,
                     "long form: scope (all, run, harmonic), key (a run's name, a harmonic), quantity, value "
                     "(also an online assessment's fingerprint.tsv)", text=("scope", "key", "quantity"), na_text=True)
+DIAGNOSIS = Table("{variant}/diagnosis.tsv", None, SHORT,
+                  "a candidate effect a row, ranked: its score test, refit, verdict (verdict_code and its sentence)")
+DIAGNOSIS_INTERVALS = Table("{variant}/diagnosis_intervals.tsv",
+                            ("parameter", "candidate", "estimate", "low", "high", "beta_low", "beta_high"), REFIT,
+                            "a (shared parameter, candidate) a row: the parameter's interval with the candidate in "
+                            "(candidate empty: the fit's own)", text=("parameter", "candidate"), na_text=True)
 DIAGNOSIS_REFITS = Table("{variant}/diagnosis_refits.tsv", None, REFIT,
                          "every refit's parameter table (effect first, then a parameter table's columns)",
                          text=("effect", "parameter", "run", "kind", "unit", "interval", "source"), na_text=True)
@@ -243,12 +265,67 @@ TRANSIENT = Table("{variant}/report/transient.tsv",
                    "z_re", "z_im", "z_abs", "status", "used"), EXACT,
                   "long form: a transient record's window, shown channel and harmonic a row, measured and model",
                   text=("run", "kind", "role", "frame", "channel", "status"))
+RESPONSE = Table("{variant}/report/response.tsv", None, EXACT,
+                 "long form: a (trial mass, sweep, speed, harmonic) a row: eccentric_mass_g, "
+                 "eccentric_mass_angle_deg, sweep, rpm, harmonic, <c>_re_m, <c>_im_m per channel, stable, branch "
+                 "(the fitted model by continuation)", text=("sweep", "branch"), na_text=True)
 CAMPBELL = Table("{variant}/report/campbell.tsv", None, FIT,
                  "a (speed, mode) a row: its whirl frequency, damping, whirl and branch (model.campbell's table with "
                  "report.machine_plots' branches)", text=("whirl",))
 
+# --- the twin online: an assessment's four tables, the trend of the assessments -----------------------------
+
+ASSESSMENT = Table("online/{variant}/{record}/assessment.tsv",
+                   ("record", "path", "kind", "timestamp", "timestamp_source", "twin", "verdict", "alpha", "n_runs",
+                    "rpm_low", "rpm_high", "eccentric_mass_g", "n_data", "chi2", "dof", "chi2_dof", "p_value",
+                    "p_fit", "move", "p_move", "changed", "alternatives", "best", "best_chi2", "best_dof",
+                    "best_p_value", "twin_chi2_dof", "left_out", "route", "library", "library_verdict",
+                    "library_p_low", "library_p_high", "library_bound", "library_seconds", "route_note", "seconds"),
+                   FIT, "one row: the record, its verdict (RecordVerdict), the tests, the parameter that moved; where "
+                   "the verdict came from (route: library or solver, the library's own verdict and p-value interval)",
+                   text=("record", "path", "kind", "timestamp", "timestamp_source", "twin", "verdict", "move",
+                         "changed", "alternatives", "best", "left_out", "route", "library", "library_verdict",
+                         "route_note"), na_text=True, floats=None)
+ASSESSMENT_PARAMETERS = Table("online/{variant}/{record}/parameters.tsv",
+                              ("parameter", "run", "unit", "twin_value", "twin_stderr", "value", "stderr", "ci_low",
+                               "ci_high", "change", "change_rel", "z", "statistic", "dof", "p_value", "explains",
+                               "moved", "estimate", "note"), FIT,
+                              "a parameter entry a row: the twin's value, the record's, the change and its test",
+                              text=("parameter", "run", "unit", "estimate", "note"), na_text=True,
+                              flags=("explains", "moved"), floats=None)
+ASSESSMENT_HARMONICS = Table("online/{variant}/{record}/harmonics.tsv",
+                             ("run", "rpm", "harmonic", "channel", "measured_re_m", "measured_im_m", "sigma_m",
+                              "twin_re_m", "twin_im_m", "best_re_m", "best_im_m"), FIT,
+                             "long form: a (run, harmonic, channel) a row: measured, the twin's prediction, the best "
+                             "change's fit", text=("run", "channel"), na_text=True, floats=None)
+ASSESSMENT_CANDIDATES = Table("online/{variant}/{record}/candidates.tsv",
+                              ("candidate", "statistic", "dof", "p_value", "log_p", "beyond_range"), FIT,
+                              "a candidate effect's score test a row, most significant first (empty unless a new "
+                              "discrepancy)", text=("candidate",), na_text=True, flags=("beyond_range",), floats=None)
+#: the trend's columns: the record's, then its parameter rows' (the parameter test's dof and p-value renamed)
+TREND_RECORD_COLUMNS = ("timestamp", "record", "kind", "verdict", "alpha", "chi2_dof", "dof", "p_value", "changed")
+TREND_ENTRY_COLUMNS = ("parameter", "run", "unit", "twin_value", "twin_stderr", "value", "stderr", "ci_low",
+                       "ci_high", "z", "statistic", "test_dof", "test_p_value", "moved")
+TREND = Table("online/{variant}/trend.tsv", TREND_RECORD_COLUMNS + TREND_ENTRY_COLUMNS, FIT,
+              "a (record, parameter entry) a row, by time stamp: the record's verdict and tests, the entry's value "
+              "and test", text=("timestamp", "record", "kind", "verdict", "changed", "parameter", "run", "unit"),
+              na_text=True, flags=("moved",), floats=None)
+
 # --- the harmonics: the long form and its wide view -------------------------------------------------------
 
+MEASURED = Table("data/runs/{run}/spectrum.tsv", None, METRES,
+                 "a preprocessing output in metres as it comes (a run's spectrum.tsv and waveforms.tsv, a record's "
+                 "speed.tsv and runout.tsv, data/check.tsv): columns as the step writes them")
+ORDERS = Table("data/records/{run}/orders.tsv", None, None,
+               "a window of a transient record a row: its times, speed, revolutions, per channel its noise, offset, "
+               "drift and per harmonic its order vector (``harmonic_column``); every float to its shortest exact "
+               "repr (read exactly with the python parser)", extra={"lineterminator": "\n"})
+RIG_RUNS = Table("rig/{name}/runs.tsv", None, SHEET,
+                 "the virtual rig's runs sheet: a run a row (run, rpm, eccentric_mass_g, path, role, ...)",
+                 text=("run", "path", "role"))
+RIG_TRUTH = Table("rig/{name}/truth.tsv", None, METRES,
+                  "the virtual rig's answer key: a run a row, its true conditions and the truth's harmonics",
+                  text=("run", "role", "branch", "message"))
 #: the true/false columns of a harmonics table, read one way (``flags``): a column a table lacks stays absent
 HARMONICS_FLAGS = ("usable", "keyphasor", "flat", "saturated", "slowroll_compensated")
 HARMONICS = Table("data/harmonics.tsv", None, METRES,
@@ -316,8 +393,17 @@ def wide_harmonics(long: pd.DataFrame) -> pd.DataFrame:
     return out
 
 
+# --- the command line's tables (hybridtwin campbell / modes / response --out) --------------------------------
+
+MACHINE_VIEW = Table("{out}/campbell.tsv", None, shortest_repr,
+                     "a command's table (campbell.tsv, critical_speeds.tsv, modes.tsv, mode_shapes.tsv, peaks.tsv "
+                     "of ``hybridtwin campbell|modes|response --out``): every float as its shortest exact repr",
+                     text=("whirl", "sweep", "channel"), na_text=True)
+
 #: every table of the layer, by the name a rule writes it under
 TABLES: dict[str, Table] = {t.name: t for t in (
-    FAILURES, ENRICHMENT_SUMMARY, POD, WHITEBOX, PARAMETERS, VALIDATION, VALIDATION_REFITS, PREDICTIONS,
+    SCENARIOS, ENRICHMENT_SCENARIOS, LIBRARY_VALIDATION, FAILURES, ENRICHMENT_SUMMARY, POD, WHITEBOX, PARAMETERS, VALIDATION, VALIDATION_REFITS, PREDICTIONS,
     DESIGN_NEXT_RUNS, DESIGN_INTERVALS, DESIGN_CANDIDATES, POLISH, POLISH_STARTS, PROFILE, CORRELATION, HISTORY, FINGERPRINT,
-    DIAGNOSIS_REFITS, COMPARISONS, ERRORS, LEDGER, SUMMARY, DRIFT, TRANSIENT, CAMPBELL, HARMONICS, HARMONICS_LONG)}
+    DIAGNOSIS, DIAGNOSIS_INTERVALS, DIAGNOSIS_REFITS, COMPARISONS, ERRORS, LEDGER, SUMMARY, DRIFT, TRANSIENT, RESPONSE, CAMPBELL, ASSESSMENT,
+    ASSESSMENT_PARAMETERS, ASSESSMENT_HARMONICS, ASSESSMENT_CANDIDATES, TREND, HARMONICS, HARMONICS_LONG, MEASURED, ORDERS, RIG_RUNS, RIG_TRUTH,
+    MACHINE_VIEW)}

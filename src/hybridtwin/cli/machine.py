@@ -28,6 +28,7 @@ import numpy as np
 import pandas as pd
 from threadpoolctl import threadpool_limits
 
+from ..tables import MACHINE_VIEW
 from .common import (UsageError, positive_int_arg, non_negative_arg, parameter_setting, positive_arg, chosen_variant,
                      config_file, config_machine, read_config, variant_values)
 
@@ -36,7 +37,7 @@ from .common import (UsageError, positive_int_arg, non_negative_arg, parameter_s
 
 #: the columns read back as text (the rest are numbers, ``pair`` and ``meets`` True/False, ``stable``
 #: True/False/NaN)
-TEXT_COLUMNS = ("whirl", "sweep", "channel")
+TEXT_COLUMNS = MACHINE_VIEW.text
 BOOLEAN_COLUMNS = ("pair", "meets")
 
 
@@ -44,16 +45,14 @@ def write_table(table: pd.DataFrame, path: Path) -> None:
     """A table as TSV, every float as its shortest exact repr (``0.0``, ``1e-05``: a float stays a float, to the
     last bit), so that ``read_table`` is its exact inverse, values and types."""
     try:
-        table.to_csv(path, sep="\t", index=False, float_format=lambda v: repr(float(v)))
+        MACHINE_VIEW.write(table, path)
     except OSError as err:
         raise UsageError(f"{path}: cannot write: {err.strerror or err}") from None
 
 
 def read_table(path) -> pd.DataFrame:
     """A table ``write_table`` wrote, the same values and types (text columns as text, True/False as booleans)."""
-    header = pd.read_csv(path, sep="\t", nrows=0).columns
-    table = pd.read_csv(path, sep="\t", dtype={c: str for c in header if c in TEXT_COLUMNS}, keep_default_na=False,
-                        na_values={c: ["", "nan", "NaN"] for c in header if c not in TEXT_COLUMNS})
+    table = MACHINE_VIEW.read(path)
     for c in BOOLEAN_COLUMNS:
         if c in table:
             table[c] = table[c].map({True: True, False: False, "True": True, "False": False}).astype(bool)

@@ -60,6 +60,7 @@ import pandas as pd
 
 from .record_columns import harmonic_column
 from ..solvers.solver import DEFAULT_HARMONICS  # the order vectors' default highest harmonic (the steady analysis's)
+from ..tables import ORDERS
 from scipy.interpolate import PchipInterpolator
 
 Array = np.ndarray
@@ -387,14 +388,12 @@ def table_channels(table: pd.DataFrame) -> list[str]:
 
 def write_orders(table: pd.DataFrame, path: str | Path) -> None:
     """An order table as TSV (every float to its shortest exact repr; ``read_orders`` reads it back exactly)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    table.to_csv(path, sep="\t", index=False, lineterminator="\n")
+    ORDERS.write(table, path)
 
 
 def read_orders(path: str | Path) -> pd.DataFrame:
     """An order table written by ``write_orders``: the same columns, values and dtypes (bool flags, int counts)."""
-    table = pd.read_csv(path, sep="\t", engine="python")  # the python parser reads floats exactly
+    table = ORDERS.read(path, engine="python")  # the python parser reads floats exactly
     for c in table.columns:
         if c.startswith("unresolved_"):
             table[c] = table[c].astype(bool)

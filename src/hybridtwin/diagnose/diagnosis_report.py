@@ -11,6 +11,7 @@ import pandas as pd
 import yaml
 from scipy import stats
 
+from .. import tables
 from .conclusion import Diagnosis
 from .diagnosis_status import Status, plain, verdict_colour
 from ..model.variants import Variant
@@ -174,7 +175,7 @@ def write(result: Diagnosis, table_path, markdown_path, summary_path, sparse: pd
         summary = plain(result.summary)
     except TypeError as error:
         raise ValueError(f"{summary_path}: cannot write the diagnosis summary: {error}") from None
-    result.table.to_csv(table_path, sep="\t", index=False, float_format="%.6g")
+    tables.DIAGNOSIS.write(result.table, table_path)
     Path(markdown_path).write_text(markdown(result, sparse, sparse_name))
     write_diagnosis_summary(summary, summary_path)
 

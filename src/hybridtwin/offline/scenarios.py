@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from .. import tables
 from ..model.effect_base import Array
 from ..model.sensor import sensor_harmonics
 from ..solvers.continuation import RUN_UP_FROM_RPM, padded_speeds, ramp, sweep_model
@@ -159,17 +160,18 @@ def _store(out: RunSolutions, position: int, result: SteadyState, rows: slice) -
     out.floquet_radius[position] = result.floquet_radius[rows]
 
 
-def write_scenarios(table: pd.DataFrame, path, float_format: str | None = "%.12g") -> None:
+def write_scenarios(table: pd.DataFrame, path, float_format: str | None = tables.REFIT) -> None:
     """A scenario table: ``sample_scenarios``' scenarios.tsv at 12 significant digits (the values the chunks
     solve), ``sample_enrichment``'s enrichment.tsv with ``float_format`` None (every digit, as it always was);
     ``read_scenarios`` reads either."""
-    table.to_csv(path, sep="\t", index=False, float_format=float_format)
+    (tables.SCENARIOS if float_format == tables.SCENARIOS.float_format else tables.ENRICHMENT_SCENARIOS).write(
+        table, path)
 
 
 def read_scenarios(path) -> pd.DataFrame:
     """A scenario table written by ``write_scenarios``: scenario, split (text), eccentric_mass_g (enrichment),
     one column per unknown."""
-    return pd.read_csv(path, sep="\t", dtype={"split": str})
+    return tables.SCENARIOS.read(path)  # the enrichment's: the same text column
 
 
 #: message of an enrichment scenario at a run it was not solved for (it targets other runs); not a failure. The

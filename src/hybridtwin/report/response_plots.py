@@ -27,6 +27,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
+from .. import tables  # noqa: E402
 from ..identify import validation as val  # noqa: E402
 from ..data.measurements import trial_angles  # noqa: E402
 from ..identify.arrow_problem import wrap  # noqa: E402
@@ -169,15 +170,13 @@ def dense_response(variant, joint: pd.DataFrame, runs: pd.DataFrame, rpm: Sequen
 
 def write_dense(table: pd.DataFrame, path) -> None:
     """``dense_response``'s table as TSV, every float to full precision (``read_dense`` is its exact inverse)."""
-    table.to_csv(path, sep="\t", index=False, float_format="%.17g")
+    tables.RESPONSE.write(table, path)
 
 
 def read_dense(path) -> pd.DataFrame:
     """The table ``write_dense`` wrote (``stable`` back to True/False/NaN; a table written before trial angles
     were, without eccentric_mass_angle_deg, read with the angle 0)."""
-    header = pd.read_csv(path, sep="\t", nrows=0).columns
-    table = pd.read_csv(path, sep="\t", dtype={"sweep": str, "branch": str}, keep_default_na=False,
-                        na_values={c: ["", "nan", "NaN"] for c in header if c not in ("sweep", "branch")})
+    table = tables.RESPONSE.read(path)
     if "eccentric_mass_angle_deg" not in table:
         table.insert(1, "eccentric_mass_angle_deg", 0.0)
     table["stable"] = table["stable"].map({True: True, False: False, "True": True, "False": False}).astype(object)

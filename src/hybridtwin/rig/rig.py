@@ -64,6 +64,7 @@ import pandas as pd
 import yaml
 
 from ..model.effects import Effect, trial_mass_values
+from ..tables import RIG_RUNS, RIG_TRUTH
 from ..model.machine import Machine, default_machine
 from ..data.measurements import read_runs, trial_angles
 from ..data.preprocessing import harmonic_column
@@ -507,8 +508,8 @@ def generate(plan: pd.DataFrame, spec: RigSpec, out_dir: str | Path) -> pd.DataF
     sheet["path"] = [f"records/{r}.csv" for r in plan["run"]]
     columns = ["run", "rpm", "eccentric_mass_g", "path", "role"]
     sheet = sheet[columns + [c for c in sheet.columns if c not in columns]]
-    sheet.to_csv(out_dir / "runs.tsv", sep="\t", index=False, float_format="%.10g")
-    truth.to_csv(out_dir / "truth.tsv", sep="\t", index=False, float_format="%.9e")
+    RIG_RUNS.write(sheet, out_dir / "runs.tsv")
+    RIG_TRUTH.write(truth, out_dir / "truth.tsv")
     with open(out_dir / "truth.yaml", "w") as stream:
         yaml.safe_dump(spec.to_mapping(True if sweeps.any() else None), stream, sort_keys=False)
     return truth
