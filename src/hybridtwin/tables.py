@@ -348,6 +348,17 @@ def harmonic_column(channel: str, h: int, part: str) -> str:
     return f"{harmonic_stem(channel, h)}_{part}_m"
 
 
+def part_column(name: str, part: str) -> str:
+    """A complex quantity's column in metres: <name>_re_m, <name>_im_m (a response's channel, a model's, a
+    measured one's)."""
+    return f"{name}_{part}_m"
+
+
+def complex_values(table: pd.DataFrame, name: str) -> np.ndarray:
+    """The complex values of quantity ``name`` of a long table, its <name>_re_m + i <name>_im_m columns [m]."""
+    return table[part_column(name, "re")].to_numpy(float) + 1j * table[part_column(name, "im")].to_numpy(float)
+
+
 def wide_channels(wide: pd.DataFrame, channels: Sequence[str]) -> list[tuple[str, int]]:
     """(channel, h) of every harmonic of ``channels`` the wide table holds (its re column), channel by channel."""
     out = []

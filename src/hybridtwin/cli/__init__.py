@@ -26,6 +26,7 @@ from ..model.sensor import pair_dofs, sensor_harmonics, sensor_names
 from ..solvers.continuation import solve_sweep
 from ..solvers.solver import SteadyState, solve
 from ..model.variants import Variant
+from ..tables import part_column
 
 from .assess import add_assess_command
 from .docs_images import add_docs_images_command
@@ -224,7 +225,7 @@ def _harmonics_table(result: SteadyState, machine, node: int | str, polar: bool)
             table[f"{name}_amplitude_0pk_um"] = np.abs(Z[:, j]) * 1e6
             table[f"{name}_phase_deg"] = _phase_deg(Z[:, j], np.abs(Z).max())
         else:
-            table[f"{name}_re_m"], table[f"{name}_im_m"] = Z[:, j].real, Z[:, j].imag
+            table[part_column(name, "re")], table[part_column(name, "im")] = Z[:, j].real, Z[:, j].imag
     return table
 
 

@@ -265,8 +265,8 @@ def solve_operating_points(variant: Variant, points: pd.DataFrame, overrides: Ma
     U, V = sensor_harmonics(solutions.harmonics[:, 0], variant.model.shaft)  # (R, H+1) each
     for h in range(1, harmonics + 1):
         for name, values in ((f"U{h}", U[:, h]), (f"V{h}", V[:, h])):
-            out[f"{name}_re_m"] = values.real
-            out[f"{name}_im_m"] = values.imag
+            out[tables.part_column(name, "re")] = values.real
+            out[tables.part_column(name, "im")] = values.imag
     out["success"] = solutions.success[:, 0]
     out["stable"] = solutions.stable[:, 0]
     out["floquet_radius"] = solutions.floquet_radius[:, 0]

@@ -50,7 +50,7 @@ TRIAL = ["eccentric_mass_g", "eccentric_mass_angle_deg"]
 
 def columns(channels: Sequence[str]) -> list[str]:
     """The dense table's columns for sensor ``channels`` (the machine's order)."""
-    return (TRIAL + ["sweep", "rpm", "harmonic"] + [f"{c}_{part}_m" for c in channels for part in ("re", "im")]
+    return (TRIAL + ["sweep", "rpm", "harmonic"] + [tables.part_column(c, part) for c in channels for part in ("re", "im")]
             + ["stable", "branch"])
 
 
@@ -187,7 +187,7 @@ def read_dense(path) -> pd.DataFrame:
 def channel_values(table: pd.DataFrame, j: int) -> Array:
     """The j-th sensor channel's complex harmonic (the machine's order)."""
     c = channels_of(table)[j]
-    return table[f"{c}_re_m"].to_numpy() + 1j * table[f"{c}_im_m"].to_numpy()
+    return tables.complex_values(table, c)
 
 
 def response_curve(ax_amp, ax_phase, part: pd.DataFrame, j: int, colour: str, style: str, label: str | None,

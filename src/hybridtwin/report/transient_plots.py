@@ -195,7 +195,7 @@ def model_at(dense: pd.DataFrame, mass_g: float, kind: str, rpm: Sequence[float]
         k = np.where((k > 0) & (np.abs(speeds[k - 1] - rpm) < np.abs(speeds[k] - rpm)), k - 1, k)
         match = np.abs(speeds[k] - rpm) <= 1e-9 * np.maximum(np.abs(rpm), 1.0)
         for j, c in enumerate(channels):
-            z = rows[f"{c}_re_m"].to_numpy(float) + 1j * rows[f"{c}_im_m"].to_numpy(float)
+            z = tables.complex_values(rows, c)
             out[:, h - 1, j] = np.where(match, z[k], np.nan)
     return out
 
@@ -253,7 +253,7 @@ def table_harmonics(orders: pd.DataFrame) -> int:
 
 
 def _complex(table: pd.DataFrame, what: str) -> Array:
-    return table[f"{what}_re_m"].to_numpy(float) + 1j * table[f"{what}_im_m"].to_numpy(float)
+    return tables.complex_values(table, what)
 
 
 def _kept_spans(table: pd.DataFrame) -> list[tuple[float, float, str]]:
