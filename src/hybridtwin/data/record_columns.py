@@ -35,7 +35,7 @@ _NOT_PLAIN_NUMBERS = re.compile(r"[^0-9eE+\-., \t\n]")
 
 def fast_numeric_table(text: str, sep: str) -> tuple[pd.DataFrame, Array] | None:
     """A table every cell of which is a finite number, read at the C parser's speed: (float columns named as
-    ``measurements.read_text_table`` names them, lower case; the file line of each row), or None wherever anything
+    ``text_table.read_text_table`` names them, lower case; the file line of each row), or None wherever anything
     needs the careful reader (a quote, a blank line, a line with another number of cells, an empty, missing or
     non-numeric cell, a repeated or unnamed column): that reader then finds it and says so, with its lines.
     ``text``: the decoded file with its line ends made "\n". The C parser's numbers are ``numeric_column``'s
