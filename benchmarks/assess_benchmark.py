@@ -40,8 +40,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from hybridtwin.data.rig import DEFAULT_TRUTH, Imperfections, RigSpec, Truth, generate
-from hybridtwin.online.assess import ALPHA, Verdict, assess
+from hybridtwin.rig.rig import DEFAULT_TRUTH, Imperfections, RigSpec, Truth, generate
+from hybridtwin.online.assess import ALPHA, RecordVerdict, assess
 from hybridtwin.online.intake import RecordError, intake, read_sheet
 from hybridtwin.online.twin import load_twin
 
@@ -177,10 +177,10 @@ def right(row: pd.Series) -> bool:
     """Whether the verdict names the case's change."""
     want = CASES[row["case"]][2]
     if want == "consistent":
-        return row["verdict"] == Verdict.CONSISTENT.value
+        return row["verdict"] == RecordVerdict.CONSISTENT.value
     if want == "cross_coupled_stiffness":
-        return row["verdict"] == Verdict.NEW_DISCREPANCY.value and row["top_candidate"] == want
-    return row["verdict"] == Verdict.CHANGED.value and row["changed"] == want
+        return row["verdict"] == RecordVerdict.NEW_DISCREPANCY.value and row["top_candidate"] == want
+    return row["verdict"] == RecordVerdict.CHANGED.value and row["changed"] == want
 
 
 def listed(row: pd.Series) -> bool:
@@ -189,7 +189,7 @@ def listed(row: pd.Series) -> bool:
     if want in ("consistent", "cross_coupled_stiffness"):
         return right(row)
     alternatives = [a.replace(" ", "") for a in str(row["alternatives"]).split(";")]
-    return row["verdict"] == Verdict.CHANGED.value and (row["changed"] == want or want in alternatives)
+    return row["verdict"] == RecordVerdict.CHANGED.value and (row["changed"] == want or want in alternatives)
 
 
 def binomial_interval(k: int, n: int) -> tuple[float, float]:
@@ -275,7 +275,7 @@ def report(table: pd.DataFrame, args) -> None:
     if len(power):
         print("\n| parameter | size of change: detection rate (alarm) | smallest detected at >= 95 % |\n|---|---|---|")
         for case, rows in power.groupby("case", sort=False):
-            rates = rows.groupby("size")["verdict"].apply(lambda v: float((v != Verdict.CONSISTENT.value).mean()))
+            rates = rows.groupby("size")["verdict"].apply(lambda v: float((v != RecordVerdict.CONSISTENT.value).mean()))
             unit = " N/m" if case == "power_k_xy" else " %"
             scale = 1.0 if case == "power_k_xy" else 100.0
             smallest = [s for s, r in rates.items() if r >= 0.95]
@@ -305,7 +305,7 @@ def plot(table: pd.DataFrame, main_cases: pd.DataFrame, path: Path, alpha: float
     axes[0].legend(fontsize=7)
     power = table[table["case"].str.startswith("power_") & (table["verdict"] != "refused")]
     for case, rows in power.groupby("case", sort=False):
-        rates = rows.groupby("size")["verdict"].apply(lambda v: float((v != Verdict.CONSISTENT.value).mean()))
+        rates = rows.groupby("size")["verdict"].apply(lambda v: float((v != RecordVerdict.CONSISTENT.value).mean()))
         x = np.abs(rates.index.to_numpy(float)) * (1 if case == "power_k_xy" else 100)
         axes[1].plot(x, rates.to_numpy(), "o-", label=case[6:] + (" [N/m]" if case == "power_k_xy" else " [%]"))
     axes[1].axhline(0.95, color="0.5", ls="--", lw=0.8)

@@ -40,7 +40,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     from test_identification import GEOMETRIC, TARGETS, TRUTH, make_workdir
 
-    from hybridtwin.data.rig import RigSpec, generate
+    from hybridtwin.rig.rig import RigSpec, generate
     from hybridtwin.online.assess import assess
     from hybridtwin.online.intake import RecordError, intake, read_sheet
     from hybridtwin.online.twin import load_twin

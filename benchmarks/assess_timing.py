@@ -24,7 +24,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from hybridtwin.data.rig import DEFAULT_TRUTH, Imperfections, RigSpec, Truth, generate
+from hybridtwin.rig.rig import DEFAULT_TRUTH, Imperfections, RigSpec, Truth, generate
 
 TRUTH = DEFAULT_TRUTH["values"]
 

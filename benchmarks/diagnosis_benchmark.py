@@ -5,7 +5,7 @@
                                              [--data results/benchmarks/diagnosis_data]
                                              [--per-run none|q_x,q_y] [--nuisance KEY=VALUE ...]
 
-For each case the virtual rig (``hybridtwin.data.rig``) makes the bundled plan's 19 fit + 3 validation runs from a
+For each case the virtual rig (``hybridtwin.rig.rig``) makes the bundled plan's 19 fit + 3 validation runs from a
 truth = the Geometric model (k_b 2411.3, zeta_s 0.024, zeta_bup 0.016, bow q_x 0.002, q_y 0.0015 shared) plus
 the case's hidden effect(s), by TIME INTEGRATION of the equations of motion (``--integrator time``, Radau to
 the periodic steady state, a quasi-static run-up per eccentric mass: no harmonic balance), with the rig's full
@@ -66,7 +66,7 @@ from hybridtwin.model.effects import Parameter, PolynomialBearing, Term
 from hybridtwin.data.measurements import read_runs
 from hybridtwin.data.preprocessing import preprocess_run
 from hybridtwin.identify.protocol import ProtocolOptions
-from hybridtwin.data.rig import RigSpec, generate, read_plan
+from hybridtwin.rig.rig import RigSpec, generate, read_plan
 from hybridtwin.model.variants import Variant
 from hybridtwin.settings import diagnosis_settings
 

@@ -42,7 +42,7 @@ from hybridtwin.identify import polish as pol
 from hybridtwin.offline.library import Library, build_library, relative_sensor_error
 from hybridtwin.offline.pod import pod, to_features
 from hybridtwin.identify.protocol import ProtocolOptions, random_starts
-from hybridtwin.data.rig import RigSpec, generate, read_plan
+from hybridtwin.rig.rig import RigSpec, generate, read_plan
 from hybridtwin.offline.scenarios import default_n_scenarios, sample_scenarios
 from hybridtwin.model.sensor import observable, sensor_dofs
 from hybridtwin.model.variants import Variant

@@ -31,7 +31,7 @@ import yaml
 from hybridtwin import config as cfg
 from hybridtwin.data.measurements import read_runs
 from hybridtwin.data.preprocessing import preprocess_run
-from hybridtwin.data.rig import RigSpec, generate
+from hybridtwin.rig.rig import RigSpec, generate
 from hybridtwin.identify import identification as idn
 from hybridtwin.identify.run_fits import fit_joint
 from hybridtwin.settings import IdentificationSettings

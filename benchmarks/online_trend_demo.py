@@ -21,7 +21,7 @@ import numpy as np
 import pandas as pd
 
 from hybridtwin.cli import main as hybridtwin
-from hybridtwin.data.rig import DEFAULT_TRUTH, Imperfections, RigSpec, Truth, generate
+from hybridtwin.rig.rig import DEFAULT_TRUTH, Imperfections, RigSpec, Truth, generate
 from hybridtwin.online.twin import load_twin
 
 TRUTH = DEFAULT_TRUTH["values"]

@@ -36,7 +36,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src"))
 
 from hybridtwin.solvers.continuation import solve_sweep  # noqa: E402
 from hybridtwin.model.model import campbell  # noqa: E402
-from hybridtwin.data.rig import Truth  # noqa: E402
+from hybridtwin.rig.rig import Truth  # noqa: E402
 from hybridtwin.model.sensor import sensor_dofs  # noqa: E402
 from hybridtwin.solvers.solver import solve  # noqa: E402
 from hybridtwin.solvers.sweep import SpeedProfile, SpeedSystem, integrate_sweep, order_vectors  # noqa: E402

@@ -9,7 +9,7 @@ the full solver from random starts, same ``diagnosis.diagnose``); what differs i
 
 - the plan is the run-up example's fit records (``examples/runup/runs.tsv``, role fit: a run-up at 14.8 g to 900
   RPM, a run-up without added mass to 1000 RPM, a coast-down at 25.9 g from 650 RPM);
-- the virtual rig (``hybridtwin.data.rig.generate``) integrates the equations of motion in time along each
+- the virtual rig (``hybridtwin.rig.rig.generate``) integrates the equations of motion in time along each
   record's speed profile with the example's nuisances (``examples/runup/config/config.yaml``, rig: runup): a
   keyphasor, probes at 45 and 135 degrees, micrometres, slow-roll runout at 1X and 2X, offsets, noise, a drive
   whose rate wobbles around 10 RPM/s; the truth is the Geometric model plus the case's hidden effect(s);
@@ -44,7 +44,7 @@ from diagnosis_benchmark import CASES, MIDSPAN_CUBIC, TRUTH, base_fit, coverage,
 from hybridtwin.data.measured import run_data  # noqa: E402
 from hybridtwin.data.measurements import read_runs  # noqa: E402
 from hybridtwin.data.records import read_record  # noqa: E402
-from hybridtwin.data.rig import RigSpec, generate, read_plan  # noqa: E402
+from hybridtwin.rig.rig import RigSpec, generate, read_plan  # noqa: E402
 from hybridtwin.data.transient import track_record  # noqa: E402
 from hybridtwin.diagnose import diagnosis as dg  # noqa: E402
 from hybridtwin.identify import forward as fwd, identification as idn, lm  # noqa: E402

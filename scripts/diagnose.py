@@ -2,6 +2,7 @@
 the rule's input, params and output."""
 
 from hybridtwin import config as cfg
+from hybridtwin import tables
 from hybridtwin.diagnose import diagnosis as dg
 from hybridtwin.diagnose import diagnosis_report as dgr
 from hybridtwin.identify import identification as idn
@@ -35,9 +36,9 @@ if "sparse" in smk.input.keys():
     result.summary["sparse_route"] = {"variant": sparse_name,
                                       "active": sparse.loc[sparse["active"], "parameter"].tolist()}
 dgr.write(result, smk.output.table, smk.output.recommendation, smk.output.summary, sparse, sparse_name)
-result.fingerprint.table().to_csv(smk.output.fingerprint, sep="\t", index=False, float_format="%.9g")
+tables.FINGERPRINT.write(result.fingerprint.table(), smk.output.fingerprint)
 result.intervals.write(smk.output.intervals)
-dg.refits_table(result).to_csv(smk.output.refits, sep="\t", index=False, float_format="%.12g")
+tables.DIAGNOSIS_REFITS.write(dg.refits_table(result), smk.output.refits)
 save_png(dgr.plot(result), smk.output.plot, dpi=120)
 interactive.write_html(interactive.diagnosis_figure(result), smk.output.plot_html)
 log.info("%s", result.conclusion)

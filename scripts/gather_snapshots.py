@@ -11,6 +11,7 @@ import sys
 import pandas as pd
 
 from hybridtwin import config as cfg
+from hybridtwin import tables
 from hybridtwin.offline.scenarios import read_scenarios
 from hybridtwin.offline.snapshots import UNSTABLE, failure_summary, gather
 from hybridtwin.offline.stores import CorruptStoreError
@@ -32,8 +33,8 @@ except CorruptStoreError as error:
     log.error(message)
     sys.exit(message)
 failures = snapshots.failures()
-failures.to_csv(smk.output.failures, sep="\t", index=False)
-failure_summary(failures).to_csv(smk.output.summary, sep="\t", index=False)  # the report's view (counts)
+tables.FAILURES.write(failures, smk.output.failures)
+tables.FAILURE_SUMMARY.write(failure_summary(failures), smk.output.summary)  # the report's view (counts)
 unstable = failures["reason"] == UNSTABLE
 log.info("%d scenarios (%d from the enrichment) x %d runs gathered; %d failed solves, %d unstable steady states "
          "(left out downstream)", snapshots.success.shape[1], int((snapshots.design == "enrichment").sum()),

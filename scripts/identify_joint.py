@@ -9,10 +9,11 @@ table and plot. Reads only the rule's input, params and output.
 from pathlib import Path
 
 from hybridtwin import config as cfg
+from hybridtwin import tables
 from hybridtwin.identify import identification as idn
 from hybridtwin.offline.library import Library, read_library_validation
 from hybridtwin.report import drift as dft
-from hybridtwin.identify.run_fits import fit_joint, write_fit, write_summary
+from hybridtwin.identify.run_fits import fit_joint, write_fit, write_fit_summary
 from hybridtwin.plots import save_png
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
@@ -37,16 +38,16 @@ fit = result.fit
 idn.write_parameters(result.library_fit.table(), smk.output.library_table)
 joint = fit.table()
 idn.write_parameters(joint, smk.output.table)
-result.comparison.to_csv(smk.output.polish, sep="\t", index=False, float_format="%.9g")
-result.starts_table().to_csv(smk.output.polish_starts, sep="\t", index=False, float_format="%.9g")
-result.profile_table().to_csv(smk.output.profile, sep="\t", index=False, float_format="%.9g")
-fit.correlation_table().to_csv(smk.output.correlation, sep="\t", float_format="%.6g")
-fit.history_table().to_csv(smk.output.history, sep="\t", index=False, float_format="%.9g")
+tables.POLISH.write(result.comparison, smk.output.polish)
+tables.POLISH_STARTS.write(result.starts_table(), smk.output.polish_starts)
+tables.PROFILE.write(result.profile_table(), smk.output.profile)
+tables.CORRELATION.write(fit.correlation_table(), smk.output.correlation)
+tables.HISTORY.write(fit.history_table(), smk.output.history)
 runs = result.runs()
 write_fit(smk.output.fit, fit, runs["rpm"].tolist())
 drift = dft.drift_table([per_run[r] for r in per_run if r in set(runs["run"])], runs)
 idn.write_parameters(drift, smk.output.per_run)
 save_png(dft.plot_per_run(drift, joint, variant.name), smk.output.plot, dpi=120)
-write_summary(result.summary, smk.output.summary)
+write_fit_summary(result.summary, smk.output.summary)
 for warning in result.warnings:
     log.warning("%s", warning)

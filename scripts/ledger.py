@@ -5,7 +5,7 @@ import pandas as pd
 from hybridtwin import config as cfg
 from hybridtwin.report import report
 from hybridtwin.report import report_plots
-from hybridtwin.identify.run_fits import read_summary
+from hybridtwin.identify.run_fits import read_fit_summary
 from hybridtwin.plots import save_png
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
@@ -13,7 +13,7 @@ log = cfg.rule_logger(smk.log[0], "ledger")
 rows, errors = [], {}
 for variant, summary_path, fit_path, validation_path in zip(smk.params.variants, smk.input.summaries,
                                                              smk.input.errors, smk.input.validation_errors):
-    summary = read_summary(summary_path)["final"]
+    summary = read_fit_summary(summary_path)["final"]
     errors[variant] = pd.concat([report.read_errors(path) for path in (fit_path, validation_path)],
                                 ignore_index=True)
     rows.append(report.ledger_row(variant, smk.params.descriptions[variant], summary, errors[variant]))

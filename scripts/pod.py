@@ -4,6 +4,7 @@ params and output."""
 import sys
 
 from hybridtwin import config as cfg
+from hybridtwin import tables
 from hybridtwin.data import measured
 from hybridtwin.offline.pod import ThinLibraryError, pod_of_runs
 
@@ -19,7 +20,7 @@ except ThinLibraryError as err:
     log.error("%s", err)
     sys.exit(f"pod: error: variant {variant.name}: too few usable scenarios for a library at "
              f"{len(err.lines) - 1} run(s):\n  " + "\n  ".join(err.lines))
-table.to_csv(smk.output.table, sep="\t", index=False, float_format="%.6g")
+tables.POD.write(table, smk.output.table)
 for row in table.itertuples():
     log.info("run %s: %d snapshots, m_d = %d, sigma_2/sigma_1 = %.3g", row.run, row.n_snapshots, row.n_modes,
              row.sigma2_over_sigma1)

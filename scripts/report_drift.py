@@ -1,6 +1,7 @@
 """Rule report_drift: do the per-run estimates of the model's constants drift with speed? (thin wrapper)"""
 
 from hybridtwin import config as cfg
+from hybridtwin import tables
 from hybridtwin.identify import identification as idn
 from hybridtwin.report import drift
 from hybridtwin.plots import save_png
@@ -10,7 +11,7 @@ log = cfg.rule_logger(smk.log[0], "report_drift")
 per_run = idn.read_parameters(smk.input.per_run)  # the per-run fits' drift table, a parameter table
 joint = idn.read_parameters(smk.input.parameters)
 statistics = drift.drift_statistics(per_run, joint)
-statistics.to_csv(smk.output.table, sep="\t", index=False, float_format="%.6g")
+tables.DRIFT.write(statistics, smk.output.table)
 for row in statistics.itertuples():
     log.info("%s: %s", row.parameter, row.verdict)
 figure = drift.plot_drift(per_run, statistics, joint, smk.wildcards.variant)

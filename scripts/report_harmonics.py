@@ -11,14 +11,14 @@ from hybridtwin.report import report
 from hybridtwin.identify import validation as val
 from hybridtwin.identify import validation_refit as vr
 from hybridtwin.offline.library import read_library_validation
-from hybridtwin.identify.run_fits import read_summary
+from hybridtwin.identify.run_fits import read_fit_summary
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "report_harmonics")
 options = smk.params.options
 table = idn.read_harmonics(smk.input.harmonics)
 joint = idn.read_parameters(smk.input.parameters)
-summary = read_summary(smk.input.summary)["final"]
+summary = read_fit_summary(smk.input.summary)["final"]
 comparisons = report.fit_comparisons(smk.input.fit, joint, summary, table)
 validation = vr.read_validation(smk.input.validation)
 for row in validation[validation["model"] == "none"].to_dict("records"):

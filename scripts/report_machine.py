@@ -9,6 +9,7 @@ import numpy as np
 import pandas as pd
 
 from hybridtwin import config as cfg
+from hybridtwin import tables
 from hybridtwin.identify import identification as idn
 from hybridtwin.report import interactive, interactive_machine
 from hybridtwin.report import machine_plots as mp
@@ -25,7 +26,7 @@ machine = getattr(variant.model.shaft, "name", "shaft")
 speeds = mp.report_speeds(runs["rpm"])
 title = f"Campbell diagram, {smk.wildcards.variant} on {machine} (eccentric mass {mass_g:g} g)"
 figure = mp.campbell_figure(variant.model, values, speeds, run_rpm=runs["rpm"], n_modes=6, title=title)
-figure.campbell.to_csv(smk.output.table, sep="\t", index=False, float_format="%.9g")
+tables.CAMPBELL.write(figure.campbell, smk.output.table)
 save_png(figure, smk.output.campbell, dpi=100)
 interactive.write_html(interactive_machine.campbell_figure(variant.model, values, speeds, run_rpm=runs["rpm"],
                                                            n_modes=6, title=title, table=figure.campbell),

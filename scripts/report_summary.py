@@ -3,12 +3,13 @@
 import pandas as pd
 
 from hybridtwin import config as cfg
+from hybridtwin import tables
 from hybridtwin.identify.design import read_design_table
 from hybridtwin.identify.validation_refit import read_validation
 from hybridtwin.plots import png_palette_bytes
 from hybridtwin.report import interactive, report, summary
 from hybridtwin.data.measured import read_harmonics
-from hybridtwin.diagnose.diagnosis_report import read_summary
+from hybridtwin.diagnose.diagnosis_report import read_diagnosis_summary
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "report_summary")
@@ -19,9 +20,9 @@ for variant, fit_path, validation_path, diagnosis_path, explained in zip(
     errors[variant] = pd.concat([report.read_errors(path) for path in (fit_path, validation_path)],
                                 ignore_index=True)
     why[variant] = summary.explanations(read_validation(explained))
-    diagnoses[variant] = read_summary(diagnosis_path)
+    diagnoses[variant] = read_diagnosis_summary(diagnosis_path)
 table = summary.summary_table(ledger, errors, diagnoses, smk.params.specs)
-table.to_csv(smk.output.table, sep="\t", index=False, float_format="%.6g")
+tables.SUMMARY.write(table, smk.output.table)
 figure = summary.plot_summary(ledger, errors)
 png = png_palette_bytes(figure)  # at most 256 colours: the report embeds it
 with open(smk.output.plot, "wb") as stream:

@@ -13,6 +13,7 @@ import numpy as np
 import pandas as pd
 
 from hybridtwin import config as cfg
+from hybridtwin.tables import TRANSIENT
 from hybridtwin.data.measured import read_harmonics
 from hybridtwin.data.preprocessing import read_tsv
 from hybridtwin.data.records import probe_angles, read_record, record_channels
@@ -42,7 +43,7 @@ dense = tp.model_response(variant, idn.read_parameters(smk.input.parameters), pd
                           speeds, harmonics, smk.params.law)
 names, pairs = record_channels(sensors)
 folder = Path(smk.output.figures)
-tables = []
+points_tables = []
 for record, table, band, runout, path in zip(records, orders, bands, runouts, smk.input.records):
     channels = table_channels(table)
     mass, angle = float(record["eccentric_mass_g"]), float(record.get("eccentric_mass_angle_deg") or 0.0)
@@ -51,7 +52,7 @@ for record, table, band, runout, path in zip(records, orders, bands, runouts, sm
         runout, angle)
     points = tp.points(table, model, tp.probe_matrix(channels, sensors, options["frame"]), record, band,
                        options["frame"])
-    tables.append(points)
+    points_tables.append(points)
     used = points[points["used"] & (points["harmonic"] == 1)]
     log.info("%s: %d windows, %d in used bands; 1X |z| median %.3g over those; %d window(s) without a model",
              record["run"], len(table), used["window"].nunique(), float(used["z_abs"].median()),
@@ -75,4 +76,4 @@ for record, table, band, runout, path in zip(records, orders, bands, runouts, sm
     save_png(figure, out / "orbits.png", dpi=90)
     tp.plt.close(figure)
     log.info("%s: orbits at %s RPM", record["run"], ", ".join(f"{o['rpm']:.0f}" for o in orbits))
-pd.concat(tables, ignore_index=True).to_csv(smk.output.table, sep="\t", index=False, float_format="%.17g")
+TRANSIENT.write(pd.concat(points_tables, ignore_index=True), smk.output.table)

@@ -4,7 +4,7 @@ import logging
 from pathlib import Path
 
 from hybridtwin.config import CONFIG_DIR, machine as config_machine
-from hybridtwin.data.rig import RigSpec, generate, peak_columns, read_plan
+from hybridtwin.rig.rig import RigSpec, generate, peak_columns, read_plan
 from hybridtwin.model.variants import load_effects_file
 from hybridtwin.config import on_disk_full
 

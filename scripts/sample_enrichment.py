@@ -9,6 +9,7 @@ and samples offline.enrichment.n_scenarios more per eccentric mass of such runs
 import pandas as pd
 
 from hybridtwin import config as cfg
+from hybridtwin import tables
 from hybridtwin.offline.scenarios import read_scenarios, sample_enrichment, write_scenarios
 from hybridtwin.model.sensor import observable
 from hybridtwin.offline.snapshots import read_chunks
@@ -27,7 +28,7 @@ table, summary = sample_enrichment(variant, snaps.values, snaps.split, seen, run
                                    enrichment["n_scenarios"], enrichment["observable_below"], options["seed"],
                                    options["validation_fraction"])
 write_scenarios(table, smk.output.scenarios, float_format=None)
-summary.to_csv(smk.output.summary, sep="\t", index=False)
+tables.ENRICHMENT_SUMMARY.write(summary, smk.output.summary)
 if summary.empty:
     log.info("no run has fewer than %.0f %% observable fitting scenarios: nothing to enrich",
              100 * enrichment["observable_below"])

@@ -5,7 +5,7 @@ from hybridtwin import config as cfg
 from hybridtwin.identify import identification as idn
 from hybridtwin.offline.library import read_library_validation
 from hybridtwin.online.twin import library_card, make_card, write_card
-from hybridtwin.identify.run_fits import read_summary
+from hybridtwin.identify.run_fits import read_fit_summary
 
 smk = snakemake  # noqa: F821 (injected by Snakemake)
 log = cfg.rule_logger(smk.log[0], "twin_card")
@@ -13,7 +13,7 @@ table = idn.read_parameters(smk.input.parameters)
 runs = idn.fit_runs(table)
 measured = idn.read_harmonics(smk.input.harmonics).set_index("run").loc[runs].reset_index()
 measured["rpm"] = measured["rpm_true"].fillna(measured["rpm"])
-fit = read_summary(smk.input.summary)["final"]
+fit = read_fit_summary(smk.input.summary)["final"]
 validation = smk.input.library  # a path, or none without libraries (offline.scope: none)
 validation = [validation] if isinstance(validation, str) else list(validation)
 library = library_card(smk.params.scope, read_library_validation(validation[0]) if validation else None)

@@ -2,6 +2,7 @@
 params and output."""
 
 from hybridtwin import config as cfg
+from hybridtwin import tables
 from hybridtwin.plots import plot_sweep
 from hybridtwin.offline.scenarios import solve_operating_points
 from hybridtwin.plots import save_png
@@ -20,5 +21,5 @@ if len(failed):
 unstable = table[table["success"] & ~table["stable"]]
 if len(unstable):
     log.warning("%d run(s) whose periodic solution is unstable: %s", len(unstable), ", ".join(unstable["run"]))
-table.to_csv(smk.output.table, sep="\t", index=False, float_format="%.9e")
+tables.WHITEBOX.write(table, smk.output.table)
 save_png(plot_sweep(table, variant.name), smk.output.plot, dpi=120)

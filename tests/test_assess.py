@@ -20,8 +20,8 @@ import yaml
 
 from hybridtwin.cli import main
 from hybridtwin.config import ConfigError, check
-from hybridtwin.data.rig import DEFAULT_TRUTH, Imperfections, RigSpec, Truth, generate
-from hybridtwin.online.assess import Assessment, Verdict, assess
+from hybridtwin.rig.rig import DEFAULT_TRUTH, Imperfections, RigSpec, Truth, generate
+from hybridtwin.online.assess import Assessment, RecordVerdict, assess
 from hybridtwin.data.measured import RunData
 from hybridtwin.identify.forward import SolverModel
 from hybridtwin.model.variants import Variant
@@ -65,14 +65,14 @@ def test_records_of_the_unchanged_machine_are_consistent(unchanged):
     # (measured on many records in benchmarks/assess_benchmark.py); these seeds' p-values are 0.26 and 0.19, far
     # from the level, so a machine's round-off cannot turn them
     for result in unchanged:
-        assert result.verdict is Verdict.CONSISTENT, result.line()
+        assert result.verdict is RecordVerdict.CONSISTENT, result.line()
         assert result.summary["p_value"] > 0.05 and result.changed == []
 
 
 def test_a_softer_bearing_is_named_with_an_interval_holding_the_truth(twin, tmp_path):
     soft = 0.9 * TRUTH["k_b"]
     result, = judged(twin, rig(tmp_path, [("k900", 900, 0.0)], {"k_b": soft}))
-    assert result.verdict is Verdict.CHANGED and result.changed == ["k_b"], result.line()
+    assert result.verdict is RecordVerdict.CHANGED and result.changed == ["k_b"], result.line()
     row = result.parameters.set_index("parameter").loc["k_b"]
     assert row["ci_low"] <= soft <= row["ci_high"], row.to_dict()
     # the twin's own k_b (2403 +- 3 N/m) is 0.4 % below the truth's: the move is far beyond it
@@ -83,7 +83,7 @@ def test_a_softer_bearing_is_named_with_an_interval_holding_the_truth(twin, tmp_
 
 def test_a_doubled_bow_is_named(twin, tmp_path):
     result, = judged(twin, rig(tmp_path, [("b720", 720, 14.8)], {"q_x": 2 * TRUTH["q_x"], "q_y": 2 * TRUTH["q_y"]}))
-    assert result.verdict is Verdict.CHANGED and result.changed == ["q_x", "q_y"], result.line()
+    assert result.verdict is RecordVerdict.CHANGED and result.changed == ["q_x", "q_y"], result.line()
     rows = result.parameters.set_index("parameter")
     for p in ("q_x", "q_y"):
         # the twin's bow is 9 % below the truth's (its k_b too); the changed bow's interval (+-12 %) holds 2x truth
@@ -92,7 +92,7 @@ def test_a_doubled_bow_is_named(twin, tmp_path):
 
 def test_a_cross_coupled_stiffness_is_a_new_discrepancy_and_ranked_first(twin, tmp_path):
     result, = judged(twin, rig(tmp_path, [("x900", 900, 0.0)], {"k_xy": 100.0}, ["cross_coupled_stiffness"]))
-    assert result.verdict is Verdict.NEW_DISCREPANCY, result.line()
+    assert result.verdict is RecordVerdict.NEW_DISCREPANCY, result.line()
     first, second = result.candidates.iloc[0], result.candidates.iloc[1]
     assert first["candidate"] == "cross_coupled_stiffness", result.candidates.head()
     # the score's predicted chi^2 drops: 1462 against the next (an anisotropy) 1374; a difference of 25 would already
@@ -301,10 +301,10 @@ def bands(twin, values: dict, seed: int = 2) -> Intake:
 
 def test_a_run_up_of_the_unchanged_machine_is_consistent_and_a_softer_bearing_changed(twin):
     same = assess(twin, bands(twin, {}))
-    assert same.verdict is Verdict.CONSISTENT and same.summary["n_runs"] == 9, same.line()
+    assert same.verdict is RecordVerdict.CONSISTENT and same.summary["n_runs"] == 9, same.line()
     assert len(same.parameters[same.parameters["parameter"] == "q_x"]) == 9  # the bow re-estimated per band
     soft = assess(twin, bands(twin, {"k_b": 0.95 * TRUTH["k_b"]}))
     named = [soft.summary["changed"]] + soft.summary["alternatives"].split("; ")
-    assert soft.verdict is Verdict.CHANGED and "k_b" in named, soft.line()  # named first on this seed
+    assert soft.verdict is RecordVerdict.CHANGED and "k_b" in named, soft.line()  # named first on this seed
     row = soft.parameters.set_index("parameter").loc["k_b"]
     assert row["ci_low"] <= 0.95 * TRUTH["k_b"] <= row["ci_high"], row.to_dict()

@@ -493,7 +493,7 @@ def test_no_literal_harmonics_default_in_a_signature():
     import ast
     import inspect
 
-    from hybridtwin.data.rig import RigSpec, solve_truth
+    from hybridtwin.rig.rig import RigSpec, solve_truth
     from hybridtwin.solvers import solver, sweep, transient
 
     literal = []
@@ -514,3 +514,28 @@ def test_no_literal_harmonics_default_in_a_signature():
                      solve_truth):
         assert inspect.signature(function).parameters["harmonics"].default == transient.RESOLVED_HARMONICS
     assert RigSpec().harmonics == transient.RESOLVED_HARMONICS
+
+
+def test_the_level_of_a_test_is_written_once():
+    """alpha = 0.01 lives in one place in the code (identify.uncertainty.ALPHA, issue 52); the schema's defaults of
+    the config's diagnosis.alpha and online.alpha are YAML and cannot import it, so they are checked against it, and
+    no module writes the number again as a default."""
+    import ast
+
+    from hybridtwin.identify.uncertainty import ALPHA
+    from hybridtwin.settings import defaults
+
+    assert defaults("diagnosis")["alpha"] == ALPHA and defaults("online")["alpha"] == ALPHA
+    package = Path(__file__).resolve().parents[1] / "src" / "hybridtwin"
+    again = []
+    for path in package.rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = ([t.id for t in node.targets if isinstance(t, ast.Name)] if isinstance(node, ast.Assign) else
+                     [a.arg for a in node.args.args[-len(node.args.defaults):]] if isinstance(node, ast.FunctionDef)
+                     and node.args.defaults else [])
+            values = ([node.value] if isinstance(node, ast.Assign) else
+                      node.args.defaults if isinstance(node, ast.FunctionDef) else [])
+            again += [f"{path.name}:{node.lineno}" for name, value in zip(names, values)
+                      if "alpha" in name.lower() and isinstance(value, ast.Constant) and value.value == ALPHA
+                      and not (path.name == "uncertainty.py" and name == "ALPHA")]
+    assert not again, again

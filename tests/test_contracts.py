@@ -113,25 +113,27 @@ def f(fit, failures, note, t, row):
 def test_diagnosis_verdict_codes():
     """Every verdict code has its sentence and a colour; the figure's colours follow the code column (the sentence
     of each code as it was, e.g. "add: explains ..." green, "... (confounded with X)" on the best orange)."""
-    from hybridtwin.diagnose.diagnosis_status import Verdict, verdict_colour, verdict_text
+    from hybridtwin.diagnose.diagnosis_status import CandidateVerdict, verdict_colour, verdict_text
 
-    for code in Verdict:
+    for code in CandidateVerdict:
         assert verdict_text(code, pct=50, tied="", others="a", with_="", share="99 %", best="b", bic=1.0,
                             best_bic=0.5, inside="c", runs="r1", step=2, fraction=0.1, drop=1e-5, verb="is", lr=1.0)
-    assert verdict_text(Verdict.ADD) == "add: explains the discrepancy"
-    assert verdict_text(Verdict.ADD_PART, pct=62.4, tied=" (confounded with x)") == (
+    assert verdict_text(CandidateVerdict.ADD) == "add: explains the discrepancy"
+    assert verdict_text(CandidateVerdict.ADD_PART, pct=62.4, tied=" (confounded with x)") == (
         "add: explains 62 % of the excess chi^2; a discrepancy remains (confounded with x)")
-    assert verdict_text(Verdict.CONFOUNDED, best="k", bic=-12.34, best_bic=-13.0) == (
+    assert verdict_text(CandidateVerdict.CONFOUNDED, best="k", bic=-12.34, best_bic=-13.0) == (
         "confounded with k: these data cannot tell them apart (Delta BIC -12.3 vs -13.0)")
-    colours = {code: verdict_colour(code.value) for code in Verdict}
+    colours = {code: verdict_colour(code.value) for code in CandidateVerdict}
     assert {c for c, colour in colours.items() if colour == "tab:green"} == {
-        Verdict.ADD, Verdict.ADD_PART, Verdict.ADD_WITH, Verdict.ADD_NEARLY}
-    assert {c for c, colour in colours.items() if colour == "tab:red"} == {Verdict.CONFIRMED_WEAKER,
-                                                                          Verdict.SIGNIFICANT}
-    assert colours[Verdict.EXPLAINS_ONLY_TIED] == "tab:orange" and colours[Verdict.EXPLAINS_ONLY] == "tab:gray"
+        CandidateVerdict.ADD, CandidateVerdict.ADD_PART, CandidateVerdict.ADD_WITH, CandidateVerdict.ADD_NEARLY}
+    assert {c for c, colour in colours.items() if colour == "tab:red"} == {CandidateVerdict.CONFIRMED_WEAKER,
+                                                                          CandidateVerdict.SIGNIFICANT}
+    assert colours[CandidateVerdict.EXPLAINS_ONLY_TIED] == "tab:orange"
+    assert colours[CandidateVerdict.EXPLAINS_ONLY] == "tab:gray"
     # the old rule on the sentences, for every sentence: the code's colour is the one the sentence had
-    for code in Verdict:
-        v = verdict_text(code, pct=40, tied=" (confounded with z)" if code is Verdict.EXPLAINS_ONLY_TIED else "",
+    for code in CandidateVerdict:
+        tied = " (confounded with z)" if code is CandidateVerdict.EXPLAINS_ONLY_TIED else ""
+        v = verdict_text(code, pct=40, tied=tied,
                          others="a", with_="", share="99 %", best="b", bic=1.0, best_bic=0.5, inside="c", runs="r1",
                          step=2, fraction=0.1, drop=1e-5, verb="is", lr=1.0)
         old = ("tab:green" if v.startswith("add") else "tab:orange" if "confounded" in v or "part of" in v
@@ -211,7 +213,7 @@ def test_table_has_verdict_code_column():
     from hybridtwin.diagnose import conclusion, diagnosis
 
     assert '"verdict_code"' in inspect.getsource(conclusion._table)
-    assert pd.Series([v.value for v in diagnosis.Verdict]).is_unique
+    assert pd.Series([v.value for v in diagnosis.CandidateVerdict]).is_unique
 
 
 # --- one contract per table between rules: each writer's output read back by its reader ---------------------------
@@ -364,36 +366,37 @@ def _equal(a, b) -> bool:
 
 
 def test_joint_fit_summary_round_trip(tmp_path):
-    """identification/summary.yaml: run_fits.write_summary, read back by read_summary as the same mapping (its
+    """identification/summary.yaml: run_fits.write_fit_summary, read back by read_fit_summary as the same mapping (its
     order, types and NaN included), what ledger, report_harmonics and twin_card read."""
-    from hybridtwin.identify.run_fits import read_summary, write_summary
+    from hybridtwin.identify.run_fits import read_fit_summary, write_fit_summary
 
     final = {"runs": ["001", "r2"], "shared": ["k_b"], "per_run": ["q_x"], "keyphasor_runs": [], "n_data": 56,
              "dof": 49, "chi2": 51.25, "chi2_dof": 1.0459183673469388, "loss": float("nan"), "status": 2,
              "message": "`ftol` termination: 1e-12", "notes": ["k_b: at its range edge"], "sparsity": 0.125}
     summary = {"library": dict(final, chi2=60.5), "solver": {"failed": "no periodic solution", "seconds": 1.5},
                "profile": {"loose": ["zeta"], "seconds": 3.0}, "final": final}
-    write_summary(summary, tmp_path / "summary.yaml")
-    read = read_summary(tmp_path / "summary.yaml")
+    write_fit_summary(summary, tmp_path / "summary.yaml")
+    read = read_fit_summary(tmp_path / "summary.yaml")
     assert _equal(summary, read) and read["final"]["chi2_dof"] == final["chi2_dof"]
-    write_summary(read, tmp_path / "again.yaml")
+    write_fit_summary(read, tmp_path / "again.yaml")
     assert (tmp_path / "again.yaml").read_text() == (tmp_path / "summary.yaml").read_text()
     assert not _equal(summary, dict(summary, final=dict(final, dof=49.0)))  # the check tells a type apart
 
 
 def test_diagnosis_summary_round_trip(tmp_path):
-    """diagnosis.yaml: diagnosis_report.write_summary, read back by read_summary (what report_summary reads)."""
-    from hybridtwin.diagnose.diagnosis_report import read_summary, write_summary
+    """diagnosis.yaml: diagnosis_report.write_diagnosis_summary, read back by read_diagnosis_summary (what
+    report_summary reads)."""
+    from hybridtwin.diagnose.diagnosis_report import read_diagnosis_summary, write_diagnosis_summary
 
     summary = {"variant": "linear", "status": "add", "conclusion": "add expansion_k4: explains the discrepancy",
                "misfit": True, "base_chi2_dof": 1234.5, "confounded": [], "delta_bic": float("nan"),
                "path": [{"effect": "expansion_k4", "chi2_dof": 1.02, "step": 1}],
                "recommended_variant": {"name": "linear_expansion_k4", "spec": {"effects": ["expansion_k4"],
                                                                               "unknown": {"k4": [0.0, 1e9]}}}}
-    write_summary(summary, tmp_path / "diagnosis.yaml")
-    read = read_summary(tmp_path / "diagnosis.yaml")
+    write_diagnosis_summary(summary, tmp_path / "diagnosis.yaml")
+    read = read_diagnosis_summary(tmp_path / "diagnosis.yaml")
     assert _equal(summary, read)
-    write_summary(read, tmp_path / "again.yaml")
+    write_diagnosis_summary(read, tmp_path / "again.yaml")
     assert (tmp_path / "again.yaml").read_text() == (tmp_path / "diagnosis.yaml").read_text()
 
 
@@ -441,3 +444,91 @@ def test_rule_scripts_read_tables_through_their_readers():
                 if "smk.input" in source and inputs & owned:
                     problems.append(f"{path.name}:{node.lineno}: {ast.unparse(node)}")
     assert not problems, "tables read by hand (use the table's reader):\n" + "\n".join(problems)
+
+
+# --- the table layer (issue 52): every table between rules declared once, written and read by one pair ---------
+
+def _sample(table) -> pd.DataFrame:
+    """A frame of ``table``'s layout with awkward values: text with an empty cell and words pandas would read as
+    missing, numbers at the ends of the float range, a NaN, an integer column, a flag."""
+    columns = list(table.columns) if table.columns is not None else [*table.text, *table.flags, "value_m", "count"]
+    rng = np.random.default_rng(52)
+    data = {}
+    for i, c in enumerate(columns):
+        if c in table.text:
+            data[c] = ["a b", "" if table.na_text else "c", "NA" if table.na_text else "d"]
+        elif c in table.flags or c in ("selected", "used", "drifts", "flagged", "best", "recommended_in_config"):
+            data[c] = [True, False, True]
+        elif c in ("harmonic", "count", "mode", "trial", "iteration", "window", "round"):
+            data[c] = [1, 2, 3]
+        else:
+            data[c] = [rng.normal() * 10.0 ** rng.integers(-12, 6), 1.0 / 3.0, np.nan if i % 2 else 2.5e-9]
+    frame = pd.DataFrame(data)
+    if table.index:
+        frame.index = ["p", "q[r1]", "r"]
+    return frame
+
+
+@pytest.mark.parametrize("name", sorted(__import__("hybridtwin.tables", fromlist=["TABLES"]).TABLES))
+def test_every_table_is_read_back_as_written(name, tmp_path):
+    """Every table of the registry: ``read`` is ``write``'s inverse. Writing what was read gives the same bytes
+    (the file is the contract), the text cells come back as written, the numbers to the table's float format (half
+    a unit in its last digit: %.6g 5e-6 relative, %.9g 5e-9, %.9e and %.10g 5e-10, %.12g 5e-12; 0 for every digit,
+    %.17g, pandas' shortest repr and ``shortest_repr``)."""
+    from hybridtwin import tables
+
+    table = tables.TABLES[name]
+    frame = _sample(table)
+    table.write(frame, tmp_path / "a.tsv")
+    read = table.read(tmp_path / "a.tsv")
+    table.write(read, tmp_path / "b.tsv")
+    assert (tmp_path / "a.tsv").read_bytes() == (tmp_path / "b.tsv").read_bytes()
+    assert list(read.columns) == list(frame.columns)
+    for c in frame:
+        if c in table.text:
+            assert read[c].tolist() == frame[c].tolist(), c
+        elif frame[c].dtype == bool:
+            assert read[c].astype(bool).tolist() == frame[c].tolist(), c
+        else:
+            rtol = {None: 0.0, tables.EXACT: 0.0, tables.shortest_repr: 0.0, tables.SHORT: 5e-6, tables.FIT: 5e-9, tables.METRES: 5e-10,
+                    tables.SHEET: 5e-10, tables.REFIT: 5e-12}[table.float_format]
+            np.testing.assert_allclose(read[c].to_numpy(float), frame[c].to_numpy(float), rtol=rtol, err_msg=c)
+    if table.columns is not None:
+        with pytest.raises(tables.TableError):
+            table.write(frame.iloc[:, ::-1], tmp_path / "c.tsv")
+
+
+def test_no_script_writes_or_reads_a_table_itself():
+    """The rule scripts write and read tables through the layer (``hybridtwin.tables`` or a stage's own reader),
+    never by hand: no ``to_csv``, ``read_csv``, ``read_table`` or ``savetxt`` call in scripts/ (ast)."""
+    found = []
+    for path in sorted((ROOT / "scripts").glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr in (
+                    "to_csv", "read_csv", "read_table", "savetxt", "loadtxt"):
+                found.append(f"{path.name}:{node.lineno} {node.func.attr}")
+    assert not found, found
+
+
+def test_the_long_harmonics_and_their_wide_view():
+    """The long harmonic table (run, harmonic, channel, re_m, im_m, sigma_m) and the wide view of harmonics.tsv
+    are one table: the wide columns the preprocessing writes (record_columns.harmonic_columns, an independent
+    writer of the same numbers) come back from the long form, the amplitude as the modulus (to 1 ulp-level
+    rounding, rtol 1e-15: hypot and abs of a complex round alike), for a channel whose name ends in a digit too."""
+    from hybridtwin import tables
+    from hybridtwin.data.record_columns import harmonic_columns
+
+    rng = np.random.default_rng(5)
+    names, H = ["x", "y2"], 3
+    rows = []
+    for run in ("r1", "r2"):
+        X = rng.normal(size=(2, H + 1)) + 1j * rng.normal(size=(2, H + 1))
+        rows.append({"run": run, "rpm": 900.0} | harmonic_columns(names, H, X * 1e-5, rng.uniform(size=(2, H + 1)),
+                                                                 np.ones(2)))
+    wide = pd.DataFrame(rows)
+    long = tables.long_harmonics(wide, names)
+    assert list(long.columns) == list(tables.HARMONICS_LONG.columns) and len(long) == 2 * H * 2
+    back = tables.wide_harmonics(long)
+    for c in back.columns[1:]:
+        np.testing.assert_allclose(back[c].to_numpy(), wide[c].to_numpy(), rtol=1e-15, atol=0, err_msg=c)
+    assert back["run"].tolist() == ["r1", "r2"]

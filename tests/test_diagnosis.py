@@ -126,7 +126,7 @@ def test_hidden_slope_force_is_ranked_first_and_confirmed(slope_base):
     assert result.summary["misfit"]  # the geometric model misses the slope force: the misfit is real
     assert table.loc[0, "effect"] in ("slope_spring", "expansion_k4")  # the slope force (k4 u' is its linear part)
     assert table.loc[0, "verdict"].startswith("add")
-    assert table.loc[0, "verdict_code"] == dg.Verdict.ADD  # the code beside the sentence (issue 37)
+    assert table.loc[0, "verdict_code"] == dg.CandidateVerdict.ADD  # the code beside the sentence (issue 37)
     assert result.conclusion.startswith("add")
     # after adding it, chi^2/dof is at the noise floor: within 3 sigma of chi^2(dof)/dof (dof ~ 30)
     dof = result.confirmations[table.loc[0, "effect"]].dof
@@ -468,9 +468,9 @@ def test_a_refit_whose_optimum_is_unstable_is_never_confirmed():
 
     o = OPTIONS
     cf = SimpleNamespace(lr_p_value=1e-30, delta_bic=-1e4, unstable_runs=None)
-    assert conc._is_confirmed(cf, o, 1e-3)
-    assert conc._is_confirmed(replace_ns(cf, unstable_runs=[]), o, 1e-3)
-    assert not conc._is_confirmed(replace_ns(cf, unstable_runs=["r1000_m0p0"]), o, 1e-3)
+    assert conc.is_confirmed(cf, o, 1e-3)
+    assert conc.is_confirmed(replace_ns(cf, unstable_runs=[]), o, 1e-3)
+    assert not conc.is_confirmed(replace_ns(cf, unstable_runs=["r1000_m0p0"]), o, 1e-3)
 
 
 def replace_ns(ns, **changes):
@@ -495,9 +495,9 @@ def test_backward_elimination_drops_a_stand_in_made_redundant_by_a_later_effect(
     assert k4.chi2 / k4.dof < 1 + 3 * np.sqrt(2 / k4.dof)
     path = [conc.Step("cross_coupled_stiffness", 0.0, stand_in.chi2 / stand_in.dof, stand_in.delta_bic, 0.0, stand_in),
             conc.Step("expansion_k4", 0.0, k4.chi2 / k4.dof, k4.delta_bic, 0.0, k4)]
-    placeholder = {s.candidate.name: (dg.Verdict.NOT_SIGNIFICANT, "") for s in scores.scores}
+    placeholder = {s.candidate.name: (dg.CandidateVerdict.NOT_SIGNIFICANT, "") for s in scores.scores}
     result = conc.Diagnosis(conc._table(scores, {}, placeholder, []), "", "")
-    kept = elim._backward(slope_base, path, scores, OPTIONS, result)
+    kept = elim.backward_elimination(slope_base, path, scores, OPTIONS, result)
     assert [step.effect for step in kept] == ["expansion_k4"]
     final = kept[-1].confirmation
     assert final.chi2 / final.dof < 1 + 3 * np.sqrt(2 / final.dof)
@@ -506,7 +506,8 @@ def test_backward_elimination_drops_a_stand_in_made_redundant_by_a_later_effect(
     assert [e["effect"] for e in eliminated] == ["cross_coupled_stiffness"] and eliminated[0]["delta_bic"] > -10
     verdict = result.table.set_index("effect").loc["cross_coupled_stiffness", "verdict"]
     assert verdict.startswith("dropped by backward elimination: not needed once expansion_k4 is in")
-    assert result.table.set_index("effect").loc["cross_coupled_stiffness", "verdict_code"] == dg.Verdict.DROPPED
+    assert (result.table.set_index("effect").loc["cross_coupled_stiffness", "verdict_code"]
+            == dg.CandidateVerdict.DROPPED)
     k4_full = k4.estimates.set_index("parameter").loc["k4"]
     k4_kept = final.estimates.set_index("parameter").loc["k4"]
     assert abs(k4_kept.value - k4_full.value) < 2 * (k4_full.ci_high - k4_full.ci_low) / 3.92 + 1e-9
@@ -517,7 +518,8 @@ def _one_step_path(base: st.BaseFit, name: str) -> tuple[list, st.Scores, conc.D
     scores = st.score_tests(base, _candidates([name]))
     cf = rf.confirm(base, scores.scores[0], scores, starts=0, widen=0, far=False)
     path = [conc.Step(name, scores.base_chi2 / scores.base_dof, cf.chi2 / cf.dof, cf.delta_bic, 1.0, cf)]
-    return path, scores, conc.Diagnosis(conc._table(scores, {}, {name: (dg.Verdict.NOT_SIGNIFICANT, "")}, []), "", "")
+    table = conc._table(scores, {}, {name: (dg.CandidateVerdict.NOT_SIGNIFICANT, "")}, [])
+    return path, scores, conc.Diagnosis(table, "", "")
 
 
 def test_the_sharing_check_shares_a_bow_the_data_do_not_need_per_run(slope_data):
@@ -529,7 +531,7 @@ def test_the_sharing_check_shares_a_bow_the_data_do_not_need_per_run(slope_data)
     base = _base_fit(slope_data, per_run=("q_x", "q_y"))
     path, scores, result = _one_step_path(base, "expansion_k4")
     assert path[-1].confirmation.fit.layout.local == ("q_x", "q_y")
-    shared = elim._sharing(base, path, scores, OPTIONS, result)
+    shared = elim.sharing_check(base, path, scores, OPTIONS, result)
     sharing = result.summary["sharing"]
     assert sharing["shared"] and sharing["lr_dof"] == 2 * (len(RUNS) - 1)
     assert sharing["chi2_shared"] >= sharing["chi2_per_run"] - 1e-6 * sharing["chi2_per_run"]  # nested fits
@@ -541,7 +543,7 @@ def test_the_sharing_check_shares_a_bow_the_data_do_not_need_per_run(slope_data)
     # 2 (runs - 1) more dof and a higher chi^2, which is not a negative share
     assert shared[-1].share == path[-1].share
     result.path = shared
-    conc._conclude_path(result, base, scores, OPTIONS)
+    conc.conclude_path(result, base, scores, OPTIONS)
     assert "need not be estimated per run" in result.conclusion
     assert "-" not in re.search(r"\((-?\d+) % of the excess", result.conclusion).group(1)
     spec = result.summary["recommended_variant"]["spec"]
@@ -575,7 +577,7 @@ def test_the_sharing_check_keeps_a_bow_that_differs_between_runs():
     light = _data(["slope_spring"], truth | {"q_x": 0.004}, seed=2)[2:]
     base = _base_fit(heavy + light, per_run=("q_x", "q_y"))
     path, scores, result = _one_step_path(base, "expansion_k4")
-    kept = elim._sharing(base, path, scores, OPTIONS, result)
+    kept = elim.sharing_check(base, path, scores, OPTIONS, result)
     assert not result.summary["sharing"]["shared"] and result.summary["sharing"]["lr"] > 100
     assert kept[-1].confirmation is path[-1].confirmation
 
@@ -590,10 +592,10 @@ def test_a_recommended_variant_name_is_valid_in_the_config():
 
     schema = yaml.safe_load((Path(__file__).resolve().parents[1] / "src/hybridtwin/config.schema.yaml").read_text())
     pattern = schema["properties"]["variants"]["propertyNames"]["pattern"]
-    name = rec._variant_name(["linear", "bearing_anisotropy@b", "cross_coupled_stiffness"])
+    name = rec.joined_variant_name(["linear", "bearing_anisotropy@b", "cross_coupled_stiffness"])
     assert name == "linear_bearing_anisotropy_at_b_cross_coupled_stiffness" and re.fullmatch(pattern, name)
     # an effect of the user's file may be named with other characters (oil-film_b): still a valid variant name
-    name = rec._variant_name(["linear", "oil-film_b", "k.2"])
+    name = rec.joined_variant_name(["linear", "oil-film_b", "k.2"])
     assert name == "linear_oil_film_b_k_2" and re.fullmatch(pattern, name)
 
 
@@ -669,7 +671,7 @@ def _stand_in_then_k4(base: st.BaseFit) -> tuple[st.Scores, dict, list]:
                           stand_in.fit.theta, base.data, base.harmonics)
     k4 = rf.confirm(extended, st.score_tests(extended, _candidates(["expansion_k4"])).scores[0],
                     st.score_tests(extended, _candidates(["expansion_k4"])), starts=0, widen=0, far=False)
-    excess = conc._excess(scores)
+    excess = conc.score_excess(scores)
     path = [conc.Step("cross_coupled_stiffness", scores.base_chi2 / scores.base_dof, stand_in.chi2 / stand_in.dof,
                     stand_in.delta_bic, (scores.base_chi2 - stand_in.chi2) / excess, stand_in),
             conc.Step("expansion_k4", stand_in.chi2 / stand_in.dof, k4.chi2 / k4.dof, k4.delta_bic,
@@ -687,7 +689,7 @@ def every_path(slope_data, slope_base):
     data = _data(["slope_spring", "excitation_2x"], TRUTH | {"k_w": 324.2, "k_z": 301.1, "f2_c": 0.1, "f2_s": -0.05},
                  seed=7)  # as test_two_hidden_effects_are_both_found_by_forward_selection
     out["forward"] = _diagnose(_base_fit(data), _candidates(["slope_spring", "excitation_2x"]))
-    first = conc._conclude(slope_base, scores, confirmations, OPTIONS, alpha)
+    first = conc.conclude_first_step(slope_base, scores, confirmations, OPTIONS, alpha)
     out["backward elimination"] = dg._finish(first, slope_base, scores, list(path), OPTIONS)
     tilt = PolynomialBearing(name="tilt_force", meaning="force on the shaft tilt (a user's duplicate of k4 u')",
                              parameters=(Parameter("k_t", "N", (-1000.0, 1000.0), 0.0, "tilt stiffness"),),
@@ -695,7 +697,7 @@ def every_path(slope_data, slope_base):
     out["confounded"] = _diagnose(slope_base, _candidates(["expansion_k4"]) + [Candidate(tilt, ("k_t",))])
     per_run = _base_fit(slope_data, per_run=("q_x", "q_y"))
     one, scores, result = _one_step_path(per_run, "expansion_k4")
-    result = conc._conclude(per_run, scores, {"expansion_k4": one[0].confirmation}, OPTIONS, OPTIONS["alpha"])
+    result = conc.conclude_first_step(per_run, scores, {"expansion_k4": one[0].confirmation}, OPTIONS, OPTIONS["alpha"])
     out["sharing"] = dg._finish(result, per_run, scores, one, OPTIONS)
     data = _data(["excitation_3x"], TRUTH | {"f3_c": 0.3, "f3_s": -0.2}, seed=4)
     out["unexplained"] = _diagnose(_base_fit(data), _candidates(["cross_coupled_stiffness", "speed_damping"]))
@@ -752,7 +754,7 @@ def test_every_diagnosis_output_reads_back(every_path, path, tmp_path):
     result = every_path[path]
     files = [tmp_path / name for name in ("diagnosis.tsv", "diagnosis.md", "diagnosis.yaml")]
     dgr.write(result, *files)
-    read = dgr.read_summary(files[2])  # the writer's inverse (what report_summary reads)
+    read = dgr.read_diagnosis_summary(files[2])  # the writer's inverse (what report_summary reads)
     assert _same(read, result.summary)
     table = pd.read_csv(files[0], sep="\t")
     assert list(table.columns) == list(result.table.columns)
@@ -843,7 +845,7 @@ def test_the_forward_selection_does_not_take_a_negligible_step(monkeypatch):
     assert refused["chi2_after"] < refused["chi2_before"]
     verdict = result.table.set_index("effect").loc[refused["effect"], "verdict"]
     assert verdict.startswith("not added at step 2: negligible")
-    assert result.table.set_index("effect").loc[refused["effect"], "verdict_code"] == dg.Verdict.NEGLIGIBLE
+    assert result.table.set_index("effect").loc[refused["effect"], "verdict_code"] == dg.CandidateVerdict.NEGLIGIBLE
     assert result.status is ds.Status.UNEXPLAINED  # step 1 alone leaves a misfit it cannot call small
 
 

@@ -24,7 +24,7 @@ from test_diagnosis import OPTIONS, _base_fit, _candidates, _diagnose, _not_plai
 
 from hybridtwin.data.measurements import read_runs
 from hybridtwin.data.preprocessing import preprocess_run
-from hybridtwin.data.rig import read_answer_key, write_steady_records
+from hybridtwin.rig.rig import read_answer_key, write_steady_records
 from hybridtwin.diagnose import conclusion as conc
 from hybridtwin.diagnose import diagnosis as dg
 from hybridtwin.diagnose import diagnosis_report as dgr

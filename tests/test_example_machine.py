@@ -85,7 +85,7 @@ def test_example_data_are_the_rigs_output_from_its_config(tmp_path):
     """data/ is what the config's rig entry writes (the rig rule's script, byte for byte): config, plan and data
     cannot drift apart."""
     from hybridtwin.model.machine import Machine
-    from hybridtwin.data.rig import RigSpec, generate, read_plan
+    from hybridtwin.rig.rig import RigSpec, generate, read_plan
     from hybridtwin.model.variants import load_effects_files
 
     config = _example_config()
@@ -105,9 +105,9 @@ def test_example_data_are_the_rigs_output_from_its_config(tmp_path):
 
 
 def test_the_diagnosis_recommends_the_hidden_effect(example):
-    from hybridtwin.diagnose.diagnosis_report import read_summary
+    from hybridtwin.diagnose.diagnosis_report import read_diagnosis_summary
 
-    summary = read_summary(example / "results" / "linear" / "diagnosis.yaml")
+    summary = read_diagnosis_summary(example / "results" / "linear" / "diagnosis.yaml")
     assert HIDDEN in _truth()["effects"] and HIDDEN not in _example_config()["variants"]["linear"]["effects"]
     # the linear variant misses it by far (chi^2/dof of thousands), one effect then explains the discrepancy
     assert summary["misfit"] and summary["base_chi2_dof"] > 100

@@ -32,7 +32,7 @@ from hybridtwin.identify import lm
 from hybridtwin.identify import polish as pol
 from hybridtwin.identify import protocol
 from hybridtwin.identify import validation as val
-from hybridtwin.data.rig import RigSpec, generate, read_plan
+from hybridtwin.rig.rig import RigSpec, generate, read_plan
 
 ROOT = Path(__file__).resolve().parents[1]
 GEOMETRIC = ["centrifugal_softening", "structural_damping", "upper_housing", "lower_bearing", "unbalance",

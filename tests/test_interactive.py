@@ -39,7 +39,7 @@ from scipy import stats
 
 from example_machines import stepped_machine
 from hybridtwin.diagnose.conclusion import Diagnosis
-from hybridtwin.diagnose.diagnosis_status import VERDICT_COLOUR, Verdict
+from hybridtwin.diagnose.diagnosis_status import VERDICT_COLOUR, CandidateVerdict
 from hybridtwin.model.model import Model, campbell
 from hybridtwin.report import interactive as ia
 from hybridtwin.report import interactive_pages as pages
@@ -142,8 +142,8 @@ def diagnosis():
                           "statistic": [500.0, 20.0, 0.5], "dof": [1, 2, 1], "p_value": [1e-100, 1e-4, 0.5],
                           "predicted_chi2_dof": [1.1, 3.0, 4.0], "confirmed_chi2_dof": [1.05, np.nan, np.nan],
                           "verdict": ["add: explains the discrepancy", "not confirmed", "not significant"],
-                          "verdict_code": [Verdict.ADD.value, Verdict.NOT_CONFIRMED.value,
-                                           Verdict.NOT_SIGNIFICANT.value]})
+                          "verdict_code": [CandidateVerdict.ADD.value, CandidateVerdict.NOT_CONFIRMED.value,
+                                           CandidateVerdict.NOT_SIGNIFICANT.value]})
     return Diagnosis(table, "add slope_spring", "", {"variant": "geometric", "alpha_per_candidate": 0.01 / 3,
                                                      "base_chi2_dof": 4.2})
 
@@ -333,7 +333,7 @@ def test_diagnosis_shows_each_candidates_score_against_its_threshold(diagnosis):
     (bars,) = [t for t in fig.data if t.type == "bar"]
     assert list(bars.y) == list(table["effect"])
     np.testing.assert_allclose(bars.x, table["statistic"])
-    assert bars.marker.color[-1] == to_hex(VERDICT_COLOUR[Verdict.ADD])
+    assert bars.marker.color[-1] == to_hex(VERDICT_COLOUR[CandidateVerdict.ADD])
     (threshold,) = [t for t in fig.data if t.name == "significance threshold"]
     np.testing.assert_allclose(threshold.x, stats.chi2.isf(0.01 / 3, table["dof"]))
 

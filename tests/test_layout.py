@@ -1,9 +1,11 @@
 """The package's layout reads like the method (issue 37): one subpackage per stage, imports that run downward only.
 
-Stages, from the bottom: the shared helpers (``plots``; ``progress``, a long job's progress in its log), then model -> solvers -> offline -> data ->
-identify -> diagnose -> report, the front door (``settings``: the config's sections as typed objects, their
-defaults the schema's; then ``config``: reading and checking the config), the twin online (``online``: a built twin
-judging new records, which reads the twin's own config through ``config``) and on top the command line (``cli``). A
+Stages, from the bottom: the tables between the rules (``tables``: each declared once, with its writer and
+reader), the shared helpers (``plots``; ``progress``, a long job's progress in its log), then model -> solvers -> offline -> data -> rig ->
+identify -> diagnose -> report (``rig``, the virtual rig, writes records from a solved truth: it reads plans and
+writes records in the data stage's formats and runs the solvers, and no stage below it imports it, issue 52), the
+front door (``settings``: the config's sections as typed objects, their defaults the schema's; then ``config``:
+reading and checking the config), the twin online (``online``: a built twin judging new records, which reads the twin's own config through ``config``) and on top the command line (``cli``). A
 module may import from its own stage and from the stages below it, never from a later one; an import inside a
 function counts too (it runs back up just the same), and so does one under ``if TYPE_CHECKING:`` (an annotation that
 names a later stage's type says the code belongs to that stage: model/sensor's two tables of a solved steady state
@@ -13,12 +15,14 @@ import ast
 from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parents[1] / "src" / "hybridtwin"
-ORDER = ["plots", "progress", "model", "solvers", "offline", "data", "identify", "diagnose", "report", "settings", "config",
-         "online", "cli"]
+ORDER = ["tables", "plots", "progress", "model", "solvers", "offline", "data", "rig", "identify", "diagnose", "report", "settings",
+         "config", "online", "cli"]
+#: the stages that are packages (folders); the others are single modules
+PACKAGES = ["model", "solvers", "offline", "data", "rig", "identify", "diagnose", "report", "online", "cli"]
 
 
 def _stage(module: str) -> str:
-    """'hybridtwin.data.rig' -> 'data'; 'hybridtwin' (the package's face) -> ''."""
+    """'hybridtwin.rig.sweep' -> 'rig'; 'hybridtwin' (the package's face) -> ''."""
     parts = module.split(".")
     return parts[1] if len(parts) > 1 else ""
 
@@ -47,7 +51,7 @@ def imports(path: Path) -> list[tuple[int, str]]:
                 target = node.module or ""
             if not target.startswith("hybridtwin"):
                 continue
-            if node.module is None or target.count(".") == 1 and target.split(".")[1] in ORDER[2:9] + ["online"]:
+            if node.module is None or target.count(".") == 1 and target.split(".")[1] in PACKAGES:
                 # "from . import x" / "from ..data import rig": the names are modules of that package
                 out += [(node.lineno, f"{target}.{a.name}") for a in node.names]
             else:
@@ -59,9 +63,18 @@ def imports(path: Path) -> list[tuple[int, str]]:
 
 def test_every_module_lives_in_a_stage_folder():
     loose = sorted(p.name for p in PACKAGE.glob("*.py")) 
-    assert loose == ["__init__.py", "config.py", "plots.py", "progress.py", "settings.py"], loose
-    assert sorted(p.name for p in PACKAGE.iterdir() if p.is_dir() and p.name != "__pycache__") == sorted(
-        ["model", "solvers", "offline", "data", "identify", "diagnose", "report", "online", "cli"])
+    assert loose == ["__init__.py", "config.py", "plots.py", "progress.py", "settings.py", "tables.py"], loose
+    assert sorted(p.name for p in PACKAGE.iterdir() if p.is_dir() and p.name != "__pycache__") == sorted(PACKAGES)
+
+
+def test_the_rig_is_a_stage_of_its_own():
+    """The virtual rig (the truth solved, records written) is not in data/, which reads measurements only: its
+    modules live in rig/, and no data module imports them (issue 52)."""
+    assert not list((PACKAGE / "data").glob("rig*.py"))
+    assert {p.name for p in (PACKAGE / "rig").glob("*.py")} >= {"rig.py", "sweep.py", "base.py"}
+    wrong = [f"{path.relative_to(PACKAGE)}:{line} imports {target}" for path in sorted((PACKAGE / "data").rglob("*.py"))
+             for line, target in imports(path) if _stage(target) == "rig"]
+    assert not wrong, "data/ imports the rig:\n" + "\n".join(wrong)
 
 
 def test_imports_run_downward_only():
@@ -139,3 +152,28 @@ def test_every_module_imports():
         except Exception as err:  # noqa: BLE001 (every failure is reported)
             failed[info.name] = repr(err)
     assert not failed, failed
+
+
+def _private(name: str) -> bool:
+    return name.startswith("_") and not name.startswith("__")
+
+
+def test_no_module_imports_another_modules_private_names():
+    """A leading underscore says "this module's own": no module of the package imports such a name from another
+    (``from .x import _helper``) or reaches it through the other module (``x._helper``); a helper two modules share
+    is public in the one that owns it (issue 52). Attributes of objects (``self._cache``) are not counted."""
+    wrong = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        tree = ast.parse(path.read_text())
+        modules = set()  # names bound to a module of the package in this file
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom) and (node.level or (node.module or "").startswith("hybridtwin")):
+                wrong += [f"{path.relative_to(PACKAGE)}:{node.lineno} imports {a.name} from "
+                          f"{'.' * node.level}{node.module or ''}" for a in node.names if _private(a.name)]
+                modules |= {a.asname or a.name for a in node.names}
+            elif isinstance(node, ast.Import):
+                modules |= {a.asname or a.name for a in node.names if a.name.startswith("hybridtwin")}
+        wrong += [f"{path.relative_to(PACKAGE)}:{node.lineno} reaches {node.value.id}.{node.attr}"
+                  for node in ast.walk(tree) if isinstance(node, ast.Attribute) and _private(node.attr)
+                  and isinstance(node.value, ast.Name) and node.value.id in modules]
+    assert not wrong, "private names used outside their module:\n" + "\n".join(wrong)

@@ -217,7 +217,7 @@ def test_two_planes_see_the_overhung_disks_bearing_that_one_plane_barely_sees(tm
     from hybridtwin.data.measurements import read_runs
     from hybridtwin.data.preprocessing import preprocess_run
     from hybridtwin.identify.protocol import ProtocolOptions
-    from hybridtwin.data.rig import RigSpec, generate
+    from hybridtwin.rig.rig import RigSpec, generate
 
     config, machine = _machine()
     truth = {"k_b": 1.1e7, "c_b": 450.0}

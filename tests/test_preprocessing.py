@@ -14,7 +14,7 @@ from hybridtwin.data.preprocessing import (
     PhaseOrigin, SpeedEstimate, analyse_record, fit_phase, order_analysis, phase_aligned_residuals, phase_origin,
     preprocess_run, quantisation_sigma, waveforms,
 )
-from hybridtwin.data.rig import Imperfections, RigSpec, generate
+from hybridtwin.rig.rig import Imperfections, RigSpec, generate
 
 H = 5
 PLAN = pd.DataFrame({

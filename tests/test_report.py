@@ -19,6 +19,7 @@ import pytest
 import yaml
 from scipy import stats
 
+from hybridtwin import tables
 from hybridtwin.identify import identification as idn
 from hybridtwin.report import report
 from hybridtwin.report import drift, report_plots
@@ -329,7 +330,7 @@ def test_two_fit_runs_and_no_validation_run(synthetic, tmp_path):
     """The smallest workflow: too few runs to test a drift, no validation run; tables and figures still made."""
     per_run = _per_run({"k": np.array([4.0, 6.0])}, np.array(RPM), {"k": np.zeros(2, bool)})
     statistics = drift.drift_statistics(per_run, synthetic.parameters)
-    assert list(statistics.columns) == drift.DRIFT_COLUMNS  # the same columns whatever the number of runs
+    assert list(statistics.columns) == list(tables.DRIFT.columns)  # the same columns whatever the number of runs
     assert statistics["verdict"].tolist() == ["too few usable per-run estimates to test"]
     assert not statistics["flagged"].any()
     errors = report.error_table(synthetic.comparisons)
@@ -387,7 +388,7 @@ def three_variants():
 def test_summary_table_counts_failures_and_finds_a_recommendation_already_declared(three_variants):
     table = three_variants.table.set_index("variant")
     assert list(table.index) == ["base", "base_slope", "other"]  # config order, as the ledger
-    assert list(three_variants.table.columns) == summary.SUMMARY_COLUMNS
+    assert list(three_variants.table.columns) == list(tables.SUMMARY.columns)
     assert table.loc["base", "chi2_dof"] == pytest.approx(114.0)
     assert (table.loc["base", "fit_runs"], table.loc["base", "fit_runs_beyond_noise"]) == (3, 2)
     assert (table.loc["base", "validation_runs"], table.loc["base", "validation_runs_beyond_noise"]) == (1, 1)
@@ -513,7 +514,7 @@ def test_first_page_says_what_the_best_variants_estimates_assume(three_variants)
     widest first; one widened less is not named; none widened, no line."""
     from docutils.core import publish_parts
 
-    from hybridtwin.diagnose.diagnosis_report import read_summary, write_summary
+    from hybridtwin.diagnose.diagnosis_report import read_diagnosis_summary, write_diagnosis_summary
 
     rows = [{"parameter": "k_b", "estimate": 2411.6, "own_low": 2410.7, "own_high": 2412.5, "low": 2410.6,
              "high": 2412.6, "widened_by": "lower_bearing_compliance"},  # 11 % wider: not named
@@ -525,8 +526,8 @@ def test_first_page_says_what_the_best_variants_estimates_assume(three_variants)
     from pathlib import Path
 
     with tempfile.TemporaryDirectory() as tmp:
-        write_summary({"intervals_over_candidates": rows}, Path(tmp) / "diagnosis.yaml")
-        diagnosis = read_summary(Path(tmp) / "diagnosis.yaml")
+        write_diagnosis_summary({"intervals_over_candidates": rows}, Path(tmp) / "diagnosis.yaml")
+        diagnosis = read_diagnosis_summary(Path(tmp) / "diagnosis.yaml")
     line = summary.assumptions_line("base_slope", diagnosis)
     page = summary.landing_rst(three_variants.table, three_variants.errors, assumptions=line)
     html = publish_parts(page, writer="html", settings_overrides={"halt_level": 2})["html_body"]

@@ -19,7 +19,7 @@ from hybridtwin.cli import main
 from hybridtwin.model.machine import Machine
 from hybridtwin.data.measurements import DataWarning, read_runs
 from hybridtwin.data.records import detect_saturation, read_record
-from hybridtwin.data.rig import (
+from hybridtwin.rig.rig import (
     DEFAULT_TRUTH, Imperfections, RigError, RigSpec, RigWarning, Truth, generate, harmonics_of, read_plan,
     write_steady_records,
 )

@@ -1,4 +1,4 @@
-"""The virtual rig's run-ups and coast-downs (hybridtwin.data.rig_sweep): records by time integration along a speed
+"""The virtual rig's run-ups and coast-downs (hybridtwin.rig.sweep): records by time integration along a speed
 profile with every nuisance, the answer key, and bad specifications."""
 
 import math
@@ -9,7 +9,7 @@ import pytest
 import yaml
 
 from hybridtwin.data.measurements import DataError
-from hybridtwin.data.rig import Imperfections, RigError, RigSpec, Truth, generate, read_plan
+from hybridtwin.rig.rig import Imperfections, RigError, RigSpec, Truth, generate, read_plan
 from hybridtwin.model.sensor import pair_dofs
 from hybridtwin.solvers.solver import solve
 
@@ -189,7 +189,7 @@ def test_a_start_that_stalls_above_the_settle_tolerance_is_settled_again_and_sai
     """Where the start's harmonics stall above the settle tolerance (measured: a 0 g run-up from 100 RPM of a
     truth with a cross-coupled stiffness, 1.2e-6-3e-6 for 80 periods), the rig settles again to
     START_TOLERANCE_RETRY and says so in the answer key; a start that diverges is not retried but named."""
-    from hybridtwin.data import rig_sweep
+    from hybridtwin.rig import sweep as rig_sweep
     from hybridtwin.solvers.transient import NotSettledError
 
     real = rig_sweep.integrate_sweep

@@ -20,7 +20,7 @@ from hybridtwin.solvers import transient as tr
 from hybridtwin.cli import main
 from hybridtwin.data.measurements import read_runs
 from hybridtwin.data.records import read_record
-from hybridtwin.data.rig import (
+from hybridtwin.rig.rig import (
     TIME_UNIQUE_TOLERANCE, Imperfections, RigError, RigSpec, Truth, generate,
 )
 from hybridtwin.model.sensor import sensor_dofs

@@ -17,6 +17,7 @@ from hybridtwin.report import report
 from hybridtwin.offline import snapshots
 from hybridtwin.offline.library import Library
 from hybridtwin.offline.pod import load_pod, pod_of_runs
+from hybridtwin import tables
 from hybridtwin.identify.run_fits import write_fit, write_run_fit
 from hybridtwin.offline.scenarios import RunSolutions
 from hybridtwin.model.shaft import Shaft
@@ -207,7 +208,9 @@ def test_a_snapshot_store_from_before_the_stability_check_is_refused(tmp_path):
 
 
 def test_the_store_of_a_run_that_was_not_fitted_has_a_manifest_too(tmp_path):
-    result = SimpleNamespace(parameters=pd.DataFrame({"parameter": ["k_b"]}), history=pd.DataFrame(), fit=None,
+    # the history of a run not fitted as run_fits makes it: empty, with the table layer's columns (issue 52)
+    history = pd.DataFrame(columns=tables.HISTORY.columns)
+    result = SimpleNamespace(parameters=pd.DataFrame({"parameter": ["k_b"]}), history=history, fit=None,
                              run="r500", data=SimpleNamespace(note="no 1X above the noise"))
     write_run_fit(result, tmp_path / "parameters.tsv", tmp_path / "history.tsv", str(tmp_path / "fit.zarr"))
     check_store(tmp_path / "fit.zarr", "fit store")

@@ -9,7 +9,7 @@ from scipy.integrate import solve_ivp
 
 from hybridtwin.model.effect_base import Effect
 from hybridtwin.model.model import Model
-from hybridtwin.data.rig import Truth
+from hybridtwin.rig.rig import Truth
 from hybridtwin.model.sensor import sensor_dofs
 from hybridtwin.solvers.solver import solve
 from hybridtwin.solvers.sweep import SpeedProfile, SpeedSystem, integrate_sweep, order_vectors

@@ -9,6 +9,7 @@ import pandas as pd
 import pytest
 
 from swept_signals import Response, Sweep, swept_record
+from hybridtwin import tables
 from hybridtwin.data.order_tracking import order_vector, speed_profile, track_orders
 from hybridtwin.report import transient_plots as tp
 from hybridtwin.report.response_plots import columns as dense_columns
@@ -44,7 +45,7 @@ def test_points_are_the_order_tables_vectors_and_z_is_the_residual_over_sigma(tr
     _, orders, bands = tracked
     model = _true_model(orders)
     table = tp.points(orders, model, tp.probe_matrix(["x", "y"], None, "model"), RECORD_ROW, bands, "model")
-    assert list(table.columns) == tp.POINT_COLUMNS
+    assert list(table.columns) == list(tables.TRANSIENT.columns)
     assert len(table) == len(orders) * 3 * 2
     for h in (1, 2, 3):
         for j, c in enumerate(("x", "y")):

@@ -20,7 +20,7 @@ from hybridtwin import config as cfg
 from hybridtwin.data.measurements import DataError, read_runs
 from hybridtwin.data.preprocessing import preprocess_run
 from hybridtwin.data.record_columns import harmonic_column
-from hybridtwin.data.rig import DEFAULT_TRUTH, Imperfections, RigSpec, Truth, generate, solve_truth
+from hybridtwin.rig.rig import DEFAULT_TRUTH, Imperfections, RigSpec, Truth, generate, solve_truth
 from hybridtwin.identify import identification as idn
 from hybridtwin.identify.run_fits import fit_joint, fit_run, refuse_angle_on_library
 from hybridtwin.model.effects import builtin_effects, trial_mass_values

@@ -3,8 +3,8 @@
 The package reads like the method, a subpackage per stage, each importing only from the stages before it:
 ``model`` (shaft, machine, effects, variants, sensors) -> ``solvers`` (harmonic balance, continuation, stability,
 time integration) -> ``offline`` (scenarios, snapshots, POD, sPGD libraries) -> ``data`` (records, checks, order
-analysis, the virtual rig) -> ``identify`` -> ``diagnose`` -> ``report``; ``config`` (the workflow's settings) and
-``cli`` (the ``hybridtwin`` command) on top. The names a user's script needs are importable from here."""
+analysis) -> ``rig`` (the virtual rig) -> ``identify`` -> ``diagnose`` -> ``report``; ``config`` (the workflow's
+settings) and ``cli`` (the ``hybridtwin`` command) on top. The names a user's script needs are importable from here."""
 
 from .model.effect_base import Context, Effect, Parameter, Params, PolynomialBearing, Term
 from .model.effects import builtin_effects

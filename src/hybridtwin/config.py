@@ -555,7 +555,7 @@ def _schema_problems(config: Mapping, schema: Mapping) -> Iterable[Problem]:
 def _name_problems(config: Mapping, config_dir: Path) -> Iterable[Problem]:
     from .model.candidates import candidates_for
     from .model.effects import builtin_effects
-    from .data.rig import RigSpec
+    from .rig.rig import RigSpec
 
     runs = config.get("runs")
     if runs is not None and not Path(runs).is_file():

@@ -2,7 +2,7 @@
 
     OMP_NUM_THREADS=1 python tests/rig_cases/rebuild.py [CASE ...]
 
-Each case is a data set of the virtual rig (``hybridtwin.data.rig.generate``) whose truth is solved by time
+Each case is a data set of the virtual rig (``hybridtwin.rig.rig.generate``) whose truth is solved by time
 integration of the equations of motion (``integrator: time``: no harmonic-balance code), with every nuisance of
 the bundled data's rig (data/default/truth.yaml: speed error, noise, offsets, random phase, clipping): four steady
 runs, two unbalance masses, 500-850 RPM. Only the answer key is kept (runs.tsv, truth.tsv, truth.yaml: a few kB);
@@ -19,7 +19,7 @@ from pathlib import Path
 import pandas as pd
 import yaml
 
-from hybridtwin.data.rig import RigSpec, generate
+from hybridtwin.rig.rig import RigSpec, generate
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[1]

@@ -26,13 +26,15 @@ from ..model.sensor import pair_dofs, sensor_harmonics, sensor_names
 from ..solvers.continuation import solve_sweep
 from ..solvers.solver import SteadyState, solve
 from ..model.variants import Variant
+from ..tables import part_column
 
 from .assess import add_assess_command
 from .docs_images import add_docs_images_command
 from .check_data import add_check_data_command
 from .common import (
-    MAX_SAMPLES, RUN_UP_FROM_RPM, RUNDOWN_FACTOR, RUNDOWN_MARGIN_RPM, SAME_BRANCH_RTOL, UsageError, _positive_int,
-    _non_negative, _number, _parameter, _Parser, _positive, _version, build_variant, check_writable, chosen_variant,
+    MAX_SAMPLES, RUN_UP_FROM_RPM, RUNDOWN_FACTOR, RUNDOWN_MARGIN_RPM, SAME_BRANCH_RTOL, UsageError, positive_int_arg,
+    non_negative_arg, number_arg, parameter_setting, CommandParser, positive_arg, package_version, build_variant,
+    check_writable, chosen_variant,
     config_file, load_catalog, own_machine, variant_values,
 )
 from .machine import add_machine_commands
@@ -45,7 +47,7 @@ ZERO_HARMONIC_RTOL = 1e-12
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(
+    parser = CommandParser(
         prog="hybridtwin",
         description="Hybrid twins of rotating machines. Commands: simulate (one operating point), effects (the "
                     "physical effects), variants (the model variants), check-data (a runs sheet and its records), "
@@ -54,7 +56,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "against a built twin), docs-images (the README's and docs' figures from a finished run). The workflow "
                     "itself runs with `snakemake --cores 2`.",
         epilog="Run `hybridtwin COMMAND --help` for a command's options.")
-    parser.add_argument("--version", action="version", version=f"hybridtwin {_version()}")
+    parser.add_argument("--version", action="version", version=f"hybridtwin {package_version()}")
     sub = parser.add_subparsers(dest="command", required=True, title="commands", metavar="COMMAND")
 
     sim = sub.add_parser(
@@ -71,21 +73,21 @@ def build_parser() -> argparse.ArgumentParser:
                     "printed, marked.",
     )
     _common(sim)
-    sim.add_argument("--rpm", type=_positive, required=True, help="rotational speed [RPM]")
-    sim.add_argument("--eccentric-mass-g", type=_non_negative, default=None,
+    sim.add_argument("--rpm", type=positive_arg, required=True, help="rotational speed [RPM]")
+    sim.add_argument("--eccentric-mass-g", type=non_negative_arg, default=None,
                      help="eccentric (unbalance) mass [g] (default: the variant's value, 0 g nominal)")
-    sim.add_argument("--eccentric-mass-angle-deg", type=_number, default=None, metavar="DEG",
+    sim.add_argument("--eccentric-mass-angle-deg", type=number_arg, default=None, metavar="DEG",
                      help="the eccentric mass's angle at t = 0 [deg], from +x towards +y (the sense of rotation): "
                           "its force turns by it (default 0: on +x; any finite value, taken modulo 360)")
-    sim.add_argument("--set", dest="values", type=_parameter, action="append", default=[], metavar="NAME=VALUE",
+    sim.add_argument("--set", dest="values", type=parameter_setting, action="append", default=[], metavar="NAME=VALUE",
                      help="parameter value in SI units (repeatable), e.g. --set k_b=2411.3")
-    sim.add_argument("--harmonics", type=_positive_int, default=5, help="highest harmonic H (default 5)")
+    sim.add_argument("--harmonics", type=positive_int_arg, default=5, help="highest harmonic H (default 5)")
     sim.add_argument("--method", choices=("newton", "fixed-point"), default="newton",
                      help="harmonic-balance iteration (default newton)")
-    sim.add_argument("--sweep-from", type=_positive, default=None, metavar="RPM",
+    sim.add_argument("--sweep-from", type=positive_arg, default=None, metavar="RPM",
                      help="reach --rpm by continuation from this speed (run-up if lower, run-down if higher); "
                           "without it: the direct solve, and continuation only if that fails")
-    sim.add_argument("--sweep-step", type=_positive, default=25.0, metavar="RPM",
+    sim.add_argument("--sweep-step", type=positive_arg, default=25.0, metavar="RPM",
                      help="speed step of the continuation (default 25 RPM)")
     sim.add_argument("--polar", action="store_true",
                      help="print harmonic,x_amplitude_0pk_um,x_phase_deg,y_amplitude_0pk_um,y_phase_deg: "
@@ -102,8 +104,8 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--output", type=Path, default=None, help="write the harmonics CSV here instead of stdout")
     sim.add_argument("--time-series", type=Path, default=None, metavar="CSV",
                      help="also write time_s,x_m,y_m at the sensor over --cycles revolutions")
-    sim.add_argument("--dt", type=_positive, default=5e-4, help="time step of --time-series [s] (default 5e-4)")
-    sim.add_argument("--cycles", type=_positive, default=2.0, help="revolutions in --time-series (default 2)")
+    sim.add_argument("--dt", type=positive_arg, default=5e-4, help="time step of --time-series [s] (default 5e-4)")
+    sim.add_argument("--cycles", type=positive_arg, default=2.0, help="revolutions in --time-series (default 2)")
 
     eff = sub.add_parser(
         "effects", help="list the physical effects (built in and your own) with their parameters",
@@ -223,7 +225,7 @@ def _harmonics_table(result: SteadyState, machine, node: int | str, polar: bool)
             table[f"{name}_amplitude_0pk_um"] = np.abs(Z[:, j]) * 1e6
             table[f"{name}_phase_deg"] = _phase_deg(Z[:, j], np.abs(Z).max())
         else:
-            table[f"{name}_re_m"], table[f"{name}_im_m"] = Z[:, j].real, Z[:, j].imag
+            table[part_column(name, "re")], table[part_column(name, "im")] = Z[:, j].real, Z[:, j].imag
     return table
 
 

@@ -9,7 +9,8 @@ import sys
 import time
 from pathlib import Path
 
-from .common import _non_negative, _number, _positive
+from ..identify.uncertainty import ALPHA
+from .common import non_negative_arg, number_arg, positive_arg
 
 
 def add_assess_command(sub) -> None:
@@ -27,21 +28,21 @@ def add_assess_command(sub) -> None:
                     "not be assessed (named with its problem; the others are assessed), 2 on bad options.")
     parser.add_argument("record", type=Path, help="a record (CSV) or a runs sheet (TSV) of records")
     parser.add_argument("--twin", type=Path, required=True, help="the twin's folder, results/<variant> of a project")
-    parser.add_argument("--rpm", type=_positive, default=None, help="a steady record's nominal speed [RPM]")
-    parser.add_argument("--eccentric-mass-g", type=_non_negative, default=None,
+    parser.add_argument("--rpm", type=positive_arg, default=None, help="a steady record's nominal speed [RPM]")
+    parser.add_argument("--eccentric-mass-g", type=non_negative_arg, default=None,
                         help="the record's eccentric (unbalance) mass [g] (a single record)")
-    parser.add_argument("--eccentric-mass-angle-deg", type=_number, default=None, metavar="DEG",
+    parser.add_argument("--eccentric-mass-angle-deg", type=number_arg, default=None, metavar="DEG",
                         help="the trial mass's angle at the keyphasor mark [deg], from +x towards +y, the sense of "
                              "rotation (a single record; default 0; a runs sheet's column eccentric_mass_angle_deg)")
     parser.add_argument("--kind", choices=("steady", "runup", "coastdown"), default="steady",
                         help="a single record's kind (default steady)")
-    parser.add_argument("--rpm-start", type=_positive, default=None, help="a run-up's or coast-down's nominal start")
-    parser.add_argument("--rpm-end", type=_positive, default=None, help="... and end [RPM]")
+    parser.add_argument("--rpm-start", type=positive_arg, default=None, help="a run-up's or coast-down's nominal start")
+    parser.add_argument("--rpm-end", type=positive_arg, default=None, help="... and end [RPM]")
     parser.add_argument("--run", default=None, help="a single record's id (default: its file name's stem)")
     parser.add_argument("--timestamp", default=None,
                         help="a single record's time (ISO 8601; default: the file's modification time)")
-    parser.add_argument("--alpha", type=_positive, default=None,
-                        help="the level of the tests (default 0.01: beyond the noise at p < 0.01)")
+    parser.add_argument("--alpha", type=positive_arg, default=None,
+                        help=f"the level of the tests (default {ALPHA:g}: beyond the noise at p < {ALPHA:g})")
     parser.add_argument("--out", type=Path, default=None,
                         help="where the assessments and the trend go (default assessments/<variant>)")
     parser.add_argument("--no-figure", action="store_true", help="no figures (faster)")

@@ -37,14 +37,14 @@ class UsageError(Exception):
     """Bad input from the user: printed as one clear line, exit status 2."""
 
 
-class _Parser(argparse.ArgumentParser):
+class CommandParser(argparse.ArgumentParser):
     """argparse with its errors on one line (no usage block before them), exit status 2."""
 
     def error(self, message: str):
         self.exit(2, f"{self.prog}: error: {message} (see `{self.prog} --help`)\n")
 
 
-def _version() -> str:
+def package_version() -> str:
     try:
         return metadata.version("hybridtwin")
     except metadata.PackageNotFoundError:
@@ -53,14 +53,14 @@ def _version() -> str:
 
 
 
-def _parameter(text: str) -> tuple[str, float]:
+def parameter_setting(text: str) -> tuple[str, float]:
     name, sep, value = text.partition("=")
     if not sep or not name.strip():
         raise argparse.ArgumentTypeError(f"expected NAME=VALUE (e.g. k_b=2411.3), got {text!r}")
-    return name.strip(), _number(value, name.strip())
+    return name.strip(), number_arg(value, name.strip())
 
 
-def _number(text: str, name: str = "") -> float:
+def number_arg(text: str, name: str = "") -> float:
     """A finite float, or an argparse error (naming the parameter ``name`` when given)."""
     what = f"value of {name} is " if name else ""
     try:
@@ -72,21 +72,21 @@ def _number(text: str, name: str = "") -> float:
     return value
 
 
-def _positive(text: str) -> float:
-    value = _number(text)
+def positive_arg(text: str) -> float:
+    value = number_arg(text)
     if not value > 0:
         raise argparse.ArgumentTypeError(f"must be positive, got {text}")
     return value
 
 
-def _non_negative(text: str) -> float:
-    value = _number(text)
+def non_negative_arg(text: str) -> float:
+    value = number_arg(text)
     if value < 0:
         raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
     return value
 
 
-def _positive_int(text: str) -> int:
+def positive_int_arg(text: str) -> int:
     """An argparse type: an integer >= 1 (harmonics, speeds, modes)."""
     try:
         value = int(text)

@@ -28,15 +28,16 @@ import numpy as np
 import pandas as pd
 from threadpoolctl import threadpool_limits
 
-from .common import (UsageError, _positive_int, _non_negative, _parameter, _positive, chosen_variant, config_file,
-                     config_machine, read_config, variant_values)
+from ..tables import MACHINE_VIEW
+from .common import (UsageError, positive_int_arg, non_negative_arg, parameter_setting, positive_arg, chosen_variant,
+                     config_file, config_machine, read_config, variant_values)
 
 # the report's modules (matplotlib, the solvers) are imported by the commands that use them, not by every command
 # line: `hybridtwin simulate` starts as fast as before
 
 #: the columns read back as text (the rest are numbers, ``pair`` and ``meets`` True/False, ``stable``
 #: True/False/NaN)
-TEXT_COLUMNS = ("whirl", "sweep", "channel")
+TEXT_COLUMNS = MACHINE_VIEW.text
 BOOLEAN_COLUMNS = ("pair", "meets")
 
 
@@ -44,16 +45,14 @@ def write_table(table: pd.DataFrame, path: Path) -> None:
     """A table as TSV, every float as its shortest exact repr (``0.0``, ``1e-05``: a float stays a float, to the
     last bit), so that ``read_table`` is its exact inverse, values and types."""
     try:
-        table.to_csv(path, sep="\t", index=False, float_format=lambda v: repr(float(v)))
+        MACHINE_VIEW.write(table, path)
     except OSError as err:
         raise UsageError(f"{path}: cannot write: {err.strerror or err}") from None
 
 
 def read_table(path) -> pd.DataFrame:
     """A table ``write_table`` wrote, the same values and types (text columns as text, True/False as booleans)."""
-    header = pd.read_csv(path, sep="\t", nrows=0).columns
-    table = pd.read_csv(path, sep="\t", dtype={c: str for c in header if c in TEXT_COLUMNS}, keep_default_na=False,
-                        na_values={c: ["", "nan", "NaN"] for c in header if c not in TEXT_COLUMNS})
+    table = MACHINE_VIEW.read(path)
     for c in BOOLEAN_COLUMNS:
         if c in table:
             table[c] = table[c].map({True: True, False: False, "True": True, "False": False}).astype(bool)
@@ -87,8 +86,8 @@ def add_machine_commands(sub, common) -> None:
                     "prints the critical speeds.")
     _model_options(parser, common)
     _speed_range(parser)
-    parser.add_argument("--speeds", type=_positive_int, default=121, help="number of speeds (default 121)")
-    parser.add_argument("--modes", type=_positive_int, default=6, help="lowest modes followed (default 6)")
+    parser.add_argument("--speeds", type=positive_int_arg, default=121, help="number of speeds (default 121)")
+    parser.add_argument("--modes", type=positive_int_arg, default=6, help="lowest modes followed (default 6)")
     parser.set_defaults(handler=_single_threaded(campbell_command))
 
     parser = sub.add_parser(
@@ -98,8 +97,8 @@ def add_machine_commands(sub, common) -> None:
                     "ellipse's semi-major axis, largest +1). Writes modes.tsv, mode_shapes.tsv (z_m, one column "
                     "per mode) and mode_shapes.png to --out; prints the modes.")
     _model_options(parser, common)
-    parser.add_argument("--rpm", type=_non_negative, default=0.0, help="speed [RPM] (default 0)")
-    parser.add_argument("--modes", type=_positive_int, default=4, help="modes drawn (default 4)")
+    parser.add_argument("--rpm", type=non_negative_arg, default=0.0, help="speed [RPM] (default 0)")
+    parser.add_argument("--modes", type=positive_int_arg, default=4, help="modes drawn (default 4)")
     parser.set_defaults(handler=_single_threaded(modes_command))
 
     parser = sub.add_parser(
@@ -112,11 +111,11 @@ def add_machine_commands(sub, common) -> None:
                     "polar.png to --out; prints the peaks.")
     _model_options(parser, common)
     _speed_range(parser)
-    parser.add_argument("--eccentric-mass-g", type=_non_negative, required=True,
+    parser.add_argument("--eccentric-mass-g", type=non_negative_arg, required=True,
                         help="the unbalance: eccentric mass [g] at radius r_me on the unbalance plane")
-    parser.add_argument("--speeds", type=_positive_int, default=121,
+    parser.add_argument("--speeds", type=positive_int_arg, default=121,
                         help="evenly spaced speeds (default 121), besides those refined at each critical speed")
-    parser.add_argument("--harmonics", type=_positive_int, default=None,
+    parser.add_argument("--harmonics", type=positive_int_arg, default=None,
                         help="highest harmonic H (default 1 for a linear model, 3 for a nonlinear one)")
     parser.set_defaults(handler=_single_threaded(response_command))
 
@@ -150,7 +149,8 @@ def _single_threaded(command):
 
 def _model_options(parser: argparse.ArgumentParser, common) -> None:
     common(parser)
-    parser.add_argument("--set", dest="values", type=_parameter, action="append", default=[], metavar="NAME=VALUE",
+    parser.add_argument("--set", dest="values", type=parameter_setting, action="append", default=[],
+                        metavar="NAME=VALUE",
                         help="parameter value in SI units (repeatable), e.g. --set k_a=2.5e7 (default: nominal)")
     parser.add_argument("--out", type=Path, default=None,
                         help="output folder (made if missing; default results/machine/<variant>/ in the project "
@@ -158,11 +158,11 @@ def _model_options(parser: argparse.ArgumentParser, common) -> None:
 
 
 def _speed_range(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--rpm", type=_non_negative, nargs=2, metavar=("LOW", "HIGH"), default=None,
+    parser.add_argument("--rpm", type=non_negative_arg, nargs=2, metavar=("LOW", "HIGH"), default=None,
                         help="speed range [RPM] (default 0 to 1.25 times the top of --operating-range, else 0 to "
                              "1.25 times the fastest run of the config's runs sheet, as the report's Campbell "
                              "diagram)")
-    parser.add_argument("--operating-range", type=_positive, nargs=2, metavar=("MIN", "MAX"), default=None,
+    parser.add_argument("--operating-range", type=positive_arg, nargs=2, metavar=("MIN", "MAX"), default=None,
                         help="the machine's operating speed range [RPM]: each critical speed's separation margin "
                              "from it")
 

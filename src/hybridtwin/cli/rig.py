@@ -1,5 +1,5 @@
 """``hybridtwin rig``: the virtual rig's data set from the command line (docs/model.md, "The rig and its measured
-runs"). The rig itself is the data stage's (``hybridtwin.data.rig``); this is the command line around it."""
+runs"). The rig itself is the data stage's (``hybridtwin.rig.rig``); this is the command line around it."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from pathlib import Path
 import pandas as pd
 
 from ..data.measurements import DataError
-from ..data.rig import (
+from ..rig.rig import (
     INTEGRATORS, UNIT_SCALES, Imperfections, RigError, RigSpec, RigWarning, Truth, generate, load_spec, peak_columns,
     read_plan,
 )

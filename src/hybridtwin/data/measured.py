@@ -20,6 +20,7 @@ from .preprocessing import harmonic_column, origin_share, table_channels
 from .record_columns import highest_harmonic
 from .slow_roll import RUNOUT_HARMONICS, runout_sigma_column
 from ..model.sensor import DEFAULT_CHANNELS
+from ..tables import HARMONICS, HARMONICS_FLAGS, flags  # noqa: F401 (re-exported: read one way everywhere)
 
 Array = np.ndarray
 
@@ -65,31 +66,16 @@ class RunData:
         return self.X.shape[0]
 
 
-#: the true/false columns of a harmonics table (results/data/harmonics.tsv, a run's results/data/runs/{run}/
-#: harmonics.tsv, a record's bands.tsv), read one way (``flags``): a column a table lacks stays absent
-HARMONICS_FLAGS = ("usable", "keyphasor", "flat", "saturated", "slowroll_compensated")
-
-
-def flags(column: pd.Series) -> pd.Series:
-    """A true/false column as written (True/False, true/false, 1/0, in any case; empty or NaN: false) as bool."""
-    return column.map(lambda v: str(v).strip().lower() in ("true", "1", "1.0")).astype(bool)
-
-
 def write_harmonics(table: pd.DataFrame, path: str | Path) -> None:
     """A harmonics table (the preprocessing's per-run table, a record's bands, results/data/harmonics.tsv) as TSV
     with enough digits for metres: ``read_harmonics`` reads it back."""
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    table.to_csv(path, sep="\t", index=False, float_format="%.9e")
+    HARMONICS.write(table, path)
 
 
 def read_harmonics(path: str | Path) -> pd.DataFrame:
     """A harmonics table written by ``write_harmonics`` (results/data/harmonics.tsv): run ids as strings, the
     true/false columns (``HARMONICS_FLAGS``) as bool, the rest as pandas reads it."""
-    table = pd.read_csv(path, sep="\t", dtype={"run": str})
-    for column in HARMONICS_FLAGS:
-        if column in table:
-            table[column] = flags(table[column])
-    return table
+    return HARMONICS.read(path)
 
 
 def kept_out(table: pd.DataFrame) -> pd.DataFrame:

@@ -58,8 +58,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .record_columns import harmonic_column as _harmonic_column
+from .record_columns import harmonic_column
 from ..solvers.solver import DEFAULT_HARMONICS  # the order vectors' default highest harmonic (the steady analysis's)
+from ..tables import ORDERS
 from scipy.interpolate import PchipInterpolator
 
 Array = np.ndarray
@@ -251,7 +252,7 @@ def speed_profile(record, direction: str | None = None, min_revolutions: int = M
 
 def order_columns(channels, harmonics: int = DEFAULT_HARMONICS) -> list[str]:
     """The columns of an order table (module docstring) for these channel names."""
-    from_steady = _harmonic_column
+    from_steady = harmonic_column
     out = ["t_start_s", "t_end_s", "rpm", "rpm_start", "rpm_end", "n_rev", "n_samples"]
     for c in channels:
         out += [f"noise_{c}_m", f"noise_ratio_{c}", f"unresolved_{c}", f"offset_{c}_m", f"drift_{c}_m"]
@@ -333,9 +334,9 @@ def order_vectors(time_s: Array, channels: Mapping[str, Array], profile: SpeedPr
                 A, B = coef[2 * h, i], coef[2 * h + 1, i]
                 U = complex(A, -B)
                 var = s2[i] * 0.5 * (diag[2 * h] + diag[2 * h + 1]) + 0.5 * (jitter[i, 2 * h] + jitter[i, 2 * h + 1])
-                row[_harmonic_column(c, h, "re")], row[_harmonic_column(c, h, "im")] = U.real, U.imag
-                row[_harmonic_column(c, h, "amp")] = abs(U)
-                row[_harmonic_column(c, h, "sigma")] = float(np.sqrt(var))
+                row[harmonic_column(c, h, "re")], row[harmonic_column(c, h, "im")] = U.real, U.imag
+                row[harmonic_column(c, h, "amp")] = abs(U)
+                row[harmonic_column(c, h, "sigma")] = float(np.sqrt(var))
         rows.append(row)
     table = pd.DataFrame(rows, columns=order_columns(names, harmonics))
     left_out = (profile.marks_s[-1] - bounds[-1]) + (profile.marks_s[0] - t[0]) + (t[-1] - profile.marks_s[-1])
@@ -373,8 +374,8 @@ def _jitter_variance(t: Array, X: Array, coef: Array, inverse: Array, profile: S
 
 def order_vector(table: pd.DataFrame, channel: str, h: int) -> tuple[Array, Array]:
     """(U_h complex (W,), sigma per part (W,)) of one channel and harmonic from an order table."""
-    re, im = table[_harmonic_column(channel, h, "re")], table[_harmonic_column(channel, h, "im")]
-    return re.to_numpy(float) + 1j * im.to_numpy(float), table[_harmonic_column(channel, h, "sigma")].to_numpy(float)
+    re, im = table[harmonic_column(channel, h, "re")], table[harmonic_column(channel, h, "im")]
+    return re.to_numpy(float) + 1j * im.to_numpy(float), table[harmonic_column(channel, h, "sigma")].to_numpy(float)
 
 
 def table_channels(table: pd.DataFrame) -> list[str]:
@@ -387,14 +388,12 @@ def table_channels(table: pd.DataFrame) -> list[str]:
 
 def write_orders(table: pd.DataFrame, path: str | Path) -> None:
     """An order table as TSV (every float to its shortest exact repr; ``read_orders`` reads it back exactly)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    table.to_csv(path, sep="\t", index=False, lineterminator="\n")
+    ORDERS.write(table, path)
 
 
 def read_orders(path: str | Path) -> pd.DataFrame:
     """An order table written by ``write_orders``: the same columns, values and dtypes (bool flags, int counts)."""
-    table = pd.read_csv(path, sep="\t", engine="python")  # the python parser reads floats exactly
+    table = ORDERS.read(path, engine="python")  # the python parser reads floats exactly
     for c in table.columns:
         if c.startswith("unresolved_"):
             table[c] = table[c].astype(bool)

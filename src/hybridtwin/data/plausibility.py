@@ -62,7 +62,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .measurements import DataError, DataWarning, _format
+from .text_table import DataError, DataWarning, problems_message
 from .records import UNITS, Record, Sensor
 from .record_columns import listed
 from ..solvers.solver import DEFAULT_HARMONICS
@@ -165,7 +165,7 @@ def check_magnitudes(record: Record, sensor: Sensor) -> None:
                             "check-data --sensor-range-mm)")
     problems += duplicated_channels(record, sensor)
     if problems:
-        raise DataError(_format(record.path, problems))
+        raise DataError(problems_message(record.path, problems))
 
 
 @dataclass(frozen=True)

@@ -71,6 +71,7 @@ from .records import (MIN_REVOLUTIONS, SENSOR_RANGE_MM, SENSOR_RESOLUTION_MM, Re
 from .run_kinds import is_transient_row
 from ..model.sensor import DEFAULT_CHANNELS
 from ..solvers.solver import DEFAULT_HARMONICS
+from ..tables import MEASURED
 from .transient import summary_row, track_record
 
 Array = np.ndarray
@@ -592,8 +593,7 @@ def phase_aligned_residuals(measured: Array, sigma: Array, model: Array) -> tupl
 
 def write_tsv(table: pd.DataFrame, path: str | Path) -> None:
     """TSV with enough digits for metres (the format of every preprocessing output); ``read_tsv`` reads it."""
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    table.to_csv(path, sep="\t", index=False, float_format="%.9e")
+    MEASURED.write(table, path)
 
 
 def read_tsv(path: str | Path) -> pd.DataFrame | None:
@@ -602,7 +602,7 @@ def read_tsv(path: str | Path) -> pd.DataFrame | None:
     (``measured.read_harmonics``)."""
     if Path(path).stat().st_size <= 1:
         return None
-    return pd.read_csv(path, sep="\t")
+    return MEASURED.read(path)
 
 
 # --- check-data: the whole data set -----------------------------------------------------

@@ -17,6 +17,8 @@ from collections.abc import Iterable, Mapping, Sequence
 import numpy as np
 import pandas as pd
 
+from ..tables import harmonic_column, harmonic_stem  # noqa: F401 (re-exported: the columns named once)
+
 Array = np.ndarray
 
 #: a time stamp further than this fraction of a step (plus the rounding of the written stamps) off the uniform
@@ -33,7 +35,7 @@ _NOT_PLAIN_NUMBERS = re.compile(r"[^0-9eE+\-., \t\n]")
 
 def fast_numeric_table(text: str, sep: str) -> tuple[pd.DataFrame, Array] | None:
     """A table every cell of which is a finite number, read at the C parser's speed: (float columns named as
-    ``measurements.read_text_table`` names them, lower case; the file line of each row), or None wherever anything
+    ``text_table.read_text_table`` names them, lower case; the file line of each row), or None wherever anything
     needs the careful reader (a quote, a blank line, a line with another number of cells, an empty, missing or
     non-numeric cell, a repeated or unnamed column): that reader then finds it and says so, with its lines.
     ``text``: the decoded file with its line ends made "\n". The C parser's numbers are ``numeric_column``'s
@@ -224,12 +226,6 @@ def listed(problem: str, lines: Array, details: Sequence[str]) -> list[str]:
 # --- the names of the harmonics table's columns, and the sheet's columns carried into it -----------------
 
 
-def harmonic_column(channel: str, h: int, part: str) -> str:
-    """The harmonics table's column of channel ``channel``, harmonic ``h``, ``part`` re, im, amp or sigma [m]:
-    x1_re_m for channel x (the VARM's), x1_1_re_m for channel x1 (an underscore when the name ends in a digit)."""
-    return f"{harmonic_stem(channel, h)}_{part}_m"
-
-
 def highest_harmonic(table, channels: Sequence[str]) -> int:
     """The highest h such that every channel has its harmonics 1..h (columns <channel><h>_re_m) in ``table``; 0
     when the first is missing."""
@@ -237,11 +233,6 @@ def highest_harmonic(table, channels: Sequence[str]) -> int:
     while channels and all(harmonic_column(c, h + 1, "re") in table for c in channels):
         h += 1
     return h
-
-
-def harmonic_stem(channel: str, h: int) -> str:
-    """Channel ``channel``'s harmonic ``h`` in column names: x1 for channel x, x1_1 for channel x1."""
-    return f"{channel}{'_' if channel[-1:].isdigit() else ''}{h}"
 
 
 def split_stem(stem: str) -> tuple[str, int]:

@@ -3,9 +3,9 @@
 A record (CSV) holds time_s, one displacement column per sensor of the machine named after it, <sensor>_mm or
 <sensor>_m (also <sensor>_um, <sensor>_mils) (the VARM's sensors are x and y: time_s, x_mm, y_mm), and an optional
 keyphasor column (required for a runup or coastdown: ``run_kinds``, ``order_tracking``). It goes through the text
-reader every file of a data set goes through (``measurements.read_text_table``: its conventions are in that
-module's docstring), and its problems are ``measurements.DataError`` (the file unusable) or findings emitted as a
-``measurements.DataWarning`` (a flat or clipped channel: ``detect_saturation``). The runs sheet that lists the
+reader every file of a data set goes through (``text_table.read_text_table``: its conventions are in that
+module's docstring), and its problems are ``text_table.DataError`` (the file unusable) or findings emitted as a
+``text_table.DataWarning`` (a flat or clipped channel: ``detect_saturation``). The runs sheet that lists the
 records is ``hybridtwin.data.measurements``'.
 
 Inside, everything is SI: ``read_record`` converts millimetres (micrometres, mils) to metres.
@@ -25,7 +25,7 @@ import pandas as pd
 
 from ..model.sensor import DEFAULT_CHANNELS, machine_order, sensor_pairs
 from .instrument_records import is_instrument_file
-from .measurements import DataError, DataWarning, _decode, _format, _require_columns, read_text_table
+from .text_table import DataError, DataWarning, decode_text, problems_message, read_text_table, require_columns
 from .record_columns import (fast_numeric_table, keyphasor_column, keyphasor_marks, numeric_column, time_problems,
                              uniform_time_base)
 
@@ -310,7 +310,7 @@ def read_record(path: str | Path, sensors=None, channels: str | Mapping | None =
         values, keyphasor, line, time_col, chosen = _clean_record(path, names) or _checked_record(path, names)
     problems = time_problems(values[time_col], line)
     if problems:
-        raise DataError(_format(path, _as_samples(problems) if instrument else problems))
+        raise DataError(problems_message(path, _as_samples(problems) if instrument else problems))
     time_s = uniform_time_base(values[time_col])  # the written stamps less their rounding and jitter
     channels = {name: values[column] * UNITS[unit] for name, (column, unit) in chosen.items()}
     readings = channels
@@ -322,7 +322,7 @@ def read_record(path: str | Path, sensors=None, channels: str | Mapping | None =
 def _clean_record(path: Path, names: Sequence[str]) -> tuple | None:
     """``read_record``'s columns from a clean all-numeric file at the C parser's speed (``fast_numeric_table``: an
     83-s record at 5 kHz in 0.24 s, 13.5 s cell by cell), or None: ``_checked_record`` then reads it or says why."""
-    fast = path.is_file() and fast_numeric_table(_decode(path, path.read_bytes()).replace("\r\n", "\n")
+    fast = path.is_file() and fast_numeric_table(decode_text(path, path.read_bytes()).replace("\r\n", "\n")
                                                  .replace("\r", "\n"), ",")
     if not fast or len(fast[0]) < 3:
         return None
@@ -362,7 +362,7 @@ def _checked_record(path: Path, names: Sequence[str]) -> tuple:
         keyphasor, found = keyphasor_column(table["keyphasor"], line)
         problems += found
     if problems:
-        raise DataError(_format(path, problems))
+        raise DataError(problems_message(path, problems))
     return values, keyphasor, line, time_col, chosen
 
 
@@ -399,7 +399,7 @@ def _instrument_record(path: Path, names: Sequence[str], channels) -> tuple:
             keyphasor, found = keyphasor_column(_as_text(levels), line)
             problems += found
     if problems:
-        raise DataError(_format(path, _as_samples(problems)))
+        raise DataError(problems_message(path, _as_samples(problems)))
     return values, keyphasor, line, time_col, chosen
 
 
@@ -481,7 +481,7 @@ def _record_columns(path: Path, columns: Sequence[str], names: Sequence[str] = D
     listed, varm = ", ".join(names), tuple(names) == DEFAULT_CHANNELS
     expected = ("time_s, x_mm and y_mm (or x_m and y_m)" if varm else
                 f"time_s and one column <sensor>_mm (or <sensor>_m) for each of the machine's sensors {listed}")
-    _require_columns(path, columns, ("time_s",), RECORD_COLUMNS, f"a record needs {expected}, optionally keyphasor")
+    require_columns(path, columns, ("time_s",), RECORD_COLUMNS, f"a record needs {expected}, optionally keyphasor")
     problems, chosen = [], {}
     own = {}
     for axis in names:  # headers are read in lower case (read_text_table): a sensor X1's column X1_mm is x1_mm

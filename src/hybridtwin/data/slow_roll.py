@@ -42,7 +42,8 @@ from collections.abc import Sequence
 import numpy as np
 import pandas as pd
 
-from .order_tracking import TrackingError, _harmonic_column, table_channels
+from .order_tracking import TrackingError, table_channels
+from .record_columns import harmonic_column
 
 #: the default band: up to the lowest window speed + this fraction of the record's speed span ...
 BAND_FRACTION = 0.10
@@ -133,9 +134,9 @@ def runout(table: pd.DataFrame, band_rpm: Sequence[float] | None = None,
                 shape = omega**2 * wn**2 / (wn**2 - (h * omega) ** 2 + 2j * zeta * wn * h * omega)
             top = shape[np.argmax(np.abs(shape))]
             X = np.column_stack([np.ones_like(shape), shape / top])  # b scaled to the band's top: b' = b g_top
-            U = (rows[_harmonic_column(channel, h, "re")].to_numpy(float)
-                 + 1j * rows[_harmonic_column(channel, h, "im")].to_numpy(float))
-            sigma = rows[_harmonic_column(channel, h, "sigma")].to_numpy(float)
+            U = (rows[harmonic_column(channel, h, "re")].to_numpy(float)
+                 + 1j * rows[harmonic_column(channel, h, "im")].to_numpy(float))
+            sigma = rows[harmonic_column(channel, h, "sigma")].to_numpy(float)
             w = 1.0 / sigma**2
             cov = np.linalg.inv(X.conj().T @ (w[:, None] * X))  # per part (X real without a mode: the same)
             a, dynamic = cov @ (X.conj().T @ (w * U))
@@ -162,11 +163,11 @@ def compensate(table: pd.DataFrame, runout_table: pd.DataFrame) -> pd.DataFrame:
     amplitude recomputed; other columns unchanged. attrs: the table's, plus ``runout`` (the runout table)."""
     out = table.copy()
     for row in runout_table.itertuples(index=False):
-        re, im = _harmonic_column(row.channel, row.harmonic, "re"), _harmonic_column(row.channel, row.harmonic, "im")
+        re, im = harmonic_column(row.channel, row.harmonic, "re"), harmonic_column(row.channel, row.harmonic, "im")
         out[re] = table[re] - row.runout_re_m
         out[im] = table[im] - row.runout_im_m
-        out[_harmonic_column(row.channel, row.harmonic, "amp")] = np.hypot(out[re], out[im])
-        sigma = _harmonic_column(row.channel, row.harmonic, "sigma")
+        out[harmonic_column(row.channel, row.harmonic, "amp")] = np.hypot(out[re], out[im])
+        sigma = harmonic_column(row.channel, row.harmonic, "sigma")
         out[sigma] = np.hypot(table[sigma], row.runout_sigma_m)
     out.attrs.update(table.attrs)
     out.attrs["runout"] = runout_table
@@ -177,7 +178,7 @@ def runout_sigma_column(channel: str, h: int) -> str:
     """The bands table's column of the runout's sigma [m] that ``compensate`` added in quadrature to channel
     ``channel``'s harmonic ``h`` (x1_runout_sigma_m): the identification models that part as one offset per record
     (``hybridtwin.identify.arrow_problem``, "runout offsets"), common to the record's bands, not as independent."""
-    return _harmonic_column(channel, h, "runout_sigma")
+    return harmonic_column(channel, h, "runout_sigma")
 
 
 def with_runout_sigma(table: pd.DataFrame, runout_table: pd.DataFrame) -> pd.DataFrame:

@@ -1,10 +1,10 @@
 """The diagnosis's result and what it concludes (``hybridtwin.diagnose.diagnosis``, step 3 of its module docstring).
 
 ``Diagnosis``: the ranked table, the conclusion, the recommendation and the forward-selection path, a ``Step`` per
-effect added. The tests a refit is judged by: confirmed (``_is_confirmed``: likelihood ratio and Delta BIC), fits to
-the noise (``_fits_the_noise``), shares of the excess chi^2 (``_excess``). Each candidate's verdict and the ranked
-table (``_conclude``, ``_table``), the first step's outcome and recommendation (``_recommend``, ``_thin_plan``: when
-the fit runs are too thin to rule an effect out), and the conclusion from the whole path (``_conclude_path``), with
+effect added. The tests a refit is judged by: confirmed (``is_confirmed``: likelihood ratio and Delta BIC), fits to
+the noise (``fits_the_noise``), shares of the excess chi^2 (``score_excess``). Each candidate's verdict and the
+ranked table (``conclude_first_step``, ``_table``), the first step's outcome and recommendation (``_recommend``,
+``_thin_plan``: when the fit runs are too thin to rule an effect out), and the conclusion from the whole path (``conclude_path``), with
 the estimates said with their intervals (``_estimate_text``). The recommended variant is written out by
 ``hybridtwin.diagnose.recommendation``.
 """
@@ -19,9 +19,10 @@ import pandas as pd
 from scipy import stats
 
 from ..model.fixed_values import is_fixed_value
-from .diagnosis_status import NEARLY_EXPLAINED, Status, Verdict, opening, plain, share_text, verdict_text
+from .diagnosis_status import (NEARLY_EXPLAINED, CandidateVerdict, Status, opening, plain, share_text,
+                               verdict_text)
 from .fingerprint import Fingerprint
-from .recommendation import _variant_name, variant_spec, what_to_do
+from .recommendation import joined_variant_name, variant_spec, what_to_do
 from .refit import Confirmation
 from .score_test import BaseFit, Scores, by_score, nested
 from ..identify.validation import spans
@@ -89,11 +90,11 @@ class Step:
                 "explained_pct": float(100 * self.share), "estimate": _estimate_text(self.confirmation)}
 
 
-def _fits_the_noise(cf: Confirmation, o: Mapping) -> bool:
+def fits_the_noise(cf: Confirmation, o: Mapping) -> bool:
     return stats.chi2.sf(cf.chi2, cf.dof) >= o["alpha"] or cf.chi2 / cf.dof <= o["misfit_ratio"]
 
 
-def _path_ranges(path: Sequence[Step]) -> dict[str, tuple[float, float]]:
+def path_ranges(path: Sequence[Step]) -> dict[str, tuple[float, float]]:
     """The ranges the path's refits ended with, every effect's parameters (widened ones as widened)."""
     return {k: v for step in path for k, v in step.confirmation.ranges.items()}
 
@@ -110,13 +111,13 @@ def _sharing_text(result: Diagnosis) -> str:
             "the estimates are from the fit with them shared, and the recommended variant shares them")
 
 
-def _excess(scores: Scores) -> float:
+def score_excess(scores: Scores) -> float:
     """chi^2 - dof, floored at one standard deviation of chi^2(dof), sqrt(2 dof): shares of an excess within
     the noise are not meaningful (a base at the noise floor would otherwise divide by ~0)."""
     return float(max(scores.base_chi2 - scores.base_dof, np.sqrt(2.0 * scores.base_dof)))
 
 
-def _is_confirmed(cf: Confirmation, o: Mapping, alpha_each: float) -> bool:
+def is_confirmed(cf: Confirmation, o: Mapping, alpha_each: float) -> bool:
     """A significant likelihood ratio and Delta BIC below the threshold. The likelihood ratio is the test of
     "absent" (beta = 0): where the effect's parameter lies in a valley with the base's own (speed damping and
     the structural damping), the linearised (Wald) interval can span 0 while the refit's chi^2 drop is
@@ -126,16 +127,16 @@ def _is_confirmed(cf: Confirmation, o: Mapping, alpha_each: float) -> bool:
     return cf.lr_p_value < alpha_each and cf.delta_bic < o["bic_threshold"] and not cf.unstable_runs
 
 
-def _conclude(base: BaseFit, scores: Scores, confirmations: Mapping[str, Confirmation], o: Mapping,
-              alpha_each: float) -> Diagnosis:
-    excess = _excess(scores)
+def conclude_first_step(base: BaseFit, scores: Scores, confirmations: Mapping[str, Confirmation], o: Mapping,
+                        alpha_each: float) -> Diagnosis:
+    excess = score_excess(scores)
     base_ratio = scores.base_chi2 / scores.base_dof
     misfit = (stats.chi2.sf(scores.base_chi2, scores.base_dof) < o["alpha"]) and base_ratio > o["misfit_ratio"]
     by_name = {s.candidate.name: s for s in scores.scores}
-    confirmed = sorted((cf for cf in confirmations.values() if _is_confirmed(cf, o, alpha_each)),
+    confirmed = sorted((cf for cf in confirmations.values() if is_confirmed(cf, o, alpha_each)),
                        key=lambda cf: cf.delta_bic)
     best = confirmed[0] if confirmed else None
-    verdicts: dict[str, tuple[Verdict, str]] = {}
+    verdicts: dict[str, tuple[CandidateVerdict, str]] = {}
     confounded: list[str] = []
     for cf in confirmed:
         name = cf.candidate.name
@@ -151,28 +152,29 @@ def _conclude(base: BaseFit, scores: Scores, confirmations: Mapping[str, Confirm
         figures = {"best": best.candidate.name, "bic": cf.delta_bic, "best_bic": best.delta_bic}
         if tie and (within_best and contains_best or (not inside and not contains_best)):
             confounded.append(name)
-            verdicts[name] = _say(Verdict.CONFOUNDED, **figures)
+            verdicts[name] = _say(CandidateVerdict.CONFOUNDED, **figures)
         elif within_best and contains_best:
-            verdicts[name] = _say(Verdict.WEAKER, **figures)
+            verdicts[name] = _say(CandidateVerdict.WEAKER, **figures)
         elif inside:
-            verdicts[name] = _say(Verdict.PART_OF, inside=inside[0])
+            verdicts[name] = _say(CandidateVerdict.PART_OF, inside=inside[0])
         elif contains_best:
-            verdicts[name] = _say(Verdict.CONTAINS, **figures)
+            verdicts[name] = _say(CandidateVerdict.CONTAINS, **figures)
         else:
-            verdicts[name] = _say(Verdict.CONFIRMED_WEAKER, **figures)
+            verdicts[name] = _say(CandidateVerdict.CONFIRMED_WEAKER, **figures)
     share = 0.0 if best is None else (scores.base_chi2 - best.chi2) / excess
     gof_after = 0.0 if best is None else stats.chi2.sf(best.chi2, best.dof)
     if best is not None:
         tied = f" (confounded with {', '.join(confounded)})" if confounded else ""
-        code = (Verdict.ADD if share >= o["explained"] or gof_after >= o["alpha"] else Verdict.ADD_PART
-                if share >= 0.5 else Verdict.EXPLAINS_ONLY_TIED if confounded else Verdict.EXPLAINS_ONLY)
+        code = (CandidateVerdict.ADD if share >= o["explained"] or gof_after >= o["alpha"]
+                else CandidateVerdict.ADD_PART if share >= 0.5
+                else CandidateVerdict.EXPLAINS_ONLY_TIED if confounded else CandidateVerdict.EXPLAINS_ONLY)
         verdicts[best.candidate.name] = _say(code, pct=100 * share, tied=tied)
     for name, cf in confirmations.items():
-        verdicts.setdefault(name, _say(Verdict.NOT_CONFIRMED_UNSTABLE, runs=", ".join(cf.unstable_runs))
-                            if cf.unstable_runs else _say(Verdict.NOT_CONFIRMED))
+        verdicts.setdefault(name, _say(CandidateVerdict.NOT_CONFIRMED_UNSTABLE, runs=", ".join(cf.unstable_runs))
+                            if cf.unstable_runs else _say(CandidateVerdict.NOT_CONFIRMED))
     for s in scores.scores:
-        verdicts.setdefault(s.candidate.name, _say(Verdict.SIGNIFICANT if s.p_value < alpha_each
-                                                   else Verdict.NOT_SIGNIFICANT))
+        verdicts.setdefault(s.candidate.name, _say(CandidateVerdict.SIGNIFICANT if s.p_value < alpha_each
+                                                   else CandidateVerdict.NOT_SIGNIFICANT))
     table = _table(scores, confirmations, verdicts, confirmed)
     status, conclusion, recommendation = _recommend(base, scores, best, confounded, share, misfit, base_ratio, o)
     summary = plain({"variant": base.variant.name, "runs": list(base.layout.runs), "n_data": scores.n_data,
@@ -182,14 +184,14 @@ def _conclude(base: BaseFit, scores: Scores, confirmations: Mapping[str, Confirm
                "candidates": [s.candidate.name for s in scores.scores], "refitted": list(confirmations),
                "status": status.value, "conclusion": conclusion, "score_seconds": scores.seconds,
                "recommended_variant": None if best is None else {
-                   "name": _variant_name([base.variant.name, best.candidate.name]),
+                   "name": joined_variant_name([base.variant.name, best.candidate.name]),
                    "spec": variant_spec(base.variant, best.candidate, best.ranges)},
                "refit_seconds": float(sum(cf.seconds for cf in confirmations.values())),
                "confounded": list(confounded)})
     return Diagnosis(table, conclusion, recommendation, summary, dict(confirmations), best, status=status)
 
 
-def _conclude_path(result: Diagnosis, base: BaseFit, scores: Scores, o: Mapping) -> None:
+def conclude_path(result: Diagnosis, base: BaseFit, scores: Scores, o: Mapping) -> None:
     """The conclusion, verdict of the first effect and recommendation from the forward-selection path: "add"
     for effects that together explain the discrepancy, or that carry nearly all of it (NEARLY_EXPLAINED of the
     excess chi^2: the small misfit left is reported as a form the candidates do not quite capture, with its
@@ -202,7 +204,7 @@ def _conclude_path(result: Diagnosis, base: BaseFit, scores: Scores, o: Mapping)
     final, share = path[-1].confirmation, path[-1].share
     # "add" only for effects that bring the fit to the noise: a large share of a huge excess can leave a misfit
     # many times the noise (an effect outside the candidates, half-mimicked by several of them)
-    explains = _fits_the_noise(final, o)
+    explains = fits_the_noise(final, o)
     nearly = not explains and share >= NEARLY_EXPLAINED
     names = [step.effect for step in path]
     first = result.table.index[result.table["effect"] == names[0]][0]
@@ -214,7 +216,7 @@ def _conclude_path(result: Diagnosis, base: BaseFit, scores: Scores, o: Mapping)
     eliminated = [e["effect"] for e in result.summary.get("eliminated", [])]
     sharing = _sharing_text(result)
     if explains and len(path) == 1 and not eliminated and not sharing:
-        return  # _conclude's verdict and recommendation stand
+        return  # conclude_first_step's verdict and recommendation stand
     dropped = (f"; {', '.join(eliminated)} dropped by backward elimination (not needed once "
                f"{' and '.join(names)} {'is' if len(names) == 1 else 'are'} in)") if eliminated else ""
     if explains or nearly:
@@ -224,7 +226,7 @@ def _conclude_path(result: Diagnosis, base: BaseFit, scores: Scores, o: Mapping)
             result.status = Status.ADD_NEARLY
             head = opening(result.status, effects=together, they="it" if len(names) == 1 else "together they",
                            share=share_text(share), after=f"{final.chi2 / final.dof:.3g}")
-            _set_verdict(result.table, first, Verdict.ADD_NEARLY, share=share_text(share),
+            set_verdict(result.table, first, CandidateVerdict.ADD_NEARLY, share=share_text(share),
                          with_=", with " + ", ".join(names[1:]) if len(names) > 1 else "")
         elif len(path) == 1 and confounded and not eliminated:  # the first step's tie stands (the sharing check only)
             result.status = Status.ADD_CONFOUNDED
@@ -233,11 +235,11 @@ def _conclude_path(result: Diagnosis, base: BaseFit, scores: Scores, o: Mapping)
                     "explains the discrepancy")
         elif len(path) == 1:
             result.status = Status.ADD
-            _set_verdict(result.table, first, Verdict.ADD)
+            set_verdict(result.table, first, CandidateVerdict.ADD)
             head = f"{opening(result.status, effects=together)}: it explains the discrepancy"
         else:
             result.status = Status.ADD
-            _set_verdict(result.table, first, Verdict.ADD_WITH, others=", ".join(names[1:]), pct=100 * share)
+            set_verdict(result.table, first, CandidateVerdict.ADD_WITH, others=", ".join(names[1:]), pct=100 * share)
             head = f"{opening(result.status, effects=together)}: together they explain the discrepancy"
         if not nearly:
             head += f" ({100 * share:.0f} % of the excess chi^2)"
@@ -245,15 +247,15 @@ def _conclude_path(result: Diagnosis, base: BaseFit, scores: Scores, o: Mapping)
                              f"{final.chi2 / final.dof:.3g} (forward selection, {steps} step{'s' if steps != 1 else ''}"
                              f"{dropped}{sharing}); {estimates}")
         candidates = [step.confirmation.candidate for step in path]
-        ranges = _path_ranges(path)
-        name = _variant_name([base.variant.name] + names)
+        ranges = path_ranges(path)
+        name = joined_variant_name([base.variant.name] + names)
         spec = variant_spec(base.variant, candidates, ranges, per_run=[] if sharing else None)
         result.recommendation = what_to_do(name, spec, o, base.variant)
         result.summary["recommended_variant"] = {"name": name, "spec": spec}
     else:
         result.status = Status.UNEXPLAINED
         left = result.summary.get("path_stopped") or "nothing significant is left among the others"
-        _set_verdict(result.table, first, Verdict.PART_OF_UNEXPLAINED, pct=100 * path[0].share)
+        set_verdict(result.table, first, CandidateVerdict.PART_OF_UNEXPLAINED, pct=100 * path[0].share)
         helps = (f"the candidate that helps most, {names[0]}, removes" if len(names) == 1 else
                  f"the candidates that help most, {', then '.join(names)}, remove")
         leave = "leaves" if len(names) == 1 else "leave"
@@ -300,21 +302,21 @@ def _digits(value: float, width: float) -> int:
     return int(min(12, max(4, np.ceil(np.log10(abs(value) / width)) + 2)))
 
 
-def _say(code: Verdict, **figures) -> tuple[Verdict, str]:
+def _say(code: CandidateVerdict, **figures) -> tuple[CandidateVerdict, str]:
     """A verdict: its code and its sentence (``verdict_text``)."""
     return code, verdict_text(code, **figures)
 
 
-def _set_verdict(table: pd.DataFrame, rows, code: Verdict, **figures) -> None:
+def set_verdict(table: pd.DataFrame, rows, code: CandidateVerdict, **figures) -> None:
     """The table's ``rows`` get verdict ``code``: its code and its sentence, side by side."""
     table.loc[rows, "verdict"] = verdict_text(code, **figures)
     table.loc[rows, "verdict_code"] = code.value
 
 
-def _table(scores: Scores, confirmations: Mapping[str, Confirmation], verdicts: Mapping[str, tuple[Verdict, str]],
-           confirmed: Sequence[Confirmation]) -> pd.DataFrame:
+def _table(scores: Scores, confirmations: Mapping[str, Confirmation],
+           verdicts: Mapping[str, tuple[CandidateVerdict, str]], confirmed: Sequence[Confirmation]) -> pd.DataFrame:
     """One row per candidate: confirmed ones first (by Delta BIC), then by score p-value."""
-    excess = _excess(scores)
+    excess = score_excess(scores)
     first = [cf.candidate.name for cf in confirmed]
     rest = [s.candidate.name for s in sorted(scores.scores, key=by_score)
             if s.candidate.name not in first]
@@ -362,7 +364,7 @@ def _recommend(base: BaseFit, scores: Scores, best: Confirmation | None, confoun
         return Status.UNEXPLAINED, (f"{opening(Status.UNEXPLAINED)}: chi^2/dof {base_ratio:.3g} is well above the "
                 "noise floor (1), and no "
                 f"candidate is confirmed (the best, {top.candidate.name}, would remove "
-                f"{100 * top.statistic / _excess(scores):.0f} % of the excess chi^2 to first order); the missing "
+                f"{100 * top.statistic / score_excess(scores):.0f} % of the excess chi^2 to first order); the missing "
                 "physics is not among the candidates: look at the residual spectrum and the error map, and add "
                 "your own candidate effects"), ""
     name = best.candidate.name
@@ -384,7 +386,7 @@ def _recommend(base: BaseFit, scores: Scores, best: Confirmation | None, confoun
                 f"{100 * share:.0f} % of the excess chi^2")
     conclusion = (f"{head}; chi^2/dof {base_ratio:.3g} -> {best.chi2 / best.dof:.3g} with it, "
                   f"Delta BIC {best.delta_bic:.1f}; {_estimate_text(best)}")
-    new_name = _variant_name([variant.name, name])
+    new_name = joined_variant_name([variant.name, name])
     recommendation = what_to_do(new_name, variant_spec(variant, best.candidate, best.ranges), o, variant)
     return status, conclusion, recommendation
 

@@ -64,10 +64,10 @@ import pandas as pd
 
 from ..model.candidates import Candidate
 from ..progress import Progress
-from .conclusion import (Diagnosis, Step, _conclude, _conclude_path, _excess, _fits_the_noise, _is_confirmed,
-                         _path_ranges, _set_verdict)
-from .diagnosis_status import Status, Verdict, interval_note, negligible_step, plain
-from .elimination import _backward, _sharing
+from .conclusion import (Diagnosis, Step, conclude_first_step, conclude_path, fits_the_noise, is_confirmed,
+                         path_ranges, score_excess, set_verdict)
+from .diagnosis_status import CandidateVerdict, Status, interval_note, negligible_step, plain
+from .elimination import backward_elimination, sharing_check
 from .fingerprint import Fingerprint, fingerprint
 from .refit import Confirmation, confirm
 from .form_intervals import FormIntervals, own_intervals
@@ -111,7 +111,7 @@ def _refit_significant(base: BaseFit, scores: Scores, o: Mapping, alpha_each: fl
     best_bic = quick[ranked[0].candidate.name].delta_bic if ranked else 0.0
     # when the best quick refit fits to the noise already, no other refit can do much better: only those that
     # may tie with it (within confounded_bic) are refitted thoroughly, not the ``thorough`` best regardless
-    settled = bool(ranked) and _fits_the_noise(quick[ranked[0].candidate.name], o)
+    settled = bool(ranked) and fits_the_noise(quick[ranked[0].candidate.name], o)
     deep = {s.candidate.name for i, s in enumerate(ranked) if (i < int(o["thorough"]) and not settled)
             or quick[s.candidate.name].delta_bic - best_bic < o["confounded_bic"]}
     # a candidate the score test ranks among the ``thorough`` best whose quick refit stopped at a range edge (its
@@ -130,7 +130,7 @@ def _refit_significant(base: BaseFit, scores: Scores, o: Mapping, alpha_each: fl
             cf = confirm(base, s, scores, int(o["max_iterations"]), starts=int(o["starts"]), widen=int(o["widen"]),
                          far=not fitted, far_misfit=s is ranked[0])
             cf.seconds += quick[name].seconds
-            fitted = fitted or _fits_the_noise(cf, o)
+            fitted = fitted or fits_the_noise(cf, o)
             progress.done(note=name)
         confirmations[name] = cf
         if log:
@@ -190,8 +190,8 @@ def diagnose(base: BaseFit, candidates: Sequence[Candidate], options: Mapping, l
                  scores.base_chi2 / scores.base_dof)
     alpha_each = o["alpha"] / len(candidates)
     confirmations = _refit_significant(base, scores, o, alpha_each, log)
-    first = _conclude(base, scores, confirmations, o, alpha_each)
-    excess = _excess(scores)
+    first = conclude_first_step(base, scores, confirmations, o, alpha_each)
+    excess = score_excess(scores)
     path: list[Step] = []
     best = first.best
     current, remaining, before = base, list(candidates), scores.base_chi2 / scores.base_dof
@@ -225,14 +225,14 @@ def diagnose(base: BaseFit, candidates: Sequence[Candidate], options: Mapping, l
             break
         refits = _refit_significant(current, step_scores, o, step_alpha, log, (chosen, quick))
         refits = {name: cf.at_scale(dispersion, raw_scores.base_dof) for name, cf in refits.items()}
-        confirmed = [cf for cf in refits.values() if _is_confirmed(cf, o, step_alpha)]
+        confirmed = [cf for cf in refits.values() if is_confirmed(cf, o, step_alpha)]
         before = best.chi2 / best.dof
         previous, best = best, min(confirmed, key=lambda cf: cf.delta_bic) if confirmed else None
         negligible = best and negligible_step(best, previous.chi2, excess)
         if negligible:  # a step too small to matter is not taken to absorb a misfit the candidates do not capture
             first.summary["negligible_step"] = plain(negligible, "summary.negligible_step")
             rows = first.table.index[first.table["effect"] == best.candidate.name]
-            _set_verdict(first.table, rows, Verdict.NEGLIGIBLE, step=len(path) + 1,
+            set_verdict(first.table, rows, CandidateVerdict.NEGLIGIBLE, step=len(path) + 1,
                          fraction=100 * negligible["estimate_fraction_of_range"], drop=negligible["share_of_excess"])
             if log:
                 log.info("forward selection stops before step %d: %s is negligible (%s)", len(path) + 1,
@@ -247,10 +247,10 @@ def diagnose(base: BaseFit, candidates: Sequence[Candidate], options: Mapping, l
 def _finish(result: Diagnosis, base: BaseFit, scores: Scores, path: list[Step], o: Mapping, log=None) -> Diagnosis:
     """After the forward selection's ``path``: backward elimination, the sharing check, the conclusion from the
     path and the residual's fingerprint."""
-    path = _backward(base, path, scores, o, result, log)
-    path = _sharing(base, path, scores, o, result, log)
+    path = backward_elimination(base, path, scores, o, result, log)
+    path = sharing_check(base, path, scores, o, result, log)
     result.path = path
-    _conclude_path(result, base, scores, o)
+    conclude_path(result, base, scores, o)
     if path:  # how far the estimates' intervals can be trusted with the misfit the path leaves
         final = path[-1].confirmation
         result.summary["intervals"] = interval_note(final.chi2, final.dof, o["alpha"])
@@ -278,7 +278,7 @@ def final_intervals(base: BaseFit, scores: Scores, path: Sequence[Step]) -> Form
         return intervals_over_candidates(scores, base.intervals)
     final = path[-1].confirmation
     added = {step.confirmation.candidate.name for step in path}
-    model = BaseFit(extend(base.variant, [step.confirmation.candidate for step in path], _path_ranges(path)),
+    model = BaseFit(extend(base.variant, [step.confirmation.candidate for step in path], path_ranges(path)),
                     final.fit.layout, final.fit.theta, base.data, base.harmonics)
     remaining = [s.candidate for s in scores.scores if s.candidate.name not in added]
     return intervals_over_candidates(score_tests(model, remaining), own_intervals(final.fit.table()))

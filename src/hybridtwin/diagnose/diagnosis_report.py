@@ -11,6 +11,7 @@ import pandas as pd
 import yaml
 from scipy import stats
 
+from .. import tables
 from .conclusion import Diagnosis
 from .diagnosis_status import Status, plain, verdict_colour
 from ..model.variants import Variant
@@ -126,7 +127,7 @@ def _intervals_markdown(intervals: dict | None) -> str:
 
 
 def _sharing_markdown(sharing: dict | None) -> str:
-    """The sharing check's outcome (``elimination._sharing``), one paragraph; empty when it did not run."""
+    """The sharing check's outcome (``elimination.sharing_check``), one paragraph; empty when it did not run."""
     if not sharing:
         return ""
     names = ", ".join(sharing["parameters"])
@@ -174,20 +175,20 @@ def write(result: Diagnosis, table_path, markdown_path, summary_path, sparse: pd
         summary = plain(result.summary)
     except TypeError as error:
         raise ValueError(f"{summary_path}: cannot write the diagnosis summary: {error}") from None
-    result.table.to_csv(table_path, sep="\t", index=False, float_format="%.6g")
+    tables.DIAGNOSIS.write(result.table, table_path)
     Path(markdown_path).write_text(markdown(result, sparse, sparse_name))
-    write_summary(summary, summary_path)
+    write_diagnosis_summary(summary, summary_path)
 
 
-def write_summary(summary: dict, path) -> None:
-    """The diagnosis summary (``diagnosis.yaml``: plain types, ``diagnosis_status.plain``); ``read_summary`` is
-    its inverse."""
+def write_diagnosis_summary(summary: dict, path) -> None:
+    """The diagnosis summary (``diagnosis.yaml``: plain types, ``diagnosis_status.plain``);
+    ``read_diagnosis_summary`` is its inverse."""
     with open(path, "w") as stream:
         yaml.safe_dump(summary, stream, sort_keys=False)
 
 
-def read_summary(path) -> dict:
-    """A summary written by ``write_summary`` (``write``): the same mapping (conclusion, status, the recommended
-    variant, ...)."""
+def read_diagnosis_summary(path) -> dict:
+    """A summary written by ``write_diagnosis_summary`` (``write``): the same mapping (conclusion, status, the
+    recommended variant, ...)."""
     with open(path) as stream:
         return dict(yaml.safe_load(stream))

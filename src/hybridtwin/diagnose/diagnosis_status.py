@@ -1,5 +1,5 @@
 """The diagnosis's overall outcome as a code (``Status``), the opening of its conclusion derived from that code,
-each candidate's verdict as a code (``Verdict``) with its sentence and colour derived from it,
+each candidate's verdict as a code (``CandidateVerdict``) with its sentence and colour derived from it,
 the rule that keeps a negligible effect out of the forward selection, and the plain types its outputs are built
 from (``plain``) (issue 36).
 
@@ -28,7 +28,7 @@ class Status(str, Enum):
     UNEXPLAINED = "unexplained"  # the misfit is real and the candidates do not explain most of it
 
 
-class Verdict(str, Enum):
+class CandidateVerdict(str, Enum):
     """One candidate's verdict in the ranked table (diagnosis.tsv's ``verdict_code``; ``verdict`` is its sentence,
     ``verdict_text``). Code that acts on a verdict (the figure's colours) reads the code, never the sentence."""
 
@@ -55,45 +55,49 @@ class Verdict(str, Enum):
 _BIC = "(Delta BIC {bic:.1f} vs {best_bic:.1f})"
 #: each verdict's sentence ({tied}: " (confounded with ...)" or empty)
 VERDICT_TEXT = {
-    Verdict.ADD: "add: explains the discrepancy{tied}",
-    Verdict.ADD_PART: "add: explains {pct:.0f} % of the excess chi^2; a discrepancy remains{tied}",
-    Verdict.ADD_WITH: "add, with {others}: together they explain the discrepancy ({pct:.0f} % of the excess chi^2)",
-    Verdict.ADD_NEARLY: "add{with_}: carries the discrepancy ({share} of the excess chi^2); a small misfit remains",
-    Verdict.EXPLAINS_ONLY: "explains only {pct:.0f} % of the excess chi^2{tied}",
-    Verdict.EXPLAINS_ONLY_TIED: "explains only {pct:.0f} % of the excess chi^2{tied}",
-    Verdict.PART_OF_UNEXPLAINED: "explains only {pct:.0f} % of the excess chi^2: part of an unexplained discrepancy",
-    Verdict.CONFOUNDED: "confounded with {best}: these data cannot tell them apart " + _BIC,
-    Verdict.WEAKER: "weaker than {best}: the same sensitivities at the base fit, but the refits tell them apart "
-                    + _BIC,
-    Verdict.PART_OF: "part of {inside} (its sensitivities lie within that effect's)",
-    Verdict.CONTAINS: "contains {best}; its extra terms are not supported by the data " + _BIC,
-    Verdict.CONFIRMED_WEAKER: "confirmed, but weaker than {best}",
-    Verdict.NOT_CONFIRMED_UNSTABLE: "not confirmed: the refit's optimum is unstable at {runs}",
-    Verdict.NOT_CONFIRMED: "not confirmed by the refit",
-    Verdict.SIGNIFICANT: "significant, not refitted (ranked below the refitted ones)",
-    Verdict.NOT_SIGNIFICANT: "not significant",
-    Verdict.NEGLIGIBLE: "not added at step {step}: negligible (its estimate {fraction:.2g} % of its range, its chi^2 "
-                        "drop {drop:.2g} of the excess chi^2)",
-    Verdict.DROPPED: "dropped by backward elimination: not needed once {others} {verb} in (removing it changes chi^2 "
-                     "by {lr:.3g}, Delta BIC of keeping it {bic:.3g})",
+    CandidateVerdict.ADD: "add: explains the discrepancy{tied}",
+    CandidateVerdict.ADD_PART: "add: explains {pct:.0f} % of the excess chi^2; a discrepancy remains{tied}",
+    CandidateVerdict.ADD_WITH: "add, with {others}: together they explain the discrepancy ({pct:.0f} % of the excess "
+                               "chi^2)",
+    CandidateVerdict.ADD_NEARLY: "add{with_}: carries the discrepancy ({share} of the excess chi^2); a small misfit "
+                                 "remains",
+    CandidateVerdict.EXPLAINS_ONLY: "explains only {pct:.0f} % of the excess chi^2{tied}",
+    CandidateVerdict.EXPLAINS_ONLY_TIED: "explains only {pct:.0f} % of the excess chi^2{tied}",
+    CandidateVerdict.PART_OF_UNEXPLAINED: "explains only {pct:.0f} % of the excess chi^2: part of an unexplained "
+                                          "discrepancy",
+    CandidateVerdict.CONFOUNDED: "confounded with {best}: these data cannot tell them apart " + _BIC,
+    CandidateVerdict.WEAKER: "weaker than {best}: the same sensitivities at the base fit, but the refits tell them "
+                             "apart " + _BIC,
+    CandidateVerdict.PART_OF: "part of {inside} (its sensitivities lie within that effect's)",
+    CandidateVerdict.CONTAINS: "contains {best}; its extra terms are not supported by the data " + _BIC,
+    CandidateVerdict.CONFIRMED_WEAKER: "confirmed, but weaker than {best}",
+    CandidateVerdict.NOT_CONFIRMED_UNSTABLE: "not confirmed: the refit's optimum is unstable at {runs}",
+    CandidateVerdict.NOT_CONFIRMED: "not confirmed by the refit",
+    CandidateVerdict.SIGNIFICANT: "significant, not refitted (ranked below the refitted ones)",
+    CandidateVerdict.NOT_SIGNIFICANT: "not significant",
+    CandidateVerdict.NEGLIGIBLE: "not added at step {step}: negligible (its estimate {fraction:.2g} % of its range, "
+                                 "its chi^2 drop {drop:.2g} of the excess chi^2)",
+    CandidateVerdict.DROPPED: "dropped by backward elimination: not needed once {others} {verb} in (removing it "
+                              "changes chi^2 by {lr:.3g}, Delta BIC of keeping it {bic:.3g})",
 }
 #: the figure's colour of each verdict: green to add, orange tied to another effect, red confirmed or significant
 #: but not taken, grey the rest
-VERDICT_COLOUR = {Verdict.ADD: "tab:green", Verdict.ADD_PART: "tab:green", Verdict.ADD_WITH: "tab:green",
-                  Verdict.ADD_NEARLY: "tab:green", Verdict.EXPLAINS_ONLY_TIED: "tab:orange",
-                  Verdict.PART_OF_UNEXPLAINED: "tab:orange", Verdict.CONFOUNDED: "tab:orange",
-                  Verdict.PART_OF: "tab:orange", Verdict.CONTAINS: "tab:orange", Verdict.CONFIRMED_WEAKER: "tab:red",
-                  Verdict.SIGNIFICANT: "tab:red"}
+VERDICT_COLOUR = {CandidateVerdict.ADD: "tab:green", CandidateVerdict.ADD_PART: "tab:green",
+                  CandidateVerdict.ADD_WITH: "tab:green", CandidateVerdict.ADD_NEARLY: "tab:green",
+                  CandidateVerdict.EXPLAINS_ONLY_TIED: "tab:orange", CandidateVerdict.PART_OF_UNEXPLAINED: "tab:orange",
+                  CandidateVerdict.CONFOUNDED: "tab:orange", CandidateVerdict.PART_OF: "tab:orange",
+                  CandidateVerdict.CONTAINS: "tab:orange", CandidateVerdict.CONFIRMED_WEAKER: "tab:red",
+                  CandidateVerdict.SIGNIFICANT: "tab:red"}
 
 
-def verdict_text(code: Verdict, **figures) -> str:
+def verdict_text(code: CandidateVerdict, **figures) -> str:
     """The sentence of verdict ``code``, its fields filled from ``figures`` (``tied`` empty unless given)."""
-    return VERDICT_TEXT[Verdict(code)].format(**({"tied": ""} | figures))
+    return VERDICT_TEXT[CandidateVerdict(code)].format(**({"tied": ""} | figures))
 
 
 def verdict_colour(code: str) -> str:
     """The figure's colour of a verdict code (diagnosis.tsv's ``verdict_code``)."""
-    return VERDICT_COLOUR.get(Verdict(code), "tab:gray")
+    return VERDICT_COLOUR.get(CandidateVerdict(code), "tab:gray")
 
 
 #: share of the base's excess chi^2 the path's effects must remove for a remaining misfit to be called small (a

@@ -1,7 +1,8 @@
 """After the forward selection (``hybridtwin.diagnose.diagnosis``): what its path no longer needs is eliminated.
 
-Backward elimination (``_backward``): an effect the path added early that a later one made redundant is dropped.
-The sharing check (``_sharing``): the base's per-run parameters are shared by all runs when the path's effects no
+Backward elimination (``backward_elimination``): an effect the path added early that a later one made redundant is
+dropped.
+The sharing check (``sharing_check``): the base's per-run parameters are shared by all runs when the path's effects no
 longer need them per run. Each is a refit from the path's final optimum (``refit.without``, ``refit.shared``), kept
 or dropped by the same likelihood ratio and Delta BIC as any effect.
 """
@@ -13,13 +14,13 @@ from collections.abc import Mapping
 import numpy as np
 from scipy import stats
 
-from .conclusion import Diagnosis, Step, _excess, _fits_the_noise, _path_ranges, _set_verdict
-from .diagnosis_status import Verdict, plain
+from .conclusion import Diagnosis, Step, score_excess, fits_the_noise, path_ranges, set_verdict
+from .diagnosis_status import CandidateVerdict, plain
 from .refit import shared, without
 from .score_test import BaseFit, Scores
 
 
-def _backward(base: BaseFit, path: list[Step], scores: Scores, o: Mapping, result: Diagnosis, log=None
+def backward_elimination(base: BaseFit, path: list[Step], scores: Scores, o: Mapping, result: Diagnosis, log=None
               ) -> list[Step]:
     """Backward elimination after the forward selection: an effect added early can be made redundant by a later
     one (a base far from the truth takes a stand-in first: speed damping before the softer lower bearing that
@@ -32,7 +33,7 @@ def _backward(base: BaseFit, path: list[Step], scores: Scores, o: Mapping, resul
     n = scores.n_data
     while len(path) >= 2:
         final = path[-1].confirmation
-        ranges = _path_ranges(path)
+        ranges = path_ranges(path)
         trials = []
         for i in range(len(path) - 1):
             kept = [step.confirmation.candidate for j, step in enumerate(path) if j != i]
@@ -56,18 +57,18 @@ def _backward(base: BaseFit, path: list[Step], scores: Scores, o: Mapping, resul
             {"effect": dropped, "chi2_without": float(cf.chi2), "chi2_with": float(final.chi2),
              "delta_bic": float(-lr + k * np.log(n))})
         rows = result.table.index[result.table["effect"] == dropped]
-        _set_verdict(result.table, rows, Verdict.DROPPED, others=", ".join(others),
+        set_verdict(result.table, rows, CandidateVerdict.DROPPED, others=", ".join(others),
                      verb="is" if len(others) == 1 else "are", lr=lr, bic=-lr + k * np.log(n))
         path = [step for j, step in enumerate(path) if j != i]
         before = path[-2].confirmation.chi2 if len(path) > 1 else scores.base_chi2
         dof = path[-2].confirmation.dof if len(path) > 1 else scores.base_dof
         k_last = len(cf.candidate.parameters)
         path[-1] = Step(path[-1].effect, before / dof, cf.chi2 / cf.dof, -(before - cf.chi2) + k_last * np.log(n),
-                        (scores.base_chi2 - cf.chi2) / _excess(scores), cf)
+                        (scores.base_chi2 - cf.chi2) / score_excess(scores), cf)
     return path
 
 
-def _sharing(base: BaseFit, path: list[Step], scores: Scores, o: Mapping, result: Diagnosis, log=None
+def sharing_check(base: BaseFit, path: list[Step], scores: Scores, o: Mapping, result: Diagnosis, log=None
              ) -> list[Step]:
     """The sharing check, once the path's effects explain the discrepancy: are the base's per-run parameters
     (``identification.per_run``, e.g. the bow q_x, q_y) still needed with the effects in? The path's model is
@@ -78,10 +79,10 @@ def _sharing(base: BaseFit, path: list[Step], scores: Scores, o: Mapping, result
     its 1X response and bias a bearing stiffness resting on the higher harmonics), the recommended variant
     shares them (``per_run: []``), and ``summary["sharing"]`` has the figures."""
     local = list(base.layout.local)
-    if not path or not local or len(base.layout.runs) < 2 or not _fits_the_noise(path[-1].confirmation, o):
+    if not path or not local or len(base.layout.runs) < 2 or not fits_the_noise(path[-1].confirmation, o):
         return path  # (one run: per run and shared are the same fit)
     final, n = path[-1].confirmation, scores.n_data
-    ranges = _path_ranges(path)
+    ranges = path_ranges(path)
     before = path[-2].confirmation.chi2 if len(path) > 1 else scores.base_chi2
     cf = shared(base, [step.confirmation.candidate for step in path], ranges, final.fit, before, n,
                 int(o["max_iterations"]))
@@ -89,7 +90,7 @@ def _sharing(base: BaseFit, path: list[Step], scores: Scores, o: Mapping, result
     lr = cf.chi2 - final.chi2
     p_value, delta_bic = float(stats.chi2.sf(max(lr, 0.0), k)), float(-lr + k * np.log(n))
     keep = (p_value < o["alpha"] and delta_bic < o["bic_threshold"]) or bool(cf.unstable_runs) or \
-        not _fits_the_noise(cf, o)
+        not fits_the_noise(cf, o)
     result.summary["sharing"] = plain({"parameters": local, "chi2_per_run": final.chi2, "dof_per_run": final.dof,
                                        "chi2_shared": cf.chi2, "dof_shared": cf.dof, "lr": lr, "lr_dof": k,
                                        "lr_p_value": p_value, "delta_bic_per_run": delta_bic, "shared": not keep},

@@ -45,6 +45,9 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from ..identify.uncertainty import ALPHA
+from ..tables import FINGERPRINT
+
 Array = np.ndarray
 
 WHIRL = 0.8  # forward share above which a residual "whirls forward" (below 1 - WHIRL: backward)
@@ -112,7 +115,7 @@ class Fingerprint:
             values.update(share=self.harmonic_share[i], coefficient_re=self.coefficient[i].real,
                           coefficient_im=self.coefficient[i].imag)
             rows += [("harmonic", str(int(h)), q, float(values[q])) for q in _HARMONIC]
-        return pd.DataFrame(rows, columns=["scope", "key", "quantity", "value"])
+        return pd.DataFrame(rows, columns=FINGERPRINT.columns)
 
     @classmethod
     def from_table(cls, table: pd.DataFrame) -> Fingerprint:
@@ -271,7 +274,7 @@ def _check(measured, model, sigma, rpm, eccentric_mass_g, runs):
     return measured.astype(complex), model.astype(complex), sigma, rpm, mass, runs
 
 
-def fingerprint(measured, model, sigma, rpm, eccentric_mass_g, runs=None, alpha: float = 0.01,
+def fingerprint(measured, model, sigma, rpm, eccentric_mass_g, runs=None, alpha: float = ALPHA,
                 include_dc: bool = False) -> Fingerprint:
     """The fingerprint of E = measured - model (module docstring).
 

@@ -46,11 +46,13 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
+from .. import tables
+
 Array = np.ndarray
 
 #: the table's columns (``diagnosis_intervals.tsv``): one row per shared parameter and candidate, candidate ""
 #: for the fit's own interval (the one it reports); low/high [SI]
-COLUMNS = ["parameter", "candidate", "estimate", "low", "high", "beta_low", "beta_high"]
+COLUMNS = list(tables.DIAGNOSIS_INTERVALS.columns)
 #: the union's columns (``FormIntervals.union``): per shared parameter, the fit's own interval, the interval over
 #: the candidates and the candidates that widen it (beyond the own interval by more than WIDENS of its width)
 UNION_COLUMNS = ["parameter", "estimate", "own_low", "own_high", "low", "high", "widened_by"]
@@ -92,12 +94,11 @@ class FormIntervals:
 
     def write(self, path) -> None:
         """``diagnosis_intervals.tsv``; ``read`` is its inverse."""
-        self.table.to_csv(path, sep="\t", index=False, float_format="%.12g")
+        tables.DIAGNOSIS_INTERVALS.write(self.table, path)
 
     @classmethod
     def read(cls, path, confidence: float = 0.95, chi2_dof: float = float("nan")) -> "FormIntervals":
-        table = pd.read_csv(path, sep="\t", keep_default_na=False, na_values=[""],
-                            dtype={"parameter": str, "candidate": str})
+        table = tables.DIAGNOSIS_INTERVALS.read(path)
         missing = [c for c in COLUMNS if c not in table]
         if missing:
             raise ValueError(f"{path}: not a table of intervals over the candidates (missing columns {missing})")

@@ -17,7 +17,7 @@ from ..model.variants import Variant
 from ..offline.scenarios import default_n_scenarios
 
 
-def _variant_name(parts: Sequence[str]) -> str:
+def joined_variant_name(parts: Sequence[str]) -> str:
     """A recommended variant's name, valid in the config (a letter, then letters, digits, _): the base's and the
     effects' names joined by _, an effect placed at a bearing (``cross_coupled_stiffness@b``) spelled ``..._at_b``,
     any other character an effect's name may hold (``oil-film_b``) as _."""

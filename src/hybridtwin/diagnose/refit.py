@@ -412,7 +412,7 @@ def shared(base: BaseFit, kept: Sequence[Candidate], ranges: Mapping[str, tuple[
     more with the candidates' parameters across their ranges, continued while it gains, the candidates' ranges
     widened while an estimate sits at an edge: the per-run fit's values of them can be far off (with speed
     damping zeta_v = 0.2 hidden: 0.13 [-0.33, 0.60] in a range widened to [0, 0.15], where the shared fit
-    stopped at chi^2 1845 against 341 per run). The diagnosis's sharing check (``elimination._sharing``)
+    stopped at chi^2 1845 against 341 per run). The diagnosis's sharing check (``elimination.sharing_check``)
     compares its chi^2 with ``start``'s. Returned as ``without``'s."""
     return _from_fit(base, kept, ranges, start, before_chi2, n_data, max_iterations, confidence, per_run=(),
                      pools=(np.mean, np.median), spread=SHARED_SPREAD, widen=SHARED_WIDEN)

@@ -36,7 +36,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from ..data.measured import flags
+from .. import tables
 from . import forward as fwd
 from .arrow_problem import ArrowProblem, Layout
 from . import identification as idn
@@ -49,17 +49,14 @@ Array = np.ndarray
 INTEREST_FACTOR = 3.0
 #: the largest sensor offset the design allows for under the sensor range [m] (the virtual rig's offset_mm: 0.5)
 OFFSET_MARGIN_M = 5e-4
-#: candidates' columns (design_candidates.tsv)
-CANDIDATE_COLUMNS = ["rpm", "eccentric_mass_g", "keyphasor", "feasible", "reason", "peak_mm", "floquet_radius",
-                     "gain"]
-#: the chosen runs' columns (next_runs.tsv)
-CHOSEN_COLUMNS = ["step", "rpm", "eccentric_mass_g", "keyphasor", "gain", "log_det", "gain_with_keyphasor"]
+#: candidates' columns (design/candidates.tsv), the chosen runs' (next_runs.tsv): the table layer's
+CANDIDATE_COLUMNS = list(tables.DESIGN_CANDIDATES.columns)
+CHOSEN_COLUMNS = list(tables.DESIGN_NEXT_RUNS.columns)
 #: a run is asked with a keyphasor only when that adds this much to its gain (log det: 5 % of the joint region's
 #: volume over the same run without one; a keyphasor is one more sensor)
 KEYPHASOR_WORTH = 0.05
-#: the intervals' columns (design_intervals.tsv)
-INTERVAL_COLUMNS = ["parameter", "unit", "value", "ci_low", "ci_high", "interval", "lower", "upper",
-                    "linear_half_width", "expected_half_width", "shrink", "interest"]
+#: the intervals' columns (design/intervals.tsv)
+INTERVAL_COLUMNS = list(tables.DESIGN_INTERVALS.columns)
 
 
 @dataclass
@@ -288,25 +285,21 @@ def _intervals(variant, joint: pd.DataFrame, shared: Sequence[str], wanted: Sequ
     return pd.DataFrame(out, columns=INTERVAL_COLUMNS)
 
 
-#: the design's true/false columns (read one way: ``measured.flags``)
-DESIGN_FLAGS = ("keyphasor", "feasible", "interest")
+DESIGN_FLAGS = tables.DESIGN_FLAGS
 
 
 def write_design(design: Design, chosen, intervals, candidates) -> None:
     """The design's tables: next_runs.tsv (``chosen``), intervals.tsv and candidates.tsv, 6 significant digits;
     ``read_design_table`` reads each back."""
-    for table, path in ((design.chosen, chosen), (design.intervals, intervals), (design.candidates, candidates)):
-        table.to_csv(path, sep="\t", index=False, float_format="%.6g")
+    tables.DESIGN_NEXT_RUNS.write(design.chosen, chosen)
+    tables.DESIGN_INTERVALS.write(design.intervals, intervals)
+    tables.DESIGN_CANDIDATES.write(design.candidates, candidates)
 
 
 def read_design_table(path) -> pd.DataFrame:
     """One of ``write_design``'s tables: its true/false columns (``DESIGN_FLAGS``) as bool, parameter names and
     units as text, the rest as numbers."""
-    table = pd.read_csv(path, sep="\t", dtype={c: str for c in ("parameter", "unit", "interval", "reason")})
-    for column in DESIGN_FLAGS:
-        if column in table:
-            table[column] = flags(table[column])
-    return table
+    return tables.DESIGN_NEXT_RUNS.read(path)  # the three share their text and flag columns
 
 
 def plot_design(design: Design, variant_name: str):

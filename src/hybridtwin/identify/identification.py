@@ -70,6 +70,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from ..tables import PARAMETER_COLUMNS, PARAMETER_FLAGS, PARAMETERS
 from .arrow_problem import OFFSET_PREFIX, ArrowProblem, Layout, wrap
 from ..data.record_columns import split_stem
 from .forward import HarmonicModel, SolverModel
@@ -86,16 +87,14 @@ Array = np.ndarray
 # --- results ----------------------------------------------------------------------------
 
 
-#: the columns of ``Identification.table`` (parameters.tsv), in order
-TABLE_COLUMNS = ("parameter", "run", "kind", "unit", "value", "normalised", "stderr", "ci_low", "ci_high", "interval",
-                 "loose", "at_bound", "identifiable", "lower", "upper", "mc_mean", "mc_std", "mc_ci_low", "mc_ci_high",
-                 "mc_note", "vif", "source")
+#: the columns of ``Identification.table`` (parameters.tsv), in order: the table layer's
+TABLE_COLUMNS = PARAMETER_COLUMNS
 #: the per-entry statistics among them (``Identification.statistics``); at_bound and identifiable are flags,
 #: interval (a code of ``uncertainty.INTERVAL_CODES``), loose (parameter names, comma-separated) and mc_note (a code
 #: of ``MC_NOTES``, "" when none applies) text
 STATISTICS = ("stderr", "ci_low", "ci_high", "interval", "loose", "at_bound", "identifiable", "mc_mean", "mc_std",
               "mc_ci_low", "mc_ci_high", "mc_note", "vif")
-_FLAGS = ("at_bound", "identifiable")
+_FLAGS = PARAMETER_FLAGS
 _TEXT = ("interval", "loose", "mc_note")
 #: parameters.tsv's ``mc_note``: when the Monte Carlo repeats' mean (``mc_mean``) is not the estimate's spread ("" when
 #: it is, or without repeats). On the bundled run (main job at 6f13abf) 27 rows had mc_mean of the other sign than
@@ -406,8 +405,9 @@ def conclude(problem: ArrowProblem, protocol: ProtocolResult, data: Sequence[Run
 
 
 def write_parameters(table: pd.DataFrame, path: str | Path) -> None:
-    """A parameter table (``Identification.table``, parameters.tsv) as TSV, 9 significant digits."""
-    table.to_csv(path, sep="\t", index=False, float_format="%.9g")
+    """A parameter table (``Identification.table``, parameters.tsv) as TSV, 9 significant digits
+    (``tables.PARAMETERS``)."""
+    PARAMETERS.write(table, path)
 
 
 def read_parameters(path: str | Path) -> pd.DataFrame:
@@ -415,13 +415,8 @@ def read_parameters(path: str | Path) -> pd.DataFrame:
     unit "1" a string, an empty unit ""), ``TABLE_COLUMNS``' numbers as floats; ``Identification.from_table``
     reads the result. Other columns (a per-run fit's note, a refit's effect) come as pandas reads them. A table written
     before ``mc_note`` existed gets it from its own columns (``mc_notes``)."""
-    text = {"parameter", "run", "kind", "unit", "interval", "loose", "mc_note", "source", "note", "effect",
-            "validation_run"}
-    header = pd.read_csv(path, sep="\t", nrows=0).columns
-    table = pd.read_csv(path, sep="\t", dtype={c: str for c in text}, keep_default_na=False,
-                        na_values={c: ["", "nan", "NaN", "NA"] for c in header if c not in text})
-    for column in set(TABLE_COLUMNS).difference(text, _FLAGS).intersection(header):
-        table[column] = table[column].astype(float)
+    table = PARAMETERS.read(path)
+    header = table.columns
     if "mc_note" not in header and {"value", "mc_mean", "mc_ci_low", "mc_ci_high"} <= set(header):  # written before it
         table.insert(list(table.columns).index("mc_ci_high") + 1, "mc_note", mc_notes(
             table["value"], table["mc_mean"], table["mc_ci_low"], table["mc_ci_high"], table["parameter"] == "phase",

@@ -258,11 +258,11 @@ def levenberg_marquardt(problem, theta0: Array, X: Array, options: LMOptions = L
     """
     fixed = np.zeros(theta0.shape, bool) if fixed is None else np.broadcast_to(np.asarray(fixed, bool), theta0.shape)
     parts = [_lm_batch(problem, theta0[s], X[s], options, fixed[s])
-             for s in _batches(theta0.shape[0], options.batch)]
+             for s in batch_slices(theta0.shape[0], options.batch)]
     return LMResult.concatenate(parts)
 
 
-def _batches(n: int, size: int) -> list[slice]:
+def batch_slices(n: int, size: int) -> list[slice]:
     return [slice(i, min(i + size, n)) for i in range(0, n, max(int(size), 1))]
 
 

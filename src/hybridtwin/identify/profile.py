@@ -34,13 +34,12 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
+from .. import tables
 from .lm import LMOptions, levenberg_marquardt
 from .uncertainty import Profiled, loose_entries
 
 Array = np.ndarray
 
-#: the profile's columns (identification/profile.tsv): one row per fit with a parameter held
-POINT_COLUMNS = ["parameter", "side", "round", "value", "normalised", "chi2_rise", "threshold", "status"]
 #: search rounds per parameter and side (each one batched fit of all that are still open)
 ROUNDS = 7
 #: an end is accepted when the chi^2 rise is within this fraction of the threshold, or bracketed this tightly
@@ -130,7 +129,7 @@ def profile_intervals(fit, options: LMOptions = OPTIONS, rounds: int = ROUNDS, g
                     f"{'it' if len(loose_names) == 1 else 'them'} (chi^2 rise "
                     f"{', '.join(f'{d:.3g}' for d in sorted(set(round(v, 6) for v in deltas.values())))}), from "
                     f"{len(points)} fits with one parameter held")
-    return Profiled(lower, upper, loose_names, limits, pd.DataFrame(points, columns=POINT_COLUMNS), notes,
+    return Profiled(lower, upper, loose_names, limits, pd.DataFrame(points, columns=tables.PROFILE.columns), notes,
                     time.perf_counter() - start)
 
 
@@ -215,7 +214,7 @@ class _Search:
 def profile_table(profiled: Profiled | None) -> pd.DataFrame:
     """The profile's fits (identification/profile.tsv; empty without a loose parameter)."""
     if profiled is None or profiled.points is None:
-        return pd.DataFrame(columns=POINT_COLUMNS)
+        return pd.DataFrame(columns=tables.PROFILE.columns)
     return profiled.points
 
 

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .lm import LMOptions, LMResult, _batches, levenberg_marquardt
+from .lm import LMOptions, LMResult, batch_slices, levenberg_marquardt
 from .uncertainty import nuisance
 
 Array = np.ndarray
@@ -175,7 +175,7 @@ def distinct_optima(trials: LMResult, is_phase: Array, most: int, tolerance: flo
 def _initial_phases(problem, theta0: Array, data: Array, n_extra: int, per_repeat: int) -> Array:
     """Random starts get 1X-aligned phases; extra starts keep theirs unless they are zero."""
     out = theta0.copy()
-    aligned = np.concatenate([problem.initial_phases(theta0[s], data[s]) for s in _batches(len(theta0), 20000)])
+    aligned = np.concatenate([problem.initial_phases(theta0[s], data[s]) for s in batch_slices(len(theta0), 20000)])
     is_extra = (np.arange(len(theta0)) % per_repeat) >= per_repeat - n_extra
     phase = problem.layout.is_phase
     keep = is_extra[:, None] & phase[None, :] & (theta0 != 0)

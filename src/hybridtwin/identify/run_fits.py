@@ -33,6 +33,7 @@ import numpy as np
 import pandas as pd
 import yaml
 
+from .. import tables
 from . import forward as fwd
 from .arrow_problem import Layout
 from . import identification as idn
@@ -50,11 +51,6 @@ Array = np.ndarray
 NESTED_MISMATCH = 1e-6
 #: random starts of a fit on the full solver (no libraries, ``offline.scope: none``; module docstring)
 SOLVER_TRIALS = 4
-#: polish.tsv's columns (an empty table when there was no polish)
-COMPARISON_COLUMNS = ["parameter", "run", "unit", "library_value", "solver_value", "difference", "difference_rel",
-                      "difference_in_stderr", "stderr"]
-#: polish_starts.tsv's columns
-STARTS_COLUMNS = ["start", "chi2_start", "chi2", "chi2_dof", "iterations", "status", "selected"]
 
 
 @dataclass
@@ -109,7 +105,7 @@ def fit_run(variant: Variant, options: Mapping, library: Library | None, data: i
     run, units = data.run, idn.units(variant)
     names, lower, upper = (library.parameters, library.lower, library.upper) if library else ranges(variant)
     if not data.usable:
-        empty = pd.DataFrame(columns=["trial", "iteration", "loss", "selected"])
+        empty = pd.DataFrame(columns=tables.HISTORY.columns)
         return RunFit(run, excluded_table(data, names, lower, upper, units), empty, None, data, [],
                       [f"run {run} is not usable ({data.note}): not fitted"])
     errors = idn.model_errors(validation, [run], options["model_error"])
@@ -143,7 +139,7 @@ def write_run_fit(result: RunFit, parameters: str, history: str, fit: str) -> No
     """A run's three files: parameters.tsv, history.tsv and fit.zarr (``write_fit``; for a run
     that was not fitted, a group naming the reason)."""
     idn.write_parameters(result.parameters, parameters)
-    result.history.to_csv(history, sep="\t", index=False, float_format="%.9g")
+    tables.HISTORY.write(result.history, history)
     if result.fit is not None:
         write_fit(fit, result.fit, [result.data.rpm])
         return
@@ -177,7 +173,7 @@ class JointFit:
 
     def starts_table(self) -> pd.DataFrame:
         """The polish's starts and where each ended (polish_starts.tsv; empty without a polish)."""
-        return self.fit.starts if self.fit.starts is not None else pd.DataFrame(columns=STARTS_COLUMNS)
+        return self.fit.starts if self.fit.starts is not None else pd.DataFrame(columns=tables.POLISH_STARTS.columns)
 
     def runs(self) -> pd.DataFrame:
         """The runs fitted: run, rpm, eccentric_mass_g."""
@@ -234,7 +230,7 @@ def fit_joint(variant: Variant, options: Mapping, libraries: Sequence[Library], 
                     f"{time.perf_counter() - start:.1f} s, loss {fit.loss:.4g}, chi^2/dof {fit.chi2_dof:.3g} "
                     f"({fit.message})")
     library_fit, summary = fit, {"library": fit.summary()}
-    comparison = pd.DataFrame(columns=COMPARISON_COLUMNS)
+    comparison = pd.DataFrame(columns=tables.POLISH.columns)
     if options["polish"]:
         solver = models if on_solver else solver_models(variant, data, harmonics)
         start = time.perf_counter()
@@ -272,15 +268,15 @@ def fit_joint(variant: Variant, options: Mapping, libraries: Sequence[Library], 
     return JointFit(fit, library_fit, comparison, summary, data, messages, warnings)
 
 
-def write_summary(summary: Mapping, path: str | Path) -> None:
+def write_fit_summary(summary: Mapping, path: str | Path) -> None:
     """The joint fit's summary (identification/summary.yaml: ``JointFit.summary``, plain types: library, solver,
-    the intervals' profile when a parameter is loose, final); ``read_summary`` is its inverse."""
+    the intervals' profile when a parameter is loose, final); ``read_fit_summary`` is its inverse."""
     with open(path, "w") as stream:
         yaml.safe_dump(dict(summary), stream, sort_keys=False)
 
 
-def read_summary(path: str | Path) -> dict:
-    """A summary written by ``write_summary``: the same mapping (its ``final`` block: the final fit's
+def read_fit_summary(path: str | Path) -> dict:
+    """A summary written by ``write_fit_summary``: the same mapping (its ``final`` block: the final fit's
     ``Identification.summary``, n_data, dof, chi2, chi2_dof, ...)."""
     with open(path) as stream:
         return dict(yaml.safe_load(stream))

@@ -19,6 +19,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+#: the false-alarm rate of one test that says "beyond the noise": a run (p < ALPHA, the report and the validation
+#: refit), a drifting parameter (report.drift), a fingerprint's pattern; the config's diagnosis.alpha and online.alpha
+#: default to it (tests/test_config.py checks the schema's defaults)
+ALPHA = 0.01
+
 Array = np.ndarray
 
 #: an estimate within this distance of a range edge (0.1 % of the range) is "at the bound"
@@ -191,7 +196,7 @@ class Profiled:
     high: Array
     loose: tuple[str, ...]
     threshold: Array
-    points: object = None  # a pandas table (``profile.POINT_COLUMNS``)
+    points: object = None  # a pandas table (``tables.PROFILE``)
     notes: list[str] = field(default_factory=list)
     seconds: float = 0.0
 

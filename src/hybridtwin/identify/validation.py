@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from ..tables import PREDICTIONS
 from .arrow_problem import wrap
 from .forward import HarmonicModel
 from .identification import CHANNELS, RunData, total_sigma
@@ -133,7 +134,7 @@ def predict_run(model: HarmonicModel, data: RunData, values: Mapping[str, float]
 
 
 #: columns of validation_harmonics.tsv (``write_predictions``): one row per run, model, harmonic and channel
-PREDICTION_COLUMNS = ["run", "model", "phase_rad", "harmonic", "channel", "model_re_m", "model_im_m"]
+PREDICTION_COLUMNS = list(PREDICTIONS.columns)
 
 
 @dataclass(frozen=True)
@@ -174,7 +175,7 @@ def prediction_table(predictions: Sequence[PredictedRun]) -> pd.DataFrame:
 
 def write_predictions(path: str | Path, predictions: Sequence[PredictedRun]) -> None:
     """Write the predicted harmonics with 17 significant digits (``read_predictions`` gives them back exactly)."""
-    prediction_table(predictions).to_csv(path, sep="\t", index=False, float_format="%.17g")
+    PREDICTIONS.write(prediction_table(predictions), path)
 
 
 def channel_order(rows: pd.DataFrame) -> tuple[tuple[str, ...], pd.DataFrame]:
@@ -187,7 +188,7 @@ def channel_order(rows: pd.DataFrame) -> tuple[tuple[str, ...], pd.DataFrame]:
 def read_predictions(path: str | Path) -> list[PredictedRun]:
     """``write_predictions``'s file back to PredictedRun (runs and models in the file's order), bit for bit."""
     exact = {c: float for c in ("phase_rad", "model_re_m", "model_im_m")}  # Python's float: round-trip on any pandas
-    table = pd.read_csv(path, sep="\t", dtype={"run": str, "model": str, "channel": str}, converters=exact)
+    table = PREDICTIONS.read(path, converters=exact)
     missing = [c for c in PREDICTION_COLUMNS if c not in table]
     if missing:
         raise ValueError(f"{path}: not a validation_harmonics table, columns {missing} missing")

@@ -32,18 +32,17 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from ..data.measured import flags
+from .. import tables
 from .arrow_problem import ArrowProblem, Layout
 from . import identification as idn
 from .lm import levenberg_marquardt
 from .profile import OPTIONS, threshold
 from .protocol import ProtocolResult
+from .uncertainty import ALPHA  # a run is beyond the noise below this p-value, as the report counts it
 from .validation import bow_law
 
 Array = np.ndarray
 
-#: a run is beyond the noise below this p-value (the report's ALPHA, hybridtwin.report.report)
-ALPHA = 0.01
 #: the explanation codes of validation.tsv's ``explanation`` column; the sentence a user reads is derived from them
 EXPLANATIONS = {
     "within_noise": "predicted within the noise",
@@ -53,37 +52,26 @@ EXPLANATIONS = {
     "missing_physics": "no parameter set the fit runs allow predicts this run: the model lacks something here",
     "not_checked": "not checked (no full-solver refit)",
 }
-#: validation.tsv's columns about why a run is predicted as it is (besides run, model, error_rel, chi2_per_residual)
-VALIDATION_COLUMNS = ["beyond_noise", "explanation", "explanation_note", "pinned", "refit_chi2_per_residual",
-                      "fit_runs_chi2_rise", "allowed_chi2_rise"]
-#: validation.tsv's columns, in order (a prediction's own, e.g. <parameter>_used, come between); the text ones
-VALIDATION_TABLE = ["run", "rpm", "eccentric_mass_g", "model", "error_rel", "chi2_per_residual", "note",
-                    *VALIDATION_COLUMNS]
-_VALIDATION_TEXT = ("run", "model", "note", "explanation", "explanation_note", "pinned", "outside_range")
+#: validation.tsv's columns about why a run is predicted as it is, and all its columns in order (the table layer's)
+VALIDATION_COLUMNS = list(tables.VALIDATION_EXPLAINED)
+VALIDATION_TABLE = list(tables.VALIDATION_COLUMNS)
 
 
 def write_validation(rows: Sequence[Mapping] | pd.DataFrame, path) -> None:
     """validation.tsv from its rows (one per validation run and model): every ``VALIDATION_TABLE`` column, also
     when no run could be predicted (all flagged); ``read_validation`` reads it back."""
     table = pd.DataFrame(rows)
-    table.reindex(columns=list(dict.fromkeys([*table.columns, *VALIDATION_TABLE]))).to_csv(
-        path, sep="\t", index=False, float_format="%.9g")
+    tables.VALIDATION.write(table.reindex(columns=list(dict.fromkeys([*table.columns, *VALIDATION_TABLE]))), path)
 
 
 def read_validation(path) -> pd.DataFrame:
     """validation.tsv as ``write_validation`` wrote it: runs, models, notes, explanation codes and pinned names as
     text ("" where empty), beyond_noise as bool (``measured.flags``), the rest as numbers (NaN where empty)."""
-    header = pd.read_csv(path, sep="\t", nrows=0).columns
-    text = [c for c in header if c in _VALIDATION_TEXT]
-    table = pd.read_csv(path, sep="\t", dtype={c: str for c in text}, keep_default_na=False,
-                        na_values={c: ["", "nan", "NaN", "NA"] for c in header if c not in text})
-    if "beyond_noise" in table:
-        table["beyond_noise"] = flags(table["beyond_noise"])
-    return table
+    return tables.VALIDATION.read(path)
 
 
 #: validation_refits.tsv: the parameter table of each refit with the run included, and which run that was
-REFIT_COLUMNS = ["validation_run", *idn.TABLE_COLUMNS]
+REFIT_COLUMNS = list(tables.VALIDATION_REFITS.columns)
 
 
 @dataclass

@@ -43,8 +43,8 @@ from .bearing_table import TableBearing
 from .effect_base import Context, Effect, Parameter
 from .effects import ANGLE_ME, Unbalance, builtin_effects, trial_force
 # re-exported: Bearing, Disk, Sensor, ShaftSegment, UnbalancePlane (docs/model.md imports them from here with Machine)
-from .machine_parts import (Bearing, Disk, MachineSpecError, Sensor, ShaftSegment, UnbalancePlane, _bearing, _build,
-                            _known, _mapping, _sequence)
+from .machine_parts import (Bearing, Disk, MachineSpecError, Sensor, ShaftSegment, UnbalancePlane, bearing_from_spec,
+                            build_part, check_known_keys, spec_mapping, spec_sequence)
 from .probes import check_pair
 from .sensor import machine_order, sensor_pairs
 from .shaft import DofCounts, Shaft, beam_element, slope_element
@@ -209,22 +209,24 @@ class Machine(DofCounts):
             return cls.varm()
         if not isinstance(spec, Mapping):
             raise MachineSpecError((), f"must be a mapping, got {spec!r}")
-        _known(spec, (), {"name", "segments", "disks", "bearings", "unbalance_planes", "sensors", "rotary_inertia",
-                          "shear"})
-        sensors = [_build(Sensor, {"name": name, **_mapping(item, ("sensors", name))}, ("sensors", name),
+        check_known_keys(spec, (), {"name", "segments", "disks", "bearings", "unbalance_planes", "sensors",
+                                    "rotary_inertia", "shear"})
+        sensors = [build_part(Sensor, {"name": name, **spec_mapping(item, ("sensors", name))}, ("sensors", name),
                           {"name", "node", "direction"}, {"angle_deg"})
-                   for name, item in _mapping(spec.get("sensors"), ("sensors",)).items()]
+                   for name, item in spec_mapping(spec.get("sensors"), ("sensors",)).items()]
         if "sensors" in spec and set(map(str, spec)) <= {"name", "sensors"}:  # the VARM with these sensors
             varm = cls.varm()
             spec = {**varm.to_mapping(), "name": spec.get("name", varm.name)}
-        segments = [_build(ShaftSegment, item, ("segments", i), {"length", "d_out", "E", "rho"},
+        segments = [build_part(ShaftSegment, item, ("segments", i), {"length", "d_out", "E", "rho"},
                            {"d_in", "n_elements", "I", "m", "G", "node", "alpha", "beta"})
-                    for i, item in enumerate(_sequence(spec, "segments"))]
-        disks = [_build(Disk, item, ("disks", i), {"node", "mass"}, {"I_p", "I_d", "name"})
-                 for i, item in enumerate(_sequence(spec, "disks"))]
-        bearings = [_bearing(name, item) for name, item in _mapping(spec.get("bearings"), ("bearings",)).items()]
-        planes = [_build(UnbalancePlane, {"name": name, "node": node}, ("unbalance_planes", name), {"name", "node"},
-                         set()) for name, node in _mapping(spec.get("unbalance_planes"), ("unbalance_planes",)).items()]
+                    for i, item in enumerate(spec_sequence(spec, "segments"))]
+        disks = [build_part(Disk, item, ("disks", i), {"node", "mass"}, {"I_p", "I_d", "name"})
+                 for i, item in enumerate(spec_sequence(spec, "disks"))]
+        bearings = [bearing_from_spec(name, item)
+                    for name, item in spec_mapping(spec.get("bearings"), ("bearings",)).items()]
+        planes = [build_part(UnbalancePlane, {"name": name, "node": node}, ("unbalance_planes", name), {"name", "node"},
+                             set())
+                  for name, node in spec_mapping(spec.get("unbalance_planes"), ("unbalance_planes",)).items()]
         try:
             return cls(str(spec.get("name", "machine")), segments, disks, bearings, planes, sensors,
                        bool(spec.get("rotary_inertia", False)), bool(spec.get("shear", False)))

@@ -2,8 +2,8 @@
 
 The parts: shaft segments (``ShaftSegment``), rigid disks (``Disk``), named bearings (``Bearing``), unbalance planes
 (``UnbalancePlane``) and displacement probes (``Sensor``), each checking its own values. Their config form: the
-``machine:`` section's items read into parts (``_build``, ``_bearing``; ``Machine.from_mapping`` reads the section
-with them), every problem a ``MachineSpecError`` that says where in the section it is. The machine they make up,
+``machine:`` section's items read into parts (``build_part``, ``bearing_from_spec``; ``Machine.from_mapping`` reads the
+section with them), every problem a ``MachineSpecError`` that says where in the section it is. The machine they make up,
 its discretisation and the effects placed at its named nodes are ``hybridtwin.model.machine``'s.
 """
 
@@ -186,7 +186,7 @@ class MachineSpecError(ValueError):
         super().__init__(f"{where}: {message}")
 
 
-def _mapping(value, path: tuple) -> Mapping:
+def spec_mapping(value, path: tuple) -> Mapping:
     if value is None:
         return {}
     if not isinstance(value, Mapping):
@@ -194,7 +194,7 @@ def _mapping(value, path: tuple) -> Mapping:
     return value
 
 
-def _sequence(spec: Mapping, key: str) -> list:
+def spec_sequence(spec: Mapping, key: str) -> list:
     value = spec.get(key)
     if value is None:
         return []
@@ -203,18 +203,18 @@ def _sequence(spec: Mapping, key: str) -> list:
     return list(value)
 
 
-def _known(spec: Mapping, path: tuple, allowed: set[str]) -> None:
+def check_known_keys(spec: Mapping, path: tuple, allowed: set[str]) -> None:
     stray = sorted(set(map(str, spec)) - allowed)
     if stray:
         raise MachineSpecError(path, f"unknown key(s) {stray} (allowed: {', '.join(sorted(allowed))})")
 
 
-def _bearing(name, item) -> Bearing:
+def bearing_from_spec(name, item) -> Bearing:
     """A bearing from its config form: node, and k (and c) or a table (``BearingTable.from_mapping``)."""
     path = ("bearings", name)
-    item = dict(_mapping(item, path))
+    item = dict(spec_mapping(item, path))
     spec = item.pop("table", None)
-    bearing = _build(Bearing, {"name": name, **item}, path, {"name", "node"}, {"k", "c", "table"})
+    bearing = build_part(Bearing, {"name": name, **item}, path, {"name", "node"}, {"k", "c", "table"})
     if spec is None:
         return bearing
     try:
@@ -227,9 +227,9 @@ def _bearing(name, item) -> Bearing:
         raise MachineSpecError(path, str(err)) from None
 
 
-def _build(kind: type, item, path: tuple, required: set[str], optional: set[str]):
-    item = _mapping(item, path)
-    _known(item, path, required | optional)
+def build_part(kind: type, item, path: tuple, required: set[str], optional: set[str]):
+    item = spec_mapping(item, path)
+    check_known_keys(item, path, required | optional)
     missing = sorted(required - set(item))
     if missing:
         raise MachineSpecError(path, f"missing key(s) {missing}")

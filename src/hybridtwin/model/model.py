@@ -285,7 +285,7 @@ def campbell(model: Model, values: Mapping[str, Array | float], rpm: Array | Seq
         scale = np.abs(lam).max()
         keep = np.flatnonzero(lam.imag > 1e-9 * scale)  # oscillating modes; rigid-body and overdamped ones out
         keep = keep[np.argsort(lam.imag[keep])][:n_modes + 1]
-        q = _circular(lam[keep], vec[:n, keep])
+        q = circular_modes(lam[keep], vec[:n, keep])
         for mode, j in enumerate(keep[:n_modes]):
             U, V = q[x, mode], q[y, mode]
             index = -2.0 * np.sum(np.imag(np.conj(U) * V)) / np.sum(np.abs(U) ** 2 + np.abs(V) ** 2)
@@ -307,7 +307,7 @@ def campbell(model: Model, values: Mapping[str, Array | float], rpm: Array | Seq
 PLANAR_WHIRL = 1e-6
 
 
-def _circular(lam: Array, q: Array) -> Array:
+def circular_modes(lam: Array, q: Array) -> Array:
     """The modes ``q`` (n, m) with each degenerate pair (equal eigenvalues to 1e-7, e.g. the two planes of an
     isotropic rotor without gyroscopic coupling, where the eigensolver returns any basis) replaced by its
     forward and backward circular combinations: the extreme vectors of the whirl form

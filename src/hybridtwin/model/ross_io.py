@@ -49,8 +49,8 @@ import numpy as np
 
 from .bearing_table import COEFFICIENTS, COLUMNS, MASSES, BearingTable
 from .machine import Machine
-from .machine_parts import (Bearing, Disk, MachineSpecError, Sensor, ShaftSegment, UnbalancePlane, _build, _known,
-                            _mapping)
+from .machine_parts import (Bearing, Disk, MachineSpecError, Sensor, ShaftSegment, UnbalancePlane, build_part,
+                            check_known_keys, spec_mapping)
 
 INSTALL = 'pip install -e ".[ross]"'
 #: the attribute a ROSS bearing made by ``machine_to_ross`` carries when it evaluates its table as ours
@@ -255,7 +255,7 @@ def machine_from_section(spec: Mapping, config_dir: str | Path = ".") -> Machine
     unbalance_planes: {...}, sensors: {...}}``: ``machine_from_ross`` of the file (its path relative to
     ``config_dir``, the config's folder) with our name (default the file's stem), unbalance planes and probes beside
     it, in the forms of ``Machine.from_mapping``. A problem raises ``MachineSpecError`` (the file's, at ``ross``)."""
-    _known(spec, (), {"ross", "name", "unbalance_planes", "sensors"})
+    check_known_keys(spec, (), {"ross", "name", "unbalance_planes", "sensors"})
     if not isinstance(spec["ross"], str):
         raise MachineSpecError(("ross",), f"must be the path of a ROSS rotor file, got {spec['ross']!r}")
     path = Path(config_dir) / spec["ross"]
@@ -266,11 +266,12 @@ def machine_from_section(spec: Mapping, config_dir: str | Path = ".") -> Machine
         rotor = _read(str(path.resolve()), path.stat().st_mtime_ns)
     except (ImportError, ValueError) as err:
         raise MachineSpecError(("ross",), f"{path}: {err}") from None
-    sensors = [_build(Sensor, {"name": name, **_mapping(item, ("sensors", name))}, ("sensors", name),
+    sensors = [build_part(Sensor, {"name": name, **spec_mapping(item, ("sensors", name))}, ("sensors", name),
                       {"name", "node", "direction"}, {"angle_deg"})
-               for name, item in _mapping(spec.get("sensors"), ("sensors",)).items()]
-    planes = [_build(UnbalancePlane, {"name": name, "node": node}, ("unbalance_planes", name), {"name", "node"}, set())
-              for name, node in _mapping(spec.get("unbalance_planes"), ("unbalance_planes",)).items()]
+               for name, item in spec_mapping(spec.get("sensors"), ("sensors",)).items()]
+    planes = [build_part(UnbalancePlane, {"name": name, "node": node}, ("unbalance_planes", name), {"name", "node"},
+                         set())
+              for name, node in spec_mapping(spec.get("unbalance_planes"), ("unbalance_planes",)).items()]
     try:
         return Machine(str(spec.get("name", path.stem)), rotor.segments, rotor.disks, rotor.bearings, planes, sensors,
                        rotor.rotary_inertia, rotor.shear)

@@ -21,6 +21,7 @@ import numpy as np
 import pandas as pd
 import zarr
 
+from .. import tables
 from . import snapshots
 from ..model.effect_base import Array
 from .piecewise_spgd import PiecewiseSPGD, fit_piecewise, model_from_arrays, piece_index
@@ -447,12 +448,12 @@ def global_run_library(global_path: str, snapshots_path: str, run: str) -> Libra
 
 def write_library_validation(table: pd.DataFrame, path: str | Path) -> None:
     """library_validation.tsv (``validate_libraries``' per-run table): ``read_library_validation`` reads it."""
-    table.to_csv(path, sep="\t", index=False, float_format="%.6g")
+    tables.LIBRARY_VALIDATION.write(table, path)
 
 
 def read_library_validation(path: str | Path) -> pd.DataFrame:
     """library_validation.tsv as ``write_library_validation`` wrote it, run ids as strings."""
-    return pd.read_csv(path, sep="\t", dtype={"run": str})
+    return tables.LIBRARY_VALIDATION.read(path)
 
 
 def validate_libraries(libraries: list[Library], snapshots_path: str, runs: pd.DataFrame, shaft: Shaft,

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..model.effect_base import Array
-from .spgd import SparsePGD, _check_inputs, fit_spgd, relative_error
+from .spgd import SparsePGD, checked_inputs, fit_spgd, relative_error
 
 
 @dataclass
@@ -61,7 +61,7 @@ class PiecewiseSPGD:
 
     def evaluate(self, X: Array, jacobian: bool = False) -> tuple[Array, Array | None]:
         """As ``SparsePGD.evaluate`` (y (N, m), dy/dp (d, N, m)), each row by its piece."""
-        X = _check_inputs(X)
+        X = checked_inputs(X)
         piece = self.piece_of(X)
         m = self.pieces[0].amplitudes.shape[1]
         y = np.zeros((X.shape[0], m))

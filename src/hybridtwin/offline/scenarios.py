@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from .. import tables
 from ..model.effect_base import Array
 from ..model.sensor import sensor_harmonics
 from ..solvers.continuation import RUN_UP_FROM_RPM, padded_speeds, ramp, sweep_model
@@ -163,17 +164,18 @@ def _store(out: RunSolutions, position: int, result: SteadyState, rows: slice) -
     out.floquet_radius[position] = result.floquet_radius[rows]
 
 
-def write_scenarios(table: pd.DataFrame, path, float_format: str | None = "%.12g") -> None:
+def write_scenarios(table: pd.DataFrame, path, float_format: str | None = tables.REFIT) -> None:
     """A scenario table: ``sample_scenarios``' scenarios.tsv at 12 significant digits (the values the chunks
     solve), ``sample_enrichment``'s enrichment.tsv with ``float_format`` None (every digit, as it always was);
     ``read_scenarios`` reads either."""
-    table.to_csv(path, sep="\t", index=False, float_format=float_format)
+    (tables.SCENARIOS if float_format == tables.SCENARIOS.float_format else tables.ENRICHMENT_SCENARIOS).write(
+        table, path)
 
 
 def read_scenarios(path) -> pd.DataFrame:
     """A scenario table written by ``write_scenarios``: scenario, split (text), eccentric_mass_g (enrichment),
     one column per unknown."""
-    return pd.read_csv(path, sep="\t", dtype={"split": str})
+    return tables.SCENARIOS.read(path)  # the enrichment's: the same text column
 
 
 #: message of an enrichment scenario at a run it was not solved for (it targets other runs); not a failure. The
@@ -267,8 +269,8 @@ def solve_operating_points(variant: Variant, points: pd.DataFrame, overrides: Ma
     U, V = sensor_harmonics(solutions.harmonics[:, 0], variant.model.shaft)  # (R, H+1) each
     for h in range(1, harmonics + 1):
         for name, values in ((f"U{h}", U[:, h]), (f"V{h}", V[:, h])):
-            out[f"{name}_re_m"] = values.real
-            out[f"{name}_im_m"] = values.imag
+            out[tables.part_column(name, "re")] = values.real
+            out[tables.part_column(name, "im")] = values.imag
     out["success"] = solutions.success[:, 0]
     out["stable"] = solutions.stable[:, 0]
     out["floquet_radius"] = solutions.floquet_radius[:, 0]

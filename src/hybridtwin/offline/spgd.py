@@ -174,7 +174,7 @@ class SparsePGD:
         when the validation error has not improved for ``patience`` terms, at ``max_terms``, or once it is
         at most ``tolerance``.
         """
-        X, X_val = _check_inputs(X), _check_inputs(X_val)
+        X, X_val = checked_inputs(X), checked_inputs(X_val)
         Y, Y_val = np.asarray(Y, dtype=float), np.asarray(Y_val, dtype=float)
         d = X.shape[1]
         w = np.ones(X.shape[0]) if weights is None else np.asarray(weights, float)
@@ -393,7 +393,7 @@ class SparsePGD:
         product per parameter; the Jacobian uses prefix and suffix products of the factors
         (no division) and one matrix product for y and all d derivatives together.
         """
-        X = _check_inputs(X)
+        X = checked_inputs(X)
         A = self.amplitudes
         N, d = X.shape
         out = np.zeros((d + 1 if jacobian else 1, N, A.shape[1]))  # y, then dy/dp_1..d
@@ -585,7 +585,7 @@ def relative_error(residual: Array, Y: Array, w: Array | None = None) -> float:
     return float(np.sqrt((w * (residual * residual).sum(1)).sum() / (w * (Y * Y).sum(1)).sum()))
 
 
-def _check_inputs(X: Array) -> Array:
+def checked_inputs(X: Array) -> Array:
     X = np.atleast_2d(np.asarray(X, dtype=float))
     if X.size and (np.nanmax(np.abs(X)) > 1 + 1e-9 or not np.isfinite(X).all()):
         raise ValueError("sPGD inputs must be finite and normalised to [-1, 1]")

@@ -22,7 +22,7 @@
    ranked by their score test at the twin (``diagnose.score_test``, with every parameter's sensitivity and its prior
    projected out, so a candidate scores what no parameter change the twin allows can absorb).
 
-The outcome is a code (``Verdict``); the sentences are derived from it (``Assessment.line``).
+The outcome is a code (``RecordVerdict``); the sentences are derived from it (``Assessment.line``).
 """
 
 from __future__ import annotations
@@ -43,6 +43,7 @@ from scipy.special import chdtrc, ndtri  # chi^2's survival function, the normal
 from ..diagnose.fingerprint import Fingerprint, fingerprint
 from ..identify.arrow_problem import Layout
 from ..settings import defaults
+from .. import tables
 from . import fits, library_route
 from .intake import Intake
 from .twin import Twin
@@ -60,34 +61,22 @@ TIE = 1.0
 Z95 = float(ndtri(0.975))
 
 
-class Verdict(str, Enum):
+class RecordVerdict(str, Enum):
     CONSISTENT = "consistent"
     CHANGED = "changed"
     NEW_DISCREPANCY = "new_discrepancy"
 
 
-OPENINGS = {Verdict.CONSISTENT: "consistent with the twin", Verdict.CHANGED: "CHANGED",
-            Verdict.NEW_DISCREPANCY: "NEW DISCREPANCY"}
+OPENINGS = {RecordVerdict.CONSISTENT: "consistent with the twin", RecordVerdict.CHANGED: "CHANGED",
+            RecordVerdict.NEW_DISCREPANCY: "NEW DISCREPANCY"}
 
-#: the parameter table's columns (``Assessment.parameters``, parameters.tsv of an assessment)
-PARAMETER_COLUMNS = ["parameter", "run", "unit", "twin_value", "twin_stderr", "value", "stderr", "ci_low", "ci_high",
-                     "change", "change_rel", "z", "statistic", "dof", "p_value", "explains", "moved", "estimate",
-                     "note"]
-#: the harmonics table's columns (measured, the twin's prediction and the best change's fit, per run, harmonic and
-#: channel)
-HARMONIC_COLUMNS = ["run", "rpm", "harmonic", "channel", "measured_re_m", "measured_im_m", "sigma_m", "twin_re_m",
-                    "twin_im_m", "best_re_m", "best_im_m"]
-#: the candidates table's columns (the score tests of a new discrepancy, most significant first)
-CANDIDATE_COLUMNS = ["candidate", "statistic", "dof", "p_value", "log_p", "beyond_range"]
-#: the one-row summary's columns (assessment.tsv)
-SUMMARY_COLUMNS = ["record", "path", "kind", "timestamp", "timestamp_source", "twin", "verdict", "alpha", "n_runs",
-                   "rpm_low", "rpm_high", "eccentric_mass_g", "n_data", "chi2", "dof", "chi2_dof", "p_value", "p_fit",
-                   "move", "p_move", "changed", "alternatives", "best", "best_chi2", "best_dof", "best_p_value",
-                   "twin_chi2_dof", "left_out",
-                   # where the verdict came from (``library_route``): "library" or "solver", the library used, its
-                   # own verdict and the interval of its p-value across its error bound, its time, and why
-                   "route", "library", "library_verdict", "library_p_low", "library_p_high", "library_bound",
-                   "library_seconds", "route_note", "seconds"]
+#: the tables' columns (the table layer's): an assessment's parameters, harmonics (measured, the twin's prediction
+#: and the best change's fit, per run, harmonic and channel), candidates (the score tests of a new discrepancy, most
+#: significant first), and its one-row summary (assessment.tsv)
+PARAMETER_COLUMNS = list(tables.ASSESSMENT_PARAMETERS.columns)
+HARMONIC_COLUMNS = list(tables.ASSESSMENT_HARMONICS.columns)
+CANDIDATE_COLUMNS = list(tables.ASSESSMENT_CANDIDATES.columns)
+SUMMARY_COLUMNS = list(tables.ASSESSMENT.columns)
 
 
 @dataclass
@@ -104,8 +93,8 @@ class Assessment:
     warnings: list[str] = field(default_factory=list)
 
     @property
-    def verdict(self) -> Verdict:
-        return Verdict(self.summary["verdict"])
+    def verdict(self) -> RecordVerdict:
+        return RecordVerdict(self.summary["verdict"])
 
     @property
     def changed(self) -> list[str]:
@@ -118,9 +107,9 @@ class Assessment:
         where = "library" if s.get("route") == "library" else "solver"
         head = (f"{s['record']}: {OPENINGS[self.verdict]} ({s['twin']}, on the {where}): chi^2/dof {s['chi2_dof']:.3g} on {s['dof']} "
                 f"dof (p {s['p_fit']:.2g}), largest move {s['move']} (p {s['p_move']:.2g}): p = {s['p_value']:.2g}")
-        if self.verdict is Verdict.CONSISTENT:
+        if self.verdict is RecordVerdict.CONSISTENT:
             return head
-        if self.verdict is Verdict.CHANGED:
+        if self.verdict is RecordVerdict.CHANGED:
             moved = self.parameters[self.parameters["moved"]]
             moves = [_move(row) for row in moved.itertuples() if row.run == "all" or moved["run"].nunique() == 1]
             spread = moved[moved["run"] != "all"]
@@ -141,47 +130,32 @@ class Assessment:
     def write(self, folder: str | Path) -> None:
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
-        pd.DataFrame([self.summary], columns=SUMMARY_COLUMNS).to_csv(folder / "assessment.tsv", sep="\t",
-                                                                       index=False, float_format="%.9g")
-        for name, table in (("parameters", self.parameters), ("harmonics", self.harmonics),
-                            ("candidates", self.candidates)):
-            table.to_csv(folder / f"{name}.tsv", sep="\t", index=False, float_format="%.9g")
+        tables.ASSESSMENT.write(pd.DataFrame([self.summary], columns=SUMMARY_COLUMNS), folder / "assessment.tsv")
+        for name, table, frame in (("parameters", tables.ASSESSMENT_PARAMETERS, self.parameters),
+                                   ("harmonics", tables.ASSESSMENT_HARMONICS, self.harmonics),
+                                   ("candidates", tables.ASSESSMENT_CANDIDATES, self.candidates)):
+            table.write(frame, folder / f"{name}.tsv")
         if self.fingerprint is not None:
-            self.fingerprint.table().to_csv(folder / "fingerprint.tsv", sep="\t", index=False, float_format="%.9g")
+            tables.FINGERPRINT.write(self.fingerprint.table(), folder / "fingerprint.tsv")
 
     @classmethod
     def read(cls, folder: str | Path) -> "Assessment":
         """The exact inverse of ``write`` (the warnings, said on the console, are not kept)."""
         folder = Path(folder)
-        summary = read_summary(folder / "assessment.tsv").iloc[0].to_dict()
-        parameters = _read(folder / "parameters.tsv", {"parameter", "run", "unit", "estimate", "note"},
-                           {"explains", "moved"})
-        harmonics = _read(folder / "harmonics.tsv", {"run", "channel"})
-        candidates = _read(folder / "candidates.tsv", {"candidate"}, {"beyond_range"})
+        summary = read_assessment(folder / "assessment.tsv").iloc[0].to_dict()
+        parameters = tables.ASSESSMENT_PARAMETERS.read(folder / "parameters.tsv")
+        harmonics = tables.ASSESSMENT_HARMONICS.read(folder / "harmonics.tsv")
+        candidates = tables.ASSESSMENT_CANDIDATES.read(folder / "candidates.tsv")
         path = folder / "fingerprint.tsv"
-        found = Fingerprint.from_table(pd.read_csv(path, sep="\t", dtype={"key": str}, keep_default_na=False,
-                                                   na_values={"value": ["", "nan", "NaN"]})) if path.is_file() else None
+        found = Fingerprint.from_table(tables.FINGERPRINT.read(path)) if path.is_file() else None
         return cls(summary, parameters, harmonics, candidates, found)
 
 
-def read_summary(path: str | Path) -> pd.DataFrame:
+def read_assessment(path: str | Path) -> pd.DataFrame:
     """assessment.tsv (or rows of them), text columns as text, numbers as numbers (``SUMMARY_COLUMNS``)."""
-    text = {"record", "path", "kind", "timestamp", "timestamp_source", "twin", "verdict", "move", "changed",
-            "alternatives", "best", "left_out", "route", "library", "library_verdict", "route_note"}
-    table = _read(path, text)
+    table = tables.ASSESSMENT.read(path)
     for column in ("n_runs", "n_data", "dof", "best_dof"):
         table[column] = table[column].astype(int)
-    return table
-
-
-def _read(path: Path, text: set[str], flags: set[str] = frozenset()) -> pd.DataFrame:
-    header = pd.read_csv(path, sep="\t", nrows=0).columns
-    table = pd.read_csv(path, sep="\t", dtype={c: str for c in text}, keep_default_na=False,
-                        na_values={c: ["nan", "NaN", ""] for c in header if c not in text | set(flags)})
-    for column in flags & set(header):
-        table[column] = table[column].astype(str).str.lower().eq("true")
-    for column in set(header) - text - set(flags):
-        table[column] = table[column].astype(float)
     return table
 
 
@@ -199,7 +173,7 @@ class _Judgement:
     (``linear``), the groups' fits (``singles``: the full fits after an alarm, else the first-order ones), every fit
     tried, the verdict and the change named."""
 
-    verdict: Verdict
+    verdict: RecordVerdict
     base: fits.RecordFit
     linear: list
     singles: list
@@ -222,7 +196,7 @@ def _judge(problem: fits.RecordProblem, alpha: float) -> _Judgement:
     singles = linear = [fits.linearised(problem, base, fits.Hypothesis((g,))) for g in groups]
     p_fit, (move, p_move) = base.p_value, _largest_move(problem, base, singles)
     named, alternatives, best, tried, pairs = None, [], base, [], False
-    verdict = Verdict.CONSISTENT
+    verdict = RecordVerdict.CONSISTENT
     if min(1.0, 2 * min(p_fit, p_move)) < alpha:  # an alarm: the fit beyond the noise, or a move beyond the prior
         singles = fits.fit(problem, [fits.Hypothesis((g,)) for g in groups], base)
         move, p_move = _largest_move(problem, base, singles)
@@ -236,11 +210,11 @@ def _judge(problem: fits.RecordProblem, alpha: float) -> _Judgement:
             explaining, pairs = [f for f in tried if f.p_value >= alpha], True
         if explaining:
             explaining = _ranked(problem, base, explaining)
-            verdict, named = Verdict.CHANGED, explaining[0]
+            verdict, named = RecordVerdict.CHANGED, explaining[0]
             best = named
             alternatives = [f.hypothesis.name for f in explaining[1:]]
         elif p_fit < alpha:
-            verdict, best = Verdict.NEW_DISCREPANCY, min(tried, key=lambda f: f.chi2)
+            verdict, best = RecordVerdict.NEW_DISCREPANCY, min(tried, key=lambda f: f.chi2)
         # else: the move the first-order test saw does not hold up in the full fits, and the fit is at the noise
     return _Judgement(verdict, base, linear, singles, tried, named, alternatives, best, p_fit, move, p_move, pairs)
 
@@ -286,7 +260,7 @@ def assess(twin: Twin, record: Intake, alpha: float = ALPHA, candidates: bool = 
         judgement = _judge(problem, alpha)
     j = judgement
     ranked, found = pd.DataFrame(columns=CANDIDATE_COLUMNS), None
-    if j.verdict is Verdict.NEW_DISCREPANCY:
+    if j.verdict is RecordVerdict.NEW_DISCREPANCY:
         found = _fingerprint(problem, j.best)
         if candidates:
             ranked = _candidates(twin, problem, j.base)

@@ -9,7 +9,7 @@ import textwrap
 import numpy as np
 from scipy.special import ndtri  # the normal quantile (scipy.stats costs ~1 s to import)
 
-from .assess import Assessment, Verdict
+from .assess import Assessment, RecordVerdict
 
 #: |E / sigma| of one complex entry is beyond the noise above this (chi^2 with 2 dof at 99 %)
 NOISE_99 = float(np.sqrt(-2 * np.log(0.01)))  # chi^2(2)'s 99 % point, -2 ln 0.01
@@ -26,7 +26,7 @@ def plot_assessment(assessment: Assessment):
     steady = table["run"].nunique() == 1
     fig = plt.figure(figsize=(8.3, 11.0))
     grid = fig.add_gridspec(3, len(channels), height_ratios=[1.2, 1.0, 1.0])
-    changed = assessment.verdict is not Verdict.CONSISTENT
+    changed = assessment.verdict is not RecordVerdict.CONSISTENT
     for c, channel in enumerate(channels):
         rows = table[table["channel"] == channel]
         top = fig.add_subplot(grid[0, c])

@@ -21,15 +21,15 @@ import numpy as np
 import pandas as pd
 from scipy.special import chdtri, ndtri  # chi^2's inverse survival function, the normal quantile
 
-from .assess import Assessment, Verdict
+from .. import tables
+from .assess import Assessment, RecordVerdict
 
 #: the trend's columns: the record's, then its parameter rows' (the parameter test's dof and p-value renamed)
-RECORD_COLUMNS = ["timestamp", "record", "kind", "verdict", "alpha", "chi2_dof", "dof", "p_value", "changed"]
-ENTRY_COLUMNS = ["parameter", "run", "unit", "twin_value", "twin_stderr", "value", "stderr", "ci_low", "ci_high",
-                 "z", "statistic", "test_dof", "test_p_value", "moved"]
+RECORD_COLUMNS = list(tables.TREND_RECORD_COLUMNS)
+ENTRY_COLUMNS = list(tables.TREND_ENTRY_COLUMNS)
 TREND_COLUMNS = RECORD_COLUMNS + ENTRY_COLUMNS
-_TEXT = {"timestamp", "record", "kind", "verdict", "changed", "parameter", "run", "unit"}
-COLOURS = {Verdict.CONSISTENT.value: "tab:blue", Verdict.CHANGED.value: "tab:red", Verdict.NEW_DISCREPANCY.value: "k"}
+COLOURS = {RecordVerdict.CONSISTENT.value: "tab:blue", RecordVerdict.CHANGED.value: "tab:red",
+           RecordVerdict.NEW_DISCREPANCY.value: "k"}
 
 
 def rows(assessment: Assessment) -> pd.DataFrame:
@@ -57,7 +57,7 @@ def write_trend(trend: pd.DataFrame, path: str | Path) -> pd.DataFrame:
     trend = trend.sort_values(["timestamp", "record"], kind="stable").reset_index(drop=True)[TREND_COLUMNS]
     temporary = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:
-        trend.to_csv(temporary, sep="\t", index=False, float_format="%.9g")
+        tables.TREND.write(trend, temporary)
         os.replace(temporary, path)
     finally:
         temporary.unlink(missing_ok=True)
@@ -66,14 +66,10 @@ def write_trend(trend: pd.DataFrame, path: str | Path) -> pd.DataFrame:
 
 def read_trend(path: str | Path) -> pd.DataFrame:
     """trend.tsv as written: text columns as text, ``moved`` as bool, the others as numbers."""
-    table = pd.read_csv(path, sep="\t", dtype={c: str for c in _TEXT}, keep_default_na=False,
-                        na_values={c: ["nan", "NaN", ""] for c in TREND_COLUMNS if c not in _TEXT | {"moved"}})
+    table = tables.TREND.read(path)
     missing = [c for c in TREND_COLUMNS if c not in table]
     if missing:
         raise ValueError(f"{path}: not a trend file (no column(s) {missing})")
-    table["moved"] = table["moved"].astype(str).str.lower().eq("true")
-    for column in set(TREND_COLUMNS) - _TEXT - {"moved"}:
-        table[column] = table[column].astype(float)
     return table[TREND_COLUMNS]
 
 

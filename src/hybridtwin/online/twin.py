@@ -39,6 +39,7 @@ import pandas as pd
 import yaml
 
 from .. import config as cfg
+from .. import tables
 from ..identify.identification import TABLE_COLUMNS, read_parameters
 from ..identify.validation import law_operator, law_terms
 from ..model.candidates import Candidate, candidates_for
@@ -294,7 +295,7 @@ def load_twin(folder: str | Path) -> Twin:
                             f"in its project run `snakemake --cores 2 {paths[key]}`")
     try:
         parameters = read_parameters(paths["parameters"])
-        correlation = pd.read_csv(paths["correlation"], sep="\t", index_col=0)
+        correlation = tables.CORRELATION.read(paths["correlation"])
     except (OSError, ValueError, pd.errors.ParserError) as err:
         raise TwinError(f"{folder}: cannot read its fit: {' '.join(str(err).split())}") from None
     missing = [c for c in TABLE_COLUMNS if c not in parameters]

@@ -30,9 +30,10 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
+from .. import tables
 from ..identify.validation import spans
 from ..plots import plt
-from .report import ALPHA
+from ..identify.uncertainty import ALPHA
 from .report_plots import mass_colours
 
 Array = np.ndarray
@@ -163,11 +164,6 @@ def drift_usable(per_run: pd.DataFrame) -> pd.Series:
     return np.isfinite(per_run["value"]) & ~per_run["at_bound"].astype(bool) & np.isfinite(sigma) & (sigma > 0)
 
 
-#: columns of ``drift_statistics`` (drift.tsv); the test's are NaN where too few estimates are usable
-DRIFT_COLUMNS = ["parameter", "unit", "kind", "n_runs", "n_used", "n_at_bound", "sigma_source", "joint_value",
-                 "weighted_mean", "weighted_mean_stderr", "chi2", "dof", "chi2_dof", "p_value", "slope_per_rpm",
-                 "slope_centre_rpm", "slope_stderr_per_rpm", "slope_t", "slope_p_value", "drifts", "flagged",
-                 "verdict"]
 
 
 def drift_statistics(per_run: pd.DataFrame, joint: pd.DataFrame, alpha: float = ALPHA) -> pd.DataFrame:
@@ -196,7 +192,7 @@ def drift_statistics(per_run: pd.DataFrame, joint: pd.DataFrame, alpha: float = 
         row["flagged"] = bool(row["drifts"] and kind == "shared")
         row["verdict"] = _drift_verdict(row, kind)
         rows.append(row)
-    return pd.DataFrame(rows, columns=DRIFT_COLUMNS)
+    return pd.DataFrame(rows, columns=tables.DRIFT.columns)
 
 
 def _drift_verdict(row: Mapping, kind: str) -> str:

@@ -45,7 +45,8 @@ from ..diagnose.diagnosis_status import verdict_colour
 from . import interactive_pages as pages
 from . import response_plots as rp
 from . import summary as sm
-from .report import ALPHA, NOISE_FLOOR, RunComparison, waveform, waveform_noise, whirl, whirl_noise
+from ..identify.uncertainty import ALPHA
+from .report import NOISE_FLOOR, RunComparison, waveform, waveform_noise, whirl, whirl_noise
 from .report_plots import MICRO, MILLI, ORDERS, VALIDATION_STYLE, probe_pairs
 
 #: the plotly.js options of every file: no plotly logo; the camera button saves a PNG of the current view
@@ -74,7 +75,7 @@ def hover(*lines: str) -> str:
     return "<br>".join(lines) + "<extra></extra>"
 
 
-def _finish(fig: go.Figure, title: str, height: float, width: float | None = None) -> go.Figure:
+def finish_figure(fig: go.Figure, title: str, height: float, width: float | None = None) -> go.Figure:
     """The layout every figure shares: the title, hover on the closest point, a white background, the legend on
     the right (scrolls when long)."""
     fig.update_layout(title={"text": title, "font": {"size": 13}, "x": 0.01}, hovermode="closest",
@@ -92,7 +93,7 @@ def write_html(fig: go.Figure, path: str | Path) -> None:
     pages.write_figure(fig, path, title=fig.layout.title.text or "figure")
 
 
-class _Shown:
+class LegendGroups:
     """Which legend groups already have their entry: the first trace of a group shows it, the others follow."""
 
     def __init__(self):
@@ -104,7 +105,7 @@ class _Shown:
         return first
 
 
-def _speeds_line(rpm: Sequence[float], top: float) -> tuple[list, list]:
+def speeds_line(rpm: Sequence[float], top: float) -> tuple[list, list]:
     """x, y of vertical lines at each speed of ``rpm`` from 0 to ``top``, in one trace (gaps between them)."""
     x, y = [], []
     for r in sorted(set(float(v) for v in rpm)):
@@ -147,7 +148,7 @@ def runs_figure(comparisons: Sequence[RunComparison], variant: str,
         fig.update_yaxes(title_text="residual [um]", row=2 * k + 2, col=2)
         fig.update_yaxes(type="log", title_text="|component| [um]", row=2 * k + 1, col=3)
     fig.update_layout(barmode="group")
-    return _finish(fig, f"variant {variant}: measured vs model per run. Shown: the worst run, {worst}; a legend "
+    return finish_figure(fig, f"variant {variant}: measured vs model per run. Shown: the worst run, {worst}; a legend "
                    "entry shows or hides a run's probe (double click: that one alone)", 560 * n + 120)
 
 
@@ -158,7 +159,7 @@ _ORBIT_SAMPLES, _SIGNAL_SAMPLES = 121, 193
 
 def _run_plane(fig: go.Figure, c: RunComparison, row: int, head: str, visible) -> None:
     """One plane's traces of one run (``c``: its x, y channels) from row ``row`` on."""
-    shown = _Shown()
+    shown = LegendGroups()
     x_name, y_name = c.channels[:2]
     group = f"{c.run}: orbit, whirl ({x_name}, {y_name})"
     common = {"legendgroup": group, "visible": visible}
@@ -229,9 +230,9 @@ def _whirl_bars(fig: go.Figure, c: RunComparison, row: int, head: str, group: st
 
 
 class _Recorder:
-    """Stands in for a matplotlib Axes to the Bode PNG's drawing helpers (``response_plots._curve``, ``_measured``,
-    ``_validation``): keeps each line they draw, (x, y, line style, y error, style keywords), so that the
-    interactive figure shows the PNG's numbers from the PNG's own code."""
+    """Stands in for a matplotlib Axes to the Bode PNG's drawing helpers (``response_plots.response_curve``,
+    ``measured_points``, ``validation_points``): keeps each line they draw, (x, y, line style, y error, style
+    keywords), so that the interactive figure shows the PNG's numbers from the PNG's own code."""
 
     def __init__(self):
         self.lines: list[tuple[np.ndarray, np.ndarray, str, object, dict]] = []
@@ -270,17 +271,17 @@ def bode_figure(dense: pd.DataFrame, comparisons: Sequence[RunComparison], varia
     orders = [h for h in orders if h <= H]
     colours = {trial: colour(c) for trial, c in rp.trial_colours(dense).items()}
     channels = rp.channels_of(dense)
-    comparisons = rp._by_channel(comparisons, channels)
+    comparisons = rp.by_channel(comparisons, channels)
     fig = make_subplots(rows=2 * len(channels), cols=len(orders), shared_xaxes=True, vertical_spacing=0.04,
                         horizontal_spacing=0.06, subplot_titles=[f"{h}X, {channel}" if r % 2 == 0 else ""
                                                                  for channel in channels for r in range(2)
                                                                  for h in orders])
-    shown = _Shown()
+    shown = LegendGroups()
     for col, h in enumerate(orders, start=1):
         for j, channel in enumerate(channels):
             row = 2 * j + 1
             cell = {"amp": (row, col), "phase": (row + 1, col)}
-            sigmas = [c.sigma[h - 1, j] for c in comparisons] or [float(np.nanmax(np.abs(rp._channel(dense, j))))]
+            sigmas = [c.sigma[h - 1, j] for c in comparisons] or [float(np.nanmax(np.abs(rp.channel_values(dense, j))))]
             floor = 0.2 * min(sigmas) * MICRO  # plot_bode's: a vanishing harmonic's phase is not drawn
             # the hover gives the true amplitude (customdata): the line drawn stops at the floor
             amp_unit = f"|{channel}, {h}X| %{{customdata:.4~r}} um"
@@ -289,10 +290,11 @@ def bode_figure(dense: pd.DataFrame, comparisons: Sequence[RunComparison], varia
                 sweeps = {sweep: part for sweep, part in both.groupby("sweep")}
                 for key, style in (("up", "-"), ("down", "--")):
                     amp, ph, part = _Recorder(), _Recorder(), sweeps[rp.SWEEPS[key]]
-                    up = rp._curve(amp, ph, part, j, "", style, None, floor, ups.get(trial))
+                    up = rp.response_curve(amp, ph, part, j, "", style, None, floor, ups.get(trial))
                     ups.setdefault(trial, up)
                     group = f"{rp.trial_label(*trial)} model, {rp.SWEEPS[key]}"
-                    true = np.abs(rp._channel(part.sort_values("rpm"), j)) * MICRO  # _curve's order: by speed
+                    # response_curve's order: by speed
+                    true = np.abs(rp.channel_values(part.sort_values("rpm"), j)) * MICRO
                     for k, (x, y, fmt, _, _) in enumerate(amp.lines + ph.lines):
                         phase = k >= len(amp.lines)
                         fig.add_trace(go.Scatter(
@@ -305,12 +307,12 @@ def bode_figure(dense: pd.DataFrame, comparisons: Sequence[RunComparison], varia
                 for c in comparisons:
                     if c.role == "fit" and rp.trial_key(c) == trial:
                         amp, ph = _Recorder(), _Recorder()
-                        rp._measured(amp, ph, c, h, j, "", floor, rp._near(ups, c), "")
+                        rp.measured_points(amp, ph, c, h, j, "", floor, rp.near_speed(ups, c), "")
                         _points(fig, c, h, j, amp, ph, cell, colours[trial], "circle", "measured", shown)
             for c in comparisons:
                 if c.role == "validate":
                     amp, ph = _Recorder(), _Recorder()
-                    rp._validation(amp, ph, c, h, j, floor, rp._near(ups, c))
+                    rp.validation_points(amp, ph, c, h, j, floor, rp.near_speed(ups, c))
                     _points(fig, c, h, j, amp, ph, cell, VALIDATION, None, None, shown)
             ordered = sorted(comparisons, key=lambda c: c.rpm)
             if ordered:
@@ -323,13 +325,13 @@ def bode_figure(dense: pd.DataFrame, comparisons: Sequence[RunComparison], varia
             fig.update_yaxes(type="log", title_text=f"|{channel}, {h}X| [um]", row=row, col=col)
             fig.update_yaxes(title_text="phase [deg]", row=row + 1, col=col)
         fig.update_xaxes(title_text="speed [RPM]", row=2 * len(channels), col=col)
-    return _finish(fig, f"variant {variant}: Bode plots, model by continuation (solid run-up, dashed run-down, "
+    return finish_figure(fig, f"variant {variant}: Bode plots, model by continuation (solid run-up, dashed run-down, "
                    "dotted unstable) vs measured (2 sigma bars); magenta: validation runs measured (stars) and "
                    "predicted (crosses)", 520 * len(channels) + 100)
 
 
 def _points(fig: go.Figure, c: RunComparison, h: int, j: int, amp: _Recorder, ph: _Recorder, cell: Mapping,
-            line: str, symbol: str | None, kind: str | None, shown: _Shown) -> None:
+            line: str, symbol: str | None, kind: str | None, shown: LegendGroups) -> None:
     """A run's recorded points in one Bode panel pair, in the run's own legend group; the hover gives the true
     amplitude (the drawn one stops at the panel's floor) and phase, and the 2 sigma of the noise."""
     channel = c.channels[j]
@@ -361,11 +363,11 @@ def polar_figure(dense: pd.DataFrame, comparisons: Sequence[RunComparison], vari
     orders = [h for h in orders if h <= H]
     colours = {trial: colour(c) for trial, c in rp.trial_colours(dense).items()}
     channels = rp.channels_of(dense)
-    comparisons = rp._by_channel(comparisons, channels)
+    comparisons = rp.by_channel(comparisons, channels)
     fig = make_subplots(rows=len(channels), cols=len(orders), specs=[[{"type": "polar"}] * len(orders)]
                         * len(channels), subplot_titles=[f"{h}X, {channel} [um]" for channel in channels
                                                          for h in orders], vertical_spacing=0.08)
-    shown = _Shown()
+    shown = LegendGroups()
 
     def point(z: complex, row: int, col: int, group: str, text: str, marker: Mapping, channel: str, h: int,
               line: str | None = None) -> None:
@@ -378,7 +380,7 @@ def polar_figure(dense: pd.DataFrame, comparisons: Sequence[RunComparison], vari
         for j, channel in enumerate(channels):
             row = j + 1
             for (mass, angle, sweep), part in dense[dense["harmonic"] == h].groupby(rp.TRIAL + ["sweep"]):
-                z = rp._channel(part, j)
+                z = rp.channel_values(part, j)
                 group = f"{rp.trial_label(mass, angle)} model, {sweep}"
                 fig.add_trace(go.Scatterpolar(
                     r=np.abs(z) * MICRO, theta=np.degrees(np.angle(z)), mode="lines", name=group,
@@ -405,8 +407,8 @@ def polar_figure(dense: pd.DataFrame, comparisons: Sequence[RunComparison], vari
                     legendgroup="noise", showlegend=shown("noise"), line={"color": colour("0.4"), "dash": "dot",
                                                                           "width": 1},
                     hovertemplate=hover(f"noise (2 sigma) {noise:.3g} um")), row, col)
-    return _finish(fig, f"variant {variant}: polar plots, model by continuation (solid run-up, dashed run-down) vs "
-                   "measured, model's frame; magenta: validation runs", 460 * len(channels) + 120,
+    return finish_figure(fig, f"variant {variant}: polar plots, model by continuation (solid run-up, dashed run-down) "
+                         "vs measured, model's frame; magenta: validation runs", 460 * len(channels) + 120,
                    max(420 * len(orders), 900))
 
 
@@ -450,7 +452,7 @@ def summary_figure(ledger: pd.DataFrame, errors: Mapping[str, pd.DataFrame]) -> 
     top = max(float(finite.max()) if finite.size else 10.0, 10.0)
     labels = [f"{'* ' if r.role != 'fit' else ''}{r.run} ({r.rpm:.0f} RPM, {r.eccentric_mass_g:g} g)"
               for r in runs.itertuples()]
-    text = [[("" if not np.isfinite(v) else f"<b>{sm._short(v)}</b>" if b else sm._short(v))
+    text = [[("" if not np.isfinite(v) else f"<b>{sm.short_number(v)}</b>" if b else sm.short_number(v))
              for v, b in zip(row, brow)] for row, brow in zip(values, beyond.to_numpy())]
     said = [[(f"run {labels[i]}<br>variant {variants[j]}<br>chi^2/dof {number(v)}"
               + (f", beyond the noise (p < {ALPHA:g})" if beyond.iat[i, j] else ", within the noise"))
@@ -467,7 +469,7 @@ def summary_figure(ledger: pd.DataFrame, errors: Mapping[str, pd.DataFrame]) -> 
                          row=row, col=1)
     fig.update_yaxes(type="log", title_text="chi^2 / dof", row=1, col=1)
     fig.update_yaxes(tickvals=np.arange(len(runs)), ticktext=labels, autorange="reversed", row=2, col=1)
-    return _finish(fig, "The answer first: the error per variant and where each variant fails",
+    return finish_figure(fig, "The answer first: the error per variant and where each variant fails",
                    420 + 22 * len(runs), max(640, 160 * len(variants) + 360))
 
 
@@ -503,4 +505,4 @@ def diagnosis_figure(result) -> go.Figure:
                                  hovertemplate=hover(f"{label.split(':')[0]}: chi^2/dof {number(x)}")), row=1, col=2)
     fig.update_xaxes(type="log", title_text="score statistic (predicted chi^2 drop)", row=1, col=1)
     fig.update_xaxes(type="log", title_text="chi^2 / dof", row=1, col=2)
-    return _finish(fig, f"Diagnosis of {s['variant']}: which effect is missing", 26 * len(t) + 260)
+    return finish_figure(fig, f"Diagnosis of {s['variant']}: which effect is missing", 26 * len(t) + 260)

@@ -18,7 +18,7 @@ from plotly.subplots import make_subplots
 
 from ..model.model import Model
 from . import machine_plots as mp
-from .interactive import _finish, _Shown, _speeds_line, colour, hover
+from .interactive import finish_figure, LegendGroups, speeds_line, colour, hover
 
 
 def _style(whirl: str) -> dict:
@@ -40,7 +40,7 @@ def campbell_figure(model: Model, values: Mapping[str, float], rpm: Sequence[flo
     fig = make_subplots(rows=2, cols=1, shared_xaxes=True, row_heights=[2.2, 1.0], vertical_spacing=0.07,
                         subplot_titles=["", "damping: logarithmic decrement 2 pi zeta / sqrt(1 - zeta^2) of each "
                                             "branch (< 0: unstable)"])
-    shown = _Shown()
+    shown = LegendGroups()
     for (whirl, branch), group in table.groupby(["whirl", "branch"]):
         group = group.sort_values("rpm")
         name = f"{branch + 1}{whirl[0].upper()}: {whirl} whirl, branch {branch + 1}"
@@ -65,7 +65,7 @@ def campbell_figure(model: Model, values: Mapping[str, float], rpm: Sequence[flo
                                 "%{customdata[0]} whirl, branch %{customdata[1]}",
                                 "log decrement %{customdata[2]:.3~r}")), row=1, col=1)
     if len(run_rpm):
-        x, y = _speeds_line(run_rpm, top)
+        x, y = speeds_line(run_rpm, top)
         fig.add_trace(go.Scatter(x=x, y=y, mode="lines", name="run speeds", opacity=0.6,
                                  line={"color": colour("C2"), "width": 0.8},
                                  hovertemplate=hover("run speed %{x:.1f} RPM")), row=1, col=1)
@@ -83,7 +83,7 @@ def campbell_figure(model: Model, values: Mapping[str, float], rpm: Sequence[flo
     fig.update_yaxes(range=[0, top], title_text="whirl frequency [Hz]", row=1, col=1)
     fig.update_yaxes(title_text="log decrement", row=2, col=1)
     fig.update_xaxes(title_text="speed [RPM]", row=2, col=1)
-    return _finish(fig, title or f"Campbell diagram, {getattr(model.shaft, 'name', 'shaft')}", 780)
+    return finish_figure(fig, title or f"Campbell diagram, {getattr(model.shaft, 'name', 'shaft')}", 780)
 
 
 def mode_shapes_figure(model: Model, values: Mapping[str, float], rpm: float = 0.0, n_modes: int = 4,
@@ -100,7 +100,7 @@ def mode_shapes_figure(model: Model, values: Mapping[str, float], rpm: float = 0
               + ("x and y planes alike" if r.pair else f"{r.whirl} whirl") for k, r in enumerate(picked.itertuples())]
     fig = make_subplots(rows=len(labels), cols=1, shared_xaxes=True, subplot_titles=labels,
                         vertical_spacing=0.25 / max(len(labels), 1))
-    shown = _Shown()
+    shown = LegendGroups()
     for k, label in enumerate(labels):
         fig.add_trace(go.Scatter(x=z, y=shapes[:, k], mode="lines", name=label, legendgroup=label,
                                  line={"color": colour("C0"), "width": 1.6},
@@ -114,11 +114,11 @@ def mode_shapes_figure(model: Model, values: Mapping[str, float], rpm: float = 0
         _machine(fig, shaft, k + 1, shown)
         fig.update_yaxes(range=[-1.3, 1.3], title_text="deflection", row=k + 1, col=1)
     fig.update_xaxes(title_text="z along the shaft [m]", row=len(labels), col=1)
-    return _finish(fig, title or f"Undamped mode shapes at {rpm:g} RPM, {getattr(shaft, 'name', 'shaft')}",
+    return finish_figure(fig, title or f"Undamped mode shapes at {rpm:g} RPM, {getattr(shaft, 'name', 'shaft')}",
                    200 * len(labels) + 140)
 
 
-def _machine(fig: go.Figure, shaft, row: int, shown: _Shown) -> None:
+def _machine(fig: go.Figure, shaft, row: int, shown: LegendGroups) -> None:
     """The places ``machine_plots.mark_machine`` marks, on the shaft axis of panel ``row``: bearings (triangles),
     disks (bars), unbalance planes (stars), probes (diamonds); a legend entry per kind."""
     z = np.asarray(shaft.z, float)

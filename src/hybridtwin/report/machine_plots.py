@@ -31,7 +31,7 @@ import matplotlib.pyplot as plt  # no backend forced: Agg by itself without a di
 import numpy as np
 import pandas as pd
 
-from ..model.model import Model, _circular, campbell
+from ..model.model import Model, circular_modes, campbell
 from ..solvers.solver import SteadyState
 
 WHIRL_STYLE = {"forward": dict(color="C0", ls="-"), "backward": dict(color="C3", ls="--")}
@@ -163,7 +163,7 @@ def campbell_figure(model: Model, values: Mapping[str, float], rpm: Sequence[flo
 # --- mode shapes ------------------------------------------------------------------------------------------
 
 #: two eigenvalues closer than this (relative) are one degenerate pair (the x and y planes of a rotor without
-#: gyroscopic coupling); the same tolerance as ``model._circular``
+#: gyroscopic coupling); the same tolerance as ``model.circular_modes``
 DEGENERATE_RTOL = 1e-7
 
 
@@ -209,7 +209,7 @@ def undamped_modes(model: Model, values: Mapping[str, float], rpm: float = 0.0, 
     lam, vec = np.linalg.eig(np.block([[np.zeros((n, n)), np.eye(n)], [-Minv @ K, -Minv @ C]]))
     keep = np.flatnonzero(lam.imag > 1e-9 * np.abs(lam).max())
     keep = keep[np.argsort(lam.imag[keep])][:n_modes + 1]  # one more: a pair cut in two at the end is whole
-    q = _circular(lam[keep], vec[:n, keep])
+    q = circular_modes(lam[keep], vec[:n, keep])
     x, y = np.arange(n // 2), np.arange(n // 2, n)
     w = lam[keep].imag
     close = np.abs(np.diff(w)) <= DEGENERATE_RTOL * np.abs(w[1:])

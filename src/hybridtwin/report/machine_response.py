@@ -28,11 +28,12 @@ import matplotlib.pyplot as plt  # no backend forced: Agg by itself without a di
 import numpy as np
 import pandas as pd
 
+from .. import tables
 from ..model.model import Model, campbell
 from ..model.sensor import sensor_channels, sensor_names
 from ..solvers.continuation import solve_sweep
 from . import machine_plots as mp
-from .response_plots import SWEEPS, _curve, bode_axes, channels_of, columns
+from .response_plots import SWEEPS, response_curve, bode_axes, channels_of, columns
 
 Array = np.ndarray
 MICRO = 1e6
@@ -193,7 +194,7 @@ def amplification_factors(table: pd.DataFrame, harmonic: int = 1) -> pd.DataFram
     for (mass, sweep), group in part.groupby(["eccentric_mass_g", "sweep"], sort=True, dropna=False):
         group = group.sort_values("rpm")
         for c in channels_of(group):
-            z = group[f"{c}_re_m"].to_numpy() + 1j * group[f"{c}_im_m"].to_numpy()
+            z = tables.complex_values(group, c)
             speeds, stable = group["rpm"].to_numpy(), group["stable"].to_numpy() if "stable" in group else None
             for top, height, low, high in peaks_of(speeds, np.abs(z)):
                 at = stable[np.argmin(np.abs(speeds - top))] if stable is not None else np.nan
@@ -258,15 +259,16 @@ def bode_figure(table: pd.DataFrame, peaks: pd.DataFrame | None = None, harmonic
         part = table[table["harmonic"] == h]
         for j, channel in enumerate(channels):
             amp, ph = axes[2 * j, col], axes[2 * j + 1, col]
-            a = np.hypot(table[f"{channel}_re_m"], table[f"{channel}_im_m"]).to_numpy() * MICRO
+            z = tables.complex_values(table, channel)
+            a = np.hypot(z.real, z.imag) * MICRO
             a = a[np.isfinite(a) & (a > 0)]
             # eight decades below the channel's largest harmonic: a harmonic that is zero shows its round-off nowhere
             floor = 1e-8 * a.max() if a.size else 1e-12
             sweeps = {sweep: rows for sweep, rows in part.groupby("sweep")}
-            up = _curve(amp, ph, sweeps[SWEEPS["up"]], j, "C0", "-", "run-up", floor) \
+            up = response_curve(amp, ph, sweeps[SWEEPS["up"]], j, "C0", "-", "run-up", floor) \
                 if SWEEPS["up"] in sweeps else None
             if SWEEPS["down"] in sweeps:
-                _curve(amp, ph, sweeps[SWEEPS["down"]], j, "C1", "--", "run-down", floor, up)
+                response_curve(amp, ph, sweeps[SWEEPS["down"]], j, "C1", "--", "run-down", floor, up)
             if peaks is not None and h == 1:
                 for row in peaks[(peaks["channel"] == channel) & (peaks["sweep"] == SWEEPS["up"])].itertuples():
                     amp.plot(row.rpm_peak, row.amplitude_0pk_m * MICRO, "v", color="k", ms=5, gid="peak")
@@ -295,7 +297,7 @@ def polar_figure(table: pd.DataFrame, harmonic: int = 1, title: str = "") -> plt
         ax = axes[0, j]
         for sweep, rows in part.groupby("sweep"):
             rows = rows.sort_values("rpm")
-            z = rows[f"{channel}_re_m"].to_numpy() + 1j * rows[f"{channel}_im_m"].to_numpy()
+            z = tables.complex_values(rows, channel)
             up = sweep == SWEEPS["up"]
             ax.plot(np.angle(z), np.abs(z) * MICRO, "-" if up else "--", color="C0" if up else "C1", lw=1.2,
                     label=sweep, gid=f"{channel}:{sweep}")

@@ -49,20 +49,18 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
+from .. import tables
 from ..identify import identification as idn
-from ..data.measured import flags
 from ..data.measurements import trial_angles
 from ..identify import validation as val
+from ..identify.uncertainty import ALPHA  # the false-alarm rate of one test (a run beyond noise, a drifting parameter)
 
 Array = np.ndarray
 
-#: false-alarm rate of one test (a run beyond noise, a drifting parameter)
-ALPHA = 0.01
 #: chi^2 / dof of a model that explains the data to within the noise
 NOISE_FLOOR = 1.0
-#: columns of ``error_table`` (errors.tsv, validation_errors.tsv)
-ERROR_COLUMNS = ["run", "rpm", "eccentric_mass_g", "role", "source", "chi2", "dof", "chi2_dof", "p_value",
-                 "beyond_noise", "error_pct", "signal_m"]
+#: columns of ``error_table`` (errors.tsv, validation_errors.tsv): the table layer's
+ERROR_COLUMNS = list(tables.ERRORS.columns)
 
 
 # --- one run: measured and model harmonics ---------------------------------------------
@@ -205,12 +203,12 @@ def read_comparisons(table: pd.DataFrame) -> list[RunComparison]:
 def write_comparisons(comparisons: Sequence[RunComparison], path: str | Path) -> None:
     """The comparison table (results/{variant}/report/harmonics.tsv, ``comparison_table``): ``load_comparisons``
     reads it back."""
-    comparison_table(comparisons).to_csv(path, sep="\t", index=False, float_format="%.9g")
+    tables.COMPARISONS.write(comparison_table(comparisons), path)
 
 
 def load_comparisons(path: str | Path) -> list[RunComparison]:
     """The comparisons of a table written by ``write_comparisons``, run ids as strings."""
-    return read_comparisons(pd.read_csv(path, sep="\t", dtype={"run": str}))
+    return read_comparisons(tables.COMPARISONS.read(path))
 
 
 def _grid(rows: pd.DataFrame, column: str, channels: int) -> Array:
@@ -235,15 +233,13 @@ def error_table(comparisons: Sequence[RunComparison]) -> pd.DataFrame:
 
 def write_errors(table: pd.DataFrame, path: str | Path) -> None:
     """An error table (``error_table``: report/errors.tsv, report/validation_errors.tsv): ``read_errors`` reads it."""
-    table.to_csv(path, sep="\t", index=False, float_format="%.6g")
+    tables.ERRORS.write(table, path)
 
 
 def read_errors(path: str | Path) -> pd.DataFrame:
     """An error table written by ``write_errors``: run ids and roles as text, beyond_noise as bool (one way:
     ``measured.flags``), the rest as numbers."""
-    table = pd.read_csv(path, sep="\t", dtype={"run": str, "role": str, "source": str})
-    table["beyond_noise"] = flags(table["beyond_noise"])
-    return table
+    return tables.ERRORS.read(path)
 
 
 def pooled(errors: pd.DataFrame) -> dict[str, float]:
@@ -290,10 +286,7 @@ def bic(chi2: float, n_data: int, dof: int) -> float:
 
 
 #: the ledger's columns (results/ledger.tsv; workflow/report/ledger.rst), then chi2_dof_{run} per run
-LEDGER_COLUMNS = ["variant", "description", "source", "n_data", "k", "dof", "chi2", "chi2_dof",
-                  "excess_over_noise_pct", "bic", "delta_bic", "error_pct", "run_chi2_dof_median",
-                  "run_chi2_dof_max", "worst_run", "runs_beyond_noise", "validation_chi2_dof",
-                  "validation_error_pct", "worst_validation_run"]
+LEDGER_COLUMNS = list(tables.LEDGER_COLUMNS)
 
 
 def ledger_row(variant: str, description: str, summary: Mapping, errors: pd.DataFrame) -> dict:
@@ -333,11 +326,10 @@ def ledger_table(rows: Sequence[Mapping]) -> pd.DataFrame:
 
 def write_ledger(ledger: pd.DataFrame, path: str | Path) -> None:
     """The ledger (``ledger_table``, results/ledger.tsv): ``read_ledger`` reads it back."""
-    ledger.to_csv(path, sep="\t", index=False, float_format="%.6g")
+    tables.LEDGER.write(ledger, path)
 
 
 def read_ledger(path: str | Path) -> pd.DataFrame:
     """The ledger written by ``write_ledger``: variant names, descriptions and run ids as text, the rest as
     numbers."""
-    text = ("variant", "description", "source", "worst_run", "worst_validation_run")
-    return pd.read_csv(path, sep="\t", dtype=dict.fromkeys(text, str))
+    return tables.LEDGER.read(path)

@@ -17,7 +17,8 @@ from matplotlib.colors import LogNorm
 
 from ..data.records import record_channels
 from ..plots import plt
-from .report import ALPHA, NOISE_FLOOR, RunComparison, pooled, waveform, waveform_noise, whirl, whirl_noise
+from ..identify.uncertainty import ALPHA
+from .report import NOISE_FLOOR, RunComparison, pooled, waveform, waveform_noise, whirl, whirl_noise
 
 Array = np.ndarray
 

@@ -27,6 +27,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
+from .. import tables  # noqa: E402
 from ..identify import validation as val  # noqa: E402
 from ..data.measurements import trial_angles  # noqa: E402
 from ..identify.arrow_problem import wrap  # noqa: E402
@@ -49,7 +50,7 @@ TRIAL = ["eccentric_mass_g", "eccentric_mass_angle_deg"]
 
 def columns(channels: Sequence[str]) -> list[str]:
     """The dense table's columns for sensor ``channels`` (the machine's order)."""
-    return (TRIAL + ["sweep", "rpm", "harmonic"] + [f"{c}_{part}_m" for c in channels for part in ("re", "im")]
+    return (TRIAL + ["sweep", "rpm", "harmonic"] + [tables.part_column(c, part) for c in channels for part in ("re", "im")]
             + ["stable", "branch"])
 
 
@@ -169,15 +170,13 @@ def dense_response(variant, joint: pd.DataFrame, runs: pd.DataFrame, rpm: Sequen
 
 def write_dense(table: pd.DataFrame, path) -> None:
     """``dense_response``'s table as TSV, every float to full precision (``read_dense`` is its exact inverse)."""
-    table.to_csv(path, sep="\t", index=False, float_format="%.17g")
+    tables.RESPONSE.write(table, path)
 
 
 def read_dense(path) -> pd.DataFrame:
     """The table ``write_dense`` wrote (``stable`` back to True/False/NaN; a table written before trial angles
     were, without eccentric_mass_angle_deg, read with the angle 0)."""
-    header = pd.read_csv(path, sep="\t", nrows=0).columns
-    table = pd.read_csv(path, sep="\t", dtype={"sweep": str, "branch": str}, keep_default_na=False,
-                        na_values={c: ["", "nan", "NaN"] for c in header if c not in ("sweep", "branch")})
+    table = tables.RESPONSE.read(path)
     if "eccentric_mass_angle_deg" not in table:
         table.insert(1, "eccentric_mass_angle_deg", 0.0)
     table["stable"] = table["stable"].map({True: True, False: False, "True": True, "False": False}).astype(object)
@@ -185,20 +184,20 @@ def read_dense(path) -> pd.DataFrame:
     return table[columns(channels_of(table))]
 
 
-def _channel(table: pd.DataFrame, j: int) -> Array:
+def channel_values(table: pd.DataFrame, j: int) -> Array:
     """The j-th sensor channel's complex harmonic (the machine's order)."""
     c = channels_of(table)[j]
-    return table[f"{c}_re_m"].to_numpy() + 1j * table[f"{c}_im_m"].to_numpy()
+    return tables.complex_values(table, c)
 
 
-def _curve(ax_amp, ax_phase, part: pd.DataFrame, j: int, colour: str, style: str, label: str | None,
+def response_curve(ax_amp, ax_phase, part: pd.DataFrame, j: int, colour: str, style: str, label: str | None,
            floor: float, reference: tuple[Array, Array] | None = None) -> tuple[Array, Array]:
     """One sweep's amplitude (stable stretches ``style``, unstable ones dotted) and unwrapped phase, in order of
     speed; the phase is drawn where the amplitude stands above ``floor`` (a vanishing harmonic has none) and
     shifted by whole turns to meet ``reference`` ((rpm, phase) of the other sweep) where both exist. Returns
     (rpm, phase [rad])."""
     part = part.sort_values("rpm")
-    z = _channel(part, j)
+    z = channel_values(part, j)
     rpm = part["rpm"].to_numpy()
     amplitude = np.maximum(np.abs(z) * MICRO, floor)
     unstable = part["stable"].to_numpy() == False  # noqa: E712 (object column: True/False/NaN)
@@ -217,7 +216,7 @@ def _curve(ax_amp, ax_phase, part: pd.DataFrame, j: int, colour: str, style: str
     return rpm, phase
 
 
-def _by_channel(comparisons: Sequence[RunComparison], channels: Sequence[str]) -> list[RunComparison]:
+def by_channel(comparisons: Sequence[RunComparison], channels: Sequence[str]) -> list[RunComparison]:
     """The runs' columns in the dense table's channel order, matched by name; a run whose channels are not the
     table's is a ValueError naming both."""
     for c in comparisons:
@@ -237,28 +236,29 @@ def plot_bode(dense: pd.DataFrame, comparisons: Sequence[RunComparison], variant
     orders = [h for h in orders if h <= H]
     colours = trial_colours(dense)
     channels = channels_of(dense)
-    comparisons = _by_channel(comparisons, channels)
+    comparisons = by_channel(comparisons, channels)
     fig, axes = plt.subplots(2 * len(channels), len(orders), sharex=True, squeeze=False,
                              figsize=(max(4.6 * len(orders), MIN_WIDTH_IN), 6 * len(channels)))
     for col, h in enumerate(orders):
         for j, channel in enumerate(channels):
             amp, ph = axes[2 * j, col], axes[2 * j + 1, col]
-            sigmas = [c.sigma[h - 1, j] for c in comparisons] or [float(np.nanmax(np.abs(_channel(dense, j))))]
+            sigmas = [c.sigma[h - 1, j] for c in comparisons] or [float(np.nanmax(np.abs(channel_values(dense, j))))]
             floor = 0.2 * min(sigmas) * MICRO
             ups = {}  # each trial's run-up curve (rpm, unwrapped phase): the branch of 2 pi a run's phase is drawn on
             for trial, both in dense[dense["harmonic"] == h].groupby(TRIAL, sort=True):
                 sweeps = {sweep: part for sweep, part in both.groupby("sweep")}
                 name = trial_label(*trial)
-                up = _curve(amp, ph, sweeps[SWEEPS["up"]], j, colours[trial], "-", f"{name} model, run-up", floor)
-                _curve(amp, ph, sweeps[SWEEPS["down"]], j, colours[trial], "--", f"{name} model, run-down",
+                up = response_curve(amp, ph, sweeps[SWEEPS["up"]], j, colours[trial], "-", f"{name} model, run-up",
+                                    floor)
+                response_curve(amp, ph, sweeps[SWEEPS["down"]], j, colours[trial], "--", f"{name} model, run-down",
                        floor, up)
                 ups[trial] = up
                 for c in comparisons:
                     if c.role == "fit" and trial_key(c) == trial:
-                        _measured(amp, ph, c, h, j, colours[trial], floor, _near(ups, c), f"{name} measured")
+                        measured_points(amp, ph, c, h, j, colours[trial], floor, near_speed(ups, c), f"{name} measured")
             for c in comparisons:
                 if c.role == "validate":
-                    _validation(amp, ph, c, h, j, floor, _near(ups, c))
+                    validation_points(amp, ph, c, h, j, floor, near_speed(ups, c))
             ordered = sorted(comparisons, key=lambda c: c.rpm)
             if ordered:
                 amp.plot([c.rpm for c in ordered], [2 * c.sigma[h - 1, j] * MICRO for c in ordered], ":",
@@ -285,7 +285,7 @@ def bode_axes(amp: plt.Axes, ph: plt.Axes, channel: str, h: int, amp_label: str)
         ax.grid(alpha=0.3, which="both")
 
 
-def _measured(amp, ph, c: RunComparison, h: int, j: int, colour: str, floor: float, near: float, label: str
+def measured_points(amp, ph, c: RunComparison, h: int, j: int, colour: str, floor: float, near: float, label: str
               ) -> None:
     z, s = c.measured[h - 1, j], c.sigma[h - 1, j]
     level = max(abs(z) * MICRO, floor)
@@ -296,7 +296,7 @@ def _measured(amp, ph, c: RunComparison, h: int, j: int, colour: str, floor: flo
         ph.errorbar([c.rpm], [np.degrees(phase)], yerr=[np.degrees(2 * s / abs(z))], fmt="o", ms=4, color=colour)
 
 
-def _near(ups: dict, c: RunComparison) -> float:
+def near_speed(ups: dict, c: RunComparison) -> float:
     """The model curve's unwrapped phase at run ``c``'s speed, on the run-up of its trial (or the nearest mass
     drawn, then the nearest angle): a run's phase is drawn within pi of it, on the curve's branch of 2 pi."""
     if not ups:
@@ -307,9 +307,9 @@ def _near(ups: dict, c: RunComparison) -> float:
     return float(np.interp(c.rpm, rpm[finite], phase[finite])) if finite.any() else 0.0
 
 
-def _validation(amp, ph, c: RunComparison, h: int, j: int, floor: float, near: float) -> None:
+def validation_points(amp, ph, c: RunComparison, h: int, j: int, floor: float, near: float) -> None:
     z, m, s = c.measured[h - 1, j], c.model[h - 1, j], c.sigma[h - 1, j]
-    predicted = near + wrap(np.angle(m) - near)  # on the curve's branch, as the fit runs (``_measured``)
+    predicted = near + wrap(np.angle(m) - near)  # on the curve's branch, as the fit runs (``measured_points``)
     style = {"color": VALIDATION_STYLE["color"], "ms": VALIDATION_STYLE["ms"], "ls": "none"}
     amp.plot(c.rpm, max(abs(z) * MICRO, floor), marker=VALIDATION_STYLE["marker"], mfc="none",
              label="validation measured", **style)
@@ -331,14 +331,14 @@ def plot_polar(dense: pd.DataFrame, comparisons: Sequence[RunComparison], varian
     orders = [h for h in orders if h <= H]
     colours = trial_colours(dense)
     channels = channels_of(dense)
-    comparisons = _by_channel(comparisons, channels)
+    comparisons = by_channel(comparisons, channels)
     fig, axes = plt.subplots(len(channels), len(orders), squeeze=False, subplot_kw={"projection": "polar"},
                              figsize=(max(4.8 * len(orders), MIN_WIDTH_IN), 4.8 * len(channels)))
     for col, h in enumerate(orders):
         for j, channel in enumerate(channels):
             ax = axes[j, col]
             for (mass, angle, sweep), part in dense[dense["harmonic"] == h].groupby(TRIAL + ["sweep"]):
-                z = _channel(part, j)
+                z = channel_values(part, j)
                 ax.plot(np.angle(z), np.abs(z) * MICRO, "-" if sweep == SWEEPS["up"] else "--",
                         color=colours[(mass, angle)], lw=1.2, label=f"{trial_label(mass, angle)} model, {sweep}")
             for c in comparisons:
@@ -386,7 +386,7 @@ def multivalued(dense: pd.DataFrame, rtol: float = 0.02) -> pd.DataFrame:
         common = up.index.intersection(down.index)
         differ = np.zeros(len(common), bool)
         for j in range(len(channels_of(part))):
-            a, b = np.abs(_channel(up.loc[common], j)), np.abs(_channel(down.loc[common], j))
+            a, b = np.abs(channel_values(up.loc[common], j)), np.abs(channel_values(down.loc[common], j))
             differ |= np.abs(a - b) > rtol * np.maximum(np.maximum(a, b), 1e-300)
         speeds = np.asarray(common)[differ]
         rows.append({"eccentric_mass_g": mass, "eccentric_mass_angle_deg": angle,

@@ -5,7 +5,7 @@ variant to variant (the ledger), what the diagnosis recommends, and where each v
 module turns the ledger (``results/ledger.tsv``), each variant's per-run errors (``report/errors.tsv``,
 ``report/validation_errors.tsv``) and its diagnosis (``diagnosis.yaml``) into
 
-- ``summary_table``: one row per variant (``results/summary.tsv``, columns ``SUMMARY_COLUMNS``);
+- ``summary_table``: one row per variant (``results/summary.tsv``, columns ``tables.SUMMARY.columns``);
 - ``plot_summary``: one figure (``results/summary.png``): chi^2/dof variant by variant, and per run and
   variant the normalised error, runs beyond the noise in bold;
 - ``landing_rst``: the reStructuredText the report's first page includes (``results/summary.rst``, see
@@ -29,15 +29,13 @@ import pandas as pd
 from matplotlib.colors import LogNorm
 from scipy import stats
 
+from .. import tables
 from ..data import measured
 from ..plots import plt
-from .report import ALPHA, NOISE_FLOOR
+from ..identify.uncertainty import ALPHA
+from .report import NOISE_FLOOR
 from .report_plots import VALIDATION_STYLE
 
-#: columns of ``summary_table`` (results/summary.tsv)
-SUMMARY_COLUMNS = ["variant", "chi2_dof", "p_value", "validation_chi2_dof", "delta_bic", "fit_runs", "fit_runs_beyond_noise",
-                   "validation_runs", "validation_runs_beyond_noise", "worst_run", "worst_run_chi2_dof",
-                   "conclusion", "status", "recommended_variant", "recommended_in_config"]
 #: the band above the noise floor drawn in the figure (as in the ledger's)
 NEAR_NOISE = 1.1
 
@@ -85,7 +83,7 @@ def summary_table(ledger: pd.DataFrame, errors: Mapping[str, pd.DataFrame], diag
                      "status": str(diagnosis.get("status") or ""),  # the conclusion's code (diagnosis_status.Status)
                      "recommended_variant": str(recommended.get("name", "")),
                      "recommended_in_config": matching_variant(recommended.get("spec"), variants)})
-    return pd.DataFrame(rows, columns=SUMMARY_COLUMNS)
+    return pd.DataFrame(rows, columns=tables.SUMMARY.columns)
 
 
 def best_variant(summary: pd.DataFrame) -> pd.Series:
@@ -103,7 +101,7 @@ def run_order(errors: Mapping[str, pd.DataFrame]) -> pd.DataFrame:
         columns="order").reset_index(drop=True)
 
 
-def _short(value: float) -> str:
+def short_number(value: float) -> str:
     """A chi^2/dof for a small cell: two significant digits, whole numbers from 100 on."""
     return f"{value:.0f}" if value >= 100 else f"{value:.2g}"
 
@@ -166,7 +164,7 @@ def plot_summary(ledger: pd.DataFrame, errors: Mapping[str, pd.DataFrame]) -> pl
     for (i, j), value in np.ndenumerate(grid):
         if np.isfinite(value):
             dark = not 0.2 < norm(max(value, 0.1)) < 0.8  # white text on the scale's dark ends
-            ax_runs.text(j, i, _short(value), ha="center", va="center", fontsize=7,
+            ax_runs.text(j, i, short_number(value), ha="center", va="center", fontsize=7,
                          color="w" if dark else "k", fontweight="bold" if beyond[i, j] else "normal")
     labels = [f"{'* ' if r.role != 'fit' else ''}{r.run}  ({r.rpm:.0f} RPM, {r.eccentric_mass_g:g} g)"
               for r in runs.itertuples()]

@@ -46,6 +46,7 @@ import matplotlib.ticker  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
+from .. import tables
 from ..data import measured  # noqa: E402
 from ..data.records import probe_angles, record_channels  # noqa: E402
 from ..data.order_tracking import order_vector, table_channels  # noqa: E402
@@ -63,10 +64,6 @@ WATERFALL_MAX_ORDER = 5.5
 #: the waterfall's segments hold this many revolutions at the record's lowest speed (frequency resolution a
 #: quarter of the lowest 1X), at most 1/MIN_SEGMENTS of the record
 SEGMENT_REVOLUTIONS, MIN_SEGMENTS = 4, 20
-#: the columns of the points table (transient.tsv)
-POINT_COLUMNS = ["run", "kind", "role", "eccentric_mass_g", "window", "t_start_s", "t_end_s", "rpm", "frame",
-                 "channel", "harmonic", "measured_re_m", "measured_im_m", "sigma_m", "model_re_m", "model_im_m",
-                 "z_re", "z_im", "z_abs", "status", "used"]
 
 
 @dataclass(frozen=True)
@@ -198,7 +195,7 @@ def model_at(dense: pd.DataFrame, mass_g: float, kind: str, rpm: Sequence[float]
         k = np.where((k > 0) & (np.abs(speeds[k - 1] - rpm) < np.abs(speeds[k] - rpm)), k - 1, k)
         match = np.abs(speeds[k] - rpm) <= 1e-9 * np.maximum(np.abs(rpm), 1.0)
         for j, c in enumerate(channels):
-            z = rows[f"{c}_re_m"].to_numpy(float) + 1j * rows[f"{c}_im_m"].to_numpy(float)
+            z = tables.complex_values(rows, c)
             out[:, h - 1, j] = np.where(match, z[k], np.nan)
     return out
 
@@ -225,7 +222,7 @@ def compensated_like_the_data(dense: pd.DataFrame, model: Array, mass_g: float, 
 
 def points(orders: pd.DataFrame, model: Array, P: Array, record: Mapping, bands: pd.DataFrame,
            frame: str = "probes") -> pd.DataFrame:
-    """The points table of one record (POINT_COLUMNS; transient.tsv): per window, shown channel and harmonic the
+    """The points table of one record (tables.TRANSIENT.columns; transient.tsv): per window, shown channel and harmonic the
     measured vector and its sigma (``project``ed from the order table), the model's (``model_at``: (W, H, C) in
     the table's channels), z = (measured - model) / sigma per part and |z|, the window's status.
     record: run, kind, role, eccentric_mass_g."""
@@ -244,7 +241,7 @@ def points(orders: pd.DataFrame, model: Array, P: Array, record: Mapping, bands:
                              w, orders["t_start_s"].iat[w], orders["t_end_s"].iat[w], orders["rpm"].iat[w], frame, c,
                              h, Z[w, j].real, Z[w, j].imag, S[w, j], M[w, j].real, M[w, j].imag, z[w, j].real,
                              z[w, j].imag, abs(z[w, j]), status[w], status[w] == "used"))
-    return pd.DataFrame(rows, columns=POINT_COLUMNS)
+    return pd.DataFrame(rows, columns=tables.TRANSIENT.columns)
 
 
 def table_harmonics(orders: pd.DataFrame) -> int:
@@ -256,7 +253,7 @@ def table_harmonics(orders: pd.DataFrame) -> int:
 
 
 def _complex(table: pd.DataFrame, what: str) -> Array:
-    return table[f"{what}_re_m"].to_numpy(float) + 1j * table[f"{what}_im_m"].to_numpy(float)
+    return tables.complex_values(table, what)
 
 
 def _kept_spans(table: pd.DataFrame) -> list[tuple[float, float, str]]:

@@ -77,7 +77,7 @@ DEFAULT_METHOD = "Radau"
 DEFAULT_RTOL = 1e-8
 #: the highest harmonic H of a steady state resolved in time (a settled period compared harmonic by harmonic, a
 #: run-up's harmonics) and of the virtual rig's truth (config ``rig: NAME: harmonics``, which has no schema default:
-#: hybridtwin.data.rig.RigSpec): beyond the analysis's (the config's ``harmonics``, solver.DEFAULT_HARMONICS)
+#: hybridtwin.rig.rig.RigSpec): beyond the analysis's (the config's ``harmonics``, solver.DEFAULT_HARMONICS)
 RESOLVED_HARMONICS = 7
 #: default absolute tolerance on displacements [m, rad]
 DEFAULT_ATOL = 1e-8

@@ -1,4 +1,4 @@
-"""What the virtual rig's two writers share (``rig`` for steady runs, ``rig_sweep`` for run-ups and coast-downs):
+"""What the virtual rig's two writers share (``rig`` for steady runs, ``sweep`` for run-ups and coast-downs):
 its errors and warnings, the record writer, the units it writes and the per-run random streams."""
 
 from __future__ import annotations
@@ -42,6 +42,6 @@ def write_record(path: Path, record: Mapping[str, Array | None], unit: str = "mm
     np.savetxt(path, np.column_stack(columns), fmt=formats, delimiter=",", header=",".join(header), comments="")
 
 
-def _rng(seed: int, run_id: str, stream: int) -> np.random.Generator:
+def run_rng(seed: int, run_id: str, stream: int) -> np.random.Generator:
     """The generator of one run's draws (stream 0: conditions, 1: noise), independent of the plan's order."""
     return np.random.default_rng([int(seed), zlib.crc32(str(run_id).encode()), stream])

@@ -40,8 +40,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .measurements import TRIAL_ANGLE_COLUMN, DataError, read_text_table
-from .record_columns import listed, numeric_column
+from ..data import measurements
+from ..data.measurements import ROLES, RUN_ID, TRIAL_ANGLE_COLUMN, DataError, read_text_table
+from ..model.sensor import DEFAULT_SENSORS, SENSOR_NODE
+from ..data.record_columns import listed, numeric_column
+from .base import RANGE_SIGMAS, RigError, RigWarning, run_rng, write_record
 from ..solvers.sweep import SpeedProfile, SpeedSystem, integrate_sweep
 from ..solvers.transient import NotSettledError
 
@@ -103,14 +106,10 @@ def sweep_fields_from_mapping(values: dict) -> dict:
         try:
             values["runout_um"] = tuple(float(r) for r in runout)
         except (TypeError, ValueError):
-            from .rig_base import RigError
-
             raise RigError(f"imperfections: runout_um must be [1X, 2X] in um, got {values['runout_um']}") from None
     if "probe_angles_deg" in values:
         angles = values["probe_angles_deg"]
         if not isinstance(angles, Mapping):
-            from .rig_base import RigError
-
             raise RigError(f"imperfections: probe_angles_deg must be a mapping {{sensor: degrees}}, got {angles!r}")
         values["probe_angles_deg"] = {str(k): (float(v) if isinstance(v, (int, float)) and not isinstance(v, bool)
                                                else v) for k, v in angles.items()}
@@ -119,7 +118,6 @@ def sweep_fields_from_mapping(values: dict) -> dict:
 
 def probe_angles(machine, imperfections) -> dict[str, float]:
     """Every sensor's angle [deg]: the imperfections' probe_angles_deg, else 0 (an x probe) or 90 (a y probe)."""
-    from .rig_base import RigError
 
     sensors = _sensors(machine)
     given = dict(imperfections.probe_angles_deg)
@@ -134,7 +132,6 @@ def _sensors(machine) -> list[tuple[str, int, str]]:
     """(name, node, direction) of each sensor: a Machine's, x and y at node 1 for a plain Shaft."""
     if hasattr(type(machine), "sensor_node"):
         return [(s.name, int(s.node), s.direction) for s in machine.sensors]
-    from ..model.sensor import DEFAULT_SENSORS, SENSOR_NODE
 
     return [(DEFAULT_SENSORS[0], SENSOR_NODE, "x"), (DEFAULT_SENSORS[1], SENSOR_NODE, "y")]
 
@@ -164,8 +161,6 @@ def read_sweep_plan(path: str | Path) -> pd.DataFrame:
     unique), kind (steady, runup, coastdown; empty: steady), rpm on steady rows, rpm_start and rpm_end on
     transient rows (positive, a runup rising and a coastdown falling), eccentric_mass_g (every row), role.
     """
-    from . import measurements
-    from .rig_base import RigError
 
     path = Path(path)
     if hasattr(measurements, "SWEEP_COLUMNS"):  # read_runs reads transient rows
@@ -179,7 +174,6 @@ def read_sweep_plan(path: str | Path) -> pd.DataFrame:
 
 
 def _read_sweep_plan(path: Path) -> pd.DataFrame:
-    from .measurements import ROLES, RUN_ID
 
     known = ("run", "rpm", "eccentric_mass_g", "path", "role") + PLAN_SWEEP_COLUMNS
     table, line = read_text_table(path, "\t", known)
@@ -251,9 +245,8 @@ def _read_sweep_plan(path: Path) -> pd.DataFrame:
 
 def draw_sweep_conditions(row: Mapping, imperfections, seed: int, channels: Sequence[str]) -> dict:
     """One transient row's conditions from (seed, run id) stream 0 (module docstring, step 1)."""
-    from .rig_base import _rng
 
-    rng = _rng(seed, row["run"], 0)
+    rng = run_rng(seed, row["run"], 0)
     start = float(row["rpm_start"]) * (1.0 + imperfections.speed_error * rng.standard_normal())
     end = float(row["rpm_end"]) * (1.0 + imperfections.speed_error * rng.standard_normal())
     phase = rng.uniform(0.0, 2.0 * np.pi) if imperfections.random_phase else 0.0
@@ -274,20 +267,18 @@ def draw_sweep_conditions(row: Mapping, imperfections, seed: int, channels: Sequ
 
 def sweep_profile(row: Mapping, conditions: Mapping, imperfections, seed: int) -> SpeedProfile:
     """The row's true speed profile (module docstring, step 2); its wobble from (seed, run id) stream 2."""
-    from .rig_base import _rng
 
     sweep_s = abs(float(row["rpm_end"]) - float(row["rpm_start"])) / imperfections.sweep_rate_rpm_s
     return SpeedProfile.sweep(conditions["rpm_start_true"], conditions["rpm_end_true"], sweep_s,
                               dwell_start_s=imperfections.dwell_start_s, dwell_end_s=imperfections.dwell_end_s,
                               ramp_s=min(imperfections.sweep_ramp_s, sweep_s / 4.0), shape=imperfections.sweep_shape,
-                              wobble=imperfections.sweep_wobble, rng=_rng(seed, row["run"], 2),
+                              wobble=imperfections.sweep_wobble, rng=run_rng(seed, row["run"], 2),
                               theta0=conditions["phase_origin_rad"])
 
 
 def synthesise_sweep(truth, row: Mapping, conditions: Mapping, imperfections, seed: int, harmonics: int,
                      channels: Sequence[str]) -> tuple[dict, dict]:
     """One transient record's columns [SI] (time_s, <c>_m, keyphasor, clipped) and its answer-key entries."""
-    from .rig_base import RANGE_SIGMAS, RigError, _rng
 
     machine = truth.machine
     profile = sweep_profile(row, conditions, imperfections, seed)
@@ -313,7 +304,7 @@ def synthesise_sweep(truth, row: Mapping, conditions: Mapping, imperfections, se
             result.start += f" to {START_TOLERANCE_RETRY:g} (the default tolerance not reached: {err})"
     except NotSettledError as err:
         raise RigError(f"run {row['run']}: the truth's {row['kind']} could not be integrated: {err}") from None
-    noise_rng = _rng(seed, row["run"], 1)
+    noise_rng = run_rng(seed, row["run"], 1)
     limit = imperfections.sensor_range_mm * 1e-3
     rotation1, rotation2 = np.exp(1j * result.theta), np.exp(2j * result.theta)
     out: dict = {"time_s": t}
@@ -353,7 +344,6 @@ def synthesise_sweep(truth, row: Mapping, conditions: Mapping, imperfections, se
 def check_sweep_plan(plan: pd.DataFrame, sweeps: Array, spec) -> None:
     """Before any record is made: probe angles name the machine's sensors, and steady rows (which read the model's
     x and y) are not given rotated probes."""
-    from .rig_base import RigError
 
     angles = probe_angles(spec.truth.machine, spec.imperfections)
     default = probe_angles(spec.truth.machine, replace(spec.imperfections, probe_angles_deg={}))
@@ -367,7 +357,6 @@ def sweep_records(plan: pd.DataFrame, sweeps: Array, steady_truth: pd.DataFrame 
                   channels: Sequence[str]) -> pd.DataFrame:
     """Write the transient rows' records; the answer key of the whole plan (steady rows from ``steady_truth``),
     in the plan's order."""
-    from .rig_base import RigWarning, write_record
 
     imperfections = spec.imperfections
     rows = []

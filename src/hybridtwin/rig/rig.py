@@ -64,9 +64,13 @@ import pandas as pd
 import yaml
 
 from ..model.effects import Effect, trial_mass_values
+from ..tables import RIG_RUNS, RIG_TRUTH
 from ..model.machine import Machine, default_machine
-from .measurements import read_runs, trial_angles
-from .rig_base import RANGE_SIGMAS, UNIT_SCALES, RigError, RigWarning, _rng, write_record  # noqa: F401 (re-exported)
+from ..data.measurements import read_runs, trial_angles
+from ..data.preprocessing import harmonic_column
+from .sweep import (SWEEP_FIELDS, check_sweep_plan, has_sweep_columns, read_sweep_plan, sweep_field_problems,
+                    sweep_fields_from_mapping, sweep_records, sweep_rows)
+from .base import RANGE_SIGMAS, UNIT_SCALES, RigError, RigWarning, run_rng, write_record  # noqa: F401 (re-exported)
 from ..model.model import rpm_to_rad_s
 from ..model.sensor import sensor_dofs, sensor_names
 from ..solvers.continuation import RUN_UP_FROM_RPM, ramp, solve_sweep
@@ -115,7 +119,7 @@ class Imperfections:
     clip: bool = True  # clip at +-sensor_range_mm like a saturated laser micrometer
     sensor_range_mm: float = 14.0  # the laser micrometers' range
     unit: str = "mm"  # displacement columns x_mm, y_mm ("mm"), x_m ("m"), x_um ("um") or x_mils ("mils")
-    # run-ups and coast-downs only (plan rows of kind runup / coastdown; hybridtwin.data.rig_sweep): SWEEP_FIELDS
+    # run-ups and coast-downs only (plan rows of kind runup / coastdown; hybridtwin.rig.sweep): SWEEP_FIELDS
     sweep_rate_rpm_s: float = 10.0  # nominal |rpm'| of the sweep: its duration is |rpm_end - rpm_start| / rate
     sweep_shape: str = "linear"  # the rate's shape: "linear" (constant) or "exponential" (approach to the end)
     sweep_wobble: float = 0.1  # the rate wobbles smoothly by +-this fraction of itself (seeded; < 1: no reversal)
@@ -137,7 +141,6 @@ class Imperfections:
             (self.sensor_range_mm > 0, f"sensor_range_mm must be positive, got {self.sensor_range_mm}"),
             (self.unit in UNIT_SCALES, f"unit must be 'mm' or 'm', or 'um' or 'mils', got {self.unit!r}"),
         ]
-        from .rig_sweep import sweep_field_problems  # the run-up / coast-down fields
 
         checks += sweep_field_problems(self)
         for ok, message in checks:
@@ -158,14 +161,12 @@ class Imperfections:
             if len(noise) != 2:
                 raise RigError(f"imperfections: noise_mm must be one value or [low, high], got {values['noise_mm']}")
             values["noise_mm"] = (float(noise[0]), float(noise[1]))
-        from .rig_sweep import sweep_fields_from_mapping
 
         return cls(**sweep_fields_from_mapping(values))
 
     def to_mapping(self, sweep: bool | None = None) -> dict:
-        """The config form; the run-up / coast-down fields (rig_sweep.SWEEP_FIELDS) only with ``sweep`` True,
+        """The config form; the run-up / coast-down fields (sweep.SWEEP_FIELDS) only with ``sweep`` True,
         or (None) when one differs from its default: a steady data set's answer key reads as before."""
-        from .rig_sweep import SWEEP_FIELDS
 
         out = asdict(self)
         out["noise_mm"] = list(self.noise_mm)
@@ -294,8 +295,7 @@ class RigSpec:
 
 def read_plan(path: str | Path) -> pd.DataFrame:
     """A run plan (run, rpm, eccentric_mass_g[, role, ...]); a runs sheet's path column is ignored. A plan with
-    the columns kind, rpm_start, rpm_end (run-ups and coast-downs) is read by ``rig_sweep.read_sweep_plan``."""
-    from .rig_sweep import has_sweep_columns, read_sweep_plan
+    the columns kind, rpm_start, rpm_end (run-ups and coast-downs) is read by ``sweep.read_sweep_plan``."""
 
     if has_sweep_columns(path):
         return read_sweep_plan(path)
@@ -314,7 +314,7 @@ def draw_conditions(plan: pd.DataFrame, imperfections: Imperfections, seed: int,
     rows = []
     C = len(channels)
     for run_id, rpm in zip(plan["run"], plan["rpm"].to_numpy(float)):
-        rng = _rng(seed, run_id, 0)
+        rng = run_rng(seed, run_id, 0)
         speed = rpm * (1.0 + imperfections.speed_error * rng.standard_normal())
         phase = rng.uniform(0.0, 2.0 * np.pi) if imperfections.random_phase else 0.0
         offsets = rng.uniform(-imperfections.offset_mm, imperfections.offset_mm, C) * 1e-3
@@ -498,9 +498,8 @@ def generate(plan: pd.DataFrame, spec: RigSpec, out_dir: str | Path) -> pd.DataF
     """
     out_dir = Path(out_dir)
     channels = sensor_names(spec.truth.variant.model.shaft)  # one per sensor of the truth's machine
-    from .rig_sweep import check_sweep_plan, sweep_records, sweep_rows
 
-    sweeps = sweep_rows(plan)  # run-ups and coast-downs (hybridtwin.data.rig_sweep); the others as always
+    sweeps = sweep_rows(plan)  # run-ups and coast-downs (hybridtwin.rig.sweep); the others as always
     check_sweep_plan(plan, sweeps, spec)
     truth = _steady_records(plan[~sweeps], spec, out_dir, channels) if not sweeps.all() else None
     if sweeps.any():
@@ -509,8 +508,8 @@ def generate(plan: pd.DataFrame, spec: RigSpec, out_dir: str | Path) -> pd.DataF
     sheet["path"] = [f"records/{r}.csv" for r in plan["run"]]
     columns = ["run", "rpm", "eccentric_mass_g", "path", "role"]
     sheet = sheet[columns + [c for c in sheet.columns if c not in columns]]
-    sheet.to_csv(out_dir / "runs.tsv", sep="\t", index=False, float_format="%.10g")
-    truth.to_csv(out_dir / "truth.tsv", sep="\t", index=False, float_format="%.9e")
+    RIG_RUNS.write(sheet, out_dir / "runs.tsv")
+    RIG_TRUTH.write(truth, out_dir / "truth.tsv")
     with open(out_dir / "truth.yaml", "w") as stream:
         yaml.safe_dump(spec.to_mapping(True if sweeps.any() else None), stream, sort_keys=False)
     return truth
@@ -542,7 +541,7 @@ def write_steady_records(truth: pd.DataFrame, spec: RigSpec, out_dir: str | Path
     truth = truth.copy()
     Z = harmonics_of(truth, spec.harmonics, channels)
     for i, (_, row) in enumerate(truth.iterrows()):
-        record = synthesise(Z[i], row["rpm_true"], row, spec.imperfections, _rng(spec.seed, row["run"], 1),
+        record = synthesise(Z[i], row["rpm_true"], row, spec.imperfections, run_rng(spec.seed, row["run"], 1),
                             channels)
         write_record(Path(out_dir) / "records" / f"{row['run']}.csv", record, spec.imperfections.unit, channels)
         truth.loc[truth.index[i], "clipped_samples"] = int(record["clipped"].sum())
@@ -552,7 +551,6 @@ def write_steady_records(truth: pd.DataFrame, spec: RigSpec, out_dir: str | Path
 def harmonics_of(truth: pd.DataFrame, harmonics: int, channels: Sequence[str] = ("x", "y")) -> Array:
     """(R, H+1, C) complex [m]: the truth's harmonics from an answer key's columns (the inverse of
     ``_truth_table``'s harmonic columns)."""
-    from .preprocessing import harmonic_column
 
     return np.stack([np.stack([truth[harmonic_column(c, h, "re")].to_numpy(float)
                                + 1j * truth[harmonic_column(c, h, "im")].to_numpy(float) for c in channels], -1)
@@ -572,7 +570,6 @@ def _sweep(variant: Variant, values: Mapping[str, Array], speeds: Array, harmoni
 def _truth_table(runs: pd.DataFrame, response: TruthResponse, spec: RigSpec,
                  channels: Sequence[str] = ("x", "y")) -> pd.DataFrame:
     """The answer key: conditions, truth harmonics (model frame), uniqueness, peak vs sensor range."""
-    from .preprocessing import harmonic_column
 
     table = runs.copy()
     for h in range(spec.harmonics + 1):
