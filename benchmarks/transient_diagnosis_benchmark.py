@@ -107,24 +107,29 @@ def make_data(case: str, out: Path, seed: int, harmonics: int, runs: list[str] |
     if not (out / "runs.tsv").is_file():  # records kept from an earlier run (--data) are reused
         generate(plan, RigSpec.from_mapping(spec, {"midspan_cubic": MIDSPAN_CUBIC}), out)
     seconds = time.perf_counter() - start
-    table = band_table(out, harmonics, sweep_model, imperfections.get("probe_angles_deg"))
+    table = band_table(out, harmonics, sweep_model, imperfections.get("probe_angles_deg"),
+                       slowroll_default="sweep_rate_rpm_s" in imperfections)
     data = [run_data(table, run, harmonics) for run in table["run"]]
     usable = [d for d in data if d.usable]
     reached = int((~table["note"].astype(str).str.startswith("not reached")).sum())
     return usable, seconds, len(data) - len(usable), reached
 
 
-def band_table(where: Path, harmonics: int, sweep_model: str = "first_order", angles: dict | None = None
-               ) -> pd.DataFrame:
+def band_table(where: Path, harmonics: int, sweep_model: str = "first_order", angles: dict | None = None,
+               slowroll_default: bool = False) -> pd.DataFrame:
     """Every band of the records in ``where`` (its runs.tsv), tracked as the workflow's ``track_record`` rule
     does for the forward model ``sweep_model``, one table (usable or not); ``angles``: the probes' angles [deg]
-    where the rig's differ from the example's (the config's sensors say where they stand)."""
+    where the rig's differ from the example's (the config's sensors say where they stand); ``slowroll_default``:
+    the sheet's slow-roll bands left to the default (a faster sweep: the coast-down's 200 RPM holds one window of 6
+    revolutions at 30 RPM/s, and the record is refused with that remedy)."""
     sensors = yaml.safe_load((EXAMPLE / "config/config.yaml").read_text())["machine"]["sensors"]
     for name, angle in dict(angles or {}).items():
         sensors[name] = dict(sensors[name]) | {"angle_deg": float(angle)}
     bands = []
     for _, row in read_runs(where / "runs.tsv").iterrows():
         sheet_row = row.to_dict() | {"sweep_model": sweep_model}
+        if slowroll_default:
+            sheet_row["slowroll_rpm"] = float("nan")
         table = track_record(read_record(row["record"], sensors), sheet_row, harmonics).bands
         table.attrs = {}  # the runout table rides along in attrs; pandas cannot concatenate frames holding frames
         bands.append(table)
