@@ -1,11 +1,14 @@
 """Transient records (run-ups and coast-downs) as speed bands: what the rest of the method reads (issue 38).
 
 A runs-sheet row of kind ``runup`` or ``coastdown`` is one record through a speed range, with a keyphasor
-(docs/measurement-format.md). The twin compares it with the model along the sweep, quasi-steadily: the sweep is
+(docs/measurement-format.md). The twin compares it with the model along the sweep: the sweep is
 cut into speed **bands** of ``band_rpm`` (a sheet column, default DEFAULT_BAND_RPM), and each band becomes a
 *pseudo-run*, a row of the harmonics table like a steady run's, at the band's measured mean speed. Everything
 downstream (libraries, identification, validation, diagnosis, report) then reads a band as it reads a run; the
-model's response at a band is the steady state reached by continuation, as the rotor reaches it along the sweep.
+model's response at a band is the steady state reached by continuation, as the rotor reaches it along the sweep,
+corrected to first order for the band's measured sweep rate (the sheet's ``sweep_model``, default "first_order":
+``hybridtwin.solvers.sweep_forward``; "quasi_steady": the steady state alone), and a band is kept out only where
+that model's own sweep error exceeds the noise (``check_sweep_rate``).
 
 - **Bands are known from the sheet alone** (``run_kinds.expand_bands``): ids ``<run>_b<centre RPM>``, centres from the top
   of the slow-roll band to the sweep's highest nominal speed. The workflow plans its jobs from them before any
