@@ -199,6 +199,9 @@ def main() -> int:
     parser.add_argument("--data", default=None,
                         help="keep each case's rig records in DATA/seed{seed}/{case} and reuse them when present "
                              "(default: a temporary directory, made anew)")
+    parser.add_argument("--runs", default=None,
+                        help="comma-separated records of the example's sheet (default: its fit records: up15, up0, "
+                             "down26); with --data, give each selection its own folder")
     parser.add_argument("--sweep-model", default="first_order",
                         help="comma-separated forward models of the bands, each in turn on the same records: "
                              "first_order (the swept model), quasi_steady (today's)")
@@ -225,6 +228,7 @@ def main() -> int:
             where = Path(args.data) / f"seed{args.seed}" / case if args.data else Path(tmp)
             where.mkdir(parents=True, exist_ok=True)
             data, rig_s, kept_out, reached = make_data(case, where, args.seed, args.harmonics,
+                                                       args.runs.split(",") if args.runs else None,
                                                        sweep_model=sweep_model)
             used = {"case": case, "sweep_model": sweep_model, "bands": len(data), "bands_kept_out": kept_out,
                     "bands_reached": reached, "bands_used_share": len(data) / max(reached, 1)}
