@@ -64,8 +64,8 @@ def main() -> int:
         steady_data, _ = steady.make_data("slope_spring", base / "steady", "hb", args.seed, H)
         noise = yaml.safe_load((ROOT / "data/default/truth.yaml").read_text())["imperfections"]
         same_noise = {"noise_mm": noise["noise_mm"], "sweep_sample_rate_hz": 2000.0}
-        transient_data, _, kept_out = transient.make_data("slope_spring", base / "transient", args.seed, H, [args.runup],
-                                                          same_noise)
+        transient_data, _, kept_out, _ = transient.make_data("slope_spring", base / "transient", args.seed, H,
+                                                             [args.runup], same_noise)
         fits = {}
         for name, data in (("steady", steady_data), ("transient", transient_data)):
             _, fit = steady.base_fit(data, config, args.trials, args.seed, H)

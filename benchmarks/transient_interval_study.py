@@ -128,7 +128,7 @@ def main() -> int:
     with threadpool_limits(1):
         where = Path(args.data) / f"seed{args.seed}" / args.case
         where.mkdir(parents=True, exist_ok=True)
-        noisy, _, _ = make_data(args.case, where, args.seed, args.harmonics)
+        noisy, _, _, _ = make_data(args.case, where, args.seed, args.harmonics)
         drop = [(s.split(":")[0], float(s.split(":")[1])) for s in args.drop.split(",") if s.strip()]
 
         def dropped(data):

@@ -60,6 +60,10 @@ class RunData:
     # "runout offsets"); None for a steady run or a table written before these columns
     record: str | None = None
     runout_sigma: Array | None = None
+    # a transient band's sweep rate [RPM/s, signed] where its record is fitted with the swept forward model
+    # (the bands' sweep_model "first_order": forward.SolverModel's sweep_rpm_s); 0 for a steady run or a band fitted
+    # quasi-steadily
+    sweep_rpm_s: float = 0.0
 
     @property
     def H(self) -> int:
@@ -142,7 +146,17 @@ def run_data(table: pd.DataFrame, run: str, harmonics: int | None = None, keypha
         runout = runout if runout.any() else None
     return RunData(str(run), rpm, float(row["eccentric_mass_g"]), str(row.get("role", "fit")), X, sigma, usable,
                    str(row.get("note", "ok")), phase_sigma, channels, RUNOUT_HARMONICS if compensated else (),
-                   float(row["rpm_start"]) if down else None, float(trial_angles(rows)[0]), record, runout)
+                   float(row["rpm_start"]) if down else None, float(trial_angles(rows)[0]), record, runout,
+                   band_sweep_rate(row) if parent else 0.0)
+
+
+def band_sweep_rate(row: pd.Series) -> float:
+    """A band's sweep rate [RPM/s] for the forward model: its measured rate (``sweep_rpm_per_s``) where its record
+    is fitted with the swept model (``sweep_model`` "first_order", ``run_kinds.SWEEP_MODELS``), else 0 (the steady
+    state: a band of a table written before the swept model, or of a record fitted quasi-steadily)."""
+    rate = pd.to_numeric(row.get("sweep_rpm_per_s", math.nan), errors="coerce")
+    swept = str(row.get("sweep_model", "")).strip().lower() == "first_order"
+    return float(rate) if swept and np.isfinite(rate) else 0.0
 
 
 def total_sigma(data: RunData, relative_model_error: float = 0.0) -> Array:

@@ -134,15 +134,24 @@ def _number(row: Mapping, key: str, default: float) -> float:
     return default if math.isnan(value) else value
 
 
+#: how a transient record's bands are fitted (the sheet's optional ``sweep_model``; docs/runups.md): "first_order",
+#: the steady state corrected for the sweep rate (hybridtwin.solvers.sweep_forward), a band kept out only where even
+#: that misses by more than the noise; "quasi_steady", the steady state, a band kept out where it misses
+SWEEP_MODELS = ("first_order", "quasi_steady")
+DEFAULT_SWEEP_MODEL = "first_order"
+
+
 @dataclass(frozen=True)
 class BandPlan:
     """A transient row's speed bands [RPM]: the slow-roll band and the fitted bands (lo, hi) in rising order;
-    ``slowroll_given``: the slow-roll band's top is the sheet's ``slowroll_rpm`` (else the default share)."""
+    ``slowroll_given``: the slow-roll band's top is the sheet's ``slowroll_rpm`` (else the default share);
+    ``sweep_model``: the forward model its bands are fitted with (the sheet's ``sweep_model``, ``SWEEP_MODELS``)."""
 
     run: str
     slowroll: tuple[float, float]
     bands: tuple[tuple[float, float], ...]
     slowroll_given: bool = False
+    sweep_model: str = "first_order"
 
     @staticmethod
     def band_id(run: str, lo: float, hi: float) -> str:
@@ -165,7 +174,11 @@ class BandPlan:
         n = int(math.floor((hi - top) / width + 1e-9))
         bands = tuple((top + k * width, top + (k + 1) * width) for k in range(n))
         given = not math.isnan(_number(row, "slowroll_rpm", math.nan))
-        return cls(str(row["run"]), (lo, top), bands, given)
+        model = row.get("sweep_model", "")
+        model = DEFAULT_SWEEP_MODEL if model is None or str(model).strip() in ("", "nan") else str(model).strip()
+        if model not in SWEEP_MODELS:
+            raise ValueError(f"run {row.get('run')}: sweep_model {model!r}: one of {', '.join(SWEEP_MODELS)}")
+        return cls(str(row["run"]), (lo, top), bands, given, model)
 
 
 def expand_bands(sheet: pd.DataFrame) -> pd.DataFrame:

@@ -1,11 +1,14 @@
 """Transient records (run-ups and coast-downs) as speed bands: what the rest of the method reads (issue 38).
 
 A runs-sheet row of kind ``runup`` or ``coastdown`` is one record through a speed range, with a keyphasor
-(docs/measurement-format.md). The twin compares it with the model along the sweep, quasi-steadily: the sweep is
+(docs/measurement-format.md). The twin compares it with the model along the sweep: the sweep is
 cut into speed **bands** of ``band_rpm`` (a sheet column, default DEFAULT_BAND_RPM), and each band becomes a
 *pseudo-run*, a row of the harmonics table like a steady run's, at the band's measured mean speed. Everything
 downstream (libraries, identification, validation, diagnosis, report) then reads a band as it reads a run; the
-model's response at a band is the steady state reached by continuation, as the rotor reaches it along the sweep.
+model's response at a band is the steady state reached by continuation, as the rotor reaches it along the sweep,
+corrected to first order for the band's measured sweep rate (the sheet's ``sweep_model``, default "first_order":
+``hybridtwin.solvers.sweep_forward``; "quasi_steady": the steady state alone), and a band is kept out only where
+that model's own sweep error exceeds the noise (``check_sweep_rate``).
 
 - **Bands are known from the sheet alone** (``run_kinds.expand_bands``): ids ``<run>_b<centre RPM>``, centres from the top
   of the slow-roll band to the sweep's highest nominal speed. The workflow plans its jobs from them before any
@@ -238,7 +241,8 @@ def track_record(record: Record, sheet_row: Mapping, harmonics: int, sensor_rang
     bands = pd.DataFrame(rows)
     if slowroll and not runout.empty:
         bands = with_runout_sigma(compensate(bands, runout), runout)
-    bands = check_sweep_rate(bands, names, plan)
+    bands = check_sweep_rate(bands, names, plan, plan.sweep_model)
+    bands["sweep_model"] = plan.sweep_model
     return TrackedRecord(bands, runout, profile.table(), orders, tuple(caught))
 
 
@@ -250,8 +254,15 @@ ORDER_SIGNIFICANCE = 3.0
 ORDER_ZETA_SHARE = 0.5
 
 
-def check_sweep_rate(bands: pd.DataFrame, names: Sequence[str], plan: BandPlan) -> pd.DataFrame:
-    """The bands where the sweep is too fast for the quasi-steady model kept out, with a note (issue 38 item 5).
+def check_sweep_rate(bands: pd.DataFrame, names: Sequence[str], plan: BandPlan, forward: str = "quasi_steady"
+                     ) -> pd.DataFrame:
+    """The bands where the sweep is too fast for the forward model kept out, with a note (issue 38 item 5; issue 51).
+
+    ``forward``: the model the bands are fitted with (``run_kinds.SWEEP_MODELS``). "quasi_steady", the steady state:
+    its error is the first-order lag below. "first_order", the steady state corrected for the sweep rate
+    (``hybridtwin.solvers.sweep_forward``, the default of a record): its error is the second-order lag
+    (``sweep_rate_check(forward="first_order")``, ~ the square of the first relative to the peak), so only the bands
+    where the correction itself is no longer small are kept out, and the bands at the resonances are fitted.
 
     The modes are the record's own (``one_mode_fit``: the strongest channel's 1X over the bands, a resonance seen
     whole or only on its flank); the expected lag of the swept response per band is the first-order adiabatic
@@ -265,7 +276,8 @@ def check_sweep_rate(bands: pd.DataFrame, names: Sequence[str], plan: BandPlan) 
     first mode at ~425 RPM and its second at ~640 RPM, and the bands at the second, left unchecked, carried a
     quasi-steady error of up to 3.4 sigma (benchmarks/README.md, "Why the fits' own intervals missed on run-ups").
     Columns added: sweep_lag_m (the expected lag of the order and mode that decide, the largest against its
-    sigma), sweep_check ("ok", "too fast", or "no mode found" where no resonance is in sight)."""
+    sigma, for ``forward``'s error), sweep_check ("ok", "too fast", or "no mode found" where no resonance is in
+    sight)."""
     from ..solvers.sweep_rate import sweep_rate_check
 
     out = bands.copy()
@@ -299,7 +311,7 @@ def check_sweep_rate(bands: pd.DataFrame, names: Sequence[str], plan: BandPlan) 
         for k, (omega_h, zeta_h, peak) in enumerate(found):
             # sweep_rate_check scales each band's lag to the order's largest response over the record's bands
             checks = sweep_rate_check([(omega_h, zeta_h)], rate, 0.0, plan.bands[0][0], plan.bands[-1][1],
-                                      band_rpm=width_rpm, centrifugal=False, order=h)
+                                      band_rpm=width_rpm, centrifugal=False, order=h, forward=forward)
             lag_h = np.array([ch.expected_error for ch in checks])[: len(out)] * peak
             ratio_h = np.divide(lag_h, sigma_h, out=np.zeros_like(lag_h), where=sigma_h > 0)
             worse = ratio_h > ratio
@@ -310,7 +322,9 @@ def check_sweep_rate(bands: pd.DataFrame, names: Sequence[str], plan: BandPlan) 
     for i in np.flatnonzero(too_fast):
         h, (omega_h, zeta_h, _) = int(order[i]), modes[int(order[i])][int(which[i])]
         out.loc[i, "usable"] = False
-        out.loc[i, "note"] = (f"sweep too fast for a quasi-steady model: expected {h}X lag {1e6 * lag[i]:.1f} um "
+        what = ("a quasi-steady model: expected" if forward == "quasi_steady" else
+                "the swept model (the steady state corrected to first order in the rate): expected second-order")
+        out.loc[i, "note"] = (f"sweep too fast for {what} {h}X lag {1e6 * lag[i]:.1f} um "
                               f"against a {h}X sigma of {1e6 * lag[i] / ratio[i]:.2f} um at {rate:.1f} RPM/s near "
                               f"the {h}X resonance at {omega_h * 30 / math.pi / h:.0f} RPM (zeta "
                               f"{zeta_h:.3f}, fitted to the record): kept out")

@@ -33,6 +33,7 @@ from ..model.effects import trial_mass_values
 from ..offline.library import Library
 from ..offline.pod import feature_index
 from ..solvers.continuation import RUN_UP_FROM_RPM, padded_speeds, ramp, sweep_model
+from ..solvers.sweep_forward import swept_response
 
 Array = np.ndarray
 
@@ -218,6 +219,11 @@ class SolverModel:
     harmonics. A response that does not vanish at slow roll (the static deflection under a 2X force of constant
     amplitude) is then removed from model and data alike; forces growing as Omega^2 (unbalance, bow) have none.
 
+    ``sweep_rpm_s`` (a run-up's or coast-down's band, ``RunData.sweep_rpm_s``): the response is the swept one, the
+    steady state corrected to first order in the sweep rate (``hybridtwin.solvers.sweep_forward``: the lag and
+    flattening near a resonance), its parameter derivative by forward differences of the correction along the
+    steady state's own sensitivities (``_swept``). 0: the steady state (a steady run; a band fitted quasi-steadily).
+
     ``evaluate`` does not assess stability (the LM needs the response only); ``floquet_radius(x)``
     does, for the states ``evaluate`` reports at x (``check_stability``: a fit's optimum).
     """
@@ -225,8 +231,11 @@ class SolverModel:
     def __init__(self, variant, run: str, rpm: float, eccentric_mass_g: float, parameters: Sequence[str],
                  lower: Array, upper: Array, harmonics: int, step: float = 1e-5, *, warm: bool = True,
                  analytic: bool = True, cache_size: int = CACHE_SIZE, slow_roll_harmonics: Sequence[int] = (),
-                 sweep_from_rpm: float | None = None, eccentric_mass_angle_deg: float = 0.0):
+                 sweep_from_rpm: float | None = None, eccentric_mass_angle_deg: float = 0.0,
+                 sweep_rpm_s: float = 0.0):
         self.variant, self.run = variant, run
+        # the band's sweep rate [RPM/s, signed]: the response corrected for it to first order (``_swept``); 0: steady
+        self.sweep_rpm_s = float(sweep_rpm_s) if np.isfinite(sweep_rpm_s) else 0.0
         # None: the run-up from RUN_UP_FROM_RPM; a speed: the run-down from there (a coast-down's band)
         self.sweep_from_rpm = None if sweep_from_rpm is None or not np.isfinite(sweep_from_rpm) else float(sweep_from_rpm)
         self.rpm, self.eccentric_mass_g = float(rpm), float(eccentric_mass_g)
@@ -258,7 +267,8 @@ class SolverModel:
         ``sweep_from_rpm``)."""
         return cls(variant, data.run, data.rpm, data.eccentric_mass_g, parameters, lower, upper, harmonics,
                    slow_roll_harmonics=data.slow_roll_harmonics, sweep_from_rpm=data.sweep_from_rpm,
-                   eccentric_mass_angle_deg=data.eccentric_mass_angle_deg, **options)
+                   eccentric_mass_angle_deg=data.eccentric_mass_angle_deg,
+                   sweep_rpm_s=getattr(data, "sweep_rpm_s", 0.0), **options)
 
     # --- parameter values and systems -------------------------------------------------------
 
@@ -313,6 +323,11 @@ class SolverModel:
         self.n_run_ups += x.shape[0]
         M = self._sensor(result.harmonics)
         M[~result.success] = np.nan
+        ok = np.flatnonzero(result.success)
+        if self.sweep_rpm_s and ok.size:
+            M[ok] += self._sensor(swept_response(self.variant.model, {k: v[ok] for k, v in values.items()},
+                                                 np.full(ok.size, self.rpm), self.sweep_rpm_s,
+                                                 result.state[ok], self.harmonics, result.n_time).correction)
         return M
 
     def evaluate(self, x: Array, jacobian: bool = True) -> tuple[Array, Array | None]:
@@ -378,6 +393,13 @@ class SolverModel:
             dstate = np.full((S,) + dstate_ok.shape[1:], np.nan)
             dQ[ok], dstate[ok] = dQ_ok, dstate_ok
             dM_all = np.moveaxis(first._sensor(dQ) * first.half_range[None, :, None, None], 1, -1)
+        rate = np.concatenate([np.full(r.size, m.sweep_rpm_s) for m, r in zip(models, batch.rows)])
+        swept = np.flatnonzero(result.success & (rate != 0.0))
+        if swept.size:
+            M1, dM1 = _swept(first, batch, rate, swept, dstate if jacobian else None)
+            M_all[swept] += M1
+            if jacobian:
+                dM_all[swept] += dM1
         out = []
         for k, (m, x, r) in enumerate(zip(models, batch.xs, batch.rows)):
             sl = slice(offsets[k], offsets[k + 1])
@@ -494,6 +516,33 @@ class SolverModel:
             M_shifted[n, j] = self._solve(retry)
         dM = (M_shifted - M[:, None]) / steps[:, :, None, None]
         return M, np.moveaxis(dM, 1, -1)
+
+
+def _swept(first: SolverModel, batch: "_Batch", rate: Array, rows: Array, dstate: Array | None
+           ) -> tuple[Array, Array | None]:
+    """The first-order sweep correction of the sensor harmonics (n, H, C) at the converged ``rows`` of ``batch``,
+    each swept at ``rate`` [RPM/s] (``sweep_forward.swept_response``), and, given the condensed states' parameter
+    sensitivities ``dstate`` (S, P, c, 2H+1), its derivative in the normalised parameters (n, H, C, d): forward
+    differences of the correction, each parameter stepped by SENSITIVITY_STEP of its range and the state moved
+    along its own sensitivity (no new steady state), all sets in one call."""
+    result, n, P = batch.result, rows.size, len(first.parameters)
+    values = {k: v[rows] for k, v in batch.values.items()}
+    state = result.state[rows]
+    if dstate is None:
+        Q1 = swept_response(first.variant.model, values, batch.rpm[rows], rate[rows], state, first.harmonics,
+                            result.n_time).correction
+        return first._sensor(Q1), None
+    steps = SENSITIVITY_STEP * (first.upper - first.lower)
+    stacked = {k: np.tile(v, P + 1) for k, v in values.items()}
+    states = [state]
+    for j, name in enumerate(first.parameters):
+        stacked[name][(j + 1) * n:(j + 2) * n] += steps[j]
+        states.append(state + dstate[rows, j] * steps[j])
+    Q1 = swept_response(first.variant.model, stacked, np.tile(batch.rpm[rows], P + 1), np.tile(rate[rows], P + 1),
+                        np.concatenate(states), first.harmonics, result.n_time).correction
+    M1 = first._sensor(Q1).reshape((P + 1, n) + (first.harmonics, -1))
+    dM1 = (M1[1:] - M1[0]) / steps[:, None, None, None] * first.half_range[:, None, None, None]
+    return M1[0], np.moveaxis(dM1, 0, -1)
 
 
 class StabilityWarning(UserWarning):

@@ -87,6 +87,15 @@ def solver_protocol(options: Mapping, joint: bool = False) -> ProtocolOptions:
     return replace(base, trials=min(base.trials, SOLVER_TRIALS), monte_carlo=0, monte_carlo_starts=0)
 
 
+def swept_on_library(data) -> str:
+    """The warning for a band of a record fitted with the swept model (``RunData.sweep_rpm_s``) whose model is a
+    library: a library is the steady state, the correction for the sweep rate is the full solver's
+    (``forward.SolverModel``), so near a resonance the band is compared with a model it was not checked against."""
+    return (f"run {data.run}: a band swept at {data.sweep_rpm_s:.3g} RPM/s fitted with its library, which holds the "
+            "steady state only (the sweep-rate correction is the full solver's): give the record sweep_model "
+            "quasi_steady, or fit on the full solver (offline: scope none)")
+
+
 def refuse_angle_on_library(data: idn.RunData) -> None:
     """The sPGD libraries (offline.scope run or global) are built per (rpm, eccentric mass) with the mass on +x: a
     run whose trial mass is at another angle is refused there, never fitted as if it were on +x."""
@@ -123,6 +132,7 @@ def fit_run(variant: Variant, options: Mapping, library: Library | None, data: i
                     f"Monte Carlo repeats), {fit.protocol.n_lm} LM problems in {time.perf_counter() - start:.2f} s; "
                     f"best loss {fit.loss:.4g} (chi^2/dof {fit.chi2_dof:.3g}, {fit.message}); "
                     f"{fit.summary()['trials_at_best']} of {len(fit.protocol.trials.loss)} trials reached it"]
+        messages += [swept_on_library(data)] if data.sweep_rpm_s else []
     if library is not None and options["polish"]:
         solver = [fwd.SolverModel.for_data(variant, data, library.parameters, library.lower, library.upper, harmonics)]
         exact = pol.polish(fit, solver, int(options["polish"]))
@@ -212,6 +222,7 @@ def fit_joint(variant: Variant, options: Mapping, libraries: Sequence[Library], 
         if library is not None:
             refuse_angle_on_library(run)
             models.append(fwd.SensorSurrogate(library))
+            warnings += [swept_on_library(run)] if run.sweep_rpm_s else []
     if not data:
         raise ValueError(f"variant {variant.name}: no usable fit run for the joint identification")
     if on_solver:

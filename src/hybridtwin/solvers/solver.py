@@ -635,10 +635,9 @@ def sensitivity(build: Callable[[Mapping[str, Array]], System], values: Mapping[
     # and not at all where it is zero (most parameters enter K alone, or only the forcing)
     products = {name: np.einsum("psij,shj->pshi", dA, Q, optimize=True) if np.any(dA) else None
                 for name, dA in (("K", dK), ("C", dC), ("M", dM))}
-    Dinv_rhs = np.empty((s, P, H + 1, n), complex)
+    rhs_all = np.empty((s, P, H + 1, n), complex)
     for h in range(H + 1):
         w = (h * Omega)[:, None, None]
-        D = system.K + 1j * w * system.C - w * w * system.M  # (s, n, n)
         dDQ = np.zeros((P, s, n), complex)
         for name, factor in (("K", 1.0), ("C", 1j * w[None, :, :, 0]), ("M", -(w * w)[None, :, :, 0])):
             if products[name] is not None:
@@ -647,12 +646,34 @@ def sensitivity(build: Callable[[Mapping[str, Array]], System], values: Mapping[
         rhs = -(dDQ - dF)  # (P, s, n)
         if c:
             rhs = rhs + np.einsum("ik,psk->psi", B, dG_p[..., h])
+        rhs_all[:, :, h] = np.moveaxis(rhs, 0, 1)
+    out[ok], dx = linearised_response(prob, x, rhs_all)
+    if c:
+        out_x[ok] = dx
+    return (out, out_x) if condensed else out
+
+
+def linearised_response(prob: "_Condensed", x: Array, rhs: Array) -> tuple[Array, Array | None]:
+    """dQ (S, P, H+1, n) solving the harmonic-balance equations linearised about the converged states x (S, c, 2H+1)
+    of ``prob`` (its system's scenarios), per harmonic h
+
+        D_h dQ_h - B (dG/dx dx)_h = rhs_h,   D_h = K + i h Omega C - (h Omega)^2 M,   dx = B^T dQ,
+
+    for P right-hand sides rhs (S, P, H+1, n) at once: D_h^-1 rhs_h, then on the nonlinear DOFs J_r dx = B^T D^-1 rhs
+    with J_r = I - H dG/dx the Newton Jacobian at x (real form), and dQ_h = D_h^-1 rhs_h + R_h dG_h. The parameter
+    sensitivities (``sensitivity``) and the sweep's first-order correction (``hybridtwin.solvers.sweep_forward``)
+    are such solves. Returns dQ and dx (S, P, c, 2H+1) (None without nonlinear DOFs)."""
+    system, H = prob.system, prob.H
+    s, P, _, n = rhs.shape
+    c = len(prob.dofs)
+    Dinv_rhs = np.empty((s, P, H + 1, n), complex)
+    for h in range(H + 1):
+        w = (h * system.Omega)[:, None, None]
+        D = system.K + 1j * w * system.C - w * w * system.M  # (s, n, n)
         ok_h = np.ones(s, bool)
-        Dinv_rhs[:, :, h] = np.moveaxis(_batched_solve(D, np.moveaxis(rhs, 0, 2), ok_h), 2, 1)
+        Dinv_rhs[:, :, h] = np.swapaxes(_batched_solve(D, np.swapaxes(rhs[:, :, h], 1, 2), ok_h), 1, 2)
     if c == 0:
-        out[ok] = Dinv_rhs
-        return (out, out_x) if condensed else out
-    # condensed: J_r dx = B^T D^-1 rhs (real form), J_r the Newton Jacobian at x
+        return Dinv_rhs, None
     F_x, J = prob._force_series(x, np.arange(s), jacobian=True)  # the forces and dF/dq (s, c, c, N) at x
     _, Jr = prob._from_forces(x, np.arange(s), F_x, J)
     a = _to_real(Dinv_rhs[..., prob.dofs].reshape(s * P, H + 1, c)).reshape(s, P, -1)
@@ -660,9 +681,7 @@ def sensitivity(build: Callable[[Mapping[str, Array]], System], values: Mapping[
     dx = np.swapaxes(dx, 1, 2).reshape(s, P, c, 2 * H + 1)
     dF_t = np.einsum("sijn,spjn->spin", J, dx @ prob.E.T, optimize=True)  # (s, P, c, N)
     dG = _to_complex((dF_t @ prob.E_plus.T).reshape(s * P, c, -1)).reshape(s, P, c, H + 1)
-    out[ok] = Dinv_rhs + np.einsum("shnc,spch->sphn", prob.R, dG, optimize=True)
-    out_x[ok] = dx
-    return (out, out_x) if condensed else out
+    return Dinv_rhs + np.einsum("shnc,spch->sphn", prob.R, dG, optimize=True), dx
 
 
 def solve_variant(variant, rpm: Array | float, overrides: Mapping[str, float | Array] | None = None,

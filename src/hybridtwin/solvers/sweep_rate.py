@@ -29,6 +29,14 @@ at Omega = omega_n / h: a 2X force crosses at half the critical speed at twice i
 slow enough for 1X may not be (measured on a time-integrated run-up with a 2X force: the 2X bands at 560-640 RPM,
 quasi-steady chi^2 up to 2450 on 4 numbers; tests/test_sweep.py checks the closed form against time integration).
 
+**Second order.** A forward model that carries X1 (``hybridtwin.solvers.sweep_forward``, the run-up's forward
+model) still misses X2: at a constant rate (Omega'' = 0) the next order of the same expansion,
+
+    X2 = -(Omega'^2 d^2X0/dOmega^2 + (2 i Omega + c) dX1/dOmega Omega' + i Omega' X1) / D,
+
+relative to the peak ~ (Omega' / (zeta^2 Omega_c^2))^2: ``sweep_rate_check(forward="first_order")`` compares it
+with the noise, so that a band is kept out only where even the corrected model is not within the noise.
+
 Measured on the rig (the VARM's default truth, benchmarks/sweep_rate_study.py; table in benchmarks/README.md):
 the predicted error against the time-integrated transient's, per rate and band.
 """
@@ -45,6 +53,9 @@ Array = np.ndarray
 
 #: the forcing laws of an order (module docstring): an unbalance-like w^2 - i w', or a constant amplitude
 FORCINGS = ("unbalance", "constant")
+#: the forward models whose sweep error ``sweep_rate_check`` estimates: the steady response, or the one corrected
+#: to first order in the rate (module docstring, "Second order")
+FORWARD_MODELS = ("quasi_steady", "first_order")
 
 
 def quasi_steady(Omega: Array, omega_n: float, zeta: float, centrifugal: bool = True,
@@ -74,6 +85,34 @@ def adiabatic_correction(Omega: Array, Omega_dot: Array | float, omega_n: float,
     else:
         X0, dX0, f1 = 1.0 / D, -dD / D ** 2, 0.0
     return (f1 - (2j * Omega + c) * dX0 * Omega_dot - 1j * Omega_dot * X0) / D
+
+
+def second_order_correction(Omega: Array, Omega_dot: Array | float, omega_n: float, zeta: float,
+                            centrifugal: bool = True, forcing: str = "unbalance") -> Array:
+    """X2, the second-order lag of the swept response at a constant rate (module docstring, "Second order"): what a
+    forward model corrected to first order (``hybridtwin.solvers.sweep_forward``) still leaves, per unit unbalance
+    (or unit constant force)."""
+    Omega = np.asarray(Omega, dtype=float)
+    Omega_dot = np.broadcast_to(np.asarray(Omega_dot, dtype=float), Omega.shape)
+    s = 1.0 if centrifugal else 0.0
+    c = 2.0 * zeta * omega_n
+    D = omega_n ** 2 - (1.0 + s) * Omega ** 2 + 1j * c * Omega
+    step = SECOND_ORDER_STEP * np.maximum(np.abs(Omega), omega_n * 1e-3)
+
+    def X0(w):
+        return quasi_steady(w, omega_n, zeta, centrifugal, forcing)
+
+    def X1(w):
+        return adiabatic_correction(w, Omega_dot, omega_n, zeta, centrifugal, forcing)
+
+    X0_ww = (X0(Omega + step) - 2.0 * X0(Omega) + X0(Omega - step)) / step ** 2
+    X1_w = (X1(Omega + step) - X1(Omega - step)) / (2.0 * step)
+    return -(Omega_dot ** 2 * X0_ww + (2j * Omega + c) * X1_w * Omega_dot + 1j * Omega_dot * X1(Omega)) / D
+
+
+#: the relative step of ``second_order_correction``'s differences in Omega (the laws are rational: round-off
+#: eps / step^2 ~ 1e-10 of the value, truncation step^2 ~ 1e-6 of the curvature's scale)
+SECOND_ORDER_STEP = 1e-3
 
 
 def _forcing(forcing: str) -> str:
@@ -116,7 +155,7 @@ class BandCheck:
 
 def sweep_rate_check(modes: list[tuple[float, float]], sweep_rate_rpm_s: float, noise_to_amplitude: float,
                      rpm_low: float, rpm_high: float, band_rpm: float = 50.0, centrifugal: bool = True,
-                     points_per_band: int = 50, order: int = 1) -> list[BandCheck]:
+                     points_per_band: int = 50, order: int = 1, forward: str = "quasi_steady") -> list[BandCheck]:
     """Per band of ``band_rpm`` between rpm_low and rpm_high: is the quasi-steady model within the noise?
 
     modes: (omega_n [rad/s], zeta) of each mode at rest (e.g. ``model.campbell`` at 0 RPM, or the first mode
@@ -126,12 +165,17 @@ def sweep_rate_check(modes: list[tuple[float, float]], sweep_rate_rpm_s: float, 
     peak (the worst case: the record dominated by that mode). ``order`` h: the h-th order vector, a forcing at
     h Omega swept at h Omega' (module docstring, "Higher orders"; h > 1: the larger error of both forcing laws).
     The bands stay in rotor speed; an order above 1 takes ``centrifugal`` False (a mode as the record shows it).
-    Returns one ``BandCheck`` per band.
+    ``forward``: the model whose error is estimated, "quasi_steady" (the steady response: its error is X1) or
+    "first_order" (corrected for the rate, ``hybridtwin.solvers.sweep_forward``: its error is X2, module
+    docstring, "Second order"). Returns one ``BandCheck`` per band.
     """
     if not rpm_high > rpm_low > 0:
         raise ValueError(f"sweep_rate_check: needs 0 < rpm_low < rpm_high, got {rpm_low}, {rpm_high}")
     if not band_rpm > 0 or not noise_to_amplitude >= 0:
         raise ValueError("sweep_rate_check: band_rpm must be positive and noise_to_amplitude >= 0")
+    if forward not in FORWARD_MODELS:
+        raise ValueError(f"sweep_rate_check: forward {forward!r}: one of {', '.join(FORWARD_MODELS)}")
+    lag = adiabatic_correction if forward == "quasi_steady" else second_order_correction
     if int(order) != order or order < 1:
         raise ValueError(f"sweep_rate_check: order must be a positive integer, got {order}")
     if order > 1 and centrifugal:  # K - Omega^2 M is a law in Omega, not in h Omega: the mapping holds without it
@@ -151,8 +195,8 @@ def sweep_rate_check(modes: list[tuple[float, float]], sweep_rate_rpm_s: float, 
             peak = np.abs(quasi_steady(fine, omega_n, zeta, centrifugal, forcing)).max()
             for i, (a, b) in enumerate(zip(edges[:-1], edges[1:])):
                 w = h * np.linspace(a, b, points_per_band) * math.pi / 30.0
-                X1 = adiabatic_correction(w, rate, omega_n, zeta, centrifugal, forcing)
-                errors[i] = max(errors[i], float(np.abs(X1).max() / peak))
+                error = lag(w, rate, omega_n, zeta, centrifugal, forcing)
+                errors[i] = max(errors[i], float(np.abs(error).max() / peak))
     return [BandCheck(float(a), float(b), float(e), float(noise_to_amplitude))
             for a, b, e in zip(edges[:-1], edges[1:], errors)]
 
