@@ -22,7 +22,7 @@ from scipy.optimize import brentq
 from hybridtwin import Effect, LocalForce, Model, Parameter, PolynomialBearing, System, Term, solve, solve_sweep
 from hybridtwin.model.effects import K_B, base_effects
 import hybridtwin.solvers.solver as solver_module
-from hybridtwin.solvers.solver import _backtrack, _Condensed
+from hybridtwin.solvers.solver import _backtrack, Condensed
 from hybridtwin.model.variants import builtin_variant
 
 GEOMETRIC = builtin_variant("geometric")
@@ -359,7 +359,7 @@ def test_damped_newton_backtracks_at_resonance_and_lands_on_the_reference():
     (_backtrack) takes over. It must hand back the residual AND the Jacobian of the step it chose
     (the fractions are screened on residuals alone), and the solve must reach NLvib's amplitude."""
     system = duffing([1.0])
-    prob = _Condensed(system, 7, None)
+    prob = Condensed(system, 7, None)
     screened = []
     evaluate = prob.evaluate
 
@@ -491,7 +491,7 @@ def test_analytic_jacobian_matches_finite_differences(variant, overrides):
     assert len(subsystems) > 2 or variant == "geometric"
     for forces in subsystems:
         system = System(full.M, full.C, full.K, full.Omega, full.forcing, forces)
-        prob = _Condensed(system, H, None)
+        prob = Condensed(system, H, None)
         rng = np.random.default_rng(1)
         # An arbitrary state (all harmonics, including 0 and even ones) of the size of
         # the response, per DOF (slopes and deflections have different magnitudes).

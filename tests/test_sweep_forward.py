@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from hybridtwin.data.rig import Truth
+from hybridtwin.rig.rig import Truth
 from hybridtwin.identify.forward import SolverModel, run_up
 from hybridtwin.model.effect_base import Effect, Parameter
 from hybridtwin.model.model import Model

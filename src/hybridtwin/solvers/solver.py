@@ -160,7 +160,7 @@ def default_n_time(H: int, forces: Sequence) -> int:
     return (max(degrees, default=1) + 1) * H + 1
 
 
-class _Condensed:
+class Condensed:
     """The harmonic-balance problem on the c nonlinear DOFs: x = a + H G(x) in real form."""
 
     def __init__(self, system: System, H: int, n_time: int | None, linear: bool = True):
@@ -367,7 +367,7 @@ def solve(
         raise ValueError(f"method must be 'newton' or 'fixed-point', got {method!r}")
     if harmonics < 1:
         raise ValueError(f"harmonics must be >= 1, got {harmonics}")
-    prob = _Condensed(system, harmonics, n_time)
+    prob = Condensed(system, harmonics, n_time)
     S = system.n_scenarios
     x = prob.a.copy() if initial is None else np.array(initial, dtype=float)
     if x.shape != prob.a.shape:
@@ -621,12 +621,12 @@ def sensitivity(build: Callable[[Mapping[str, Array]], System], values: Mapping[
     x = state.state[ok]  # (s, c, 2H+1)
     Omega = system.Omega
     n = system.n_dof
-    prob = _Condensed(system, H, state.n_time)
+    prob = Condensed(system, H, state.n_time)
     c = len(prob.dofs)
     # the local forces' own parameter derivative at fixed x: dG_h/dp (P, s, c, H+1)
     dG_p = np.zeros((P, s, c, H + 1), complex)
     if c:
-        aft = _Condensed(perturbed, H, state.n_time, linear=False)
+        aft = Condensed(perturbed, H, state.n_time, linear=False)
         F, _ = aft._force_series(np.tile(x, (2 * P, 1, 1)), np.arange(2 * P * s), jacobian=False)
         dG_p = derivative(_to_complex(F @ aft.E_plus.T))
         B = np.zeros((n, c))
@@ -653,7 +653,7 @@ def sensitivity(build: Callable[[Mapping[str, Array]], System], values: Mapping[
     return (out, out_x) if condensed else out
 
 
-def linearised_response(prob: "_Condensed", x: Array, rhs: Array) -> tuple[Array, Array | None]:
+def linearised_response(prob: "Condensed", x: Array, rhs: Array) -> tuple[Array, Array | None]:
     """dQ (S, P, H+1, n) solving the harmonic-balance equations linearised about the converged states x (S, c, 2H+1)
     of ``prob`` (its system's scenarios), per harmonic h
 

@@ -41,7 +41,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..model.model import rpm_to_rad_s
-from .solver import _Condensed, linearised_response
+from .solver import Condensed, linearised_response
 
 Array = np.ndarray
 
@@ -101,7 +101,7 @@ def swept_response(model, values: Mapping[str, Array | float], rpm: Array, rate_
         return (a - b) / width.reshape((S,) + (1,) * (np.ndim(a) - 1))
 
     dK, dC, dM = d_dOmega(up.K, down.K), d_dOmega(up.C, down.C), d_dOmega(up.M, down.M)
-    prob = _Condensed(system, H, n_time)
+    prob = Condensed(system, H, n_time)
     state = np.asarray(state, float)
     Q0 = prob.full_harmonics(state, np.arange(S))  # (S, H+1, n)
     Omega, M, C = system.Omega, system.M, system.C
