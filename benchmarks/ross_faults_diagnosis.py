@@ -25,9 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
-from hybridtwin.model.ross_faults import order_harmonics, ross_dof, ross_fault_run
+from hybridtwin.model.ross_faults import order_harmonics, ross_dof
 from hybridtwin.solvers.ross_fault_cases import (CASE_DT, CASE_PLANE_NODE, CASE_PROBE_NODES, CASE_TURNS, CASES,
-                                                 ross_example_rotor)
+                                                 cached_fault_run, ross_example_rotor)
 
 #: the speeds of each fault's runs [RPM]: whole samples a turn at dt 1e-4 s, below the first critical speeds (1730
 #: and 1790 RPM); 1200 RPM is the comparison's (benchmarks/ross_faults_benchmark.py: its runs serve here too). Two
@@ -48,15 +48,8 @@ def records(rotor, fault: str, cache: Path | None, noise: float, seed: int, spee
     rng = np.random.default_rng(seed)
     out = []
     for rpm in speeds:
-        path = None if cache is None else cache / f"diagnosis_{fault}_{rpm:g}rpm_{seconds:g}s.npz"
-        if path is not None and path.exists():
-            y = np.load(path)["y"]
-        else:
-            t = np.arange(0.0, seconds, CASE_DT)
-            y = ross_fault_run(rotor, kind, rpm, t, CASE_PLANE_NODE, unbalance, **parameters)[:, probes]
-            if path is not None:
-                path.parent.mkdir(parents=True, exist_ok=True)
-                np.savez(path, y=y)
+        y = cached_fault_run(rotor, kind, rpm, seconds, unbalance, parameters, probes,
+                             None if cache is None else cache / f"diagnosis_{fault}_{rpm:g}rpm_{seconds:g}s.npz")
         X = order_harmonics(y, CASE_DT, rpm, CASE_TURNS, harmonics=H)[1:]
         X = X + noise * (rng.standard_normal(X.shape) + 1j * rng.standard_normal(X.shape))
         # the trial mass in grams at r_me = 1 m: m e [kg m] * 1e3
@@ -70,7 +63,7 @@ def machine_and_candidates(rotor):
     from hybridtwin.model.bearing_candidates import EXCITATION_DISPLACEMENT_M, excitations_at
     from hybridtwin.model.candidates import Candidate
     from hybridtwin.model.faults import fault_candidates
-    from hybridtwin.model.machine_parts import Bearing, Sensor, UnbalancePlane
+    from hybridtwin.model.machine_parts import Sensor, UnbalancePlane
     from hybridtwin.model.ross_io import machine_from_ross
 
     sensors = [Sensor(f"{d}{n}", n, d) for n in CASE_PROBE_NODES for d in "xy"]
@@ -129,7 +122,6 @@ def main() -> None:
         start = time.time()
         data = records(rotor, fault, args.cache, args.noise, args.seed, speeds)
         result, chi2 = diagnose(machine, candidates, data)
-        first = result.path[0].effect if result.path else "(none)"
         path = result.path_table()
         values = "; ".join(str(v) for v in path["estimate"]) if len(path) else ""
         verdict = result.conclusion.split(";")[0].split(": it ")[0]

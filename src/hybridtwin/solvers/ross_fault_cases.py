@@ -62,6 +62,21 @@ def ross_example_rotor():
         return ross.rotor_example_with_damping()
 
 
+def cached_fault_run(rotor, fault: str, rpm: float, seconds: float, unbalance: float, parameters: dict,
+                     probes: list, path: Path | None) -> np.ndarray:
+    """ROSS's time response of ``rotor`` with ``fault`` at ``rpm`` over ``seconds`` (step ``CASE_DT``) at the
+    ``probes``' DOFs, (T, len(probes)); kept in the npz file ``path`` and read from it when there (ROSS's runs take
+    minutes)."""
+    if path is not None and path.exists():
+        return np.load(path)["y"]
+    t = np.arange(0.0, seconds, CASE_DT)
+    y = ross_fault_run(rotor, fault, rpm, t, CASE_PLANE_NODE, unbalance, **parameters)[:, probes]
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        np.savez(path, y=y)
+    return y
+
+
 def run_case(rotor, case: str, cache: Path | None = None) -> CaseResult:
     """ROSS's run of ``case`` (``CASES``; its probe signals kept in ``cache`` as npz) and our harmonic balance of
     the same rotor and fault (5 harmonics), both at the probes."""
@@ -70,16 +85,9 @@ def run_case(rotor, case: str, cache: Path | None = None) -> CaseResult:
 
     fault, parameters, unbalance, seconds = CASES[case]
     probes = [ross_dof(n, d) for n in CASE_PROBE_NODES for d in "xy"]
-    path = None if cache is None else Path(cache) / f"{case}_{seconds:g}s.npz"
     start = time.time()
-    if path is not None and path.exists():
-        y = np.load(path)["y"]
-    else:
-        t = np.arange(0.0, seconds, CASE_DT)
-        y = ross_fault_run(rotor, fault, CASE_RPM, t, CASE_PLANE_NODE, unbalance, **parameters)[:, probes]
-        if path is not None:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            np.savez(path, y=y)
+    y = cached_fault_run(rotor, fault, CASE_RPM, seconds, unbalance, parameters, probes,
+                         None if cache is None else Path(cache) / f"{case}_{seconds:g}s.npz")
     elapsed = time.time() - start
     theirs = order_harmonics(y, CASE_DT, CASE_RPM, CASE_TURNS, harmonics=5)
 
