@@ -135,25 +135,29 @@ class BearingTable:
                       myx=myx, myy=myy)
         return cls((0.0,), **{k: (v,) for k, v in values.items()})
 
+    def _interpolants(self, make) -> dict:
+        """Each column's interpolant over rad/s: a constant for a single row, else ``make(speeds, values)``."""
+        speeds = np.asarray(self.rpm) * (2.0 * np.pi / 60.0)
+        out = {}
+        for key in COLUMNS:
+            values = np.asarray(getattr(self, key))
+            out[key] = (lambda omega, v=values[0]: np.full(np.shape(omega), v)) if len(values) == 1 else \
+                make(speeds, values)
+        return out
+
     @cached_property
     def _ross(self) -> dict:
         """ROSS 2.3.0's interpolants (``BearingElement._process_coefficient``) of each column over rad/s."""
         from scipy import interpolate
 
-        speeds = np.asarray(self.rpm) * (2.0 * np.pi / 60.0)
-        out = {}
-        for key in COLUMNS:
-            values = np.asarray(getattr(self, key))
-            if len(values) == 1:
-                out[key] = lambda omega, v=values[0]: np.full(np.shape(omega), v)
-                continue
+        def make(speeds, values):
             try:  # as ROSS: the smoothing spline, and where FITPACK refuses it (2 or 3 rows) the line or parabola
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
-                    out[key] = interpolate.UnivariateSpline(speeds, values)
+                    return interpolate.UnivariateSpline(speeds, values)
             except Exception:
-                out[key] = interpolate.interp1d(speeds, values, kind=len(values) - 1, fill_value="extrapolate")
-        return out
+                return interpolate.interp1d(speeds, values, kind=len(values) - 1, fill_value="extrapolate")
+        return self._interpolants(make)
 
     @cached_property
     def _ross3(self) -> dict:
@@ -161,17 +165,11 @@ class BearingTable:
         (``pchip``) or piecewise linear (``linear_extrapolated``), both continued linearly beyond the ends."""
         from scipy import interpolate
 
-        speeds = np.asarray(self.rpm) * (2.0 * np.pi / 60.0)
-        out = {}
-        for key in COLUMNS:
-            values = np.asarray(getattr(self, key))
-            if len(values) == 1:
-                out[key] = lambda omega, v=values[0]: np.full(np.shape(omega), v)
-            elif len(values) == 2 or self.interpolation == "linear_extrapolated":
-                out[key] = interpolate.interp1d(speeds, values, kind="linear", fill_value="extrapolate")
-            else:
-                out[key] = _pchip_extrapolated(speeds, values)
-        return out
+        def make(speeds, values):
+            if len(values) == 2 or self.interpolation == "linear_extrapolated":
+                return interpolate.interp1d(speeds, values, kind="linear", fill_value="extrapolate")
+            return _pchip_extrapolated(speeds, values)
+        return self._interpolants(make)
 
     def at(self, Omega: Array) -> dict[str, Array]:
         """Each coefficient at the speeds ``Omega`` [rad/s] (any shape), by ``interpolation``."""
