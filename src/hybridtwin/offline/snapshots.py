@@ -42,6 +42,7 @@ import numpy as np
 import pandas as pd
 import zarr
 
+from .. import tables
 from ..model.effect_base import Array
 from .scenarios import NOT_SOLVED, RunSolutions
 from .stores import CorruptStoreError, check_store, verify_store, write_manifest
@@ -112,7 +113,7 @@ def failure_summary(failures: pd.DataFrame) -> pd.DataFrame:
     """``Snapshots.failures`` in counts (the report's view of failures.tsv, which lists every point): per run,
     split and reason the number of scenarios, and the solver's sentence for the first of them (its numbers are that
     scenario's), in the runs' order of first appearance."""
-    columns = ["run", "split", "reason", "n_scenarios", "first_scenario", "first_message"]
+    columns = list(tables.FAILURE_SUMMARY.columns)
     if failures.empty:
         return pd.DataFrame(columns=columns)
     grouped = failures.groupby(["run", "split", "reason"], sort=False)
