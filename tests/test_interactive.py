@@ -591,6 +591,12 @@ def test_single_precision_keeps_every_value_to_float32_and_halves_the_arrays():
     text = fig.to_json()
     stored = pages.single_precision(text)
     trace = json.loads(stored)["data"][0]
+    if isinstance(json.loads(text)["data"][0]["x"], list):
+        # plotly < 6 (the floor, 5.22) writes arrays as JSON lists of float64's shortest repr: nothing to shorten,
+        # and every value must come back as it was
+        assert stored == text
+        assert np.array_equal(trace["x"], values) and np.array_equal(trace["error_y"]["array"], values)
+        return
 
     def decoded(array: dict) -> np.ndarray:
         assert array["dtype"] == "f4"

@@ -59,7 +59,8 @@ def single_precision(text: str) -> str:
     """A figure's JSON ``text`` with its float64 arrays (plotly's ``{"dtype":"f8","bdata":...}``) as float32:
     7 significant digits, more than a screen or the hover's 4 show, in half the bytes (the main job's report: its
     figures' data 11.5 -> 6.1 MB, issue 55; base64's "/" written plainly, not as plotly's 6-byte escape);
-    plotly.js draws float32 arrays as it draws float64 ones. Idempotent: what a page stores reads back
+    plotly.js draws float32 arrays as it draws float64 ones. Plotly < 6 writes arrays as JSON lists, which are left
+    as they are. Idempotent: what a page stores reads back
     (``read_figure``) and writes again to the same text."""
     def shorter(match: re.Match) -> str:
         values = np.frombuffer(base64.b64decode(match[2].replace("\\u002f", "/")), "<" + match[1]).astype("<f4")
