@@ -2,12 +2,21 @@
 #                      -> identification -> diagnosis -> report -> the twin online
 # Run: snakemake --cores 2   (the default profile in profiles/default sets the options)
 
+from pathlib import Path
+
 from snakemake.utils import min_version
 
 min_version("9.0")
 
 
 configfile: "config/config.yaml"
+
+
+# the virtual rig's data sets (results/rig/NAME/...), apart from the main job's settings where a project has them
+RIG_CONFIG = "config/rig.yaml"
+if Path(RIG_CONFIG).exists():
+
+    configfile: RIG_CONFIG
 
 
 # the whole config checked before any job is planned, the one validation against the schema (the package's,
@@ -19,7 +28,7 @@ from hybridtwin.settings import SCHEMA_FILE
 check_or_exit(
     config,
     SCHEMA_FILE,
-    ["config/config.yaml", *workflow.overwrite_configfiles],
+    ["config/config.yaml", *[RIG_CONFIG] * Path(RIG_CONFIG).exists(), *workflow.overwrite_configfiles],
     workflow.config_settings.config,
 )
 

@@ -122,6 +122,27 @@ BAD = {
 }
 
 
+def test_the_main_config_holds_no_rig_and_a_bad_rig_entry_names_config_rig_yaml(project):
+    """config/config.yaml lists only what acts on the main job (issue 50): the virtual rig's data sets live in
+    config/rig.yaml, which the Snakefile loads after it (validated with it); a bad entry there is one line naming
+    config/rig.yaml, the entry's line and the key."""
+    assert "rig" not in yaml.safe_load((ROOT / "config" / "config.yaml").read_text())
+    assert 'RIG_CONFIG = "config/rig.yaml"' in (ROOT / "Snakefile").read_text()
+    text = (ROOT / "config" / "rig.yaml").read_text()
+    assert list(yaml.safe_load(text)) == ["rig"]
+    files = [Path("config/config.yaml"), Path("config/rig.yaml")]
+    (project / files[1]).write_text(text)
+    check(_merged(*files), SCHEMA, files, None)  # the bundled pair passes
+    bad = text.replace("slope_spring]", "slope_sprung]")
+    (project / files[1]).write_text(bad)
+    with pytest.raises(ConfigError) as err:
+        check(_merged(*files), SCHEMA, files, None)
+    line = bad.splitlines().index("  default:") + 1  # the entry the problem is reported on (rig.default)
+    assert len(err.value.problems) == 1, err.value.problems
+    assert err.value.problems[0].startswith(f"config/rig.yaml, line {line}: "), err.value.problems
+    assert "rig.default" in err.value.problems[0] and "slope_sprung" in err.value.problems[0]
+
+
 @pytest.mark.parametrize("name", BAD)
 def test_each_bad_value_is_one_line_naming_file_line_key_and_value(project, name):
     overlay, words = BAD[name]

@@ -208,13 +208,13 @@ def test_cli_rig_with_options(tmp_path, capsys):
 
 
 def test_bundled_data_set_is_what_the_configured_truth_generates(tmp_path):
-    """data/default is reproduced from config/config.yaml's rig: default entry (README claim): the sheet and the
+    """data/default is reproduced from config/rig.yaml's rig: default entry (README claim): the sheet and the
     answer key's YAML byte for byte, every record to one unit of its last written digit (another CPU's BLAS
     kernel may flip one, issue 42: numeric_files.same_record); the truth table's full-precision steady states to 1e-9
     relative, its solver messages aside (their last printed digits follow the numpy/BLAS build: bit-identity
     across library versions is not promised, and 1e-9 is far below the records' 1e-4 mm rounding, which
     stays byte-identical)."""
-    config = yaml.safe_load((ROOT / "config" / "config.yaml").read_text())
+    config = yaml.safe_load((ROOT / "config" / "rig.yaml").read_text())
     entry = config["rig"]["default"]
     truth = generate(read_plan(ROOT / entry["plan"]), RigSpec.from_mapping(entry), tmp_path)
     for name in ["runs.tsv", "truth.yaml"]:
