@@ -248,17 +248,42 @@ class RecordProblem:
                          for k, (M, _) in enumerate(responses)])
 
 
-class Shifted:
-    """A forward model (``forward.HarmonicModel``) plus a constant ``offset`` (H', C) complex [m] on its response
-    (None: none): a library anchored on the full solver (``library_route``)."""
+@dataclass
+class Anchor:
+    """A library's correction to the full solver at the twin (``library_route.anchors``): the shift ``offset``
+    (H', C) complex [m] and, to first order, ``gradient`` (H', C, d) [m per normalised unit] the solver's Jacobian less
+    the library's at the normalised point ``centre`` (d,): the corrected response M(x) + offset + gradient (x - centre)
+    equals the solver's and its Jacobian at the centre."""
 
-    def __init__(self, model, offset: Array | None):
-        self.model, self.offset = model, offset
+    offset: Array
+    gradient: Array | None = None
+    centre: Array | None = None
+
+    def __len__(self) -> int:  # the harmonics it holds
+        return len(self.offset)
+
+
+class Shifted:
+    """A forward model (``forward.HarmonicModel``) plus its ``Anchor`` (or a constant offset (H', C) complex [m];
+    None: none): a library anchored on the full solver (``library_route``)."""
+
+    def __init__(self, model, offset: Anchor | Array | None):
+        self.model = model
+        self.anchor = offset if offset is None or isinstance(offset, Anchor) else Anchor(np.asarray(offset))
         self.parameters, self.lower, self.upper, self.H = model.parameters, model.lower, model.upper, model.H
 
     def evaluate(self, x: Array, jacobian: bool = True) -> tuple[Array, Array | None]:
         M, dM = self.model.evaluate(x, jacobian)
-        return (M if self.offset is None else M + self.offset[None, : M.shape[1]]), dM
+        if self.anchor is None:
+            return M, dM
+        H = M.shape[1]
+        M = M + self.anchor.offset[None, :H]
+        if self.anchor.gradient is not None:
+            G = self.anchor.gradient[:H]  # (H, C, d); the library clips x to its box, so does the correction
+            M = M + np.einsum("hcd,nd->nhc", G, np.clip(np.atleast_2d(x), -1.0, 1.0) - self.anchor.centre)
+            if dM is not None:
+                dM = dM + G[None]
+        return M, dM
 
 
 def fit(problem: RecordProblem, hypotheses: Sequence[Hypothesis], start: RecordFit | None = None

@@ -8,10 +8,12 @@ library (``choose``):
 
 - scope run: the library of the runs sheet's run at the record's eccentric mass (to ``MASS_TOLERANCE_G``) nearest
   in speed, within ``SPEED_MATCH`` of the record's speed, **anchored** on the full solver when the card was written
-  (``anchors``, rule twin_card): shifted to equal the solver at the twin's values at that run's operating point,
-  plus the solver's change per RPM there times the record's speed difference. Its error near the twin (inside
-  x0 -+ ``ANCHOR_HALF_WIDTH`` and -+ ``SPEED_MATCH`` of the speed, measured then against the solver) is its own
-  error at a record whose fits stay there; elsewhere twice the run's largest test error plus that. Without an anchor
+  (``anchors``, rule twin_card): shifted to equal the solver at the twin's values at that run's operating point and
+  corrected to its slope there (``fits.Anchor``: first order), plus the solver's change per RPM there times the
+  record's speed difference. Its error near the twin (inside the box x0 -+ ``ANCHOR_PRIOR_SDS`` of the twin's
+  standard deviations, within [``ANCHOR_MIN_HALF_WIDTH``, ``ANCHOR_HALF_WIDTH``], and -+ ``SPEED_MATCH`` of the
+  speed, measured then against the solver) is its own error at a record whose fits stay there; elsewhere twice the
+  run's largest test error plus that. Without an anchor
   (a card without one), the speed difference is counted as an error estimated from the libraries of the
   neighbouring speeds at the same mass (the largest relative change per RPM to them, times ``SPEED_SAFETY``),
   or, with none, only a record within ``SPEED_EXACT`` of the library's speed is served;
@@ -47,7 +49,6 @@ as far as e bounds the library's error between the points where it was measured.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -55,6 +56,7 @@ import numpy as np
 from scipy.special import chdtrc
 
 from ..offline.library import OPERATING_POINT, Library, sensor_signal_norm
+from .fits import Anchor
 from .intake import Intake
 from .twin import Twin
 
@@ -77,6 +79,14 @@ SPEED_SAFETY = 2.0
 #: 5 % of the range), where a record's fits stay unless it moved (a record's own estimate of a damping moves by a few
 #: prior standard deviations of the twin, which are far smaller)
 ANCHOR_HALF_WIDTH = 0.1
+#: ... or, narrower, this many of the twin's own standard deviations of the parameter (its prior at the run: a record
+#: of the unchanged machine moves a freed parameter by a few of its own, larger, standard deviations), but not below
+#: ``ANCHOR_MIN_HALF_WIDTH``; a fit outside the box is judged with the library's bound elsewhere (``bound``)
+ANCHOR_PRIOR_SDS = 30.0
+ANCHOR_MIN_HALF_WIDTH = 0.005
+#: the wider boxes an anchor's error is also measured over (normalised half widths: 5 % and 15 % of each range), for
+#: the fits of a record less precise than the twin, which move a freed parameter further
+ANCHOR_WIDER_BOXES = (ANCHOR_HALF_WIDTH, 0.3)
 
 _CACHE: dict[Path, Library] = {}
 
@@ -94,7 +104,7 @@ class Choice:
     names: list[str]
     notes: list[str] = field(default_factory=list)
     offsets: list = field(default_factory=list)
-    near: list = field(default_factory=list)  # per run: (centre, half_width, error) or None
+    near: list = field(default_factory=list)  # per run: [(centre, half_width, error), ...] narrowest first, or None
 
     @property
     def name(self) -> str:
@@ -158,11 +168,18 @@ def _run(twin: Twin, data) -> Choice | str:
         offset = (np.array(anchor["offset_re_m"]) + 1j * np.array(anchor["offset_im_m"])
                   + (data.rpm - nearest["rpm"]) * (np.array(anchor["slope_re_m_per_rpm"])
                                                    + 1j * np.array(anchor["slope_im_m_per_rpm"])))
+        if "gradient_re_m" in anchor:  # to first order (a card written before it: the shift alone)
+            offset = Anchor(offset, np.array(anchor["gradient_re_m"]) + 1j * np.array(anchor["gradient_im_m"]),
+                            np.array(anchor["x"]))
         near = anchor["error_pct"] / 100
+        tiers = [(np.array(anchor["x"]), np.array(anchor["half_width"]), near)]
+        for wider in anchor.get("wider", ()):  # the same anchor over wider boxes (ANCHOR_WIDER_BOXES)
+            tiers.append((np.array(anchor["x"]), np.array(wider["half_width"]), wider["error_pct"] / 100))
         notes.append(f"anchored at the twin, {data.rpm - nearest['rpm']:+.2f} RPM from the record: error "
-                     f"{anchor['error_pct']:.2g} % near the twin")
-        return Choice([library], [near], [2 * nearest[BOUND_ERROR] / 100 + near], [name], notes, [offset],
-                      [(np.array(anchor["x"]), np.array(anchor["half_width"]), near)])
+                     f"{anchor['error_pct']:.2g} % near the twin"
+                     + "".join(f", {100 * e:.2g} % over {50 * h.max():.3g} % of the ranges" for _, h, e in tiers[1:]))
+        return Choice([library], [near], [2 * nearest[BOUND_ERROR] / 100 + tiers[-1][2]], [name], notes, [offset],
+                      [tiers])
     speed_error = 0.0
     if gap > SPEED_EXACT:
         x0 = _twin_values(twin, data.rpm, data.eccentric_mass_g)
@@ -215,51 +232,94 @@ def _twin_values(twin: Twin, rpm: float, eccentric_mass_g: float) -> Array:
 # --- the anchor: the library against the full solver at the twin, when the card is written ----------------------
 
 
-def anchors(twin: Twin) -> dict[str, dict]:
+def anchors(twin: Twin, order: int = 1, seed: int = 0) -> dict[str, dict]:
     """Each scope-run library of ``twin`` anchored on the full solver at the twin (module docstring, "the anchor"):
     per run, the shift (H, C) [m] that makes the library equal to the solver at the twin's values at the run's
-    operating point (x0: the shared estimates, the per-run ones from their law), the solver's change per RPM there
-    (central difference over -+ ``SPEED_MATCH``), and the anchored library's largest relative error against the
-    solver over the points checked: x0 -+ ``ANCHOR_HALF_WIDTH`` along each parameter (normalised), and x0 at -+ ``SPEED_MATCH`` of the speed with the speed's correction.
-    One batched solve of every run's points."""
+    operating point (x0: the shared estimates, the per-run ones from their law), with ``order`` 1 also the solver's
+    Jacobian less the library's there (H, C, d) (``fits.Anchor``: the corrected library then has the solver's
+    response and slope at x0, its error second order in the distance), the solver's change per RPM there (central
+    difference over -+ ``SPEED_MATCH``), and the anchored library's largest relative error against the solver over
+    two boxes (``_box_points``: each face along each parameter and a Latin hypercube inside, ``seed``), with x0 at
+    -+ ``SPEED_MATCH`` of the speed with the speed's correction: ``error_pct`` over the twin's own box
+    (``_anchor_half_width``; with ``order`` 0, x0 -+ ``ANCHOR_HALF_WIDTH``), and in ``wider`` over each of
+    ``ANCHOR_WIDER_BOXES`` (normalised half widths, for the fits of records less precise than the twin). ``bound`` takes the narrowest box that holds a fit. Two batched solves of every run's points (x0
+    with its sensitivities, then the rest)."""
     from ..identify.forward import SensorSurrogate, SolverModel, evaluate_runs
 
     names = list(twin.variant.unknown)
+    d = len(names)
     lower, upper = (np.array(v, float) for v in zip(*twin.variant.unknown.values()))
     half_range = 0.5 * (upper - lower)
     H = twin.harmonics
-    runs, models, xs = [], [], []
+    rng = np.random.default_rng(seed)
+    runs, centres, models, xs = [], [], [], []
     for entry in twin.library["runs"]:
         rpm, mass = entry["rpm"], entry["eccentric_mass_g"]
         x0 = (_twin_values(twin, rpm, mass)[0] - (lower + upper) / 2) / half_range
-        half = np.full(len(names), ANCHOR_HALF_WIDTH)
-        points = [x0] + [np.clip(x0 + sign * half[j] * np.eye(len(names))[j], -1, 1)
-                         for j in range(len(names)) for sign in (-1, 1)]
+        half = _anchor_half_width(twin, names, half_range, rpm, mass) if order >= 1 else np.full(d, ANCHOR_HALF_WIDTH)
+        boxes = [half] + ([np.full(d, w) for w in ANCHOR_WIDER_BOXES] if order >= 1 else [])
+        points = np.concatenate([_box_points(x0, box, rng) for box in boxes])
         step = SPEED_MATCH * rpm
-        for speed, x in ((rpm, np.array(points)), (rpm - step, x0[None]), (rpm + step, x0[None])):
+        centres.append(SolverModel(twin.variant, entry["run"], rpm, mass, names, lower, upper, H))
+        for speed, x in ((rpm, points), (rpm - step, x0[None]), (rpm + step, x0[None])):
             models.append(SolverModel(twin.variant, entry["run"], speed, mass, names, lower, upper, H))
             xs.append(x)
         runs.append((entry, x0, half, step))
+    at_centre = evaluate_runs(centres, [r[1][None] for r in runs], order >= 1)
     solved = evaluate_runs(models, xs, False)
     out = {}
     for i, (entry, x0, half, step) in enumerate(runs):
-        here, below, above = (solved[3 * i + j][0] for j in range(3))
+        here, J_here = at_centre[i]
+        checked, below, above = (solved[3 * i + j][0] for j in range(3))
         library = SensorSurrogate(load(twin.folder / twin.library["file"].format(run=entry["run"])), H)
-        if library.H < H or not np.isfinite(here).all() or not np.isfinite(below).all() or not np.isfinite(above).all():
+        if library.H < H or not all(np.isfinite(a).all() for a in (here, checked, below, above)):
             continue  # no steady state at a checked point: the library is not anchored there
-        predicted = library.evaluate(xs[3 * i], False)[0]
+        predicted, J_lib = library.evaluate(x0[None], order >= 1)
         offset = here[0] - predicted[0]
         slope = (above[0] - below[0]) / (2 * step)
-        errors = [np.linalg.norm(predicted[k] + offset - here[k]) / np.linalg.norm(here[k]) for k in range(len(here))]
-        errors += [np.linalg.norm(predicted[0] + offset + sign * step * slope - state[0]) / np.linalg.norm(state[0])
-                   for sign, state in ((-1, below), (1, above))]
+        gradient = J_here[0] - J_lib[0] if order >= 1 else np.zeros(offset.shape + (d,))
+        corrected = (library.evaluate(xs[3 * i], False)[0] + offset
+                     + np.einsum("hcd,nd->nhc", gradient, xs[3 * i] - x0))
+        errors = [np.linalg.norm(corrected[k] - checked[k]) / np.linalg.norm(checked[k]) for k in range(len(checked))]
+        speed = [np.linalg.norm(predicted[0] + offset + sign * step * slope - state[0]) / np.linalg.norm(state[0])
+                 for sign, state in ((-1, below), (1, above))]
+        n_box = len(errors) // len(boxes)
+        # each box's error over its points and every narrower box's (a wider box holds the narrower ones)
+        box_errors = [max(errors[: (b + 1) * n_box] + speed) for b in range(len(boxes))]
         out[entry["run"]] = {
             "x": x0.tolist(), "half_width": half.tolist(), "speed_step_rpm": float(step),
             "offset_re_m": offset.real.tolist(), "offset_im_m": offset.imag.tolist(),
             "slope_re_m_per_rpm": slope.real.tolist(), "slope_im_m_per_rpm": slope.imag.tolist(),
-            "error_pct": 100 * float(max(errors)),
+            **({"gradient_re_m": gradient.real.tolist(), "gradient_im_m": gradient.imag.tolist()} if order >= 1
+               else {}),
+            "error_pct": 100 * float(box_errors[0]),
+            **({"wider": [{"half_width": box.tolist(), "error_pct": 100 * float(e)}
+                          for box, e in zip(boxes[1:], box_errors[1:])]} if order >= 1 else {}),
             "raw_error_pct": 100 * float(np.linalg.norm(offset) / np.linalg.norm(here[0]))}
     return out
+
+
+def _box_points(x0: Array, half: Array, rng: np.random.Generator) -> Array:
+    """Where an anchor's error is measured in the box x0 -+ ``half``: its faces' centres along each parameter and as
+    many points of a Latin hypercube inside it (the directions between the axes), inside [-1, 1]."""
+    d = len(x0)
+    axes = [x0 + sign * half[j] * np.eye(d)[j] for j in range(d) for sign in (-1, 1)]
+    spread = (rng.permuted(np.tile(np.arange(2 * d), (d, 1)), axis=1).T + rng.random((2 * d, d))) / (2 * d)
+    return np.clip(np.array(axes + list(x0 + half * (2 * spread - 1))), -1, 1)
+
+
+def _anchor_half_width(twin: Twin, names: list[str], half_range: Array, rpm: float, mass: float) -> Array:
+    """The anchor's box (normalised half widths, per parameter): ``ANCHOR_PRIOR_SDS`` of the twin's standard
+    deviations at the run (its prior), within [``ANCHOR_MIN_HALF_WIDTH``, ``ANCHOR_HALF_WIDTH``]; a parameter without
+    a prior (undetermined by the twin) the widest."""
+    prior = twin.prior([(rpm, mass)])
+    sd = np.sqrt(np.clip(np.diag(prior.covariance), 0.0, None))
+    half = np.full(len(names), ANCHOR_HALF_WIDTH)
+    for i, (name, _) in enumerate(prior.names):
+        if name in names:
+            j = names.index(name)
+            half[j] = min(ANCHOR_HALF_WIDTH, max(ANCHOR_MIN_HALF_WIDTH, ANCHOR_PRIOR_SDS * sd[i] / half_range[j]))
+    return half
 
 
 # --- does the library decide? -----------------------------------------------------------------------------------
@@ -283,10 +343,11 @@ def bound(problem, choice: Choice, v: Array) -> float:
     the validation's bound (relative to the Parseval norm, h = 0 included: the factor 2)."""
     total = 0.0
     for k, (library, x) in enumerate(zip(choice.libraries, problem.run_x(v[None]))):
-        near = choice.near[k] if choice.near else None
-        if near is not None and np.all(np.abs(x[0] - near[0]) <= near[1] * (1 + 1e-9)):
+        tiers = choice.near[k] if choice.near else None
+        inside = [e for centre, half, e in tiers or () if np.all(np.abs(x[0] - centre) <= half * (1 + 1e-9))]
+        if inside:  # the narrowest box measured around the twin that holds the fit
             M = problem.models[k].evaluate(x, False)[0]
-            total += (near[2] * float(np.linalg.norm(M)) / float(problem.measured_sigma[k].min())) ** 2
+            total += (inside[0] * float(np.linalg.norm(M)) / float(problem.measured_sigma[k].min())) ** 2
             continue
         values = library.lower + (np.clip(x, -1, 1) + 1.0) * (library.upper - library.lower) / 2.0
         norm = float(sensor_signal_norm(library.sensor(values))[0])
