@@ -758,3 +758,18 @@ def test_the_gallerys_menu_draws_the_figure_chosen_last(figures, gallery, tmp_pa
     assert result["last"] == diagnosis.layout.title.text and result["traces"] == len(diagnosis.data), result
     assert result["hash"] == "#demo%2Fdiagnosis" and result["menu"] == "demo/diagnosis"
     assert result["title"] == "demo: diagnosis"
+
+
+@browser
+def test_a_browser_without_decompression_streams_is_told_so(figures, tmp_path):
+    """Where the browser lacks DecompressionStream (before Chrome 80, Firefox 113, Safari 16.4), the page says what
+    it needs in place of the figure, and draws nothing."""
+    ia.write_html(figures["diagnosis"][0], tmp_path / "page.html")
+    text = (tmp_path / "page.html").read_text()
+    (tmp_path / "old.html").write_text(text.replace("<body>", "<body>\n<script>delete window.DecompressionStream;"
+                                                    "</script>", 1))
+    done = subprocess.run([str(CHROMIUM), *FLAGS, f"--user-data-dir={tmp_path / 'chromium-profile'}",
+                           (tmp_path / "old.html").as_uri()], capture_output=True, text=True, timeout=300, check=False)
+    found = re.search(r'<div id="figure"[^>]*>(.*?)</div>', done.stdout, re.DOTALL)
+    assert found, done.stdout[-1500:]
+    assert "needs DecompressionStream" in found.group(1) and "main-svg" not in done.stdout
