@@ -1,7 +1,7 @@
 """The single-file report of a finished run (issue 55): its size, what it is made of, and how long a headless
 Chromium takes to open it.
 
-    python benchmarks/report_size.py FOLDER [--report report.html] [--repeats 3]
+    python benchmarks/report_size.py FOLDER [--report report.html] [--repeats 3] [--page PAGE]
 
 FOLDER is where the workflow ran (the main job: a clone after `snakemake --cores 2`); the report is made there with
 `snakemake --report` unless ``--report`` names one already made. Printed: the report's bytes; the embedded files by
@@ -10,7 +10,8 @@ time to open it, ``chromium --headless --dump-dom`` on the report minus the same
 start), best of ``--repeats``, as wall seconds and as CPU seconds (``open_time``), with the load average: the wall
 time is the figure of issue 55, to measure on an idle machine; on a shared one the CPU time, which moves less with
 the load, compares two reports. And the time to the report's load event by the page's own clock (``load_time``):
-what a user waits, without the dump of the page's HTML that the wall time includes.
+what a user waits, without the dump of the page's HTML that the wall time includes. With ``--page``, the
+interactive page by itself to its first figure drawn (``drawn_time``).
 """
 
 from __future__ import annotations
@@ -97,11 +98,33 @@ def load_time(page: Path, repeats: int) -> float:
     return min(times)
 
 
+def drawn_time(page: Path, repeats: int) -> tuple[float, int]:
+    """Best wall seconds of ``chromium --headless --virtual-time-budget=5000 --dump-dom page`` less the same on an
+    empty page, and the plotly figures in the dumped page: the interactive page opened by itself to its first figure
+    drawn (the virtual time skips the page's idle waits, not its work), as a Chromium user opens it (Chromium shows
+    no report entry above 2 MB)."""
+    def run(target: Path) -> tuple[float, str]:
+        with tempfile.TemporaryDirectory() as profile:
+            start = time.perf_counter()
+            done = subprocess.run([CHROMIUM, *FLAGS, f"--user-data-dir={profile}", "--virtual-time-budget=5000",
+                                   "--dump-dom", target.as_uri()], capture_output=True, check=True, text=True)
+            return time.perf_counter() - start, done.stdout
+
+    with tempfile.TemporaryDirectory() as folder:
+        empty = Path(folder) / "empty.html"
+        empty.write_text("<!DOCTYPE html><html><body></body></html>")
+        runs = [run(page) for _ in range(repeats)]
+        return (min(wall for wall, _ in runs) - min(run(empty)[0] for _ in range(repeats)),
+                runs[-1][1].count('class="main-svg"'))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("folder", type=Path)
     parser.add_argument("--report", type=Path, help="a report already made (default: make FOLDER/report.html)")
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--page", type=Path, help="also time this interactive page to its first figure drawn "
+                        "(FOLDER/results/interactive.html)")
     args = parser.parse_args()
     report = args.report
     if report is None:
@@ -118,6 +141,11 @@ def main() -> None:
               f"of {args.repeats}; load average {os.getloadavg()[0]:.1f})")
         print(f"loaded in {load_time(report.resolve(), args.repeats):.2f} s (its load event, the page's own clock; "
               f"best of {args.repeats}; load average {os.getloadavg()[0]:.1f})")
+        if args.page is not None:
+            seconds, svgs = drawn_time(args.page.resolve(), args.repeats)
+            print(f"{args.page} ({args.page.stat().st_size / 1e6:.1f} MB) by itself: its first figure drawn in "
+                  f"{seconds:.2f} s ({svgs} plotly SVG layers; best of {args.repeats}, less Chromium's start; load "
+                  f"average {os.getloadavg()[0]:.1f})")
     else:
         print(f"no {CHROMIUM}: the open time not measured")
 
