@@ -709,12 +709,13 @@ def test_the_browser_check_fails_where_hover_is_switched_off(figures, switch_off
     assert len(problems) == len(targets) and all("no hover label" in p for p in problems), problems
 
 
-#: injected into a copy of the gallery: once the first figure is drawn, chooses two figures from the menu one right
-#: after the other (each inflated as it is chosen, the first possibly after the second), then says what is drawn
+#: injected into a copy of the gallery: chooses two figures from the menu one right after the other (each inflated as
+#: it is chosen, the first possibly after the second), either at once, as the page is parsed (plotly.js not inflated
+#: yet), or once the first figure is drawn; then says what is drawn
 MENU = r"""
 <script>
 (function () {
-  var choices = %s;
+  var choices = %s, early = %s, first = null;
   function say(out) {
     var pre = document.createElement('pre');
     pre.id = 'result';
@@ -722,19 +723,26 @@ MENU = r"""
     document.body.appendChild(pre);
   }
   function drawn(gd) { return gd._fullLayout ? gd._fullLayout.title.text : null; }
+  function choose_all() {
+    var choose = document.getElementById('choose');
+    choices.forEach(function (key) { choose.value = key; choose.dispatchEvent(new Event('change')); });
+  }
+  function report() {
+    var gd = document.getElementById('figure');
+    say({first: first, last: drawn(gd), traces: gd._fullData ? gd._fullData.length : 0, hash: location.hash,
+         title: document.title, menu: document.getElementById('choose').value});
+  }
   function run(tries) {
-    var gd = document.getElementById('figure'), choose = document.getElementById('choose');
+    var gd = document.getElementById('figure');
     if (!drawn(gd)) {
       if (tries > 0) { setTimeout(function () { run(tries - 1); }, 100); } else { say({error: 'no plot'}); }
       return;
     }
-    var first = drawn(gd);
-    choices.forEach(function (key) { choose.value = key; choose.dispatchEvent(new Event('change')); });
-    setTimeout(function () {
-      say({first: first, last: drawn(gd), traces: gd._fullData.length, hash: location.hash, title: document.title,
-           menu: choose.value});
-    }, 3000);
+    first = drawn(gd);
+    if (!early) { choose_all(); }
+    setTimeout(report, 3000);
   }
+  if (early) { choose_all(); }
   window.addEventListener('load', function () { setTimeout(function () { run(100); }, 100); });
 })();
 </script>
@@ -742,19 +750,22 @@ MENU = r"""
 
 
 @browser
-def test_the_gallerys_menu_draws_the_figure_chosen_last(figures, gallery, tmp_path):
+@pytest.mark.parametrize("early", [False, True], ids=["after the first figure", "before plotly.js is inflated"])
+def test_the_gallerys_menu_draws_the_figure_chosen_last(figures, gallery, early, tmp_path):
     """The gallery opens on its first figure; two figures chosen from the menu one right after the other (each
-    inflated when chosen): the one chosen last is drawn, with its own traces, title and address fragment."""
+    inflated when chosen), once the first is drawn or before plotly.js is even inflated: the one chosen last is
+    drawn, with its own traces, title and address fragment."""
     page = tmp_path / "menu.html"
-    page.write_text(gallery.read_text().replace("</body>", MENU % json.dumps(["demo/summary", "demo/diagnosis"])
-                                                + "</body>"))
+    page.write_text(gallery.read_text().replace("</body>", MENU % (json.dumps(["demo/summary", "demo/diagnosis"]),
+                                                                   json.dumps(early)) + "</body>"))
     done = subprocess.run([str(CHROMIUM), *FLAGS, f"--user-data-dir={tmp_path / 'chromium-profile'}", page.as_uri()],
                           capture_output=True, text=True, timeout=300, check=False)
     found = re.search(r'<pre id="result">(.*?)</pre>', done.stdout, re.DOTALL)
     assert found, f"no result in the page (exit {done.returncode}): {done.stderr[-1500:]}"
     result = json.loads(html.unescape(found.group(1)))
     runs, diagnosis = figures["runs"][0], figures["diagnosis"][0]
-    assert result["first"] == runs.layout.title.text, result
+    # drawn first: the runs figure (the gallery's first), or already the last choice when it came before any draw
+    assert result["first"] == (diagnosis if early else runs).layout.title.text, result
     assert result["last"] == diagnosis.layout.title.text and result["traces"] == len(diagnosis.data), result
     assert result["hash"] == "#demo%2Fdiagnosis" and result["menu"] == "demo/diagnosis"
     assert result["title"] == "demo: diagnosis"

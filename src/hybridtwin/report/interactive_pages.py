@@ -134,35 +134,35 @@ _DRAW = """<script type="text/javascript">
     for (var i = 0; i < text.length; i++) { bytes[i] = text.charCodeAt(i); }
     return new Response(new Blob([bytes]).stream().pipeThrough(new DecompressionStream('gzip'))).text();
   }
+  var ready = inflate(document.getElementById('plotly-js')).then(function (js) {
+    var script = document.createElement('script');
+    script.text = js;  // an inline script runs as it is added: plotly.js defines window.Plotly
+    document.head.appendChild(script);
+  });
   var blocks = {};
   document.querySelectorAll('script.figure-data').forEach(function (el) { blocks[el.dataset.key] = el; });
   var choose = document.getElementById('choose');
-  var latest = 0;  // the figure last asked for: an earlier one inflated later is not drawn over it
+  var latest = 0;  // the figure last asked for: one asked for earlier and inflated later is not drawn over it
   function show(key) {
     if (!(key in blocks)) { key = Object.keys(blocks)[0]; }
     var asked = ++latest;
     if (choose) { choose.value = key; }
     document.title = blocks[key].dataset.label;
-    return inflate(blocks[key]).then(function (text) {
+    return Promise.all([inflate(blocks[key]), ready]).then(function (done) {
       if (asked !== latest) { return; }
-      var spec = JSON.parse(text);
+      var spec = JSON.parse(done[0]);
       Plotly.purge(gd);
       return Plotly.newPlot(gd, spec.data, spec.layout, config);
+    }).catch(function (e) { gd.textContent = 'The figure could not be drawn: ' + e; });
+  }
+  if (choose) {
+    choose.addEventListener('change', function () {
+      try { history.replaceState(null, '', '#' + encodeURIComponent(choose.value)); } catch (e) { }
+      show(choose.value);
     });
   }
-  inflate(document.getElementById('plotly-js')).then(function (js) {
-    var script = document.createElement('script');
-    script.text = js;  // an inline script runs as it is added: plotly.js defines window.Plotly
-    document.head.appendChild(script);
-    if (choose) {
-      choose.addEventListener('change', function () {
-        try { history.replaceState(null, '', '#' + encodeURIComponent(choose.value)); } catch (e) { }
-        show(choose.value);
-      });
-    }
-    window.addEventListener('hashchange', function () { show(decodeURIComponent(location.hash.slice(1))); });
-    return show(decodeURIComponent(location.hash.slice(1)));
-  }).catch(function (e) { gd.textContent = 'The figure could not be drawn: ' + e; });
+  window.addEventListener('hashchange', function () { show(decodeURIComponent(location.hash.slice(1))); });
+  show(decodeURIComponent(location.hash.slice(1)));
 })();
 </script>
 </body>
