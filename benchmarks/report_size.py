@@ -1,15 +1,15 @@
 """The single-file report of a finished run (issue 55): its size, what it is made of, and how long a headless
 Chromium takes to open it.
 
-    python benchmarks/report_size.py FOLDER [--report report.html] [--repeats 3] [--page PAGE]
+    python benchmarks/report_size.py FOLDER [--report report.html] [--repeats 3] [--against OTHER.html] [--page PAGE]
 
 FOLDER is where the workflow ran (the main job: a clone after `snakemake --cores 2`); the report is made there with
 `snakemake --report` unless ``--report`` names one already made. Printed: the report's bytes; the embedded files by
 kind (their base64 data URIs: the interactive page, PNGs, tables) and the rest (Snakemake's page and scripts); the
 time to open it, ``chromium --headless --dump-dom`` on the report minus the same on an empty page (Chromium's own
-start), best of ``--repeats``, as wall seconds and as CPU seconds (``open_time``), with the load average: the wall
-time is the figure of issue 55, to measure on an idle machine; on a shared one the CPU time, which moves less with
-the load, compares two reports. And the time to the report's load event by the page's own clock (``load_time``):
+start), best of ``--repeats``, as wall seconds and as CPU seconds (``open_times``; ``--against`` another report,
+opened in turn with it), with the load average: the wall time is the figure of issue 55, to measure on an idle
+machine; on a shared one the CPU time, which moves less with the load, compares two reports. And the time to the report's load event by the page's own clock (``load_time``):
 what a user waits, without the dump of the page's HTML that the wall time includes. With ``--page``, the
 interactive page by itself to its first figure drawn (``drawn_time``).
 """
@@ -46,11 +46,12 @@ def parts(html: str) -> Counter:
     return sizes
 
 
-def open_time(page: Path, repeats: int) -> tuple[float, float]:
-    """Best wall seconds of ``chromium --headless --dump-dom page`` less the same on an empty page, and best CPU
-    seconds (user + system) of the same in one process (``--single-process``: the page's renderer counted, which as
-    a process of its own is not among ours) less the same on the empty page. The wall time is what a user waits on an
-    idle machine; the CPU time moves less with the machine's load."""
+def open_times(pages: list[Path], repeats: int) -> list[tuple[float, float]]:
+    """Per page: best wall seconds of ``chromium --headless --dump-dom page`` less the same on an empty page, and best
+    CPU seconds (user + system) of the same in one process (``--single-process``: the page's renderer counted, which
+    as a process of its own is not among ours) less the same on the empty page. The pages are opened in turn, each
+    repeat once each, so that two reports meet the same load. The wall time is what a user waits on an idle machine;
+    the CPU time moves less with the machine's load."""
     def run(target: Path, *extra: str) -> tuple[float, float]:
         with tempfile.TemporaryDirectory() as profile:
             before = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -61,16 +62,17 @@ def open_time(page: Path, repeats: int) -> tuple[float, float]:
             after = resource.getrusage(resource.RUSAGE_CHILDREN)
         return wall, after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime
 
-    def best(target: Path) -> tuple[float, float]:
-        walls = [run(target)[0] for _ in range(repeats)]
-        cpus = [run(target, "--single-process")[1] for _ in range(repeats)]
-        return min(walls), min(cpus)
-
     with tempfile.TemporaryDirectory() as folder:
         empty = Path(folder) / "empty.html"
         empty.write_text("<!DOCTYPE html><html><body></body></html>")
-        (wall, cpu), (wall0, cpu0) = best(page), best(empty)
-        return wall - wall0, cpu - cpu0
+        targets = [empty, *pages]
+        walls: list[list[float]] = [[] for _ in targets]
+        cpus: list[list[float]] = [[] for _ in targets]
+        for _ in range(repeats):
+            for i, target in enumerate(targets):
+                walls[i].append(run(target)[0])
+                cpus[i].append(run(target, "--single-process")[1])
+        return [(min(w) - min(walls[0]), min(c) - min(cpus[0])) for w, c in zip(walls[1:], cpus[1:])]
 
 
 #: added to a copy of the report: the page's own clock (ms since the navigation started) at its load event, when
@@ -123,6 +125,8 @@ def main() -> None:
     parser.add_argument("folder", type=Path)
     parser.add_argument("--report", type=Path, help="a report already made (default: make FOLDER/report.html)")
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--against", type=Path, help="another report to open in turn with it (each repeat once "
+                        "each: the same load for both), its open time printed after")
     parser.add_argument("--page", type=Path, help="also time this interactive page to its first figure drawn "
                         "(FOLDER/results/interactive.html)")
     args = parser.parse_args()
@@ -136,9 +140,10 @@ def main() -> None:
     for kind, size in parts(html).most_common():
         print(f"  {kind}: {size / 1e6:.2f} MB")
     if shutil.which(CHROMIUM) or Path(CHROMIUM).exists():
-        wall, cpu = open_time(report.resolve(), args.repeats)
-        print(f"opens in {wall:.2f} s, {cpu:.2f} s of CPU (headless Chromium's --dump-dom, less its own start; best "
-              f"of {args.repeats}; load average {os.getloadavg()[0]:.1f})")
+        reports = [report.resolve()] + ([args.against.resolve()] if args.against else [])
+        for path, (wall, cpu) in zip(reports, open_times(reports, args.repeats)):
+            print(f"{path.name} opens in {wall:.2f} s, {cpu:.2f} s of CPU (headless Chromium's --dump-dom, less its "
+                  f"own start; best of {args.repeats}; load average {os.getloadavg()[0]:.1f})")
         print(f"loaded in {load_time(report.resolve(), args.repeats):.2f} s (its load event, the page's own clock; "
               f"best of {args.repeats}; load average {os.getloadavg()[0]:.1f})")
         if args.page is not None:
