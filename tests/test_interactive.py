@@ -488,9 +488,19 @@ def in_browser(figure_html: Path, targets: list[dict], work: Path, toggles: list
     assert text.count("</body>") == 1
     points = [{k: t[k] for k in t if k != "expect"} for t in targets]
     page.write_text(text.replace("</body>", CHECK % (json.dumps(points), json.dumps(list(toggles))) + "</body>"))
-    done = subprocess.run([str(CHROMIUM), *FLAGS, f"--user-data-dir={work / 'chromium-profile'}",
+    return page_result(page, work, key)
+
+
+def dumped(page: Path, work: Path, key: str = "") -> subprocess.CompletedProcess:
+    """Headless Chromium's run on ``page`` (at the URL's fragment ``key``): its stdout, the page once loaded."""
+    return subprocess.run([str(CHROMIUM), *FLAGS, f"--user-data-dir={work / 'chromium-profile'}",
                            page.as_uri() + (f"#{key}" if key else "")],
                           capture_output=True, text=True, timeout=300, check=False)
+
+
+def page_result(page: Path, work: Path, key: str = "") -> dict:
+    """What a check injected into ``page`` wrote into its <pre id="result"> (JSON)."""
+    done = dumped(page, work, key)
     found = re.search(r'<pre id="result">(.*?)</pre>', done.stdout, re.DOTALL)
     assert found, f"no result in the page (exit {done.returncode}): {done.stderr[-1500:]}"
     return json.loads(html.unescape(found.group(1)))
@@ -758,11 +768,7 @@ def test_the_gallerys_menu_draws_the_figure_chosen_last(figures, gallery, early,
     page = tmp_path / "menu.html"
     page.write_text(gallery.read_text().replace("</body>", MENU % (json.dumps(["demo/summary", "demo/diagnosis"]),
                                                                    json.dumps(early)) + "</body>"))
-    done = subprocess.run([str(CHROMIUM), *FLAGS, f"--user-data-dir={tmp_path / 'chromium-profile'}", page.as_uri()],
-                          capture_output=True, text=True, timeout=300, check=False)
-    found = re.search(r'<pre id="result">(.*?)</pre>', done.stdout, re.DOTALL)
-    assert found, f"no result in the page (exit {done.returncode}): {done.stderr[-1500:]}"
-    result = json.loads(html.unescape(found.group(1)))
+    result = page_result(page, tmp_path)
     runs, diagnosis = figures["runs"][0], figures["diagnosis"][0]
     # drawn first: the runs figure (the gallery's first), or already the last choice when it came before any draw
     assert result["first"] == (diagnosis if early else runs).layout.title.text, result
@@ -779,8 +785,7 @@ def test_a_browser_without_decompression_streams_is_told_so(figures, tmp_path):
     text = (tmp_path / "page.html").read_text()
     (tmp_path / "old.html").write_text(text.replace("<body>", "<body>\n<script>delete window.DecompressionStream;"
                                                     "</script>", 1))
-    done = subprocess.run([str(CHROMIUM), *FLAGS, f"--user-data-dir={tmp_path / 'chromium-profile'}",
-                           (tmp_path / "old.html").as_uri()], capture_output=True, text=True, timeout=300, check=False)
+    done = dumped(tmp_path / "old.html", tmp_path)
     found = re.search(r'<div id="figure"[^>]*>(.*?)</div>', done.stdout, re.DOTALL)
     assert found, done.stdout[-1500:]
     assert "needs DecompressionStream" in found.group(1) and "main-svg" not in done.stdout
