@@ -86,9 +86,9 @@ def finish_figure(fig: go.Figure, title: str, height: float, width: float | None
 
 
 def write_html(fig: go.Figure, path: str | Path) -> None:
-    """``fig`` as one self-contained HTML file at ``path``: plotly.js embedded (opens offline, no network needed),
-    the same figure giving the same bytes (the workflow's reruns compare results); ``interactive_pages.write_figure``,
-    read back by ``interactive_pages.read_figure``. The report embeds these figures in one page instead
+    """``fig`` as one self-contained HTML file at ``path``: plotly.js embedded, packed (opens offline, no network
+    needed), the same figure giving the same bytes (the workflow's reruns compare results);
+    ``interactive_pages.write_figure``, read back by ``interactive_pages.read_figure``. The report embeds these figures in one page instead
     (``interactive_pages.write_gallery``: plotly.js once)."""
     pages.write_figure(fig, path, title=fig.layout.title.text or "figure")
 
