@@ -393,3 +393,43 @@ def test_the_first_mode_of_repeated_pencils_is_each_ones_own():
         alone = _first_mode(K[i:i + 1], M[i:i + 1])
         np.testing.assert_array_equal(omega[s], alone[0][0])
         np.testing.assert_array_equal(phi[s], alone[1][0])
+
+
+def test_a_linear_model_is_solved_at_its_run_speeds_alone_to_the_bits_of_a_run_up():
+    """A linear model has one steady state per speed: solve_runs solves its masses' speeds without the run-up from
+    300 RPM (fewer solves), and each run holds, to the bit, what an independent harmonic-balance solve at that
+    speed alone gives (the linear solve: no continuation can change it)."""
+    import pandas as pd
+
+    from hybridtwin.model.model import Model
+    from hybridtwin.offline import scenarios
+    from hybridtwin.solvers import continuation
+    from hybridtwin.solvers.solver import solve
+
+    from example_machines import stepped_machine
+
+    machine = stepped_machine()
+    effects = machine.effects()
+    model = Model([effects[name] for name in ("linear_bearing@a", "linear_bearing@b", "gyroscopic", "unbalance@d1")],
+                  machine)
+    assert not any(e.is_nonlinear for e in model.effects)
+    variant = Variant("lin", model, {"k_a": (1.5e7, 3.0e7)})
+    runs = pd.DataFrame({"run": ["a", "b", "c"], "rpm": [2000.0, 3600.0, 3000.0], "eccentric_mass_g": [20.0, 20.0, 50.0]})
+    values = {"k_a": np.array([1.6e7, 2.9e7])}
+    calls = []
+    original = continuation.solve
+
+    def counting(system, *args, **kwargs):
+        calls.append(system.n_scenarios)
+        return original(system, *args, **kwargs)
+
+    continuation.solve = counting
+    try:
+        got = scenarios.solve_runs(variant, runs, values, 1)
+    finally:
+        continuation.solve = original
+    assert got.success.all() and got.stable.all()
+    assert len(calls) <= 3  # one batched solve per step: the speeds 2000 and 3600 (and 3000) only, not 68 steps
+    for r, (rpm, mass) in enumerate(zip(runs["rpm"], runs["eccentric_mass_g"])):
+        alone = solve(model.system(variant.values({**values, "m_e": mass * 1e-3}), rpm), 1)
+        np.testing.assert_array_equal(got.harmonics[r], alone.harmonics)

@@ -107,7 +107,10 @@ def solve_runs(variant: Variant, runs: pd.DataFrame, values: Mapping[str, Array 
     masses are one batched sweep with per-scenario speeds (``solve_sweep``): each
     Newton call serves every mass, and each result is that of a run-up of its own.
     The stability of each point is assessed at the runs' speeds only (``assess_stability``),
-    not at the intermediate ones.
+    not at the intermediate ones. A linear model (no effect with a nonlinear force) has one steady
+    state at each speed, whatever the start: its masses' speeds are solved without the run-up from
+    ``start_rpm`` and without intermediate speeds, to the same bits (the harmonic balance is then the
+    linear solve; the first speed of each mass is labelled ``direct``).
     """
     for column in ("run", "rpm", "eccentric_mass_g"):
         if column not in runs:
@@ -120,7 +123,10 @@ def solve_runs(variant: Variant, runs: pd.DataFrame, values: Mapping[str, Array 
         return out
     # the masses' run-ups side by side, the longest first: the scenarios still on their ramp at a step are then the
     # first columns, and each step's system slices the assembled matrices as a view, not a copy
-    ramps = [ramp(start_rpm, group["rpm"].to_numpy(float), step_rpm) for _, group in groups]
+    linear = not any(effect.is_nonlinear for effect in variant.model.effects)
+    ramps = [np.unique(group["rpm"].to_numpy(float)) if linear else
+             ramp(start_rpm, group["rpm"].to_numpy(float), step_rpm)
+             for _, group in groups]
     order = sorted(range(len(groups)), key=lambda g: -len(ramps[g]))
     groups, ramps = [groups[g] for g in order], [ramps[g] for g in order]
     speeds = padded_speeds(ramps, S)  # column g S + s: mass g (in that order), scenario s
