@@ -9,7 +9,7 @@ contribution to the equations of motion
 through any of these hooks, all vectorised over S scenarios:
 
 - ``mass(ctx)``, ``stiffness(ctx)``: linear terms at rest, arrays broadcastable
-  to (S, n, n);
+  to (S, n, n), or a ``LocalMatrix`` (a block at a few DOFs: an effect at one node, with no (S, n, n) of zeros);
 - ``speed_mass(ctx)``: a mass term that changes with the speed (a bearing's or seal's added mass from a table
   over speed), evaluated at each scenario's speed and added to its mass matrix;
 - ``speed_stiffness(ctx)``, ``damping(ctx)``: linear terms that may use the
@@ -99,6 +99,27 @@ class Params(Mapping[str, Array]):
 
     def __len__(self) -> int:
         return len(self._values)
+
+
+@dataclass(frozen=True)
+class LocalMatrix:
+    """A linear term that acts on a few DOFs only: ``block`` (S, r, r) (or broadcastable to it) at the rows and columns ``dofs`` (r,) of the
+    (S, n, n) matrix, zero elsewhere. An effect at one node (a bearing or seal from a table) returns it from any of
+    the matrix hooks instead of an (S, n, n) array of zeros: the model adds the block where it acts, the same sums
+    entry by entry (ROSS's compressor: 14 bearings and seals, 2 x 2 each, in 224 x 224 matrices)."""
+
+    dofs: Array
+    block: Array
+
+    def add_to(self, total: Array) -> None:
+        """total[:, dofs, dofs] += block, in place (``total`` (S, n, n); block broadcastable to (S, r, r))."""
+        total[:, self.dofs[:, None], self.dofs[None, :]] += self.block
+
+    def dense(self, ctx: "Context") -> Array:
+        """The term as an (S, n, n) array, for code that combines hook results."""
+        out = ctx.zeros()
+        self.add_to(out)
+        return out
 
 
 @dataclass

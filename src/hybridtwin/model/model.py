@@ -20,7 +20,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import scipy.linalg
 
-from .effect_base import Array, Context, Effect, Parameter, Params, PolynomialBearing
+from .effect_base import Array, Context, Effect, LocalMatrix, Parameter, Params, PolynomialBearing
 from .machine import Machine, default_machine
 from .shaft import Shaft
 
@@ -218,7 +218,9 @@ class Model:
         for effect in self.effects:
             method = getattr(effect, hook, None)  # an effect written before a hook existed (speed_mass) has none
             term = None if method is None else method(ctx)
-            if term is not None:
+            if isinstance(term, LocalMatrix):
+                term.add_to(total)
+            elif term is not None:
                 total += term
         return total
 

@@ -15,6 +15,7 @@ what they were.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -40,7 +41,7 @@ class BandPlan:
 
     order: Array
     k: int
-    rows: Array  # band-storage row of each band entry
+    rows: Array  # band-storage row of each band entry (the arrays are shared: read-only)
     cols: Array  # its column (in the new order)
     source_i: Array  # its row in the original order
     source_j: Array  # its column in the original order
@@ -52,10 +53,18 @@ class BandPlan:
 
 def band_plan(pattern: Array) -> BandPlan | None:
     """The band order of a sparsity pattern (n, n) bool, or None when the dense solve is the better one (fewer than
-    ``BANDED_MIN_DOF`` DOFs, or a band wider than ``_MAX_BAND_FRACTION`` of n)."""
+    ``BANDED_MIN_DOF`` DOFs, or a band wider than ``_MAX_BAND_FRACTION`` of n). A machine's systems share their
+    pattern: the order is found once per pattern."""
     n = pattern.shape[0]
     if n < BANDED_MIN_DOF:
         return None
+    return _band_plan(n, np.packbits(pattern).tobytes())
+
+
+@functools.lru_cache(maxsize=16)
+def _band_plan(n: int, packed: bytes) -> BandPlan | None:
+    """``band_plan`` of the pattern ``packed`` (np.packbits of an (n, n) bool array)."""
+    pattern = np.unpackbits(np.frombuffer(packed, np.uint8), count=n * n).reshape(n, n).astype(bool)
     symmetric = pattern | pattern.T
     order = reverse_cuthill_mckee(csr_matrix(symmetric), symmetric_mode=True).astype(int)
     i, j = np.nonzero(symmetric[np.ix_(order, order)])
@@ -67,7 +76,10 @@ def band_plan(pattern: Array) -> BandPlan | None:
     ii = jj + np.repeat(offset, n)
     keep = (ii >= 0) & (ii < n)
     ii, jj = ii[keep], jj[keep]
-    return BandPlan(order, k, 2 * k + ii - jj, jj, order[ii], order[jj])
+    arrays = (order, 2 * k + ii - jj, jj, order[ii], order[jj])
+    for a in arrays:
+        a.flags.writeable = False
+    return BandPlan(arrays[0], k, *arrays[1:])
 
 
 def pattern_of(*matrices: Array) -> Array:

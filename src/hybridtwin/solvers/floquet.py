@@ -42,9 +42,12 @@ This module knows only the ``System`` and the solution's harmonics: no solver in
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from scipy.linalg import expm
 
+from . import banded
 from ..model.model import System
 
 Array = np.ndarray
@@ -88,9 +91,45 @@ def linear_spectral_radius(system: System) -> Array:
     """The largest |mu| per scenario (S,) of a system with no nonlinear force: its Floquet multipliers are
     exp(lambda T) for the eigenvalues lambda of the first-order form [[0, I], [-M^-1 K, -M^-1 C]] (time-invariant
     linear flow), so the radius is exp(T max Re lambda), with no matrix exponential and no modal basis."""
-    A = _first_order(system.M, system.C, system.K)
+    first, inverse = distinct_scenarios(system.M, system.C, system.K)  # scenarios that share M, C and K: once
+    A = _first_order(system.M[first], system.C[first], system.K[first])
     T = 2.0 * np.pi / system.Omega
-    return np.exp(T * np.linalg.eigvals(A).real.max(axis=1))
+    return np.exp(T * np.linalg.eigvals(A).real.max(axis=1)[inverse])
+
+
+def distinct_scenarios(*stacks: Array) -> tuple[Array, Array]:
+    """The scenarios whose matrices ``stacks`` (each (S, ...)) are all equal found once: the index of the first of
+    each distinct set and, per scenario, which set it is in (``first[inverse]`` is a scenario with the same
+    matrices). Runs at one speed that differ in their forcing only, or a batch's repeated parameter sets, share their
+    linear system: its eigenproblems are solved once, with the same numbers as each scenario's own.
+
+    Candidates by a fingerprint (each scenario's entries weighted by fixed pseudo-random numbers: equal matrices give
+    equal fingerprints), confirmed entry by entry; O(S n^2), against O(n^3) for an eigenproblem."""
+    S = stacks[0].shape[0]
+    flat = [np.reshape(A, (S, -1)) for A in stacks]
+    fingerprint = sum(f @ _weights(f.shape[1]) for f in flat)
+    first: list[int] = []
+    inverse = np.empty(S, int)
+    candidates: dict[bytes, list[int]] = {}
+    for s in range(S):
+        key = fingerprint[s].tobytes()
+        for g in candidates.get(key, []):
+            if all(np.array_equal(f[s], f[first[g]]) for f in flat):
+                inverse[s] = g
+                break
+        else:
+            candidates.setdefault(key, []).append(len(first))
+            inverse[s] = len(first)
+            first.append(s)
+    return np.array(first, int), inverse
+
+
+@functools.lru_cache(maxsize=8)
+def _weights(size: int) -> Array:
+    """Fixed pseudo-random weights for ``distinct_scenarios``' fingerprints (read-only)."""
+    w = np.random.default_rng(53).standard_normal(size)
+    w.flags.writeable = False
+    return w
 
 
 def _first_order(M: Array, C: Array, K: Array) -> Array:
@@ -143,7 +182,15 @@ def _ritz_basis(system: System, dofs: Array, factor: float, highest: Array) -> t
     truncated = np.sum(rest * (system.C @ rest), axis=1)  # phi_r^T C phi_r
     if dofs.size == 0:
         return kept, truncated
-    static = np.linalg.solve(system.K, np.broadcast_to(np.eye(n)[:, dofs], (S, n, dofs.size)))
+    unit_loads = np.broadcast_to(np.eye(n)[:, dofs], (S, n, dofs.size))
+    plan = banded.band_plan(banded.pattern_of(system.K))  # a large finite-element rotor: K^-1 B in band storage
+    if plan is None:
+        static = np.linalg.solve(system.K, unit_loads)
+    else:
+        ok = np.ones(S, bool)
+        static = banded.solve_band(plan, banded.to_band(plan, system.K), unit_loads, ok)
+        if not ok.all():
+            raise np.linalg.LinAlgError("singular stiffness matrix")
     static = static - kept @ (np.swapaxes(kept, 1, 2) @ (system.M @ static))  # M-orthogonal to the modes
     G = np.swapaxes(static, 1, 2) @ system.M @ static
     static = static @ np.swapaxes(np.linalg.inv(np.linalg.cholesky(G)), 1, 2)
@@ -156,6 +203,10 @@ def _undamped_modes(K: Array, M: Array) -> tuple[Array, Array]:
     from scipy.sparse.csgraph import connected_components
 
     S, n = K.shape[:2]
+    first, inverse = distinct_scenarios(K, M)
+    if first.size < S:  # scenarios that share their pencil (a run's speeds with K and M independent of speed): once
+        omega2, modes = _undamped_modes(K[first], M[first])
+        return omega2[inverse], modes[inverse]
     pattern = np.any(K != 0, axis=0) | np.any(M != 0, axis=0)
     n_blocks, labels = connected_components(pattern | pattern.T, directed=False)
     omega2, modes = np.empty((S, n)), np.zeros((S, n, n))

@@ -188,10 +188,13 @@ class Condensed:
             raise ValueError(f"the forcing has harmonic(s) {unknown} outside 0..H = {self.H}: raise H")
         X_lin = np.zeros((S, self.H + 1, n), complex)
         R = np.zeros((S, self.H + 1, n, c), complex)
-        for group in _twin_blocks(uncoupled_blocks(s.K, s.C, s.M), s.K, s.C, s.M):
+        pattern = banded.pattern_of(s.K, s.C, s.M)
+        for group in _twin_blocks(_components(pattern), s.K, s.C, s.M):
             first = group[0]
-            Kb, Cb, Mb = (A[:, first[:, None], first[None, :]] for A in (s.K, s.C, s.M))
-            plan = banded.band_plan(banded.pattern_of(Kb, Cb, Mb))  # None: a small block, solved dense
+            # one block of every DOF (a rotor whose planes the bearings or the speed couple): the matrices as they are
+            Kb, Cb, Mb = (s.K, s.C, s.M) if first.size == n else (
+                A[:, first[:, None], first[None, :]] for A in (s.K, s.C, s.M))
+            plan = banded.band_plan(pattern[np.ix_(first, first)])  # None: a small block, solved dense
             pencil = None if plan is None else banded.BandedPencil(plan, Kb, Cb, Mb)
             cols = [np.flatnonzero(np.isin(self.dofs, block)) for block in group]  # nonlinear DOFs in each block
             B = [(block[:, None] == self.dofs[k][None, :]).astype(float) for block, k in zip(group, cols)]
@@ -258,11 +261,13 @@ class Condensed:
 
 def uncoupled_blocks(*matrices: Array) -> list[Array]:
     """DOF groups that no matrix couples in any scenario (connected components of the sparsity)."""
+    return _components(banded.pattern_of(*matrices))
+
+
+def _components(pattern: Array) -> list[Array]:
+    """The connected components of a sparsity pattern (n, n), each its DOFs in ascending order."""
     from scipy.sparse.csgraph import connected_components
 
-    pattern = np.zeros(matrices[0].shape[-2:], bool)
-    for A in matrices:
-        pattern |= np.any(A != 0, axis=0)
     n_blocks, labels = connected_components(pattern | pattern.T, directed=False)
     return [np.flatnonzero(labels == b) for b in range(n_blocks)]
 
