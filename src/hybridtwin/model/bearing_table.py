@@ -225,6 +225,7 @@ class TableBearing(Effect):
     meaning: str = field(init=False)
     parameters: tuple[Parameter, ...] = ()
     _last: tuple[bytes, tuple[Array, Array]] | None = field(default=None, init=False, repr=False)
+    _dofs: tuple[object, Array] | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self) -> None:
         if self.table is None:
@@ -233,8 +234,11 @@ class TableBearing(Effect):
                         f"(kxx..cyy) against speed from its {self.table.describe()}")
 
     def _block(self, ctx: Context, block: Array) -> LocalMatrix:
-        """The block over (x, y) (broadcastable to (S, 2, 2)) at the node's (u, v)."""
-        return LocalMatrix(np.array([ctx.dof(f"u{self.node}"), ctx.dof(f"v{self.node}")]), block)
+        """The block over (x, y) (broadcastable to (S, 2, 2)) at the node's (u, v) (their indices looked up once
+        per shaft: a machine's lookup walks its segments)."""
+        if self._dofs is None or self._dofs[0] is not ctx.shaft:
+            self._dofs = (ctx.shaft, np.array([ctx.dof(f"u{self.node}"), ctx.dof(f"v{self.node}")]))
+        return LocalMatrix(self._dofs[1], block)
 
     @cached_property
     def _at_rest(self) -> tuple[Array, Array | None]:

@@ -14,6 +14,7 @@ former once.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
@@ -82,6 +83,41 @@ class System:
                       {h: f[sel] for h, f in self.forcing.items()}, self.forces, self.rows[sel], self.problems[sel])
 
 
+def distinct_scenarios(*stacks: Array) -> tuple[Array, Array]:
+    """The scenarios whose matrices ``stacks`` (each (S, ...)) are all equal found once: the index of the first of
+    each distinct set and, per scenario, which set it is in (``first[inverse]`` is a scenario with the same
+    matrices). Runs at one speed that differ in their forcing only, or a batch's repeated parameter sets, share their
+    linear system: its eigenproblems are solved once, with the same numbers as each scenario's own.
+
+    Candidates by a fingerprint (each scenario's entries weighted by fixed pseudo-random numbers: equal matrices give
+    equal fingerprints), confirmed entry by entry; O(S n^2), against O(n^3) for an eigenproblem."""
+    S = stacks[0].shape[0]
+    flat = [np.reshape(A, (S, -1)) for A in stacks]
+    fingerprint = sum(f @ _weights(f.shape[1]) for f in flat)
+    first: list[int] = []
+    inverse = np.empty(S, int)
+    candidates: dict[bytes, list[int]] = {}
+    for s in range(S):
+        key = fingerprint[s].tobytes()
+        for g in candidates.get(key, []):
+            if all(np.array_equal(f[s], f[first[g]]) for f in flat):
+                inverse[s] = g
+                break
+        else:
+            candidates.setdefault(key, []).append(len(first))
+            inverse[s] = len(first)
+            first.append(s)
+    return np.array(first, int), inverse
+
+
+@functools.lru_cache(maxsize=8)
+def _weights(size: int) -> Array:
+    """Fixed pseudo-random weights for ``distinct_scenarios``' fingerprints (read-only)."""
+    w = np.random.default_rng(53).standard_normal(size)
+    w.flags.writeable = False
+    return w
+
+
 def _first_mode(K: Array, M: Array) -> tuple[Array, Array]:
     """Lowest undamped natural frequency and mode shape of the pencils (K, M), batched.
 
@@ -93,10 +129,7 @@ def _first_mode(K: Array, M: Array) -> tuple[Array, Array]:
     """
     # scenarios with the same pencil (another run's copy, a parameter that does not enter K or M at rest, e.g.
     # the sensitivities' perturbed damping or bow) are solved once: the same numbers, bit for bit
-    S = K.shape[0]
-    flat = np.ascontiguousarray(np.concatenate([K.reshape(S, -1), M.reshape(S, -1)], axis=1))
-    keys = flat.view(np.dtype((np.void, flat.dtype.itemsize * flat.shape[1])))[:, 0]
-    _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
+    first, inverse = distinct_scenarios(K, M)
     K, M = K[first], M[first]
     symmetric = np.isclose(K, np.swapaxes(K, -1, -2), rtol=1e-12, atol=0.0).all(axis=(-2, -1))
     lam1, phi, top = np.empty(K.shape[0]), np.empty(K.shape[:2]), np.empty(K.shape[0])

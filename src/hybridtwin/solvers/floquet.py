@@ -42,13 +42,11 @@ This module knows only the ``System`` and the solution's harmonics: no solver in
 
 from __future__ import annotations
 
-import functools
-
 import numpy as np
 from scipy.linalg import expm
 
 from . import banded
-from ..model.model import System
+from ..model.model import System, distinct_scenarios
 
 Array = np.ndarray
 
@@ -95,41 +93,6 @@ def linear_spectral_radius(system: System) -> Array:
     A = _first_order(system.M[first], system.C[first], system.K[first])
     T = 2.0 * np.pi / system.Omega
     return np.exp(T * np.linalg.eigvals(A).real.max(axis=1)[inverse])
-
-
-def distinct_scenarios(*stacks: Array) -> tuple[Array, Array]:
-    """The scenarios whose matrices ``stacks`` (each (S, ...)) are all equal found once: the index of the first of
-    each distinct set and, per scenario, which set it is in (``first[inverse]`` is a scenario with the same
-    matrices). Runs at one speed that differ in their forcing only, or a batch's repeated parameter sets, share their
-    linear system: its eigenproblems are solved once, with the same numbers as each scenario's own.
-
-    Candidates by a fingerprint (each scenario's entries weighted by fixed pseudo-random numbers: equal matrices give
-    equal fingerprints), confirmed entry by entry; O(S n^2), against O(n^3) for an eigenproblem."""
-    S = stacks[0].shape[0]
-    flat = [np.reshape(A, (S, -1)) for A in stacks]
-    fingerprint = sum(f @ _weights(f.shape[1]) for f in flat)
-    first: list[int] = []
-    inverse = np.empty(S, int)
-    candidates: dict[bytes, list[int]] = {}
-    for s in range(S):
-        key = fingerprint[s].tobytes()
-        for g in candidates.get(key, []):
-            if all(np.array_equal(f[s], f[first[g]]) for f in flat):
-                inverse[s] = g
-                break
-        else:
-            candidates.setdefault(key, []).append(len(first))
-            inverse[s] = len(first)
-            first.append(s)
-    return np.array(first, int), inverse
-
-
-@functools.lru_cache(maxsize=8)
-def _weights(size: int) -> Array:
-    """Fixed pseudo-random weights for ``distinct_scenarios``' fingerprints (read-only)."""
-    w = np.random.default_rng(53).standard_normal(size)
-    w.flags.writeable = False
-    return w
 
 
 def _first_order(M: Array, C: Array, K: Array) -> Array:
