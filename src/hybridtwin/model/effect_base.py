@@ -111,6 +111,14 @@ class LocalMatrix:
     dofs: Array
     block: Array
 
+    @classmethod
+    def diagonal(cls, dofs: Sequence[int], value: Array, n_scenarios: int) -> "LocalMatrix":
+        """``value`` (scalar or (S,)) on the diagonal at each of ``dofs``: a point spring, damper or mass."""
+        block = np.zeros((n_scenarios, len(dofs), len(dofs)))
+        for i in range(len(dofs)):
+            block[:, i, i] = value
+        return cls(np.asarray(dofs), block)
+
     def add_to(self, total: Array) -> None:
         """total[:, dofs, dofs] += block, in place (``total`` (S, n, n); block broadcastable to (S, r, r))."""
         total[:, self.dofs[:, None], self.dofs[None, :]] += self.block
@@ -296,18 +304,20 @@ class PolynomialBearing(Effect):
         if any(t.degree < 1 for t in self.terms):
             raise ValueError(f"effect {self.name}: a constant term is not a bearing stiffness")
 
-    def stiffness(self, ctx: Context) -> Array:
-        out = ctx.zeros()
+    def stiffness(self, ctx: Context) -> LocalMatrix:
+        """The linear terms, a block over the node's (u, v, du, dv)."""
+        dofs = [ctx.dof(f"{v}{self.node}") for v in _VARIABLES]
+        out = np.zeros((ctx.n_scenarios, len(dofs), len(dofs)))
         own = [_VARIABLES, tuple(_VARIABLES[i] for i in _OTHER_PLANE)]  # the x plane's force, the y plane's
         for term in self.terms:
             if term.degree != 1:
                 continue
             c = term.coefficient(ctx.p)
             for variables in own:
-                row = ctx.dof(f"{variables[0]}{self.node}")
-                col = ctx.dof(f"{variables[term.powers.index(1)]}{self.node}")
+                row = _VARIABLES.index(variables[0])
+                col = _VARIABLES.index(variables[term.powers.index(1)])
                 out[:, row, col] += c
-        return out
+        return LocalMatrix(np.array(dofs), out)
 
     def force(self, q: Array, p: Params) -> tuple[Array, Array]:
         """F (S, n_local, N) and dF/dq (S, n_local, n_local, N) at the time samples q (S, n_local, N).
