@@ -111,8 +111,9 @@ def test_a_nonlinear_large_rotor_equals_the_dense_solve_to_newtons_tolerance(den
     # (measured: the states agree to 4e-13 of their size at tol 1e-12), so 1e-9 relative holds with margin
     scale = np.abs(before.harmonics).max()
     np.testing.assert_allclose(after.harmonics, before.harmonics, rtol=0, atol=1e-9 * scale)
-    # the stability check: its static deflections K^-1 B in band storage, the rest unchanged: round-off of a
-    # radius of order 1 through one matrix exponential and 64 steps, far inside 1e-10
+    # the stability check: the modes by LAPACK's generalised solver, the static deflections K^-1 B in band storage,
+    # the truncated modes' damping by a sparse C: round-off of a radius of order 1 through one matrix exponential
+    # and 64 steps, far inside 1e-10
     np.testing.assert_allclose(after.floquet_radius, before.floquet_radius, rtol=0, atol=1e-10)
 
 

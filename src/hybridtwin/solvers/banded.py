@@ -119,6 +119,16 @@ def solve_band(plan: BandPlan, bands: Array, rhs: Array, ok: Array) -> Array:
     return out
 
 
+def band_product(plan: BandPlan, A: Array, X: Array) -> Array:
+    """A_s X_s per scenario, A (S, n, n) with its nonzeros in ``plan``'s band, X (S, n, q): O(n k q) each, as a
+    sparse product (the dense one is O(n^2 q))."""
+    values = A[:, plan.source_i, plan.source_j]
+    out = np.empty(X.shape, np.result_type(A, X))
+    for s in range(A.shape[0]):
+        out[s] = csr_matrix((values[s], (plan.source_i, plan.source_j)), shape=(plan.n, plan.n)) @ X[s]
+    return out
+
+
 class BandedPencil:
     """The dynamic stiffness D(w) = K + i w C - w^2 M of S scenarios in band storage (``plan``): the bands of K, C
     and M taken once, D formed from them by the same operations, entry by entry, as the dense D."""
