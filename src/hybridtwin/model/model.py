@@ -204,7 +204,8 @@ class Model:
         p = Params({k: np.broadcast_to(np.asarray(v, dtype=float), (S,)) for k, v in values.items()})
         ctx = Context(shaft=self.shaft, p=p, Omega=np.zeros(S))
         K0, M0 = self.shaft.matrices()
-        ctx.M = M0 + self._sum("mass", ctx)
+        mass = self._sum("mass", ctx)
+        ctx.M = np.add(M0, mass, out=mass)  # into the sum's own array: a large model's (S, n, n) allocated once
         ctx.K_support = self._sum("stiffness", ctx)
         ctx.K = K0 + ctx.K_support
         plane = slice(0, self.shaft.n_plane)
@@ -225,7 +226,8 @@ class Model:
     def system_at(self, rest: Context, rpm: Array | float) -> System:
         """The system (eq. 29) of the scenarios of ``rest`` (``at_rest``) at speed(s) ``rpm``."""
         ctx = _at_speed(rest, rpm)
-        K = ctx.K + self._sum("speed_stiffness", ctx)
+        speed_stiffness = self._sum("speed_stiffness", ctx)
+        K = np.add(ctx.K, speed_stiffness, out=speed_stiffness)  # (the same sums into the terms' own arrays)
         C = self._sum("damping", ctx)
         forcing: dict[int, Array] = {}
         for effect in self.effects:
@@ -239,13 +241,14 @@ class Model:
             LocalForce(e.name, np.array([self.shaft.dof(d) for d in e.dofs]), bind(e), e.degree)
             for e in _nonlinear_forces(self.effects)
         ]
-        M = np.broadcast_to(ctx.M, K.shape) + self._sum("speed_mass", ctx)  # a table's mass at the speed
-        C = np.broadcast_to(C, K.shape).copy()
+        speed_mass = self._sum("speed_mass", ctx)  # a table's mass at the speed
+        M = np.add(np.broadcast_to(ctx.M, K.shape), speed_mass, out=speed_mass)
         problems = np.where(np.isnan(ctx.omega_1), "the structure at rest is unstable (a natural frequency of "
                             "the x plane at Omega = 0 is not real): no steady state", "").astype(object)
         return System(M, C, K, ctx.Omega, forcing, forces, problems=problems)
 
     def _sum(self, hook: str, ctx: Context) -> Array:
+        """The effects' ``hook`` terms summed into a new (S, n, n) array (zero where none has one)."""
         n = self.shaft.n_dof
         total = np.zeros((ctx.n_scenarios, n, n))
         for effect in self.effects:
