@@ -202,3 +202,16 @@ def test_a_table_bearing_adds_its_coefficients_at_its_node_only():
         np.testing.assert_allclose(got, expected, rtol=4 * EPS, atol=0)
         np.testing.assert_array_equal(np.delete(np.delete(got - base, dofs, axis=1), dofs, axis=2), 0.0)
     np.testing.assert_array_equal(a.M, b.M)
+
+
+def test_a_linear_machines_radius_is_each_scenarios_own_when_systems_are_shared():
+    model = fine_model(nonlinear=False)
+    rpm = np.array([2000.0, 4000.0, 2000.0, 2000.0])
+    v = values(model, rpm.size)
+    v["angle_me"][2] = 2.0  # the forcing alone differs: 2000 RPM's system three times
+    system = model.system(v, rpm)
+    assert distinct_scenarios(system.M, system.C, system.K)[0].tolist() == [0, 1]
+    together = floquet.linear_spectral_radius(system)
+    # a linear system's radius is its own eigenvalues' (no block-wide basis): each alone is the reference
+    alone = [floquet.linear_spectral_radius(system.subset([s]))[0] for s in range(rpm.size)]
+    assert together.tolist() == alone

@@ -21,7 +21,10 @@ monodromy matrix costs about as much as one harmonic-balance solve):
    modes still act as the quasi-static flexibility they are). M, C and K (speed terms, skew parts
    included) are projected on it: 2 m = 20-24 states instead of 2 n = 88. A truncated mode r, which the
    nonlinear force moves only quasi-statically, keeps its own multiplier, |mu_r| = exp(-phi_r^T C phi_r
-   T / 2) (M-normalised phi_r: its modal decay over one period).
+   T / 2) (M-normalised phi_r: its modal decay over one period). That bound needs every mode: one generalised
+   eigenproblem per distinct (sym K, M) (``model.distinct_scenarios``: runs at one speed that differ in their
+   forcing share it), for a block of ``banded.BANDED_MIN_DOF`` DOFs or more by LAPACK's sygvd per scenario, with
+   K^-1 B and C phi_r in band storage (``banded``).
 2. Exponential integrator. Over each of ``n_steps`` steps of a period, with u = J(t) x linear in time
    (exponential trapezoidal rule, second order), the reduced state w' = A w + P u is propagated exactly:
    w+ = e^{Ah} w + h (phi1 - phi2)(Ah) P u + h phi2(Ah) P u+, phi1(z) = (e^z - 1)/z, phi2(z) = (e^z - 1 -

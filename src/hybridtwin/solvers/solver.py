@@ -7,7 +7,8 @@ the response is sought as q(t) = Re(sum_{h=0..H} Q_h e^{i h Omega t}).
    D_h = K + i h Omega C - (h Omega)^2 M is solved once for the forcing and
    for unit loads on the c DOFs that the nonlinear forces touch:
    Q_h = D_h^-1 F_h + D_h^-1 B G_h = A_h + R_h G_h. On those DOFs this leaves
-   x_h = a_h + H_h G_h(x), with H_h = B^T R_h the receptance (c x c).
+   x_h = a_h + H_h G_h(x), with H_h = B^T R_h the receptance (c x c). A block of ``banded.BANDED_MIN_DOF``
+   DOFs or more (a finite-element rotor's) is solved in band storage (``banded``): O(n k^2), not O(n^3).
 2. AFT. G_h(x) is the Fourier series of F_nl(x(t)) at N >= (d+1) H + 1 time
    samples (d the polynomial degree: 4H + 1 for cubic terms, alias-free),
    and its exact derivative dG/dx = E^+ diag(dF/dx) E.
