@@ -129,7 +129,8 @@ def main() -> None:
         shaft = model.shaft
         newton = f"{state.iterations.min()}-{state.iterations.max()} Newton iterations, " if system.forces else ""
         print(f"| {label} | {shaft.n_nodes} | {shaft.n_dof} | {len(system.forces)} | {1e3 * t_solve / S:.2f} "
-              f"({newton}+ {1e3 * t_build / S:.2f} assembly) | {1e3 * t_sens / S / len(names):.2f} ({len(names)} parameters) "
+              f"({newton}+ {1e3 * t_build / S:.2f} assembly) | {1e3 * t_sens / S / len(names):.2f} "
+              f"({len(names)} parameters) "
               f"| {1e3 * t_stab / S:.2f} |")
 
 

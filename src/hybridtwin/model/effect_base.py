@@ -103,10 +103,11 @@ class Params(Mapping[str, Array]):
 
 @dataclass(frozen=True)
 class LocalMatrix:
-    """A linear term that acts on a few DOFs only: ``block`` (S, r, r) (or broadcastable to it) at the rows and columns ``dofs`` (r,) of the
-    (S, n, n) matrix, zero elsewhere. An effect at one node (a bearing or seal from a table) returns it from any of
-    the matrix hooks instead of an (S, n, n) array of zeros: the model adds the block where it acts, the same sums
-    entry by entry (ROSS's compressor: 14 bearings and seals, 2 x 2 each, in 224 x 224 matrices)."""
+    """A linear term that acts on a few DOFs only: ``block`` (S, r, r) (or broadcastable to it) at the rows and
+    columns ``dofs`` (r,) of the (S, n, n) matrix, zero elsewhere. An effect at one node (a bearing or seal from a
+    table, a point bearing, a point mass) returns it from any of the matrix hooks instead of an (S, n, n) array of
+    zeros: the model adds the block where it acts, the same sums entry by entry (ROSS's compressor: 14 bearings and
+    seals, 2 x 2 each, in 224 x 224 matrices)."""
 
     dofs: Array
     block: Array

@@ -5,12 +5,11 @@ K, C and M of every scenario share one sparsity pattern which, its DOFs reordere
 within a narrow band (ROSS's compressor: 224 DOFs, half-bandwidth 7). The harmonic balance solves the dynamic
 stiffness D_h = K + i h Omega C - (h Omega)^2 M of each scenario and harmonic (``solver.Condensed``, the
 sensitivities' ``solver.linearised_response``); dense, each solve costs O(n^3), in band storage O(n k^2)
-(LAPACK's gbsv: LU with partial pivoting, the pivots the dense LU would choose, since no entry outside the band
-can be one). The result is the dense solve's up to round-off.
+(LAPACK's gbsv: LU with partial pivoting, the same elimination as the dense LU of the reordered matrix, whose
+entries outside the band are zero). The result is the dense solve's up to round-off.
 
-Small systems keep the dense batched solve (``BANDED_MIN_DOF``): below it the per-scenario call costs more than
-the O(n^3) it saves, and the built-in variants (the VARM's 44 DOFs, the stepped rotor's 72) stay bit for bit
-what they were.
+Small systems keep the dense batched solve (``BANDED_MIN_DOF``): the built-in variants (the VARM's 44 DOFs, the
+stepped rotor's 72) stay bit for bit what they were.
 """
 
 from __future__ import annotations
@@ -25,8 +24,9 @@ from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 Array = np.ndarray
 
-#: fewest DOFs (of one uncoupled block) solved in band storage: at 72 DOFs (the stepped rotor) the dense batched
-#: solve and the banded one cost about the same, at 224 (ROSS's compressor) the banded one is ~15 times cheaper
+#: fewest DOFs (of one uncoupled block) solved in band storage. At 72 DOFs (the stepped rotor, half-bandwidth 7)
+#: the banded solve would cost ~0.7 of the dense batched one: too little to give up its bit-for-bit results (the
+#: VARM's blocks have 22 DOFs); at 224 (ROSS's compressor) the solve with every harmonic costs 0.1 of the dense one
 #: (benchmarks/solver_cost_by_dof.py)
 BANDED_MIN_DOF = 100
 #: band storage (3 k + 1 rows for half-bandwidth k) worth it up to this fraction of the dense n rows
