@@ -78,6 +78,18 @@ def test_a_band_solve_equals_the_dense_one_and_flags_a_singular_member():
         assert np.linalg.norm(A[s] @ x[s] - b[s]) <= n * EPS * np.linalg.norm(A[s], 2) * np.linalg.norm(x[s])
 
 
+def test_a_band_product_equals_the_dense_one():
+    rng = np.random.default_rng(2)
+    S, n, k = 3, 120, 3
+    offsets = np.abs(np.subtract.outer(np.arange(n), np.arange(n)))
+    order = rng.permutation(n)
+    A = np.where(offsets <= k, rng.standard_normal((S, n, n)), 0.0)[:, order[:, None], order[None, :]]
+    X = rng.standard_normal((S, n, 5))
+    plan = banded.band_plan(banded.pattern_of(A))
+    # sums of at most 2k + 1 = 7 products of standard normal numbers: round-off a few eps of the entries' size
+    np.testing.assert_allclose(banded.band_product(plan, A, X), A @ X, rtol=0, atol=1e-13)
+
+
 def test_small_systems_keep_the_dense_solve():
     assert banded.band_plan(np.eye(72, dtype=bool)) is None  # the stepped rotor's 72 DOFs: dense, as before
     assert banded.band_plan(np.ones((200, 200), bool)) is None  # no band at all: dense
