@@ -38,7 +38,7 @@ from functools import cached_property
 
 import numpy as np
 
-from .effect_base import Array, Context, Effect, Parameter
+from .effect_base import Array, Context, Effect, LocalMatrix, Parameter
 
 #: the eight coefficients, in the order of a table's columns: stiffness [N/m], then damping [N s/m]
 COEFFICIENTS = ("kxx", "kxy", "kyx", "kyy", "cxx", "cxy", "cyx", "cyy")
@@ -224,6 +224,8 @@ class TableBearing(Effect):
     table: BearingTable | None = None
     meaning: str = field(init=False)
     parameters: tuple[Parameter, ...] = ()
+    _last: tuple[bytes, tuple[Array, Array]] | None = field(default=None, init=False, repr=False)
+    _dofs: tuple[object, Array] | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self) -> None:
         if self.table is None:
@@ -231,33 +233,45 @@ class TableBearing(Effect):
         self.meaning = (f"bearing {self.bearing or self.node} at node {self.node}: stiffness and damping "
                         f"(kxx..cyy) against speed from its {self.table.describe()}")
 
-    def _block(self, ctx: Context, block: Array) -> Array:
-        out = ctx.zeros()
-        dofs = (ctx.dof(f"u{self.node}"), ctx.dof(f"v{self.node}"))
-        for i, row in enumerate(dofs):
-            for j, col in enumerate(dofs):
-                out[:, row, col] = block[:, i, j]
-        return out
+    def _block(self, ctx: Context, block: Array) -> LocalMatrix:
+        """The block over (x, y) (broadcastable to (S, 2, 2)) at the node's (u, v) (their indices looked up once
+        per shaft: a machine's lookup walks its segments)."""
+        if self._dofs is None or self._dofs[0] is not ctx.shaft:
+            self._dofs = (ctx.shaft, np.array([ctx.dof(f"u{self.node}"), ctx.dof(f"v{self.node}")]))
+        return LocalMatrix(self._dofs[1], block)
 
-    def stiffness(self, ctx: Context) -> Array:
-        return self._block(ctx, self.table.matrices(np.zeros(ctx.n_scenarios))[0])
+    @cached_property
+    def _at_rest(self) -> tuple[Array, Array | None]:
+        """K(0) and M(0) (1, 2, 2) (M None without mass coefficients): every scenario's, interpolated once."""
+        zero = np.zeros(1)
+        return self.table.matrices(zero)[0], self.table.mass_matrix(zero) if self.table.has_mass else None
 
-    def speed_stiffness(self, ctx: Context) -> Array:
-        K_rest = self.table.matrices(np.zeros(ctx.n_scenarios))[0]
-        return self._block(ctx, self.table.matrices(ctx.Omega)[0] - K_rest)
+    def _at_speed(self, Omega: Array) -> tuple[Array, Array]:
+        """K(Omega) and C(Omega) (S, 2, 2); the stiffness and damping hooks of one assembly ask for the same speeds:
+        interpolated once for both."""
+        key = np.asarray(Omega, float).tobytes()
+        if self._last is None or self._last[0] != key:
+            self._last = (key, self.table.matrices(Omega))
+        return self._last[1]
 
-    def damping(self, ctx: Context) -> Array:
-        return self._block(ctx, self.table.matrices(ctx.Omega)[1])
+    def stiffness(self, ctx: Context) -> LocalMatrix:
+        return self._block(ctx, self._at_rest[0])
 
-    def mass(self, ctx: Context) -> Array | None:
+    def speed_stiffness(self, ctx: Context) -> LocalMatrix:
+        return self._block(ctx, self._at_speed(ctx.Omega)[0] - self._at_rest[0])
+
+    def damping(self, ctx: Context) -> LocalMatrix:
+        return self._block(ctx, self._at_speed(ctx.Omega)[1])
+
+    def mass(self, ctx: Context) -> LocalMatrix | None:
         if not self.table.has_mass:
             return None
-        return self._block(ctx, self.table.mass_matrix(np.zeros(ctx.n_scenarios)))
+        return self._block(ctx, self._at_rest[1])
 
-    def speed_mass(self, ctx: Context) -> Array | None:
+    def speed_mass(self, ctx: Context) -> LocalMatrix | None:
         if not self.table.has_mass:
             return None
-        return self._block(ctx, self.table.mass_matrix(ctx.Omega) - self.table.mass_matrix(np.zeros(ctx.n_scenarios)))
+        return self._block(ctx, self.table.mass_matrix(ctx.Omega) - self._at_rest[1])
 
 
 def _pchip_extrapolated(speeds: Array, values: Array):

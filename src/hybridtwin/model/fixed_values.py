@@ -30,7 +30,7 @@ from dataclasses import replace
 import numpy as np
 
 from .candidates import Candidate
-from .effect_base import Array, Context, Effect, Parameter, Params
+from .effect_base import Array, Context, Effect, LocalMatrix, Parameter, Params
 from .variants import Variant
 
 #: the name of the candidate freeing parameter p: ``fixed_value@p``; its parameter: ``d_p``
@@ -82,7 +82,8 @@ class FixedValueShift(Effect):
     def _difference(self, hook: str, ctx: Context) -> Array | None:
         shifted, out = self._at(ctx), None
         for effect in self.owners:
-            a, b = getattr(effect, hook)(shifted), getattr(effect, hook)(ctx)
+            a, b = (t.dense(ctx) if isinstance(t, LocalMatrix) else t
+                    for t in (getattr(effect, hook)(shifted), getattr(effect, hook)(ctx)))
             if a is None and b is None:
                 continue
             term = (0.0 if a is None else a) - (0.0 if b is None else b)

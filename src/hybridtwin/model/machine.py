@@ -40,7 +40,7 @@ import numpy as np
 from .bearing_candidates import EXCITATION_DISPLACEMENT_M, at_bearing, excitations_at
 from .faults import fault_candidates
 from .bearing_table import TableBearing
-from .effect_base import Context, Effect, Parameter
+from .effect_base import Context, Effect, LocalMatrix, Parameter
 from .effects import ANGLE_ME, Unbalance, builtin_effects, trial_force
 # re-exported: Bearing, Disk, Sensor, ShaftSegment, UnbalancePlane (docs/model.md imports them from here with Machine)
 from .machine_parts import (Bearing, Disk, MachineSpecError, Sensor, ShaftSegment, UnbalancePlane, bearing_from_spec,
@@ -621,16 +621,13 @@ class LinearBearing(Effect):
                       (0.0, np.inf)),
         )
 
-    def _point(self, ctx: Context, value: Array) -> Array:
-        out = ctx.zeros()
-        for i in (ctx.dof(f"u{self.node}"), ctx.dof(f"v{self.node}")):
-            out[:, i, i] = value
-        return out
+    def _point(self, ctx: Context, value: Array) -> LocalMatrix:
+        return LocalMatrix.diagonal((ctx.dof(f"u{self.node}"), ctx.dof(f"v{self.node}")), value, ctx.n_scenarios)
 
-    def stiffness(self, ctx: Context) -> Array:
+    def stiffness(self, ctx: Context) -> LocalMatrix:
         return self._point(ctx, ctx.p[self._k])
 
-    def damping(self, ctx: Context) -> Array:
+    def damping(self, ctx: Context) -> LocalMatrix:
         return self._point(ctx, ctx.p[self._c])
 
 
@@ -652,11 +649,8 @@ class PlaneUnbalance(Effect):
         self.meaning = (f"eccentric mass at node {self.node}: its point mass and the rotating force "
                         "m_e r_me Omega^2 (eq. 14-15)")
 
-    def mass(self, ctx: Context) -> Array:
-        out = ctx.zeros()
-        for i in (ctx.dof(f"u{self.node}"), ctx.dof(f"v{self.node}")):
-            out[:, i, i] = ctx.p.m_e
-        return out
+    def mass(self, ctx: Context) -> LocalMatrix:
+        return LocalMatrix.diagonal((ctx.dof(f"u{self.node}"), ctx.dof(f"v{self.node}")), ctx.p.m_e, ctx.n_scenarios)
 
     def forcing(self, ctx: Context) -> dict[int, Array]:
         f = ctx.zero_vector()

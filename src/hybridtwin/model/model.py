@@ -14,13 +14,14 @@ former once.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.linalg
 
-from .effect_base import Array, Context, Effect, Parameter, Params, PolynomialBearing
+from .effect_base import Array, Context, Effect, LocalMatrix, Parameter, Params, PolynomialBearing
 from .machine import Machine, default_machine
 from .shaft import Shaft
 
@@ -82,6 +83,41 @@ class System:
                       {h: f[sel] for h, f in self.forcing.items()}, self.forces, self.rows[sel], self.problems[sel])
 
 
+def distinct_scenarios(*stacks: Array) -> tuple[Array, Array]:
+    """The scenarios whose matrices ``stacks`` (each (S, ...)) are all equal found once: the index of the first of
+    each distinct set and, per scenario, which set it is in (``first[inverse]`` is a scenario with the same
+    matrices). Runs at one speed that differ in their forcing only, or a batch's repeated parameter sets, share their
+    linear system: its eigenproblems are solved once, with the same numbers as each scenario's own.
+
+    Candidates by a key (the bytes of a fixed pseudo-random sample of the entries: equal matrices give equal keys),
+    confirmed entry by entry (NaN equals nothing); O(S n^2) at most, against O(n^3) for an eigenproblem."""
+    S = stacks[0].shape[0]
+    flat = [np.reshape(A, (S, -1)) for A in stacks]
+    keys = np.concatenate([f[:, _sample(f.shape[1])] for f in flat], axis=1)
+    first: list[int] = []
+    inverse = np.empty(S, int)
+    candidates: dict[bytes, list[int]] = {}
+    for s in range(S):
+        key = keys[s].tobytes()
+        for g in candidates.get(key, []):
+            if all(np.array_equal(f[s], f[first[g]]) for f in flat):
+                inverse[s] = g
+                break
+        else:
+            candidates.setdefault(key, []).append(len(first))
+            inverse[s] = len(first)
+            first.append(s)
+    return np.array(first, int), inverse
+
+
+@functools.lru_cache(maxsize=8)
+def _sample(size: int) -> Array:
+    """Up to 64 fixed pseudo-random positions among ``size`` entries, for ``distinct_scenarios``' keys (read-only)."""
+    positions = np.sort(np.random.default_rng(53).choice(size, min(size, 64), replace=False))
+    positions.flags.writeable = False
+    return positions
+
+
 def _first_mode(K: Array, M: Array) -> tuple[Array, Array]:
     """Lowest undamped natural frequency and mode shape of the pencils (K, M), batched.
 
@@ -93,10 +129,7 @@ def _first_mode(K: Array, M: Array) -> tuple[Array, Array]:
     """
     # scenarios with the same pencil (another run's copy, a parameter that does not enter K or M at rest, e.g.
     # the sensitivities' perturbed damping or bow) are solved once: the same numbers, bit for bit
-    S = K.shape[0]
-    flat = np.ascontiguousarray(np.concatenate([K.reshape(S, -1), M.reshape(S, -1)], axis=1))
-    keys = flat.view(np.dtype((np.void, flat.dtype.itemsize * flat.shape[1])))[:, 0]
-    _, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
+    first, inverse = distinct_scenarios(K, M)
     K, M = K[first], M[first]
     symmetric = np.isclose(K, np.swapaxes(K, -1, -2), rtol=1e-12, atol=0.0).all(axis=(-2, -1))
     lam1, phi, top = np.empty(K.shape[0]), np.empty(K.shape[:2]), np.empty(K.shape[0])
@@ -171,7 +204,8 @@ class Model:
         p = Params({k: np.broadcast_to(np.asarray(v, dtype=float), (S,)) for k, v in values.items()})
         ctx = Context(shaft=self.shaft, p=p, Omega=np.zeros(S))
         K0, M0 = self.shaft.matrices()
-        ctx.M = M0 + self._sum("mass", ctx)
+        mass = self._sum("mass", ctx)
+        ctx.M = np.add(M0, mass, out=mass)  # into the sum's own array: a large model's (S, n, n) allocated once
         ctx.K_support = self._sum("stiffness", ctx)
         ctx.K = K0 + ctx.K_support
         plane = slice(0, self.shaft.n_plane)
@@ -192,7 +226,8 @@ class Model:
     def system_at(self, rest: Context, rpm: Array | float) -> System:
         """The system (eq. 29) of the scenarios of ``rest`` (``at_rest``) at speed(s) ``rpm``."""
         ctx = _at_speed(rest, rpm)
-        K = ctx.K + self._sum("speed_stiffness", ctx)
+        speed_stiffness = self._sum("speed_stiffness", ctx)
+        K = np.add(ctx.K, speed_stiffness, out=speed_stiffness)  # (the same sums into the terms' own arrays)
         C = self._sum("damping", ctx)
         forcing: dict[int, Array] = {}
         for effect in self.effects:
@@ -206,19 +241,22 @@ class Model:
             LocalForce(e.name, np.array([self.shaft.dof(d) for d in e.dofs]), bind(e), e.degree)
             for e in _nonlinear_forces(self.effects)
         ]
-        M = np.broadcast_to(ctx.M, K.shape) + self._sum("speed_mass", ctx)  # a table's mass at the speed
-        C = np.broadcast_to(C, K.shape).copy()
+        speed_mass = self._sum("speed_mass", ctx)  # a table's mass at the speed
+        M = np.add(np.broadcast_to(ctx.M, K.shape), speed_mass, out=speed_mass)
         problems = np.where(np.isnan(ctx.omega_1), "the structure at rest is unstable (a natural frequency of "
                             "the x plane at Omega = 0 is not real): no steady state", "").astype(object)
         return System(M, C, K, ctx.Omega, forcing, forces, problems=problems)
 
     def _sum(self, hook: str, ctx: Context) -> Array:
+        """The effects' ``hook`` terms summed into a new (S, n, n) array (zero where none has one)."""
         n = self.shaft.n_dof
         total = np.zeros((ctx.n_scenarios, n, n))
         for effect in self.effects:
             method = getattr(effect, hook, None)  # an effect written before a hook existed (speed_mass) has none
             term = None if method is None else method(ctx)
-            if term is not None:
+            if isinstance(term, LocalMatrix):
+                term.add_to(total)
+            elif term is not None:
                 total += term
         return total
 

@@ -7,7 +7,8 @@ the response is sought as q(t) = Re(sum_{h=0..H} Q_h e^{i h Omega t}).
    D_h = K + i h Omega C - (h Omega)^2 M is solved once for the forcing and
    for unit loads on the c DOFs that the nonlinear forces touch:
    Q_h = D_h^-1 F_h + D_h^-1 B G_h = A_h + R_h G_h. On those DOFs this leaves
-   x_h = a_h + H_h G_h(x), with H_h = B^T R_h the receptance (c x c).
+   x_h = a_h + H_h G_h(x), with H_h = B^T R_h the receptance (c x c). A block of ``banded.BANDED_MIN_DOF``
+   DOFs or more (a finite-element rotor's) is solved in band storage (``banded``): O(n k^2), not O(n^3).
 2. AFT. G_h(x) is the Fourier series of F_nl(x(t)) at N >= (d+1) H + 1 time
    samples (d the polynomial degree: 4H + 1 for cubic terms, alias-free),
    and its exact derivative dG/dx = E^+ diag(dF/dx) E.
@@ -29,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import floquet
+from . import banded, floquet
 from ..model.effect_base import Array
 from ..model.model import System
 
@@ -188,9 +189,14 @@ class Condensed:
             raise ValueError(f"the forcing has harmonic(s) {unknown} outside 0..H = {self.H}: raise H")
         X_lin = np.zeros((S, self.H + 1, n), complex)
         R = np.zeros((S, self.H + 1, n, c), complex)
-        for group in _twin_blocks(uncoupled_blocks(s.K, s.C, s.M), s.K, s.C, s.M):
+        pattern = banded.pattern_of(s.K, s.C, s.M)
+        for group in _twin_blocks(_components(pattern), s.K, s.C, s.M):
             first = group[0]
-            Kb, Cb, Mb = (A[:, first[:, None], first[None, :]] for A in (s.K, s.C, s.M))
+            # one block of every DOF (a rotor whose planes the bearings or the speed couple): the matrices as they are
+            Kb, Cb, Mb = (s.K, s.C, s.M) if first.size == n else (
+                A[:, first[:, None], first[None, :]] for A in (s.K, s.C, s.M))
+            plan = banded.band_plan(pattern[np.ix_(first, first)])  # None: a small block, solved dense
+            pencil = None if plan is None else banded.BandedPencil(plan, Kb, Cb, Mb)
             cols = [np.flatnonzero(np.isin(self.dofs, block)) for block in group]  # nonlinear DOFs in each block
             B = [(block[:, None] == self.dofs[k][None, :]).astype(float) for block, k in zip(group, cols)]
             for h in range(self.H + 1):
@@ -198,11 +204,10 @@ class Condensed:
                 solved = [i for i, k in enumerate(cols) if F is not None or k.size]
                 if not solved:
                     continue
-                w = h * s.Omega[:, None, None]
-                D = Kb + 1j * w * Cb - w * w * Mb
                 rhs = [np.concatenate([(np.zeros((S, first.size)) if F is None else F[:, group[i]])[:, :, None].astype(
                     complex), np.broadcast_to(B[i], (S,) + B[i].shape)], axis=2) for i in solved]
-                sol = _batched_solve(D, rhs[0] if len(rhs) == 1 else np.concatenate(rhs, axis=2), self.linear_ok)
+                sol = _dynamic_solve(Kb, Cb, Mb, pencil, h * s.Omega, rhs[0] if len(rhs) == 1 else
+                                     np.concatenate(rhs, axis=2), self.linear_ok)
                 start = 0
                 for i, part in zip(solved, rhs):
                     block, k, width = group[i], cols[i], part.shape[2]
@@ -257,11 +262,13 @@ class Condensed:
 
 def uncoupled_blocks(*matrices: Array) -> list[Array]:
     """DOF groups that no matrix couples in any scenario (connected components of the sparsity)."""
+    return _components(banded.pattern_of(*matrices))
+
+
+def _components(pattern: Array) -> list[Array]:
+    """The connected components of a sparsity pattern (n, n), each its DOFs in ascending order."""
     from scipy.sparse.csgraph import connected_components
 
-    pattern = np.zeros(matrices[0].shape[-2:], bool)
-    for A in matrices:
-        pattern |= np.any(A != 0, axis=0)
     n_blocks, labels = connected_components(pattern | pattern.T, directed=False)
     return [np.flatnonzero(labels == b) for b in range(n_blocks)]
 
@@ -314,6 +321,17 @@ def _receptance_times(H0: Array, Hh: Array, Y: Array) -> Array:
     out[:, :, 1::2] = product.real.transpose(0, 2, 1, 3)
     out[:, :, 2::2] = product.imag.transpose(0, 2, 1, 3)
     return out
+
+
+def _dynamic_solve(K: Array, C: Array, M: Array, pencil: "banded.BandedPencil | None", w: Array, rhs: Array,
+                   ok: Array) -> Array:
+    """D^-1 rhs per scenario, D = K + i w C - w^2 M (w (S,) [rad/s], rhs (S, n, q)): in band storage when
+    ``pencil`` (its bands of the same K, C, M) is given, else dense and batched; singular members get NaN and
+    ok[i] = False."""
+    if pencil is not None:
+        return pencil.solve(w, rhs, ok)
+    w = w[:, None, None]
+    return _batched_solve(K + 1j * w * C - w * w * M, rhs, ok)
 
 
 def _batched_solve(A: Array, b: Array, ok: Array) -> Array:
@@ -666,12 +684,15 @@ def linearised_response(prob: "Condensed", x: Array, rhs: Array) -> tuple[Array,
     system, H = prob.system, prob.H
     s, P, _, n = rhs.shape
     c = len(prob.dofs)
-    Dinv_rhs = np.empty((s, P, H + 1, n), complex)
+    Dinv_rhs = np.zeros((s, P, H + 1, n), complex)
+    plan = banded.band_plan(banded.pattern_of(system.K, system.C, system.M))  # None: solved dense
+    pencil = None if plan is None else banded.BandedPencil(plan, system.K, system.C, system.M)
     for h in range(H + 1):
-        w = (h * system.Omega)[:, None, None]
-        D = system.K + 1j * w * system.C - w * w * system.M  # (s, n, n)
+        if not np.any(rhs[:, :, h]):  # D_h^-1 0 = 0 (a parameter that enters the forcing alone: one harmonic)
+            continue
         ok_h = np.ones(s, bool)
-        Dinv_rhs[:, :, h] = np.swapaxes(_batched_solve(D, np.swapaxes(rhs[:, :, h], 1, 2), ok_h), 1, 2)
+        Dinv_rhs[:, :, h] = np.swapaxes(_dynamic_solve(system.K, system.C, system.M, pencil, h * system.Omega,
+                                                       np.swapaxes(rhs[:, :, h], 1, 2), ok_h), 1, 2)
     if c == 0:
         return Dinv_rhs, None
     F_x, J = prob._force_series(x, np.arange(s), jacobian=True)  # the forces and dF/dq (s, c, c, N) at x
