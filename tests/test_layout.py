@@ -1,24 +1,27 @@
 """The package's layout reads like the method (issue 37): one subpackage per stage, imports that run downward only.
 
 Stages, from the bottom: the tables between the rules (``tables``: each declared once, with its writer and
-reader), the shared helpers (``plots``; ``progress``, a long job's progress in its log), then model -> solvers -> offline -> data -> rig ->
-identify -> diagnose -> report (``rig``, the virtual rig, writes records from a solved truth: it reads plans and
-writes records in the data stage's formats and runs the solvers, and no stage below it imports it, issue 52), the
-front door (``settings``: the config's sections as typed objects, their defaults the schema's; then ``config``:
-reading and checking the config), the twin online (``online``: a built twin judging new records, which reads the twin's own config through ``config``) and on top the command line (``cli``). A
-module may import from its own stage and from the stages below it, never from a later one; an import inside a
-function counts too (it runs back up just the same), and so does one under ``if TYPE_CHECKING:`` (an annotation that
-names a later stage's type says the code belongs to that stage: model/sensor's two tables of a solved steady state
-moved to the command line for it). The test reads the source (ast), so it needs no import to succeed to say what is wrong."""
+reader), the shared helpers (``plots``; ``progress``, a long job's progress in its log), then model -> solvers ->
+offline -> data -> rig -> identify -> diagnose -> report (``peers``, beside the solvers: our model and solvers held
+against another program's, ROSS's fault simulations, a harness the tests and benchmarks use and no stage imports;
+``rig``, the virtual rig, writes records from a solved truth: it reads plans and writes records in the data stage's
+formats and runs the solvers, and no stage below it imports it; both issue 52), the front door (``settings``: the
+config's sections as typed objects, their defaults the schema's; then ``config``: reading and checking the config),
+the twin online (``online``: a built twin judging new records, which reads the twin's own config through
+``config``) and on top the command line (``cli``). A module may import from its own stage and from the stages below
+it, never from a later one; an import inside a function counts too (it runs back up just the same), and so does one
+under ``if TYPE_CHECKING:`` (an annotation that names a later stage's type says the code belongs to that stage:
+model/sensor's two tables of a solved steady state moved to the command line for it). The test reads the source
+(ast), so it needs no import to succeed to say what is wrong."""
 
 import ast
 from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parents[1] / "src" / "hybridtwin"
-ORDER = ["tables", "plots", "progress", "model", "solvers", "offline", "data", "rig", "identify", "diagnose", "report", "settings",
+ORDER = ["tables", "plots", "progress", "model", "solvers", "peers", "offline", "data", "rig", "identify", "diagnose", "report", "settings",
          "config", "online", "cli"]
 #: the stages that are packages (folders); the others are single modules
-PACKAGES = ["model", "solvers", "offline", "data", "rig", "identify", "diagnose", "report", "online", "cli"]
+PACKAGES = ["model", "solvers", "peers", "offline", "data", "rig", "identify", "diagnose", "report", "online", "cli"]
 
 
 def _stage(module: str) -> str:
@@ -75,6 +78,14 @@ def test_the_rig_is_a_stage_of_its_own():
     wrong = [f"{path.relative_to(PACKAGE)}:{line} imports {target}" for path in sorted((PACKAGE / "data").rglob("*.py"))
              for line, target in imports(path) if _stage(target) == "rig"]
     assert not wrong, "data/ imports the rig:\n" + "\n".join(wrong)
+
+
+def test_no_stage_imports_the_peers():
+    """The comparisons with another program (peers/: ROSS's fault simulations beside ours) are a harness for the
+    tests and benchmarks, not a step of the method: no module outside peers/ imports them (issue 52)."""
+    wrong = [f"{path.relative_to(PACKAGE)}:{line} imports {target}" for path in sorted(PACKAGE.rglob("*.py"))
+             if _stage(_module_name(path)) != "peers" for line, target in imports(path) if _stage(target) == "peers"]
+    assert not wrong, "modules that import the peers' harness:\n" + "\n".join(wrong)
 
 
 def test_imports_run_downward_only():

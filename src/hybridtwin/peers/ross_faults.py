@@ -30,9 +30,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .faults import Crack, Misalignment, Rub, static_sag, tip_vector
-from .machine import Machine
-from .model import Model
+from ..model.faults import Crack, Misalignment, Rub, static_sag, tip_vector
+from ..model.machine import Machine
+from ..model.model import Model
 
 #: ROSS's DOFs per node
 ROSS_DOFS = 6

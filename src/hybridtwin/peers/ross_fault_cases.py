@@ -1,6 +1,6 @@
 """The cases on which our fault effects are compared with ROSS's own time integration of them (issue 54): ROSS's
 ``rotor_example_with_damping()`` at 1200 RPM with each fault (``CASES``), ROSS's run order-tracked and our harmonic
-balance of the same rotor and fault (``run_case``); the conventions and helpers are ``hybridtwin.model.ross_faults``'.
+balance of the same rotor and fault (``run_case``); the conventions and helpers are ``hybridtwin.peers.ross_faults``'.
 Used by benchmarks/ross_faults_benchmark.py, benchmarks/ross_faults_diagnosis.py and tests/test_ross_faults.py.
 """
 
@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 
 from ..model.model import Model
-from ..model.ross_faults import (base_effects, compare, model_values, order_harmonics, our_fault, parametric_share,
-                                 ross_dof, ross_fault_run, with_sag)
-from .solver import solve
+from ..solvers.solver import solve
+from .ross_faults import (base_effects, compare, model_values, order_harmonics, our_fault, parametric_share, ross_dof,
+                          ross_fault_run, with_sag)
 
 #: ROSS's ``rotor_example_with_damping()`` at one speed, the unbalance at its first disk (node 12); each case: (fault,
 #: ROSS's parameters, unbalance m e [kg m], seconds integrated). The crack's unbalance is small beside its weight's
