@@ -47,14 +47,13 @@ as far as e bounds the library's error between the points where it was measured.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 from scipy.special import chdtrc
 
-from ..offline.library import OPERATING_POINT, Library, sensor_signal_norm
+from ..offline.library import Library, sensor_signal_norm
 from .intake import Intake
 from .twin import Twin
 
@@ -189,11 +188,9 @@ def _run(twin: Twin, data) -> Choice | str:
 def _global(twin: Twin, data) -> Choice | str:
     """Scope global: the global library sliced at the record's operating point."""
     library = load(twin.folder / twin.library["file"])
-    lo, hi = library.lower[-len(OPERATING_POINT):], library.upper[-len(OPERATING_POINT):]
-    point = np.array([data.rpm, data.eccentric_mass_g])
-    if np.any(point < lo) or np.any(point > hi):
-        return (f"{data.rpm:.1f} RPM, {data.eccentric_mass_g:g} g is outside the global library's range "
-                f"({lo[0]:g}-{hi[0]:g} RPM, {lo[1]:g}-{hi[1]:g} g)")
+    outside = library.outside_operating_range(data.rpm, data.eccentric_mass_g)
+    if outside:
+        return outside
     pooled = twin.library["all_runs"]
     sliced = library.at_operating_point(data.run, data.rpm, data.eccentric_mass_g)
     return Choice([sliced], [pooled[SIGMA_ERROR] / 100], [pooled[BOUND_ERROR] / 100],
