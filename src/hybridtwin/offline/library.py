@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import zarr
+from threadpoolctl import threadpool_limits
 
 from .. import tables
 from . import snapshots
@@ -422,8 +423,6 @@ def build_run_libraries(make_variant: Callable[[], Variant], runs: Sequence[str]
 def _build_and_save(job: tuple) -> dict:
     """One run's library built and saved (a worker of ``build_run_libraries``, BLAS on one thread): its info
     with n_modes and n_terms."""
-    from threadpoolctl import threadpool_limits
-
     make_variant, run, snapshots_path, pod_path, path, sensor_range_m, spgd_options, pieces = job
     with threadpool_limits(1):
         library = build_run_library(make_variant(), run, snapshots_path, pod_path,

@@ -53,6 +53,7 @@ from pathlib import Path
 import numpy as np
 from scipy.special import chdtrc
 
+from ..identify.forward import SensorSurrogate, SolverModel, evaluate_runs
 from ..offline.library import Library, sensor_signal_norm
 from .intake import Intake
 from .twin import Twin
@@ -219,8 +220,6 @@ def anchors(twin: Twin) -> dict[str, dict]:
     (central difference over -+ ``SPEED_MATCH``), and the anchored library's largest relative error against the
     solver over the points checked: x0 -+ ``ANCHOR_HALF_WIDTH`` along each parameter (normalised), and x0 at -+ ``SPEED_MATCH`` of the speed with the speed's correction.
     One batched solve of every run's points."""
-    from ..identify.forward import SensorSurrogate, SolverModel, evaluate_runs
-
     names = list(twin.variant.unknown)
     lower, upper = (np.array(v, float) for v in zip(*twin.variant.unknown.values()))
     half_range = 0.5 * (upper - lower)
