@@ -121,6 +121,8 @@ INNER_IMPORTS = {
     ("config.py", "jsonschema.exceptions"): "jsonschema (as above)",
     ("data/instrument_records.py", "scipy"): "scipy.io (~50 ms) only for a .mat record",
     ("identify/design.py", "hybridtwin.plots"): "matplotlib, for the figure only",
+    ("model/bearing_table.py", "scipy"): "scipy.interpolate: at the top of this module, among the first the command "
+                                         "line loads, `hybridtwin --help` took ~0.1 s more CPU (measured, issue 52)",
     ("identify/uncertainty.py", "scipy.stats"): "scipy.stats (~0.4 s) only for an interval: the command line imports "
                                                 "this module (ALPHA)",
     ("offline/scenarios.py", "scipy.stats"): "scipy.stats (~0.4 s) only where scenarios are sampled: the command line "
