@@ -106,7 +106,7 @@ def test_imports_run_downward_only():
 #: them
 LAZY_PACKAGES = {"ross", "plotly", "matplotlib", "h5py", "nptdms", "pyuff", "asammdf", "snakemake"}
 #: every other import inside a function, (module, what it imports): why it stays there; the rest import at the top
-#: (issue 52: 49 of 87 moved there; none made a circle: test_no_import_circles counts inner imports too)
+#: (issue 52: 46 of 87 moved there; none made a circle: test_no_import_circles counts inner imports too)
 INNER_IMPORTS = {
     ("cli/assess.py", "hybridtwin.online.assess"): "the online stage loads zarr and the twin's stores (~0.4 s), which "
                                                    "the other commands and --help do without",
