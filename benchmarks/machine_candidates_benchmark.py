@@ -22,17 +22,13 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from diagnosis_helpers import fit_and_diagnose  # noqa: E402
 from example_machines import stepped_machine  # noqa: E402
 
-from hybridtwin.diagnose import diagnosis as dg  # noqa: E402
-from hybridtwin.diagnose import score_test as st  # noqa: E402
 from hybridtwin.identify import forward as fwd  # noqa: E402
 from hybridtwin.identify import identification as idn  # noqa: E402
-from hybridtwin.identify import lm  # noqa: E402
-from hybridtwin.identify.protocol import ProtocolOptions  # noqa: E402
 from hybridtwin.model.candidates import Candidate, builtin_candidates  # noqa: E402
 from hybridtwin.model.variants import Variant  # noqa: E402
-from hybridtwin.settings import diagnosis_settings  # noqa: E402
 
 H, SIGMA = 3, 2e-8
 EFFECTS = ["linear_bearing@a", "linear_bearing@b", "gyroscopic", "unbalance@d1"]
@@ -64,18 +60,12 @@ def main() -> None:
     args = parser.parse_args()
     machine = stepped_machine()
     candidates = [Candidate.of(e) for e in machine.sized_candidates().values()] + [builtin_candidates()["speed_damping"]]
-    options = diagnosis_settings({}).options()
     for case in args.cases:
         start = time.process_time()
         data = records(machine, *CASES[case])
         variant = Variant.from_spec("linear", {"effects": EFFECTS, "unknown": {
             "k_a": [1e7, 4e7], "c_a": [400, 1600], "c_b": [250, 1000]}}, shaft=machine)
-        lower, upper = (np.array(v) for v in zip(*variant.unknown.values()))
-        models = [fwd.SolverModel(variant, d.run, d.rpm, d.eccentric_mass_g, list(variant.unknown), lower, upper, H)
-                  for d in data]
-        fit = idn.identify(models, data, (), ProtocolOptions(trials=3, monte_carlo=0, seed=2,
-                                                             lm=lm.LMOptions(max_iterations=60)))
-        result = dg.diagnose(st.BaseFit(variant, fit.layout, fit.theta, fit.data, H), candidates, options)
+        result, fit = fit_and_diagnose(variant, data, candidates, H)  # the default diagnosis options
         print(f"## {case}: {len(candidates)} candidates, base chi^2/dof {fit.chi2_dof:.4g}, "
               f"{time.process_time() - start:.0f} s CPU\n{result.conclusion}")
         print(result.table[["effect", "verdict", "delta_bic"]].head(5).to_string(index=False), "\n", flush=True)

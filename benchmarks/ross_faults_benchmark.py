@@ -1,4 +1,4 @@
-"""Our fault effects against ROSS's own time integration of the same faults (issue 54; hybridtwin.model.ross_faults).
+"""Our fault effects against ROSS's own time integration of the same faults (issue 54; hybridtwin.peers.ross_faults).
 
 ROSS 2.3.0's ``rotor_example_with_damping()`` (two disks on a 19 mm shaft, anisotropic bearings) at 1200 RPM, an
 unbalance at the first disk; ROSS integrates each fault from rest (Newmark, direct, dt = 1e-4 s); its steady 1X, 2X,
@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hybridtwin.solvers.ross_fault_cases import (CASE_PROBE_NODES, CASE_RPM, CASE_TURNS, CASES,
+from hybridtwin.peers.ross_fault_cases import (CASE_PROBE_NODES, CASE_RPM, CASE_TURNS, CASES,
                                                  ross_example_rotor, run_case)
 
 

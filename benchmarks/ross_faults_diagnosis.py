@@ -20,14 +20,25 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-from hybridtwin.model.ross_faults import order_harmonics, ross_dof
-from hybridtwin.solvers.ross_fault_cases import (CASE_DT, CASE_PLANE_NODE, CASE_PROBE_NODES, CASE_TURNS, CASES,
-                                                 cached_fault_run, ross_example_rotor)
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from diagnosis_helpers import fit_and_diagnose  # noqa: E402
+
+from hybridtwin.data.measured import RunData  # noqa: E402
+from hybridtwin.model.bearing_candidates import EXCITATION_DISPLACEMENT_M, excitations_at  # noqa: E402
+from hybridtwin.model.candidates import Candidate  # noqa: E402
+from hybridtwin.model.faults import fault_candidates  # noqa: E402
+from hybridtwin.model.machine_parts import Sensor, UnbalancePlane  # noqa: E402
+from hybridtwin.model.ross_io import machine_from_ross  # noqa: E402
+from hybridtwin.model.variants import Variant  # noqa: E402
+from hybridtwin.peers.ross_fault_cases import (CASE_DT, CASE_PLANE_NODE, CASE_PROBE_NODES, CASE_TURNS,  # noqa: E402
+                                               CASES, cached_fault_run, ross_example_rotor)
+from hybridtwin.peers.ross_faults import base_effect_names, order_harmonics, ross_dof  # noqa: E402
 
 #: the speeds of each fault's runs [RPM]: whole samples a turn at dt 1e-4 s, below the first critical speeds (1730
 #: and 1790 RPM); 1200 RPM is the comparison's (benchmarks/ross_faults_benchmark.py: its runs serve here too). Two
@@ -40,8 +51,6 @@ H = 3
 
 def records(rotor, fault: str, cache: Path | None, noise: float, seed: int, speeds=SPEEDS) -> list:
     """The runs' RunData (harmonics 1..3 at the probes, noise added) of ``fault`` ("none": the unbalance alone)."""
-    from hybridtwin.data.measured import RunData
-
     case = FAULT_CASE.get(fault)
     kind, parameters, unbalance, seconds = CASES[case] if case else ("none", {}, 1e-5, 3.0)
     probes = [ross_dof(n, d) for n in CASE_PROBE_NODES for d in "xy"]
@@ -60,12 +69,6 @@ def records(rotor, fault: str, cache: Path | None, noise: float, seed: int, spee
 
 def machine_and_candidates(rotor):
     """The imported machine (probes at both disks, the plane at the first) and the candidates (module docstring)."""
-    from hybridtwin.model.bearing_candidates import EXCITATION_DISPLACEMENT_M, excitations_at
-    from hybridtwin.model.candidates import Candidate
-    from hybridtwin.model.faults import fault_candidates
-    from hybridtwin.model.machine_parts import Sensor, UnbalancePlane
-    from hybridtwin.model.ross_io import machine_from_ross
-
     sensors = [Sensor(f"{d}{n}", n, d) for n in CASE_PROBE_NODES for d in "xy"]
     machine = machine_from_ross(rotor, unbalance_planes=[UnbalancePlane("d1", CASE_PLANE_NODE)], sensors=sensors)
     k = {b.name: 0.5 * float(b.table.kxx[0] + b.table.kyy[0])
@@ -79,29 +82,16 @@ def machine_and_candidates(rotor):
 
 
 def diagnose(machine, candidates, data):
-    from hybridtwin.diagnose import diagnosis as dg
-    from hybridtwin.diagnose import score_test as st
-    from hybridtwin.identify import forward as fwd
-    from hybridtwin.identify import identification as idn
-    from hybridtwin.identify import lm
-    from hybridtwin.identify.protocol import ProtocolOptions
-    from hybridtwin.model.ross_faults import base_effect_names
-    from hybridtwin.model.variants import Variant
-    from hybridtwin.settings import diagnosis_settings
-
+    """The linear rotor as imported (r_me and angle_me unknown) fitted and diagnosed among ``candidates``
+    (tests/diagnosis_helpers.py, the set-up tests/test_machine_candidates.py shares); (diagnosis, base chi^2/dof)."""
     names = base_effect_names(machine, "d1")
     variant = Variant.from_spec("ross_linear", {"effects": names, "unknown": {"r_me": [0.5, 2.0],
                                                                                "angle_me": [-0.5, 0.5]}},
                                 shaft=machine)
-    lower, upper = (np.array(v) for v in zip(*variant.unknown.values()))
-    models = [fwd.SolverModel(variant, d.run, d.rpm, d.eccentric_mass_g, list(variant.unknown), lower, upper, H)
-              for d in data]
-    fit = idn.identify(models, data, (), ProtocolOptions(trials=3, monte_carlo=0, seed=2,
-                                                         lm=lm.LMOptions(max_iterations=60)))
-    base = st.BaseFit(variant, fit.layout, fit.theta, fit.data, H)
-    options = diagnosis_settings({"diagnosis": {"thorough": 2, "starts": 0, "widen": 1, "max_effects": 1,
-                                                "quick_iterations": 8, "max_iterations": 30}}).options()
-    return dg.diagnose(base, candidates, options), fit.chi2_dof
+    result, fit = fit_and_diagnose(variant, data, candidates, H, {"thorough": 2, "starts": 0, "widen": 1,
+                                                                  "max_effects": 1, "quick_iterations": 8,
+                                                                  "max_iterations": 30})
+    return result, fit.chi2_dof
 
 
 def main() -> None:

@@ -512,23 +512,42 @@ def test_no_script_writes_or_reads_a_table_itself():
 
 def test_the_long_harmonics_and_their_wide_view():
     """The long harmonic table (run, harmonic, channel, re_m, im_m, sigma_m) and the wide view of harmonics.tsv
-    are one table: the wide columns the preprocessing writes (record_columns.harmonic_columns, an independent
-    writer of the same numbers) come back from the long form, the amplitude as the modulus (to 1 ulp-level
-    rounding, rtol 1e-15: hypot and abs of a complex round alike), for a channel whose name ends in a digit too."""
+    are one table: the preprocessing's columns (record_columns.harmonic_columns, written through the long form and
+    its wide view) are the numbers given, under the names written out here, the amplitude as abs() of the complex
+    value (bit for bit: abs of a complex and hypot are the same libm call); the long form of the wide table gives
+    back the numbers given, and its wide view the wide table; a channel whose name ends in a digit too."""
     from hybridtwin import tables
     from hybridtwin.data.record_columns import harmonic_columns
 
     rng = np.random.default_rng(5)
     names, H = ["x", "y2"], 3
-    rows = []
+    stems = {"x": "x", "y2": "y2_"}  # x1_re_m for channel x, y2_1_re_m for channel y2
+    rows, given = [], {}
     for run in ("r1", "r2"):
-        X = rng.normal(size=(2, H + 1)) + 1j * rng.normal(size=(2, H + 1))
-        rows.append({"run": run, "rpm": 900.0} | harmonic_columns(names, H, X * 1e-5, rng.uniform(size=(2, H + 1)),
-                                                                 np.ones(2)))
+        X, sigma = 1e-5 * (rng.normal(size=(2, H + 1)) + 1j * rng.normal(size=(2, H + 1))), rng.uniform(size=(2, H + 1))
+        given[run] = X, sigma
+        row = {"run": run, "rpm": 900.0} | harmonic_columns(names, H, X, sigma, np.ones(2))
+        expected = {}
+        for i, c in enumerate(names):
+            for h in range(1, H + 1):
+                stem = f"{stems[c]}{h}"
+                expected |= {f"{stem}_re_m": X[i, h].real, f"{stem}_im_m": X[i, h].imag,
+                             f"{stem}_amp_m": abs(X[i, h]), f"{stem}_sigma_m": sigma[i, h]}
+        assert list(row)[-len(expected):] == list(expected)  # channel by channel, harmonic by harmonic, last
+        assert all(row[k] == v for k, v in expected.items()), row
+        rows.append(row)
     wide = pd.DataFrame(rows)
     long = tables.long_harmonics(wide, names)
     assert list(long.columns) == list(tables.HARMONICS_LONG.columns) and len(long) == 2 * H * 2
+    for entry in long.itertuples():
+        X, sigma = given[entry.run]
+        i = names.index(entry.channel)
+        assert (entry.re_m, entry.im_m, entry.sigma_m) == (X[i, entry.harmonic].real, X[i, entry.harmonic].imag,
+                                                           sigma[i, entry.harmonic])
     back = tables.wide_harmonics(long)
     for c in back.columns[1:]:
-        np.testing.assert_allclose(back[c].to_numpy(), wide[c].to_numpy(), rtol=1e-15, atol=0, err_msg=c)
+        np.testing.assert_array_equal(back[c].to_numpy(), wide[c].to_numpy(), err_msg=c)
     assert back["run"].tolist() == ["r1", "r2"]
+    # a run without a harmonic another has: NaN there, not a shifted value
+    partial = tables.wide_harmonics(long[~((long["run"] == "r1") & (long["harmonic"] == 3))])
+    assert np.isnan(partial.loc[0, "x3_re_m"]) and partial.loc[1, "x3_re_m"] == wide.loc[1, "x3_re_m"]

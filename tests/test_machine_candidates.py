@@ -6,18 +6,15 @@ a wrong known bearing stiffness names that bearing's compliance."""
 import numpy as np
 import pytest
 import scipy.linalg
+from diagnosis_helpers import fit_and_diagnose
 from example_machines import stepped_machine
 
-from hybridtwin.diagnose import diagnosis as dg
-from hybridtwin.diagnose import score_test as st
 from hybridtwin.identify import forward as fwd
 from hybridtwin.identify import identification as idn
-from hybridtwin.identify import lm
-from hybridtwin.identify.protocol import ProtocolOptions
 from hybridtwin.model.candidates import Candidate
+from hybridtwin.model.machine import Machine
 from hybridtwin.model.model import Model
 from hybridtwin.model.variants import Variant
-from hybridtwin.settings import diagnosis_settings
 
 EFFECTS = ["linear_bearing@a", "linear_bearing@b", "gyroscopic", "unbalance@d1"]
 KINDS = ["bearing_anisotropy", "cross_coupled_stiffness", "cross_coupled_damping", "bearing_compliance",
@@ -50,7 +47,6 @@ def test_a_machine_is_offered_every_family_at_its_own_bearings_and_planes():
     # placed built-in of the same name (f2 +-0.5 N, a 2400 N/m bearing's)
     effects = machine.effects()
     assert all(effects[name].parameters == effect.parameters and effect.switches for name, effect in sized.items())
-    from hybridtwin.model.machine import Machine
     assert Machine.varm().sized_candidates() == {}  # the VARM: nothing new (its bearings carry no nominal k)
 
 
@@ -109,21 +105,15 @@ def test_a_wrong_known_bearing_stiffness_is_diagnosed_as_that_bearings_complianc
                                 np.full(X.shape, sigma)))
     variant = Variant.from_spec("linear", {"effects": EFFECTS, "unknown": {"k_a": [1e7, 4e7], "c_a": [400, 1600],
                                                                            "c_b": [250, 1000]}}, shaft=machine)
-    lower, upper = (np.array(v) for v in zip(*variant.unknown.values()))
-    models = [fwd.SolverModel(variant, d.run, d.rpm, d.eccentric_mass_g, list(variant.unknown), lower, upper, H)
-              for d in data]
-    fit = idn.identify(models, data, (), ProtocolOptions(trials=3, monte_carlo=0, seed=2,
-                                                         lm=lm.LMOptions(max_iterations=60)))
-    base = st.BaseFit(variant, fit.layout, fit.theta, fit.data, H)
     sized = machine.sized_candidates()
     candidates = [Candidate.of(sized[f"{kind}@b"]) for kind in ("bearing_compliance", "moment_stiffness",
                                                                  "bearing_anisotropy")]
     candidates.append(Candidate.of(sized["bearing_compliance@a"]))
     # the diagnosis with fewer refits than the defaults (the score tests rank moment_stiffness@b first: to first
     # order it looks alike; the refits tell them apart)
-    options = diagnosis_settings({"diagnosis": {"thorough": 1, "starts": 0, "widen": 0, "max_effects": 1,
-                                                  "quick_iterations": 6, "max_iterations": 20}}).options()
-    result = dg.diagnose(base, candidates, options)
+    result, _ = fit_and_diagnose(variant, data, candidates, H, {"thorough": 1, "starts": 0, "widen": 0,
+                                                                 "max_effects": 1, "quick_iterations": 6,
+                                                                 "max_iterations": 20})
     assert result.table.loc[0, "effect"] == "bearing_compliance@b"
     assert result.conclusion.startswith("add bearing_compliance@b: it explains the discrepancy")
     confirmation = result.confirmations["bearing_compliance@b"]

@@ -1,5 +1,5 @@
 """Our fault effects (src/hybridtwin/model/faults.py) against ROSS's own time integration of the same faults
-(hybridtwin.model.ross_faults, hybridtwin.solvers.ross_fault_cases; issue 54): ROSS 2.3.0's ``rotor_example_with_damping()`` at 1200 RPM, ROSS's Newmark
+(hybridtwin.peers.ross_faults, hybridtwin.peers.ross_fault_cases; issue 54): ROSS 2.3.0's ``rotor_example_with_damping()`` at 1200 RPM, ROSS's Newmark
 integration from rest (dt 1e-4 s) order-tracked over its last 20 turns (a Blackman-Harris window: the start-up's free
 modes, 9-10 frequency bins from the orders compared, leak about 1e-5 of themselves), our harmonic balance (5
 harmonics) of the same rotor imported with ``machine_from_ross`` and our effect for the same fault.
@@ -27,8 +27,8 @@ import numpy as np
 import pytest
 from test_ross import rs  # noqa: F401 (the fixture importing ROSS, or skipping)
 
-from hybridtwin.model.ross_faults import coupling_force, order_harmonics
-from hybridtwin.solvers.ross_fault_cases import CASES, run_case
+from hybridtwin.peers.ross_faults import coupling_force, order_harmonics
+from hybridtwin.peers.ross_fault_cases import CASES, run_case
 
 
 @pytest.fixture(scope="module")

@@ -375,6 +375,12 @@ def test_a_global_library_sliced_at_an_operating_point_equals_the_global_one_the
     np.testing.assert_array_equal(Library.load(tmp_path / "run.zarr").sensor(values), run.sensor(values))
     with pytest.raises(ValueError, match="outside the global library's range"):
         glib.at_operating_point("r1100", 1100.0, 0.0)
+    # the range check the online route asks too (online/library_route.py: a record outside goes to the solver):
+    # the ends themselves inside, a step past either end of either coordinate outside, named with the range
+    assert glib.outside_operating_range(350.0, 0.0) == glib.outside_operating_range(1000.0, 25.9) == ""
+    for rpm, mass in ((349.9, 10.0), (1000.1, 10.0), (700.0, -0.01), (700.0, 25.91)):
+        assert glib.outside_operating_range(rpm, mass) == (f"{rpm:g} RPM, {mass:g} g is outside the global "
+                                                           "library's range (350-1000 RPM, 0-25.9 g)")
     with pytest.raises(ValueError, match="not a global library"):
         run.at_operating_point("again", 700.0, 14.8)
 

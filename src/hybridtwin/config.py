@@ -26,9 +26,15 @@ import pandas as pd
 import yaml
 from threadpoolctl import threadpool_limits
 
-from .model.effects import Effect
+from .data.measured import read_harmonics
+from .data.measurements import sheet_of, trial_angles  # sheet_of: the one reader of runs sheets (check-data's)
+from .data.run_kinds import expand_bands
+from .model.candidates import candidates_for
+from .model.effects import Effect, builtin_effects, trial_angle_rad
 from .model.machine import Machine
 from .model.machine_parts import MachineSpecError
+from .model.ross_io import machine_from_section
+from .rig.rig import RigSpec
 from .solvers.solver import DEFAULT_HARMONICS
 from .model.whirl import WhirlModel
 from .model.variants import EffectsFileError, Variant, load_effects_files, unbalance_hint
@@ -87,8 +93,6 @@ def machine(config: Mapping, config_dir: str | Path = CONFIG_DIR) -> Machine:
     it names (``{ross: rotor.toml, ...}``, relative to ``config_dir``: ``ross_io.machine_from_section``)."""
     spec = config.get("machine")
     if isinstance(spec, Mapping) and "ross" in spec:
-        from .model.ross_io import machine_from_section
-
         return machine_from_section(spec, config_dir)
     return Machine.from_mapping(spec)
 
@@ -165,10 +169,6 @@ def run_plan(source: Mapping | str | Path | pd.DataFrame, measured: str | Path |
     sheet it has as input), or the sheet already read (``measurements.sheet_of``: the workflow reads it once). With ``measured`` (the preprocessed table, results/data/harmonics.tsv) each run's
     rpm is the true speed refined from its record (rpm_true) instead of the nominal one.
     """
-    from .data.measurements import sheet_of  # the one reader of runs sheets (check-data's): every problem named
-    from .data.measured import read_harmonics
-    from .data.run_kinds import expand_bands
-
     read = sheet_of(source["runs"] if isinstance(source, Mapping) else source)
     path = read.attrs.get("source", "runs sheet")
     sheet = expand_bands(read).copy()  # a run-up's speed bands are runs (data/transient); a copy: `read` may be
@@ -191,9 +191,6 @@ def angles_on_libraries(config: Mapping, sheet: pd.DataFrame) -> str | None:
     (eccentric_mass_angle_deg) and a variant fits on sPGD libraries (offline.scope run or global): the libraries are
     built per (rpm, eccentric mass) with the mass on +x, so the angle is refused rather than ignored; None when
     fine."""
-    from .data.measurements import trial_angles
-    from .model.effects import trial_angle_rad
-
     angled = [r for r, a in zip(sheet["run"], trial_angles(sheet)) if trial_angle_rad(a) != 0.0]
     on_libraries = [v for v in config["variants"] if offline_for(config, v)["scope"] != "none"]
     if not angled or not on_libraries:
@@ -520,6 +517,7 @@ def _expects(schema: Mapping) -> str:
 
 
 def _schema_problems(config: Mapping, schema: Mapping) -> Iterable[Problem]:
+    # here, not at import: jsonschema (~60 ms, 50 modules) only where a config is checked, not in every rule script
     from jsonschema import validators
     from jsonschema.exceptions import best_match
 
@@ -553,10 +551,6 @@ def _schema_problems(config: Mapping, schema: Mapping) -> Iterable[Problem]:
 
 
 def _name_problems(config: Mapping, config_dir: Path) -> Iterable[Problem]:
-    from .model.candidates import candidates_for
-    from .model.effects import builtin_effects
-    from .rig.rig import RigSpec
-
     runs = config.get("runs")
     if runs is not None and not Path(runs).is_file():
         yield ("runs",), "runs", f"runs sheet {str(runs)!r} does not exist (paths are relative to the project root)"

@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import io
+from pathlib import Path
+
 import matplotlib.pyplot as plt  # no backend forced: Agg by itself without a display, or the caller's choice
 import numpy as np
 import pandas as pd
+from PIL import Image  # matplotlib's own dependency: loaded with it
 
 
 def plot_sweep(table: pd.DataFrame, title: str) -> plt.Figure:
@@ -63,10 +67,6 @@ def png_palette_bytes(fig: plt.Figure, dpi: int = 100) -> bytes:
     no dithering, the same bytes for the same figure): a report embeds every PNG, and a figure's few colours and
     their antialiased edges need no 24 bits a pixel (the quick example's 35 PNGs: 5.1 MB -> 1.4 MB; a pixel's
     colour off by 1.3 of 255 levels on average, at an edge by up to 40)."""
-    import io
-
-    from PIL import Image
-
     stream = io.BytesIO()
     fig.savefig(stream, format="png", dpi=dpi)
     stream.seek(0)
@@ -79,6 +79,4 @@ def png_palette_bytes(fig: plt.Figure, dpi: int = 100) -> bytes:
 
 def save_png(fig: plt.Figure, path, dpi: int = 100) -> None:
     """``fig`` written to ``path`` as ``png_palette_bytes`` makes it (the workflow's figures)."""
-    from pathlib import Path
-
     Path(path).write_bytes(png_palette_bytes(fig, dpi))

@@ -8,9 +8,10 @@ that writing what was read gives the same bytes again (tests/test_contracts.py c
 table whose columns follow the data (a parameter per column, a channel per harmonic) says so in its ``layout``.
 
 The harmonics of a run at its channels are one quantity in three layouts across the workflow; the long form,
-(run, harmonic, channel, re_m, im_m, sigma_m) a row, is ``HARMONICS_LONG``; ``long_harmonics`` makes it from the
-wide harmonics table (results/data/harmonics.tsv: a run a row, a column per channel, harmonic and part, named by
-``harmonic_column``), and ``wide_harmonics`` is its inverse, the wide view.
+(run, harmonic, channel, re_m, im_m, sigma_m) a row, is ``HARMONICS_LONG``: ``run_harmonics`` makes it from a
+run's harmonics, ``wide_harmonics`` is its wide view, the harmonic columns of results/data/harmonics.tsv (a run a
+row, a column per channel, harmonic and part, named by ``harmonic_column``; the preprocessing writes them through
+the long form and this view), and ``long_harmonics`` the long form again from a wide table.
 
 The module sits below every stage (it imports none): the stages declare their tables here and write them here.
 """
@@ -391,22 +392,36 @@ def long_harmonics(wide: pd.DataFrame, channels: Sequence[str]) -> pd.DataFrame:
         {"harmonic": int, "re_m": float, "im_m": float, "sigma_m": float})
 
 
+def run_harmonics(run: str, channels: Sequence[str], X: np.ndarray, sigma: np.ndarray) -> pd.DataFrame:
+    """The long form (``HARMONICS_LONG``) of one run's harmonics X (C, H+1) complex [m] at ``channels`` with their
+    sigmas (C, H+1) [m] per part: a (harmonic, channel) a row for h = 1..H, harmonic by harmonic, the channels in
+    the order given (h = 0, the offset, is no harmonic of the table)."""
+    n_channels, n_harmonics = X.shape[0], X.shape[1] - 1
+    h = np.repeat(np.arange(1, n_harmonics + 1), n_channels)
+    c = np.tile(np.arange(n_channels), n_harmonics)
+    return pd.DataFrame({"run": str(run), "harmonic": h, "channel": [channels[i] for i in c],
+                         "re_m": X[c, h].real, "im_m": X[c, h].imag, "sigma_m": sigma[c, h]},
+                        columns=list(HARMONICS_LONG.columns))
+
+
 def wide_harmonics(long: pd.DataFrame) -> pd.DataFrame:
     """The wide view of a long harmonics table: a run a row (first seen first), per channel and harmonic its
-    <c><h>_re_m, _im_m, _amp_m (the modulus) and _sigma_m columns, channel by channel, harmonic by harmonic."""
+    <c><h>_re_m, _im_m, _amp_m (the modulus) and _sigma_m columns, channel by channel, harmonic by harmonic; NaN
+    where a run lacks that harmonic."""
     runs = list(dict.fromkeys(long["run"]))
-    channels = list(dict.fromkeys(long["channel"]))
-    out = pd.DataFrame({"run": runs})
-    for c in channels:
-        part = long[long["channel"] == c]
-        for h in sorted(set(part["harmonic"])):
-            rows = part[part["harmonic"] == h].set_index("run").reindex(runs)
-            re_, im_ = rows["re_m"].to_numpy(float), rows["im_m"].to_numpy(float)
-            out[harmonic_column(c, h, "re")] = re_
-            out[harmonic_column(c, h, "im")] = im_
-            out[harmonic_column(c, h, "amp")] = np.hypot(re_, im_)
-            out[harmonic_column(c, h, "sigma")] = rows["sigma_m"].to_numpy(float)
-    return out
+    row = pd.Index(runs).get_indexer(long["run"])
+    channel, harmonic = long["channel"].to_numpy(), long["harmonic"].to_numpy()
+    values = {part: long[f"{part}_m"].to_numpy(float) for part in ("re", "im", "sigma")}
+    out = {"run": runs}
+    for c in dict.fromkeys(channel):
+        for h in sorted(set(harmonic[channel == c])):
+            at = (channel == c) & (harmonic == h)
+            re_, im_, sigma = (np.full(len(runs), np.nan) for _ in range(3))
+            for column, part in ((re_, "re"), (im_, "im"), (sigma, "sigma")):
+                column[row[at]] = values[part][at]
+            out |= {harmonic_column(c, h, "re"): re_, harmonic_column(c, h, "im"): im_,
+                    harmonic_column(c, h, "amp"): np.hypot(re_, im_), harmonic_column(c, h, "sigma"): sigma}
+    return pd.DataFrame(out)
 
 
 # --- the command line's tables (hybridtwin campbell / modes / response --out) --------------------------------

@@ -51,6 +51,8 @@ def add_assess_command(sub) -> None:
 
 def assess_command(args) -> int:
     """``hybridtwin assess``: 0 every record assessed, 1 one or more could not be, 2 bad options or twin."""
+    # here, not at import: the online stage loads zarr and the twin's stores (~0.4 s), which the other commands and
+    # --help do without
     from ..online.assess import ALPHA, assess
     from ..online.intake import RecordError, intake, read_sheet, record_row
     from ..online.trend import add, plot_trend, read_trend
@@ -96,7 +98,7 @@ def assess_command(args) -> int:
         add(out / "trend.tsv", result)
         print(result.line(), flush=True)  # the verdict first: the figures take about as long again
         if not args.no_figure:
-            from ..online.assess_plots import plot_assessment
+            from ..online.assess_plots import plot_assessment  # here: matplotlib, for the figure only
 
             _save(plot_assessment(result), folder / "figure.png")
     if not args.no_figure and (out / "trend.tsv").is_file():
@@ -107,7 +109,7 @@ def assess_command(args) -> int:
 
 
 def _save(fig, path: Path) -> None:
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # here: matplotlib, for the figures only
 
     fig.savefig(path, dpi=110)
     plt.close(fig)

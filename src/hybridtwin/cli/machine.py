@@ -28,6 +28,7 @@ import numpy as np
 import pandas as pd
 from threadpoolctl import threadpool_limits
 
+from ..data.measurements import DataError, read_runs
 from ..tables import MACHINE_VIEW
 from .common import (UsageError, positive_int_arg, non_negative_arg, parameter_setting, positive_arg, chosen_variant,
                      config_file, config_machine, read_config, variant_values)
@@ -180,8 +181,6 @@ def sheet_speeds(config: Path | None) -> tuple[list[float], Path | None]:
     runs' rpm and the ends of run-ups and coast-downs, and the sheet's path; ([], None) without a config or a
     ``runs:`` entry. A sheet that cannot be read is a UsageError naming it (``measurements.read_runs``'s
     message)."""
-    from ..data.measurements import DataError, read_runs
-
     if config is None:
         return [], None
     entry = read_config(config).get("runs")
@@ -235,7 +234,7 @@ def _setup(args: argparse.Namespace):
 
 
 def _save(figure, path: Path) -> None:
-    from ..report import machine_plots as mp
+    from ..report import machine_plots as mp  # here: matplotlib (the comment above the imports)
 
     try:
         figure.savefig(path, dpi=100)
@@ -256,8 +255,8 @@ def _print(table: pd.DataFrame, columns: list[str], empty: str) -> None:
 
 
 def campbell_command(args: argparse.Namespace) -> int:
-    from ..report import machine_plots as mp
-    from ..report import machine_response as mr
+    from ..report import machine_plots as mp  # here: matplotlib (the comment above the imports)
+    from ..report import machine_response as mr  # here: matplotlib (the comment above the imports)
 
     lo, hi = _speeds(args)
     variant, values, out, label = _setup(args)
@@ -289,7 +288,7 @@ def campbell_command(args: argparse.Namespace) -> int:
 
 
 def modes_command(args: argparse.Namespace) -> int:
-    from ..report import machine_plots as mp
+    from ..report import machine_plots as mp  # here: matplotlib (the comment above the imports)
 
     variant, values, out, label = _setup(args)
     try:
@@ -313,8 +312,8 @@ def modes_command(args: argparse.Namespace) -> int:
 
 
 def response_command(args: argparse.Namespace) -> int:
-    from ..report import machine_response as mr
-    from ..report.response_plots import write_dense
+    from ..report import machine_response as mr  # here: matplotlib (the comment above the imports)
+    from ..report.response_plots import write_dense  # here: matplotlib (the comment above the imports)
 
     lo, hi = _speeds(args)
     if lo <= 0:

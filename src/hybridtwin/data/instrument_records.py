@@ -22,6 +22,7 @@ counted where a CSV line would be (sample 1 is the first).
 
 from __future__ import annotations
 
+import importlib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -75,8 +76,6 @@ def _text(value) -> str | None:
 
 
 def _require(module: str, fmt: str, path: Path):
-    import importlib
-
     try:
         return importlib.import_module(module)
     except ImportError:
@@ -88,7 +87,7 @@ def _require(module: str, fmt: str, path: Path):
 
 
 def _mat(path: Path) -> dict[str, Channel]:
-    from scipy import io as sio
+    from scipy import io as sio  # here: scipy.io (~50 ms) only for a .mat record, not for every command line
 
     try:
         data = sio.loadmat(path, squeeze_me=True)

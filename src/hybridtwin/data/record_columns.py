@@ -17,7 +17,8 @@ from collections.abc import Iterable, Mapping, Sequence
 import numpy as np
 import pandas as pd
 
-from ..tables import harmonic_column, harmonic_stem  # noqa: F401 (re-exported: the columns named once)
+from ..tables import (harmonic_column, harmonic_stem,  # noqa: F401 (re-exported: the columns named once)
+                      run_harmonics, wide_harmonics)
 
 Array = np.ndarray
 
@@ -254,8 +255,10 @@ def carried_columns(sheet_row: Mapping, analysed: Iterable[str]) -> dict:
 
 def harmonic_columns(names: Sequence[str], harmonics: int, X, sigma, noise, complex_parts: bool = True) -> dict:
     """The harmonics table's per-channel columns of one row (``preprocessing.run_row``, a transient band's row):
-    noise_<c>_m, offset_<c>_m, offset_<c>_sigma_m, then per harmonic h = 1..H its real and imaginary part
-    (``complex_parts``), amplitude and sigma. X, sigma: (C, H+1) (h = 0 the offset), noise (C,); None: NaN."""
+    noise_<c>_m, offset_<c>_m, offset_<c>_sigma_m, then per channel and harmonic h = 1..H its real and imaginary
+    part (``complex_parts``), amplitude and sigma: the wide view of the run's long harmonic table
+    (``tables.run_harmonics``, ``tables.wide_harmonics``). X, sigma: (C, H+1) (h = 0 the offset), noise (C,); None:
+    NaN."""
     nan = float("nan")
     row = {}
     for i, name in enumerate(names):
@@ -263,11 +266,9 @@ def harmonic_columns(names: Sequence[str], harmonics: int, X, sigma, noise, comp
     for i, name in enumerate(names):
         row[f"offset_{name}_m"] = X[i, 0].real if X is not None else nan
         row[f"offset_{name}_sigma_m"] = sigma[i, 0] if X is not None else nan
-    for i, name in enumerate(names):
-        for h in range(1, harmonics + 1):
-            value = X[i, h] if X is not None else complex(nan, nan)
-            if complex_parts:
-                row[harmonic_column(name, h, "re")], row[harmonic_column(name, h, "im")] = value.real, value.imag
-            row[harmonic_column(name, h, "amp")] = abs(value)
-            row[harmonic_column(name, h, "sigma")] = sigma[i, h] if X is not None else nan
-    return row
+    if X is None:
+        X, sigma = np.full((len(names), harmonics + 1), complex(nan, nan)), np.full((len(names), harmonics + 1), nan)
+    wide = wide_harmonics(run_harmonics("", names, X[:, :harmonics + 1], sigma[:, :harmonics + 1]))
+    parts = wide.columns[1:] if complex_parts else [c for c in wide.columns[1:]
+                                                    if not c.endswith(("_re_m", "_im_m"))]
+    return row | dict(wide.loc[0, parts].items())

@@ -19,12 +19,14 @@ import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pandas as pd
 
+from ..model.probes import DEFAULT_ANGLE_DEG, ProbeAngleError, plane_xy
 from ..model.sensor import DEFAULT_CHANNELS, machine_order, sensor_pairs
-from .instrument_records import is_instrument_file
+from .instrument_records import instrument_table, is_instrument_file
 from .text_table import DataError, DataWarning, decode_text, problems_message, read_text_table, require_columns
 from .record_columns import (fast_numeric_table, keyphasor_column, keyphasor_marks, numeric_column, time_problems,
                              uniform_time_base)
@@ -191,8 +193,6 @@ def record_channels(sensors=None) -> tuple[tuple[str, ...], tuple[tuple[int, int
     if hasattr(sensors, "sensors"):  # a Machine
         sensors = sensors.sensors
     if isinstance(sensors, Mapping):
-        from types import SimpleNamespace
-
         sensors = [SimpleNamespace(name=str(name), node=spec.get("node"), direction=spec.get("direction"))
                    for name, spec in sensors.items()]
     items = list(sensors)
@@ -222,8 +222,6 @@ def _plane_xy_channels(channels: dict, pairs, angles: Mapping[str, float], path:
     "Probe angles"). Pairs at the default angles (0, 90) are left as read, bit for bit."""
     if not angles or not pairs:
         return channels
-    from ..model.probes import DEFAULT_ANGLE_DEG, ProbeAngleError, plane_xy
-
     names = list(channels)
     out = dict(channels)
     for i, j in pairs:
@@ -379,8 +377,6 @@ def _as_text(values: Array) -> pd.Series:
 def _instrument_record(path: Path, names: Sequence[str], channels) -> tuple:
     """``read_record``'s columns from an instrument's file (``instrument_records.instrument_table``), with the
     CSV record's checks: its columns (``_record_columns``), every value finite, the keyphasor two-level."""
-    from .instrument_records import instrument_table
-
     table = instrument_table(path, names, channels)
     line = np.arange(1, len(table) + 1)
     time_col, chosen = _record_layout(path, table, names)

@@ -40,11 +40,15 @@ SI inside; rpm at the boundary. Conventions as everywhere: u(t) = Re(sum_h U_h e
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
+from scipy.optimize import least_squares
+
+from ..solvers.sweep_rate import sweep_rate_check
 from .measurements import DataError
 from .records import Record
 from .record_columns import carried_columns, harmonic_column, harmonic_columns, highest_harmonic
@@ -184,8 +188,6 @@ def track_record(record: Record, sheet_row: Mapping, harmonics: int, sensor_rang
     """A transient sheet row's record -> its bands' rows (module docstring); ``DataError`` naming the file for a
     record that cannot be tracked (no keyphasor, missed or double marks, a reversing profile, a record too short for
     its slow-roll band, a sweep that never leaves one speed)."""
-    import warnings
-
     kind = str(sheet_row.get("kind", "")).strip().lower()
     where = str(record.path)
     plan = BandPlan.of(sheet_row)
@@ -278,8 +280,6 @@ def check_sweep_rate(bands: pd.DataFrame, names: Sequence[str], plan: BandPlan, 
     Columns added: sweep_lag_m (the expected lag of the order and mode that decide, the largest against its
     sigma, for ``forward``'s error), sweep_check ("ok", "too fast", or "no mode found" where no resonance is in
     sight)."""
-    from ..solvers.sweep_rate import sweep_rate_check
-
     out = bands.copy()
     amp = np.column_stack([np.hypot(out[harmonic_column(c, 1, "re")], out[harmonic_column(c, 1, "im")]) for c in names])
     sigma = np.column_stack([out[harmonic_column(c, 1, "sigma")] for c in names])
@@ -443,8 +443,6 @@ def one_mode_fit(omega: Array, X: Array, sigma: Array) -> tuple[float, float, fl
     for each (omega_n, zeta) (variable projection), weighted by sigma. The mode may lie up to 1.5 times beyond
     the highest band (a record ending on the resonance's flank). None where no resonance is in sight (the best
     zeta at its bound, or omega_n beyond that reach): then no band is kept out."""
-    from scipy.optimize import least_squares
-
     if omega.size < 6:
         return None
     w = 1.0 / sigma

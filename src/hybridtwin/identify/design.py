@@ -40,6 +40,7 @@ from .. import tables
 from . import forward as fwd
 from .arrow_problem import ArrowProblem, Layout
 from . import identification as idn
+from .run_fits import ranges, solver_models
 from .validation import values_along
 
 Array = np.ndarray
@@ -107,8 +108,6 @@ def fit_information(variant, joint: pd.DataFrame, harmonics: pd.DataFrame, optio
                     ) -> tuple[Array, list[str], float, list[idn.RunData]]:
     """The fit runs' information on the shared physical parameters at the joint estimates (full solver), their
     names, s^2 = max(1, chi^2/dof) and the fit runs' data."""
-    from .run_fits import ranges, solver_models
-
     names, lower, upper = ranges(variant)
     runs = list(dict.fromkeys(joint.loc[joint["parameter"] == "phase", "run"].astype(str)))
     data = [idn.run_data(harmonics, r, keyphasor=options["keyphasor"], channels=variant.channels) for r in runs]
@@ -148,8 +147,6 @@ def candidate_information(variant, joint: pd.DataFrame, runs: pd.DataFrame, shar
     information on ``shared`` (normalised units). sigma: (H, C) the noise a new run is expected to have; timing:
     rpm -> sigma_t [s] of a keyphasor (``keyphasor_timing``; None: a keyphasor fixes the phase exactly). With a
     keyphasor the run's phase has the prior N(0, (Omega sigma_t)^2), as in the fit (a row of the Jacobian)."""
-    from .run_fits import ranges
-
     names, lower, upper = ranges(variant)
     law = values_along(joint, options["validation_bow"], runs)
     per_run = [p for p in options["per_run"] if p in names]
@@ -267,8 +264,6 @@ def _intervals(variant, joint: pd.DataFrame, shared: Sequence[str], wanted: Sequ
                s2: float, confidence: float) -> pd.DataFrame:
     """Per shared parameter: its interval now (the table's, and the linearised half-width from ``now``) and the
     half-width expected after the chosen runs (from ``after``), in SI."""
-    from .run_fits import ranges
-
     names, lower, upper = ranges(variant)
     half = np.array([0.5 * (upper[names.index(p)] - lower[names.index(p)]) for p in shared])
     z = stats.norm.ppf(0.5 + 0.5 * confidence)
@@ -306,7 +301,7 @@ def plot_design(design: Design, variant_name: str):
     """The design's figure: per mass, the gain of each candidate speed alone (log det of the interest's information,
     without and with a keyphasor; infeasible speeds marked), the chosen runs starred; and per parameter its
     interval's half-width now and expected after them, relative to its range's half."""
-    from ..plots import plt
+    from ..plots import plt  # here: matplotlib, for the figure only
 
     fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 4.2), gridspec_kw={"width_ratios": [1.6, 1]})
     c = design.candidates

@@ -30,9 +30,11 @@ from typing import Protocol
 import numpy as np
 
 from ..model.effects import trial_mass_values
+from ..model.sensor import sensor_channels, sensor_dofs
 from ..offline.library import Library
 from ..offline.pod import feature_index
 from ..solvers.continuation import RUN_UP_FROM_RPM, padded_speeds, ramp, sweep_model
+from ..solvers.solver import SteadyState, assess_stability, sensitivity, solve
 from ..solvers.sweep_forward import swept_response
 
 Array = np.ndarray
@@ -131,8 +133,6 @@ def run_ups(variant, rpm: Array, values: Mapping[str, Array], harmonics: int, st
 
     values: complete parameter values [SI], each (S,). Returns the ``SteadyState`` of the S sets and (S,)
     flags: True for a set whose sweep jumped between branches on the way (a fold crossed)."""
-    from ..solvers.solver import SteadyState
-
     rpm = np.asarray(rpm, float)
     S = rpm.size
     values = {k: np.broadcast_to(np.asarray(v, float), (S,)) for k, v in values.items()}
@@ -159,8 +159,6 @@ def run_ups(variant, rpm: Array, values: Mapping[str, Array], harmonics: int, st
 def _lockstep(variant, ramps: Sequence[Array], values: Mapping[str, Array], harmonics: int, direction: str) -> tuple:
     """Each set's sweep along its own ramp (speeds in sweep order), all in one ``solve_sweep``: the last step's
     states in the sets' order and (S,) flags of a jump on the way."""
-    from ..solvers.solver import SteadyState
-
     S = len(ramps)
     sweep, _ = sweep_model(variant.model, dict(values), padded_speeds(ramps), S, harmonics, direction)
     last = np.array([len(r) for r in ramps]) - 1
@@ -301,14 +299,10 @@ class SolverModel:
     @property
     def C(self) -> int:
         """Channels: the machine's sensors (x, y on the VARM)."""
-        from ..model.sensor import sensor_dofs
-
         return len(sensor_dofs(self.variant.model.shaft))
 
     def _sensor(self, harmonics: Array) -> Array:
         """Every sensor's harmonics h = 1..H (..., H, C) from full harmonics (..., H+1, n)."""
-        from ..model.sensor import sensor_channels
-
         return sensor_channels(harmonics, self.variant.model.shaft)[..., 1:, :]
 
     def _solve(self, x: Array) -> Array:
@@ -370,8 +364,6 @@ class SolverModel:
                           ) -> list[tuple[Array, Array | None]]:
         """``evaluate`` of several runs' models (one variant, same parameters, analytic) in one batched solve
         and one sensitivity call (``evaluate_runs``)."""
-        from ..solvers.solver import sensitivity
-
         first = models[0]
         H, d, C = first.harmonics, len(first.parameters), first.C
         batch = SolverModel._steady_states(models, xs)
@@ -430,8 +422,6 @@ class SolverModel:
         """The steady states ``evaluate_together`` reports at xs (each model's finite rows, stacked run after
         run): warm starts where a cached neighbour allows, run-ups for the others; None if no row is finite.
         Their stability is not assessed (``stability=False``: the LM iterations need the response only)."""
-        from ..solvers.solver import SteadyState, solve
-
         first = models[0]
         H = first.harmonics
         xs = _as_2d(xs)
@@ -573,8 +563,6 @@ def floquet_radii(models: Sequence[HarmonicModel], xs: Sequence[Array]) -> list[
     branch) and one Floquet analysis of each (``solver.assess_stability``). Models of one variant with the
     same parameters are solved together, as in ``evaluate_runs``.
     """
-    from ..solvers.solver import assess_stability
-
     out: list[Array | None] = [None] * len(models)
     groups: dict[tuple, list[int]] = {}
     for k, model in enumerate(models):

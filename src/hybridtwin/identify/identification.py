@@ -72,6 +72,7 @@ import pandas as pd
 
 from ..tables import PARAMETER_COLUMNS, PARAMETER_FLAGS, PARAMETERS
 from .arrow_problem import OFFSET_PREFIX, ArrowProblem, Layout, wrap
+from ..data.measurements import runs_with_role as read_role  # the one reader of runs sheets
 from ..data.record_columns import split_stem
 from .forward import HarmonicModel, SolverModel
 from ..data.measured import (  # noqa: F401 (the measured harmonics: hybridtwin.data.measured, also read from here)
@@ -438,8 +439,6 @@ def theta_from_table(table: pd.DataFrame, layout: Layout) -> Array | None:
 
 def runs_with_role(sheet: str | Path, role: str) -> list[str]:
     """Runs of a runs sheet with this role (no role column: every run is a fit run), read as check-data reads it."""
-    from ..data.measurements import runs_with_role as read_role  # the one reader of runs sheets
-
     return read_role(sheet, role)
 
 

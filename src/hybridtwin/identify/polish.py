@@ -13,6 +13,7 @@ from collections.abc import Sequence
 
 import numpy as np
 import pandas as pd
+from scipy.stats import qmc
 
 from .arrow_problem import ArrowProblem
 from .forward import HarmonicModel, check_stability
@@ -86,8 +87,6 @@ def _run(problem: ArrowProblem, theta0: Array, X: Array, options: LMOptions) -> 
 def hypercube_starts(layout, centre: Array, n: int, seed: int) -> Array:
     """n starts: the shared physical entries on a seeded Latin hypercube of [-0.9, 0.9], the others
     (per-run parameters, phases) as in ``centre``."""
-    from scipy.stats import qmc
-
     out = np.repeat(centre[None], n, axis=0)
     shared = np.flatnonzero([run == "all" and p != "phase" for p, run in layout.entries()])
     if shared.size:

@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import yaml
+import zarr
 
 from .. import tables
 from . import forward as fwd
@@ -41,6 +42,7 @@ from . import polish as pol
 from . import profile as prf
 from .protocol import ProtocolOptions
 from ..offline.library import Library
+from ..offline.stores import write_manifest  # the store's checksums, last: readers verify them
 from ..model.effects import trial_angle_rad
 from ..model.variants import Variant, embed
 
@@ -153,10 +155,6 @@ def write_run_fit(result: RunFit, parameters: str, history: str, fit: str) -> No
     if result.fit is not None:
         write_fit(fit, result.fit, [result.data.rpm])
         return
-    import zarr
-
-    from ..offline.stores import write_manifest
-
     zarr.open_group(fit, mode="w").attrs.update({"runs": [result.run], "note": result.data.note})
     write_manifest(fit)  # its checksums, as every store's (hybridtwin.offline.stores)
 
@@ -376,8 +374,6 @@ def write_fit(path: str | Path, fit: idn.Identification, rpm: Sequence[float], c
     """The fitted response for plotting (zarr v3): per run, measured and fitted harmonics h = 1..H in the
     record's frame, sigmas, and two revolutions of every channel (x, y on the VARM; measured synchronous average
     and fitted); the channels' names in the attribute ``channels``."""
-    import zarr
-
     group = zarr.open_group(str(path), mode="w")
     channels = list(fit.data[0].channels) if getattr(fit, "data", None) else list(idn.CHANNELS)
     fitted = fit.fitted()
@@ -398,6 +394,4 @@ def write_fit(path: str | Path, fit: idn.Identification, rpm: Sequence[float], c
                         "channels": channels, "chi2_dof": float(fit.chi2_dof),
                         "values": {k: float(v) for k, v in fit.values().items()},
                         "layout": "arrays (run, harmonic, channel); waves (run, time, channel); angle = Omega t"})
-    from ..offline.stores import write_manifest  # the store's checksums, last: readers verify them (hybridtwin.offline.stores)
-
     write_manifest(path)

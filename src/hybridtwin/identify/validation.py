@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from ..data.preprocessing import fit_phase, harmonic_stem
 from ..tables import PREDICTIONS
 from .arrow_problem import wrap
 from .forward import HarmonicModel
@@ -109,8 +110,6 @@ def predict_run(model: HarmonicModel, data: RunData, values: Mapping[str, float]
     chi2_per_residual (with the measured sigmas and the library error), the
     phase, 1X amplitudes measured and predicted, and the predicted harmonics.
     """
-    from ..data.preprocessing import fit_phase, harmonic_stem
-
     H = min(data.H, model.H)
     x = np.array([2 * (values[p] - lo) / (hi - lo) - 1 for p, lo, hi in zip(model.parameters, model.lower,
                                                                              model.upper)])

@@ -38,6 +38,7 @@ from . import identification as idn
 from .lm import levenberg_marquardt
 from .profile import OPTIONS, threshold
 from .protocol import ProtocolResult
+from .run_fits import ranges, solver_models
 from .uncertainty import ALPHA  # a run is beyond the noise below this p-value, as the report counts it
 from .validation import bow_law
 
@@ -158,8 +159,6 @@ def explain_run(variant, joint: pd.DataFrame, harmonics: pd.DataFrame, data: idn
     measured harmonics of every run (the fit runs are the joint table's); options:
     ``IdentificationSettings.rule(..., "validation")``
     (per_run, keyphasor, validation_bow); runs: the fit runs' run, rpm, eccentric_mass_g (the law's)."""
-    from .run_fits import ranges, solver_models
-
     n = 2 * data.X.size
     if not beyond_noise(chi2_predicted, n):
         return Explanation(data.run, "within_noise", chi2_predicted=chi2_predicted)

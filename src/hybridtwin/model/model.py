@@ -19,6 +19,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+import pandas as pd
 import scipy.linalg
 
 from .effect_base import Array, Context, Effect, LocalMatrix, Parameter, Params, PolynomialBearing
@@ -309,8 +310,6 @@ def campbell(model: Model, values: Mapping[str, Array | float], rpm: Array | Seq
     whirl_index. A planar mode (|whirl_index| < PLANAR_WHIRL, e.g. at rest on anisotropic supports) is given the
     sense of the same mode at the nearest speed of ``rpm`` where it whirls.
     """
-    import pandas as pd
-
     rpm = np.atleast_1d(np.asarray(rpm, dtype=float))
     system = model.system({k: np.asarray(v, dtype=float) for k, v in values.items()}, rpm)
     n = system.n_dof

@@ -42,6 +42,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import re
+import warnings
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
@@ -59,12 +60,10 @@ MARK = "hybridtwin_interpolation"
 
 def _ross():
     """The ross package, or an ImportError that says how to install it."""
-    import warnings
-
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            import ross
+            import ross  # here: ROSS is optional (the ross extra) and slow to import
     except Exception as err:  # ImportError, or a dependency of ROSS failing at import
         raise ImportError(f"ROSS (ross-rotordynamics) cannot be imported ({type(err).__name__}: {err}); "
                           f"install it with {INSTALL}") from err

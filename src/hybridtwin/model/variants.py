@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy.optimize import least_squares, lsq_linear
 
 from .effect_base import Array, Effect, Params, PolynomialBearing
 from .effects import builtin_effects
@@ -233,8 +234,6 @@ def embed(parent: Variant, child: Variant, values: Mapping[str, float]) -> tuple
     take their nominal value (clipped to the range). The mismatch is the scaled residual's norm over the
     number of monomials: 0 when ``child`` contains ``parent`` at these values (``contains``).
     """
-    from scipy.optimize import least_squares, lsq_linear
-
     target = bearing_polynomial(parent, {k: v for k, v in values.items() if k in parent.model.parameters})
     bearing = {p.name for e in child.model.effects if isinstance(e, PolynomialBearing) for p in e.parameters}
     free = [k for k in child.unknown if k in bearing]

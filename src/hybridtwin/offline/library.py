@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import zarr
+from threadpoolctl import threadpool_limits
 
 from .. import tables
 from . import snapshots
@@ -104,20 +105,31 @@ class Library:
         With x_rpm and x_me fixed, each term's last two factors are numbers (eq. 6-7):
         a_k prod_j F_j^k = (a_k F_rpm^k(x_rpm) F_me^k(x_me)) prod_{j <= d} F_j^k.
         """
-        if self.parameters[-len(OPERATING_POINT):] != OPERATING_POINT:
-            raise ValueError(f"library {self.run} is not a global library (parameters {self.parameters})")
+        outside = self.outside_operating_range(rpm, eccentric_mass_g)
+        if outside:
+            raise ValueError(f"run {run}: operating point {outside}")
         d = len(self.parameters) - len(OPERATING_POINT)
         point = np.array([rpm, eccentric_mass_g], float)
         low, high = self.lower[d:], self.upper[d:]
-        if np.any(point < low - 1e-9 * np.abs(low)) or np.any(point > high + 1e-9 * np.abs(high)):
-            raise ValueError(f"run {run}: operating point {rpm:g} RPM, {eccentric_mass_g:g} g is outside the "
-                             f"global library's range ({low[0]:g}-{high[0]:g} RPM, {low[1]:g}-{high[1]:g} g)")
         x = np.clip(2.0 * (point - low) / (high - low) - 1.0, -1.0, 1.0)
         model = self.model.with_trailing_fixed(x)
         info = {**self.info, "scope": "global", "operating_point": {"rpm": float(rpm),
                                                                     "eccentric_mass_g": float(eccentric_mass_g)}}
         return Library(run, self.parameters[:d], self.lower[:d], self.upper[:d], self.modes, self.singular_values,
                        model, self.n_harmonics, self.n_dof, self.sensor_dofs, info)
+
+    def outside_operating_range(self, rpm: float, eccentric_mass_g: float) -> str:
+        """Why a global library cannot be sliced at this operating point (outside the range it was fitted over, to
+        1e-9 relative), or "" where it can; ``ValueError`` for a library that is not a global one."""
+        if self.parameters[-len(OPERATING_POINT):] != OPERATING_POINT:
+            raise ValueError(f"library {self.run} is not a global library (parameters {self.parameters})")
+        d = len(self.parameters) - len(OPERATING_POINT)
+        point = np.array([rpm, eccentric_mass_g], float)
+        low, high = self.lower[d:], self.upper[d:]
+        if np.any(point < low - 1e-9 * np.abs(low)) or np.any(point > high + 1e-9 * np.abs(high)):
+            return (f"{rpm:g} RPM, {eccentric_mass_g:g} g is outside the global library's range ({low[0]:g}-"
+                    f"{high[0]:g} RPM, {low[1]:g}-{high[1]:g} g)")
+        return ""
 
     def field(self, values: Array) -> Array:
         """Harmonics of all DOFs (N, H+1, n) for parameter values (N, d)."""
@@ -411,8 +423,6 @@ def build_run_libraries(make_variant: Callable[[], Variant], runs: Sequence[str]
 def _build_and_save(job: tuple) -> dict:
     """One run's library built and saved (a worker of ``build_run_libraries``, BLAS on one thread): its info
     with n_modes and n_terms."""
-    from threadpoolctl import threadpool_limits
-
     make_variant, run, snapshots_path, pod_path, path, sensor_range_m, spgd_options, pieces = job
     with threadpool_limits(1):
         library = build_run_library(make_variant(), run, snapshots_path, pod_path,

@@ -20,6 +20,8 @@ import os
 from collections.abc import Callable
 from pathlib import Path
 
+import zarr
+
 MANIFEST = "manifest.sha256"
 # files a store may hold besides the manifested ones (Snakemake marks its directory outputs with this one)
 _UNLISTED = {MANIFEST, ".snakemake_timestamp"}
@@ -107,7 +109,5 @@ def check_store(path: str | Path, what: str = "store", select: Callable[[str], b
 
 def open_verified(path: str | Path, what: str = "store", select: Callable[[str], bool] | None = None):
     """The store's zarr group (read-only), after ``check_store``."""
-    import zarr
-
     check_store(path, what, select)
     return zarr.open_group(str(path), mode="r")

@@ -55,7 +55,8 @@ from pathlib import Path
 import numpy as np
 from scipy.special import chdtrc
 
-from ..offline.library import OPERATING_POINT, Library, sensor_signal_norm
+from ..identify.forward import SensorSurrogate, SolverModel, evaluate_runs
+from ..offline.library import Library, sensor_signal_norm
 from .fits import Anchor
 from .intake import Intake
 from .twin import Twin
@@ -206,11 +207,9 @@ def _run(twin: Twin, data) -> Choice | str:
 def _global(twin: Twin, data) -> Choice | str:
     """Scope global: the global library sliced at the record's operating point."""
     library = load(twin.folder / twin.library["file"])
-    lo, hi = library.lower[-len(OPERATING_POINT):], library.upper[-len(OPERATING_POINT):]
-    point = np.array([data.rpm, data.eccentric_mass_g])
-    if np.any(point < lo) or np.any(point > hi):
-        return (f"{data.rpm:.1f} RPM, {data.eccentric_mass_g:g} g is outside the global library's range "
-                f"({lo[0]:g}-{hi[0]:g} RPM, {lo[1]:g}-{hi[1]:g} g)")
+    outside = library.outside_operating_range(data.rpm, data.eccentric_mass_g)
+    if outside:
+        return outside
     pooled = twin.library["all_runs"]
     sliced = library.at_operating_point(data.run, data.rpm, data.eccentric_mass_g)
     return Choice([sliced], [pooled[SIGMA_ERROR] / 100], [pooled[BOUND_ERROR] / 100],
@@ -242,10 +241,9 @@ def anchors(twin: Twin, order: int = 1, seed: int = 0) -> dict[str, dict]:
     two boxes (``_box_points``: each face along each parameter and a Latin hypercube inside, ``seed``), with x0 at
     -+ ``SPEED_MATCH`` of the speed with the speed's correction: ``error_pct`` over the twin's own box
     (``_anchor_half_width``; with ``order`` 0, x0 -+ ``ANCHOR_HALF_WIDTH``), and in ``wider`` over each of
-    ``ANCHOR_WIDER_BOXES`` (normalised half widths, for the fits of records less precise than the twin). ``bound`` takes the narrowest box that holds a fit. Two batched solves of every run's points (x0
-    with its sensitivities, then the rest)."""
-    from ..identify.forward import SensorSurrogate, SolverModel, evaluate_runs
-
+    ``ANCHOR_WIDER_BOXES`` (normalised half widths, for the fits of records less precise than the twin). ``bound``
+    takes the narrowest box that holds a fit. Two batched solves of every run's points (x0 with its sensitivities,
+    then the rest)."""
     names = list(twin.variant.unknown)
     d = len(names)
     lower, upper = (np.array(v, float) for v in zip(*twin.variant.unknown.values()))

@@ -1,6 +1,6 @@
 """The cases on which our fault effects are compared with ROSS's own time integration of them (issue 54): ROSS's
 ``rotor_example_with_damping()`` at 1200 RPM with each fault (``CASES``), ROSS's run order-tracked and our harmonic
-balance of the same rotor and fault (``run_case``); the conventions and helpers are ``hybridtwin.model.ross_faults``'.
+balance of the same rotor and fault (``run_case``); the conventions and helpers are ``hybridtwin.peers.ross_faults``'.
 Used by benchmarks/ross_faults_benchmark.py, benchmarks/ross_faults_diagnosis.py and tests/test_ross_faults.py.
 """
 
@@ -13,10 +13,12 @@ from pathlib import Path
 
 import numpy as np
 
+from ..model.machine_parts import UnbalancePlane
 from ..model.model import Model
-from ..model.ross_faults import (base_effects, compare, model_values, order_harmonics, our_fault, parametric_share,
-                                 ross_dof, ross_fault_run, with_sag)
-from .solver import solve
+from ..model.ross_io import machine_from_ross
+from ..solvers.solver import solve
+from .ross_faults import (base_effects, compare, model_values, order_harmonics, our_fault, parametric_share, ross_dof,
+                          ross_fault_run, with_sag)
 
 #: ROSS's ``rotor_example_with_damping()`` at one speed, the unbalance at its first disk (node 12); each case: (fault,
 #: ROSS's parameters, unbalance m e [kg m], seconds integrated). The crack's unbalance is small beside its weight's
@@ -57,7 +59,7 @@ def ross_example_rotor():
     """ROSS's ``rotor_example_with_damping()`` (its import's warnings silenced)."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        import ross
+        import ross  # here: ROSS is optional (the ross extra) and slow to import
 
         return ross.rotor_example_with_damping()
 
@@ -80,9 +82,6 @@ def cached_fault_run(rotor, fault: str, rpm: float, seconds: float, unbalance: f
 def run_case(rotor, case: str, cache: Path | None = None) -> CaseResult:
     """ROSS's run of ``case`` (``CASES``; its probe signals kept in ``cache`` as npz) and our harmonic balance of
     the same rotor and fault (5 harmonics), both at the probes."""
-    from ..model.machine_parts import UnbalancePlane
-    from ..model.ross_io import machine_from_ross
-
     fault, parameters, unbalance, seconds = CASES[case]
     probes = [ross_dof(n, d) for n in CASE_PROBE_NODES for d in "xy"]
     start = time.time()

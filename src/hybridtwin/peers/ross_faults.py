@@ -30,9 +30,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .faults import Crack, Misalignment, Rub, static_sag, tip_vector
-from .machine import Machine
-from .model import Model
+from ..model.faults import Crack, Misalignment, Rub, static_sag, tip_vector
+from ..model.machine import Machine
+from ..model.model import Model
 
 #: ROSS's DOFs per node
 ROSS_DOFS = 6
@@ -78,7 +78,7 @@ def ross_fault_run(rotor, fault: str, rpm: float, t: np.ndarray, unbalance_node:
     depth_ratio, crack_model; misalignment: n, mis_type, mis_distance_x, mis_distance_y, mis_angle,
     radial_stiffness, bending_stiffness; rub: n, distance, contact_stiffness, contact_damping, friction_coeff);
     fault "none": the unbalance alone. Direct integration (no modal reduction)."""
-    from ross.units import Q_
+    from ross.units import Q_  # here: ROSS is optional (the ross extra)
 
     common = dict(node=[unbalance_node], unbalance_magnitude=[unbalance_kg_m], unbalance_phase=[unbalance_phase],
                   speed=Q_(rpm, "RPM"), t=t)
@@ -98,7 +98,7 @@ def ross_fault_run(rotor, fault: str, rpm: float, t: np.ndarray, unbalance_node:
 def crack_losses(rotor, n: int, depth_ratio: float, crack_model: str = "Mayes") -> tuple[float, float, float]:
     """(dk_xi, dk_eta, element length) of ROSS's crack in element ``n`` at ``depth_ratio``: ko - kc along its two
     axes [N/m] (ROSS's ``Crack.Ko``, ``Kc``) and the element's length [m]."""
-    from ross.faults.crack import Crack as RossCrack
+    from ross.faults.crack import Crack as RossCrack  # here: ROSS is optional (the ross extra)
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -110,7 +110,7 @@ def crack_losses(rotor, n: int, depth_ratio: float, crack_model: str = "Mayes") 
 def coupling_force(rotor, n: int, harmonic: int = 2, **parameters) -> tuple[complex, complex]:
     """The ``harmonic`` part (a_x, a_y) [N] of ROSS's flexible-coupling force at element ``n``'s left node, F(t) =
     Re(a exp(i h Omega t)) (ROSS's own force over one turn, ``MisalignmentFlex.compute_reaction_force``)."""
-    from ross.faults.misalignment import MisalignmentFlex
+    from ross.faults.misalignment import MisalignmentFlex  # here: ROSS is optional (the ross extra)
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
