@@ -33,6 +33,7 @@ from ..model.effects import trial_mass_values
 from ..offline.library import Library
 from ..offline.pod import feature_index
 from ..solvers.continuation import RUN_UP_FROM_RPM, padded_speeds, ramp, sweep_model
+from ..solvers.resolution import needed_harmonics
 from ..solvers.sweep_forward import swept_response
 
 Array = np.ndarray
@@ -243,8 +244,10 @@ class SolverModel:
         self.eccentric_mass_angle_deg = float(eccentric_mass_angle_deg)
         self.parameters = list(parameters)
         self.lower, self.upper = np.asarray(lower, float), np.asarray(upper, float)
-        self.harmonics = int(harmonics)
-        self.H = self.harmonics
+        # H: the harmonics compared (the data's); harmonics: those the harmonic balance carries, more where an effect
+        # is non-smooth and declares them (a rub: ``resolution.needed_harmonics``), its 1X..HX then resolved
+        self.H = int(harmonics)
+        self.harmonics = needed_harmonics(variant.model.effects, self.H)
         self.step = float(step)
         self.warm, self.analytic, self.cache_size = bool(warm), bool(analytic), int(cache_size)
         self.n_solves = self.n_warm = self.n_run_ups = 0
@@ -252,7 +255,7 @@ class SolverModel:
         self._x = np.zeros((0, d))  # cached normalised points, their condensed states and derivatives
         self._state = None
         self._dstate = None
-        self.slow_roll_harmonics = tuple(h for h in slow_roll_harmonics if 1 <= h <= self.harmonics)
+        self.slow_roll_harmonics = tuple(h for h in slow_roll_harmonics if 1 <= h <= self.H)
         self.reference = None  # the same model at slow roll, subtracted from the slow-roll harmonics
         if self.slow_roll_harmonics:
             self.reference = SolverModel(variant, f"{run} at slow roll", SLOW_ROLL_RPM, eccentric_mass_g, parameters,
@@ -309,7 +312,7 @@ class SolverModel:
         """Every sensor's harmonics h = 1..H (..., H, C) from full harmonics (..., H+1, n)."""
         from ..model.sensor import sensor_channels
 
-        return sensor_channels(harmonics, self.variant.model.shaft)[..., 1:, :]
+        return sensor_channels(harmonics, self.variant.model.shaft)[..., 1:self.H + 1, :]
 
     def _solve(self, x: Array) -> Array:
         """Sensor harmonics (N, H, C) at normalised x (N, d) by the run-up alone (the differences' path)."""
@@ -337,16 +340,16 @@ class SolverModel:
         N, d = x.shape
         finite = np.flatnonzero(np.isfinite(x).all(axis=1))
         if finite.size == 0:
-            return (np.full((N, self.harmonics, self.C), np.nan + 0j),
-                    np.full((N, self.harmonics, self.C, d), np.nan + 0j) if jacobian else None)
+            return (np.full((N, self.H, self.C), np.nan + 0j),
+                    np.full((N, self.H, self.C, d), np.nan + 0j) if jacobian else None)
         if self.analytic:  # the batched path with one run: warm starts and exact sensitivities
             return SolverModel.evaluate_together([self], [x], jacobian)[0]
         M_finite, J = self._differences(x[finite], jacobian)
-        M = np.full((N, self.harmonics, M_finite.shape[2]), np.nan + 0j)
+        M = np.full((N, self.H, M_finite.shape[2]), np.nan + 0j)
         M[finite] = M_finite
         dM = None
         if jacobian:
-            dM = np.full((N, self.harmonics, M_finite.shape[2], d), np.nan + 0j)
+            dM = np.full((N, self.H, M_finite.shape[2], d), np.nan + 0j)
             dM[finite] = J
         if self.reference is not None:
             self._compensate(M, dM, *self.reference.evaluate(x, jacobian))
@@ -373,7 +376,7 @@ class SolverModel:
         from ..solvers.solver import sensitivity
 
         first = models[0]
-        H, d, C = first.harmonics, len(first.parameters), first.C
+        H, d, C = first.H, len(first.parameters), first.C
         batch = SolverModel._steady_states(models, xs)
         if batch is None:  # no finite parameter set at all
             return [(np.full((x.shape[0], H, C), np.nan + 0j),
@@ -540,7 +543,7 @@ def _swept(first: SolverModel, batch: "_Batch", rate: Array, rows: Array, dstate
         states.append(state + dstate[rows, j] * steps[j])
     Q1 = swept_response(first.variant.model, stacked, np.tile(batch.rpm[rows], P + 1), np.tile(rate[rows], P + 1),
                         np.concatenate(states), first.harmonics, result.n_time).correction
-    M1 = first._sensor(Q1).reshape((P + 1, n) + (first.harmonics, -1))
+    M1 = first._sensor(Q1).reshape((P + 1, n) + (first.H, -1))
     dM1 = (M1[1:] - M1[0]) / steps[:, None, None, None] * first.half_range[:, None, None, None]
     return M1[0], np.moveaxis(dM1, 0, -1)
 
