@@ -21,6 +21,7 @@ delta_PLACE, k_rub_PLACE, mu_PLACE), or ``Machine.place(Rub(), "bearing")``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 
@@ -34,9 +35,31 @@ from .effect_base import Array, Context, Effect, Parameter, Params
 RUB_HARMONICS, RUB_TIME_SAMPLES = 9, 64
 
 
+@dataclass(frozen=True)
+class Signature:
+    """What a fault leaves in a residual the model without it cannot absorb (one form of its fingerprint; a fault's
+    ``signatures`` list its forms; ``diagnose.fingerprint.resembles`` matches a residual's fingerprint against them).
+
+    ``family``: the fault ("a breathing crack"); ``with_orders``: harmonics beyond 1X whose residual must be above
+    the noise; ``without_orders``: those that must not be (either only where the data hold that harmonic);
+    ``one_x``: what its 1X does, "changed" (above the noise), "unchanged", "held down" (below the model's), "raised"
+    (above it) or "any"."""
+
+    family: str
+    with_orders: tuple[int, ...]
+    without_orders: tuple[int, ...] = ()
+    one_x: str = "any"
+
+
 @dataclass(eq=False)
 class Rub(Effect):
     """Rub on a stator ring of clearance delta at ``node`` (module docstring)."""
+
+    #: a ring touched all round an ellipse holds the 1X down (a stiffness where the orbit reaches it, below a
+    #: critical speed) and its kinks add 3X; a ring touched on one side (off-centre, or a static load) a series 2X,
+    #: 3X, 4X, the clipped orbit's
+    signatures: ClassVar[tuple[Signature, ...]] = (Signature("a rub", (3,), one_x="held down"),
+                                                   Signature("a rub", (2, 3, 4)))
 
     name: str = "rub"
     node: int = 0
@@ -47,6 +70,9 @@ class Rub(Effect):
     #: how far each range may widen (``Parameter.limits``): clearance, stiffness, friction
     limits: tuple[tuple[float, float], tuple[float, float], tuple[float, float]] = (
         (0.0, np.inf), (0.0, np.inf), (0.0, 2.0))
+    #: the ring's centre (x, y) [m] off the bearings' axis (a seal or casing set off-centre: a partial rub on one side,
+    #: 2X and 3X even on a circular orbit); default centred
+    centre_m: tuple[float, float] = (0.0, 0.0)
     meaning: str = "rub on a stator ring at node 0: normal contact force k_rub (r - delta) beyond the clearance, " \
                    "Coulomb friction mu along the rotation"
     parameters: tuple[Parameter, ...] = field(init=False)
@@ -73,10 +99,10 @@ class Rub(Effect):
         self.meaning = self.meaning.replace("at node 0", f"at node {self.node}")
 
     def force(self, q: Array, p: Params) -> tuple[Array, Array]:
-        """F (S, 2, N) on the shaft at (u, v) and its derivative (S, 2, 2, N) (module docstring); zero inside the
-        clearance."""
+        """F (S, 2, N) on the shaft at (u, v) and its derivative (S, 2, 2, N) (module docstring, with (u, v) from the
+        ring's centre); zero inside the clearance."""
         delta, k, mu = (p[name][:, None] for name in self._names)
-        u, v = q[:, 0], q[:, 1]
+        u, v = q[:, 0] - self.centre_m[0], q[:, 1] - self.centre_m[1]  # the shaft's centre seen from the ring's
         r = np.hypot(u, v)
         contact = r > delta
         safe = np.where(contact, r, 1.0)
@@ -148,6 +174,10 @@ class Crack(Effect):
       forcing it is |q_dyn| / |q_s| at the crack (docs/model.md, "Faults").
     Absent at dk_xi = dk_eta = 0 (its switches). A vertical rotor (no sag across the shaft) shows no such forcing.
     """
+
+    #: its breathing forces 2X beside 1X and 3X (Mayes: -1/8, -1/4, +1/8 of dk s, nothing beyond), its mean loss
+    #: changes the 1X
+    signatures: ClassVar[tuple[Signature, ...]] = (Signature("a breathing crack", (2,), (4,), one_x="changed"),)
 
     name: str = "crack"
     node: int = 0
@@ -248,6 +278,10 @@ class Misalignment(Effect):
     its 4X and higher are not in this effect. Absent at 0 (its switches: all four).
     """
 
+    #: 2X alone: no 1X (ROSS's coupling's is 2 % of its 2X), no 3X
+    signatures: ClassVar[tuple[Signature, ...]] = (
+        Signature("a misaligned coupling", (2,), (3,), one_x="unchanged"),)
+
     name: str = "misalignment"
     node: int = 0
     partner: int = 1
@@ -297,6 +331,9 @@ class Looseness(Effect):
     subharmonics (1/2X) lie outside a harmonic balance at the rotation's period and show as its non-convergence.
     Absent at delta = 0 (its switch).
     """
+
+    #: the clearance softens the support (the 1X raised below a critical speed) and adds 3X
+    signatures: ClassVar[tuple[Signature, ...]] = (Signature("a loose bearing", (3,), one_x="raised"),)
 
     name: str = "looseness"
     node: int = 0
@@ -414,3 +451,7 @@ def fault_candidates(machine, force_n: float) -> list[Effect]:
                                "spring "
                                "beyond a clearance and its friction; a held-down 1X, 3X (2X with a static load)"))
     return out
+
+
+#: the fault effects, each with its ``signatures`` (``diagnose.fingerprint.resembles``)
+FAULTS = (Crack, Misalignment, Rub, Looseness)
