@@ -6,8 +6,8 @@ both disks) order-tracked over their last 20 turns (``order_harmonics``, harmoni
 ``--noise`` m added to each part with that sigma, a keyphasor's phase (ROSS's t = 0). The base variant is the
 linear rotor as imported (``machine_from_ross``: bearings, shaft damping, gyroscopic terms, the unbalance at the
 first disk) with the unbalance's size r_me and angle unknown; the candidates are the machine's faults
-(``faults.fault_candidates``: a crack at the unbalance plane, a misaligned coupling and a loose bearing at each
-bearing; ROSS's bearings are tables, so their force scale is given here: 1e-5 m times the tables' mean stiffness
+(``faults.fault_candidates``: a crack and a rub at the unbalance plane, a misaligned coupling and a loose bearing at
+each bearing; ROSS's bearings are tables, so their force scale is given here: 1e-5 m times the tables' mean stiffness
 at rest) beside the 2X and 3X forces at the plane (``bearing_candidates.excitations_at``). One row per fault: the
 verdict (the diagnosis's first effect and conclusion), chi^2/dof of the base fit, the named effect's values.
 

@@ -116,3 +116,52 @@ def test_a_fit_of_a_rub_solves_with_its_harmonics_and_compares_the_datas():
     # the same orbit (reached by a run-up here, by Newton from the linear response there): to Newton's 1e-10
     np.testing.assert_allclose(M[0], reference, rtol=0, atol=1e-8 * np.abs(reference).max())
     assert np.abs(M[0] - coarse).max() > 1e-5 * np.abs(reference).max()
+
+
+def test_a_rub_in_the_records_is_named_with_its_clearance():
+    """Records of the damped stepped rotor rubbing at its disk (the harmonic balance at the rub's 9 harmonics, 1X..3X
+    at the probe pair x1, y1 with noise 1e-8 m per part, a tenth of a percent of the 10 um orbit; three speeds
+    around the rubbing one) against a variant without the rub, its bearing b's damping and the unbalance's size
+    unknown. Among the rub, the crack and the 3X force at the disk and bearing b's compliance, the diagnosis names
+    rub@d1, the clearance within its interval."""
+    from hybridtwin.diagnose import diagnosis as dg
+    from hybridtwin.diagnose import score_test as st
+    from hybridtwin.identify import identification as idn
+    from hybridtwin.identify import lm
+    from hybridtwin.identify.protocol import ProtocolOptions
+    from hybridtwin.model.candidates import Candidate
+    from hybridtwin.settings import diagnosis_settings
+
+    machine = _damped_machine()
+    model, values, _ = _rubbing(machine)
+    H, sigma = 3, 1e-8
+    fixed = {k: v for k, v in values.items() if k not in ("m_e", "c_b", "r_me")}
+    truth = Variant("truth", model, {"c_b": (100.0, 1000.0), "r_me": (0.02, 0.08)}, fixed)
+    rng = np.random.default_rng(4)
+    data = []
+    for rpm in (2800.0, 3000.0, 3200.0):
+        forward = SolverModel(truth, f"r{int(rpm)}", rpm, 20.0, ["c_b", "r_me"], np.array([100.0, 0.02]),
+                              np.array([1000.0, 0.08]), H)
+        X = forward.evaluate(np.array([[0.0, 0.0]]), jacobian=False)[0][0]  # c_b 550, r_me 0.05
+        data.append(idn.RunData(f"r{int(rpm)}", rpm, 20.0, "fit", X + sigma * (rng.standard_normal(X.shape)
+                                                                              + 1j * rng.standard_normal(X.shape)),
+                                np.full(X.shape, sigma)))
+    effects = machine.effects()
+    base_model = Model([effects[n] for n in BASE], machine)
+    base_fixed = {k: v for k, v in fixed.items() if k in base_model.parameters}
+    variant = Variant("linear", base_model, {"c_b": (100.0, 1000.0), "r_me": (0.02, 0.08)}, base_fixed)
+    lower, upper = (np.array(v) for v in zip(*variant.unknown.values()))
+    models = [SolverModel(variant, d.run, d.rpm, d.eccentric_mass_g, list(variant.unknown), lower, upper, H)
+              for d in data]
+    fit = idn.identify(models, data, (), ProtocolOptions(trials=3, monte_carlo=0, seed=2,
+                                                         lm=lm.LMOptions(max_iterations=60)))
+    base = st.BaseFit(variant, fit.layout, fit.theta, fit.data, H)
+    sized = machine.sized_candidates()
+    candidates = [Candidate.of(sized[name]) for name in ("rub@d1", "crack@d1", "excitation_3x@d1",
+                                                          "bearing_compliance@b")]
+    options = diagnosis_settings({"diagnosis": {"thorough": 1, "starts": 4, "widen": 1, "max_effects": 1,
+                                                "quick_iterations": 8, "max_iterations": 30}}).options()
+    result = dg.diagnose(base, candidates, options)
+    assert result.table.loc[0, "effect"] == "rub@d1", result.conclusion
+    estimate = result.confirmations["rub@d1"].estimates.set_index("parameter").loc["delta_d1"]
+    assert estimate["ci_low"] <= values["delta_d1"] <= estimate["ci_high"], estimate.to_dict()

@@ -233,7 +233,7 @@ class SolverModel:
                  lower: Array, upper: Array, harmonics: int, step: float = 1e-5, *, warm: bool = True,
                  analytic: bool = True, cache_size: int = CACHE_SIZE, slow_roll_harmonics: Sequence[int] = (),
                  sweep_from_rpm: float | None = None, eccentric_mass_angle_deg: float = 0.0,
-                 sweep_rpm_s: float = 0.0):
+                 sweep_rpm_s: float = 0.0, resolve: bool = True):
         self.variant, self.run = variant, run
         # the band's sweep rate [RPM/s, signed]: the response corrected for it to first order (``_swept``); 0: steady
         self.sweep_rpm_s = float(sweep_rpm_s) if np.isfinite(sweep_rpm_s) else 0.0
@@ -245,9 +245,10 @@ class SolverModel:
         self.parameters = list(parameters)
         self.lower, self.upper = np.asarray(lower, float), np.asarray(upper, float)
         # H: the harmonics compared (the data's); harmonics: those the harmonic balance carries, more where an effect
-        # is non-smooth and declares them (a rub: ``resolution.needed_harmonics``), its 1X..HX then resolved
+        # is non-smooth and declares them (a rub: ``resolution.needed_harmonics``), its 1X..HX then resolved;
+        # ``resolve`` False: the data's only (the score tests, where every candidate is absent)
         self.H = int(harmonics)
-        self.harmonics = needed_harmonics(variant.model.effects, self.H)
+        self.harmonics = needed_harmonics(variant.model.effects, self.H) if resolve else self.H
         self.step = float(step)
         self.warm, self.analytic, self.cache_size = bool(warm), bool(analytic), int(cache_size)
         self.n_solves = self.n_warm = self.n_run_ups = 0

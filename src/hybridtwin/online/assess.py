@@ -413,7 +413,8 @@ def _candidates(twin: Twin, problem: fits.RecordProblem, base: fits.RecordFit) -
     layout = Layout.for_data(list(variant.unknown), lower, upper, problem.data, problem.local, runout=False)
     theta = np.array([base.v[problem.column[(p, None if run == "all" else layout.runs.index(run))]]
                       for p, run in layout.entries()])
-    extended, theta = extended_problem(BaseFit(variant, layout, theta, problem.data, problem.H), found)
+    extended, theta = extended_problem(BaseFit(variant, layout, theta, problem.data, problem.H), found,
+                                       resolve=False)  # every candidate at 0, absent: as the diagnosis's scores
     sensitivities = extended.dense_jacobian(extended.evaluate(theta[None], problem.X[None], jacobian=True))
     r, J, n_data = problem.residuals(base.v[None], base.responses, [base.hypothesis])[0]
     Q = column_basis(J)
