@@ -64,6 +64,14 @@ def test_the_rub_candidate_is_sized_to_the_machine_and_absent_at_zero_contact():
                                                          3500.0), 3)
     without = solve(Model(base, machine).system(values, 3500.0), 3)
     np.testing.assert_array_equal(with_rub.harmonics, without.harmonics)
+    # a ring off-centre by c acts on the shaft at c + d as a centred one at d, force and derivative
+    off = Rub(node=8, place="d1", centre_m=(3e-5, -2e-5))
+    p = {"delta_d1": np.array([1e-5]), "k_rub_d1": np.array([4e6]), "mu_d1": np.array([0.2])}
+    d = np.random.default_rng(2).normal(0, 2e-5, (1, 2, 50))
+    centred, shifted = rub.force(d, p), off.force(d + np.array([3e-5, -2e-5])[None, :, None], p)
+    assert (centred[0] != 0).any()
+    for a, b in zip(centred, shifted):  # to the round-off of (c + d) - c, 1e-16 of c: 1e-9 relative is far above
+        np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-9 * np.abs(a).max())
 
 
 def test_the_rubbing_orbit_is_the_time_integrations_and_the_resolution_check_sees_the_truncation():
