@@ -141,7 +141,7 @@ def main() -> None:
         if len(path):  # the first effect's values in its refit
             first = result.confirmations[path["effect"].iloc[0]]
             table = first.fit.table().set_index("parameter")
-            values = ", ".join(f"{p.name} = {table.loc[p.name, 'value']:.4g} {p.unit}"
+            values = ", ".join(f"{p.name} = {table.loc[p.name, 'value']:.4g}{'' if p.unit == '1' else ' ' + p.unit}"
                                for p in first.candidate.parameters)
         verdict = result.conclusion.split(";")[0].split(": it ")[0]
         print(f"| {fault} | {len(data)} runs at {', '.join(f'{s:g}' for s in speeds)} RPM | {chi2:.3g} | "
