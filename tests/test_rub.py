@@ -10,10 +10,17 @@ import numpy as np
 import pytest
 from example_machines import stepped_machine
 
+from hybridtwin.diagnose import diagnosis as dg
+from hybridtwin.diagnose import score_test as st
+from hybridtwin.identify import identification as idn
+from hybridtwin.identify import lm
 from hybridtwin.identify.forward import SolverModel
+from hybridtwin.identify.protocol import ProtocolOptions
+from hybridtwin.model.candidates import Candidate
 from hybridtwin.model.faults import RUB_HARMONICS, RUB_TIME_SAMPLES, Rub
 from hybridtwin.model.model import Model
 from hybridtwin.model.variants import Variant
+from hybridtwin.settings import diagnosis_settings
 from hybridtwin.solvers import transient
 from hybridtwin.solvers.resolution import RESOLUTION_TOLERANCE, check_resolution, needed_harmonics
 from hybridtwin.solvers.solver import solve
@@ -132,14 +139,6 @@ def test_a_rub_in_the_records_is_named_with_its_clearance():
     around the rubbing one) against a variant without the rub, its bearing b's damping and the unbalance's size
     unknown. Among the rub, the crack and the 3X force at the disk and bearing b's compliance, the diagnosis names
     rub@d1, the clearance within its interval."""
-    from hybridtwin.diagnose import diagnosis as dg
-    from hybridtwin.diagnose import score_test as st
-    from hybridtwin.identify import identification as idn
-    from hybridtwin.identify import lm
-    from hybridtwin.identify.protocol import ProtocolOptions
-    from hybridtwin.model.candidates import Candidate
-    from hybridtwin.settings import diagnosis_settings
-
     machine = _damped_machine()
     model, values, _ = _rubbing(machine)
     H, sigma = 3, 1e-8

@@ -46,6 +46,7 @@ import numpy as np
 import pandas as pd
 
 from ..identify.uncertainty import ALPHA
+from ..model.faults import FAULTS
 from ..tables import FINGERPRINT
 
 Array = np.ndarray
@@ -231,8 +232,6 @@ def resembles(fp: Fingerprint, signatures=None) -> tuple[list[str], str]:
     those with the fewest of their other marks failing (an order they must not have present, their 1X doing
     otherwise) are named, all of them when tied. None when the residual is within the noise or no family's orders are in
     it (a 1X-only change: the unbalance, a bearing, a support; the score tests name those)."""
-    from ..model.faults import FAULTS
-
     signatures = [s for f in FAULTS for s in f.signatures] if signatures is None else list(signatures)
     if not fp.significant.any():
         return [], ""

@@ -9,7 +9,7 @@ speed, so the friction's sense is the rotation's, whatever the whirl):
 
 (the normal part -N (u, v) / r, the friction -mu N (-v, u) / r). Non-smooth at r = delta: its spectrum falls off
 slowly, so it declares the harmonics its harmonic balance needs (``RUB_HARMONICS``, ``Effect.needs_harmonics``:
-a fit compared at fewer solves with them, ``forward.SolverModel``) and the time samples (``RUB_TIME_SAMPLES``, the
+a fit that compares fewer solves with them, ``forward.SolverModel``) and the time samples (``RUB_TIME_SAMPLES``, the
 solver's default for a force of no polynomial degree); ``hybridtwin.solvers.resolution`` says when an orbit is not
 resolved by them. The time integrator evaluates it as it is. Absent at k_rub = 0 whatever delta and mu: all three
 are its switches, so at the diagnosis's zero the score sees the light-rub limit, a ring touching all round (a
@@ -64,7 +64,7 @@ class Rub(Effect):
     name: str = "rub"
     node: int = 0
     place: str = ""
-    clearance_m: tuple[float, float] = (1e-4, 1e-2)
+    clearance_m: tuple[float, float] = (0.0, 1e-2)  # 0 in it: a candidate's switches are absent at 0
     stiffness_n_m: tuple[float, float] = (0.0, 1e5)
     friction: tuple[float, float] = (0.0, 0.5)
     #: how far each range may widen (``Parameter.limits``): clearance, stiffness, friction
