@@ -14,7 +14,7 @@ from hybridtwin.diagnose import diagnosis as dg
 from hybridtwin.diagnose import score_test as st
 from hybridtwin.identify import identification as idn
 from hybridtwin.identify import lm
-from hybridtwin.identify.forward import SolverModel
+from hybridtwin.identify.forward import ResolutionWarning, SolverModel, check_fit_resolution
 from hybridtwin.identify.protocol import ProtocolOptions
 from hybridtwin.model.candidates import Candidate
 from hybridtwin.model.faults import RUB_HARMONICS, RUB_TIME_SAMPLES, Rub
@@ -172,3 +172,10 @@ def test_a_rub_in_the_records_is_named_with_its_clearance():
     assert result.table.loc[0, "effect"] == "rub@d1", result.conclusion
     estimate = result.confirmations["rub@d1"].estimates.set_index("parameter").loc["delta_d1"]
     assert estimate["ci_low"] <= values["delta_d1"] <= estimate["ci_high"], estimate.to_dict()
+    # the refit's optimum was checked resolved (at the rub's 9 harmonics: 5e-5, below the tolerance 1e-3), so its
+    # notes are silent; held to a tolerance below that, the same check says so in the notes and warns
+    fit = result.confirmations["rub@d1"].fit
+    assert not any("not resolved" in note for note in fit.uncertainty.notes)
+    with pytest.warns(ResolutionWarning, match="not resolved"):
+        check = check_fit_resolution(fit, tolerance=1e-9)
+    assert (~check.resolved).any() and any("not resolved" in note for note in fit.uncertainty.notes)

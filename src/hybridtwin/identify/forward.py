@@ -33,7 +33,7 @@ from ..model.effects import trial_mass_values
 from ..offline.library import Library
 from ..offline.pod import feature_index
 from ..solvers.continuation import RUN_UP_FROM_RPM, padded_speeds, ramp, sweep_model
-from ..solvers.resolution import needed_harmonics
+from ..solvers.resolution import RESOLUTION_TOLERANCE, Resolution, check_resolution, needed_harmonics
 from ..solvers.sweep_forward import swept_response
 
 Array = np.ndarray
@@ -661,6 +661,39 @@ def check_stability(fit) -> StabilityCheck | None:
         logging.getLogger(__name__).warning("%s", note)
         warnings.warn(note, StabilityWarning, stacklevel=2)
     return check
+
+
+class ResolutionWarning(UserWarning):
+    """A fit's optimum whose harmonic balance is not resolved at some run (``check_fit_resolution``)."""
+
+
+def check_fit_resolution(fit, tolerance: float = RESOLUTION_TOLERANCE) -> Resolution | None:
+    """Whether the steady states a full-solver fit reports are resolved (``resolution.check_resolution``: solved
+    again with twice the harmonics and four times the time samples), for a variant with a non-smooth effect (one
+    that declares ``needs_harmonics``, a rub); None otherwise (a smooth model's balance at the data's harmonics is
+    exact to round-off), or for a fit without ``SolverModel``s. A run not resolved is never left silent: the
+    sentence joins the fit's notes, and a ``ResolutionWarning`` is issued and logged."""
+    models = [] if fit.problem is None else fit.problem.models
+    if not models or not all(isinstance(m, SolverModel) for m in models) or not any(
+            getattr(e, "needs_harmonics", None) for e in models[0].variant.model.effects):
+        return None
+    theta = np.asarray(fit.theta, float)[None]
+    xs = [fit.layout.run_parameters(theta, k)[0] for k in range(fit.layout.n_runs)]
+    batch = SolverModel._steady_states(models, xs)
+    if batch is None:
+        return None
+    ok = np.flatnonzero(batch.result.success)
+    result = check_resolution(batch.build({k: v[ok] for k, v in batch.values.items()}, batch.rpm[ok]),
+                              batch.result.take(ok), tolerance)
+    runs = [fit.layout.runs[i] for i in ok]  # one row per run (a fit's point is one set)
+    bad = [f"{run}: {message}" for run, good, message in zip(runs, result.resolved, result.message) if not good]
+    if bad:
+        note = "harmonic balance not resolved at the fitted parameters: " + "; ".join(bad)
+        if note not in fit.uncertainty.notes:
+            fit.uncertainty.notes.append(note)
+        logging.getLogger(__name__).warning("%s", note)
+        warnings.warn(note, ResolutionWarning, stacklevel=2)
+    return result
 
 
 def _as_2d(xs: Sequence[Array]) -> list[Array]:
