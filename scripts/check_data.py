@@ -11,6 +11,7 @@ from snakemake.utils import validate
 
 from hybridtwin.data.measurements import DataError, DataWarning, read_runs
 from hybridtwin.config import whirl_model
+from hybridtwin.model.whirl import write_whirl
 from hybridtwin.data.preprocessing import check_data, has_usable_fit_run, write_tsv
 from hybridtwin.data.shared_problems import group_messages, group_problems
 from hybridtwin.config import on_disk_full
@@ -23,13 +24,14 @@ log = logging.getLogger("check_data")
 try:
     validate(read_runs(smk.input.sheet, require_mass=True), smk.input.schema, set_default=False)  # documented schema
     coverage = smk.params.coverage or {}
+    whirl = whirl_model(getattr(smk.params, "whirl", None) or {})  # the model's 1X whirl (None: the VARM's rule)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", DataWarning)
         summary, errors = check_data(smk.input.sheet, smk.params.harmonics, coverage.get("rpm"),
                                      coverage.get("eccentric_mass_g"), smk.params.sensor_range_mm * 1e-3,
                                      range_names=("config coverage.rpm", "config coverage.eccentric_mass_g"),
                                      sensors=getattr(smk.params, "sensors", None),  # the records' channels
-                                     whirl=whirl_model(getattr(smk.params, "whirl", None) or {}))  # model's 1X whirl
+                                     whirl=whirl)
 except DataError as err:
     log.error("%s", err)
     sys.exit(f"check_data: error: {err}")
@@ -56,4 +58,5 @@ if not has_usable_fit_run(summary):
     log.error("no usable fit run in %s", smk.input.sheet)
     sys.exit(f"check_data: no usable fit run in {smk.input.sheet}: every run with role fit is kept out of the fit "
              "(each said above, with why); nothing could be identified, so nothing is built")
+write_whirl(whirl, smk.output.whirl)  # its answers, for the runs' preprocessing (computed once)
 write_tsv(summary, smk.output.summary)

@@ -10,6 +10,7 @@ import sys
 import math
 
 from hybridtwin.config import whirl_model
+from hybridtwin.model.whirl import read_whirl
 from hybridtwin.data.measurements import DataError
 from hybridtwin.data.records import read_record
 from hybridtwin.data.measured import write_harmonics
@@ -27,8 +28,12 @@ try:
     # config form; absent: the VARM's x, y)
     record = read_record(smk.params.row["record"], getattr(smk.params, "sensors", None),
                          smk.params.row.get("channels"))
+    # the machine's model of the 1X whirl as check_data asked it (results/data/whirl.tsv: computed once), the model
+    # itself only at a speed the check did not ask at; none without one (the VARM's model-free rule)
+    settings = getattr(smk.params, "whirl", None) or {}
+    whirl = read_whirl(smk.input.whirl, lambda: whirl_model(settings)) if settings else None
     table, waves = preprocess_run(smk.params.row, smk.params.harmonics, smk.params.sensor_range_mm * 1e-3,
-                                  record=record, whirl=whirl_model(getattr(smk.params, "whirl", None) or {}))
+                                  record=record, whirl=whirl)
 except DataError as err:  # check_data has passed the record: only a record changed since fails here
     log.error("%s", err)
     sys.exit(f"preprocess: error: {err}")

@@ -86,13 +86,14 @@ def test_cross_coupled_terms_are_skew_at_the_bearings_node():
 def test_the_default_candidates_of_a_machine_are_those_at_its_bearings():
     config = yaml.safe_load(STEPPED_YAML)
     # at each bearing its six, then the 2X and 3X forces at each bearing and unbalance plane, the faults (issue 54:
-    # looseness and misalignment at each bearing, a crack at each unbalance plane), and speed damping
+    # looseness and misalignment at each bearing, a crack and a rub at each unbalance plane), and speed damping
     at = ["bearing_anisotropy", "cross_coupled_stiffness", "cross_coupled_damping", "bearing_compliance",
           "moment_stiffness", "bearing_speed_damping"]
     assert cfg.candidate_names(None, config) == (
         [f"{kind}@{b}" for b in "ab" for kind in at]
         + [f"excitation_{h}x@{place}" for place in ("a", "b", "d1") for h in (2, 3)]
-        + [f"{fault}@{b}" for b in "ab" for fault in ("looseness", "misalignment")] + ["crack@d1", "speed_damping"])
+        + [f"{fault}@{b}" for b in "ab" for fault in ("looseness", "misalignment")]
+        + ["crack@d1", "rub@d1", "speed_damping"])
     assert cfg.candidate_names(["cross_coupled_stiffness@b"], config) == ["cross_coupled_stiffness@b"]
     assert cfg.candidate_names(None, {}) is None  # the VARM: every built-in candidate
     assert {"bearing_anisotropy@b", "excitation_2x@b"} <= set(cfg.candidate_effects(config))

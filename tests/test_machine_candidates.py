@@ -26,7 +26,7 @@ def test_a_machine_is_offered_every_family_at_its_own_bearings_and_planes():
     sized = machine.sized_candidates()
     assert list(sized) == ([f"{kind}@{b}" for b in "ab" for kind in KINDS]
                            + [f"excitation_{h}x@{p}" for p in ("a", "b", "d1") for h in (2, 3)]
-                           + [f"{fault}@{b}" for b in "ab" for fault in ("looseness", "misalignment")] + ["crack@d1"])
+                           + [f"{fault}@{b}" for b in "ab" for fault in ("looseness", "misalignment")] + ["crack@d1", "rub@d1"])
     # ranges from the machine's scale: fractions of each bearing's k, c; the element's 4 E I / h at the bearing
     # (node 2 lies inside segment 0, d = 0.04 m, h = 0.05 m; node 13 inside segment 1, the tube 0.05/0.02 m,
     # h = 0.05 m); the force that moves the rotor 10 um on its supports, 1e-5 (2e7 + 1e7) = 300 N

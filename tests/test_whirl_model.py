@@ -5,6 +5,7 @@ backward between its split critical speeds; a record of it there stays in the fi
 that whirl, and is kept out when the model cannot (an isotropic model; probes swapped where every model whirls
 forward)."""
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +19,7 @@ from hybridtwin.data.records import Record
 from hybridtwin.model.machine import Machine
 from hybridtwin.model.machine_parts import Bearing, Disk, Sensor, ShaftSegment, UnbalancePlane
 from hybridtwin.model.variants import Variant
-from hybridtwin.model.whirl import WhirlModel, variant_whirl
+from hybridtwin.model.whirl import WhirlModel, read_whirl, variant_whirl, write_whirl
 
 KX, KY, C = 1.2e6, 6.0e5, 300.0  # each bearing's stiffness along x, y [N/m] and damping [N s/m]
 M_E, R_ME = 0.0025, 0.04  # the eccentric mass [kg] at radius [m] on disk d1
@@ -136,3 +137,32 @@ def test_the_config_gives_the_model_of_a_machine_of_its_own_only():
     model = cfg.whirl_model(yaml.safe_load(STEPPED_YAML))
     assert [v.name for v in model.variants] == ["linear"]
     assert model.backward_probes(3000.0) == set()  # isotropic bearings: forward at every speed
+
+
+def test_the_whirl_is_computed_once_and_preprocessing_reads_the_checks_answers(tmp_path):
+    """The data check's answers written (``write_whirl``, results/data/whirl.tsv) and read by a run's preprocessing
+    (``read_whirl``): the same findings as with the model itself, record by record (between the split criticals,
+    kept; with the isotropic model, kept out), with no model built at a speed the check asked at; a speed it did
+    not ask at (a record changed since) builds the model and asks it."""
+    machine = two_disk()
+    data = {rpm: record(machine, rpm) for rpm in (BETWEEN_RPM, BELOW_RPM)}
+    for model in ("unknown", "none"):
+        checked = WhirlModel([variant(machine, model)])
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            expected = {rpm: analyse_record(d, rpm, 1, whirl=checked) for rpm, d in data.items()}
+        write_whirl(checked, tmp_path / "whirl.tsv")
+        built = []
+        recorded = read_whirl(tmp_path / "whirl.tsv", lambda: built.append(1) or WhirlModel([variant(machine, model)]))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            for rpm, d in data.items():
+                again = analyse_record(d, rpm, 1, whirl=recorded)
+                assert [(f.kind, f.message) for f in again.findings] == [
+                    (f.kind, f.message) for f in expected[rpm].findings] and again.usable == expected[rpm].usable
+        assert built == []  # every speed the check asked at was read, none computed
+        assert (not expected[BETWEEN_RPM].usable) == (model == "none")  # the isotropic model keeps it out
+        assert recorded.backward_probes(1079.0) == checked.backward_probes(1079.0) and built == [1]
+    empty = tmp_path / "none.tsv"
+    write_whirl(None, empty)  # no model (the VARM): an empty table
+    assert read_whirl(empty, lambda: None).backward_probes(BETWEEN_RPM) == set()

@@ -28,6 +28,8 @@ rule check_data:
         schema=os.path.relpath(Path(workflow.basedir) / "workflow" / "schemas" / "runs.schema.yaml"),
     output:
         summary="results/data/check.tsv",
+        # the whirl model's answers at each run's speed, read by preprocess (computed once; empty without a model)
+        whirl="results/data/whirl.tsv",
     log:
         "logs/data/check_data.log",
     benchmark:
@@ -47,6 +49,7 @@ rule preprocess:
     spectrum (for the cascade)."""
     input:
         check="results/data/check.tsv",
+        whirl="results/data/whirl.tsv",
         record=lambda wildcards: sheet_entry(SHEET, wildcards.run)["record"],
     output:
         harmonics="results/data/runs/{run}/harmonics.tsv",

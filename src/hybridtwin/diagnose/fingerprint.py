@@ -46,6 +46,7 @@ import numpy as np
 import pandas as pd
 
 from ..identify.uncertainty import ALPHA
+from ..model.faults import FAULTS
 from ..tables import FINGERPRINT
 
 Array = np.ndarray
@@ -199,6 +200,66 @@ class Fingerprint:
                 f"{_name(k)} (in {self.unmodelled_runs[k]} runs, holding {_pct(self.unmodelled_share[k])} of the "
                 "residual)" for k in missing) + ": an excitation or a nonlinearity the model lacks.")
         return " ".join(s)
+
+
+#: a harmonic counts as present in a residual (``resembles``) when it is above the noise and holds at least this share
+#: of the residual's chi^2: a percent, so a 1X misfit's round-off leaking into 2X does not pose as a fault's order
+PRESENT_SHARE = 0.01
+
+
+def _present(fp: Fingerprint, h: int) -> bool:
+    return h < len(fp.harmonics) and bool(fp.significant[h]) and fp.harmonic_share[h] >= PRESENT_SHARE
+
+
+def _one_x(fp: Fingerprint, sense: str) -> bool:
+    """Whether the residual's 1X does what ``sense`` says (``faults.Signature.one_x``): held down or raised when the
+    measured 1X is c M + M, c fitted (``coefficient``), and the amplitude's change |1 + c| - 1 is at least half of
+    |c| (mostly a change of size, not of phase)."""
+    changed = _present(fp, 1)
+    c = fp.coefficient[1] if len(fp.harmonics) > 1 else np.nan
+    size = abs(1 + c) - 1 if changed and np.isfinite(c) else 0.0
+    mostly = changed and abs(size) >= 0.5 * abs(c)
+    return {"any": True, "changed": changed, "unchanged": not changed,
+            "held down": mostly and size < 0, "raised": mostly and size > 0}[sense]
+
+
+def resembles(fp: Fingerprint, signatures=None) -> tuple[list[str], str]:
+    """Which fault families the residual resembles, best first, and the words for what it shows.
+
+    ``signatures``: the faults' (``faults.Signature``; default those of ``faults.FAULTS``). A family is a candidate
+    when every order it needs beyond 1X that the data hold is present (above the noise and at least
+    ``PRESENT_SHARE`` of the residual; a form needing none the data hold is no candidate);
+    those with the fewest of their other marks failing (an order they must not have present, their 1X doing
+    otherwise) are named, all of them when tied. None when the residual is within the noise or no family's orders are in
+    it (a 1X-only change: the unbalance, a bearing, a support; the score tests name those)."""
+    signatures = [s for f in FAULTS for s in f.signatures] if signatures is None else list(signatures)
+    if not fp.significant.any():
+        return [], ""
+    held = len(fp.harmonics) - 1  # the data's highest harmonic
+    scored = []
+    for sig in signatures:
+        needed = [h for h in sig.with_orders if h <= held]
+        if not needed or not all(_present(fp, h) for h in needed):
+            continue
+        marks = [not _present(fp, h) for h in sig.without_orders if h <= held] + [_one_x(fp, sig.one_x)]
+        scored.append((marks.count(False), sig.family))
+    orders = [_name(h) for h in range(2, len(fp.harmonics)) if _present(fp, h)]
+    words = (", ".join(orders[:-1]) + " and " + orders[-1] if len(orders) > 1 else "".join(orders)) + (
+        " above the noise" if orders else "no order beyond 1X")
+    if _present(fp, 1) and np.isfinite(fp.coefficient[1]) and fp.coherence[1] > 0:
+        # |E| / |M| over the 1X (noise-weighted): |c| / sqrt(coherence), c = <E, M> / <M, M>
+        size = abs(fp.coefficient[1]) / np.sqrt(fp.coherence[1])
+        sense = " held down" if _one_x(fp, "held down") else " raised" if _one_x(fp, "raised") else ""
+        words += f" with a 1X change of {100 * size:.2g} % of the model's 1X{sense and ','}{sense}"
+    elif _present(fp, 1):
+        words += " with a 1X change"
+    elif orders:
+        words += ", the 1X unchanged"
+    if not scored:
+        return [], words
+    fewest = min(failed for failed, _ in scored)
+    named = list(dict.fromkeys(family for failed, family in scored if failed == fewest))
+    return named, words
 
 
 def _name(h: int) -> str:

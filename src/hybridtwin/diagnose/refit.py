@@ -330,6 +330,8 @@ def confirm(base: BaseFit, score: Score, scores: Scores, max_iterations: int = 4
     # the records are steady states the machine stayed in: an optimum whose state is unstable at some run (a
     # Floquet multiplier outside the unit circle) cannot be the machine, whatever its chi^2 (forward.check_stability)
     check = None if quick else fwd.check_stability(fit)
+    if not quick:  # a non-smooth candidate's optimum (a rub): its balance resolved, or the fit's notes say not
+        fwd.check_fit_resolution(fit)
     return _confirmation(c, fit, estimates, ranges, scores.base_chi2, scores.n_data, start_time, widened,
                          start_chi2, check)
 

@@ -113,17 +113,18 @@ def extend(variant: Variant, candidates: Sequence[Candidate], ranges: Mapping[st
 
 def extended_problem(base: BaseFit, candidates: Sequence[Candidate],
                      ranges: Mapping[str, tuple[float, float]] | None = None,
-                     per_run: Sequence[str] | None = None) -> tuple[ArrowProblem, Array]:
+                     per_run: Sequence[str] | None = None, resolve: bool = True) -> tuple[ArrowProblem, Array]:
     """The joint problem of the base extended by ``candidates`` (full solver), and theta at beta = 0 (the base's
     entries; with ``per_run`` other than the base's, entries it lacks are at 0 normalised: set them yourself).
-    per_run: the parameters estimated per run (default: the base's)."""
+    per_run: the parameters estimated per run (default: the base's). resolve: the harmonic balance carries the
+    harmonics a non-smooth candidate declares (``SolverModel``'s ``resolve``; False: the data's)."""
     ext = extend(base.variant, candidates, ranges)
     lower, upper = zip(*ext.unknown.values())
     layout = Layout.build(list(ext.unknown), lower, upper, base.layout.runs,
                           base.layout.local if per_run is None else per_run, base.layout.phase_sigma,
                           base.layout.offsets, base.layout.run_records)
-    models = [SolverModel.for_data(ext, d, layout.parameters, np.array(lower), np.array(upper), base.harmonics)
-              for d in base.data]
+    models = [SolverModel.for_data(ext, d, layout.parameters, np.array(lower), np.array(upper), base.harmonics,
+                                   resolve=resolve) for d in base.data]
     known = dict(zip(base.layout.entries(), base.theta))
     theta = np.array([known[e] if e in known else layout.theta_of(e, 0.0) for e in layout.entries()])
     return ArrowProblem(models, layout, base.sigma), theta
@@ -173,7 +174,9 @@ class Scores:
 def score_tests(base: BaseFit, candidates: Sequence[Candidate]) -> Scores:
     """Score (LM) test of every candidate at the base optimum (module docstring, step 1), one batched solve."""
     start = time.perf_counter()
-    problem, theta = extended_problem(base, candidates)
+    # at beta = 0 every candidate is absent: a rub's force is nil and its derivative there (clearance 0: a ring
+    # touching all round) linear, nothing non-smooth to resolve, so the data's harmonics (``extended_problem``)
+    problem, theta = extended_problem(base, candidates, resolve=False)
     layout = problem.layout
     ev = problem.evaluate(theta[None], base.X[None], jacobian=True)
     prior_J, prior_r = problem.prior_rows(theta)  # keyphasor phases: their prior counts as data, as in the fit

@@ -35,6 +35,7 @@ from ..offline.library import Library
 from ..offline.pod import feature_index
 from ..solvers.continuation import RUN_UP_FROM_RPM, padded_speeds, ramp, sweep_model
 from ..solvers.solver import SteadyState, assess_stability, sensitivity, solve
+from ..solvers.resolution import RESOLUTION_TOLERANCE, Resolution, check_resolution, needed_harmonics
 from ..solvers.sweep_forward import swept_response
 
 Array = np.ndarray
@@ -230,7 +231,7 @@ class SolverModel:
                  lower: Array, upper: Array, harmonics: int, step: float = 1e-5, *, warm: bool = True,
                  analytic: bool = True, cache_size: int = CACHE_SIZE, slow_roll_harmonics: Sequence[int] = (),
                  sweep_from_rpm: float | None = None, eccentric_mass_angle_deg: float = 0.0,
-                 sweep_rpm_s: float = 0.0):
+                 sweep_rpm_s: float = 0.0, resolve: bool = True):
         self.variant, self.run = variant, run
         # the band's sweep rate [RPM/s, signed]: the response corrected for it to first order (``_swept``); 0: steady
         self.sweep_rpm_s = float(sweep_rpm_s) if np.isfinite(sweep_rpm_s) else 0.0
@@ -241,8 +242,11 @@ class SolverModel:
         self.eccentric_mass_angle_deg = float(eccentric_mass_angle_deg)
         self.parameters = list(parameters)
         self.lower, self.upper = np.asarray(lower, float), np.asarray(upper, float)
-        self.harmonics = int(harmonics)
-        self.H = self.harmonics
+        # H: the harmonics compared (the data's); harmonics: those the harmonic balance carries, more where an effect
+        # is non-smooth and declares them (a rub: ``resolution.needed_harmonics``), its 1X..HX then resolved;
+        # ``resolve`` False: the data's only (the score tests, where every candidate is absent)
+        self.H = int(harmonics)
+        self.harmonics = needed_harmonics(variant.model.effects, self.H) if resolve else self.H
         self.step = float(step)
         self.warm, self.analytic, self.cache_size = bool(warm), bool(analytic), int(cache_size)
         self.n_solves = self.n_warm = self.n_run_ups = 0
@@ -250,7 +254,7 @@ class SolverModel:
         self._x = np.zeros((0, d))  # cached normalised points, their condensed states and derivatives
         self._state = None
         self._dstate = None
-        self.slow_roll_harmonics = tuple(h for h in slow_roll_harmonics if 1 <= h <= self.harmonics)
+        self.slow_roll_harmonics = tuple(h for h in slow_roll_harmonics if 1 <= h <= self.H)
         self.reference = None  # the same model at slow roll, subtracted from the slow-roll harmonics
         if self.slow_roll_harmonics:
             self.reference = SolverModel(variant, f"{run} at slow roll", SLOW_ROLL_RPM, eccentric_mass_g, parameters,
@@ -303,7 +307,7 @@ class SolverModel:
 
     def _sensor(self, harmonics: Array) -> Array:
         """Every sensor's harmonics h = 1..H (..., H, C) from full harmonics (..., H+1, n)."""
-        return sensor_channels(harmonics, self.variant.model.shaft)[..., 1:, :]
+        return sensor_channels(harmonics, self.variant.model.shaft)[..., 1:self.H + 1, :]
 
     def _solve(self, x: Array) -> Array:
         """Sensor harmonics (N, H, C) at normalised x (N, d) by the run-up alone (the differences' path)."""
@@ -331,16 +335,16 @@ class SolverModel:
         N, d = x.shape
         finite = np.flatnonzero(np.isfinite(x).all(axis=1))
         if finite.size == 0:
-            return (np.full((N, self.harmonics, self.C), np.nan + 0j),
-                    np.full((N, self.harmonics, self.C, d), np.nan + 0j) if jacobian else None)
+            return (np.full((N, self.H, self.C), np.nan + 0j),
+                    np.full((N, self.H, self.C, d), np.nan + 0j) if jacobian else None)
         if self.analytic:  # the batched path with one run: warm starts and exact sensitivities
             return SolverModel.evaluate_together([self], [x], jacobian)[0]
         M_finite, J = self._differences(x[finite], jacobian)
-        M = np.full((N, self.harmonics, M_finite.shape[2]), np.nan + 0j)
+        M = np.full((N, self.H, M_finite.shape[2]), np.nan + 0j)
         M[finite] = M_finite
         dM = None
         if jacobian:
-            dM = np.full((N, self.harmonics, M_finite.shape[2], d), np.nan + 0j)
+            dM = np.full((N, self.H, M_finite.shape[2], d), np.nan + 0j)
             dM[finite] = J
         if self.reference is not None:
             self._compensate(M, dM, *self.reference.evaluate(x, jacobian))
@@ -365,7 +369,7 @@ class SolverModel:
         """``evaluate`` of several runs' models (one variant, same parameters, analytic) in one batched solve
         and one sensitivity call (``evaluate_runs``)."""
         first = models[0]
-        H, d, C = first.harmonics, len(first.parameters), first.C
+        H, d, C = first.H, len(first.parameters), first.C
         batch = SolverModel._steady_states(models, xs)
         if batch is None:  # no finite parameter set at all
             return [(np.full((x.shape[0], H, C), np.nan + 0j),
@@ -530,7 +534,7 @@ def _swept(first: SolverModel, batch: "_Batch", rate: Array, rows: Array, dstate
         states.append(state + dstate[rows, j] * steps[j])
     Q1 = swept_response(first.variant.model, stacked, np.tile(batch.rpm[rows], P + 1), np.tile(rate[rows], P + 1),
                         np.concatenate(states), first.harmonics, result.n_time).correction
-    M1 = first._sensor(Q1).reshape((P + 1, n) + (first.harmonics, -1))
+    M1 = first._sensor(Q1).reshape((P + 1, n) + (first.H, -1))
     dM1 = (M1[1:] - M1[0]) / steps[:, None, None, None] * first.half_range[:, None, None, None]
     return M1[0], np.moveaxis(dM1, 0, -1)
 
@@ -645,6 +649,39 @@ def check_stability(fit) -> StabilityCheck | None:
         logging.getLogger(__name__).warning("%s", note)
         warnings.warn(note, StabilityWarning, stacklevel=2)
     return check
+
+
+class ResolutionWarning(UserWarning):
+    """A fit's optimum whose harmonic balance is not resolved at some run (``check_fit_resolution``)."""
+
+
+def check_fit_resolution(fit, tolerance: float = RESOLUTION_TOLERANCE) -> Resolution | None:
+    """Whether the steady states a full-solver fit reports are resolved (``resolution.check_resolution``: solved
+    again with twice the harmonics and four times the time samples), for a variant with a non-smooth effect (one
+    that declares ``needs_harmonics``, a rub); None otherwise (a smooth model's balance at the data's harmonics is
+    exact to round-off), or for a fit without ``SolverModel``s. A run not resolved is never left silent: the
+    sentence joins the fit's notes, and a ``ResolutionWarning`` is issued and logged."""
+    models = [] if fit.problem is None else fit.problem.models
+    if not models or not all(isinstance(m, SolverModel) for m in models) or not any(
+            getattr(e, "needs_harmonics", None) for e in models[0].variant.model.effects):
+        return None
+    theta = np.asarray(fit.theta, float)[None]
+    xs = [fit.layout.run_parameters(theta, k)[0] for k in range(fit.layout.n_runs)]
+    batch = SolverModel._steady_states(models, xs)
+    if batch is None:
+        return None
+    ok = np.flatnonzero(batch.result.success)
+    result = check_resolution(batch.build({k: v[ok] for k, v in batch.values.items()}, batch.rpm[ok]),
+                              batch.result.take(ok), tolerance)
+    runs = [fit.layout.runs[i] for i in ok]  # one row per run (a fit's point is one set)
+    bad = [f"{run}: {message}" for run, good, message in zip(runs, result.resolved, result.message) if not good]
+    if bad:
+        note = "harmonic balance not resolved at the fitted parameters: " + "; ".join(bad)
+        if note not in fit.uncertainty.notes:
+            fit.uncertainty.notes.append(note)
+        logging.getLogger(__name__).warning("%s", note)
+        warnings.warn(note, ResolutionWarning, stacklevel=2)
+    return result
 
 
 def _as_2d(xs: Sequence[Array]) -> list[Array]:

@@ -16,7 +16,7 @@ import pandas as pd
 from scipy.stats import qmc
 
 from .arrow_problem import ArrowProblem
-from .forward import HarmonicModel, check_stability
+from .forward import HarmonicModel, check_fit_resolution, check_stability
 from .identification import Identification, conclude
 from .lm import LMOptions, LMResult, levenberg_marquardt
 from .protocol import ProtocolResult
@@ -77,6 +77,7 @@ def polish(fit: Identification, solver_models: Sequence[HarmonicModel], max_iter
     # the LM iterations solve without the stability check (30-40 % cheaper); the optimum reported is checked: an
     # unstable steady state at some run says so in the fit's message and notes, and warns (forward.check_stability)
     check_stability(polished)
+    check_fit_resolution(polished)  # a variant with a non-smooth effect (a rub): its balance resolved, or said not
     return polished
 
 

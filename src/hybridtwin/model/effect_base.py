@@ -206,6 +206,11 @@ class Effect:
     #: its forcing is the inertia of a rotating mass (unbalance, bow): at variable speed its Omega^2 term gets the
     #: tangential term too, A (Omega^2 - i Omega' / h) (hybridtwin.solvers.sweep); other forces read Omega(t) only
     inertial: bool = False
+    #: a non-smooth local force (a contact, a clearance): the harmonics its harmonic balance must carry for the
+    #: harmonics a fit compares to be right, and the time samples a period its AFT step takes (None: a smooth force,
+    #: the data's harmonics and the solver's samples do). ``hybridtwin.solvers.resolution`` reads them
+    needs_harmonics: int | None = None
+    needs_time_samples: int | None = None
 
     def mass(self, ctx: Context) -> Array | None:
         return None

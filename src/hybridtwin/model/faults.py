@@ -7,58 +7,107 @@ speed, so the friction's sense is the rotation's, whatever the whirl):
 
     F_u = -g (u - mu v),   F_v = -g (v + mu u),   g = k_rub max(0, 1 - delta / r)
 
-(the normal part -N (u, v) / r, the friction -mu N (-v, u) / r). Non-smooth at r = delta: the harmonic balance
-samples it at 64 instants a period (``solver.default_n_time`` for a force of no polynomial degree) and the time
-integrator evaluates it as it is. Absent at k_rub = 0; not a built-in candidate (the score test at k_rub = 0 sees
-it only where the fitted orbit already reaches the clearance). Place it with ``Rub(node=..., place=...)`` in a
-file under the config's ``effects_files`` (its parameters then named delta_PLACE, k_rub_PLACE, mu_PLACE), or
-``Machine.place(Rub(), "bearing")``.
+(the normal part -N (u, v) / r, the friction -mu N (-v, u) / r). Non-smooth at r = delta: its spectrum falls off
+slowly, so it declares the harmonics its harmonic balance needs (``RUB_HARMONICS``, ``Effect.needs_harmonics``:
+a fit that compares fewer solves with them, ``forward.SolverModel``) and the time samples (``RUB_TIME_SAMPLES``, the
+solver's default for a force of no polynomial degree); ``hybridtwin.solvers.resolution`` says when an orbit is not
+resolved by them. The time integrator evaluates it as it is. Absent at k_rub = 0 whatever delta and mu: all three
+are its switches, so at the diagnosis's zero the score sees the light-rub limit, a ring touching all round (a
+stiffness at the plane), and the refit frees the clearance and the friction (``fault_candidates``: ``rub@PLANE``).
+Place it with ``Rub(node=..., place=...)`` in a file under the config's ``effects_files`` (its parameters then named
+delta_PLACE, k_rub_PLACE, mu_PLACE), or ``Machine.place(Rub(), "bearing")``.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 
 from .effect_base import Array, Context, Effect, Parameter, Params
 
 
+#: the harmonics a rub's harmonic balance carries (``Rub.needs_harmonics``) and its time samples a period: those of
+#: a fit's run-ups, the solver's for a force of no polynomial degree. Measured on the stepped rotor rubbing at its
+#: disk on an ellipse, against Radau settled (tests/test_rub.py): at 3 harmonics the 1X..3X are 3e-4 of the 1X
+#: off, at 9 5e-5 (no better at 15: the aliasing of 64 samples is then what is left; 256 samples reach 3e-6)
+RUB_HARMONICS, RUB_TIME_SAMPLES = 9, 64
+#: the same for a loose bearing (``Looseness.needs_harmonics``): its spring acts only near the ends of an ellipse, a
+#: short contact whose spectrum falls off more slowly. Measured on the stepped rotor's bearing b (k 1e7 N/m, the
+#: clearance 0.6 of the mean semi-axis, tests/test_rub.py): 1X..3X 2 % of the 1X off at 3 harmonics, 1.2e-4 at 9,
+#: 1.1e-5 at 15
+LOOSENESS_HARMONICS = 15
+
+
+@dataclass(frozen=True)
+class Signature:
+    """What a fault leaves in a residual the model without it cannot absorb (one form of its fingerprint; a fault's
+    ``signatures`` list its forms; ``diagnose.fingerprint.resembles`` matches a residual's fingerprint against them).
+
+    ``family``: the fault ("a breathing crack"); ``with_orders``: harmonics beyond 1X whose residual must be above
+    the noise; ``without_orders``: those that must not be (either only where the data hold that harmonic);
+    ``one_x``: what its 1X does, "changed" (above the noise), "unchanged", "held down" (below the model's), "raised"
+    (above it) or "any"."""
+
+    family: str
+    with_orders: tuple[int, ...]
+    without_orders: tuple[int, ...] = ()
+    one_x: str = "any"
+
+
 @dataclass(eq=False)
 class Rub(Effect):
     """Rub on a stator ring of clearance delta at ``node`` (module docstring)."""
 
+    #: a ring touched all round an ellipse holds the 1X down (a stiffness where the orbit reaches it, below a
+    #: critical speed) and its kinks add 3X; a ring touched on one side (off-centre, or a static load) a series 2X,
+    #: 3X, 4X, the clipped orbit's
+    signatures: ClassVar[tuple[Signature, ...]] = (Signature("a rub", (3,), one_x="held down"),
+                                                   Signature("a rub", (2, 3, 4)))
+
     name: str = "rub"
     node: int = 0
     place: str = ""
-    clearance_m: tuple[float, float] = (1e-4, 1e-2)
+    clearance_m: tuple[float, float] = (0.0, 1e-2)  # 0 in it: a candidate's switches are absent at 0
     stiffness_n_m: tuple[float, float] = (0.0, 1e5)
+    friction: tuple[float, float] = (0.0, 0.5)
+    #: how far each range may widen (``Parameter.limits``): clearance, stiffness, friction
+    limits: tuple[tuple[float, float], tuple[float, float], tuple[float, float]] = (
+        (0.0, np.inf), (0.0, np.inf), (0.0, 2.0))
+    #: the ring's centre (x, y) [m] off the bearings' axis (a seal or casing set off-centre: a partial rub on one side,
+    #: 2X and 3X even on a circular orbit); default centred
+    centre_m: tuple[float, float] = (0.0, 0.0)
     meaning: str = "rub on a stator ring at node 0: normal contact force k_rub (r - delta) beyond the clearance, " \
                    "Coulomb friction mu along the rotation"
     parameters: tuple[Parameter, ...] = field(init=False)
     dofs: tuple[str, ...] = field(init=False)
+    switches: tuple[str, ...] = field(init=False)
     degree: int | None = None
+    needs_harmonics: int | None = RUB_HARMONICS
+    needs_time_samples: int | None = RUB_TIME_SAMPLES
 
     def __post_init__(self) -> None:
         suffix = f"_{self.place}" if self.place else "" if self.node == 0 else f"_{self.node}"
         self._names = (f"delta{suffix}", f"k_rub{suffix}", f"mu{suffix}")
         lo, hi = self.clearance_m
         self.parameters = (
-            Parameter(self._names[0], "m", (lo, hi), float(np.sqrt(lo * hi)),
-                      f"radial clearance of the stator ring at node {self.node}", (0.0, np.inf)),
+            Parameter(self._names[0], "m", (lo, hi), float(np.sqrt(lo * hi)) if lo > 0 else 0.1 * hi,
+                      f"radial clearance of the stator ring at node {self.node}", self.limits[0]),
             Parameter(self._names[1], "N/m", self.stiffness_n_m, 0.0,
-                      f"contact stiffness of the ring at node {self.node} (0: no rub)", (0.0, np.inf)),
-            Parameter(self._names[2], "1", (0.0, 0.5), 0.2, "Coulomb friction coefficient of the contact",
-                      (0.0, 2.0)),
+                      f"contact stiffness of the ring at node {self.node} (0: no rub)", self.limits[1]),
+            Parameter(self._names[2], "1", self.friction, 0.2 if self.friction[0] <= 0.2 <= self.friction[1]
+                      else self.friction[0], "Coulomb friction coefficient of the contact", self.limits[2]),
         )
+        self.switches = (self._names[1], self._names[0], self._names[2])  # absent at k_rub = 0 (module docstring)
         self.dofs = (f"u{self.node}", f"v{self.node}")
         self.meaning = self.meaning.replace("at node 0", f"at node {self.node}")
 
     def force(self, q: Array, p: Params) -> tuple[Array, Array]:
-        """F (S, 2, N) on the shaft at (u, v) and its derivative (S, 2, 2, N) (module docstring); zero inside the
-        clearance."""
+        """F (S, 2, N) on the shaft at (u, v) and its derivative (S, 2, 2, N) (module docstring, with (u, v) from the
+        ring's centre); zero inside the clearance."""
         delta, k, mu = (p[name][:, None] for name in self._names)
-        u, v = q[:, 0], q[:, 1]
+        u, v = q[:, 0] - self.centre_m[0], q[:, 1] - self.centre_m[1]  # the shaft's centre seen from the ring's
         r = np.hypot(u, v)
         contact = r > delta
         safe = np.where(contact, r, 1.0)
@@ -130,6 +179,10 @@ class Crack(Effect):
       forcing it is |q_dyn| / |q_s| at the crack (docs/model.md, "Faults").
     Absent at dk_xi = dk_eta = 0 (its switches). A vertical rotor (no sag across the shaft) shows no such forcing.
     """
+
+    #: its breathing forces 2X beside 1X and 3X (Mayes: -1/8, -1/4, +1/8 of dk s, nothing beyond), its mean loss
+    #: changes the 1X
+    signatures: ClassVar[tuple[Signature, ...]] = (Signature("a breathing crack", (2,), (4,), one_x="changed"),)
 
     name: str = "crack"
     node: int = 0
@@ -230,6 +283,10 @@ class Misalignment(Effect):
     its 4X and higher are not in this effect. Absent at 0 (its switches: all four).
     """
 
+    #: 2X alone: no 1X (ROSS's coupling's is 2 % of its 2X), no 3X
+    signatures: ClassVar[tuple[Signature, ...]] = (
+        Signature("a misaligned coupling", (2,), (3,), one_x="unchanged"),)
+
     name: str = "misalignment"
     node: int = 0
     partner: int = 1
@@ -274,11 +331,15 @@ class Looseness(Effect):
 
     The bearing's linear spring -k (u, v) stays in the model (its ``linear_bearing``); this effect adds what the
     clearance takes away, k min(1, delta / r) (u, v) at r = |(u, v)|: the total -k max(0, r - delta) (u, v) / r,
-    nothing inside the clearance, a spring beyond. Piecewise, so the harmonic balance samples it at 64 instants a
-    period: on an elliptic orbit it adds odd harmonics (3X, 5X), with a static load (the weight) 2X as well;
+    nothing inside the clearance, a spring beyond. Piecewise, so it declares the harmonics its balance needs
+    (``LOOSENESS_HARMONICS``, sampled at 64 instants a period): on an elliptic orbit it adds odd harmonics (3X, 5X),
+    with a static load (the weight) 2X as well;
     subharmonics (1/2X) lie outside a harmonic balance at the rotation's period and show as its non-convergence.
     Absent at delta = 0 (its switch).
     """
+
+    #: the clearance softens the support (the 1X raised below a critical speed) and adds 3X
+    signatures: ClassVar[tuple[Signature, ...]] = (Signature("a loose bearing", (3,), one_x="raised"),)
 
     name: str = "looseness"
     node: int = 0
@@ -291,6 +352,8 @@ class Looseness(Effect):
     dofs: tuple[str, ...] = field(init=False)
     switches: tuple[str, ...] = field(init=False)
     degree: int | None = None
+    needs_harmonics: int | None = LOOSENESS_HARMONICS
+    needs_time_samples: int | None = RUB_TIME_SAMPLES
 
     def __post_init__(self) -> None:
         if not self.k_n_m > 0:
@@ -330,6 +393,15 @@ LOOSENESS_RANGE_M, LOOSENESS_LIMIT_M = 2e-5, 1e-3
 #: the crack's loss range as a share of the element's cantilever tip stiffness 3 E I / h^3 (ROSS's Mayes crack of
 #: depth ratio 0.2 in a 19 mm shaft takes 17 % along eta); limits: all of it
 CRACK_RANGE, CRACK_LIMIT = 0.2, 1.0
+#: a rub's clearance range as a share of the shaft's diameter at the plane: a seal's or a stator ring's radial
+#: clearance is of the order of 1-5 thousandths of the diameter (ROSS's example rubs at 79.5 um on a 19 mm shaft,
+#: 4.2 thousandths); limits 5 %, far beyond any running clearance
+RUB_CLEARANCE_RANGE, RUB_CLEARANCE_LIMIT = 5e-3, 5e-2
+#: its contact stiffness range as a multiple of the bearings' summed stiffness (a stator's contact, like a support,
+#: stiff beside the shaft's own bending; ROSS's example 1.1e6 N/m beside bearings of 1e6 and 8e5 each); limits 100 x
+RUB_STIFFNESS_RANGE, RUB_STIFFNESS_LIMIT = 1.0, 100.0
+#: its friction coefficient's range (dry steel on a seal's or a casing's material, 0.1-0.3) and limits
+RUB_FRICTION_RANGE, RUB_FRICTION_LIMIT = (0.0, 0.3), (0.0, 1.0)
 
 
 def fault_candidates(machine, force_n: float) -> list[Effect]:
@@ -341,7 +413,10 @@ def fault_candidates(machine, force_n: float) -> list[Effect]:
       +-``force_n`` [N] (the 2X, 3X forces' range: what moves the rotor 10 um on its supports), limits ten times;
     - ``crack@P`` at every unbalance plane P (a disk's node, where the bending moment is large): the element from
       P's node to the next (the previous at the last node), losses within 20 % of its 3 E I / h^3, psi free; the
-      weight along -y (a horizontal machine, y up, as ROSS's rotors).
+      weight along -y (a horizontal machine, y up, as ROSS's rotors);
+    - ``rub@P`` at every unbalance plane P (a disk, where the orbit is large and a seal or a casing is near): its
+      clearance within 5 thousandths of the shaft's diameter there, its contact stiffness within the bearings'
+      summed k, its friction within 0.3; all three tested (absent at k_rub = 0: ``Rub``).
 
     None where no bearing has a nominal k (``force_n`` 0: the VARM, a vertical rotor whose weight does not bend it).
     """
@@ -372,4 +447,19 @@ def fault_candidates(machine, force_n: float) -> list[Effect]:
                          bounds_n_m=(0.0, CRACK_RANGE * tip), limits_n_m=(0.0, CRACK_LIMIT * tip),
                          meaning=f"breathing crack at unbalance plane {plane.name} (the element right of node 0), "
                                  "opening and closing with the rotation under the rotor's weight: 1X, 2X, 3X"))
+    k_sum = sum(b.k for b in machine.bearings if b.k)
+    for plane in machine.unbalance_planes:
+        d = max(s.d_out for e, s in machine._elements if e in (plane.node - 1, plane.node))
+        out.append(Rub(name=f"rub@{plane.name}", node=plane.node, place=plane.name,
+                       clearance_m=(0.0, RUB_CLEARANCE_RANGE * d), stiffness_n_m=(0.0, RUB_STIFFNESS_RANGE * k_sum),
+                       friction=RUB_FRICTION_RANGE,
+                       limits=((0.0, RUB_CLEARANCE_LIMIT * d), (0.0, RUB_STIFFNESS_LIMIT * k_sum),
+                               RUB_FRICTION_LIMIT),
+                       meaning=f"rub on a stator ring at unbalance plane {plane.name} (node {plane.node}): a contact "
+                               "spring "
+                               "beyond a clearance and its friction; a held-down 1X, 3X (2X with a static load)"))
     return out
+
+
+#: the fault effects, each with its ``signatures`` (``diagnose.fingerprint.resembles``)
+FAULTS = (Crack, Misalignment, Rub, Looseness)

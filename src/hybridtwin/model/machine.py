@@ -465,8 +465,8 @@ class Machine(DofCounts):
         anisotropy, cross-coupled stiffness and damping, compliance, moment stiffness and speed-dependent damping;
         at each such bearing and each unbalance plane the 2X and 3X forces, their range the force that moves the
         rotor 10 um on its supports (sum of the bearings' k); the faults (``faults.fault_candidates``): looseness and
-        a coupling's misalignment at each such bearing, a breathing crack at each unbalance plane. None on the VARM
-        (no nominal k)."""
+        a coupling's misalignment at each such bearing, a breathing crack and a rub at each unbalance plane. None on
+        the VARM (no nominal k)."""
         out: dict[str, Effect] = {}
         for bearing in self.bearings:
             for candidate in at_bearing(bearing.name, bearing.k, bearing.c, self.tilt_stiffness(bearing.node)):
@@ -477,7 +477,7 @@ class Machine(DofCounts):
         for place, node, kind in places if force > 0 else ():
             for excitation in excitations_at(place, node, force, kind):
                 out[excitation.name] = excitation
-        for fault in fault_candidates(self, force):  # looseness, misalignment at the bearings, a crack at each plane
+        for fault in fault_candidates(self, force):  # looseness, misalignment at the bearings; crack, rub at the planes
             out[fault.name] = fault
         return out
 

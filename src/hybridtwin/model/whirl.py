@@ -21,15 +21,21 @@ values (nominal and fixed), and at ``samples`` points drawn uniformly in its unk
 answer never changes between calls), each at ``speeds`` speeds within +-``speed_margin`` of the run's: a model
 whose unknowns are still to be fitted may put its split critical speeds anywhere in its ranges, and the check
 must not reject a run that some model of the variant explains.
+
+Computed once: the workflow's data check writes every answer it got (``whirl_table``, results/data/whirl.tsv) and
+each run's preprocessing reads them (``RecordedWhirl``) instead of asking the model again.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+import pandas as pd
 from threadpoolctl import threadpool_limits
+
+from ..tables import Table
 
 from .probes import probe_readings
 from .variants import Variant
@@ -142,3 +148,68 @@ def variant_whirl(variant: Variant, rpm: float, samples: int = 64, speeds: int =
         out.append(PlaneWhirl((px.name, py.name), (np.abs(p1 + 1j * p2) / 2).reshape(S, speeds),
                               (np.abs(p1 - 1j * p2) / 2).reshape(S, speeds)))
     return out
+
+
+# --- computed once: check_data's answers, read by preprocess ------------------------------------------------------
+
+#: the whirl table (``whirl_table``; results/data/whirl.tsv): a speed [RPM] the check asked at, a plane's probes,
+#: whether some model whirls backward there, and the model's description (``WhirlModel.describe``); the speed to
+#: its shortest exact repr, so the preprocessing finds the very float the check asked at
+WHIRL = Table("data/whirl.tsv", ("rpm", "x_probe", "y_probe", "backward_possible", "model"), None,
+              "a speed the data check asked the whirl model at and a probe plane a row: whether some model of the "
+              "machine whirls backward there", text=("x_probe", "y_probe", "model"), flags=("backward_possible",),
+              floats=("rpm",))
+WHIRL_COLUMNS = list(WHIRL.columns)
+
+
+def whirl_table(model: WhirlModel | None) -> pd.DataFrame:
+    """Every answer ``model`` gave (a row per speed asked and plane), for the runs' preprocessing to read instead of
+    computing them again (``RecordedWhirl``); no row without a model."""
+    rows = [] if model is None else [
+        (rpm, plane.probes[0], plane.probes[1], plane.backward_possible, model.describe())
+        for rpm, planes in model._cache.items() for plane in planes]
+    return pd.DataFrame(rows, columns=WHIRL_COLUMNS)
+
+
+class RecordedWhirl:
+    """The whirl model's answers as the data check recorded them (``whirl_table``): ``backward_probes`` and
+    ``describe`` as ``WhirlModel``'s, read, not computed again. A run's preprocessing asks at the run's refined
+    speed, the one the check asked at (the same record, the same analysis: the same float); at a speed the check
+    did not ask (a record changed since) the model is built and asked (``model``, a callable, called once)."""
+
+    def __init__(self, table: pd.DataFrame, model: Callable[[], WhirlModel | None]):
+        self._answers: dict[float, set[tuple[str, str]]] = {}
+        for row in table.itertuples():
+            probes = self._answers.setdefault(round(float(row.rpm), 6), set())
+            if bool(row.backward_possible):
+                probes.add((str(row.x_probe), str(row.y_probe)))
+        self._description = str(table["model"].iloc[0]) if len(table) else None
+        self._factory, self._model = model, None
+
+    def _computed(self) -> WhirlModel | None:
+        if self._model is None and self._factory is not None:
+            self._model, self._factory = self._factory(), None
+        return self._model
+
+    def backward_probes(self, rpm: float) -> set[tuple[str, str]]:
+        key = round(float(rpm), 6)
+        if key in self._answers:
+            return set(self._answers[key])
+        model = self._computed()
+        return set() if model is None else model.backward_probes(rpm)
+
+    def describe(self) -> str:
+        if self._description is not None:
+            return self._description
+        model = self._computed()
+        return "" if model is None else model.describe()
+
+
+def write_whirl(model: WhirlModel | None, path) -> None:
+    """``whirl_table(model)`` at ``path`` (``WHIRL``)."""
+    WHIRL.write(whirl_table(model), path)
+
+
+def read_whirl(path, model: Callable[[], WhirlModel | None]) -> RecordedWhirl:
+    """The answers ``write_whirl`` wrote, the model (built on first need) for a speed they lack."""
+    return RecordedWhirl(WHIRL.read(path), model)

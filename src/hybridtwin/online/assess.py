@@ -18,9 +18,11 @@
    record estimates it in every fit, and it is never a "move". (A first-order move that the full fits do not
    confirm, on a record at its noise, leaves the record consistent.)
 3. **New discrepancy.** When no parameter change explains a record beyond its noise: the residual of the best
-   change, its fingerprint (``diagnose.fingerprint``: harmonic, whirl, speed band) and the diagnosis candidates
-   ranked by their score test at the twin (``diagnose.score_test``, with every parameter's sensitivity and its prior
-   projected out, so a candidate scores what no parameter change the twin allows can absorb).
+   change, its fingerprint (``diagnose.fingerprint``: harmonic, whirl, speed band), the fault family it resembles
+   (``fingerprint.resembles``, the faults' signatures: "2X above the noise with a 1X change ..., like a breathing
+   crack") and the diagnosis candidates ranked by their score test at the twin (``diagnose.score_test``, with every
+   parameter's sensitivity and its prior projected out, so a candidate scores what no parameter change the twin
+   allows can absorb).
 
 The outcome is a code (``RecordVerdict``); the sentences are derived from it (``Assessment.line``).
 """
@@ -40,7 +42,7 @@ import pandas as pd
 from scipy.special import chdtrc, ndtri  # chi^2's survival function, the normal quantile (not scipy.stats:
 # its import costs more than a consistent record's fits)
 
-from ..diagnose.fingerprint import Fingerprint, fingerprint
+from ..diagnose.fingerprint import Fingerprint, fingerprint, resembles
 from ..identify.arrow_problem import Layout
 from ..settings import defaults
 from .. import tables
@@ -101,6 +103,14 @@ class Assessment:
         """The parameters of the named change (empty unless changed)."""
         return [p for p in str(self.summary["changed"]).split(",") if p]
 
+    @property
+    def resemblance(self) -> tuple[list[str], str]:
+        """A new discrepancy's fault families, best first, and what its residual shows (``fingerprint.resembles``:
+        the faults' signatures); nothing for any other verdict."""
+        if self.verdict is not RecordVerdict.NEW_DISCREPANCY or self.fingerprint is None:
+            return [], ""
+        return resembles(self.fingerprint)
+
     def line(self) -> str:
         """The one-line verdict for the console."""
         s = self.summary
@@ -122,7 +132,9 @@ class Assessment:
                     f"{also}")
         top = ", ".join(f"{row.candidate} (p {row.p_value:.1g})" for row in self.candidates.head(3).itertuples())
         where = self.fingerprint.summary().split(". ")[0] if self.fingerprint is not None else ""
-        return (f"{head}; no parameter change explains it (best: {s['best']}, chi^2/dof "
+        families, shows = self.resemblance
+        like = f"{shows}, like {' or '.join(families)}; " if families else f"{shows}; " if shows else ""
+        return (f"{head}; {like}no parameter change explains it (best: {s['best']}, chi^2/dof "
                 f"{s['best_chi2'] / max(s['best_dof'], 1):.3g}); candidates: {top or 'none significant'}. {where}")
 
     # --- files: one folder per record, each table with its exact inverse -------------------------
@@ -401,7 +413,8 @@ def _candidates(twin: Twin, problem: fits.RecordProblem, base: fits.RecordFit) -
     layout = Layout.for_data(list(variant.unknown), lower, upper, problem.data, problem.local, runout=False)
     theta = np.array([base.v[problem.column[(p, None if run == "all" else layout.runs.index(run))]]
                       for p, run in layout.entries()])
-    extended, theta = extended_problem(BaseFit(variant, layout, theta, problem.data, problem.H), found)
+    extended, theta = extended_problem(BaseFit(variant, layout, theta, problem.data, problem.H), found,
+                                       resolve=False)  # every candidate at 0, absent: as the diagnosis's scores
     sensitivities = extended.dense_jacobian(extended.evaluate(theta[None], problem.X[None], jacobian=True))
     r, J, n_data = problem.residuals(base.v[None], base.responses, [base.hypothesis])[0]
     Q = column_basis(J)

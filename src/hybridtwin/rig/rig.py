@@ -74,6 +74,7 @@ from .base import RANGE_SIGMAS, UNIT_SCALES, RigError, RigWarning, run_rng, writ
 from ..model.model import rpm_to_rad_s
 from ..model.sensor import sensor_dofs, sensor_names
 from ..solvers.continuation import RUN_UP_FROM_RPM, ramp, solve_sweep
+from ..solvers.resolution import needed_harmonics
 from ..solvers.transient import RESOLVED_HARMONICS, NotSettledError, SettledPeriod, run_up_harmonics
 from ..model.variants import EffectsFileError, Variant, load_effects_files
 
@@ -379,15 +380,18 @@ def solve_truth(truth: Truth, runs: pd.DataFrame, harmonics: int = RESOLVED_HARM
         raise RigError(f"rig: integrator must be one of {list(INTEGRATORS)}, got {integrator!r}")
     dofs = sensor_dofs(truth.variant.model.shaft)
     out = TruthResponse.empty(len(runs), harmonics, len(dofs))
+    # a non-smooth truth effect (a rub) is solved with the harmonics it declares, its 0..H kept
+    solved = needed_harmonics(truth.variant.model.effects, harmonics)
     for values, group in trial_groups(truth, runs):
         speeds = group["rpm_true"].to_numpy(float)
         positions = np.flatnonzero(runs.index.isin(group.index))
-        up = _sweep(truth.variant, values, ramp(min(start_rpm, speeds.min()), speeds, step_rpm), harmonics, "up")
+        up = _sweep(truth.variant, values, ramp(min(start_rpm, speeds.min()), speeds, step_rpm), solved, "up")
         down = _sweep(truth.variant, values, ramp(speeds.max() + rundown_margin_rpm, speeds, step_rpm),
-                      harmonics, "down")
+                      solved, "down")
         for pos, speed in zip(positions, speeds):
             res_up, res_down = up[speed], down[speed]
-            out.Z[pos], out.Z_down[pos] = res_up.harmonics[0][:, dofs], res_down.harmonics[0][:, dofs]
+            out.Z[pos] = res_up.harmonics[0][:harmonics + 1, dofs]
+            out.Z_down[pos] = res_down.harmonics[0][:harmonics + 1, dofs]
             out.success[pos] = bool(res_up.success[0])
             out.stable[pos], out.floquet_radius[pos] = bool(res_up.stable[0]), res_up.floquet_radius[0]
             out.branch[pos] = str(res_up.branch[0])
