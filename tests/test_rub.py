@@ -14,7 +14,8 @@ from hybridtwin.diagnose import diagnosis as dg
 from hybridtwin.diagnose import score_test as st
 from hybridtwin.identify import identification as idn
 from hybridtwin.identify import lm
-from hybridtwin.identify.forward import ResolutionWarning, SolverModel, check_fit_resolution
+from hybridtwin.identify.forward import SolverModel
+from hybridtwin.identify.polish import ResolutionWarning, check_fit_resolution
 from hybridtwin.identify.protocol import ProtocolOptions
 from hybridtwin.model.candidates import Candidate
 from hybridtwin.model.faults import LOOSENESS_HARMONICS, RUB_HARMONICS, RUB_TIME_SAMPLES, Looseness, Rub

@@ -24,6 +24,7 @@ from ..model.candidates import Candidate
 from ..identify.arrow_problem import ArrowProblem, Layout
 from ..identify.identification import Identification, conclude, units
 from ..identify.lm import MAX_ITERATIONS, STALLED, LMOptions, LMResult, levenberg_marquardt
+from ..identify.polish import check_fit_resolution
 from ..identify.protocol import ProtocolResult
 from .score_test import BaseFit, Score, Scores, extended_problem, scale_p_value
 
@@ -331,7 +332,7 @@ def confirm(base: BaseFit, score: Score, scores: Scores, max_iterations: int = 4
     # Floquet multiplier outside the unit circle) cannot be the machine, whatever its chi^2 (forward.check_stability)
     check = None if quick else fwd.check_stability(fit)
     if not quick:  # a non-smooth candidate's optimum (a rub): its balance resolved, or the fit's notes say not
-        fwd.check_fit_resolution(fit)
+        check_fit_resolution(fit)
     return _confirmation(c, fit, estimates, ranges, scores.base_chi2, scores.n_data, start_time, widened,
                          start_chi2, check)
 

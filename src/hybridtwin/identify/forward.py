@@ -35,7 +35,7 @@ from ..offline.library import Library
 from ..offline.pod import feature_index
 from ..solvers.continuation import RUN_UP_FROM_RPM, padded_speeds, ramp, sweep_model
 from ..solvers.solver import SteadyState, assess_stability, sensitivity, solve
-from ..solvers.resolution import RESOLUTION_TOLERANCE, Resolution, check_resolution, needed_harmonics
+from ..solvers.resolution import needed_harmonics
 from ..solvers.sweep_forward import swept_response
 
 Array = np.ndarray
@@ -370,7 +370,7 @@ class SolverModel:
         and one sensitivity call (``evaluate_runs``)."""
         first = models[0]
         H, d, C = first.H, len(first.parameters), first.C
-        batch = SolverModel._steady_states(models, xs)
+        batch = SolverModel.steady_states(models, xs)
         if batch is None:  # no finite parameter set at all
             return [(np.full((x.shape[0], H, C), np.nan + 0j),
                      np.full((x.shape[0], H, C, d), np.nan + 0j) if jacobian else None) for x in _as_2d(xs)]
@@ -422,7 +422,7 @@ class SolverModel:
         return out
 
     @staticmethod
-    def _steady_states(models: Sequence["SolverModel"], xs: Sequence[Array]) -> "_Batch | None":
+    def steady_states(models: Sequence["SolverModel"], xs: Sequence[Array]) -> "_Batch | None":
         """The steady states ``evaluate_together`` reports at xs (each model's finite rows, stacked run after
         run): warm starts where a cached neighbour allows, run-ups for the others; None if no row is finite.
         Their stability is not assessed (``stability=False``: the LM iterations need the response only)."""
@@ -545,7 +545,7 @@ class StabilityWarning(UserWarning):
 
 @dataclass
 class _Batch:
-    """Steady states of several runs' models solved together (``SolverModel._steady_states``)."""
+    """Steady states of several runs' models solved together (``SolverModel.steady_states``)."""
 
     result: object  # solver.SteadyState of every finite row, stacked run after run
     values: dict[str, Array]  # complete parameter values [SI] of those rows
@@ -573,7 +573,7 @@ def floquet_radii(models: Sequence[HarmonicModel], xs: Sequence[Array]) -> list[
         if isinstance(model, SolverModel):
             groups.setdefault((id(model.variant), tuple(model.parameters)), []).append(k)
     for members in groups.values():
-        batch = SolverModel._steady_states([models[k] for k in members], [xs[k] for k in members])
+        batch = SolverModel.steady_states([models[k] for k in members], [xs[k] for k in members])
         if batch is None:
             for k in members:
                 out[k] = np.full(np.atleast_2d(xs[k]).shape[0], np.nan)
@@ -649,39 +649,6 @@ def check_stability(fit) -> StabilityCheck | None:
         logging.getLogger(__name__).warning("%s", note)
         warnings.warn(note, StabilityWarning, stacklevel=2)
     return check
-
-
-class ResolutionWarning(UserWarning):
-    """A fit's optimum whose harmonic balance is not resolved at some run (``check_fit_resolution``)."""
-
-
-def check_fit_resolution(fit, tolerance: float = RESOLUTION_TOLERANCE) -> Resolution | None:
-    """Whether the steady states a full-solver fit reports are resolved (``resolution.check_resolution``: solved
-    again with twice the harmonics and four times the time samples), for a variant with a non-smooth effect (one
-    that declares ``needs_harmonics``, a rub); None otherwise (a smooth model's balance at the data's harmonics is
-    exact to round-off), or for a fit without ``SolverModel``s. A run not resolved is never left silent: the
-    sentence joins the fit's notes, and a ``ResolutionWarning`` is issued and logged."""
-    models = [] if fit.problem is None else fit.problem.models
-    if not models or not all(isinstance(m, SolverModel) for m in models) or not any(
-            getattr(e, "needs_harmonics", None) for e in models[0].variant.model.effects):
-        return None
-    theta = np.asarray(fit.theta, float)[None]
-    xs = [fit.layout.run_parameters(theta, k)[0] for k in range(fit.layout.n_runs)]
-    batch = SolverModel._steady_states(models, xs)
-    if batch is None:
-        return None
-    ok = np.flatnonzero(batch.result.success)
-    result = check_resolution(batch.build({k: v[ok] for k, v in batch.values.items()}, batch.rpm[ok]),
-                              batch.result.take(ok), tolerance)
-    runs = [fit.layout.runs[i] for i in ok]  # one row per run (a fit's point is one set)
-    bad = [f"{run}: {message}" for run, good, message in zip(runs, result.resolved, result.message) if not good]
-    if bad:
-        note = "harmonic balance not resolved at the fitted parameters: " + "; ".join(bad)
-        if note not in fit.uncertainty.notes:
-            fit.uncertainty.notes.append(note)
-        logging.getLogger(__name__).warning("%s", note)
-        warnings.warn(note, ResolutionWarning, stacklevel=2)
-    return result
 
 
 def _as_2d(xs: Sequence[Array]) -> list[Array]:

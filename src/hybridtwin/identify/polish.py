@@ -9,6 +9,8 @@ the uncertainty from the solver's Jacobian.
 
 from __future__ import annotations
 
+import logging
+import warnings
 from collections.abc import Sequence
 
 import numpy as np
@@ -16,7 +18,8 @@ import pandas as pd
 from scipy.stats import qmc
 
 from .arrow_problem import ArrowProblem
-from .forward import HarmonicModel, check_fit_resolution, check_stability
+from ..solvers.resolution import RESOLUTION_TOLERANCE, Resolution, check_resolution
+from .forward import HarmonicModel, SolverModel, check_stability
 from .identification import Identification, conclude
 from .lm import LMOptions, LMResult, levenberg_marquardt
 from .protocol import ProtocolResult
@@ -120,3 +123,36 @@ def compare_polish(library_fit: Identification, polished: Identification) -> pd.
     out["difference_in_stderr"] = out["difference"] / b["stderr"]
     out["stderr"] = b["stderr"]
     return out
+
+
+class ResolutionWarning(UserWarning):
+    """A fit's optimum whose harmonic balance is not resolved at some run (``check_fit_resolution``)."""
+
+
+def check_fit_resolution(fit, tolerance: float = RESOLUTION_TOLERANCE) -> Resolution | None:
+    """Whether the steady states a full-solver fit reports are resolved (``resolution.check_resolution``: solved
+    again with twice the harmonics and four times the time samples), for a variant with a non-smooth effect (one
+    that declares ``needs_harmonics``, a rub); None otherwise (a smooth model's balance at the data's harmonics is
+    exact to round-off), or for a fit without ``SolverModel``s. A run not resolved is never left silent: the
+    sentence joins the fit's notes, and a ``ResolutionWarning`` is issued and logged."""
+    models = [] if fit.problem is None else fit.problem.models
+    if not models or not all(isinstance(m, SolverModel) for m in models) or not any(
+            getattr(e, "needs_harmonics", None) for e in models[0].variant.model.effects):
+        return None
+    theta = np.asarray(fit.theta, float)[None]
+    xs = [fit.layout.run_parameters(theta, k)[0] for k in range(fit.layout.n_runs)]
+    batch = SolverModel.steady_states(models, xs)
+    if batch is None:
+        return None
+    ok = np.flatnonzero(batch.result.success)
+    result = check_resolution(batch.build({k: v[ok] for k, v in batch.values.items()}, batch.rpm[ok]),
+                              batch.result.take(ok), tolerance)
+    runs = [fit.layout.runs[i] for i in ok]  # one row per run (a fit's point is one set)
+    bad = [f"{runs[i]}: {result.message[i]}" for i in np.flatnonzero(~np.asarray(result.resolved, bool))]
+    if bad:
+        note = "harmonic balance not resolved at the fitted parameters: " + "; ".join(bad)
+        if note not in fit.uncertainty.notes:
+            fit.uncertainty.notes.append(note)
+        logging.getLogger(__name__).warning("%s", note)
+        warnings.warn(note, ResolutionWarning, stacklevel=2)
+    return result
