@@ -342,6 +342,13 @@ HARMONICS = Table("data/harmonics.tsv", None, METRES,
 HARMONICS_LONG = Table("harmonics_long.tsv", ("run", "harmonic", "channel", "re_m", "im_m", "sigma_m"), METRES,
                        "long form: a (run, harmonic, channel) a row, the harmonic's real and imaginary parts [m] and "
                        "the standard uncertainty of each", text=("run", "channel"))
+#: the whirl table (``model.whirl.whirl_table``; results/data/whirl.tsv): a speed [RPM] the check asked at, a plane's probes,
+#: whether some model whirls backward there, and the model's description (``model.whirl.WhirlModel.describe``); the speed to
+#: its shortest exact repr, so the preprocessing finds the very float the check asked at
+WHIRL = Table("data/whirl.tsv", ("rpm", "x_probe", "y_probe", "backward_possible", "model"), None,
+              "a speed the data check asked the whirl model at and a probe plane a row: whether some model of the "
+              "machine whirls backward there", text=("x_probe", "y_probe", "model"), flags=("backward_possible",),
+              floats=("rpm",))
 
 def harmonic_stem(channel: str, h: int) -> str:
     """Channel ``channel``'s harmonic ``h`` in column names: x1 for channel x, x1_1 for channel x1."""

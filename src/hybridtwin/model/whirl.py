@@ -35,7 +35,7 @@ import numpy as np
 import pandas as pd
 from threadpoolctl import threadpool_limits
 
-from ..tables import Table
+from ..tables import WHIRL
 
 from .probes import probe_readings
 from .variants import Variant
@@ -152,13 +152,6 @@ def variant_whirl(variant: Variant, rpm: float, samples: int = 64, speeds: int =
 
 # --- computed once: check_data's answers, read by preprocess ------------------------------------------------------
 
-#: the whirl table (``whirl_table``; results/data/whirl.tsv): a speed [RPM] the check asked at, a plane's probes,
-#: whether some model whirls backward there, and the model's description (``WhirlModel.describe``); the speed to
-#: its shortest exact repr, so the preprocessing finds the very float the check asked at
-WHIRL = Table("data/whirl.tsv", ("rpm", "x_probe", "y_probe", "backward_possible", "model"), None,
-              "a speed the data check asked the whirl model at and a probe plane a row: whether some model of the "
-              "machine whirls backward there", text=("x_probe", "y_probe", "model"), flags=("backward_possible",),
-              floats=("rpm",))
 WHIRL_COLUMNS = list(WHIRL.columns)
 
 
