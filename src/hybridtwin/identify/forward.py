@@ -246,7 +246,7 @@ class SolverModel:
         # is non-smooth and declares them (a rub: ``resolution.needed_harmonics``), its 1X..HX then resolved;
         # ``resolve`` False: the data's only (the score tests, where every candidate is absent)
         self.H = int(harmonics)
-        self.harmonics = needed_harmonics(variant.model.effects, self.H) if resolve else self.H
+        self.harmonics = needed_harmonics(variant.model.effects, self.H) if resolve and variant is not None else self.H
         self.step = float(step)
         self.warm, self.analytic, self.cache_size = bool(warm), bool(analytic), int(cache_size)
         self.n_solves = self.n_warm = self.n_run_ups = 0
