@@ -16,10 +16,8 @@ import argparse
 import time
 from pathlib import Path
 
-import yaml
-
 from hybridtwin.online.library_route import anchors
-from hybridtwin.online.twin import load_twin
+from hybridtwin.online.twin import load_twin, read_card, write_card
 
 
 def main() -> None:
@@ -43,10 +41,10 @@ def main() -> None:
     print(f"\nanchors: shift alone {t0:.1f} s, first order {t1:.1f} s (wall, every run)")
     if args.write_card:
         path = args.twin / "twin.yaml"
-        card = yaml.safe_load(path.read_text())
+        card = read_card(path)
         for entry in card["library"]["runs"]:
             entry["anchor"] = first.get(entry["run"])
-        path.write_text(yaml.safe_dump(card, sort_keys=False))
+        write_card(card, path)
         print(f"wrote the first-order anchors into {path}")
 
 
